@@ -1,0 +1,240 @@
+"""Albedo inversion on the OpenCL device: Rd -> alpha', rho and (with a mean free path)
+sigma_a, sigma_s' (kernels/invert.cl).
+
+Methods (``method=``), each a specialization of the one kernel by build options:
+
+=============  ===========================================================  ==================
+name           what                                                         knobs
+=============  ===========================================================  ==================
+``table``      cubic Hermite table of the inverse in split variables        ``table_size``,
+               (default; see tables.py), optional Newton polish             ``polish``
+``secant``     Illinois regula falsi in the split variables, bracketed      ``tol``,
+                                                                            ``iterations``
+``bisection``  bisection in the split variables (robust fallback)           ``iterations``
+``memo``       Hery TM 12-11's float bisection in alpha', verbatim          ``iterations``
+               (baseline; loses rho near alpha' = 1, see SPEC.md)
+=============  ===========================================================  ==================
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import pyopencl as cl
+
+from . import reference as ref
+from . import tables
+from .device import build_options, get_program, get_runtime, real_dtype
+
+#: largest float32 below 1: where ``on_invalid="clamp"`` puts Rd >= 1 for coefficients.
+RD_CLAMP_MAX = float(np.nextafter(np.float32(1.0), np.float32(0.0)))
+#: where ``on_invalid="clamp"`` puts mfp values that are NaN, <= 0 or infinite.
+MFP_CLAMP_RANGE = (1e-20, 1e20)
+#: elements per kernel launch (bounds device memory for huge arrays).
+CHUNK = 1 << 22
+
+
+@dataclass(frozen=True)
+class MethodConfig:
+    """One inversion configuration: a method and its cost knobs."""
+
+    method: str = "table"
+    iterations: int | None = None
+    tol: float | None = None
+    table_size: int = 256
+    polish: int = 0
+    defaults: dict = field(default_factory=dict, compare=False, repr=False)
+
+    def defines(self, double: bool) -> dict:
+        m = self.method
+        if m in ("memo", "bisection"):
+            return {f"METHOD_{m.upper()}": None, "ITERATIONS": self.iterations or 50}
+        if m == "secant":
+            tol = self.tol if self.tol is not None else (1e-12 if double else 2e-7)
+            return {"METHOD_SECANT": None, "ITERATIONS": self.iterations or 40,
+                    "TOL": repr(float(tol))}
+        if m == "table":
+            return {"METHOD_TABLE": None, "TABLE_N": self.table_size, "POLISH": self.polish}
+        raise ValueError(f"method={m!r}: expected one of {METHODS}")
+
+    def describe(self) -> str:
+        m = self.method
+        if m in ("memo", "bisection"):
+            return f"{m}(iterations={self.iterations or 50})"
+        if m == "secant":
+            return f"secant(tol={self.tol if self.tol is not None else 'auto'})"
+        return f"table(size={self.table_size}, polish={self.polish})"
+
+
+METHODS = ("table", "secant", "bisection", "memo")
+
+
+class InvalidInputError(ValueError):
+    """Texels that the model cannot take (reported with their count and first index)."""
+
+    def __init__(self, name, count, first_index, first_value, why):
+        self.name, self.count, self.first_index, self.first_value = (name, count, first_index,
+                                                                     first_value)
+        super().__init__(f"{count} invalid {name} value(s) ({why}); first at index "
+                         f"{first_index}: {first_value!r}. Use on_invalid='clamp' to clamp them.")
+
+
+def _check(name, values, bad, why, on_invalid):
+    """Raise InvalidInputError for ``bad`` texels if on_invalid == 'raise'; return their count."""
+    if on_invalid not in ("raise", "clamp"):
+        raise ValueError(f"on_invalid={on_invalid!r}: expected 'raise' or 'clamp'")
+    count = int(np.count_nonzero(bad))
+    if count and on_invalid == "raise":
+        first = np.unravel_index(int(np.flatnonzero(bad.reshape(-1))[0]), bad.shape)
+        first = tuple(int(i) for i in first)
+        raise InvalidInputError(name, count, first, values[first].item(), why)
+    return count
+
+
+def _channel_etas(eta, shape):
+    """(etas per channel, nchan): one eta, or one per channel along the last axis."""
+    etas = np.atleast_1d(np.asarray(eta, dtype=np.float64))
+    if etas.ndim != 1:
+        raise ValueError(f"eta must be a scalar or one value per channel, got shape {etas.shape}")
+    if etas.size == 1 or np.all(etas == etas[0]):
+        return (float(etas[0]),), 1
+    if len(shape) == 0 or shape[-1] != etas.size:
+        raise ValueError(f"eta has {etas.size} values but the input's last axis has "
+                         f"{shape[-1] if shape else 'no'} channels")
+    return tuple(float(e) for e in etas), etas.size
+
+
+def resolve_method(method="table", **knobs) -> MethodConfig:
+    if isinstance(method, MethodConfig):
+        return method
+    if method not in METHODS:
+        raise ValueError(f"method={method!r}: expected one of {METHODS}")
+    return MethodConfig(method, **{k: v for k, v in knobs.items() if v is not None})
+
+
+def _run_inversion(rd, mfp, etas, nchan, config, *, exact, model, double, want):
+    """Launch kernels/invert.cl over flat ``rd`` (and ``mfp``); return the wanted outputs."""
+    rt = get_runtime()
+    dtype = real_dtype(double)
+    for e in etas:
+        ref.check_eta(e, exact, model)
+    opts = build_options(config.defines(double), double=double, model=model)
+    prg = get_program(rt, "invert", opts)
+    knl = cl.Kernel(prg, "invert_albedo")
+    table_n = config.table_size if config.method == "table" else 0
+    params = tables.channel_params(etas, exact=exact, model=model, table_n=table_n, dtype=dtype)
+    mf = cl.mem_flags
+    params_buf = cl.Buffer(rt.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=params)
+    if table_n:
+        tab = tables.channel_tables(etas, table_n, exact=exact, model=model)
+    else:
+        tab = np.zeros((1, 4), np.float32)
+    tab_buf = cl.Buffer(rt.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=tab)
+    rd = np.ascontiguousarray(rd, dtype=dtype).reshape(-1)
+    mfp = None if mfp is None else np.ascontiguousarray(mfp, dtype=dtype).reshape(-1)
+    n = rd.size
+    outs = {k: np.empty(n, dtype) for k in want}
+    chunk = CHUNK - CHUNK % nchan
+    nbytes = min(chunk, max(n, 1)) * dtype.itemsize
+    bufs = {k: cl.Buffer(rt.context, mf.WRITE_ONLY, nbytes) for k in want}
+    rd_buf = cl.Buffer(rt.context, mf.READ_ONLY, nbytes)
+    mfp_buf = None if mfp is None else cl.Buffer(rt.context, mf.READ_ONLY, nbytes)
+    for start in range(0, n, chunk):
+        stop = min(start + chunk, n)
+        cl.enqueue_copy(rt.queue, rd_buf, rd[start:stop])
+        if mfp is not None:
+            cl.enqueue_copy(rt.queue, mfp_buf, mfp[start:stop])
+        knl(rt.queue, (stop - start,), None, rd_buf, mfp_buf,
+            bufs.get("alpha"), bufs.get("rho"), bufs.get("sigma_a"), bufs.get("sigma_s"),
+            params_buf, tab_buf, np.int32(nchan), np.int32(2 * table_n), np.uint64(stop - start))
+        for k, b in bufs.items():
+            cl.enqueue_copy(rt.queue, outs[k][start:stop], b)
+    rt.queue.finish()
+    return outs
+
+
+def invert_albedo(rd, eta, method="table", *, return_rho=False, model="better", exact=False,
+                  double=False, on_invalid="raise", iterations=None, tol=None, table_size=None,
+                  polish=None):
+    """Invert memo eq. 3 on the device: reduced albedo alpha' (and rho = 1 - alpha') of ``rd``.
+
+    Parameters
+    ----------
+    rd : array_like, any shape, float32 or float64
+        Diffuse reflectance ("albedo"), linear. Rd <= 0 gives alpha' = 0, Rd = 1 gives 1.
+    eta : float or sequence of float
+        Relative index of refraction; one per channel (the last axis of ``rd``) allowed.
+    method : {"table", "secant", "bisection", "memo"}
+        See the module docstring; knobs ``iterations``, ``tol``, ``table_size``, ``polish``.
+    return_rho : bool
+        Also return rho = 1 - alpha', computed without cancellation (use it, not 1 - alpha').
+    model : {"better", "dipole"}
+        Better Dipole (memo) or Jensen's classical dipole.
+    exact : bool
+        Exact Fresnel moments by quadrature instead of d'Eon's fits (wider eta range).
+    double : bool
+        Compute in float64 on the device (needs cl_khr_fp64).
+    on_invalid : {"raise", "clamp"}
+        Rd that is NaN, infinite or > 1: raise InvalidInputError (count, first index), or clamp
+        (NaN and -inf -> 0, > 1 -> 1).
+
+    Returns
+    -------
+    alpha or (alpha, rho) : ndarray, shape of ``rd``, float32 (float64 with ``double``)
+    """
+    config = resolve_method(method, iterations=iterations, tol=tol, table_size=table_size,
+                            polish=polish)
+    rd = np.asarray(rd)
+    if rd.dtype.kind != "f":
+        rd = rd.astype(np.float64)
+    etas, nchan = _channel_etas(eta, rd.shape)
+    bad = ~(rd <= 1.0) | np.isinf(rd)
+    if _check("albedo", rd, bad, "NaN, infinite or > 1", on_invalid):
+        rd = np.where(np.isnan(rd) | np.isneginf(rd), 0.0, np.minimum(rd, 1.0))
+    outs = _run_inversion(rd, None, etas, nchan, config, exact=exact, model=model, double=double,
+                          want=("alpha", "rho") if return_rho else ("alpha",))
+    alpha = outs["alpha"].reshape(rd.shape)
+    return (alpha, outs["rho"].reshape(rd.shape)) if return_rho else alpha
+
+
+def albedo_to_coefficients(rd, mfp, eta, method="table", *, model="better", exact=False,
+                           double=False, on_invalid="raise", outputs=("sigma_a", "sigma_s"),
+                           **knobs):
+    """The memo's drop-in mapping: (albedo Rd, mean free path ld, eta) -> (sigma_a, sigma_s').
+
+    ``ld = 1/mu_tr`` (Jensen/Hery skin convention, SPEC.md): ``sigma_t' = 1/(ld * mu_tr/sigma_t')``
+    with ``mu_tr/sigma_t' = sqrt(3 rho/(1 + rho))`` (``sqrt(3 rho)`` for ``model="dipole"``),
+    ``sigma_a = sigma_t' rho``, ``sigma_s' = sigma_t' alpha'``, in 1/(unit of mfp).
+
+    ``rd`` and ``mfp`` are scalars, per-channel tuples or arrays, broadcast against each other;
+    ``eta`` a scalar or one per channel. Rd -> 1 drives sigma_t' -> infinity for a fixed ld, so
+    here Rd >= 1 is invalid (as are NaN/inf albedo and mfp that is NaN, <= 0 or infinite);
+    ``on_invalid="clamp"`` maps Rd >= 1 to the largest float32 below 1 (finite, very large
+    sigma_t'), NaN albedo to 0, and mfp into ``MFP_CLAMP_RANGE`` (NaN -> its top).
+
+    ``outputs`` picks what is returned, in order, from alpha, rho, sigma_a, sigma_s, sigma_t.
+    """
+    config = resolve_method(method, **knobs)
+    rd, mfp = np.broadcast_arrays(np.asarray(rd, dtype=np.float64 if double else None),
+                                  np.asarray(mfp))
+    rd = rd.astype(np.float64) if rd.dtype.kind != "f" else rd
+    mfp = mfp.astype(np.float64) if mfp.dtype.kind != "f" else mfp
+    etas, nchan = _channel_etas(eta, rd.shape)
+    if _check("albedo", rd, ~(rd < 1.0) | np.isneginf(rd), "NaN, infinite or >= 1", on_invalid):
+        rd = np.where(np.isnan(rd) | np.isneginf(rd), 0.0, np.minimum(rd, RD_CLAMP_MAX))
+    if _check("mfp", mfp, ~((mfp > 0.0) & np.isfinite(mfp)), "NaN, <= 0 or infinite",
+              on_invalid):
+        lo, hi = MFP_CLAMP_RANGE
+        mfp = np.clip(np.nan_to_num(mfp, nan=hi, posinf=hi, neginf=lo), lo, hi)
+    wanted = set(outputs)
+    unknown = wanted - {"alpha", "rho", "sigma_a", "sigma_s", "sigma_t"}
+    if unknown:
+        raise ValueError(f"unknown outputs {sorted(unknown)}")
+    kernel_wants = tuple(k for k in ("alpha", "rho", "sigma_a", "sigma_s")
+                         if k in wanted or (k in ("sigma_a", "sigma_s") and "sigma_t" in wanted))
+    outs = _run_inversion(rd, mfp, etas, nchan, config, exact=exact, model=model, double=double,
+                          want=kernel_wants)
+    if "sigma_t" in wanted:
+        outs["sigma_t"] = outs["sigma_a"] + outs["sigma_s"]
+    result = tuple(outs[k].reshape(rd.shape) for k in outputs)
+    return result if len(result) > 1 else result[0]

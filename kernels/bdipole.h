@@ -1,0 +1,288 @@
+// bdipole.h -- Better Dipole physics shared by every bdipole_cl kernel.
+//
+// The one OpenCL source of truth for the model; the float64 NumPy twin of every function here is
+// in bdipole_cl/reference.py (same names without the bd_ prefix), and tests/ compare the two.
+// Sources: d'Eon, "A better dipole" (2012); Hery, Pixar Tech Memo 12-11 (eqs. 1-4);
+// Jensen et al. 2001 for the classical dipole (BD_MODEL_DIPOLE).
+//
+// The host joins this text in front of each kernel (no #include: PoCL compiles from a temporary
+// file, so relative include paths break). Build options specialize it:
+//   -DBD_DOUBLE         compute and store in double (needs cl_khr_fp64), else float
+//   -DBD_MODEL_DIPOLE   Jensen's dipole, Rd = a/2 (1 + e^{-4/3 A s}) e^{-s}, s = sqrt(3 rho)
+// Per-channel boundary constants (Cphi, Ce, A and the inversion's split point) come from a small
+// __constant array built on the host from eta (bdipole_cl/device.py: channel_params), so one
+// compiled program serves every eta and every channel.
+
+// {{{ precision
+
+#ifdef BD_DOUBLE
+#pragma OPENCL EXTENSION cl_khr_fp64 : enable
+typedef double real;
+#define BD_LIT(x) x
+#else
+typedef float real;
+#define BD_LIT(x) x##f
+#endif
+
+#define BD_SQRT3 BD_LIT(1.7320508075688772)
+#define BD_INV_4PI BD_LIT(0.07957747154594767)
+
+// }}}
+
+// {{{ per-channel constants
+
+// Layout of one channel's record in the params array (BD_PARAM_STRIDE reals per channel).
+#define BD_P_CPHI 0      // Cphi = (1 - 2 C1)/4
+#define BD_P_CE 1        // Ce   = (1 - 3 C2)/2
+#define BD_P_A 2         // A    = (1 + 3 C2)/(1 - 2 C1)   (Jensen: (1 + Fdr)/(1 - Fdr))
+#define BD_P_RD_SPLIT 3  // Rd(alpha' = 1/2): below it the inversion solves for alpha', above for q
+#define BD_P_LO_SCALE 4  // table: intervals per unit of sqrt(Rd) on the lower half
+#define BD_P_HI_SCALE 5  // table: intervals per unit of -log Rd on the upper half
+#define BD_PARAM_STRIDE 8
+
+typedef struct {
+    real cphi, ce, a_coef, rd_split, lo_scale, hi_scale;
+} bd_params;
+
+inline bd_params bd_load_params(__constant const real *params, int channel)
+{
+    __constant const real *p = params + channel * BD_PARAM_STRIDE;
+    bd_params out = {p[BD_P_CPHI], p[BD_P_CE], p[BD_P_A], p[BD_P_RD_SPLIT],
+                     p[BD_P_LO_SCALE], p[BD_P_HI_SCALE]};
+    return out;
+}
+
+// }}}
+
+// {{{ cancellation-free helpers
+
+// phi1(x) = (1 - e^{-x})/x, 1 at x = 0.
+inline real bd_phi1(real x)
+{
+    return x == BD_LIT(0.0) ? BD_LIT(1.0) : -expm1(-x) / x;
+}
+
+// phi2(x) = (e^{-x} - 1 + x)/x^2 = sum_k (-x)^k/(k+2)!; the series below 0.5 avoids the
+// cancellation (its truncation error at x = 0.5 is 0.5^12/14! < 3e-15 relative).
+inline real bd_phi2(real x)
+{
+    if (x < BD_LIT(0.5)) {
+        real s = BD_LIT(1.0) / BD_LIT(87178291200.0);  // 1/14!
+        s = BD_LIT(1.0) / BD_LIT(6227020800.0) - x * s;
+        s = BD_LIT(1.0) / BD_LIT(479001600.0) - x * s;
+        s = BD_LIT(1.0) / BD_LIT(39916800.0) - x * s;
+        s = BD_LIT(1.0) / BD_LIT(3628800.0) - x * s;
+        s = BD_LIT(1.0) / BD_LIT(362880.0) - x * s;
+        s = BD_LIT(1.0) / BD_LIT(40320.0) - x * s;
+        s = BD_LIT(1.0) / BD_LIT(5040.0) - x * s;
+        s = BD_LIT(1.0) / BD_LIT(720.0) - x * s;
+        s = BD_LIT(1.0) / BD_LIT(120.0) - x * s;
+        s = BD_LIT(1.0) / BD_LIT(24.0) - x * s;
+        s = BD_LIT(1.0) / BD_LIT(6.0) - x * s;
+        return BD_LIT(0.5) - x * s;
+    }
+    return (expm1(-x) + x) / (x * x);
+}
+
+// psi(x) = (1 - e^{-x}(1 + x))/x^2 = -phi1'(x) = sum_k (-x)^k (k+1)/(k+2)!. Only used in
+// derivatives (Newton steps, never in a returned value), so a short series suffices.
+inline real bd_psi(real x)
+{
+    if (x < BD_LIT(0.125)) {
+        return BD_LIT(0.5) - x * (BD_LIT(1.0) / BD_LIT(3.0)
+                                  - x * (BD_LIT(0.125) - x * (BD_LIT(1.0) / BD_LIT(30.0))));
+    }
+    return (-expm1(-x) - x * exp(-x)) / (x * x);
+}
+
+// }}}
+
+// {{{ Rd(alpha'): memo eq. 3 in the split variables
+//
+// Rd = a^n exp(K(q)), q = sqrt(1 - a), n = 2 (Better Dipole) or 1 (dipole), and
+// K(q) = -s(q) + log(1 - b(q)) with b a sum of positive terms (reference.py: _k_terms):
+//   better: s = sqrt(3) q/sqrt(1 + q^2), x = 4 A q sqrt((1 + q^2)/3),
+//           b = Ce (1 - e^{-x})/2 + 2 A Cphi x phi2(x)     (uses Ce + 2 A Cphi = 1)
+//   dipole: s = sqrt(3) q, x = 4/3 A s, b = (1 - e^{-x})/2
+// Every term of log Rd then has one sign, so -log Rd (and 1 - Rd = -expm1(log Rd)) keeps
+// relative accuracy as q -> 0 (Rd -> 1), and Rd keeps it as a -> 0.
+
+#ifdef BD_MODEL_DIPOLE
+#define BD_POWER 1
+#else
+#define BD_POWER 2
+#endif
+
+// K(q) and, through *dk, dK/dq.
+inline real bd_k_terms(real q, bd_params p, real *dk)
+{
+    real q2 = q * q;
+#ifdef BD_MODEL_DIPOLE
+    real s = BD_SQRT3 * q;
+    real ds = BD_SQRT3;
+    real x = BD_LIT(4.0) / BD_LIT(3.0) * p.a_coef * s;
+    real dx = BD_LIT(4.0) / BD_LIT(3.0) * p.a_coef * BD_SQRT3;
+    real b = BD_LIT(-0.5) * expm1(-x);
+    real db = BD_LIT(0.5) * exp(-x);
+    real one_minus_b = BD_LIT(0.5) * (BD_LIT(1.0) + exp(-x));
+#else
+    real root = sqrt(BD_LIT(1.0) + q2);
+    real s = BD_SQRT3 * q / root;
+    real ds = BD_SQRT3 / (root * root * root);
+    real x = BD_LIT(4.0) * p.a_coef * q * root / BD_SQRT3;
+    real dx = BD_LIT(4.0) * p.a_coef / BD_SQRT3 * (BD_LIT(1.0) + BD_LIT(2.0) * q2) / root;
+    real two_a_cphi = BD_LIT(2.0) * p.a_coef * p.cphi;
+    real b = BD_LIT(-0.5) * p.ce * expm1(-x) + two_a_cphi * x * bd_phi2(x);
+    real db = BD_LIT(0.5) * p.ce * exp(-x) + two_a_cphi * bd_psi(x);
+    // 1 - b = B/2 summed from its own positive terms: exact where b -> 1 (large A, q -> 1)
+    real one_minus_b = BD_LIT(0.5) * p.ce * (BD_LIT(1.0) + exp(-x)) + two_a_cphi * bd_phi1(x);
+#endif
+    *dk = -ds - db * dx / one_minus_b;
+    return -s + (b < BD_LIT(0.5) ? log1p(-b) : log(one_minus_b));
+}
+
+// Rd(alpha') with a = alpha' given exactly (memo eq. 3).
+inline real bd_rd(real a, bd_params p)
+{
+    real dk;
+    real k = bd_k_terms(sqrt(BD_LIT(1.0) - a), p, &dk);
+    // a^n exp(K), not exp(n log a + K): exp would amplify log a's rounding as a -> 0
+    return (BD_POWER == 2 ? a * a : a) * exp(k);
+}
+
+// Lower half (a <= 1/2): F(a) = Rd^(1/n) = a exp(K/n), increasing, nearly linear; *df = dF/da.
+inline real bd_lower_residual(real a, bd_params p, real *df)
+{
+    real q = sqrt(BD_LIT(1.0) - a);
+    real dk;
+    real ek = exp(bd_k_terms(q, p, &dk) / (real)BD_POWER);
+    *df = ek * (BD_LIT(1.0) - a * dk / (BD_LIT(2.0) * (real)BD_POWER * q));
+    return a * ek;
+}
+
+// log Rd as a function of q = sqrt(1 - a) (a = 1 - q^2 is exact enough for q <= sqrt(1/2));
+// *dlog = d(log Rd)/dq.
+inline real bd_log_rd_q(real q, bd_params p, real *dlog)
+{
+    real q2 = q * q;
+    real dk;
+    real k = bd_k_terms(q, p, &dk);
+    *dlog = (real)BD_POWER * BD_LIT(-2.0) * q / (BD_LIT(1.0) - q2) + dk;
+    return (real)BD_POWER * log1p(-q2) + k;
+}
+
+// Upper half (q <= sqrt(1/2)): G(q) = -log Rd(1 - q^2), increasing, ~ c q as q -> 0, and
+// unlike 1 - Rd it keeps a small Rd's relative precision just above the split; *dg = dG/dq.
+inline real bd_upper_residual(real q, bd_params p, real *dg)
+{
+    real g = -bd_log_rd_q(q, p, dg);
+    *dg = -*dg;
+    return g;
+}
+
+// The memo's computeRd exactly as printed (Hery TM 12-11, p. 2): the baseline "memo" method.
+inline real bd_rd_memo(real alpha_prime, bd_params p)
+{
+    real four_a = p.a_coef * BD_LIT(4.0);
+    real mu_tr_d = sqrt((BD_LIT(1.0) - alpha_prime) * (BD_LIT(2.0) - alpha_prime) / BD_LIT(3.0));
+    real myexp = exp(-four_a * mu_tr_d);
+    return BD_LIT(0.5) * alpha_prime * alpha_prime
+           * exp(-sqrt(BD_LIT(3.0) * (BD_LIT(1.0) - alpha_prime) / (BD_LIT(2.0) - alpha_prime)))
+           * (p.ce * (BD_LIT(1.0) + myexp) + p.cphi / mu_tr_d * (BD_LIT(1.0) - myexp));
+}
+
+// mu_tr / sigma_t' from rho = 1 - alpha' (better: D = (1 + rho)/(3 sigma_t')).
+inline real bd_mu_over_sigma_t(real rho)
+{
+#ifdef BD_MODEL_DIPOLE
+    return sqrt(BD_LIT(3.0) * rho);
+#else
+    return sqrt(BD_LIT(3.0) * rho / (BD_LIT(1.0) + rho));
+#endif
+}
+
+// }}}
+
+// {{{ radial profile R(r) and its energy (Better Dipole only; memo eq. 1)
+
+typedef struct {
+    real a2;      // alpha'^2
+    real d_coef;  // D = (1 + rho)/(3 sigma_t')
+    real mu;      // mu_tr
+    real z_r;     // 1/sigma_t'
+    real z_v;     // -z_r - 4 A D  (< 0)
+    real ce, cphi_over_d;
+} bd_geometry;
+
+inline bd_geometry bd_make_geometry(real a, real rho, real sigma_t, bd_params p)
+{
+    bd_geometry g;
+    g.a2 = a * a;
+    g.d_coef = (BD_LIT(1.0) + rho) / (BD_LIT(3.0) * sigma_t);
+    g.mu = sigma_t * bd_mu_over_sigma_t(rho);
+    g.z_r = BD_LIT(1.0) / sigma_t;
+    g.z_v = -g.z_r - BD_LIT(4.0) * p.a_coef * g.d_coef;
+    g.ce = p.ce;
+    g.cphi_over_d = p.cphi / g.d_coef;
+    return g;
+}
+
+// R(r) [1/length^2], with the Cphi/D terms of the two sources differenced without cancellation.
+inline real bd_profile(real r, bd_geometry g)
+{
+    real d_r = hypot(r, g.z_r);
+    real d_v = hypot(r, g.z_v);
+    real e_r = exp(-g.mu * d_r);
+    real e_v = exp(-g.mu * d_v);
+    real ce_part = g.z_r * (g.mu * d_r + BD_LIT(1.0)) * e_r / (d_r * d_r * d_r)
+                   - g.z_v * (g.mu * d_v + BD_LIT(1.0)) * e_v / (d_v * d_v * d_v);
+    real gap = (g.z_v * g.z_v - g.z_r * g.z_r) / (d_v + d_r);
+    real phi_part = e_r / d_r * (gap / d_v - (d_r / d_v) * expm1(-g.mu * gap));
+    return g.a2 * BD_INV_4PI * (g.ce * ce_part + g.cphi_over_d * phi_part);
+}
+
+// One source's energy inside radius r, divided by alpha'^2/2 (reference.py: _energy_terms).
+inline real bd_energy_terms(real r, real z, bd_geometry g)
+{
+    real az = fabs(z);
+    real d = hypot(r, z);
+    real dz = r * (r / (d + az));  // d - |z|, without overflow of r^2
+    real e0 = exp(-g.mu * az);
+    real t = g.mu * dz;
+    real ce_term = copysign(e0 * (dz / d - (az / d) * expm1(-t)), z);
+    real phi_term = e0 * dz * bd_phi1(t);
+    return g.ce * ce_term + g.cphi_over_d * phi_term;
+}
+
+// Energy beyond radius r, without the cancellation of Rd - cdf (reference.py: profile_tail).
+inline real bd_profile_tail(real r, bd_geometry g)
+{
+    if (isinf(r)) return BD_LIT(0.0);
+    real d_r = hypot(r, g.z_r);
+    real d_v = hypot(r, g.z_v);
+    real e_r = exp(-g.mu * d_r);
+    real e_v = exp(-g.mu * d_v);
+    real gap = (g.z_v * g.z_v - g.z_r * g.z_r) / (d_v + d_r);
+    real ce_term = g.z_r * e_r / d_r - g.z_v * e_v / d_v;
+    real phi_term = e_r * gap * bd_phi1(g.mu * gap);
+    return BD_LIT(0.5) * g.a2 * (g.ce * ce_term + g.cphi_over_d * phi_term);
+}
+
+// Total energy (= Rd, memo eq. 3), from the geometry: the tail at r = 0.
+inline real bd_profile_total(bd_geometry g)
+{
+    return bd_profile_tail(BD_LIT(0.0), g);
+}
+
+// Energy within radius r: 2 pi Int_0^r R(s) s ds (closed form, SPEC.md); -> Rd as r -> inf.
+// Summed directly while the tail holds at least half the energy; past that as total - tail,
+// because the two sources' Cphi terms cancel at large r when mu_tr is small (alpha' -> 1).
+inline real bd_profile_cdf(real r, bd_geometry g)
+{
+    real total = bd_profile_total(g);
+    real tail = bd_profile_tail(r, g);
+    if (tail < BD_LIT(0.5) * total) return total - tail;  // tail and total never cancel
+    return BD_LIT(0.5) * g.a2 * (bd_energy_terms(r, g.z_r, g) - bd_energy_terms(r, g.z_v, g));
+}
+
+// }}}

@@ -8,8 +8,9 @@ name           what                                                         knob
 =============  ===========================================================  ==================
 ``table``      cubic Hermite table of the inverse in split variables        ``table_size``,
                (default; see tables.py), optional Newton polish             ``polish``
-``secant``     Illinois regula falsi in the split variables, bracketed      ``tol``,
-                                                                            ``iterations``
+``secant``     safeguarded secant in the split variables, seeded from a     ``tol``,
+               coarse table (value and slope), bracketed                    ``iterations``,
+                                                                            ``seed_size``
 ``bisection``  bisection in the split variables (robust fallback)           ``iterations``
 ``memo``       Hery TM 12-11's float bisection in alpha', verbatim          ``iterations``
                (baseline; loses rho near alpha' = 1, see SPEC.md)
@@ -34,6 +35,9 @@ MFP_CLAMP_RANGE = (1e-20, 1e20)
 CHUNK = 1 << 22
 
 
+METHODS = ("table", "secant", "bisection", "memo")
+
+
 @dataclass(frozen=True)
 class MethodConfig:
     """One inversion configuration: a method and its cost knobs."""
@@ -43,7 +47,20 @@ class MethodConfig:
     tol: float | None = None
     table_size: int = 256
     polish: int = 0
+    seed_size: int = 16
     defaults: dict = field(default_factory=dict, compare=False, repr=False)
+
+    def __post_init__(self):
+        if self.method not in METHODS:
+            raise ValueError(f"method={self.method!r}: expected one of {METHODS}")
+        for knob in ("iterations", "table_size", "seed_size"):
+            value = getattr(self, knob)
+            if value is not None and (int(value) != value or value < 1):
+                raise ValueError(f"{knob}={value!r}: expected a positive integer")
+        if self.polish < 0:
+            raise ValueError(f"polish={self.polish!r}: expected >= 0")
+        if self.tol is not None and not self.tol > 0:
+            raise ValueError(f"tol={self.tol!r}: expected > 0")
 
     def defines(self, double: bool) -> dict:
         m = self.method
@@ -52,7 +69,7 @@ class MethodConfig:
         if m == "secant":
             tol = self.tol if self.tol is not None else (1e-12 if double else 2e-7)
             return {"METHOD_SECANT": None, "ITERATIONS": self.iterations or 40,
-                    "TOL": repr(float(tol))}
+                    "TOL": repr(float(tol)), "TABLE_N": self.seed_size}
         if m == "table":
             return {"METHOD_TABLE": None, "TABLE_N": self.table_size, "POLISH": self.polish}
         raise ValueError(f"method={m!r}: expected one of {METHODS}")
@@ -62,11 +79,9 @@ class MethodConfig:
         if m in ("memo", "bisection"):
             return f"{m}(iterations={self.iterations or 50})"
         if m == "secant":
-            return f"secant(tol={self.tol if self.tol is not None else 'auto'})"
+            return (f"secant(tol={self.tol if self.tol is not None else 'auto'}, "
+                    f"seed={self.seed_size})")
         return f"table(size={self.table_size}, polish={self.polish})"
-
-
-METHODS = ("table", "secant", "bisection", "memo")
 
 
 class InvalidInputError(ValueError):
@@ -105,57 +120,76 @@ def _channel_etas(eta, shape):
 
 
 def resolve_method(method="table", **knobs) -> MethodConfig:
+    """A MethodConfig from a method name and knobs (None knobs keep the defaults)."""
     if isinstance(method, MethodConfig):
         return method
-    if method not in METHODS:
-        raise ValueError(f"method={method!r}: expected one of {METHODS}")
     return MethodConfig(method, **{k: v for k, v in knobs.items() if v is not None})
 
 
+class InversionKernel:
+    """kernels/invert.cl built for one configuration, precision, model and tuple of etas, with
+    its constant buffers on the device; call it on device buffers (benchmarks do)."""
+
+    def __init__(self, etas, config: MethodConfig, *, exact=False, model="better",
+                 double=False, runtime=None):
+        self.rt = runtime or get_runtime()
+        self.dtype = real_dtype(double)
+        self.nchan = len(etas)
+        for e in etas:
+            ref.check_eta(e, exact, model)
+        opts = build_options(config.defines(double), double=double, model=model)
+        self.kernel = cl.Kernel(get_program(self.rt, "invert", opts), "invert_albedo")
+        self.table_n = {"table": config.table_size,
+                        "secant": config.seed_size}.get(config.method, 0)
+        params = tables.channel_params(etas, exact=exact, model=model, table_n=self.table_n,
+                                       dtype=self.dtype)
+        tab = (tables.channel_tables(etas, self.table_n, exact=exact, model=model)
+               if self.table_n else np.zeros((1, 4), np.float32))
+        mf = cl.mem_flags
+        self.params = cl.Buffer(self.rt.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=params)
+        self.tables = cl.Buffer(self.rt.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=tab)
+
+    def __call__(self, n, rd, mfp=None, *, alpha=None, rho=None, sigma_a=None, sigma_s=None,
+                 wait_for=None):
+        """Enqueue over ``n`` elements (a multiple of nchan); returns the kernel's event."""
+        return self.kernel(self.rt.queue, (n,), None, rd, mfp, alpha, rho, sigma_a, sigma_s,
+                           self.params, self.tables, np.int32(self.nchan),
+                           np.int32(tables.SEGMENTS * self.table_n), np.uint32(n),
+                           wait_for=wait_for)
+
+    def run(self, rd, mfp=None, want=("alpha",)):
+        """Host arrays in, host arrays out, in chunks of at most CHUNK elements."""
+        rt, dtype = self.rt, self.dtype
+        rd = np.ascontiguousarray(rd, dtype=dtype).reshape(-1)
+        mfp = None if mfp is None else np.ascontiguousarray(mfp, dtype=dtype).reshape(-1)
+        n = rd.size
+        outs = {k: np.empty(n, dtype) for k in want}
+        chunk = CHUNK - CHUNK % self.nchan
+        nbytes = min(chunk, max(n, 1)) * dtype.itemsize
+        mf = cl.mem_flags
+        bufs = {k: cl.Buffer(rt.context, mf.WRITE_ONLY, nbytes) for k in want}
+        rd_buf = cl.Buffer(rt.context, mf.READ_ONLY, nbytes)
+        mfp_buf = None if mfp is None else cl.Buffer(rt.context, mf.READ_ONLY, nbytes)
+        for start in range(0, n, chunk):
+            stop = min(start + chunk, n)
+            cl.enqueue_copy(rt.queue, rd_buf, rd[start:stop])
+            if mfp is not None:
+                cl.enqueue_copy(rt.queue, mfp_buf, mfp[start:stop])
+            self(stop - start, rd_buf, mfp_buf, **bufs)
+            for k, b in bufs.items():
+                cl.enqueue_copy(rt.queue, outs[k][start:stop], b)
+        rt.queue.finish()
+        return outs
+
+
 def _run_inversion(rd, mfp, etas, nchan, config, *, exact, model, double, want):
-    """Launch kernels/invert.cl over flat ``rd`` (and ``mfp``); return the wanted outputs."""
-    rt = get_runtime()
-    dtype = real_dtype(double)
-    for e in etas:
-        ref.check_eta(e, exact, model)
-    opts = build_options(config.defines(double), double=double, model=model)
-    prg = get_program(rt, "invert", opts)
-    knl = cl.Kernel(prg, "invert_albedo")
-    table_n = config.table_size if config.method == "table" else 0
-    params = tables.channel_params(etas, exact=exact, model=model, table_n=table_n, dtype=dtype)
-    mf = cl.mem_flags
-    params_buf = cl.Buffer(rt.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=params)
-    if table_n:
-        tab = tables.channel_tables(etas, table_n, exact=exact, model=model)
-    else:
-        tab = np.zeros((1, 4), np.float32)
-    tab_buf = cl.Buffer(rt.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=tab)
-    rd = np.ascontiguousarray(rd, dtype=dtype).reshape(-1)
-    mfp = None if mfp is None else np.ascontiguousarray(mfp, dtype=dtype).reshape(-1)
-    n = rd.size
-    outs = {k: np.empty(n, dtype) for k in want}
-    chunk = CHUNK - CHUNK % nchan
-    nbytes = min(chunk, max(n, 1)) * dtype.itemsize
-    bufs = {k: cl.Buffer(rt.context, mf.WRITE_ONLY, nbytes) for k in want}
-    rd_buf = cl.Buffer(rt.context, mf.READ_ONLY, nbytes)
-    mfp_buf = None if mfp is None else cl.Buffer(rt.context, mf.READ_ONLY, nbytes)
-    for start in range(0, n, chunk):
-        stop = min(start + chunk, n)
-        cl.enqueue_copy(rt.queue, rd_buf, rd[start:stop])
-        if mfp is not None:
-            cl.enqueue_copy(rt.queue, mfp_buf, mfp[start:stop])
-        knl(rt.queue, (stop - start,), None, rd_buf, mfp_buf,
-            bufs.get("alpha"), bufs.get("rho"), bufs.get("sigma_a"), bufs.get("sigma_s"),
-            params_buf, tab_buf, np.int32(nchan), np.int32(2 * table_n), np.uint64(stop - start))
-        for k, b in bufs.items():
-            cl.enqueue_copy(rt.queue, outs[k][start:stop], b)
-    rt.queue.finish()
-    return outs
+    kernel = InversionKernel(etas, config, exact=exact, model=model, double=double)
+    return kernel.run(rd, mfp, want)
 
 
 def invert_albedo(rd, eta, method="table", *, return_rho=False, model="better", exact=False,
                   double=False, on_invalid="raise", iterations=None, tol=None, table_size=None,
-                  polish=None):
+                  polish=None, seed_size=None):
     """Invert memo eq. 3 on the device: reduced albedo alpha' (and rho = 1 - alpha') of ``rd``.
 
     Parameters
@@ -164,8 +198,9 @@ def invert_albedo(rd, eta, method="table", *, return_rho=False, model="better", 
         Diffuse reflectance ("albedo"), linear. Rd <= 0 gives alpha' = 0, Rd = 1 gives 1.
     eta : float or sequence of float
         Relative index of refraction; one per channel (the last axis of ``rd``) allowed.
-    method : {"table", "secant", "bisection", "memo"}
-        See the module docstring; knobs ``iterations``, ``tol``, ``table_size``, ``polish``.
+    method : {"table", "secant", "bisection", "memo"} or MethodConfig
+        See the module docstring; knobs ``iterations``, ``tol``, ``table_size``, ``polish``,
+        ``seed_size`` (None keeps each method's default).
     return_rho : bool
         Also return rho = 1 - alpha', computed without cancellation (use it, not 1 - alpha').
     model : {"better", "dipole"}
@@ -183,7 +218,7 @@ def invert_albedo(rd, eta, method="table", *, return_rho=False, model="better", 
     alpha or (alpha, rho) : ndarray, shape of ``rd``, float32 (float64 with ``double``)
     """
     config = resolve_method(method, iterations=iterations, tol=tol, table_size=table_size,
-                            polish=polish)
+                            polish=polish, seed_size=seed_size)
     rd = np.asarray(rd)
     if rd.dtype.kind != "f":
         rd = rd.astype(np.float64)

@@ -35,20 +35,23 @@ typedef float real;
 #define BD_P_CPHI 0      // Cphi = (1 - 2 C1)/4
 #define BD_P_CE 1        // Ce   = (1 - 3 C2)/2
 #define BD_P_A 2         // A    = (1 + 3 C2)/(1 - 2 C1)   (Jensen: (1 + Fdr)/(1 - Fdr))
-#define BD_P_RD_SPLIT 3  // Rd(alpha' = 1/2): below it the inversion solves for alpha', above for q
-#define BD_P_LO_SCALE 4  // table: intervals per unit of sqrt(Rd) on the lower half
-#define BD_P_HI_SCALE 5  // table: intervals per unit of -log Rd on the upper half
-#define BD_PARAM_STRIDE 8
+#define BD_P_RD_SPLIT 3  // Rd(alpha' = 1/2): below it the solvers work in alpha', above in q
+#define BD_P_X_SPLIT 4   // Rd_split^(1/n): the lower residual at the split
+#define BD_P_G_SPLIT 5   // -log Rd_split: the upper residual at the split
+#define BD_P_SCALE0 6    // table segment 0: intervals per unit of Rd^(1/n) on [0, x_split]
+#define BD_P_SCALE1 7    // table segment 1: intervals per unit of Rd^(1/n) on [x_split, 2^(-1/n)]
+#define BD_P_SCALE2 8    // table segment 2: intervals per unit of 1 - Rd on [0, 1/2]
+#define BD_PARAM_STRIDE 12
 
 typedef struct {
-    real cphi, ce, a_coef, rd_split, lo_scale, hi_scale;
+    real cphi, ce, a_coef, rd_split, x_split, g_split, scale0, scale1, scale2;
 } bd_params;
 
 inline bd_params bd_load_params(__constant const real *params, int channel)
 {
     __constant const real *p = params + channel * BD_PARAM_STRIDE;
-    bd_params out = {p[BD_P_CPHI], p[BD_P_CE], p[BD_P_A], p[BD_P_RD_SPLIT],
-                     p[BD_P_LO_SCALE], p[BD_P_HI_SCALE]};
+    bd_params out = {p[BD_P_CPHI], p[BD_P_CE], p[BD_P_A], p[BD_P_RD_SPLIT], p[BD_P_X_SPLIT],
+                     p[BD_P_G_SPLIT], p[BD_P_SCALE0], p[BD_P_SCALE1], p[BD_P_SCALE2]};
     return out;
 }
 
@@ -122,9 +125,10 @@ inline real bd_k_terms(real q, bd_params p, real *dk)
     real ds = BD_SQRT3;
     real x = BD_LIT(4.0) / BD_LIT(3.0) * p.a_coef * s;
     real dx = BD_LIT(4.0) / BD_LIT(3.0) * p.a_coef * BD_SQRT3;
-    real b = BD_LIT(-0.5) * expm1(-x);
-    real db = BD_LIT(0.5) * exp(-x);
-    real one_minus_b = BD_LIT(0.5) * (BD_LIT(1.0) + exp(-x));
+    real e = exp(-x);
+    real b = x < BD_LIT(0.5) ? BD_LIT(-0.5) * expm1(-x) : BD_LIT(0.5) * (BD_LIT(1.0) - e);
+    real db = BD_LIT(0.5) * e;
+    real one_minus_b = BD_LIT(0.5) * (BD_LIT(1.0) + e);
 #else
     real root = sqrt(BD_LIT(1.0) + q2);
     real s = BD_SQRT3 * q / root;
@@ -132,10 +136,15 @@ inline real bd_k_terms(real q, bd_params p, real *dk)
     real x = BD_LIT(4.0) * p.a_coef * q * root / BD_SQRT3;
     real dx = BD_LIT(4.0) * p.a_coef / BD_SQRT3 * (BD_LIT(1.0) + BD_LIT(2.0) * q2) / root;
     real two_a_cphi = BD_LIT(2.0) * p.a_coef * p.cphi;
-    real b = BD_LIT(-0.5) * p.ce * expm1(-x) + two_a_cphi * x * bd_phi2(x);
-    real db = BD_LIT(0.5) * p.ce * exp(-x) + two_a_cphi * bd_psi(x);
+    // one exp: e^{-x} - 1 needs expm1 only below x = 1/2 (above, e - 1 loses < 1 ulp)
+    real e = exp(-x);
+    real em1 = x < BD_LIT(0.5) ? expm1(-x) : e - BD_LIT(1.0);
+    real phi1 = x == BD_LIT(0.0) ? BD_LIT(1.0) : -em1 / x;
+    real phi2 = x < BD_LIT(0.5) ? bd_phi2(x) : (em1 + x) / (x * x);
+    real b = BD_LIT(-0.5) * p.ce * em1 + two_a_cphi * x * phi2;
+    real db = BD_LIT(0.5) * p.ce * e + two_a_cphi * bd_psi(x);
     // 1 - b = B/2 summed from its own positive terms: exact where b -> 1 (large A, q -> 1)
-    real one_minus_b = BD_LIT(0.5) * p.ce * (BD_LIT(1.0) + exp(-x)) + two_a_cphi * bd_phi1(x);
+    real one_minus_b = BD_LIT(0.5) * p.ce * (BD_LIT(1.0) + e) + two_a_cphi * phi1;
 #endif
     *dk = -ds - db * dx / one_minus_b;
     return -s + (b < BD_LIT(0.5) ? log1p(-b) : log(one_minus_b));

@@ -3,28 +3,69 @@
 // Needs bdipole.h in front. One kernel; the method is chosen by build options:
 //   -DMETHOD_MEMO       Hery TM 12-11's float bisection in alpha' verbatim (baseline);
 //                       -DITERATIONS=n (memo: 50)
-//   -DMETHOD_BISECTION  bisection in the split variables (alpha' below Rd(1/2), q above);
-//                       -DITERATIONS=n
-//   -DMETHOD_SECANT     Illinois regula falsi on the same bracket; -DITERATIONS=max, -DTOL=rel
-//   -DMETHOD_TABLE      cubic Hermite table in (sqrt(Rd) -> alpha') and (-log Rd -> q), built on
-//                       the host in float64; -DTABLE_N=intervals per half, -DPOLISH=Newton steps
-// The split variables make each residual increasing and nearly linear on its half
-// (bdipole.h: bd_lower_residual, bd_upper_residual), so every method is well conditioned at
-// both stiff ends and rho never comes from 1 - alpha' near alpha' = 1.
+//   -DMETHOD_BISECTION  bisection in the split variables; -DITERATIONS=n
+//   -DMETHOD_SECANT     safeguarded secant in the split variables, seeded (value and slope)
+//                       from a coarse table; -DITERATIONS=max evaluations, -DTOL=relative,
+//                       -DTABLE_N=seed intervals per segment
+//   -DMETHOD_TABLE      cubic Hermite table of the inverse, -DTABLE_N intervals per segment,
+//                       -DPOLISH=Newton steps on the split residual afterwards
+//
+// Split variables (reference.py): below Rd_split = Rd(alpha' = 1/2) the unknown is alpha' with
+// residual F(a) = Rd^(1/n); above it the unknown is q = sqrt(rho) with residual G(q) = -log Rd.
+// Both are increasing and nearly linear, so rho never comes from 1 - alpha' near alpha' = 1.
+//
+// The table has three segments, each TABLE_N intervals, each analytic in its variable and none
+// needing a log of the input:
+//   segment 0: x = Rd^(1/n) in [0, x_split]          -> alpha'
+//   segment 1: x = Rd^(1/n) in [x_split, 2^(-1/n)]   -> q     (Rd in [Rd_split, 1/2))
+//   segment 2: x = 1 - Rd  in [0, 1/2] (exact)       -> q     (Rd in [1/2, 1))
+// Each interval holds the cubic's coefficients in u in [0, 1): v = c.x + u (c.y + u (c.z + u c.w)).
 
-#define BD_LOWER_HI BD_LIT(0.5)                  // alpha' at the split
-#define BD_UPPER_HI BD_LIT(0.70710678118654752)  // q = sqrt(1/2) at the split
+#define LOWER_HI BD_LIT(0.5)                  // alpha' at the split
+#define UPPER_HI BD_LIT(0.70710678118654752)  // q = sqrt(1/2) at the split
 
-// F(v) of the chosen half (lower: alpha' -> Rd^(1/n); upper: q -> -log Rd) and its derivative.
+// Residual of the chosen half (0: F(alpha'), 1: G(q)) and its derivative.
 inline real half_residual(int upper, real v, bd_params p, real *df)
 {
     return upper ? bd_upper_residual(v, p, df) : bd_lower_residual(v, p, df);
 }
 
-#if defined(METHOD_BISECTION)
-inline real solve_half(int upper, real target, bd_params p, __global const float4 *table)
+#if defined(METHOD_TABLE) || defined(METHOD_SECANT)
+// Table lookup: the segment's value v and dv/dx (x the segment's variable).
+inline real table_value(__global const float4 *table, int seg, real t, real scale, real *dvdx)
 {
-    real lo = BD_LIT(0.0), hi = upper ? BD_UPPER_HI : BD_LOWER_HI, df;
+    int i = clamp((int)t, 0, TABLE_N - 1);
+    real u = t - (real)i;
+    float4 c = table[seg * TABLE_N + i];
+    *dvdx = scale * ((real)c.y + u * (BD_LIT(2.0) * (real)c.z + u * BD_LIT(3.0) * (real)c.w));
+    return (real)c.x + u * ((real)c.y + u * ((real)c.z + u * (real)c.w));
+}
+
+// The table's estimate of the unknown of Rd's half, and (through *slope) dResidual/dUnknown.
+inline real table_guess(real rd, real x, bd_params p, __global const float4 *table, real *slope)
+{
+    real dvdx, v, dgdx;
+    if (rd < p.rd_split) {                      // segment 0: residual F = x itself
+        v = table_value(table, 0, x * p.scale0, p.scale0, &dvdx);
+        dgdx = BD_LIT(1.0);
+    } else if (rd < BD_LIT(0.5)) {              // segment 1: G = -log Rd = -n log x
+        v = table_value(table, 1, (x - p.x_split) * p.scale1, p.scale1, &dvdx);
+        dgdx = -(real)BD_POWER / x;
+    } else {                                    // segment 2: G = -log(1 - x)
+        real y = BD_LIT(1.0) - rd;
+        v = table_value(table, 2, y * p.scale2, p.scale2, &dvdx);
+        dgdx = BD_LIT(1.0) / rd;
+    }
+    *slope = dgdx / dvdx;
+    return v;
+}
+#endif
+
+#if defined(METHOD_BISECTION)
+inline real solve_half(int upper, real target, real rd, real x, bd_params p,
+                       __global const float4 *table)
+{
+    real lo = BD_LIT(0.0), hi = upper ? UPPER_HI : LOWER_HI, df;
     for (int i = 0; i < ITERATIONS; ++i) {
         real mid = BD_LIT(0.5) * (lo + hi);
         if (half_residual(upper, mid, p, &df) < target) lo = mid; else hi = mid;
@@ -32,61 +73,35 @@ inline real solve_half(int upper, real target, bd_params p, __global const float
     return BD_LIT(0.5) * (lo + hi);
 }
 #elif defined(METHOD_SECANT)
-// Illinois regula falsi: the bracket [lo, hi] always holds the root, the end kept twice in a
-// row has its residual halved (superlinear, never stalls), a secant point that is not strictly
-// inside the bracket is replaced by the midpoint. Stops when |F(v) - target| <= TOL * target,
-// which is a relative error of ~TOL in v because F(v) ~ v on both halves.
-inline real solve_half(int upper, real target, bd_params p, __global const float4 *table)
+// Secant steps on the last two iterates, the first step using the seed table's slope. Every
+// evaluation shrinks the bracket [lo, hi] (known residuals at both ends: F(0) = 0 and the
+// split values from the host), and a step that would leave it is replaced by the midpoint, so
+// the method never leaves [0, 1] and never stalls. Stops when |residual| <= TOL * target: a
+// relative error of ~TOL in the unknown, since both residuals are ~ linear through 0.
+inline real solve_half(int upper, real target, real rd, real x, bd_params p,
+                       __global const float4 *table)
 {
-    real df;
-    real lo = BD_LIT(0.0), f_lo = -target;
-    real hi = upper ? BD_UPPER_HI : BD_LOWER_HI;
-    real f_hi = half_residual(upper, hi, p, &df) - target;
-    real v = hi;
-    int side = 0;
+    real lo = BD_LIT(0.0), hi = upper ? UPPER_HI : LOWER_HI, df;
+    real slope;
+    real v = clamp(table_guess(rd, x, p, table, &slope), lo, hi);
+    real v_prev = v, f_prev = BD_LIT(0.0);
     for (int i = 0; i < ITERATIONS; ++i) {
-        v = (lo * f_hi - hi * f_lo) / (f_hi - f_lo);
-        if (!(v > lo && v < hi)) v = BD_LIT(0.5) * (lo + hi);
         real f = half_residual(upper, v, p, &df) - target;
         if (fabs(f) <= (real)TOL * target) break;
-        if (f < BD_LIT(0.0)) {
-            lo = v; f_lo = f;
-            if (side == -1) f_hi *= BD_LIT(0.5);
-            side = -1;
-        } else {
-            hi = v; f_hi = f;
-            if (side == 1) f_lo *= BD_LIT(0.5);
-            side = 1;
-        }
-    }
-    return v;
-}
-#elif defined(METHOD_TABLE)
-// Table layout per channel: TABLE_N lower intervals, then TABLE_N upper intervals, each the
-// cubic's coefficients in the local coordinate u in [0, 1): v = c.x + u (c.y + u (c.z + u c.w)).
-inline real solve_half(int upper, real target, bd_params p, __global const float4 *table)
-{
-    real t = target * (upper ? p.hi_scale : p.lo_scale);
-    int i = min((int)t, TABLE_N - 1);
-    real u = t - (real)i;
-    float4 c = table[upper * TABLE_N + i];
-    real v = (real)c.x + u * ((real)c.y + u * ((real)c.z + u * (real)c.w));
-    real hi = upper ? BD_UPPER_HI : BD_LOWER_HI, df;
-    for (int k = 0; k < POLISH; ++k) {
-        real f = half_residual(upper, v, p, &df) - target;
-        v = clamp(v - f / df, BD_LIT(0.0), hi);
+        if (f < BD_LIT(0.0)) lo = v; else hi = v;
+        if (i > 0 && f != f_prev) slope = (f - f_prev) / (v - v_prev);
+        v_prev = v;
+        f_prev = f;
+        v = v - f / slope;
+        if (!(v > lo && v < hi)) v = BD_LIT(0.5) * (lo + hi);
     }
     return v;
 }
 #endif
 
-// (alpha', rho) of one albedo. Rd <= 0 (and NaN, which the host reports or clamps first)
-// -> (0, 1); Rd >= 1 -> (1, 0).
+#if defined(METHOD_MEMO)
 inline void invert_one(real rd, bd_params p, __global const float4 *table, real *alpha, real *rho)
 {
-    if (!(rd > BD_LIT(0.0))) { *alpha = BD_LIT(0.0); *rho = BD_LIT(1.0); return; }
-    if (rd >= BD_LIT(1.0)) { *alpha = BD_LIT(1.0); *rho = BD_LIT(0.0); return; }
-#if defined(METHOD_MEMO)
     real x0 = BD_LIT(0.0), x1 = BD_LIT(1.0), xmid = BD_LIT(0.5);
     for (int i = 0; i < ITERATIONS; ++i) {
         xmid = BD_LIT(0.5) * (x0 + x1);
@@ -94,36 +109,61 @@ inline void invert_one(real rd, bd_params p, __global const float4 *table, real 
     }
     *alpha = xmid;
     *rho = BD_LIT(1.0) - xmid;
+}
+#elif defined(METHOD_TABLE)
+inline void invert_one(real rd, bd_params p, __global const float4 *table, real *alpha, real *rho)
+{
+    real x = BD_POWER == 2 ? sqrt(rd) : rd;
+    real slope;
+    real v = table_guess(rd, x, p, table, &slope);
+    int upper = rd >= p.rd_split;
+#if POLISH > 0
+    real target = upper ? (rd >= BD_LIT(0.5) ? -log1p(-(BD_LIT(1.0) - rd)) : -log(rd)) : x;
+    real df;
+    for (int k = 0; k < POLISH; ++k) {
+        real f = half_residual(upper, v, p, &df) - target;
+        v = clamp(v - f / df, BD_LIT(0.0), upper ? UPPER_HI : LOWER_HI);
+    }
+#endif
+    if (upper) { *rho = v * v; *alpha = BD_LIT(1.0) - *rho; }
+    else { *alpha = v; *rho = BD_LIT(1.0) - v; }
+}
 #else
+inline void invert_one(real rd, bd_params p, __global const float4 *table, real *alpha, real *rho)
+{
+    real x = BD_POWER == 2 ? sqrt(rd) : rd;
     if (rd < p.rd_split) {
-        real a = solve_half(0, BD_POWER == 2 ? sqrt(rd) : rd, p, table);
+        real a = solve_half(0, x, rd, x, p, table);
         *alpha = a;
         *rho = BD_LIT(1.0) - a;
     } else {
         // -log Rd; for Rd >= 1/2, 1 - Rd is exact (Sterbenz) and log1p keeps its precision
-        real neg_log_rd = rd >= BD_LIT(0.5) ? -log1p(-(BD_LIT(1.0) - rd)) : -log(rd);
-        real q = solve_half(1, neg_log_rd, p, table);
+        real g = rd >= BD_LIT(0.5) ? -log1p(-(BD_LIT(1.0) - rd)) : -log(rd);
+        real q = solve_half(1, g, rd, x, p, table);
         *rho = q * q;
         *alpha = BD_LIT(1.0) - *rho;
     }
-#endif
 }
+#endif
 
 // Element i is texel i / nchan, channel i % nchan. Outputs may be NULL (not wanted).
+// Rd <= 0 (and NaN, which the host reports or clamps first) -> (0, 1); Rd >= 1 -> (1, 0).
 // With mfp (ld = 1/mu_tr, SPEC.md): sigma_t' = 1/(ld mu_tr/sigma_t'), sigma_a = sigma_t' rho,
 // sigma_s' = sigma_t' alpha'.
 __kernel void invert_albedo(__global const real *rd, __global const real *mfp,
                             __global real *alpha_out, __global real *rho_out,
                             __global real *sigma_a_out, __global real *sigma_s_out,
                             __constant const real *params, __global const float4 *tables,
-                            const int nchan, const int table_stride, const ulong n)
+                            const int nchan, const int table_stride, const uint n)
 {
-    ulong i = get_global_id(0);
+    uint i = get_global_id(0);
     if (i >= n) return;
-    int c = (int)(i % (ulong)nchan);
+    int c = nchan == 1 ? 0 : (int)(i % (uint)nchan);
     bd_params p = bd_load_params(params, c);
-    real alpha, rho;
-    invert_one(rd[i], p, tables + c * table_stride, &alpha, &rho);
+    real r = rd[i], alpha, rho;
+    if (!(r > BD_LIT(0.0))) { alpha = BD_LIT(0.0); rho = BD_LIT(1.0); }
+    else if (r >= BD_LIT(1.0)) { alpha = BD_LIT(1.0); rho = BD_LIT(0.0); }
+    else invert_one(r, p, tables + c * table_stride, &alpha, &rho);
     if (alpha_out) alpha_out[i] = alpha;
     if (rho_out) rho_out[i] = rho;
     if (mfp) {

@@ -20,7 +20,8 @@ RHO_TOL = 1e-4
 CONFIGS = [
     pytest.param("table", {}, id="table-default"),
     pytest.param("table", {"table_size": 64, "polish": 1}, id="table64-polish1"),
-    pytest.param("secant", {}, id="secant"),
+    pytest.param("secant", {}, id="secant-default"),
+    pytest.param("secant", {"seed_size": 1, "iterations": 60}, id="secant-seed1"),
     pytest.param("bisection", {}, id="bisection50"),
 ]
 
@@ -39,6 +40,28 @@ def test_methods_meet_the_accuracy_bounds(method, knobs, eta):
     alpha, rho = invert_albedo(rd.astype(np.float32), eta, method, return_rho=True, **knobs)
     ea, er = rel_err(alpha, want_a).max(), rel_err(rho, want_rho).max()
     assert ea <= ALPHA_TOL and er <= RHO_TOL, (method, knobs, eta, ea, er)
+
+
+@pytest.mark.parametrize("method", ["table", "secant", "bisection"])
+@pytest.mark.parametrize("eta", [0.6, 1.0, 1.4, 2.5])
+def test_continuity_at_the_segment_and_half_switches(method, eta):
+    # Rd_split (alpha' = 1/2) and Rd = 1/2, with their float32 neighbours on each side
+    split = ref.rd_split(ref.dipole_constants(eta))
+    pts = []
+    for x in (np.float32(split), np.float32(0.5)):
+        pts += [np.nextafter(x, np.float32(0), dtype=np.float32), x,
+                np.nextafter(x, np.float32(1), dtype=np.float32)]
+    rd = np.array(pts, np.float32)
+    alpha, rho = invert_albedo(rd, eta, method, return_rho=True)
+    want_a, want_rho = ref.invert_rd_rho(rd.astype(np.float64), eta)
+    assert rel_err(alpha, want_a).max() <= ALPHA_TOL, (method, eta)
+    assert rel_err(rho, want_rho).max() <= RHO_TOL, (method, eta)
+
+
+def test_knob_validation():
+    for bad in ({"table_size": 0}, {"seed_size": 2.5}, {"iterations": -1}, {"tol": 0.0}):
+        with pytest.raises(ValueError, match=next(iter(bad))):
+            invert_albedo(0.5, 1.4, "secant" if "seed_size" in bad else "table", **bad)
 
 
 def test_memo_bisection_loses_rho_as_spec_says():

@@ -1,0 +1,93 @@
+"""Timing and error measurement shared by tools/bench_*.py and ``bdipole-cl report``.
+
+Timings are medians over repeats of a kernel on device-resident buffers (queue finished before
+and after each repeat), so they measure the device, not host transfers. Errors are against the
+float64 reference inverse of the exact float32 inputs.
+"""
+from __future__ import annotations
+
+import statistics
+import time
+from dataclasses import dataclass
+
+import numpy as np
+import pyopencl as cl
+
+from . import reference as ref
+from .device import build_options, get_program, get_runtime, real_dtype
+from .invert import InversionKernel, MethodConfig
+
+
+def median_time(fn, repeats=5, warmup=1, queue=None):
+    """Median wall time of ``fn()`` (which enqueues work) in seconds, queue drained each time."""
+    queue = queue or get_runtime().queue
+    for _ in range(warmup):
+        fn()
+        queue.finish()
+    times = []
+    for _ in range(repeats):
+        queue.finish()
+        t0 = time.perf_counter()
+        fn()
+        queue.finish()
+        times.append(time.perf_counter() - t0)
+    return statistics.median(times)
+
+
+def inversion_workload(n, seed=0):
+    """``n`` float32 albedos: uniform on [1e-6, 0.999] (the issue's range), a fixed seed."""
+    rng = np.random.default_rng(seed)
+    return rng.uniform(1e-6, 0.999, n).astype(np.float32)
+
+
+@dataclass
+class InversionResult:
+    config: MethodConfig
+    double: bool
+    seconds: float
+    n: int
+    max_err_alpha: float
+    max_err_rho: float
+    mean_err_rho: float
+
+    @property
+    def mtexel_per_s(self):
+        return self.n / self.seconds / 1e6
+
+
+def time_inversion(config, rd, eta, want_alpha, want_rho, *, double=False, repeats=5):
+    """Time one configuration on device buffers holding ``rd``; measure its errors."""
+    rt = get_runtime()
+    dtype = real_dtype(double)
+    kernel = InversionKernel((eta,), config, double=double)
+    mf = cl.mem_flags
+    host = np.ascontiguousarray(rd, dtype=dtype)
+    rd_buf = cl.Buffer(rt.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=host)
+    a_buf = cl.Buffer(rt.context, mf.WRITE_ONLY, host.nbytes)
+    r_buf = cl.Buffer(rt.context, mf.WRITE_ONLY, host.nbytes)
+    seconds = median_time(lambda: kernel(host.size, rd_buf, alpha=a_buf, rho=r_buf), repeats)
+    alpha, rho = np.empty_like(host), np.empty_like(host)
+    cl.enqueue_copy(rt.queue, alpha, a_buf)
+    cl.enqueue_copy(rt.queue, rho, r_buf)
+    rt.queue.finish()
+    err_a = np.abs(alpha / want_alpha - 1.0)
+    err_r = np.abs(rho / want_rho - 1.0)
+    return InversionResult(config, double, seconds, host.size, float(err_a.max()),
+                           float(err_r.max()), float(err_r.mean()))
+
+
+def time_copy(n, *, double=False, repeats=5):
+    """The memory-bound floor: kernels/copy.cl over ``n`` elements (one read, one write)."""
+    rt = get_runtime()
+    dtype = real_dtype(double)
+    prg = get_program(rt, "copy", build_options(double=double))
+    knl = cl.Kernel(prg, "copy")
+    mf = cl.mem_flags
+    src = cl.Buffer(rt.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=np.ones(n, dtype))
+    dst = cl.Buffer(rt.context, mf.WRITE_ONLY, n * dtype.itemsize)
+    return median_time(lambda: knl(rt.queue, (n,), None, src, dst, np.uint64(n)), repeats)
+
+
+def reference_inverse(rd, eta):
+    """float64 (alpha', rho) of the float32 values in ``rd``."""
+    return ref.invert_rd_rho(np.asarray(rd, np.float64), eta)

@@ -5,9 +5,59 @@ import argparse
 import sys
 
 EPILOG = """examples:
+  bdipole-cl demo                                   # built-in example, writes ./bdipole_demo
   bdipole-cl devices
-  bdipole-cl demo                      # built-in example: textures in, coefficients out
+  bdipole-cl invert diffuse.<UDIM>.exr --mfp mfp.<UDIM>.exr --eta 1.4 -o out/{stem}_coeffs.exr
+  bdipole-cl invert 'textures/*.tif' --mfp 1.2,0.6,0.3 --unit mm --half --jobs 2
 """
+
+
+def _size(text):
+    """'512M', '2G', '1048576' -> bytes."""
+    text = str(text).strip().upper()
+    mult = {"K": 1 << 10, "M": 1 << 20, "G": 1 << 30}.get(text[-1:], 1)
+    return int(float(text[:-1] if text[-1:] in "KMG" else text) * mult)
+
+
+def _floats(text):
+    return tuple(float(v) for v in str(text).split(","))
+
+
+def _add_method_args(p):
+    from .invert import METHODS
+    p.add_argument("--method", default="table", choices=METHODS, help="inversion method")
+    p.add_argument("--model", default="better", choices=("better", "dipole"),
+                   help="Better Dipole (memo) or Jensen's classical dipole")
+    p.add_argument("--exact", action="store_true",
+                   help="exact Fresnel moments (quadrature) instead of d'Eon's fits")
+    p.add_argument("--iterations", type=int, help="bisection/memo iterations, secant maximum")
+    p.add_argument("--tol", type=float, help="secant relative tolerance")
+    p.add_argument("--table-size", type=int, help="table intervals per segment (default 256)")
+    p.add_argument("--polish", type=int, help="Newton steps after the table lookup")
+    p.add_argument("--seed-size", type=int, help="secant seed table intervals (default 16)")
+
+
+def _method_knobs(args):
+    return {k: getattr(args, k) for k in ("iterations", "tol", "table_size", "polish",
+                                          "seed_size") if getattr(args, k) is not None}
+
+
+def _cmd_invert(args) -> int:
+    from .textures import process_textures
+    report = process_textures(
+        args.inputs, mfp=args.mfp, eta=_floats(args.eta), output=args.output,
+        outputs=tuple(o.strip() for o in args.outputs.split(",")), method=args.method,
+        model=args.model, exact=args.exact, half=args.half, colorspace=args.colorspace,
+        alpha=args.alpha, on_invalid=args.on_invalid, max_memory=_size(args.max_memory),
+        jobs=args.jobs, skip_existing=args.skip_existing, unit=args.unit,
+        mfp_scale=args.mfp_scale, progress=not args.no_progress, **_method_knobs(args))
+    print(report.summary())
+    return report.exit_code
+
+
+def _cmd_demo(args) -> int:
+    from .demo import run_demo
+    return run_demo(args.dir, progress=not args.no_progress)
 
 
 def _cmd_devices(args) -> int:
@@ -33,6 +83,41 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True)
     p = sub.add_parser("devices", help="list OpenCL devices and the one in use")
     p.set_defaults(func=_cmd_devices)
+
+    p = sub.add_parser("demo", help="make a built-in example and run the main jobs on it")
+    p.add_argument("--dir", default="bdipole_demo", help="folder for inputs and results")
+    p.add_argument("--no-progress", action="store_true")
+    p.set_defaults(func=_cmd_demo)
+
+    p = sub.add_parser(
+        "invert", help="albedo (+ mfp) textures -> scattering-coefficient EXRs",
+        epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("inputs", nargs="+", help="albedo files, globs or <UDIM> patterns")
+    p.add_argument("--mfp", default="1",
+                   help="mean free path ld = 1/mu_tr: constant(s) 'v' or 'r,g,b', or a texture "
+                        "path/pattern ({stem}, {dir}, <UDIM>) (default 1)")
+    p.add_argument("--unit", default="mm", help="length unit of the mfp (default mm)")
+    p.add_argument("--mfp-scale", type=float, default=1.0, help="multiplies mfp values")
+    p.add_argument("--eta", default="1.4", help="relative IOR, one or per channel 'r,g,b'")
+    p.add_argument("--outputs", default="sigma_a,sigma_s",
+                   help="comma list from alpha, rho, sigma_a, sigma_s, sigma_t")
+    p.add_argument("-o", "--output", default="{dir}/{stem}.bdipole.exr",
+                   help="output path pattern: {dir} {stem} {name} {udim} <UDIM>")
+    p.add_argument("--half", action="store_true", help="write half floats")
+    p.add_argument("--colorspace", default="auto",
+                   help="colour space of 8/16-bit albedo (auto: as declared, else sRGB for "
+                        "8-bit, linear for 16-bit)")
+    p.add_argument("--alpha", default="keep", choices=("keep", "drop"),
+                   help="alpha channel: copied through or dropped (never inverted)")
+    p.add_argument("--on-invalid", default="raise", choices=("raise", "clamp"),
+                   help="NaN/Inf/>=1 albedo or bad mfp texels: fail the file, or clamp")
+    p.add_argument("--max-memory", default="256M", help="host memory per file (e.g. 512M)")
+    p.add_argument("-j", "--jobs", type=int, default=1, help="files processed at once")
+    p.add_argument("--skip-existing", action="store_true",
+                   help="skip files whose output is newer than their inputs")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    _add_method_args(p)
+    p.set_defaults(func=_cmd_invert)
     return parser
 
 

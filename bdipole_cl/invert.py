@@ -90,6 +90,7 @@ class InvalidInputError(ValueError):
     def __init__(self, name, count, first_index, first_value, why):
         self.name, self.count, self.first_index, self.first_value = (name, count, first_index,
                                                                      first_value)
+        self.why = why
         super().__init__(f"{count} invalid {name} value(s) ({why}); first at index "
                          f"{first_index}: {first_value!r}. Use on_invalid='clamp' to clamp them.")
 
@@ -182,11 +183,6 @@ class InversionKernel:
         return outs
 
 
-def _run_inversion(rd, mfp, etas, nchan, config, *, exact, model, double, want):
-    kernel = InversionKernel(etas, config, exact=exact, model=model, double=double)
-    return kernel.run(rd, mfp, want)
-
-
 def invert_albedo(rd, eta, method="table", *, return_rho=False, model="better", exact=False,
                   double=False, on_invalid="raise", iterations=None, tol=None, table_size=None,
                   polish=None, seed_size=None):
@@ -222,14 +218,63 @@ def invert_albedo(rd, eta, method="table", *, return_rho=False, model="better", 
     rd = np.asarray(rd)
     if rd.dtype.kind != "f":
         rd = rd.astype(np.float64)
-    etas, nchan = _channel_etas(eta, rd.shape)
+    etas, _ = _channel_etas(eta, rd.shape)
     bad = ~(rd <= 1.0) | np.isinf(rd)
     if _check("albedo", rd, bad, "NaN, infinite or > 1", on_invalid):
         rd = np.where(np.isnan(rd) | np.isneginf(rd), 0.0, np.minimum(rd, 1.0))
-    outs = _run_inversion(rd, None, etas, nchan, config, exact=exact, model=model, double=double,
-                          want=("alpha", "rho") if return_rho else ("alpha",))
+    kernel = InversionKernel(etas, config, exact=exact, model=model, double=double)
+    outs = kernel.run(rd, None, ("alpha", "rho") if return_rho else ("alpha",))
     alpha = outs["alpha"].reshape(rd.shape)
     return (alpha, outs["rho"].reshape(rd.shape)) if return_rho else alpha
+
+
+OUTPUTS = ("alpha", "rho", "sigma_a", "sigma_s", "sigma_t")
+
+
+def _sanitize_albedo_for_coefficients(rd, on_invalid):
+    n = _check("albedo", rd, ~(rd < 1.0) | np.isneginf(rd), "NaN, infinite or >= 1", on_invalid)
+    if n:
+        rd = np.where(np.isnan(rd) | np.isneginf(rd), 0.0, np.minimum(rd, RD_CLAMP_MAX))
+    return rd, n
+
+
+def _sanitize_mfp(mfp, on_invalid):
+    n = _check("mfp", mfp, ~((mfp > 0.0) & np.isfinite(mfp)), "NaN, <= 0 or infinite", on_invalid)
+    if n:
+        lo, hi = MFP_CLAMP_RANGE
+        mfp = np.clip(np.nan_to_num(mfp, nan=hi, posinf=hi, neginf=lo), lo, hi)
+    return mfp, n
+
+
+class CoefficientMapper:
+    """(albedo, mfp) arrays -> the requested outputs, with one prepared kernel; the engine of
+    ``albedo_to_coefficients`` and of the texture pipeline (called once per band)."""
+
+    def __init__(self, etas, config: MethodConfig, *, outputs=("sigma_a", "sigma_s"),
+                 model="better", exact=False, double=False, on_invalid="raise"):
+        unknown = set(outputs) - set(OUTPUTS)
+        if unknown:
+            raise ValueError(f"unknown outputs {sorted(unknown)}: expected some of {OUTPUTS}")
+        if on_invalid not in ("raise", "clamp"):
+            raise ValueError(f"on_invalid={on_invalid!r}: expected 'raise' or 'clamp'")
+        self.outputs = tuple(outputs)
+        self.on_invalid = on_invalid
+        self.kernel = InversionKernel(etas, config, exact=exact, model=model, double=double)
+        wanted = set(outputs)
+        self.kernel_wants = tuple(
+            k for k in ("alpha", "rho", "sigma_a", "sigma_s")
+            if k in wanted or (k in ("sigma_a", "sigma_s") and "sigma_t" in wanted))
+
+    def __call__(self, rd, mfp):
+        """Returns ({output: array of rd's broadcast shape}, {"albedo": n, "mfp": n} invalid)."""
+        rd, mfp = np.broadcast_arrays(np.asarray(rd), np.asarray(mfp))
+        rd, n_rd = _sanitize_albedo_for_coefficients(rd, self.on_invalid)
+        mfp, n_mfp = _sanitize_mfp(mfp, self.on_invalid)
+        outs = self.kernel.run(rd, mfp, self.kernel_wants)
+        if "sigma_t" in self.outputs:
+            outs["sigma_t"] = outs["sigma_a"] + outs["sigma_s"]
+        return ({k: outs[k].reshape(rd.shape) for k in self.outputs},
+                {"albedo": n_rd, "mfp": n_mfp})
 
 
 def albedo_to_coefficients(rd, mfp, eta, method="table", *, model="better", exact=False,
@@ -250,26 +295,12 @@ def albedo_to_coefficients(rd, mfp, eta, method="table", *, model="better", exac
     ``outputs`` picks what is returned, in order, from alpha, rho, sigma_a, sigma_s, sigma_t.
     """
     config = resolve_method(method, **knobs)
-    rd, mfp = np.broadcast_arrays(np.asarray(rd, dtype=np.float64 if double else None),
-                                  np.asarray(mfp))
+    rd, mfp = np.broadcast_arrays(np.asarray(rd), np.asarray(mfp))
     rd = rd.astype(np.float64) if rd.dtype.kind != "f" else rd
     mfp = mfp.astype(np.float64) if mfp.dtype.kind != "f" else mfp
-    etas, nchan = _channel_etas(eta, rd.shape)
-    if _check("albedo", rd, ~(rd < 1.0) | np.isneginf(rd), "NaN, infinite or >= 1", on_invalid):
-        rd = np.where(np.isnan(rd) | np.isneginf(rd), 0.0, np.minimum(rd, RD_CLAMP_MAX))
-    if _check("mfp", mfp, ~((mfp > 0.0) & np.isfinite(mfp)), "NaN, <= 0 or infinite",
-              on_invalid):
-        lo, hi = MFP_CLAMP_RANGE
-        mfp = np.clip(np.nan_to_num(mfp, nan=hi, posinf=hi, neginf=lo), lo, hi)
-    wanted = set(outputs)
-    unknown = wanted - {"alpha", "rho", "sigma_a", "sigma_s", "sigma_t"}
-    if unknown:
-        raise ValueError(f"unknown outputs {sorted(unknown)}")
-    kernel_wants = tuple(k for k in ("alpha", "rho", "sigma_a", "sigma_s")
-                         if k in wanted or (k in ("sigma_a", "sigma_s") and "sigma_t" in wanted))
-    outs = _run_inversion(rd, mfp, etas, nchan, config, exact=exact, model=model, double=double,
-                          want=kernel_wants)
-    if "sigma_t" in wanted:
-        outs["sigma_t"] = outs["sigma_a"] + outs["sigma_s"]
-    result = tuple(outs[k].reshape(rd.shape) for k in outputs)
+    etas, _ = _channel_etas(eta, rd.shape)
+    mapper = CoefficientMapper(etas, config, outputs=outputs, model=model, exact=exact,
+                               double=double, on_invalid=on_invalid)
+    outs, _ = mapper(rd, mfp)
+    result = tuple(outs[k] for k in outputs)
     return result if len(result) > 1 else result[0]

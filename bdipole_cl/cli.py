@@ -9,6 +9,7 @@ EPILOG = """examples:
   bdipole-cl devices
   bdipole-cl invert diffuse.<UDIM>.exr --mfp mfp.<UDIM>.exr --eta 1.4 -o out/{stem}_coeffs.exr
   bdipole-cl invert 'textures/*.tif' --mfp 1.2,0.6,0.3 --unit mm --half --jobs 2
+  bdipole-cl blur irradiance.exr --albedo 0.8,0.6,0.4 --mfp 1.2,0.6,0.3 --texel-size 0.1 -o sss.exr
 """
 
 
@@ -55,6 +56,28 @@ def _cmd_invert(args) -> int:
     return report.exit_code
 
 
+def _cmd_blur(args) -> int:
+    from .blur import blur_file
+    from .textures import TextureError
+    kw = dict(eta=_floats(args.eta), texel_size=args.texel_size, tol=args.tol,
+              method=args.method, border=args.border, on_invalid=args.on_invalid,
+              exact=args.exact)
+    if args.alpha_prime is not None:
+        kw.update(alpha=_floats(args.alpha_prime), sigma_t=_floats(args.sigma_t))
+    else:
+        kw.update(albedo=_floats(args.albedo), mfp=_floats(args.mfp))
+    try:
+        info = blur_file(args.input, args.output, half=args.half, **kw)
+    except TextureError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
+    for c in info.channels:
+        print(f"channel {c['channel']}: {c['method']}, radius {c['radius']} texels, "
+              f"Rd {c['rd']:.4f}, error <= {c['error_bound']:.1e} x max(E) x Rd")
+    print(f"wrote {args.output}")
+    return 0
+
+
 def _cmd_demo(args) -> int:
     from .demo import run_demo
     return run_demo(args.dir, progress=not args.no_progress)
@@ -88,6 +111,25 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--dir", default="bdipole_demo", help="folder for inputs and results")
     p.add_argument("--no-progress", action="store_true")
     p.set_defaults(func=_cmd_demo)
+
+    p = sub.add_parser("blur", help="blur an irradiance map with the Better Dipole profile R(r)")
+    p.add_argument("input", help="irradiance image (EXR/TIFF/PNG...)")
+    p.add_argument("-o", "--output", required=True, help="output EXR")
+    p.add_argument("--albedo", default="0.8", help="Rd, one or per channel 'r,g,b'")
+    p.add_argument("--mfp", default="1", help="mean free path ld = 1/mu_tr, same unit as "
+                                               "--texel-size; one or per channel")
+    p.add_argument("--alpha-prime", help="alpha' per channel (instead of --albedo/--mfp)")
+    p.add_argument("--sigma-t", help="sigma_t' per channel, 1/unit (with --alpha-prime)")
+    p.add_argument("--eta", default="1.4")
+    p.add_argument("--texel-size", type=float, default=1.0, help="world size of a texel")
+    p.add_argument("--tol", type=float, default=1e-3, help="energy left out, relative to Rd")
+    p.add_argument("--method", default="auto", choices=("auto", "direct", "gaussians", "fft"))
+    p.add_argument("--border", default="clamp", choices=("clamp", "zero", "wrap"))
+    p.add_argument("--on-invalid", default="raise", choices=("raise", "zero"),
+                   help="NaN/Inf irradiance: fail, or treat as unlit")
+    p.add_argument("--exact", action="store_true", help="exact Fresnel moments")
+    p.add_argument("--half", action="store_true")
+    p.set_defaults(func=_cmd_blur)
 
     p = sub.add_parser(
         "invert", help="albedo (+ mfp) textures -> scattering-coefficient EXRs",

@@ -295,3 +295,21 @@ inline real bd_profile_cdf(real r, bd_geometry g)
 }
 
 // }}}
+
+// {{{ image borders (blur kernels): -DBORDER_ZERO, -DBORDER_WRAP, else clamp to edge
+
+// Index of texel i of a row/column of n for a tap outside [0, n); -1 means "contributes 0".
+inline int bd_border(int i, int n)
+{
+    if (i >= 0 && i < n) return i;
+#if defined(BORDER_ZERO)
+    return -1;
+#elif defined(BORDER_WRAP)
+    int m = i % n;
+    return m < 0 ? m + n : m;
+#else
+    return i < 0 ? 0 : n - 1;
+#endif
+}
+
+// }}}

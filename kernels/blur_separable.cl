@@ -1,0 +1,36 @@
+// blur_separable.cl -- one separable Gaussian of the sum-of-Gaussians blur
+// (bdipole_cl/blur.py: fit_gaussians): rows then columns with the same texel-integrated 1D
+// weights g[-K..K], the column pass adding weight * result into the output channel.
+// Needs bdipole.h in front; border mode by -DBORDER_{CLAMP,ZERO,WRAP}.
+
+// tmp[y, x] = sum_i g[i] src[y, x + i, channel]
+__kernel void blur_rows(__global const float *src, __global float *tmp, __global const float *g,
+                        const int width, const int height, const int nchan, const int channel,
+                        const int radius)
+{
+    const int x = get_global_id(0), y = get_global_id(1);
+    if (x >= width || y >= height) return;
+    __global const float *row = src + (size_t)y * width * nchan + channel;
+    float acc = 0.0f;
+    for (int i = -radius; i <= radius; ++i) {
+        int gx = bd_border(x + i, width);
+        if (gx >= 0) acc += g[i + radius] * row[(size_t)gx * nchan];
+    }
+    tmp[(size_t)y * width + x] = acc;
+}
+
+// dst[y, x, channel] += weight * sum_j g[j] tmp[y + j, x]
+__kernel void blur_cols_add(__global const float *tmp, __global float *dst,
+                            __global const float *g, const int width, const int height,
+                            const int nchan, const int channel, const int radius,
+                            const float weight)
+{
+    const int x = get_global_id(0), y = get_global_id(1);
+    if (x >= width || y >= height) return;
+    float acc = 0.0f;
+    for (int j = -radius; j <= radius; ++j) {
+        int gy = bd_border(y + j, height);
+        if (gy >= 0) acc += g[j + radius] * tmp[(size_t)gy * width + x];
+    }
+    dst[((size_t)y * width + x) * nchan + channel] += weight * acc;
+}

@@ -1,0 +1,138 @@
+"""Radial-profile blur (bdipole_cl/blur.py, kernels/blur_direct.cl, kernels/blur_separable.cl)."""
+import numpy as np
+import pytest
+from scipy.integrate import dblquad
+
+from bdipole_cl import reference as ref
+from bdipole_cl.blur import blur, channel_kernel, channel_parameters, fit_gaussians
+
+METHODS = ["direct", "gaussians", "fft", "auto"]
+# 2e-3 relative: the issue's bound for centre and near texels. direct/fft use the exact weights
+# (float32 accumulation ~1e-6); gaussians carry their fit error, reported as error_bound.
+
+
+def impulse(h=31, w=33, c=1, value=1.0):
+    e = np.zeros((h, w, c), np.float32)
+    e[h // 2, w // 2] = value
+    return e
+
+
+def test_weights_match_independent_2d_quadrature():
+    # the issue's example: albedo 0.8, mfp 1.5 texels, eta 1.4 -> centre 0.497 (point: 3.64)
+    (alpha, st, eta), = channel_parameters(1, albedo=0.8, mfp=1.5, eta=1.4)
+    ck = channel_kernel(alpha, st, eta, 1e-6)
+    k = ck.radius
+    raw = ck.weights * (1.0 - ck.truncated)     # undo the renormalisation
+    f = lambda y, x: ref.profile(np.hypot(x, y), alpha, st, eta)  # noqa: E731
+    for i, j in [(0, 0), (1, 0), (1, 1), (2, 1), (3, 3)]:
+        want = dblquad(f, i - 0.5, i + 0.5, j - 0.5, j + 0.5, epsabs=1e-13, epsrel=1e-11)[0]
+        assert abs(raw[k + j, k + i] / want - 1) < 1e-9, (i, j)
+    assert abs(raw[k, k] - 0.497) < 5e-4 and abs(ref.profile(0, alpha, st, eta) - 3.64) < 5e-3
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_impulse_response_is_the_texel_integrated_profile(method):
+    out, info = blur(impulse(), albedo=0.8, mfp=1.5, eta=1.4, method=method, border="zero",
+                     return_info=True)
+    ck = channel_kernel(*channel_parameters(1, albedo=0.8, mfp=1.5, eta=1.4)[0], 1e-3)
+    k = ck.radius
+    got = out[15 - k:16 + k, 16 - k:17 + k, 0]
+    near = slice(k - 2, k + 3)
+    rel = np.abs(got[near, near] / ck.weights[near, near] - 1).max()
+    assert rel < 2e-3, (method, rel)
+    # everywhere: within the method's own bound relative to max(E) * Rd
+    assert np.abs(got - ck.weights).max() <= info.channels[0]["error_bound"] * ck.rd
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_constant_irradiance_returns_rd_in_the_interior(method):
+    albedo = (0.8, 0.5, 0.2)
+    e = np.full((48, 48, 3), 2.0, np.float32)
+    out, info = blur(e, albedo=albedo, mfp=(2.0, 1.0, 0.5), eta=(1.3, 1.4, 1.5), method=method,
+                     return_info=True)
+    for c in range(3):
+        bound = max(info.channels[c]["error_bound"], 1e-5)
+        np.testing.assert_allclose(out[24, 24, c], 2.0 * albedo[c], rtol=bound)
+    # clamp border: constant everywhere, edges included
+    np.testing.assert_allclose(out[0, 0], 2.0 * np.array(albedo), rtol=3e-3)
+
+
+@pytest.mark.parametrize("method", ["direct", "gaussians", "fft"])
+def test_linearity_and_symmetry(method):
+    rng = np.random.default_rng(3)
+    a = rng.uniform(0, 1, (24, 24, 1)).astype(np.float32)
+    b = rng.uniform(0, 1, (24, 24, 1)).astype(np.float32)
+    kw = dict(albedo=0.7, mfp=1.0, eta=1.4, method=method, border="wrap")
+    np.testing.assert_allclose(blur(2 * a + 3 * b, **kw), 2 * blur(a, **kw) + 3 * blur(b, **kw),
+                               rtol=1e-5, atol=1e-6)
+    # mirror and transpose symmetry of the radial kernel
+    np.testing.assert_allclose(blur(a[::-1], **kw), blur(a, **kw)[::-1], rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(blur(a.transpose(1, 0, 2), **kw),
+                               blur(a, **kw).transpose(1, 0, 2), rtol=1e-5, atol=1e-6)
+
+
+@pytest.mark.parametrize("method", ["direct", "gaussians", "fft"])
+def test_hdr_values_do_not_overflow(method):
+    out = blur(impulse(value=1e30) + 1e-30, albedo=0.9, mfp=1.0, eta=1.4, method=method)
+    assert np.all(np.isfinite(out)) and out.max() <= 1e30
+
+
+def test_nan_irradiance_policy():
+    e = impulse()
+    e[3, 4, 0] = np.nan
+    with pytest.raises(ValueError, match="1 NaN/Inf irradiance texel.*x=4, y=3"):
+        blur(e, albedo=0.8, mfp=1.0)
+    out = blur(e, albedo=0.8, mfp=1.0, on_invalid="zero")
+    np.testing.assert_allclose(out, blur(impulse(), albedo=0.8, mfp=1.0), rtol=1e-6)
+
+
+def test_alpha_sigma_t_parameters_and_texel_size():
+    (a, st, _), = channel_parameters(1, albedo=0.6, mfp=2.0, eta=1.4)
+    e = impulse()
+    # atol: the FFT's round-off floor (~1e-16 of the peak) in the far, empty texels
+    np.testing.assert_allclose(blur(e, alpha=a, sigma_t=st / 0.5, texel_size=0.5),
+                               blur(e, albedo=0.6, mfp=1.0, texel_size=0.5), rtol=1e-6,
+                               atol=1e-9)
+    # same physics in other units: mfp 2 mm, texel 1 mm == mfp 2 texels
+    np.testing.assert_allclose(blur(e, albedo=0.6, mfp=2.0, texel_size=1.0),
+                               blur(e, albedo=0.6, mfp=0.2, texel_size=0.1), rtol=1e-5,
+                               atol=1e-9)
+
+
+def test_gaussian_fit_error_is_reported_and_small():
+    for mfp in (0.5, 2.0, 8.0):
+        (a, st, eta), = channel_parameters(1, albedo=0.8, mfp=mfp, eta=1.4)
+        fit = fit_gaussians(a, st, eta, 1e-3)
+        # L1 within tol; near cells within the issue's 2e-3 (measured <= 1e-3 at albedo 0.8)
+        assert 0 <= fit.l1_error <= 1e-3 and fit.near_rel_error <= 2e-3, (mfp, fit)
+
+
+def test_bad_arguments():
+    with pytest.raises(ValueError, match="texture-varying"):
+        blur(impulse(), albedo=np.full((31, 33, 1), 0.5), mfp=1.0)
+    with pytest.raises(ValueError, match="method"):
+        blur(impulse(), albedo=0.5, mfp=1.0, method="box")
+    with pytest.raises(ValueError, match="albedo must be in"):
+        blur(impulse(), albedo=1.0, mfp=1.0)
+    with pytest.raises(ValueError, match="border"):
+        blur(impulse(), albedo=0.5, mfp=1.0, border="mirror", method="direct")
+
+
+def test_blur_cli_on_an_exr(tmp_path, capsys):
+    import OpenImageIO as oiio
+
+    from bdipole_cl.cli import main as cli_main
+    from bdipole_cl.demo import write_exr
+    e = np.random.default_rng(5).uniform(0, 1, (20, 22, 3)).astype(np.float32)
+    write_exr(tmp_path / "e.exr", e, ("R", "G", "B"))
+    rc = cli_main(["blur", str(tmp_path / "e.exr"), "-o", str(tmp_path / "m.exr"),
+                   "--albedo", "0.8,0.6,0.4", "--mfp", "1,0.5,0.25", "--texel-size", "0.5"])
+    assert rc == 0 and "wrote" in capsys.readouterr().out
+    inp = oiio.ImageInput.open(str(tmp_path / "m.exr"))
+    got = inp.read_image(0, 0, 0, 3, oiio.FLOAT)
+    assert inp.spec().getattribute("bdipole:source").endswith("e.exr")
+    inp.close()
+    want = blur(e, albedo=(0.8, 0.6, 0.4), mfp=(1, 0.5, 0.25), texel_size=0.5)
+    np.testing.assert_allclose(got, want, rtol=1e-6, atol=1e-7)
+    assert cli_main(["blur", str(tmp_path / "missing.exr"), "-o", str(tmp_path / "x.exr")]) == 1
+    assert not (tmp_path / "x.exr").exists()

@@ -9,6 +9,8 @@ EPILOG = """examples:
   bdipole-cl devices
   bdipole-cl invert diffuse.<UDIM>.exr --mfp mfp.<UDIM>.exr --eta 1.4 -o out/{stem}_coeffs.exr
   bdipole-cl invert 'textures/*.tif' --mfp 1.2,0.6,0.3 --unit mm --half --jobs 2
+  bdipole-cl crosscheck                             # every kernel vs the float64 reference
+  bdipole-cl crosscheck --user-kernel mine.cl --function computeRd --against rd
   bdipole-cl blur irradiance.exr --albedo 0.8,0.6,0.4 --mfp 1.2,0.6,0.3 --texel-size 0.1 -o sss.exr
 """
 
@@ -78,6 +80,27 @@ def _cmd_blur(args) -> int:
     return 0
 
 
+def _cmd_crosscheck(args) -> int:
+    from .crosscheck import check_user_kernel, format_rows, run_crosscheck
+    if args.user_kernel:
+        if not (args.function and args.against):
+            print("error: --user-kernel needs --function and --against", file=sys.stderr)
+            return 2
+        try:
+            rows = []
+            for eta in _floats(args.eta):
+                rows += check_user_kernel(args.user_kernel, args.function, args.against, eta=eta)
+        except (OSError, ValueError) as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return 2
+    else:
+        rows = run_crosscheck(_floats(args.eta), n=args.n)
+    from .device import get_runtime
+    print(f"device: {get_runtime().describe()}")
+    print(format_rows(rows))
+    return 1 if any(r.status == "FAIL" for r in rows) else 0
+
+
 def _cmd_demo(args) -> int:
     from .demo import run_demo
     return run_demo(args.dir, progress=not args.no_progress)
@@ -111,6 +134,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--dir", default="bdipole_demo", help="folder for inputs and results")
     p.add_argument("--no-progress", action="store_true")
     p.set_defaults(func=_cmd_demo)
+
+    p = sub.add_parser("crosscheck",
+                       help="every kernel (or your own OpenCL function) vs the float64 reference")
+    p.add_argument("--eta", default="1.0,1.4,2.5", help="etas to sweep (comma list)")
+    p.add_argument("--n", type=int, default=500, help="points per sweep segment")
+    p.add_argument("--user-kernel", help="an OpenCL C file with your function")
+    p.add_argument("--function", help="its name (signatures: see bdipole_cl/crosscheck.py)")
+    p.add_argument("--against", choices=("rd", "profile", "invert"),
+                   help="what it computes: rd(alpha', 2C1, 3C2), profile(r, alpha', sigma_t', "
+                        "2C1, 3C2) or invert(Rd, 2C1, 3C2) -> alpha'")
+    p.set_defaults(func=_cmd_crosscheck)
 
     p = sub.add_parser("blur", help="blur an irradiance map with the Better Dipole profile R(r)")
     p.add_argument("input", help="irradiance image (EXR/TIFF/PNG...)")

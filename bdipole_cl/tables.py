@@ -21,7 +21,7 @@ from . import reference as ref
 
 PARAM_STRIDE = 12  # kernels/bdipole.h: BD_PARAM_STRIDE
 (P_CPHI, P_CE, P_A, P_RD_SPLIT, P_X_SPLIT, P_G_SPLIT, P_SCALE0, P_SCALE1,
- P_SCALE2) = range(9)
+ P_SCALE2, P_SLOPE0) = range(10)
 SEGMENTS = 3
 
 
@@ -78,6 +78,7 @@ def channel_params(etas, *, exact=False, model="better", table_n=0, dtype=np.flo
         out[i, P_RD_SPLIT] = split
         out[i, P_X_SPLIT] = split ** (1.0 / power)
         out[i, P_G_SPLIT] = -np.log(split)
+        out[i, P_SLOPE0] = ref.lower_residual(0.0, c, model)[1]      # F'(0)
         if table_n:
             out[i, P_SCALE0:P_SCALE2 + 1] = inversion_table(float(eta), table_n, exact, model)[1]
     return out.astype(dtype).reshape(-1)

@@ -41,17 +41,19 @@ typedef float real;
 #define BD_P_SCALE0 6    // table segment 0: intervals per unit of Rd^(1/n) on [0, x_split]
 #define BD_P_SCALE1 7    // table segment 1: intervals per unit of Rd^(1/n) on [x_split, 2^(-1/n)]
 #define BD_P_SCALE2 8    // table segment 2: intervals per unit of 1 - Rd on [0, 1/2]
+#define BD_P_SLOPE0 9    // F'(0) = exp(K(1)/n) = min of F(a)/a on the lower half
 #define BD_PARAM_STRIDE 12
 
 typedef struct {
-    real cphi, ce, a_coef, rd_split, x_split, g_split, scale0, scale1, scale2;
+    real cphi, ce, a_coef, rd_split, x_split, g_split, scale0, scale1, scale2, slope0;
 } bd_params;
 
 inline bd_params bd_load_params(__constant const real *params, int channel)
 {
     __constant const real *p = params + channel * BD_PARAM_STRIDE;
     bd_params out = {p[BD_P_CPHI], p[BD_P_CE], p[BD_P_A], p[BD_P_RD_SPLIT], p[BD_P_X_SPLIT],
-                     p[BD_P_G_SPLIT], p[BD_P_SCALE0], p[BD_P_SCALE1], p[BD_P_SCALE2]};
+                     p[BD_P_G_SPLIT], p[BD_P_SCALE0], p[BD_P_SCALE1], p[BD_P_SCALE2],
+                     p[BD_P_SLOPE0]};
     return out;
 }
 

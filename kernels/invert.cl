@@ -62,10 +62,14 @@ inline real table_guess(real rd, real x, bd_params p, __global const float4 *tab
 #endif
 
 #if defined(METHOD_BISECTION)
+// On the lower half F(a)/a = exp(K/n) increases from F'(0) to F(1/2)/(1/2) = 2 x_split, so the
+// root lies in [target/(2 x_split), target/F'(0)]: a bracket relative to the root, which keeps
+// full relative precision down to denormal albedos (a bracket [0, 1/2] would stop at 2^-51).
 inline real solve_half(int upper, real target, real rd, real x, bd_params p,
                        __global const float4 *table)
 {
-    real lo = BD_LIT(0.0), hi = upper ? UPPER_HI : LOWER_HI, df;
+    real lo = upper ? BD_LIT(0.0) : target / (BD_LIT(2.0) * p.x_split);
+    real hi = upper ? UPPER_HI : fmin(LOWER_HI, target / p.slope0), df;
     for (int i = 0; i < ITERATIONS; ++i) {
         real mid = BD_LIT(0.5) * (lo + hi);
         if (half_residual(upper, mid, p, &df) < target) lo = mid; else hi = mid;

@@ -1,0 +1,246 @@
+"""``bdipole-cl crosscheck``: every kernel against the float64 reference, on the chosen device.
+
+Each row is one function over a sweep that includes its ends (alpha' -> 0 and -> 1, Rd -> 0
+and -> 1, r = 0 and large r), with its max error, the bound it must meet and PASS/FAIL, in the
+manner of ``idiff``. Errors are in units of the precision's unit roundoff u (2^-24 float32,
+2^-53 float64) for the physics functions, relative for the inversions and the blur.
+
+User kernels
+------------
+``--user-kernel FILE.cl --function NAME --against rd|profile|invert`` compiles a renderer's own
+OpenCL C function and reports its error the same way. Signatures (float32, the memo's
+conventions: the Fresnel terms are 2 C1 and 3 C2 of d'Eon's fits at the given eta)::
+
+    rd:      float NAME(float alpha_prime, float two_c1, float three_c2)      // memo computeRd
+    invert:  float NAME(float rd, float two_c1, float three_c2)               // computeAlphaPrime
+    profile: float NAME(float r, float alpha_prime, float sigma_t, float two_c1, float three_c2)
+
+For ``invert`` both alpha' and rho = 1 - alpha' (computed from the returned alpha') are judged.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pyopencl as cl
+
+from . import physics
+from . import reference as ref
+from .device import get_runtime
+
+EPS = {False: 2.0**-24, True: 2.0**-53}
+#: physics bounds in units of u (tests/test_kernels_physics.py explains them)
+PHYSICS_BOUND_U = 16
+INVERT_BOUNDS = {"alpha": 1e-6, "rho": 1e-4}   # issue 3's accuracy bounds
+
+
+@dataclass
+class Row:
+    function: str
+    precision: str
+    max_error: float
+    unit: str
+    bound: float | None
+    where: str
+
+    @property
+    def status(self):
+        if self.bound is None:
+            return "INFO"
+        return "PASS" if self.max_error <= self.bound else "FAIL"
+
+
+def _albedo_sweep(n):
+    return np.float32(np.concatenate([np.geomspace(1e-6, 0.5, n), 1 - np.geomspace(1e-3, 0.5, n),
+                                      np.linspace(1e-6, 0.999, n)])).astype(np.float64)
+
+
+def _physics_rows(etas, double, n):
+    u = EPS[double]
+    prec = "f64" if double else "f32"
+    lo = 1e-300 if double else 1e-37
+    rows = []
+    a = np.float32(np.concatenate([np.geomspace(1e-6, 0.5, n),
+                                   1 - np.geomspace(2**-24, 0.5, n)])).astype(np.float64)
+    q = np.float32(np.geomspace(1e-12, 0.7071, n)).astype(np.float64)
+    alphas = np.float32([1e-3, 0.3, 0.9, 0.999, 1 - 1e-6, 1.0]).astype(np.float64)[:, None]
+    radii = np.float32(np.concatenate([[0.0], np.geomspace(1e-4, 1e3, n // 4)])).astype(
+        np.float64)[None, :]
+    for eta in etas:
+        got = physics.evaluate("rd", a, eta=eta, double=double)
+        want = ref.rd(a, eta)
+        ok = want > lo
+        err = np.abs(got[ok] / want[ok] - 1) / u
+        i = int(np.argmax(err))
+        rows.append(Row(f"rd (eta {eta})", prec, err[i], "u", PHYSICS_BOUND_U,
+                        f"alpha'={a[ok][i]:.6g}"))
+        got = physics.evaluate("one_minus_rd", q, eta=eta, double=double)
+        err = np.abs(got / ref.one_minus_rd_of_rho(q * q, eta) - 1) / u
+        i = int(np.argmax(err))
+        rows.append(Row(f"1 - rd (eta {eta})", prec, err[i], "u", PHYSICS_BOUND_U,
+                        f"q={q[i]:.3g}"))
+        for func in ("profile", "profile_cdf", "profile_tail"):
+            worst, where = 0.0, ""
+            for st in (0.1, 1.0, 10.0):
+                got = physics.evaluate(func, radii, alphas, st, eta=eta, double=double)
+                want = physics.reference_value(func, radii, alphas, st, eta=eta)
+                if func == "profile":
+                    mu_d = st * ref.mu_tr_over_sigma_t(1 - alphas) * np.sqrt(radii**2 + 9 / st**2)
+                    ok = want > lo
+                    err = np.where(ok, np.abs(got - want) / (np.where(ok, want, 1) * (1 + mu_d)), 0)
+                else:
+                    err = np.abs(got - want) / ref.rd(alphas, eta)
+                err = err / u
+                j = np.unravel_index(int(np.argmax(err)), err.shape)
+                if err[j] > worst:
+                    worst = float(err[j])
+                    where = f"r={radii[0, j[1]]:.3g}, alpha'={alphas[j[0], 0]:.6g}, st={st}"
+            unit = "u/(1+mu d)" if func == "profile" else "u of Rd"
+            rows.append(Row(f"{func} (eta {eta})", prec, worst, unit, PHYSICS_BOUND_U, where))
+    return rows
+
+
+def _invert_rows(etas, n):
+    from .invert import MethodConfig, invert_albedo
+    rd = _albedo_sweep(n)
+    rows = []
+    configs = [MethodConfig("table"), MethodConfig("secant"), MethodConfig("bisection"),
+               MethodConfig("table", table_size=64, polish=1), MethodConfig("memo")]
+    for eta in etas:
+        want_a, want_rho = ref.invert_rd_rho(rd, eta)
+        for cfg in configs:
+            a, rho = invert_albedo(rd.astype(np.float32), eta, cfg, return_rho=True)
+            for name, got, want in (("alpha", a, want_a), ("rho", rho, want_rho)):
+                err = np.abs(got / want - 1)
+                i = int(np.argmax(err))
+                bound = None if cfg.method == "memo" else INVERT_BOUNDS[name]
+                rows.append(Row(f"invert {cfg.describe()} {name} (eta {eta})", "f32",
+                                float(err[i]), "rel", bound, f"Rd={rd[i]:.6g}"))
+    return rows
+
+
+def _blur_rows():
+    from .blur import blur, channel_kernel, channel_parameters
+    rows = []
+    e = np.zeros((41, 41, 1), np.float32)
+    e[20, 20] = 1.0
+    for mfp in (0.5, 2.0):
+        p = channel_parameters(1, albedo=0.8, mfp=mfp, eta=1.4)[0]
+        ck = channel_kernel(*p, 1e-3)
+        k = ck.radius
+        for method in ("direct", "gaussians", "fft"):
+            out, info = blur(e, albedo=0.8, mfp=mfp, eta=1.4, method=method, border="zero",
+                             return_info=True)
+            got = out[20 - k:21 + k, 20 - k:21 + k, 0]
+            err = np.abs(got - ck.weights).max() / ck.rd
+            rows.append(Row(f"blur {method} impulse (mfp {mfp} texels)", "f32", float(err),
+                            "of Rd", info.channels[0]["error_bound"], f"radius {k}"))
+    return rows
+
+
+# {{{ user kernels
+
+_USER_WRAPPERS = {
+    "rd": ("x[i], two_c1, three_c2", "alpha_prime"),
+    "invert": ("x[i], two_c1, three_c2", "rd"),
+    "profile": ("x[i], y[i], z[i], two_c1, three_c2", "r"),
+}
+
+
+def check_user_kernel(path, function, against, *, eta=1.4, n=2000):
+    """Compile ``function`` from ``path`` and return crosscheck Rows against the reference."""
+    if against not in _USER_WRAPPERS:
+        raise ValueError(f"--against {against!r}: expected one of {sorted(_USER_WRAPPERS)}")
+    source = Path(path).read_text()
+    args, _ = _USER_WRAPPERS[against]
+    wrapper = (f"\n__kernel void bdipole_user_eval(__global const float *x, __global const "
+               f"float *y, __global const float *z, __global float *out, const float two_c1, "
+               f"const float three_c2, const uint n)\n{{\n    uint i = get_global_id(0);\n"
+               f"    if (i < n) out[i] = {function}({args});\n}}\n")
+    rt = get_runtime()
+    try:
+        prg = cl.Program(rt.context, source + wrapper).build()
+    except cl.RuntimeError as exc:
+        raise ValueError(f"{path}: building {function} failed:\n{exc}") from exc
+    knl = cl.Kernel(prg, "bdipole_user_eval")
+    c1, c2 = ref.fresnel_moments(eta)
+    two_c1, three_c2 = np.float32(2 * c1), np.float32(3 * c2)
+
+    def run(x, y=None, z=None):
+        x = np.ascontiguousarray(x, np.float32).reshape(-1)
+        y = np.zeros_like(x) if y is None else np.ascontiguousarray(y, np.float32).reshape(-1)
+        z = np.zeros_like(x) if z is None else np.ascontiguousarray(z, np.float32).reshape(-1)
+        mf = cl.mem_flags
+        bufs = [cl.Buffer(rt.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=v)
+                for v in (x, y, z)]
+        out = np.empty_like(x)
+        ob = cl.Buffer(rt.context, mf.WRITE_ONLY, out.nbytes)
+        knl(rt.queue, (x.size,), None, *bufs, ob, two_c1, three_c2, np.uint32(x.size))
+        cl.enqueue_copy(rt.queue, out, ob)
+        rt.queue.finish()
+        return out.astype(np.float64)
+
+    name = f"user {function} vs {against} (eta {eta})"
+    if against == "rd":
+        a = np.float32(np.concatenate([np.geomspace(1e-6, 0.5, n),
+                                       1 - np.geomspace(2**-24, 0.5, n)])).astype(np.float64)
+        err = np.abs(run(a) / ref.rd(a, eta) - 1)
+        i = int(np.argmax(err))
+        return [Row(name, "f32", float(err[i]), "rel", PHYSICS_BOUND_U * EPS[False],
+                    f"alpha'={a[i]:.6g}")]
+    if against == "invert":
+        rd = _albedo_sweep(n)
+        alpha = run(rd)
+        want_a, want_rho = ref.invert_rd_rho(rd, eta)
+        rows = []
+        for label, got, want in (("alpha", alpha, want_a), ("rho", 1.0 - alpha, want_rho)):
+            err = np.abs(got / want - 1)
+            i = int(np.argmax(err))
+            rows.append(Row(f"{name} {label}", "f32", float(err[i]), "rel",
+                            INVERT_BOUNDS[label], f"Rd={rd[i]:.6g}"))
+        return rows
+    # the built-in profile sweep's radii and albedos (sigma_t' = 1)
+    r = np.float32(np.concatenate([[0.0], np.geomspace(1e-4, 1e3, n // 4)])).astype(np.float64)
+    alphas = np.float32([1e-3, 0.3, 0.9, 0.999, 1 - 1e-6]).astype(np.float64)
+    rr, aa = np.meshgrid(r, alphas)
+    got = run(rr, aa, np.ones_like(rr)).reshape(rr.shape)
+    want = ref.profile(rr, aa, 1.0, eta)
+    ok = want > 1e-30
+    err = np.where(ok, np.abs(got - want) / np.where(ok, want, 1.0), 0.0)
+    j = np.unravel_index(int(np.argmax(err)), err.shape)
+    mu_d = ref.mu_tr_over_sigma_t(1 - aa[j]) * np.hypot(rr[j], 3.0)
+    return [Row(name, "f32", float(err[j]), "rel", PHYSICS_BOUND_U * EPS[False] * (1 + mu_d),
+                f"r={rr[j]:.3g}, alpha'={aa[j]:.6g}, sigma_t=1")]
+
+# }}}
+
+
+def run_crosscheck(etas=(1.0, 1.4, 2.5), *, n=500, double=None, include=("physics", "invert",
+                                                                             "blur")):
+    """All built-in checks: a list of Rows."""
+    rt = get_runtime()
+    precisions = [False] + ([True] if (double is None and rt.has_fp64) or double else [])
+    rows = []
+    if "physics" in include:
+        for d in precisions:
+            rows += _physics_rows(etas, d, n)
+    if "invert" in include:
+        rows += _invert_rows(etas, n)
+    if "blur" in include:
+        rows += _blur_rows()
+    return rows
+
+
+def format_rows(rows):
+    head = ("function", "prec", "max error", "unit", "bound", "status", "worst at")
+    table = [head] + [(r.function, r.precision, f"{r.max_error:.3g}", r.unit,
+                       "-" if r.bound is None else f"{r.bound:.3g}", r.status, r.where)
+                      for r in rows]
+    widths = [max(len(t[i]) for t in table) for i in range(len(head))]
+    lines = ["  ".join(c.ljust(w) for c, w in zip(t, widths)).rstrip() for t in table]
+    fails = sum(r.status == "FAIL" for r in rows)
+    lines.append(f"{len(rows)} checks, {fails} over their bound"
+                 + (" (memo baseline rows are INFO: the memo has no bound)" if any(
+                     r.status == "INFO" for r in rows) else ""))
+    return "\n".join(lines)

@@ -28,13 +28,15 @@ def _floats(text):
 
 def _add_method_args(p):
     from .invert import METHODS
-    p.add_argument("--method", default="table", choices=METHODS, help="inversion method")
+    p.add_argument("--method", default="table", choices=METHODS + ("auto",),
+                   help="inversion method (auto: the cheapest meeting --tol in rho)")
     p.add_argument("--model", default="better", choices=("better", "dipole"),
                    help="Better Dipole (memo) or Jensen's classical dipole")
     p.add_argument("--exact", action="store_true",
                    help="exact Fresnel moments (quadrature) instead of d'Eon's fits")
     p.add_argument("--iterations", type=int, help="bisection/memo iterations, secant maximum")
-    p.add_argument("--tol", type=float, help="secant relative tolerance")
+    p.add_argument("--tol", type=float,
+                   help="secant relative tolerance; with --method auto, the rho accuracy")
     p.add_argument("--table-size", type=int, help="table intervals per segment (default 256)")
     p.add_argument("--polish", type=int, help="Newton steps after the table lookup")
     p.add_argument("--seed-size", type=int, help="secant seed table intervals (default 16)")
@@ -101,6 +103,13 @@ def _cmd_crosscheck(args) -> int:
     return 1 if any(r.status == "FAIL" for r in rows) else 0
 
 
+def _cmd_report(args) -> int:
+    from .report import run_report
+    run_report(args.output, n=args.n, blur_size=args.blur_size, repeats=args.repeats,
+               update_auto=args.update_auto)
+    return 0
+
+
 def _cmd_demo(args) -> int:
     from .demo import run_demo
     return run_demo(args.dir, progress=not args.no_progress)
@@ -145,6 +154,15 @@ def build_parser() -> argparse.ArgumentParser:
                    help="what it computes: rd(alpha', 2C1, 3C2), profile(r, alpha', sigma_t', "
                         "2C1, 3C2) or invert(Rd, 2C1, 3C2) -> alpha'")
     p.set_defaults(func=_cmd_crosscheck)
+
+    p = sub.add_parser("report", help="error against run time for every method (md, csv, png)")
+    p.add_argument("-o", "--output", default="report_out", help="folder for the report")
+    p.add_argument("--n", type=int, default=1 << 20, help="albedos in the inversion workload")
+    p.add_argument("--blur-size", type=int, default=512, help="side of the blur workload")
+    p.add_argument("--repeats", type=int, default=3)
+    p.add_argument("--update-auto", action="store_true",
+                   help="also write the measured inversion configurations for method='auto'")
+    p.set_defaults(func=_cmd_report)
 
     p = sub.add_parser("blur", help="blur an irradiance map with the Better Dipole profile R(r)")
     p.add_argument("input", help="irradiance image (EXR/TIFF/PNG...)")

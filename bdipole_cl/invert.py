@@ -18,6 +18,7 @@ name           what                                                         knob
 """
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -79,7 +80,7 @@ class MethodConfig:
         if m in ("memo", "bisection"):
             return f"{m}(iterations={self.iterations or 50})"
         if m == "secant":
-            return (f"secant(tol={self.tol if self.tol is not None else 'auto'}, "
+            return (f"secant(tol={self.tol if self.tol is not None else 'default'}, "
                     f"seed={self.seed_size})")
         return f"table(size={self.table_size}, polish={self.polish})"
 
@@ -120,10 +121,28 @@ def _channel_etas(eta, shape):
     return tuple(float(e) for e in etas), etas.size
 
 
+#: rho accuracy that ``method="auto"`` aims for when no ``tol`` is given (issue 3's bound)
+AUTO_DEFAULT_TOL = 1e-4
+
+
 def resolve_method(method="table", **knobs) -> MethodConfig:
-    """A MethodConfig from a method name and knobs (None knobs keep the defaults)."""
+    """A MethodConfig from a method name and knobs (None knobs keep the defaults).
+
+    ``method="auto"``: the cheapest configuration whose measured max relative error of rho is
+    <= ``tol`` (default AUTO_DEFAULT_TOL), from ``bdipole-cl report``'s measurements
+    (bdipole_cl/data/inversion_auto.json); the choice is logged (logger "bdipole_cl").
+    """
     if isinstance(method, MethodConfig):
         return method
+    if method == "auto":
+        from .report import auto_inversion_config
+        tol = knobs.get("tol") or AUTO_DEFAULT_TOL
+        config, entry = auto_inversion_config(tol)
+        logging.getLogger("bdipole_cl").info(
+            "method='auto', tol=%g: picked %s (measured max rho error %.2e, %.2f ms on %d "
+            "albedos in the report run)", tol, config.describe(), entry["max_rho_error"],
+            entry["median_s"] * 1e3, 1 << 20)
+        return config
     return MethodConfig(method, **{k: v for k, v in knobs.items() if v is not None})
 
 
@@ -194,9 +213,11 @@ def invert_albedo(rd, eta, method="table", *, return_rho=False, model="better", 
         Diffuse reflectance ("albedo"), linear. Rd <= 0 gives alpha' = 0, Rd = 1 gives 1.
     eta : float or sequence of float
         Relative index of refraction; one per channel (the last axis of ``rd``) allowed.
-    method : {"table", "secant", "bisection", "memo"} or MethodConfig
+    method : {"table", "secant", "bisection", "memo", "auto"} or MethodConfig
         See the module docstring; knobs ``iterations``, ``tol``, ``table_size``, ``polish``,
-        ``seed_size`` (None keeps each method's default).
+        ``seed_size`` (None keeps each method's default). ``"auto"`` picks the cheapest
+        measured configuration whose max relative rho error is <= ``tol`` (see
+        ``resolve_method``).
     return_rho : bool
         Also return rho = 1 - alpha', computed without cancellation (use it, not 1 - alpha').
     model : {"better", "dipole"}

@@ -501,6 +501,8 @@ def process_textures(inputs, *, mfp=1.0, eta=1.4, output=DEFAULT_OUTPUT,
     if alpha not in ("keep", "drop"):
         raise ValueError(f"alpha={alpha!r}: expected 'keep' or 'drop'")
     config = resolve_method(method, **knobs)
+    if method == "auto" and progress:
+        print(f"method='auto': using {config.describe()}")
     settings = dict(eta=tuple(np.atleast_1d(np.asarray(eta, np.float64)).tolist()),
                     mfp=_parse_constant(mfp, "mfp"), mfp_scale=float(mfp_scale),
                     config=config, model=model, exact=exact, half=half,

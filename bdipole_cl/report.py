@@ -1,0 +1,226 @@
+"""``bdipole-cl report``: error against run time for every method and its cost knob.
+
+On the current device, on fixed workloads (seeded), it measures for each configuration the max
+and mean error against the float64 reference and the median run time, and writes
+``report.md`` (table), ``report.csv`` and ``report.png`` (log-log error vs time, one curve per
+method, Pareto front circled). With ``--update-auto`` it also writes the measured inversion
+configurations to ``bdipole_cl/data/inversion_auto.json``, from which ``method="auto"`` picks.
+
+Inversion error: max relative error of rho (= sigma_a/sigma_t', the stiff quantity; alpha'
+errors are smaller for every method but the memo's, whose rho is reported as it is).
+Blur error: max |M - exact| / (max E * Rd), the exact discrete convolution computed with
+tol = 1e-9 weights in float64 by FFT.
+"""
+from __future__ import annotations
+
+import csv
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .benchmark import inversion_workload, reference_inverse, time_inversion
+from .device import get_runtime
+from .invert import MethodConfig
+
+AUTO_DATA = Path(__file__).resolve().parent / "data" / "inversion_auto.json"
+
+INVERSION_SWEEP = (
+    [MethodConfig("memo", iterations=i) for i in (12, 24, 50)]
+    + [MethodConfig("bisection", iterations=i) for i in (12, 20, 32, 50)]
+    + [MethodConfig("secant", tol=t) for t in (1e-2, 1e-4, 1e-6, 2e-7)]
+    + [MethodConfig("secant", tol=2e-7, seed_size=s) for s in (4, 64)]
+    + [MethodConfig("table", table_size=n) for n in (4, 8, 16, 32, 64, 256, 1024)]
+    + [MethodConfig("table", table_size=n, polish=1) for n in (4, 16)]
+)
+INVERSION_SWEEP_F64 = [MethodConfig("secant", tol=1e-12), MethodConfig("bisection", iterations=64),
+                       MethodConfig("table", table_size=256, polish=1),
+                       MethodConfig("table", table_size=256, polish=2)]
+BLUR_SWEEP = [(m, t) for m in ("direct", "gaussians", "fft") for t in (1e-2, 1e-3, 1e-4)]
+
+
+@dataclass
+class Point:
+    kind: str          # inversion | blur
+    method: str        # curve name
+    config: str
+    precision: str
+    seconds: float
+    max_error: float
+    mean_error: float
+    pareto: bool = False
+
+
+def inversion_points(n=1 << 20, eta=1.4, repeats=3, progress=print):
+    rt = get_runtime()
+    rd = inversion_workload(n)
+    want_a, want_rho = reference_inverse(rd, eta)
+    runs = [(c, False) for c in INVERSION_SWEEP]
+    if rt.has_fp64:
+        runs += [(c, True) for c in INVERSION_SWEEP_F64]
+    points = []
+    for cfg, double in runs:
+        r = time_inversion(cfg, rd, eta, want_a, want_rho, double=double, repeats=repeats)
+        prec = "f64" if double else "f32"
+        points.append(Point("inversion", f"{cfg.method} {prec}", cfg.describe(), prec,
+                            r.seconds, r.max_err_rho, r.mean_err_rho))
+        progress(f"  {cfg.describe():34s} {prec}  {r.seconds * 1e3:9.2f} ms  "
+                 f"max rho err {r.max_err_rho:.2e}")
+    return points
+
+
+def blur_points(size=512, mfp=4.0, repeats=3, progress=print):
+    import statistics
+    import time
+
+    from .blur import blur, channel_kernel, channel_parameters, fft_blur_channel
+    rng = np.random.default_rng(1)
+    e = rng.uniform(0, 1, (size, size, 1)).astype(np.float32)
+    params = channel_parameters(1, albedo=0.8, mfp=mfp, eta=1.4)[0]
+    exact_k = channel_kernel(*params, 1e-9)
+    exact = fft_blur_channel(e[..., 0], exact_k.weights, "clamp")
+    norm = e.max() * exact_k.rd
+    points = []
+    for method, tol in BLUR_SWEEP:
+        blur(e[:32, :32], albedo=0.8, mfp=mfp, tol=tol, method=method)      # build, fit
+        times = []
+        for _ in range(repeats):
+            t0 = time.perf_counter()
+            out = blur(e, albedo=0.8, mfp=mfp, tol=tol, method=method)
+            times.append(time.perf_counter() - t0)
+        err = np.abs(out[..., 0] - exact) / norm
+        points.append(Point("blur", method, f"{method}(tol={tol:g})", "f32",
+                            statistics.median(times), float(err.max()), float(err.mean())))
+        progress(f"  {method}(tol={tol:g})  {points[-1].seconds * 1e3:9.1f} ms  "
+                 f"max err {points[-1].max_error:.2e}")
+    return points
+
+
+def mark_pareto(points):
+    """Flag the points no other point of the same kind beats in both time and error."""
+    for p in points:
+        p.pareto = not any(q is not p and q.kind == p.kind and q.seconds <= p.seconds
+                           and q.max_error <= p.max_error
+                           and (q.seconds < p.seconds or q.max_error < p.max_error)
+                           for q in points)
+    return points
+
+
+def write_outputs(points, folder, device, workloads):
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    with open(folder / "report.csv", "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["kind", "method", "config", "precision", "median_s", "max_error",
+                    "mean_error", "pareto"])
+        for p in points:
+            w.writerow([p.kind, p.method, p.config, p.precision, f"{p.seconds:.6g}",
+                        f"{p.max_error:.3e}", f"{p.mean_error:.3e}", int(p.pareto)])
+    lines = [f"Device: {device}", "", *workloads, ""]
+    for kind, err_name in (("inversion", "max rel err rho"), ("blur", "max err / (max E Rd)")):
+        lines += [f"| {kind} config | prec | median ms | {err_name} | mean err | Pareto |",
+                  "|---|---|---:|---:|---:|:---:|"]
+        for p in sorted((p for p in points if p.kind == kind), key=lambda p: p.seconds):
+            lines.append(f"| {p.config} | {p.precision} | {p.seconds * 1e3:.2f} | "
+                         f"{p.max_error:.2e} | {p.mean_error:.2e} | {'*' if p.pareto else ''} |")
+        lines.append("")
+    (folder / "report.md").write_text("\n".join(lines))
+    _plot(points, folder / "report.png", device)
+    return folder
+
+
+def _plot(points, path, device):
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    fig, axes = plt.subplots(1, 2, figsize=(13, 5.2))
+    for ax, kind in zip(axes, ("inversion", "blur")):
+        pts = [p for p in points if p.kind == kind]
+        for method in dict.fromkeys(p.method for p in pts):
+            mp = [p for p in pts if p.method == method]        # in knob order
+            ax.plot([p.seconds * 1e3 for p in mp], [max(p.max_error, 1e-17) for p in mp],
+                    "o-", label=method, ms=4)
+        front = [p for p in pts if p.pareto]
+        ax.scatter([p.seconds * 1e3 for p in front], [max(p.max_error, 1e-17) for p in front],
+                   s=140, facecolors="none", edgecolors="k", label="Pareto front")
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+        ax.set_xlabel("median run time [ms]")
+        ax.set_ylabel("max relative error of rho" if kind == "inversion"
+                      else "max error / (max E * Rd)")
+        ax.set_title(kind)
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend(fontsize=7)
+    fig.suptitle(f"bdipole_cl error vs run time on {device}", fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def read_csv(path):
+    """Points back from a report.csv (to re-plot or re-table without re-measuring)."""
+    with open(path, newline="") as f:
+        return [Point(r["kind"], r["method"], r["config"], r["precision"], float(r["median_s"]),
+                      float(r["max_error"]), float(r["mean_error"]), r["pareto"] == "1")
+                for r in csv.DictReader(f)]
+
+
+def write_auto_data(points, path=AUTO_DATA):
+    """The inversion configurations in measured cost order, with their errors, for auto."""
+    inv = sorted((p for p in points if p.kind == "inversion" and p.precision == "f32"),
+                 key=lambda p: p.seconds)
+    data = [{"config": p.config, "max_rho_error": p.max_error, "median_s": p.seconds}
+            for p in inv]
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps({"device": get_runtime().describe(), "configs": data}, indent=1))
+    return path
+
+
+def run_report(folder="report_out", *, n=1 << 20, blur_size=512, repeats=3, update_auto=False,
+               progress=print):
+    rt = get_runtime()
+    progress(f"device: {rt.describe()}")
+    progress("inversion sweep:")
+    points = inversion_points(n, repeats=repeats, progress=progress)
+    progress("blur sweep:")
+    points += blur_points(blur_size, repeats=repeats, progress=progress)
+    mark_pareto(points)
+    workloads = [f"Inversion: {n} float32 albedos uniform on [1e-6, 0.999], eta 1.4, "
+                 f"median of {repeats} kernel runs on device buffers.",
+                 f"Blur: {blur_size}x{blur_size} 1-channel uniform random irradiance, albedo "
+                 f"0.8, mfp 4 texels, eta 1.4, border clamp, median of {repeats} calls "
+                 f"(host to host)."]
+    out = write_outputs(points, folder, rt.describe(), workloads)
+    if update_auto:
+        progress(f"wrote {write_auto_data(points)}")
+    progress(f"wrote {out / 'report.md'}, {out / 'report.csv'}, {out / 'report.png'}")
+    return points
+
+
+# {{{ method="auto" for the inversion
+
+def _parse_config(text):
+    """'table(size=256, polish=0)' -> MethodConfig (the inverse of MethodConfig.describe)."""
+    name, _, args = text.partition("(")
+    kv = dict(item.split("=") for item in args.rstrip(")").split(", ") if item)
+    if name == "table":
+        return MethodConfig("table", table_size=int(kv["size"]), polish=int(kv["polish"]))
+    if name == "secant":
+        tol = None if kv["tol"] == "default" else float(kv["tol"])
+        return MethodConfig("secant", tol=tol, seed_size=int(kv["seed"]))
+    return MethodConfig(name, iterations=int(kv["iterations"]))
+
+
+def auto_inversion_config(tol):
+    """The cheapest measured configuration whose max relative rho error is <= tol
+    (bdipole_cl/data/inversion_auto.json, written by ``bdipole-cl report --update-auto``)."""
+    data = json.loads(AUTO_DATA.read_text())
+    for entry in data["configs"]:
+        if entry["max_rho_error"] <= tol:
+            return _parse_config(entry["config"]), entry
+    best = min(data["configs"], key=lambda e: e["max_rho_error"])
+    raise ValueError(f"tol={tol:g}: no float32 configuration reaches it (best measured: "
+                     f"{best['config']} at {best['max_rho_error']:.2e}); use double=True")
+
+# }}}

@@ -1,0 +1,52 @@
+"""Error-vs-runtime report (bdipole_cl/report.py) and method='auto'."""
+import json
+import logging
+
+import numpy as np
+import pytest
+
+from bdipole_cl import invert_albedo
+from bdipole_cl import reference as ref
+from bdipole_cl.invert import resolve_method
+from bdipole_cl.report import (AUTO_DATA, Point, auto_inversion_config, mark_pareto, read_csv,
+                               run_report)
+
+
+@pytest.mark.parametrize("tol", [1e-3, 1e-5, 1e-6])
+def test_auto_picks_the_cheapest_measured_config_meeting_tol(tol, caplog):
+    data = json.loads(AUTO_DATA.read_text())["configs"]
+    config, entry = auto_inversion_config(tol)
+    assert entry["max_rho_error"] <= tol
+    cheaper = data[:data.index(entry)]
+    assert all(e["max_rho_error"] > tol for e in cheaper)      # nothing cheaper qualifies
+    # and the choice really meets tol on a fresh stiff sweep
+    rd = np.float32(np.concatenate([np.geomspace(1e-6, 0.5, 2000), 1 - np.geomspace(1e-3, 0.5, 2000)]))
+    with caplog.at_level(logging.INFO, logger="bdipole_cl"):
+        a, rho = invert_albedo(rd, 1.4, "auto", tol=tol, return_rho=True)
+    assert "picked" in caplog.text
+    want = ref.invert_rd_rho(rd.astype(np.float64), 1.4)[1]
+    assert np.max(np.abs(rho / want - 1)) <= tol
+
+
+def test_auto_without_a_reachable_tol_is_a_clear_error():
+    with pytest.raises(ValueError, match="no float32 configuration reaches it"):
+        resolve_method("auto", tol=1e-12)
+
+
+def test_pareto_marking():
+    pts = [Point("inversion", "a", "a1", "f32", 1.0, 1e-3, 0), Point("inversion", "a", "a2", "f32", 2.0, 1e-6, 0),
+           Point("inversion", "b", "b1", "f32", 3.0, 1e-3, 0), Point("blur", "c", "c1", "f32", 9.0, 1.0, 0)]
+    mark_pareto(pts)
+    assert [p.pareto for p in pts] == [True, True, False, True]
+
+
+def test_small_report_run_writes_table_csv_plot(tmp_path):
+    points = run_report(tmp_path, n=4096, blur_size=32, repeats=1, progress=lambda *_: None)
+    methods = {p.method.split()[0] for p in points}
+    assert {"memo", "bisection", "secant", "table", "direct", "gaussians", "fft"} <= methods
+    assert all(np.isfinite(p.max_error) and p.seconds > 0 for p in points)
+    md = (tmp_path / "report.md").read_text()
+    assert "| inversion config |" in md and "| blur config |" in md and "Device:" in md
+    assert len(read_csv(tmp_path / "report.csv")) == len(points)
+    assert (tmp_path / "report.png").stat().st_size > 10_000
+    assert any(p.pareto for p in points if p.kind == "inversion")

@@ -270,8 +270,6 @@ class _Blur:
     """Device buffers and programs for one image."""
 
     def __init__(self, e, border):
-        if border not in BORDERS:
-            raise ValueError(f"border={border!r}: expected one of {BORDERS}")
         self.rt = rt = get_runtime()
         self.h, self.w, self.c = e.shape
         opts = build_options({f"BORDER_{border.upper()}": None})
@@ -334,23 +332,60 @@ class BlurInfo:
     channels: list
 
 
+def _halo_rows(y0, y1, k, height, border):
+    """Row indices of band [y0, y1) with k halo rows each side, by the border rule
+    (-1: a zero row)."""
+    rows = np.arange(y0 - k, y1 + k)
+    if border == "clamp":
+        return np.clip(rows, 0, height - 1)
+    if border == "wrap":
+        return rows % height
+    return np.where((rows >= 0) & (rows < height), rows, -1)
+
+
 def blur(irradiance, *, albedo=None, mfp=None, eta=1.4, texel_size=1.0, alpha=None,
          sigma_t=None, tol=1e-3, method="auto", border="clamp", exact=False,
-         on_invalid="raise", return_info=False):
+         on_invalid="raise", return_info=False, max_memory=None):
     """Texture-space subsurface scattering: ``irradiance`` (HxW or HxWxC) blurred by R(r).
 
     ``albedo`` (Rd) and ``mfp`` (ld = 1/mu_tr, same unit as ``texel_size``) per channel, or
     ``alpha`` (alpha') and ``sigma_t`` (sigma_t', 1/unit); ``eta`` per channel. Returns the
     exitance, HxWxC float32 (and a BlurInfo with ``return_info``). See the module docstring.
+
+    ``max_memory`` (bytes): blur in bands of rows, each with a halo of the truncation radius
+    taken by the border rule, so the working set stays bounded; the result is the same as in
+    one piece (the halo holds every texel an interior kernel reaches).
     """
     if method not in BLUR_METHODS:
         raise ValueError(f"method={method!r}: expected one of {BLUR_METHODS}")
     if not 0 < tol < 1:
         raise ValueError(f"tol={tol!r}: expected 0 < tol < 1")
+    if border not in BORDERS:
+        raise ValueError(f"border={border!r}: expected one of {BORDERS}")
     e = _check_irradiance(irradiance, on_invalid)
     params = channel_parameters(e.shape[2], albedo=albedo, mfp=mfp, eta=eta,
                                 texel_size=texel_size, alpha=alpha, sigma_t=sigma_t,
                                 exact=exact)
+    h, w, nch = e.shape
+    k = max(channel_kernel(a, st, et, tol, exact).radius for a, st, et in params)
+    # working set per band row: input, output, a temporary and the FFT's float64 copies
+    per_row = w * nch * 4 * 8
+    rows = h if max_memory is None else max(1, int(max_memory // per_row) - 2 * k)
+    if rows >= h:
+        return _blur_whole(e, params, tol, method, border, exact, return_info)
+    out = np.empty_like(e)
+    info = None
+    for y0 in range(0, h, rows):
+        y1 = min(y0 + rows, h)
+        idx = _halo_rows(y0, y1, k, h, border)
+        band = np.where((idx >= 0)[:, None, None], e[np.maximum(idx, 0)], np.float32(0))
+        res, info = _blur_whole(band, params, tol, method, border, exact, True)
+        out[y0:y1] = res[k:k + (y1 - y0)]
+    return (out, info) if return_info else out
+
+
+def _blur_whole(e, params, tol, method, border, exact, return_info):
+    """``blur`` on one in-memory image (or band with its halo)."""
     ctx = None
 
     fft_out = {}
@@ -380,37 +415,73 @@ def blur(irradiance, *, albedo=None, mfp=None, eta=1.4, texel_size=1.0, alpha=No
     return (out, BlurInfo(info)) if return_info else out
 
 
-def blur_file(path, output, *, colorspace="auto", half=False, **kwargs):
-    """``bdipole-cl blur``: blur an irradiance image file into an EXR (whole image in memory;
-    tiled processing of very large maps is not implemented yet). Integer files are decoded to
-    linear as in ``process_textures``; alpha is copied through."""
+def _read_rows(reader, idx):
+    """Rows ``idx`` (-1: zeros) of an open image, reading each contiguous run once."""
+    spec = reader.spec
+    out = np.zeros((len(idx), spec.width, spec.nchannels), np.float32)
+    valid = np.flatnonzero(idx >= 0)
+    if valid.size:
+        lo, hi = int(idx[valid].min()), int(idx[valid].max()) + 1
+        if hi - lo <= 2 * len(idx):
+            block = reader.read_band(lo, hi)
+            out[valid] = block[idx[valid] - lo]
+        else:                                   # wrap halos: the two ends separately
+            for j in valid:
+                out[j] = reader.read_band(int(idx[j]), int(idx[j]) + 1)[0]
+    return out
+
+
+def blur_file(path, output, *, colorspace="auto", half=False, max_memory=256 << 20,
+              **kwargs):
+    """``bdipole-cl blur``: blur an irradiance image file into an EXR, streamed in bands of
+    rows with a halo of the truncation radius (memory bounded by ``max_memory``). Integer
+    files are decoded to linear as in ``process_textures``; alpha is copied through."""
     from pathlib import Path
 
-    from .textures import TextureError, _output_spec, _Reader, _Writer, source_colorspace, to_linear
+    from .textures import (TextureError, _output_spec, _Reader, _Writer, source_colorspace,
+                           to_linear)
     reader = _Reader(path, "irradiance")
     writer = None
     try:
         spec = reader.spec
         colour, alpha_ch = reader.channels()
-        px = reader.read_band(0, spec.height)
-        e = px[..., colour]
         space = source_colorspace(spec, colorspace)
-        if space is not None:
-            e = to_linear(e, space)
-        out, info = blur(e, return_info=True, **kwargs)
+        border = kwargs.get("border", "clamp")
+        tol, exact = kwargs.get("tol", 1e-3), kwargs.get("exact", False)
+        params = channel_parameters(
+            len(colour), albedo=kwargs.get("albedo"), mfp=kwargs.get("mfp"),
+            eta=kwargs.get("eta", 1.4), texel_size=kwargs.get("texel_size", 1.0),
+            alpha=kwargs.get("alpha"), sigma_t=kwargs.get("sigma_t"), exact=exact)
+        k = max(channel_kernel(a, st, et, tol, exact).radius for a, st, et in params)
+        per_row = spec.width * spec.nchannels * 4 * 10
+        rows = max(1, int(max_memory // per_row) - 2 * k)
+        if spec.tile_height:
+            rows = max(spec.tile_height, rows - rows % spec.tile_height)
         names = [spec.channelnames[c] for c in colour]
-        parts = [out]
         if alpha_ch >= 0:
             names.append(spec.channelnames[alpha_ch])
-            parts.append(px[..., alpha_ch:alpha_ch + 1])
-        params = {k: v for k, v in kwargs.items() if k in ("albedo", "mfp", "eta", "texel_size",
-                                                            "alpha", "sigma_t", "tol", "border")}
-        params["methods"] = ",".join(f"{c['method']}(r={c['radius']})" for c in info.channels)
-        params["source"] = str(path)
-        Path(output).parent.mkdir(parents=True, exist_ok=True)
-        writer = _Writer(output, _output_spec(spec, names, len(names) - 1 if alpha_ch >= 0 else -1,
-                                              half, params))
-        writer.write_band(0, spec.height, np.concatenate(parts, axis=-1))
+        info = None
+        for y0 in range(0, spec.height, rows):
+            y1 = min(y0 + rows, spec.height)
+            px = _read_rows(reader, _halo_rows(y0, y1, k, spec.height, border))
+            e = px[..., colour]
+            if space is not None:
+                e = to_linear(e, space)
+            out, info = blur(e, return_info=True, **kwargs)
+            parts = [out[k:k + y1 - y0]]
+            if alpha_ch >= 0:
+                parts.append(px[k:k + y1 - y0, :, alpha_ch:alpha_ch + 1])
+            if writer is None:
+                meta = {key: v for key, v in kwargs.items()
+                        if key in ("albedo", "mfp", "eta", "texel_size", "alpha", "sigma_t",
+                                   "tol", "border")}
+                meta["methods"] = ",".join(f"{c['method']}(r={c['radius']})"
+                                           for c in info.channels)
+                meta["source"] = str(path)
+                Path(output).parent.mkdir(parents=True, exist_ok=True)
+                writer = _Writer(output, _output_spec(
+                    spec, names, len(names) - 1 if alpha_ch >= 0 else -1, half, meta))
+            writer.write_band(y0, y1, np.concatenate(parts, axis=-1))
         writer.commit()
         writer = None
         return info

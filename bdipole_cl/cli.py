@@ -71,7 +71,8 @@ def _cmd_blur(args) -> int:
     else:
         kw.update(albedo=_floats(args.albedo), mfp=_floats(args.mfp))
     try:
-        info = blur_file(args.input, args.output, half=args.half, **kw)
+        info = blur_file(args.input, args.output, half=args.half,
+                         max_memory=_size(args.max_memory), **kw)
     except TextureError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1
@@ -181,6 +182,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="NaN/Inf irradiance: fail, or treat as unlit")
     p.add_argument("--exact", action="store_true", help="exact Fresnel moments")
     p.add_argument("--half", action="store_true")
+    p.add_argument("--max-memory", default="256M",
+                   help="host memory for bands of rows (each with a halo of the radius)")
     p.set_defaults(func=_cmd_blur)
 
     p = sub.add_parser(

@@ -19,7 +19,7 @@ name           what                                                         knob
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 import pyopencl as cl
@@ -49,7 +49,6 @@ class MethodConfig:
     table_size: int = 256
     polish: int = 0
     seed_size: int = 16
-    defaults: dict = field(default_factory=dict, compare=False, repr=False)
 
     def __post_init__(self):
         if self.method not in METHODS:

@@ -134,5 +134,28 @@ def test_blur_cli_on_an_exr(tmp_path, capsys):
     inp.close()
     want = blur(e, albedo=(0.8, 0.6, 0.4), mfp=(1, 0.5, 0.25), texel_size=0.5)
     np.testing.assert_allclose(got, want, rtol=1e-6, atol=1e-7)
+    # streamed in bands of a few rows with halos: the same result
+    for border in ("clamp", "wrap"):
+        assert cli_main(["blur", str(tmp_path / "e.exr"), "-o", str(tmp_path / "b.exr"),
+                         "--albedo", "0.8,0.6,0.4", "--mfp", "1,0.5,0.25", "--texel-size", "0.5",
+                         "--border", border, "--max-memory", "30K"]) == 0
+        inp = oiio.ImageInput.open(str(tmp_path / "b.exr"))
+        banded = inp.read_image(0, 0, 0, 3, oiio.FLOAT)
+        inp.close()
+        np.testing.assert_allclose(banded, blur(e, albedo=(0.8, 0.6, 0.4), mfp=(1, 0.5, 0.25),
+                                                texel_size=0.5, border=border),
+                                   rtol=1e-5, atol=1e-6)
     assert cli_main(["blur", str(tmp_path / "missing.exr"), "-o", str(tmp_path / "x.exr")]) == 1
     assert not (tmp_path / "x.exr").exists()
+
+
+@pytest.mark.parametrize("border", ["clamp", "zero", "wrap"])
+@pytest.mark.parametrize("method", ["direct", "gaussians", "fft"])
+def test_banded_blur_with_halo_equals_whole_image(method, border):
+    e = np.random.default_rng(9).uniform(0, 1, (37, 29, 2)).astype(np.float32)
+    kw = dict(albedo=(0.8, 0.5), mfp=(2.0, 1.0), eta=1.4, method=method, border=border)
+    whole = blur(e, **kw)
+    per_row = 29 * 2 * 4 * 8
+    k = 10   # the truncation radius of these parameters is below this
+    banded = blur(e, max_memory=per_row * (5 + 2 * k), **kw)   # bands of ~5 rows
+    np.testing.assert_allclose(banded, whole, rtol=1e-5, atol=1e-6)

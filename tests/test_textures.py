@@ -91,7 +91,7 @@ def test_formats_values_and_headers(tmp_path, ext, fmt, channels, decode):
                                                               else "srgb_rec709_scene")
     # expected linear albedo, decoded independently of OpenImageIO
     _, stored = read(path)
-    for ci, c in enumerate(colour):
+    for c in colour:
         enc = stored[..., channels.index(c)].astype(np.float64)
         albedo = srgb_to_linear(enc) if decode == "srgb" else enc
         rho = channel(spec, px, f"rho.{c}").astype(np.float64)

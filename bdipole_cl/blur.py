@@ -23,8 +23,11 @@ Methods (``method=``)
                the fit's L1 error, a bound on the output error relative to max(E) * Rd, is
                reported and kept <= tol where the basis allows (kernels/blur_separable.cl).
 ``fft``        the exact weights by FFT convolution on the host (scipy.fft, all cores).
-``auto``       ``direct`` for radius <= AUTO_DIRECT_MAX_RADIUS texels, else ``fft``: on a
-               2-core PoCL CPU the FFT is the fastest for everything larger (see README).
+``auto``       the cheapest configuration (method, truncation tol) that ``bdipole-cl report``
+               measured to meet ``tol`` on the workload of the nearest kernel radius
+               (bdipole_cl/data/inversion_auto.json); BlurInfo says which and why. With
+               ``auto``, ``tol`` is the error target relative to max(E) * Rd; with an
+               explicit method it is the truncation tolerance (which bounds that error).
 
 Parameters are constant per channel (scalars or per-channel tuples). Texture-varying
 parameters are not implemented yet (ValueError).
@@ -103,6 +106,7 @@ class ChannelKernel:
     alpha: float
     sigma_t: float           # per texel
     truncated: float         # energy beyond the truncation radius, before renormalizing, / rd
+    tol: float               # the truncation tolerance it was built for
 
 
 @lru_cache(maxsize=64)
@@ -129,7 +133,7 @@ def channel_kernel(alpha, sigma_t_texels, eta, tol, exact=False, max_radius=2048
     kept = w.sum()
     w *= rd / kept
     w.setflags(write=False)
-    return ChannelKernel(w, k, rd, alpha, st, 1.0 - kept / rd)
+    return ChannelKernel(w, k, rd, alpha, st, 1.0 - kept / rd, tol)
 
 # }}}
 
@@ -367,34 +371,56 @@ def blur(irradiance, *, albedo=None, mfp=None, eta=1.4, texel_size=1.0, alpha=No
                                 texel_size=texel_size, alpha=alpha, sigma_t=sigma_t,
                                 exact=exact)
     h, w, nch = e.shape
-    k = max(channel_kernel(a, st, et, tol, exact).radius for a, st, et in params)
+    plans = [_plan(method, a, st, et, tol, exact) for a, st, et in params]
+    k = max(ck.radius for _, ck, _ in plans)
     # working set per band row: input, output, a temporary and the FFT's float64 copies
     per_row = w * nch * 4 * 8
     rows = h if max_memory is None else max(1, int(max_memory // per_row) - 2 * k)
     if rows >= h:
-        return _blur_whole(e, params, tol, method, border, exact, return_info)
+        return _blur_whole(e, params, plans, border, exact, return_info)
     out = np.empty_like(e)
     info = None
     for y0 in range(0, h, rows):
         y1 = min(y0 + rows, h)
         idx = _halo_rows(y0, y1, k, h, border)
         band = np.where((idx >= 0)[:, None, None], e[np.maximum(idx, 0)], np.float32(0))
-        res, info = _blur_whole(band, params, tol, method, border, exact, True)
+        res, info = _blur_whole(band, params, plans, border, exact, True)
         out[y0:y1] = res[k:k + (y1 - y0)]
     return (out, info) if return_info else out
 
 
-def _blur_whole(e, params, tol, method, border, exact, return_info):
-    """``blur`` on one in-memory image (or band with its halo)."""
-    ctx = None
+def _auto_choice(ck, alpha, sigma_t, eta, tol, exact):
+    """``method="auto"``: the cheapest configuration measured by ``bdipole-cl report`` whose
+    max error (relative to max(E) * Rd) is <= tol, on the workload of the nearest radius; without
+    data, ``direct`` up to AUTO_DIRECT_MAX_RADIUS and ``fft`` above, at truncation tol."""
+    from .report import auto_blur_config
+    choice = auto_blur_config(ck.radius, tol)
+    if choice is None:
+        m = "direct" if ck.radius <= AUTO_DIRECT_MAX_RADIUS else "fft"
+        return m, ck, {"rule": "no measured configuration meets tol: radius rule"}
+    method, trunc_tol, entry = choice
+    if trunc_tol != tol:
+        ck = channel_kernel(alpha, sigma_t, eta, trunc_tol, exact)
+    return method, ck, {"measured_error": entry["max_error"], "truncation_tol": trunc_tol,
+                        "measured_ms": entry["median_s"] * 1e3,
+                        "workload_radius": entry["radius"]}
 
+
+def _plan(method, alpha, sigma_t, eta, tol, exact):
+    """(method, ChannelKernel, auto record or None) of one channel."""
+    ck = channel_kernel(alpha, sigma_t, eta, tol, exact)
+    if method == "auto":
+        return _auto_choice(ck, alpha, sigma_t, eta, tol, exact)
+    return method, ck, None
+
+
+def _blur_whole(e, params, plans, border, exact, return_info):
+    """``blur`` on one in-memory image (or band with its halo), channel plans resolved."""
+    ctx = None
     fft_out = {}
     info = []
-    for c, (a, st, et) in enumerate(params):
-        ck = channel_kernel(a, st, et, tol, exact)
-        m = method
-        if m == "auto":
-            m = "direct" if ck.radius <= AUTO_DIRECT_MAX_RADIUS else "fft"
+    for c, ((a, st, et), (m, ck, picked)) in enumerate(zip(params, plans)):
+        tol = ck.tol
         if m in ("direct", "gaussians") and ctx is None:
             ctx = _Blur(e, border)
         if m == "direct":
@@ -407,8 +433,12 @@ def _blur_whole(e, params, tol, method, border, exact, return_info):
         else:
             fft_out[c] = fft_blur_channel(e[..., c], ck.weights, border)
             bound = tol
-        info.append({"channel": c, "method": m, "radius": ck.radius, "rd": ck.rd,
-                     "error_bound": bound})
+        entry = {"channel": c, "method": m, "radius": ck.radius, "rd": ck.rd,
+                 "error_bound": bound}
+        if picked is not None:
+            entry["auto"] = picked
+            entry["error_bound"] = max(bound, picked.get("measured_error", 0.0))
+        info.append(entry)
     out = ctx.result() if ctx is not None else np.empty_like(e)
     for c, v in fft_out.items():
         out[..., c] = v

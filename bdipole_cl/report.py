@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import csv
 import json
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -38,6 +38,8 @@ INVERSION_SWEEP_F64 = [MethodConfig("secant", tol=1e-12), MethodConfig("bisectio
                        MethodConfig("table", table_size=256, polish=1),
                        MethodConfig("table", table_size=256, polish=2)]
 BLUR_SWEEP = [(m, t) for m in ("direct", "gaussians", "fft") for t in (1e-2, 1e-3, 1e-4)]
+#: blur workloads: mfp in texels (a small and a large kernel radius)
+BLUR_WORKLOADS = (0.5, 4.0)
 
 
 @dataclass
@@ -50,6 +52,7 @@ class Point:
     max_error: float
     mean_error: float
     pareto: bool = False
+    meta: dict = field(default_factory=dict, compare=False)
 
 
 def inversion_points(n=1 << 20, eta=1.4, repeats=3, progress=print):
@@ -70,30 +73,35 @@ def inversion_points(n=1 << 20, eta=1.4, repeats=3, progress=print):
     return points
 
 
-def blur_points(size=512, mfp=4.0, repeats=3, progress=print):
+def blur_points(size=512, mfps=BLUR_WORKLOADS, repeats=3, progress=print):
+    """Every blur method and truncation tol on one workload per mfp (kind "blur mfp <m>")."""
     import statistics
     import time
 
     from .blur import blur, channel_kernel, channel_parameters, fft_blur_channel
     rng = np.random.default_rng(1)
     e = rng.uniform(0, 1, (size, size, 1)).astype(np.float32)
-    params = channel_parameters(1, albedo=0.8, mfp=mfp, eta=1.4)[0]
-    exact_k = channel_kernel(*params, 1e-9)
-    exact = fft_blur_channel(e[..., 0], exact_k.weights, "clamp")
-    norm = e.max() * exact_k.rd
     points = []
-    for method, tol in BLUR_SWEEP:
-        blur(e[:32, :32], albedo=0.8, mfp=mfp, tol=tol, method=method)      # build, fit
-        times = []
-        for _ in range(repeats):
-            t0 = time.perf_counter()
-            out = blur(e, albedo=0.8, mfp=mfp, tol=tol, method=method)
-            times.append(time.perf_counter() - t0)
-        err = np.abs(out[..., 0] - exact) / norm
-        points.append(Point("blur", method, f"{method}(tol={tol:g})", "f32",
-                            statistics.median(times), float(err.max()), float(err.mean())))
-        progress(f"  {method}(tol={tol:g})  {points[-1].seconds * 1e3:9.1f} ms  "
-                 f"max err {points[-1].max_error:.2e}")
+    for mfp in mfps:
+        params = channel_parameters(1, albedo=0.8, mfp=mfp, eta=1.4)[0]
+        exact_k = channel_kernel(*params, 1e-9)
+        exact = fft_blur_channel(e[..., 0], exact_k.weights, "clamp")
+        norm = e.max() * exact_k.rd
+        radius = channel_kernel(*params, 1e-3).radius
+        for method, tol in BLUR_SWEEP:
+            blur(e[:32, :32], albedo=0.8, mfp=mfp, tol=tol, method=method)      # build, fit
+            times = []
+            for _ in range(repeats):
+                t0 = time.perf_counter()
+                out = blur(e, albedo=0.8, mfp=mfp, tol=tol, method=method)
+                times.append(time.perf_counter() - t0)
+            err = np.abs(out[..., 0] - exact) / norm
+            p = Point(f"blur mfp {mfp:g}", method, f"{method}(tol={tol:g})", "f32",
+                      statistics.median(times), float(err.max()), float(err.mean()),
+                      meta={"method": method, "tol": tol, "radius": radius, "mfp": mfp})
+            points.append(p)
+            progress(f"  mfp {mfp:g} (radius {radius}) {p.config:22s} {p.seconds * 1e3:9.1f} ms"
+                     f"  max err {p.max_error:.2e}")
     return points
 
 
@@ -118,7 +126,8 @@ def write_outputs(points, folder, device, workloads):
             w.writerow([p.kind, p.method, p.config, p.precision, f"{p.seconds:.6g}",
                         f"{p.max_error:.3e}", f"{p.mean_error:.3e}", int(p.pareto)])
     lines = [f"Device: {device}", "", *workloads, ""]
-    for kind, err_name in (("inversion", "max rel err rho"), ("blur", "max err / (max E Rd)")):
+    for kind in dict.fromkeys(p.kind for p in points):
+        err_name = "max rel err rho" if kind == "inversion" else "max err / (max E Rd)"
         lines += [f"| {kind} config | prec | median ms | {err_name} | mean err | Pareto |",
                   "|---|---|---:|---:|---:|:---:|"]
         for p in sorted((p for p in points if p.kind == kind), key=lambda p: p.seconds):
@@ -134,8 +143,9 @@ def _plot(points, path, device):
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    fig, axes = plt.subplots(1, 2, figsize=(13, 5.2))
-    for ax, kind in zip(axes, ("inversion", "blur")):
+    kinds = list(dict.fromkeys(p.kind for p in points))
+    fig, axes = plt.subplots(1, len(kinds), figsize=(6.2 * len(kinds), 5.2), squeeze=False)
+    for ax, kind in zip(axes[0], kinds):
         pts = [p for p in points if p.kind == kind]
         for method in dict.fromkeys(p.method for p in pts):
             mp = [p for p in pts if p.method == method]        # in knob order
@@ -159,7 +169,8 @@ def _plot(points, path, device):
 
 
 def read_csv(path):
-    """Points back from a report.csv (to re-plot or re-table without re-measuring)."""
+    """Points back from a report.csv (to re-plot or re-table without re-measuring; blur
+    points come back without their ``meta``)."""
     with open(path, newline="") as f:
         return [Point(r["kind"], r["method"], r["config"], r["precision"], float(r["median_s"]),
                       float(r["max_error"]), float(r["mean_error"]), r["pareto"] == "1")
@@ -167,13 +178,18 @@ def read_csv(path):
 
 
 def write_auto_data(points, path=AUTO_DATA):
-    """The inversion configurations in measured cost order, with their errors, for auto."""
+    """The measured configurations, in cost order, for ``method="auto"``: float32 inversion
+    configurations with their max rho error, and blur configurations per workload radius."""
     inv = sorted((p for p in points if p.kind == "inversion" and p.precision == "f32"),
                  key=lambda p: p.seconds)
-    data = [{"config": p.config, "max_rho_error": p.max_error, "median_s": p.seconds}
-            for p in inv]
+    blur = sorted((p for p in points if p.kind.startswith("blur")),
+                  key=lambda p: (p.meta["radius"], p.seconds))
+    data = {"device": get_runtime().describe(),
+            "configs": [{"config": p.config, "max_rho_error": p.max_error,
+                         "median_s": p.seconds} for p in inv],
+            "blur": [dict(p.meta, max_error=p.max_error, median_s=p.seconds) for p in blur]}
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps({"device": get_runtime().describe(), "configs": data}, indent=1))
+    path.write_text(json.dumps(data, indent=1))
     return path
 
 
@@ -189,8 +205,8 @@ def run_report(folder="report_out", *, n=1 << 20, blur_size=512, repeats=3, upda
     workloads = [f"Inversion: {n} float32 albedos uniform on [1e-6, 0.999], eta 1.4, "
                  f"median of {repeats} kernel runs on device buffers.",
                  f"Blur: {blur_size}x{blur_size} 1-channel uniform random irradiance, albedo "
-                 f"0.8, mfp 4 texels, eta 1.4, border clamp, median of {repeats} calls "
-                 f"(host to host)."]
+                 f"0.8, mfp {' and '.join(f'{m:g}' for m in BLUR_WORKLOADS)} texels, eta 1.4, "
+                 f"border clamp, median of {repeats} calls (host to host)."]
     out = write_outputs(points, folder, rt.describe(), workloads)
     if update_auto:
         progress(f"wrote {write_auto_data(points)}")
@@ -224,3 +240,19 @@ def auto_inversion_config(tol):
                      f"{best['config']} at {best['max_rho_error']:.2e}); use double=True")
 
 # }}}
+
+
+def auto_blur_config(radius, tol):
+    """(method, truncation tol, entry) for ``blur(method="auto", tol=tol)`` on a kernel of
+    ``radius`` texels: the cheapest measured configuration, on the measured workload of the
+    nearest radius, whose measured max error is <= tol; None if none qualifies."""
+    data = json.loads(AUTO_DATA.read_text()).get("blur", [])
+    if not data:
+        return None
+    radii = sorted({e["radius"] for e in data})
+    near = min(radii, key=lambda r: abs(np.log((r + 1.0) / (radius + 1.0))))
+    ok = [e for e in data if e["radius"] == near and e["max_error"] <= tol]
+    if not ok:
+        return None
+    best = min(ok, key=lambda e: e["median_s"])
+    return best["method"], best["tol"], best

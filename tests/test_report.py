@@ -46,7 +46,27 @@ def test_small_report_run_writes_table_csv_plot(tmp_path):
     assert {"memo", "bisection", "secant", "table", "direct", "gaussians", "fft"} <= methods
     assert all(np.isfinite(p.max_error) and p.seconds > 0 for p in points)
     md = (tmp_path / "report.md").read_text()
-    assert "| inversion config |" in md and "| blur config |" in md and "Device:" in md
+    assert "| inversion config |" in md and "| blur mfp 0.5 config |" in md and "Device:" in md
     assert len(read_csv(tmp_path / "report.csv")) == len(points)
     assert (tmp_path / "report.png").stat().st_size > 10_000
     assert any(p.pareto for p in points if p.kind == "inversion")
+
+
+@pytest.mark.parametrize("tol", [2e-3, 2e-4, 3e-5])
+def test_blur_auto_picks_a_measured_config_meeting_tol(tol):
+    from bdipole_cl.blur import blur, channel_kernel, channel_parameters, fft_blur_channel
+    e = np.random.default_rng(4).uniform(0, 1, (40, 40, 1)).astype(np.float32)
+    out, info = blur(e, albedo=0.8, mfp=3.0, tol=tol, method="auto", return_info=True)
+    picked = info.channels[0]["auto"]
+    assert picked["measured_error"] <= tol, picked
+    data = json.loads(AUTO_DATA.read_text())["blur"]
+    same = [d for d in data if d["radius"] == picked["workload_radius"] and d["max_error"] <= tol]
+    assert picked["measured_ms"] == pytest.approx(min(d["median_s"] for d in same) * 1e3)
+    # and it holds here: error vs the exact discrete convolution relative to max(E) * Rd
+    p = channel_parameters(1, albedo=0.8, mfp=3.0, eta=1.4)[0]
+    exact_k = channel_kernel(*p, 1e-9)
+    exact = fft_blur_channel(e[..., 0], exact_k.weights, "clamp")
+    assert np.abs(out[..., 0] - exact).max() / (e.max() * exact_k.rd) <= tol
+    # banded with halos, the same answer (the halo follows the picked truncation)
+    banded = blur(e, albedo=0.8, mfp=3.0, tol=tol, method="auto", max_memory=40 * 4 * 8 * 30)
+    np.testing.assert_allclose(banded, out, rtol=1e-5, atol=1e-6)

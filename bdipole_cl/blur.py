@@ -482,7 +482,9 @@ def blur_file(path, output, *, colorspace="auto", half=False, max_memory=256 << 
             len(colour), albedo=kwargs.get("albedo"), mfp=kwargs.get("mfp"),
             eta=kwargs.get("eta", 1.4), texel_size=kwargs.get("texel_size", 1.0),
             alpha=kwargs.get("alpha"), sigma_t=kwargs.get("sigma_t"), exact=exact)
-        k = max(channel_kernel(a, st, et, tol, exact).radius for a, st, et in params)
+        # the halo follows each channel's plan (auto may pick a tighter truncation than tol)
+        k = max(ck.radius for _, ck, _ in (_plan(kwargs.get("method", "auto"), a, st, et, tol,
+                                                 exact) for a, st, et in params))
         per_row = spec.width * spec.nchannels * 4 * 10
         rows = max(1, int(max_memory // per_row) - 2 * k)
         if spec.tile_height:

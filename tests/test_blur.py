@@ -136,7 +136,7 @@ def test_blur_cli_on_an_exr(tmp_path, capsys):
     inp.close()
     want = blur(e, albedo=(0.8, 0.6, 0.4), mfp=(1, 0.5, 0.25), texel_size=0.5)
     np.testing.assert_allclose(got, want, rtol=1e-6, atol=1e-7)
-    # streamed in bands of a few rows with halos: the same result
+    # streamed in bands of a few rows with halos: the same result (auto, data-driven plans)
     for border in ("clamp", "wrap"):
         assert cli_main(["blur", str(tmp_path / "e.exr"), "-o", str(tmp_path / "b.exr"),
                          "--albedo", "0.8,0.6,0.4", "--mfp", "1,0.5,0.25", "--texel-size", "0.5",
@@ -161,3 +161,21 @@ def test_banded_blur_with_halo_equals_whole_image(method, border):
     k = 10   # the truncation radius of these parameters is below this
     banded = blur(e, max_memory=per_row * (5 + 2 * k), **kw)   # bands of ~5 rows
     np.testing.assert_allclose(banded, whole, rtol=1e-5, atol=1e-6)
+
+
+def test_banded_file_blur_halo_follows_auto_plan(tmp_path):
+    # a small kernel for which auto picks a tighter truncation (larger radius) than tol gives
+    from bdipole_cl.blur import _plan, blur_file
+    from bdipole_cl.demo import write_exr
+    (a, st, eta), = channel_parameters(1, albedo=0.8, mfp=1.0, eta=1.4)
+    m, ck, picked = _plan("auto", a, st, eta, 1e-3, False)
+    assert ck.radius > channel_kernel(a, st, eta, 1e-3).radius, (m, picked)
+    e = np.random.default_rng(6).uniform(0, 1, (24, 20, 1)).astype(np.float32)
+    write_exr(tmp_path / "e.exr", e, ("Y",))
+    blur_file(tmp_path / "e.exr", tmp_path / "m.exr", albedo=0.8, mfp=1.0, max_memory=1)
+    import OpenImageIO as oiio
+    inp = oiio.ImageInput.open(str(tmp_path / "m.exr"))
+    got = inp.read_image(0, 0, 0, 1, oiio.FLOAT)
+    inp.close()
+    np.testing.assert_allclose(got.reshape(e.shape), blur(e, albedo=0.8, mfp=1.0),
+                               rtol=1e-5, atol=1e-7)

@@ -70,3 +70,23 @@ def test_blur_auto_picks_a_measured_config_meeting_tol(tol):
     # banded with halos, the same answer (the halo follows the picked truncation)
     banded = blur(e, albedo=0.8, mfp=3.0, tol=tol, method="auto", max_memory=40 * 4 * 8 * 30)
     np.testing.assert_allclose(banded, out, rtol=1e-5, atol=1e-6)
+
+
+def test_copy_kernel_floor_copies_and_times():
+    # kernels/copy.cl: the memory-bound floor the benchmarks compare against
+    import pyopencl as cl
+
+    from bdipole_cl.benchmark import time_copy
+    from bdipole_cl.device import build_options, get_program, get_runtime
+    rt = get_runtime()
+    knl = cl.Kernel(get_program(rt, "copy", build_options()), "copy")
+    src = np.arange(1000, dtype=np.float32)
+    mf = cl.mem_flags
+    a = cl.Buffer(rt.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=src)
+    b = cl.Buffer(rt.context, mf.WRITE_ONLY, src.nbytes)
+    knl(rt.queue, (src.size,), None, a, b, np.uint64(src.size))
+    dst = np.empty_like(src)
+    cl.enqueue_copy(rt.queue, dst, b)
+    rt.queue.finish()
+    np.testing.assert_array_equal(dst, src)
+    assert time_copy(1 << 16, repeats=2) > 0

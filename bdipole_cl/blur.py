@@ -96,6 +96,17 @@ def truncation_radius(alpha, sigma_t, eta, tol, exact=False):
     return hi
 
 
+def unfold_quadrant(q):
+    """The (2K+1)^2 radially symmetric kernel from its quadrant q[i, j], i, j = 0..K
+    (offsets >= 0), mirrored in x and y."""
+    k = q.shape[0] - 1
+    w = np.zeros((2 * k + 1, 2 * k + 1))
+    w[k:, k:] = q
+    w[k:, :k + 1] = q[:, ::-1]
+    w[:k + 1, :] = w[::-1, :][:k + 1, :]
+    return w
+
+
 @dataclass(frozen=True)
 class ChannelKernel:
     """One channel's blur: the exact normalized weights and their provenance."""
@@ -126,10 +137,7 @@ def channel_kernel(alpha, sigma_t_texels, eta, tol, exact=False, max_radius=2048
     m = np.ones(k + 1)
     m[0] = 2.0
     q = q * m[:, None] * m[None, :]
-    w = np.zeros((2 * k + 1, 2 * k + 1))
-    w[k:, k:] = q
-    w[k:, :k + 1] = q[:, ::-1]
-    w[:k + 1, :] = w[::-1, :][:k + 1, :]
+    w = unfold_quadrant(q)
     kept = w.sum()
     w *= rd / kept
     w.setflags(write=False)
@@ -192,11 +200,7 @@ def fit_gaussians(alpha, sigma_t_texels, eta, tol, exact=False):
         a_mat = np.stack([(c * row_w).ravel() for c in cols], axis=1)
         coef, _ = nnls(a_mat, (target * row_w).ravel())
         fitted = sum(cw * c for cw, c in zip(coef, cols))
-        full = np.zeros_like(ck.weights)
-        full[k:, k:] = fitted
-        full[k:, :k + 1] = fitted[:, ::-1]
-        full[:k + 1, :] = full[::-1, :][:k + 1, :]
-        l1 = float(np.abs(full - ck.weights / ck.rd).sum())
+        l1 = float(np.abs(unfold_quadrant(fitted) - ck.weights / ck.rd).sum())
         near_rel = float(np.abs(fitted[near, near] / target[near, near] - 1).max())
         keep = coef > 0
         fit = GaussianFit(tuple(sigmas[keep]), tuple(coef[keep] * ck.rd),
@@ -367,11 +371,10 @@ def blur(irradiance, *, albedo=None, mfp=None, eta=1.4, texel_size=1.0, alpha=No
     if border not in BORDERS:
         raise ValueError(f"border={border!r}: expected one of {BORDERS}")
     e = _check_irradiance(irradiance, on_invalid)
-    params = channel_parameters(e.shape[2], albedo=albedo, mfp=mfp, eta=eta,
-                                texel_size=texel_size, alpha=alpha, sigma_t=sigma_t,
-                                exact=exact)
+    params, plans = _channel_plans(e.shape[2], method=method, tol=tol, exact=exact,
+                                   albedo=albedo, mfp=mfp, eta=eta, texel_size=texel_size,
+                                   alpha=alpha, sigma_t=sigma_t)
     h, w, nch = e.shape
-    plans = [_plan(method, a, st, et, tol, exact) for a, st, et in params]
     k = max(ck.radius for _, ck, _ in plans)
     # working set per band row: input, output, a temporary and the FFT's float64 copies
     per_row = w * nch * 4 * 8
@@ -404,6 +407,17 @@ def _auto_choice(ck, alpha, sigma_t, eta, tol, exact):
     return method, ck, {"measured_error": entry["max_error"], "truncation_tol": trunc_tol,
                         "measured_ms": entry["median_s"] * 1e3,
                         "workload_radius": entry["radius"]}
+
+
+#: the physical parameters of ``blur`` (passed on to ``channel_parameters``)
+PARAM_KEYS = ("albedo", "mfp", "eta", "texel_size", "alpha", "sigma_t")
+
+
+def _channel_plans(nchan, *, method, tol, exact, **physical):
+    """Per-channel parameters and plans (method, ChannelKernel, auto record): the one place
+    that decides each channel's kernel, and so the halo of banded blurs."""
+    params = channel_parameters(nchan, exact=exact, **physical)
+    return params, [_plan(method, a, st, et, tol, exact) for a, st, et in params]
 
 
 def _plan(method, alpha, sigma_t, eta, tol, exact):
@@ -477,14 +491,11 @@ def blur_file(path, output, *, colorspace="auto", half=False, max_memory=256 << 
         colour, alpha_ch = reader.channels()
         space = source_colorspace(spec, colorspace)
         border = kwargs.get("border", "clamp")
-        tol, exact = kwargs.get("tol", 1e-3), kwargs.get("exact", False)
-        params = channel_parameters(
-            len(colour), albedo=kwargs.get("albedo"), mfp=kwargs.get("mfp"),
-            eta=kwargs.get("eta", 1.4), texel_size=kwargs.get("texel_size", 1.0),
-            alpha=kwargs.get("alpha"), sigma_t=kwargs.get("sigma_t"), exact=exact)
         # the halo follows each channel's plan (auto may pick a tighter truncation than tol)
-        k = max(ck.radius for _, ck, _ in (_plan(kwargs.get("method", "auto"), a, st, et, tol,
-                                                 exact) for a, st, et in params))
+        _, plans = _channel_plans(len(colour), method=kwargs.get("method", "auto"),
+                                  tol=kwargs.get("tol", 1e-3), exact=kwargs.get("exact", False),
+                                  **{key: kwargs[key] for key in PARAM_KEYS if key in kwargs})
+        k = max(ck.radius for _, ck, _ in plans)
         per_row = spec.width * spec.nchannels * 4 * 10
         rows = max(1, int(max_memory // per_row) - 2 * k)
         if spec.tile_height:
@@ -505,8 +516,7 @@ def blur_file(path, output, *, colorspace="auto", half=False, max_memory=256 << 
                 parts.append(px[k:k + y1 - y0, :, alpha_ch:alpha_ch + 1])
             if writer is None:
                 meta = {key: v for key, v in kwargs.items()
-                        if key in ("albedo", "mfp", "eta", "texel_size", "alpha", "sigma_t",
-                                   "tol", "border")}
+                        if key in PARAM_KEYS + ("tol", "border")}
                 meta["methods"] = ",".join(f"{c['method']}(r={c['radius']})"
                                            for c in info.channels)
                 meta["source"] = str(path)

@@ -108,16 +108,17 @@ def _check(name, values, bad, why, on_invalid):
 
 
 def _channel_etas(eta, shape):
-    """(etas per channel, nchan): one eta, or one per channel along the last axis."""
+    """Etas per channel: one eta (also when all are equal), or one per channel along the last
+    axis of ``shape``."""
     etas = np.atleast_1d(np.asarray(eta, dtype=np.float64))
     if etas.ndim != 1:
         raise ValueError(f"eta must be a scalar or one value per channel, got shape {etas.shape}")
     if etas.size == 1 or np.all(etas == etas[0]):
-        return (float(etas[0]),), 1
+        return (float(etas[0]),)
     if len(shape) == 0 or shape[-1] != etas.size:
         raise ValueError(f"eta has {etas.size} values but the input's last axis has "
                          f"{shape[-1] if shape else 'no'} channels")
-    return tuple(float(e) for e in etas), etas.size
+    return tuple(float(e) for e in etas)
 
 
 #: rho accuracy that ``method="auto"`` aims for when no ``tol`` is given (issue 3's bound)
@@ -238,7 +239,7 @@ def invert_albedo(rd, eta, method="table", *, return_rho=False, model="better", 
     rd = np.asarray(rd)
     if rd.dtype.kind != "f":
         rd = rd.astype(np.float64)
-    etas, _ = _channel_etas(eta, rd.shape)
+    etas = _channel_etas(eta, rd.shape)
     bad = ~(rd <= 1.0) | np.isinf(rd)
     if _check("albedo", rd, bad, "NaN, infinite or > 1", on_invalid):
         rd = np.where(np.isnan(rd) | np.isneginf(rd), 0.0, np.minimum(rd, 1.0))
@@ -318,7 +319,7 @@ def albedo_to_coefficients(rd, mfp, eta, method="table", *, model="better", exac
     rd, mfp = np.broadcast_arrays(np.asarray(rd), np.asarray(mfp))
     rd = rd.astype(np.float64) if rd.dtype.kind != "f" else rd
     mfp = mfp.astype(np.float64) if mfp.dtype.kind != "f" else mfp
-    etas, _ = _channel_etas(eta, rd.shape)
+    etas = _channel_etas(eta, rd.shape)
     mapper = CoefficientMapper(etas, config, outputs=outputs, model=model, exact=exact,
                                double=double, on_invalid=on_invalid)
     outs, _ = mapper(rd, mfp)

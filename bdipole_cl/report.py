@@ -16,6 +16,7 @@ from __future__ import annotations
 import csv
 import json
 from dataclasses import dataclass, field
+from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
@@ -190,6 +191,7 @@ def write_auto_data(points, path=AUTO_DATA):
             "blur": [dict(p.meta, max_error=p.max_error, median_s=p.seconds) for p in blur]}
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(data, indent=1))
+    _auto_data.cache_clear()
     return path
 
 
@@ -228,10 +230,16 @@ def _parse_config(text):
     return MethodConfig(name, iterations=int(kv["iterations"]))
 
 
+@lru_cache(maxsize=1)
+def _auto_data():
+    """bdipole_cl/data/inversion_auto.json, read once per process."""
+    return json.loads(AUTO_DATA.read_text())
+
+
 def auto_inversion_config(tol):
     """The cheapest measured configuration whose max relative rho error is <= tol
     (bdipole_cl/data/inversion_auto.json, written by ``bdipole-cl report --update-auto``)."""
-    data = json.loads(AUTO_DATA.read_text())
+    data = _auto_data()
     for entry in data["configs"]:
         if entry["max_rho_error"] <= tol:
             return _parse_config(entry["config"]), entry
@@ -246,7 +254,7 @@ def auto_blur_config(radius, tol):
     """(method, truncation tol, entry) for ``blur(method="auto", tol=tol)`` on a kernel of
     ``radius`` texels: the cheapest measured configuration, on the measured workload of the
     nearest radius, whose measured max error is <= tol; None if none qualifies."""
-    data = json.loads(AUTO_DATA.read_text()).get("blur", [])
+    data = _auto_data().get("blur", [])
     if not data:
         return None
     radii = sorted({e["radius"] for e in data})

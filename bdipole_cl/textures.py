@@ -511,7 +511,8 @@ def process_textures(inputs, *, mfp=1.0, eta=1.4, output=DEFAULT_OUTPUT,
     CoefficientMapper((settings["eta"][0],), config, outputs=settings["outputs"], model=model,
                       exact=exact, on_invalid=on_invalid)  # fail fast on bad settings
     jobs_list, results = [], []
-    for path, udim in expand_inputs(inputs):
+    files = expand_inputs(inputs)
+    for path, udim in files:
         try:
             out = companion_path(output, path, udim)
             mfp_path = None if settings["mfp"] is not None else companion_path(mfp, path, udim)
@@ -543,7 +544,7 @@ def process_textures(inputs, *, mfp=1.0, eta=1.4, output=DEFAULT_OUTPUT,
     finally:
         if bar is not None:
             bar.close()
-    order = {p: i for i, (p, _) in enumerate(expand_inputs(inputs))}
+    order = {p: i for i, (p, _) in enumerate(files)}
     results.sort(key=lambda r: order.get(r.path, len(order)))
     return BatchReport(results)
 

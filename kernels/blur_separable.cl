@@ -1,7 +1,16 @@
 // blur_separable.cl -- one separable Gaussian of the sum-of-Gaussians blur
 // (bdipole_cl/blur.py: fit_gaussians): rows then columns with the same texel-integrated 1D
 // weights g[-K..K], the column pass adding weight * result into the output channel.
-// Needs bdipole.h in front; border mode by -DBORDER_{CLAMP,ZERO,WRAP}.
+// Needs bdipole.h in front; border mode by -DBORDER_{CLAMP,ZERO,WRAP}. -DPER_TEXEL_WEIGHT: the
+// column pass's weight is a per-texel plane (H x W, texture-varying parameters: varying.py).
+
+#ifdef PER_TEXEL_WEIGHT
+#define WEIGHT_PARAM __global const float *weight
+#define WEIGHT_AT(p) weight[p]
+#else
+#define WEIGHT_PARAM const float weight
+#define WEIGHT_AT(p) weight
+#endif
 
 // tmp[y, x] = sum_i g[i] src[y, x + i, channel]
 __kernel void blur_rows(__global const float *src, __global float *tmp, __global const float *g,
@@ -23,7 +32,7 @@ __kernel void blur_rows(__global const float *src, __global float *tmp, __global
 __kernel void blur_cols_add(__global const float *tmp, __global float *dst,
                             __global const float *g, const int width, const int height,
                             const int nchan, const int channel, const int radius,
-                            const float weight)
+                            WEIGHT_PARAM)
 {
     const int x = get_global_id(0), y = get_global_id(1);
     if (x >= width || y >= height) return;
@@ -32,5 +41,5 @@ __kernel void blur_cols_add(__global const float *tmp, __global float *dst,
         int gy = bd_border(y + j, height);
         if (gy >= 0) acc += g[j + radius] * tmp[(size_t)gy * width + x];
     }
-    dst[((size_t)y * width + x) * nchan + channel] += weight * acc;
+    dst[((size_t)y * width + x) * nchan + channel] += WEIGHT_AT((size_t)y * width + x) * acc;
 }

@@ -1,0 +1,491 @@
+"""Texture-varying blur parameters: per-texel weights over a shared Gaussian basis.
+
+With albedo/mfp (or alpha'/sigma_t') given as textures, texel x scatters with *its own*
+profile (the exit texel's parameters, a gather): ``M(x) = sum_cells E(cell) W_x(cell - x)``,
+``W_x`` the texel-integrated weights of x's parameters. Every ``W_x`` is written over one
+shared basis of separable texel-integrated Gaussians ``g_j`` (sigmas geometric from 0.15
+texel to half the common radius):
+
+    W_x ~ Rd(x) * sum_j w_j(x) g_j      so      M(x) = Rd(x) * sum_j w_j(x) (g_j * E)(x).
+
+Each basis blur ``g_j * E`` is done once for the whole image (FFT on the host, or the separable
+OpenCL kernels); only the weights vary per texel. They come from a lattice over the two
+parameters that shape the kernel, logit(Rd) and ln(ld in texels) (an axis on which the texture
+is constant collapses to its one value): the exact normalized kernel of each lattice node is
+fitted by non-negative least squares, and ``w(x)`` is the 4x4-node Lagrange-cubic
+interpolation of the node weights (kernels/blur_varying.cl). Interpolating weights over a fixed
+basis is interpolating the kernels themselves, so the error is the nodes' fit error plus the
+kernel's interpolation error; both are measured (``VaryingPlan.fit_error`` over all nodes and
+``interp_error`` against the exact kernels of sampled texels) and reported as the error bound.
+
+Every texel's kernel is truncated at the common radius K (the largest truncation radius at
+``tol`` over the texture's nodes) and normalized there: node weights sum to 1, so a constant
+irradiance E returns E * Rd(x) at every interior texel, exactly (energy-conserving).
+
+Albedo is used in [RD_MIN, RD_MAX] for the kernel's *shape* (texels outside take the shape of
+the bound; the energy is always Rd(x), and Rd = 0 gives 0); Rd >= 1, Rd < 0, NaN, mfp <= 0 or
+non-finite are errors naming the texel. eta is constant per channel.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import lru_cache
+
+import numpy as np
+import pyopencl as cl
+
+from . import reference as ref
+from .blur import gaussian_1d, quadrant_weights, truncation_radius, unfold_quadrant
+from .device import build_options, get_program, get_runtime
+
+#: the kernel's shape is taken at albedo within these bounds (its energy is always Rd(x))
+RD_MIN, RD_MAX = 1e-3, 0.999
+#: lattice steps in logit(Rd) and ln(ld) at tol = 1e-3; halved per factor 16 of tighter tol
+#: (the cubic interpolation error goes as h^4). Measured kernel interpolation error (L1 of the
+#: normalized kernel) at these steps: <= 3e-4 over albedo 0.02..0.98, ld 0.5..16 texels.
+LATTICE_STEPS = (0.4, 0.2)
+BASIS_MIN_SIGMA = 0.15      # texels: narrower texel-integrated Gaussians are ~ a delta
+BASIS_RATIO = 1.5           # geometric ratio of the basis sigmas (densified if the fit needs)
+MAX_BASIS = 24
+SAMPLED_TEXELS = 8          # texels whose exact kernels check the interpolation
+
+
+class VaryingParameterError(ValueError):
+    """A texel's parameters are invalid (the message names the texel and channel)."""
+
+
+def is_texture(value):
+    return value is not None and np.ndim(value) >= 2
+
+
+def _texture_channel(value, shape, c, name):
+    """Channel c of a scalar, per-channel tuple, HxW or HxWxC parameter, as an HxW float64."""
+    h, w, nch = shape
+    v = np.asarray(value, np.float64)
+    if v.ndim <= 1:
+        v = np.atleast_1d(v)
+        if v.size not in (1, nch):
+            raise ValueError(f"{name} has {v.size} values for {nch} channels")
+        return np.full((h, w), v[c if v.size > 1 else 0])
+    if v.ndim == 2:
+        v = v[..., None]
+    if v.shape[:2] != (h, w) or v.shape[2] not in (1, nch):
+        raise ValueError(f"{name} texture has shape {v.shape}; expected ({h}, {w}) or "
+                         f"({h}, {w}, {nch}) to match the irradiance")
+    return v[..., c if v.shape[2] > 1 else 0]
+
+
+def _first_bad(mask, values, c, name, rule):
+    y, x = (int(i) for i in np.argwhere(mask)[0])
+    raise VaryingParameterError(f"{int(mask.sum())} texel(s) of {name} outside {rule}; first "
+                                f"at x={x}, y={y}, channel {c}: {values[y, x]!r}")
+
+
+def texel_parameters(shape, c, *, albedo=None, mfp=None, eta=1.4, texel_size=1.0, alpha=None,
+                     sigma_t=None, exact=False):
+    """(Rd, ld in texels) HxW float64 maps of channel c, from albedo + mfp or alpha' + sigma_t'."""
+    if alpha is not None or sigma_t is not None:
+        if alpha is None or sigma_t is None or albedo is not None or mfp is not None:
+            raise ValueError("give either albedo and mfp, or alpha and sigma_t")
+        a = _texture_channel(alpha, shape, c, "alpha")
+        st = _texture_channel(sigma_t, shape, c, "sigma_t")
+        bad = ~((a >= 0) & (a < 1))
+        if bad.any():
+            _first_bad(bad, a, c, "alpha", "[0, 1)")
+        bad = ~((st > 0) & np.isfinite(st))
+        if bad.any():
+            _first_bad(bad, st, c, "sigma_t", "(0, inf)")
+        rd = ref.rd(a, eta, exact)
+        ld = 1.0 / (st * texel_size * ref.mu_tr_over_sigma_t(1.0 - a))
+        return rd, ld
+    if albedo is None or mfp is None:
+        raise ValueError("give albedo and mfp (or alpha and sigma_t)")
+    rd = _texture_channel(albedo, shape, c, "albedo")
+    ld = _texture_channel(mfp, shape, c, "mfp") / texel_size
+    bad = ~((rd >= 0) & (rd < 1))
+    if bad.any():
+        _first_bad(bad, rd, c, "albedo", "[0, 1)")
+    bad = ~((ld > 0) & np.isfinite(ld))
+    if bad.any():
+        _first_bad(bad, ld, c, "mfp", "(0, inf)")
+    return rd, ld
+
+
+# {{{ lattice of nodes
+
+def _logit(p):
+    return np.log(p) - np.log1p(-p)
+
+
+def _sigmoid(t):
+    return 1.0 / (1.0 + np.exp(-t))
+
+
+@dataclass(frozen=True)
+class Axis:
+    """One parameter axis: node values, and the map from texel values to node coordinates."""
+
+    values: tuple            # the parameter (Rd or ld) at the nodes
+    origin: float            # lattice index of node 0 (0 for a constant axis)
+    step: float              # lattice step in the transformed variable (0: constant axis)
+
+    def coords(self, t):
+        """Node coordinates (float, node 0 at 0) of transformed values t."""
+        if self.step == 0:
+            return np.zeros(np.shape(t))
+        return np.asarray(t) / self.step - self.origin
+
+
+def _axis(t, step, back):
+    """Nodes covering transformed values t for a 4-point cubic; one node if t is constant."""
+    lo, hi = float(t.min()), float(t.max())
+    if hi - lo <= 1e-12 * max(1.0, abs(lo)):
+        return Axis((float(back(lo)),), 0.0, 0.0)
+    i0 = int(np.floor(lo / step)) - 1
+    i1 = max(int(np.floor(hi / step)) + 2, i0 + 3)
+    return Axis(tuple(float(back(i * step)) for i in range(i0, i1 + 1)), float(i0), step)
+
+
+def lattice_steps(tol):
+    """LATTICE_STEPS, halved per factor 16 of tol below 1e-3."""
+    level = max(0, int(np.ceil(np.log2(max(1e-3 / tol, 1.0)) / 4.0)))
+    return tuple(s / 2**level for s in LATTICE_STEPS)
+
+
+@lru_cache(maxsize=4096)
+def node_kernel(rd, ld, eta, radius, exact=False):
+    """Exact normalized (sums to 1) quadrant of the kernel of (Rd, ld texels) at radius K."""
+    sa, ss = ref.albedo_to_coefficients(rd, ld, eta, exact)
+    st = float(sa + ss)
+    q = quadrant_weights(float(ss / st), st, eta, radius, exact)
+    q /= _quadrant_sum(q)
+    q.setflags(write=False)
+    return q
+
+
+def _quadrant_sum(q):
+    """Sum of the unfolded kernel of quadrant q (axis cells twice, the centre once)."""
+    return 4.0 * q[1:, 1:].sum() + 2.0 * (q[0, 1:].sum() + q[1:, 0].sum()) + q[0, 0]
+
+
+@lru_cache(maxsize=4096)
+def node_radius(rd, ld, eta, tol, exact=False):
+    sa, ss = ref.albedo_to_coefficients(rd, ld, eta, exact)
+    st = float(sa + ss)
+    r_t = truncation_radius(float(ss / st), st, eta, tol, exact)
+    return int(np.ceil(r_t - 0.5)) if r_t > 0.5 else 0
+
+# }}}
+
+
+# {{{ shared Gaussian basis and the node fits
+
+def basis_sigmas(radius, ratio):
+    hi = max(1.0, radius / 2.0)
+    count = max(2, int(np.ceil(np.log(hi / BASIS_MIN_SIGMA) / np.log(ratio))) + 1)
+    return np.geomspace(BASIS_MIN_SIGMA, hi, count)
+
+
+def basis_kernels(sigmas, radius):
+    """The 1D texel-integrated Gaussians of the basis, each on [-r_j, r_j], r_j <= radius."""
+    return tuple(gaussian_1d(s, int(min(radius, np.ceil(4.0 * s)))) for s in sigmas)
+
+
+def _basis_columns(kernels, radius):
+    """The quadrant (offsets 0..K) of each separable basis kernel, flattened as columns."""
+    cols = []
+    for g in kernels:
+        r = (len(g) - 1) // 2
+        half = np.zeros(radius + 1)
+        half[:r + 1] = g[r:]
+        cols.append(np.outer(half, half).ravel())
+    return np.stack(cols, axis=1)
+
+
+def _row_weights(target):
+    """NNLS row weights: relative (absolute below 1e-4 of the peak), times the number of
+    kernel cells each quadrant cell stands for (as in blur.fit_gaussians)."""
+    k = target.shape[0] - 1
+    mult = np.full(k + 1, 2.0)
+    mult[0] = 1.0
+    count_w = np.sqrt(mult[:, None] * mult[None, :])
+    return (count_w / np.maximum(target, 1e-4 * target.max())).ravel()
+
+
+def fit_node(target, columns):
+    """Non-negative weights (summing to 1) of the basis columns for one node's kernel quadrant,
+    and the L1 error of the fitted kernel (unfolded)."""
+    from scipy.optimize import nnls
+    rw = _row_weights(target)
+    coef, _ = nnls(columns * rw[:, None], target.ravel() * rw, maxiter=100 * columns.shape[1])
+    coef /= coef.sum()
+    fitted = (columns @ coef).reshape(target.shape)
+    return coef, float(np.abs(unfold_quadrant(fitted - target)).sum())
+
+# }}}
+
+
+def _multiplicity(radius):
+    """How many kernel cells each quadrant cell stands for (centre 1, axis 2, others 4)."""
+    m = np.full(radius + 1, 2.0)
+    m[0] = 1.0
+    return m[:, None] * m[None, :]
+
+
+def svd_basis(targets, tol):
+    """Eigen-kernels of the node kernels (SVD of the quadrants, weighted by cell multiplicity
+    so that it is the SVD of the whole kernels): the fewest whose reconstruction of every node
+    is within L1 error tol (or all of them). Returns (quadrants (G, K+1, K+1), node
+    coefficients (nodes, G), each row scaled so that its kernel sums to 1)."""
+    shape = targets[0].shape
+    mult = _multiplicity(shape[0] - 1).ravel()
+    sw = np.sqrt(mult)
+    a_mat = np.stack([t.ravel() * sw for t in targets], axis=1)        # cells x nodes
+    u, _, _ = np.linalg.svd(a_mat, full_matrices=False)
+    for rank in range(1, u.shape[1] + 1):
+        phi = u[:, :rank] / sw[:, None]                                 # quadrant values
+        coef = (u[:, :rank].T @ a_mat).T                                # nodes x rank
+        coef /= (coef @ (phi.T @ mult))[:, None]                        # kernels sum to 1
+        err = np.abs(phi @ coef.T - a_mat / sw[:, None]).T @ mult
+        if err.max() <= tol:
+            break
+    return phi.T.reshape((rank,) + shape), coef
+
+
+@dataclass(frozen=True)
+class VaryingPlan:
+    """One channel's shared basis, lattice and node weights."""
+
+    radius: int              # K, the common kernel radius (texels)
+    basis: str               # "gaussians" (separable, NNLS weights) or "svd" (eigen-kernels)
+    kernels: tuple           # gaussians: 1D texel-integrated weights; svd: (K+1)^2 quadrants
+    axes: tuple              # (Axis of Rd via logit, Axis of ld via ln)
+    table: np.ndarray        # (n_rd, n_ld, G) float32 node weights; node kernels sum to 1
+    eta: float
+    fit_error: float         # max L1 error of the node kernels in the basis
+    interp_error: float      # max L1 error at the sampled texels (basis + interpolation)
+    truncation_tol: float
+
+    @property
+    def error_bound(self):
+        """Bound on |M - exact| / (max E * Rd(x)): truncation + the measured kernel error."""
+        return self.truncation_tol + max(self.fit_error, self.interp_error)
+
+    def quadrants(self):
+        """(G, K+1, K+1) quadrant of each basis kernel."""
+        if self.basis == "svd":
+            return np.asarray(self.kernels)
+        return _basis_columns(self.kernels, self.radius).T.reshape(
+            (-1, self.radius + 1, self.radius + 1))
+
+
+def _transformed(rd, ld):
+    return _logit(np.clip(rd, RD_MIN, RD_MAX)), np.log(ld)
+
+
+def lagrange4(t):
+    """Cubic Lagrange weights of nodes -1, 0, 1, 2 at t in [0, 1] (as in blur_varying.cl)."""
+    return np.stack([-t * (t - 1) * (t - 2) / 6, (t + 1) * (t - 1) * (t - 2) / 2,
+                     -(t + 1) * t * (t - 2) / 2, (t + 1) * t * (t - 1) / 6], axis=-1)
+
+
+def _axis_taps(axis, coord):
+    """(node indices, weights) of the interpolation at coordinate(s) coord on one axis."""
+    coord = np.asarray(coord, np.float64)
+    if axis.step == 0:
+        return np.zeros(coord.shape + (1,), int), np.ones(coord.shape + (1,))
+    base = np.clip(np.floor(coord).astype(int), 1, len(axis.values) - 3)
+    return base[..., None] + np.arange(-1, 3), lagrange4(coord - base)
+
+
+def interpolated_weights(plan, coord_rd, coord_ld):
+    """Host (float64) version of blur_varying.cl's per-texel weights, for checks."""
+    iu, lu = _axis_taps(plan.axes[0], coord_rd)
+    iv, lv = _axis_taps(plan.axes[1], coord_ld)
+    table = plan.table.astype(np.float64)
+    return np.einsum("...a,...b,...abj->...j", lu, lv,
+                     table[iu[..., :, None], iv[..., None, :]])
+
+
+def common_radius(t_rd, t_ld, eta, tol, exact=False):
+    """K: the largest truncation radius at tol over the texels' parameter range (the profile
+    widens with ld; its dependence on Rd is sampled at 9 albedos across the range)."""
+    ld_max = float(np.exp(t_ld.max()))
+    rds = _sigmoid(np.linspace(float(t_rd.min()), float(t_rd.max()), 9))
+    return max(node_radius(float(np.clip(r, RD_MIN, RD_MAX)), ld_max, eta, tol, exact)
+               for r in rds)
+
+
+def build_plan(t_rd, t_ld, eta, tol, exact=False, basis="svd", max_radius=2048):
+    """The VaryingPlan of one channel with transformed (logit Rd, ln ld) maps t_rd, t_ld."""
+    eta = float(eta)
+    steps = lattice_steps(tol)
+    axes = (_axis(t_rd, steps[0], lambda t: min(max(_sigmoid(t), RD_MIN), RD_MAX)),
+            _axis(t_ld, steps[1], np.exp))
+    radius = common_radius(t_rd, t_ld, eta, tol, exact)
+    if radius > max_radius:
+        raise ValueError(f"truncation radius {radius} texels exceeds max_radius={max_radius}: "
+                         f"raise tol or the texel size")
+    targets = [node_kernel(a, b, eta, radius, exact) for a in axes[0].values
+               for b in axes[1].values]
+    if basis == "svd":
+        quads, coef = svd_basis(targets, tol)
+        kernels = tuple(quads)
+        fit_error = float(max(np.abs(unfold_quadrant(np.tensordot(c, quads, 1) - t)).sum()
+                              for c, t in zip(coef, targets)))
+    else:
+        kernels, coef, fit_error = _gaussian_fits(targets, radius, tol)
+    table = coef.reshape(len(axes[0].values), len(axes[1].values), -1).astype(np.float32)
+    plan = VaryingPlan(radius, basis, kernels, axes, table, eta, fit_error, 0.0, tol)
+    return _with_interp_error(plan, t_rd, t_ld, exact)
+
+
+def _gaussian_fits(targets, radius, tol):
+    """Shared separable Gaussian basis and NNLS node weights, densified until every node fits
+    within L1 error tol (or MAX_BASIS is reached)."""
+    ratio = BASIS_RATIO
+    while True:
+        kernels = basis_kernels(basis_sigmas(radius, ratio), radius)
+        columns = _basis_columns(kernels, radius)
+        fits = [fit_node(t, columns) for t in targets]
+        fit_error = max(err for _, err in fits)
+        if fit_error <= tol or len(kernels) >= MAX_BASIS:
+            return kernels, np.stack([c for c, _ in fits]), fit_error
+        ratio = ratio ** (2.0 / 3.0)
+
+
+def _with_interp_error(plan, t_rd, t_ld, exact):
+    """Measure the interpolated kernel against the exact kernel at sampled texels: the
+    parameter extremes and points spread over the texture."""
+    flat_rd, flat_ld = t_rd.ravel(), t_ld.ravel()
+    picks = {int(np.argmin(flat_rd)), int(np.argmax(flat_rd)), int(np.argmin(flat_ld)),
+             int(np.argmax(flat_ld))}
+    picks.update(np.linspace(0, flat_rd.size - 1, SAMPLED_TEXELS).astype(int).tolist())
+    quads = plan.quadrants()
+    worst = 0.0
+    for p in sorted(picks):
+        w = interpolated_weights(plan, plan.axes[0].coords(flat_rd[p]),
+                                 plan.axes[1].coords(flat_ld[p]))
+        rd_shape = float(np.clip(_sigmoid(flat_rd[p]), RD_MIN, RD_MAX))
+        exact_q = node_kernel(rd_shape, float(np.exp(flat_ld[p])), plan.eta, plan.radius, exact)
+        worst = max(worst, float(np.abs(unfold_quadrant(np.tensordot(w, quads, 1)
+                                                        - exact_q)).sum()))
+    return VaryingPlan(**{**plan.__dict__, "interp_error": worst})
+
+
+def texel_coords(plan, t_rd, t_ld):
+    """Per-texel node coordinates (float32 pairs) of the transformed maps t_rd, t_ld."""
+    return np.ascontiguousarray(np.stack([plan.axes[0].coords(t_rd), plan.axes[1].coords(t_ld)],
+                                         axis=-1), np.float32)
+
+
+def weight_planes(plan, rd, t_rd, t_ld):
+    """w_j(x) * Rd(x), (G, H, W) float32, computed on the device (kernels/blur_varying.cl)."""
+    rt = get_runtime()
+    h, w = rd.shape
+    g = plan.table.shape[2]
+    mf = cl.mem_flags
+    coords = texel_coords(plan, t_rd, t_ld)
+    nu, nv = plan.table.shape[:2]
+    prg = get_program(rt, "blur_varying", build_options(
+        {"NBASIS": g, "NU_TAPS": 1 if nu == 1 else 4, "NV_TAPS": 1 if nv == 1 else 4}))
+    bufs = [cl.Buffer(rt.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=a) for a in
+            (coords, np.ascontiguousarray(rd, np.float32), np.ascontiguousarray(plan.table))]
+    out = np.empty((g, h, w), np.float32)
+    dst = cl.Buffer(rt.context, mf.WRITE_ONLY | mf.USE_HOST_PTR, hostbuf=out)
+    cl.Kernel(prg, "lattice_weights")(rt.queue, (h * w,), None, *bufs, dst, np.int32(h * w),
+                                      np.int32(nu), np.int32(nv))
+    cl.enqueue_map_buffer(rt.queue, dst, cl.map_flags.READ, 0, out.shape, out.dtype)[0].base
+    rt.queue.finish()
+    return out
+
+
+def fft_basis_blur(e2d, plan, weights, border):
+    """``sum_j weights[j] * (B_j * E)`` with each basis kernel B_j applied by float32 FFT
+    (scipy.fft, all cores): one forward transform of the image, then per basis kernel one
+    transform of the kernel and one inverse."""
+    import scipy.fft as sfft
+    k = plan.radius
+    h, w = e2d.shape
+    mode = {"clamp": "edge", "zero": "constant", "wrap": "wrap"}[border]
+    pad = np.pad(e2d.astype(np.float32), k, mode=mode)
+    shape = [sfft.next_fast_len(n + 2 * k, real=True) for n in pad.shape]
+    spec = sfft.rfft2(pad, shape, workers=-1)
+    out = np.zeros((h, w), np.float32)
+    for quad, wj in zip(plan.quadrants(), weights):
+        kspec = sfft.rfft2(unfold_quadrant(quad).astype(np.float32), shape, workers=-1)
+        blurred = sfft.irfft2(spec * kspec, shape, workers=-1)
+        out += wj * blurred[2 * k:2 * k + h, 2 * k:2 * k + w]
+    return out
+
+
+VARYING_METHODS = ("auto", "fft", "gaussians")
+
+
+def channel_plans(shape, *, tol, exact=False, eta=1.4, basis="svd", **physical):
+    """Per channel: (VaryingPlan, Rd, logit Rd, ln ld) maps for an HxWxC image."""
+    etas = np.broadcast_to(np.atleast_1d(np.asarray(eta, np.float64)), (shape[2],)) \
+        if np.ndim(eta) <= 1 and np.size(eta) in (1, shape[2]) else None
+    if etas is None:
+        raise ValueError(f"eta must be one value or one per channel (constant over the texture); "
+                         f"got shape {np.shape(eta)}")
+    out = []
+    for c in range(shape[2]):
+        rd, ld = texel_parameters(shape, c, eta=float(etas[c]), exact=exact, **physical)
+        t_rd, t_ld = _transformed(rd, ld)
+        out.append((build_plan(t_rd, t_ld, float(etas[c]), tol, exact, basis), rd, t_rd, t_ld))
+    return out
+
+
+def _blur_band(e, plans, rows, method, border):
+    """Blur one image or band (rows: the slice of the parameter maps it covers)."""
+    h, w, nch = e.shape
+    out = np.empty_like(e)
+    ctx = None
+    if method == "gaussians":
+        from .blur import _Blur
+        ctx = _Blur(e, border)
+    for c, (plan, rd, t_rd, t_ld) in enumerate(plans):
+        weights = weight_planes(plan, rd[rows], t_rd[rows], t_ld[rows])
+        if ctx is not None:
+            ctx.run_varying(c, plan, weights)
+        else:
+            out[..., c] = fft_basis_blur(e[..., c], plan, weights, border)
+    return ctx.result() if ctx is not None else out
+
+
+def blur_textured(e, *, method, tol, border, exact, return_info, max_memory, **physical):
+    """``blur`` with texture-varying parameters (see the module docstring)."""
+    from .blur import BlurInfo, _halo_rows
+    if method not in VARYING_METHODS:
+        raise ValueError(f"method={method!r} needs constant parameters; with texture-varying "
+                         f"parameters use one of {VARYING_METHODS}")
+    used = "fft" if method == "auto" else method
+    plans = channel_plans(e.shape, tol=tol, exact=exact,
+                          basis="gaussians" if used == "gaussians" else "svd", **physical)
+    h, w, nch = e.shape
+    k = max(p[0].radius for p in plans)
+    g = max(len(p[0].kernels) for p in plans)
+    # per band row: input, output, G weight planes, the FFT's padded copy and spectra
+    per_row = w * 4 * (2 * nch + g + 6)
+    rows = h if max_memory is None else max(1, int(max_memory // per_row) - 2 * k)
+    if rows >= h:
+        out = _blur_band(e, plans, slice(0, h), used, border)
+    else:
+        out = np.empty_like(e)
+        for y0 in range(0, h, rows):
+            y1 = min(y0 + rows, h)
+            idx = _halo_rows(y0, y1, k, h, border)
+            band = np.where((idx >= 0)[:, None, None], e[np.maximum(idx, 0)], np.float32(0))
+            # the halo rows' own parameters are never used (a gather: exit texel's profile)
+            res = _blur_band(band, plans, np.maximum(idx, 0), used, border)
+            out[y0:y1] = res[k:k + (y1 - y0)]
+    if not return_info:
+        return out
+    info = [{"channel": c, "method": f"{used} (texture-varying, {len(p.kernels)} {p.basis} "
+                                      f"basis kernels)",
+             "radius": p.radius, "error_bound": p.error_bound, "fit_error": p.fit_error,
+             "interp_error": p.interp_error, "nodes": int(np.prod(p.table.shape[:2]))}
+            for c, (p, *_) in enumerate(plans)]
+    return out, BlurInfo(info)
+

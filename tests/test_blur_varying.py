@@ -1,0 +1,166 @@
+"""Texture-varying blur parameters (bdipole_cl/varying.py, kernels/blur_varying.cl)."""
+import numpy as np
+import pytest
+from scipy.integrate import dblquad
+
+from bdipole_cl import reference as ref
+from bdipole_cl.blur import blur, channel_parameters, quadrant_weights, unfold_quadrant
+from bdipole_cl.varying import (RD_MAX, RD_MIN, VaryingParameterError, _transformed,
+                                channel_plans, interpolated_weights, node_kernel, texel_coords,
+                                weight_planes)
+
+H, W = 20, 22
+
+
+def gradient_maps(c=1):
+    """Albedo 0.2 -> 0.9 along x, mfp 1 -> 2 texels along y (a smooth painted texture)."""
+    yy, xx = np.mgrid[0:H, 0:W]
+    albedo = np.repeat((0.2 + 0.7 * xx / (W - 1))[..., None], c, axis=2)
+    mfp = np.repeat((2.0 ** (yy / (H - 1)))[..., None], c, axis=2)
+    return albedo, mfp
+
+
+def per_texel_reference(e, albedo, mfp, eta, radius, border="edge"):
+    """M(x) = sum_cells E(cell) W_x(cell - x), W_x the exact texel-integrated kernel of x's own
+    parameters (float64, one kernel per texel), truncated at ``radius`` and summing to Rd(x)."""
+    k = radius
+    pad = np.pad(e.astype(np.float64), k, mode=border)
+    out = np.zeros(e.shape)
+    for y in range(e.shape[0]):
+        for x in range(e.shape[1]):
+            rd = albedo[y, x]
+            q = node_kernel(float(np.clip(rd, RD_MIN, RD_MAX)), float(mfp[y, x]), eta, k)
+            out[y, x] = (pad[y:y + 2 * k + 1, x:x + 2 * k + 1] * unfold_quadrant(q)).sum() * rd
+    return out
+
+
+@pytest.mark.parametrize("method", ["fft", "gaussians"])
+def test_matches_the_per_exit_texel_reference(method):
+    rng = np.random.default_rng(5)
+    e = rng.uniform(0, 1, (H, W, 1)).astype(np.float32)
+    albedo, mfp = gradient_maps()
+    out, info = blur(e, albedo=albedo, mfp=mfp, eta=1.4, method=method, return_info=True)
+    ch = info.channels[0]
+    want = per_texel_reference(e[..., 0], albedo[..., 0], mfp[..., 0], 1.4, ch["radius"])
+    err = np.abs(out[..., 0] - want) / (e.max() * albedo[..., 0])
+    # the kernel error measured by the plan (fit + interpolation, L1 of the normalized kernel)
+    # bounds the output error relative to max(E) * Rd(x); + 1e-5 for float32 accumulation
+    assert err.max() <= max(ch["fit_error"], ch["interp_error"]) + 1e-5, (err.max(), ch)
+    assert err.max() < 2e-3
+    assert ch["error_bound"] < 3e-3
+
+
+def test_uniform_texture_equals_constant_parameters():
+    rng = np.random.default_rng(6)
+    e = rng.uniform(0, 1, (H, W, 2)).astype(np.float32)
+    albedo, mfp = (0.7, 0.4), (1.5, 3.0)
+    const = blur(e, albedo=albedo, mfp=mfp, eta=1.4, method="fft", tol=1e-4)
+    tex_a = np.broadcast_to(np.array(albedo), (H, W, 2))
+    tex_m = np.broadcast_to(np.array(mfp), (H, W, 2))
+    out, info = blur(e, albedo=tex_a, mfp=tex_m, eta=1.4, method="fft", tol=1e-4,
+                     return_info=True)
+    # one node per channel: its exact kernel, at the same truncation radius as the constant
+    # path; they differ by float32 FFT rounding only
+    assert [c["nodes"] for c in info.channels] == [1, 1]
+    np.testing.assert_allclose(out, const, rtol=0, atol=2e-6 * e.max())
+
+
+@pytest.mark.parametrize("method", ["fft", "gaussians"])
+def test_constant_irradiance_returns_rd_per_texel(method):
+    albedo, mfp = gradient_maps(3)
+    e = np.full((H, W, 3), 3.0, np.float32)
+    out = blur(e, albedo=albedo, mfp=mfp, eta=(1.3, 1.4, 1.5), method=method)
+    # clamp border: every texel sees a constant field; node kernels sum to 1 exactly, so the
+    # only error is float32 rounding
+    np.testing.assert_allclose(out, 3.0 * albedo, rtol=2e-5)
+
+
+def test_alpha_sigma_t_maps_match_albedo_mfp_maps():
+    rng = np.random.default_rng(7)
+    e = rng.uniform(0, 1, (H, W, 1)).astype(np.float32)
+    albedo, mfp = gradient_maps()
+    sa, ss = ref.albedo_to_coefficients(albedo, mfp, 1.4)
+    a = blur(e, albedo=albedo, mfp=mfp, eta=1.4, method="fft")
+    b = blur(e, alpha=ss / (sa + ss), sigma_t=sa + ss, eta=1.4, method="fft")
+    np.testing.assert_allclose(a, b, rtol=1e-4, atol=1e-6)
+
+
+def test_texel_size_scales_like_mfp():
+    rng = np.random.default_rng(8)
+    e = rng.uniform(0, 1, (H, W, 1)).astype(np.float32)
+    albedo, mfp = gradient_maps()
+    a = blur(e, albedo=albedo, mfp=mfp, eta=1.4)
+    b = blur(e, albedo=albedo, mfp=mfp * 0.1, texel_size=0.1, eta=1.4)
+    np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-6)
+
+
+def test_banded_equals_whole():
+    rng = np.random.default_rng(9)
+    e = rng.uniform(0, 1, (40, W, 1)).astype(np.float32)
+    yy, xx = np.mgrid[0:40, 0:W]
+    albedo = (0.3 + 0.5 * xx / W)[..., None]
+    mfp = (1.0 + yy / 40.0)[..., None]
+    for border in ("clamp", "wrap", "zero"):
+        whole = blur(e, albedo=albedo, mfp=mfp, eta=1.4, border=border)
+        banded = blur(e, albedo=albedo, mfp=mfp, eta=1.4, border=border, max_memory=30_000)
+        np.testing.assert_allclose(banded, whole, rtol=1e-5, atol=1e-7)
+
+
+def test_device_weights_match_host_interpolation():
+    albedo, mfp = gradient_maps()
+    (plan, rd, t_rd, t_ld), = channel_plans((H, W, 1), tol=1e-3, albedo=albedo, mfp=mfp)
+    dev = weight_planes(plan, rd, t_rd, t_ld)
+    coords = texel_coords(plan, t_rd, t_ld).astype(np.float64)
+    host = interpolated_weights(plan, coords[..., 0], coords[..., 1]) * rd[..., None]
+    # float32 Lagrange weights and sums of <= 16 taps: a few ulp of the largest weight
+    np.testing.assert_allclose(dev, np.moveaxis(host, -1, 0), rtol=0,
+                               atol=1e-5 * np.abs(host).max())
+
+
+def test_zero_albedo_texels_give_zero_and_extremes_stay_finite():
+    albedo, mfp = gradient_maps()
+    albedo[0, 0] = 0.0
+    albedo[1, 1] = 1e-6          # shape of RD_MIN, energy 1e-6
+    albedo[2, 2] = 0.9995        # shape of RD_MAX
+    e = np.ones((H, W, 1), np.float32)
+    out = blur(e, albedo=albedo, mfp=mfp, eta=1.4)
+    assert out[0, 0, 0] == 0.0
+    assert np.all(np.isfinite(out))
+    np.testing.assert_allclose(out[..., 0], albedo[..., 0], rtol=2e-5)
+
+
+@pytest.mark.parametrize("name, value, what", [
+    ("albedo", 1.0, "albedo"), ("albedo", np.nan, "albedo"), ("albedo", -0.1, "albedo"),
+    ("mfp", 0.0, "mfp"), ("mfp", np.inf, "mfp")])
+def test_bad_texels_name_the_texel(name, value, what):
+    albedo, mfp = gradient_maps()
+    maps = {"albedo": albedo, "mfp": mfp}
+    maps[name][3, 5] = value
+    with pytest.raises(VaryingParameterError, match=rf"{what}.*x=5, y=3, channel 0"):
+        blur(np.ones((H, W, 1), np.float32), eta=1.4, **maps)
+
+
+def test_unsupported_combinations_are_clear_errors():
+    albedo, mfp = gradient_maps()
+    e = np.ones((H, W, 1), np.float32)
+    with pytest.raises(ValueError, match="needs constant parameters"):
+        blur(e, albedo=albedo, mfp=mfp, method="direct")
+    with pytest.raises(ValueError, match="eta must be"):
+        blur(e, albedo=0.5, mfp=1.0, eta=np.full((H, W), 1.4))
+    with pytest.raises(ValueError, match="shape"):
+        blur(e, albedo=albedo[:5], mfp=mfp)
+
+
+def test_far_cells_match_independent_quadrature():
+    # cells beyond EXACT_CELLS use a 5x5 Gauss-Legendre product rule of R
+    (alpha, st, eta), = channel_parameters(1, albedo=0.8, mfp=3.0, eta=1.4)
+    q = quadrant_weights(alpha, st, eta, 12)
+    f = lambda y, x: ref.profile(np.hypot(x, y), alpha, st, eta)  # noqa: E731
+    for i, j in [(4, 0), (5, 2), (8, 8), (12, 3)]:
+        want = dblquad(f, i - 0.5, i + 0.5, j - 0.5, j + 0.5, epsabs=1e-15, epsrel=1e-11)[0]
+        assert abs(q[j, i] / want - 1) < 1e-8, (i, j, q[j, i] / want - 1)
+
+
+def test_transformed_coordinates_clip_albedo_shape_only():
+    t_rd, _ = _transformed(np.array([0.0, 0.5, 0.99999]), np.ones(3))
+    assert np.all(np.isfinite(t_rd))

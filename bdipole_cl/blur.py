@@ -521,6 +521,20 @@ def _read_rows(reader, idx):
     return out
 
 
+def read_parameter_texture(path, what, colour=False, colorspace="auto"):
+    """A parameter texture (albedo, mfp, alpha', sigma_t') as HxWxC float32, alpha dropped;
+    ``colour``: integer-encoded files are decoded to linear (albedo), else read as data."""
+    from .textures import _Reader, source_colorspace, to_linear
+    reader = _Reader(path, what)
+    try:
+        cols, _ = reader.channels()
+        px = reader.read_band(0, reader.spec.height)[..., cols]
+        space = source_colorspace(reader.spec, colorspace) if colour else None
+        return to_linear(px, space) if space is not None else px
+    finally:
+        reader.close()
+
+
 def blur_file(path, output, *, colorspace="auto", half=False, max_memory=256 << 20,
               **kwargs):
     """``bdipole-cl blur``: blur an irradiance image file into an EXR, streamed in bands of
@@ -537,14 +551,22 @@ def blur_file(path, output, *, colorspace="auto", half=False, max_memory=256 << 
         colour, alpha_ch = reader.channels()
         space = source_colorspace(spec, colorspace)
         border = kwargs.get("border", "clamp")
-        # the halo follows each channel's plan (auto may pick a tighter truncation than tol)
-        _, plans = _channel_plans(len(colour), method=kwargs.get("method", "auto"),
-                                  tol=kwargs.get("tol", 1e-3), exact=kwargs.get("exact", False),
-                                  **{key: kwargs[key] for key in PARAM_KEYS if key in kwargs})
-        k = max(ck.radius for _, ck, _ in plans)
-        per_row = spec.width * spec.nchannels * 4 * 10
-        rows = max(1, int(max_memory // per_row) - 2 * k)
-        if spec.tile_height:
+        varying = any(np.ndim(kwargs.get(key)) >= 2 for key in PARAM_KEYS)
+        if varying:
+            # parameter textures: one global plan, so the whole image is read and ``blur``
+            # bands it internally (its halo follows that plan)
+            k, rows = 0, spec.height
+            kwargs["max_memory"] = max_memory
+        else:
+            # the halo follows each channel's plan (auto may pick a tighter truncation than tol)
+            _, plans = _channel_plans(
+                len(colour), method=kwargs.get("method", "auto"), tol=kwargs.get("tol", 1e-3),
+                exact=kwargs.get("exact", False),
+                **{key: kwargs[key] for key in PARAM_KEYS if key in kwargs})
+            k = max(ck.radius for _, ck, _ in plans)
+            per_row = spec.width * spec.nchannels * 4 * 10
+            rows = max(1, int(max_memory // per_row) - 2 * k)
+        if spec.tile_height and not varying:
             rows = max(spec.tile_height, rows - rows % spec.tile_height)
         names = [spec.channelnames[c] for c in colour]
         if alpha_ch >= 0:
@@ -561,7 +583,7 @@ def blur_file(path, output, *, colorspace="auto", half=False, max_memory=256 << 
             if alpha_ch >= 0:
                 parts.append(px[k:k + y1 - y0, :, alpha_ch:alpha_ch + 1])
             if writer is None:
-                meta = {key: v for key, v in kwargs.items()
+                meta = {key: (v if np.ndim(v) < 2 else "texture") for key, v in kwargs.items()
                         if key in PARAM_KEYS + ("tol", "border")}
                 meta["methods"] = ",".join(f"{c['method']}(r={c['radius']})"
                                            for c in info.channels)

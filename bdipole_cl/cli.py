@@ -60,25 +60,37 @@ def _cmd_invert(args) -> int:
     return report.exit_code
 
 
+def _param(text, what, colour=False):
+    """A blur parameter: numbers ('0.8' or 'r,g,b'), else the path of a texture."""
+    try:
+        return _floats(text)
+    except ValueError:
+        from .blur import read_parameter_texture
+        return read_parameter_texture(text, what, colour=colour)
+
+
 def _cmd_blur(args) -> int:
     from .blur import blur_file
     from .textures import TextureError
     kw = dict(eta=_floats(args.eta), texel_size=args.texel_size, tol=args.tol,
               method=args.method, border=args.border, on_invalid=args.on_invalid,
               exact=args.exact)
-    if args.alpha_prime is not None:
-        kw.update(alpha=_floats(args.alpha_prime), sigma_t=_floats(args.sigma_t))
-    else:
-        kw.update(albedo=_floats(args.albedo), mfp=_floats(args.mfp))
     try:
+        if args.alpha_prime is not None:
+            kw.update(alpha=_param(args.alpha_prime, "alpha'"),
+                      sigma_t=_param(args.sigma_t, "sigma_t'"))
+        else:
+            kw.update(albedo=_param(args.albedo, "albedo", colour=True),
+                      mfp=_param(args.mfp, "mfp"))
         info = blur_file(args.input, args.output, half=args.half,
                          max_memory=_size(args.max_memory), **kw)
     except TextureError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1
     for c in info.channels:
-        print(f"channel {c['channel']}: {c['method']}, radius {c['radius']} texels, "
-              f"Rd {c['rd']:.4f}, error <= {c['error_bound']:.1e} x max(E) x Rd")
+        rd = f"Rd {c['rd']:.4f}" if "rd" in c else "Rd per texel"
+        print(f"channel {c['channel']}: {c['method']}, radius {c['radius']} texels, {rd}, "
+              f"error <= {c['error_bound']:.1e} x max(E) x Rd")
     print(f"wrote {args.output}")
     return 0
 
@@ -168,11 +180,14 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("blur", help="blur an irradiance map with the Better Dipole profile R(r)")
     p.add_argument("input", help="irradiance image (EXR/TIFF/PNG...)")
     p.add_argument("-o", "--output", required=True, help="output EXR")
-    p.add_argument("--albedo", default="0.8", help="Rd, one or per channel 'r,g,b'")
+    p.add_argument("--albedo", default="0.8",
+                   help="Rd: one value, per channel 'r,g,b', or a texture (texture-varying)")
     p.add_argument("--mfp", default="1", help="mean free path ld = 1/mu_tr, same unit as "
-                                               "--texel-size; one or per channel")
-    p.add_argument("--alpha-prime", help="alpha' per channel (instead of --albedo/--mfp)")
-    p.add_argument("--sigma-t", help="sigma_t' per channel, 1/unit (with --alpha-prime)")
+                                               "--texel-size; value(s) or a texture")
+    p.add_argument("--alpha-prime", help="alpha': value(s) or a texture (instead of "
+                                         "--albedo/--mfp)")
+    p.add_argument("--sigma-t", help="sigma_t', 1/unit: value(s) or a texture (with "
+                                     "--alpha-prime)")
     p.add_argument("--eta", default="1.4")
     p.add_argument("--texel-size", type=float, default=1.0, help="world size of a texel")
     p.add_argument("--tol", type=float, default=1e-3, help="energy left out, relative to Rd")

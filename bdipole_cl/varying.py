@@ -16,7 +16,8 @@ fitted by non-negative least squares, and ``w(x)`` is the 4x4-node Lagrange-cubi
 interpolation of the node weights (kernels/blur_varying.cl). Interpolating weights over a fixed
 basis is interpolating the kernels themselves, so the error is the nodes' fit error plus the
 kernel's interpolation error; both are measured (``VaryingPlan.fit_error`` over all nodes and
-``interp_error`` against the exact kernels of sampled texels) and reported as the error bound.
+``interp_error`` against exact kernels at the range's corners and lattice-cell midpoints) and
+reported as the error bound. Plans depend on the parameter ranges only and are cached.
 
 Every texel's kernel is truncated at the common radius K (the largest truncation radius at
 ``tol`` over the texture's nodes) and normalized there: node weights sum to 1, so a constant
@@ -28,6 +29,7 @@ non-finite are errors naming the texel. eta is constant per channel.
 """
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass
 from functools import lru_cache
 
@@ -47,7 +49,7 @@ LATTICE_STEPS = (0.4, 0.2)
 BASIS_MIN_SIGMA = 0.15      # texels: narrower texel-integrated Gaussians are ~ a delta
 BASIS_RATIO = 1.5           # geometric ratio of the basis sigmas (densified if the fit needs)
 MAX_BASIS = 24
-SAMPLED_TEXELS = 8          # texels whose exact kernels check the interpolation
+CHECKS_PER_AXIS = 4         # interpolation checked at up to 4 x 4 points of the range
 
 
 class VaryingParameterError(ValueError):
@@ -136,9 +138,8 @@ class Axis:
         return np.asarray(t) / self.step - self.origin
 
 
-def _axis(t, step, back):
-    """Nodes covering transformed values t for a 4-point cubic; one node if t is constant."""
-    lo, hi = float(t.min()), float(t.max())
+def _axis(lo, hi, step, back):
+    """Nodes covering transformed values [lo, hi] for a 4-point cubic; one node if lo == hi."""
     if hi - lo <= 1e-12 * max(1.0, abs(lo)):
         return Axis((float(back(lo)),), 0.0, 0.0)
     i0 = int(np.floor(lo / step)) - 1
@@ -263,7 +264,7 @@ class VaryingPlan:
     table: np.ndarray        # (n_rd, n_ld, G) float32 node weights; node kernels sum to 1
     eta: float
     fit_error: float         # max L1 error of the node kernels in the basis
-    interp_error: float      # max L1 error at the sampled texels (basis + interpolation)
+    interp_error: float      # max L1 error at the check points (basis + interpolation)
     truncation_tol: float
 
     @property
@@ -307,22 +308,30 @@ def interpolated_weights(plan, coord_rd, coord_ld):
                      table[iu[..., :, None], iv[..., None, :]])
 
 
-def common_radius(t_rd, t_ld, eta, tol, exact=False):
+def common_radius(rd_range, ld_range, eta, tol, exact=False):
     """K: the largest truncation radius at tol over the texels' parameter range (the profile
     widens with ld; its dependence on Rd is sampled at 9 albedos across the range)."""
-    ld_max = float(np.exp(t_ld.max()))
-    rds = _sigmoid(np.linspace(float(t_rd.min()), float(t_rd.max()), 9))
+    ld_max = float(np.exp(ld_range[1]))
+    rds = _sigmoid(np.linspace(rd_range[0], rd_range[1], 9))
     return max(node_radius(float(np.clip(r, RD_MIN, RD_MAX)), ld_max, eta, tol, exact)
                for r in rds)
 
 
 def build_plan(t_rd, t_ld, eta, tol, exact=False, basis="svd", max_radius=2048):
-    """The VaryingPlan of one channel with transformed (logit Rd, ln ld) maps t_rd, t_ld."""
-    eta = float(eta)
+    """The VaryingPlan of one channel with transformed (logit Rd, ln ld) maps t_rd, t_ld: it
+    depends on their ranges only (cached)."""
+    return plan_for_ranges((float(t_rd.min()), float(t_rd.max())),
+                           (float(t_ld.min()), float(t_ld.max())), float(eta), float(tol),
+                           exact, basis, max_radius)
+
+
+@lru_cache(maxsize=32)
+def plan_for_ranges(rd_range, ld_range, eta, tol, exact=False, basis="svd", max_radius=2048):
+    """The VaryingPlan for logit(Rd) in rd_range and ln(ld texels) in ld_range."""
     steps = lattice_steps(tol)
-    axes = (_axis(t_rd, steps[0], lambda t: min(max(_sigmoid(t), RD_MIN), RD_MAX)),
-            _axis(t_ld, steps[1], np.exp))
-    radius = common_radius(t_rd, t_ld, eta, tol, exact)
+    axes = (_axis(*rd_range, steps[0], lambda t: min(max(_sigmoid(t), RD_MIN), RD_MAX)),
+            _axis(*ld_range, steps[1], np.exp))
+    radius = common_radius(rd_range, ld_range, eta, tol, exact)
     if radius > max_radius:
         raise ValueError(f"truncation radius {radius} texels exceeds max_radius={max_radius}: "
                          f"raise tol or the texel size")
@@ -337,7 +346,7 @@ def build_plan(t_rd, t_ld, eta, tol, exact=False, basis="svd", max_radius=2048):
         kernels, coef, fit_error = _gaussian_fits(targets, radius, tol)
     table = coef.reshape(len(axes[0].values), len(axes[1].values), -1).astype(np.float32)
     plan = VaryingPlan(radius, basis, kernels, axes, table, eta, fit_error, 0.0, tol)
-    return _with_interp_error(plan, t_rd, t_ld, exact)
+    return _with_interp_error(plan, rd_range, ld_range, exact)
 
 
 def _gaussian_fits(targets, radius, tol):
@@ -354,20 +363,26 @@ def _gaussian_fits(targets, radius, tol):
         ratio = ratio ** (2.0 / 3.0)
 
 
-def _with_interp_error(plan, t_rd, t_ld, exact):
-    """Measure the interpolated kernel against the exact kernel at sampled texels: the
-    parameter extremes and points spread over the texture."""
-    flat_rd, flat_ld = t_rd.ravel(), t_ld.ravel()
-    picks = {int(np.argmin(flat_rd)), int(np.argmax(flat_rd)), int(np.argmin(flat_ld)),
-             int(np.argmax(flat_ld))}
-    picks.update(np.linspace(0, flat_rd.size - 1, SAMPLED_TEXELS).astype(int).tolist())
+def _check_points(lo, hi, step):
+    """Where to check one axis: the range's ends and the midpoints between lattice nodes inside
+    it (where interpolation errs most), at most CHECKS_PER_AXIS evenly chosen."""
+    if step == 0:
+        return [lo]
+    mids = (np.arange(np.floor(lo / step), np.ceil(hi / step)) + 0.5) * step
+    pts = np.unique(np.concatenate([[lo, hi], mids[(mids > lo) & (mids < hi)]]))
+    return pts[np.linspace(0, len(pts) - 1, min(len(pts), CHECKS_PER_AXIS)).astype(int)]
+
+
+def _with_interp_error(plan, rd_range, ld_range, exact):
+    """Measure the interpolated kernel against the exact kernel at check points of the
+    parameter range (its corners and lattice-cell midpoints)."""
     quads = plan.quadrants()
     worst = 0.0
-    for p in sorted(picks):
-        w = interpolated_weights(plan, plan.axes[0].coords(flat_rd[p]),
-                                 plan.axes[1].coords(flat_ld[p]))
-        rd_shape = float(np.clip(_sigmoid(flat_rd[p]), RD_MIN, RD_MAX))
-        exact_q = node_kernel(rd_shape, float(np.exp(flat_ld[p])), plan.eta, plan.radius, exact)
+    for t_rd, t_ld in itertools.product(_check_points(*rd_range, plan.axes[0].step),
+                                        _check_points(*ld_range, plan.axes[1].step)):
+        w = interpolated_weights(plan, plan.axes[0].coords(t_rd), plan.axes[1].coords(t_ld))
+        rd_shape = float(np.clip(_sigmoid(t_rd), RD_MIN, RD_MAX))
+        exact_q = node_kernel(rd_shape, float(np.exp(t_ld)), plan.eta, plan.radius, exact)
         worst = max(worst, float(np.abs(unfold_quadrant(np.tensordot(w, quads, 1)
                                                         - exact_q)).sum()))
     return VaryingPlan(**{**plan.__dict__, "interp_error": worst})

@@ -164,3 +164,33 @@ def test_far_cells_match_independent_quadrature():
 def test_transformed_coordinates_clip_albedo_shape_only():
     t_rd, _ = _transformed(np.array([0.0, 0.5, 0.99999]), np.ones(3))
     assert np.all(np.isfinite(t_rd))
+
+
+def test_cli_with_parameter_textures(tmp_path, capsys):
+    import OpenImageIO as oiio
+
+    from bdipole_cl.cli import main as cli_main
+    from bdipole_cl.demo import write_exr
+    rng = np.random.default_rng(10)
+    e = rng.uniform(0, 1, (H, W, 3)).astype(np.float32)
+    albedo, mfp = gradient_maps(3)
+    write_exr(tmp_path / "e.exr", e, ("R", "G", "B"))
+    write_exr(tmp_path / "albedo.exr", albedo.astype(np.float32), ("R", "G", "B"))
+    write_exr(tmp_path / "mfp.exr", mfp[..., :1].astype(np.float32), ("Y",))
+    args = ["blur", str(tmp_path / "e.exr"), "-o", str(tmp_path / "m.exr"),
+            "--albedo", str(tmp_path / "albedo.exr"), "--mfp", str(tmp_path / "mfp.exr"),
+            "--max-memory", "30K"]
+    assert cli_main(args) == 0
+    assert "Rd per texel" in capsys.readouterr().out
+    inp = oiio.ImageInput.open(str(tmp_path / "m.exr"))
+    got = inp.read_image(0, 0, 0, 3, oiio.FLOAT)
+    inp.close()
+    want = blur(e, albedo=albedo.astype(np.float32), mfp=mfp[..., :1].astype(np.float32))
+    np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-7)
+    # a bad texel: exit 1, the file and texel named, no output left behind
+    albedo[4, 7, 1] = 1.5
+    write_exr(tmp_path / "albedo.exr", albedo.astype(np.float32), ("R", "G", "B"))
+    assert cli_main(args[:3] + [str(tmp_path / "bad.exr")] + args[4:]) == 1
+    err = capsys.readouterr().err
+    assert "e.exr" in err and "x=7, y=4, channel 1" in err
+    assert not (tmp_path / "bad.exr").exists()

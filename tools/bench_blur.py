@@ -4,6 +4,12 @@ one run on the current device. For each: median time, max error against the exac
 convolution (the exact texel-integrated weights by float64 FFT), relative to max(E) * Rd, and
 the speed ratio against ``scipy.signal.fftconvolve`` of the same weights (timed here too).
 
+Texture-varying parameters (``--varying``, on by default): albedo = the constant albedo times
+(1 + 0.2 n(x)) and mfp = mfp * 2^(n(x)/2), n a smooth pattern in [-1, 1]. Printed: the cold
+time (first call: the plan's exact node kernels and fits), the median warm time (plans cached
+per parameter set), the ratio of the warm time to the constant default in the same run, and
+the max error at sampled texels against their own exact kernels (per-exit-texel reference).
+
     python tools/bench_blur.py
     python tools/bench_blur.py --size 1024 --mfp 1 4 --tol 1e-3
 """
@@ -37,6 +43,9 @@ def main(argv=None):
     ap.add_argument("--tol", type=float, default=1e-3)
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--methods", nargs="+", default=["auto", "direct", "gaussians", "fft"])
+    ap.add_argument("--varying-methods", nargs="*", default=["auto"],
+                    help="methods for texture-varying parameters (none: skip)")
+    ap.add_argument("--samples", type=int, default=48, help="texels checked per channel")
     args = ap.parse_args(argv)
     print(f"device: {get_runtime().describe()}")
     rng = np.random.default_rng(0)
@@ -65,7 +74,58 @@ def main(argv=None):
                                         method=m), args.repeats)
             err = (np.abs(out - exact).max(axis=(0, 1)) / norm).max()
             print(f"{mfp:5g} {m:10s} {k:6d} {t:8.2f} {err:9.1e} {t_ref / t:11.2f}")
+            if m == "auto":
+                t_const = t
+        if args.varying_methods:
+            varying_rows(e, mfp, t_const, args)
     return 0
+
+
+def varying_maps(n, mfp):
+    yy, xx = np.mgrid[0:n, 0:n] / n
+    pattern = np.sin(2 * np.pi * (3 * xx + yy)) * np.cos(2 * np.pi * (2 * yy - xx))
+    albedo = np.array(ALBEDO)[None, None, :] * (1.0 + 0.2 * pattern[..., None])
+    return albedo.astype(np.float32), (mfp * 2.0 ** (0.5 * pattern)).astype(np.float32)
+
+
+def sampled_error(e, out, albedo, mfp, info, samples, rng):
+    """max |M - exact| / (max E * Rd(x)) over sampled texels, the exact value from the texel's
+    own exact kernel at the plan's radius (float64)."""
+    from bdipole_cl.blur import unfold_quadrant
+    from bdipole_cl.varying import RD_MAX, RD_MIN, node_kernel
+    h, w, nch = e.shape
+    worst = 0.0
+    for c in range(nch):
+        k = info.channels[c]["radius"]
+        for y, x in zip(rng.integers(0, h, samples), rng.integers(0, w, samples)):
+            rd = float(albedo[y, x, c])
+            ld = float(mfp[y, x] if mfp.ndim == 2 else mfp[y, x, c])
+            q = node_kernel(float(np.clip(rd, RD_MIN, RD_MAX)), ld, 1.4, k)
+            ys = np.clip(np.arange(y - k, y + k + 1), 0, h - 1)
+            xs = np.clip(np.arange(x - k, x + k + 1), 0, w - 1)
+            want = (e[np.ix_(ys, xs, [c])][..., 0].astype(np.float64)
+                    * unfold_quadrant(q)).sum() * rd
+            worst = max(worst, abs(out[y, x, c] - want) / (e[..., c].max() * rd))
+    return worst
+
+
+def varying_rows(e, mfp, t_const, args):
+    albedo, mfps = varying_maps(e.shape[0], mfp)
+    rng = np.random.default_rng(1)
+    for m in args.varying_methods:
+        def run():
+            return blur(e, albedo=albedo, mfp=mfps, eta=1.4, tol=args.tol, method=m,
+                        return_info=True)
+        t0 = time.perf_counter()
+        run()
+        cold = time.perf_counter() - t0
+        t, (out, info) = timed(run, args.repeats)
+        err = sampled_error(e, out, albedo, mfps, info, args.samples, rng)
+        k = max(c["radius"] for c in info.channels)
+        basis = "/".join(str(c["method"].split(", ")[1].split()[0]) for c in info.channels)
+        print(f"{mfp:5g} {'varying ' + m:10s} {k:6d} {t:8.2f} {err:9.1e} "
+              f"{'':11s} cold {cold:.2f} s, {t / t_const:.2f}x the constant default, "
+              f"basis {basis}, bound {max(c['error_bound'] for c in info.channels):.1e}")
 
 
 if __name__ == "__main__":

@@ -29,8 +29,9 @@ Methods (``method=``)
                ``auto``, ``tol`` is the error target relative to max(E) * Rd; with an
                explicit method it is the truncation tolerance (which bounds that error).
 
-Parameters are constant per channel (scalars or per-channel tuples). Texture-varying
-parameters are not implemented yet (ValueError).
+Parameters are scalars, per-channel tuples or HxW / HxWxC textures. With textures each texel
+uses its own (the exit texel's) profile, through per-texel weights over a shared basis
+(bdipole_cl/varying.py; methods fft, gaussians, auto).
 
 NaN/Inf irradiance: ``on_invalid="raise"`` (default) reports them (count, first texel);
 ``"zero"`` treats them as unlit texels. HDR values are fine: weights sum to Rd <= 1.
@@ -245,8 +246,8 @@ def _channel_values(value, nchan, name):
     v = np.atleast_1d(np.asarray(value, np.float64))
     if v.ndim > 1 or (v.size not in (1, nchan)):
         if v.ndim > 1:
-            raise ValueError(f"{name}: texture-varying parameters are not implemented yet; "
-                             f"pass a scalar or one value per channel")
+            raise ValueError(f"{name}: one value or one per channel here; texture-varying "
+                             f"parameters go to blur() (bdipole_cl.varying)")
         raise ValueError(f"{name} has {v.size} values for {nchan} channels")
     return np.broadcast_to(v, (nchan,))
 
@@ -396,8 +397,9 @@ def blur(irradiance, *, albedo=None, mfp=None, eta=1.4, texel_size=1.0, alpha=No
          on_invalid="raise", return_info=False, max_memory=None):
     """Texture-space subsurface scattering: ``irradiance`` (HxW or HxWxC) blurred by R(r).
 
-    ``albedo`` (Rd) and ``mfp`` (ld = 1/mu_tr, same unit as ``texel_size``) per channel, or
-    ``alpha`` (alpha') and ``sigma_t`` (sigma_t', 1/unit); ``eta`` per channel. Returns the
+    ``albedo`` (Rd) and ``mfp`` (ld = 1/mu_tr, same unit as ``texel_size``), or ``alpha``
+    (alpha') and ``sigma_t`` (sigma_t', 1/unit): scalars, per channel, or HxW(xC) textures
+    (texture-varying: the exit texel's profile, see bdipole_cl/varying.py); ``eta`` per channel. Returns the
     exitance, HxWxC float32 (and a BlurInfo with ``return_info``). See the module docstring.
 
     ``max_memory`` (bytes): blur in bands of rows, each with a halo of the truncation radius

@@ -56,10 +56,6 @@ class VaryingParameterError(ValueError):
     """A texel's parameters are invalid (the message names the texel and channel)."""
 
 
-def is_texture(value):
-    return value is not None and np.ndim(value) >= 2
-
-
 def _texture_channel(value, shape, c, name):
     """Channel c of a scalar, per-channel tuple, HxW or HxWxC parameter, as an HxW float64."""
     h, w, nch = shape
@@ -77,10 +73,21 @@ def _texture_channel(value, shape, c, name):
     return v[..., c if v.shape[2] > 1 else 0]
 
 
-def _first_bad(mask, values, c, name, rule):
-    y, x = (int(i) for i in np.argwhere(mask)[0])
-    raise VaryingParameterError(f"{int(mask.sum())} texel(s) of {name} outside {rule}; first "
-                                f"at x={x}, y={y}, channel {c}: {values[y, x]!r}")
+#: the texel rules of the parameters: unit interval (albedo, alpha') or positive and finite
+_RULES = {"[0, 1)": lambda v: (v >= 0) & (v < 1),
+          "(0, inf)": lambda v: (v > 0) & np.isfinite(v)}
+
+
+def _checked(value, shape, c, name, rule):
+    """Channel c of a parameter as HxW float64, every texel within ``rule``, else a
+    VaryingParameterError naming the count and the first bad texel."""
+    v = _texture_channel(value, shape, c, name)
+    bad = ~_RULES[rule](v)
+    if bad.any():
+        y, x = (int(i) for i in np.argwhere(bad)[0])
+        raise VaryingParameterError(f"{int(bad.sum())} texel(s) of {name} outside {rule}; "
+                                    f"first at x={x}, y={y}, channel {c}: {v[y, x]!r}")
+    return v
 
 
 def texel_parameters(shape, c, *, albedo=None, mfp=None, eta=1.4, texel_size=1.0, alpha=None,
@@ -89,28 +96,14 @@ def texel_parameters(shape, c, *, albedo=None, mfp=None, eta=1.4, texel_size=1.0
     if alpha is not None or sigma_t is not None:
         if alpha is None or sigma_t is None or albedo is not None or mfp is not None:
             raise ValueError("give either albedo and mfp, or alpha and sigma_t")
-        a = _texture_channel(alpha, shape, c, "alpha")
-        st = _texture_channel(sigma_t, shape, c, "sigma_t")
-        bad = ~((a >= 0) & (a < 1))
-        if bad.any():
-            _first_bad(bad, a, c, "alpha", "[0, 1)")
-        bad = ~((st > 0) & np.isfinite(st))
-        if bad.any():
-            _first_bad(bad, st, c, "sigma_t", "(0, inf)")
-        rd = ref.rd(a, eta, exact)
+        a = _checked(alpha, shape, c, "alpha", "[0, 1)")
+        st = _checked(sigma_t, shape, c, "sigma_t", "(0, inf)")
         ld = 1.0 / (st * texel_size * ref.mu_tr_over_sigma_t(1.0 - a))
-        return rd, ld
+        return ref.rd(a, eta, exact), ld
     if albedo is None or mfp is None:
         raise ValueError("give albedo and mfp (or alpha and sigma_t)")
-    rd = _texture_channel(albedo, shape, c, "albedo")
-    ld = _texture_channel(mfp, shape, c, "mfp") / texel_size
-    bad = ~((rd >= 0) & (rd < 1))
-    if bad.any():
-        _first_bad(bad, rd, c, "albedo", "[0, 1)")
-    bad = ~((ld > 0) & np.isfinite(ld))
-    if bad.any():
-        _first_bad(bad, ld, c, "mfp", "(0, inf)")
-    return rd, ld
+    rd = _checked(albedo, shape, c, "albedo", "[0, 1)")
+    return rd, _checked(mfp, shape, c, "mfp", "(0, inf)") / texel_size
 
 
 # {{{ lattice of nodes

@@ -403,7 +403,9 @@ def weight_planes(plan, rd, t_rd, t_ld):
     dst = cl.Buffer(rt.context, mf.WRITE_ONLY | mf.USE_HOST_PTR, hostbuf=out)
     cl.Kernel(prg, "lattice_weights")(rt.queue, (h * w,), None, *bufs, dst, np.int32(h * w),
                                       np.int32(nu), np.int32(nv))
-    cl.enqueue_map_buffer(rt.queue, dst, cl.map_flags.READ, 0, out.shape, out.dtype)[0].base
+    # the device wrote into ``out`` (USE_HOST_PTR): map it to make the data visible, unmap
+    mapped, _ = cl.enqueue_map_buffer(rt.queue, dst, cl.map_flags.READ, 0, out.shape, out.dtype)
+    mapped.base.release(rt.queue)
     rt.queue.finish()
     return out
 

@@ -359,14 +359,21 @@ class _Blur:
         return out
 
 
+def fft_padded(e2d, k, border):
+    """The image padded by k texels by the border rule, and the fast FFT shape that holds its
+    linear convolution with a (2k+1)^2 kernel."""
+    import scipy.fft as sfft
+    mode = {"clamp": "edge", "zero": "constant", "wrap": "wrap"}[border]
+    pad = np.pad(e2d, k, mode=mode)
+    return pad, [sfft.next_fast_len(n + 2 * k, real=True) for n in pad.shape]
+
+
 def fft_blur_channel(e2d, weights, border):
     """Exact-weights convolution of one channel by FFT (scipy.fft, all cores), with the same
     border rule as the kernels (the image padded by the kernel radius)."""
     import scipy.fft as sfft
     k = (weights.shape[0] - 1) // 2
-    mode = {"clamp": "edge", "zero": "constant", "wrap": "wrap"}[border]
-    pad = np.pad(e2d.astype(np.float64), k, mode=mode)
-    shape = [sfft.next_fast_len(n + 2 * k, real=True) for n in pad.shape]
+    pad, shape = fft_padded(e2d.astype(np.float64), k, border)
     spec = sfft.rfft2(pad, shape, workers=-1) * sfft.rfft2(weights, shape, workers=-1)
     full = sfft.irfft2(spec, shape, workers=-1)
     h, w = e2d.shape

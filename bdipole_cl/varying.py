@@ -37,7 +37,7 @@ import numpy as np
 import pyopencl as cl
 
 from . import reference as ref
-from .blur import gaussian_1d, quadrant_weights, truncation_radius, unfold_quadrant
+from .blur import fft_padded, gaussian_1d, quadrant_weights, truncation_radius, unfold_quadrant
 from .device import build_options, get_program, get_runtime
 
 #: the kernel's shape is taken at albedo within these bounds (its energy is always Rd(x))
@@ -159,7 +159,7 @@ def node_kernel(rd, ld, eta, radius, exact=False):
 
 def _quadrant_sum(q):
     """Sum of the unfolded kernel of quadrant q (axis cells twice, the centre once)."""
-    return 4.0 * q[1:, 1:].sum() + 2.0 * (q[0, 1:].sum() + q[1:, 0].sum()) + q[0, 0]
+    return float((q * _multiplicity(q.shape[0] - 1)).sum())
 
 
 @lru_cache(maxsize=4096)
@@ -417,9 +417,7 @@ def fft_basis_blur(e2d, plan, weights, border):
     import scipy.fft as sfft
     k = plan.radius
     h, w = e2d.shape
-    mode = {"clamp": "edge", "zero": "constant", "wrap": "wrap"}[border]
-    pad = np.pad(e2d.astype(np.float32), k, mode=mode)
-    shape = [sfft.next_fast_len(n + 2 * k, real=True) for n in pad.shape]
+    pad, shape = fft_padded(e2d.astype(np.float32), k, border)
     spec = sfft.rfft2(pad, shape, workers=-1)
     out = np.zeros((h, w), np.float32)
     for quad, wj in zip(plan.quadrants(), weights):

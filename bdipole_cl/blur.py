@@ -359,13 +359,23 @@ class _Blur:
         return out
 
 
-def fft_padded(e2d, k, border):
-    """The image padded by k texels by the border rule, and the fast FFT shape that holds its
-    linear convolution with a (2k+1)^2 kernel."""
+def fft_shape(shape, k):
+    """The fast even FFT shape (>= the image padded by k) for the circular convolution of the padded
+    image with a (2k+1)^2 kernel: the wrap-around reaches only the first 2k rows and columns of
+    the result, which are the padding (the image is at [2k, 2k + n) with the kernel at
+    [0, 2k], at [k, k + n) with it centred on 0)."""
     import scipy.fft as sfft
+
+    def even_fast(n):          # even, so that an even kernel's spectrum is a DCT-I
+        n = sfft.next_fast_len(n, real=True)
+        return n if n % 2 == 0 else even_fast(n + 1)
+    return [even_fast(n + 2 * k) for n in shape]
+
+
+def fft_padded(e2d, k, border):
+    """The image padded by k texels by the border rule, and its ``fft_shape``."""
     mode = {"clamp": "edge", "zero": "constant", "wrap": "wrap"}[border]
-    pad = np.pad(e2d, k, mode=mode)
-    return pad, [sfft.next_fast_len(n + 2 * k, real=True) for n in pad.shape]
+    return np.pad(e2d, k, mode=mode), fft_shape(e2d.shape, k)
 
 
 def fft_blur_channel(e2d, weights, border):

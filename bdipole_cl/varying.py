@@ -37,7 +37,14 @@ import numpy as np
 import pyopencl as cl
 
 from . import reference as ref
-from .blur import fft_padded, gaussian_1d, quadrant_weights, truncation_radius, unfold_quadrant
+from .blur import (
+    fft_padded,
+    fft_shape,
+    gaussian_1d,
+    quadrant_weights,
+    truncation_radius,
+    unfold_quadrant,
+)
 from .device import build_options, get_program, get_runtime
 
 #: the kernel's shape is taken at albedo within these bounds (its energy is always Rd(x))
@@ -57,9 +64,12 @@ class VaryingParameterError(ValueError):
 
 
 def _texture_channel(value, shape, c, name):
-    """Channel c of a scalar, per-channel tuple, HxW or HxWxC parameter, as an HxW float64."""
+    """Channel c of a scalar, per-channel tuple, HxW or HxWxC parameter, as an HxW array (a
+    texture keeps its float type: it is checked before it is rounded to float32)."""
     h, w, nch = shape
-    v = np.asarray(value, np.float64)
+    v = np.asarray(value)
+    if not np.issubdtype(v.dtype, np.floating):
+        v = v.astype(np.float64)
     if v.ndim <= 1:
         v = np.atleast_1d(v)
         if v.size not in (1, nch):
@@ -79,7 +89,7 @@ _RULES = {"[0, 1)": lambda v: (v >= 0) & (v < 1),
 
 
 def _checked(value, shape, c, name, rule):
-    """Channel c of a parameter as HxW float64, every texel within ``rule``, else a
+    """Channel c of a parameter as HxW, every texel within ``rule``, else a
     VaryingParameterError naming the count and the first bad texel."""
     v = _texture_channel(value, shape, c, name)
     bad = ~_RULES[rule](v)
@@ -90,20 +100,26 @@ def _checked(value, shape, c, name, rule):
     return v
 
 
+def _float32_map(v):
+    return np.ascontiguousarray(v, np.float32)
+
+
 def texel_parameters(shape, c, *, albedo=None, mfp=None, eta=1.4, texel_size=1.0, alpha=None,
                      sigma_t=None, exact=False):
-    """(Rd, ld in texels) HxW float64 maps of channel c, from albedo + mfp or alpha' + sigma_t'."""
+    """(Rd, ld in texels) HxW float32 maps of channel c, from albedo + mfp or alpha' + sigma_t'
+    (the device computes the node coordinates from these same float32 values)."""
     if alpha is not None or sigma_t is not None:
         if alpha is None or sigma_t is None or albedo is not None or mfp is not None:
             raise ValueError("give either albedo and mfp, or alpha and sigma_t")
-        a = _checked(alpha, shape, c, "alpha", "[0, 1)")
-        st = _checked(sigma_t, shape, c, "sigma_t", "(0, inf)")
+        a = _checked(alpha, shape, c, "alpha", "[0, 1)").astype(np.float64)
+        st = _checked(sigma_t, shape, c, "sigma_t", "(0, inf)").astype(np.float64)
         ld = 1.0 / (st * texel_size * ref.mu_tr_over_sigma_t(1.0 - a))
-        return ref.rd(a, eta, exact), ld
+        return _float32_map(ref.rd(a, eta, exact)), _float32_map(ld)
     if albedo is None or mfp is None:
         raise ValueError("give albedo and mfp (or alpha and sigma_t)")
-    rd = _checked(albedo, shape, c, "albedo", "[0, 1)")
-    return rd, _checked(mfp, shape, c, "mfp", "(0, inf)") / texel_size
+    rd = _float32_map(_checked(albedo, shape, c, "albedo", "[0, 1)"))
+    mfp = _checked(mfp, shape, c, "mfp", "(0, inf)")
+    return rd, _float32_map(mfp if texel_size == 1.0 else mfp / texel_size)
 
 
 # {{{ lattice of nodes
@@ -274,7 +290,16 @@ class VaryingPlan:
 
 
 def _transformed(rd, ld):
-    return _logit(np.clip(rd, RD_MIN, RD_MAX)), np.log(ld)
+    """The lattice variables (logit Rd, with Rd clipped to [RD_MIN, RD_MAX]; ln ld), float64."""
+    return (_logit(np.clip(np.asarray(rd, np.float64), RD_MIN, RD_MAX)),
+            np.log(np.asarray(ld, np.float64)))
+
+
+def parameter_ranges(rd, ld):
+    """((lo, hi) of logit Rd, (lo, hi) of ln ld) over maps rd, ld: the transforms are monotone,
+    so these are the transformed extremes."""
+    t_rd = _transformed([rd.min(), rd.max()], [ld.min(), ld.max()])
+    return tuple((float(t[0]), float(t[1])) for t in t_rd)
 
 
 def lagrange4(t):
@@ -308,14 +333,6 @@ def common_radius(rd_range, ld_range, eta, tol, exact=False):
     rds = _sigmoid(np.linspace(rd_range[0], rd_range[1], 9))
     return max(node_radius(float(np.clip(r, RD_MIN, RD_MAX)), ld_max, eta, tol, exact)
                for r in rds)
-
-
-def build_plan(t_rd, t_ld, eta, tol, exact=False, basis="svd", max_radius=2048):
-    """The VaryingPlan of one channel with transformed (logit Rd, ln ld) maps t_rd, t_ld: it
-    depends on their ranges only (cached)."""
-    return plan_for_ranges((float(t_rd.min()), float(t_rd.max())),
-                           (float(t_ld.min()), float(t_ld.max())), float(eta), float(tol),
-                           exact, basis, max_radius)
 
 
 @lru_cache(maxsize=32)
@@ -381,57 +398,115 @@ def _with_interp_error(plan, rd_range, ld_range, exact):
     return VaryingPlan(**{**plan.__dict__, "interp_error": worst})
 
 
-def texel_coords(plan, t_rd, t_ld):
-    """Per-texel node coordinates (float32 pairs) of the transformed maps t_rd, t_ld."""
-    return np.ascontiguousarray(np.stack([plan.axes[0].coords(t_rd), plan.axes[1].coords(t_ld)],
-                                         axis=-1), np.float32)
+def texel_coords(plan, rd, ld):
+    """Node coordinates (float32 maps) of the texels' Rd, ld float32 maps: logit(Rd clipped to
+    [RD_MIN, RD_MAX]) and ln(ld) in lattice steps from node 0 (zeros on a constant axis). In
+    float32 the coordinates are good to ~1e-6 of a lattice step."""
+    def on_axis(axis, t):
+        if axis.step == 0:
+            return np.zeros(t.shape, np.float32)
+        t *= np.float32(1.0 / axis.step)
+        t -= np.float32(axis.origin)
+        return t
+
+    p = np.clip(rd, np.float32(RD_MIN), np.float32(RD_MAX))
+    u = np.log(np.divide(p, np.float32(1.0) - p, out=p), out=p)
+    return on_axis(plan.axes[0], u), on_axis(plan.axes[1], np.log(ld))
 
 
-def weight_planes(plan, rd, t_rd, t_ld):
+def _lattice_args(plan):
+    """Program options and the lattice arguments of kernels/blur_varying.cl for a plan."""
+    nu, nv, g = plan.table.shape
+    opts = build_options({"NBASIS": g, "NU_TAPS": 1 if nu == 1 else 4,
+                          "NV_TAPS": 1 if nv == 1 else 4})
+    return opts, (np.int32(nu), np.int32(nv))
+
+
+def _host_buffer(rt, array, flags):
+    """A device buffer over a host array (zero-copy on CPU devices)."""
+    return cl.Buffer(rt.context, flags | cl.mem_flags.USE_HOST_PTR,
+                     hostbuf=np.ascontiguousarray(array))
+
+
+def _read_back(rt, buf, array):
+    """Make the device's writes to a USE_HOST_PTR buffer visible in ``array``."""
+    mapped, _ = cl.enqueue_map_buffer(rt.queue, buf, cl.map_flags.READ, 0, array.shape,
+                                      array.dtype)
+    mapped.base.release(rt.queue)
+    rt.queue.finish()
+
+
+def weight_planes(plan, rd, ld):
     """w_j(x) * Rd(x), (G, H, W) float32, computed on the device (kernels/blur_varying.cl)."""
     rt = get_runtime()
     h, w = rd.shape
-    g = plan.table.shape[2]
     mf = cl.mem_flags
-    coords = texel_coords(plan, t_rd, t_ld)
-    nu, nv = plan.table.shape[:2]
-    prg = get_program(rt, "blur_varying", build_options(
-        {"NBASIS": g, "NU_TAPS": 1 if nu == 1 else 4, "NV_TAPS": 1 if nv == 1 else 4}))
-    bufs = [cl.Buffer(rt.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=a) for a in
-            (coords, np.ascontiguousarray(rd, np.float32), np.ascontiguousarray(plan.table))]
-    out = np.empty((g, h, w), np.float32)
-    dst = cl.Buffer(rt.context, mf.WRITE_ONLY | mf.USE_HOST_PTR, hostbuf=out)
-    cl.Kernel(prg, "lattice_weights")(rt.queue, (h * w,), None, *bufs, dst, np.int32(h * w),
-                                      np.int32(nu), np.int32(nv))
-    # the device wrote into ``out`` (USE_HOST_PTR): map it to make the data visible, unmap
-    mapped, _ = cl.enqueue_map_buffer(rt.queue, dst, cl.map_flags.READ, 0, out.shape, out.dtype)
-    mapped.base.release(rt.queue)
-    rt.queue.finish()
+    opts, axis_args = _lattice_args(plan)
+    out = np.empty((plan.table.shape[2], h, w), np.float32)
+    bufs = [_host_buffer(rt, a, mf.READ_ONLY) for a in (rd, *texel_coords(plan, rd, ld),
+                                                         plan.table)]
+    dst = _host_buffer(rt, out, mf.WRITE_ONLY)
+    cl.Kernel(get_program(rt, "blur_varying", opts), "lattice_weights")(
+        rt.queue, (h * w,), None, *bufs, dst, np.int32(h * w), *axis_args)
+    _read_back(rt, dst, out)
     return out
 
 
-def fft_basis_blur(e2d, plan, weights, border):
-    """``sum_j weights[j] * (B_j * E)`` with each basis kernel B_j applied by float32 FFT
-    (scipy.fft, all cores): one forward transform of the image, then per basis kernel one
-    transform of the kernel and one inverse."""
+def kernel_spectra(quads, shape):
+    """Real DFTs (G, N0, N1 // 2 + 1) float32 of the even kernels of quadrants quads (G, K+1,
+    K+1) centred on 0, at the even FFT shape (N0, N1). An even kernel's DFT is the cosine sum
+    sum_{a,b} m_a m_b Q(a, b) cos(2 pi f a / N0) cos(2 pi g b / N1) (m: 1 at 0, else 2): the
+    DCT-I of the quadrant zero-padded to (N0/2 + 1, N1/2 + 1), mirrored to the N0 rows."""
+    import scipy.fft as sfft
+    n0, n1 = shape
+    g, kk = quads.shape[:2]
+    half = np.zeros((g, n0 // 2 + 1, n1 // 2 + 1), np.float32)
+    half[:, :kk, :kk] = quads
+    spec = sfft.dctn(half, type=1, axes=(1, 2), workers=-1, overwrite_x=True)
+    return np.concatenate([spec, spec[:, n0 // 2 - 1:0:-1]], axis=1)
+
+
+def basis_blurs(e2d, plan, kspec, border, planes):
+    """planes[j] = (B_j * E) for every basis kernel of the plan, as (H, W + 2K) float32 rows
+    whose columns [K, K + W) are the image's: float32 FFTs (scipy.fft, all cores), one forward
+    transform, and per basis kernel an inverse transform pruned to the image's rows. One basis
+    kernel at a time, in place where scipy allows: fresh large arrays cost page faults."""
     import scipy.fft as sfft
     k = plan.radius
-    h, w = e2d.shape
-    pad, shape = fft_padded(e2d.astype(np.float32), k, border)
+    h = e2d.shape[0]
+    pad, shape = fft_padded(e2d, k, border)
     spec = sfft.rfft2(pad, shape, workers=-1)
-    out = np.zeros((h, w), np.float32)
-    for quad, wj in zip(plan.quadrants(), weights):
-        kspec = sfft.rfft2(unfold_quadrant(quad).astype(np.float32), shape, workers=-1)
-        blurred = sfft.irfft2(spec * kspec, shape, workers=-1)
-        out += wj * blurred[2 * k:2 * k + h, 2 * k:2 * k + w]
-    return out
+    prod = np.empty_like(spec)
+    for plane, ks in zip(planes, kspec):
+        np.multiply(ks, spec, out=prod)
+        cols = sfft.ifft(prod, axis=0, workers=-1, overwrite_x=True)
+        plane[...] = sfft.irfft(cols[k:k + h], shape[1], axis=-1, workers=-1)
+    return planes
+
+
+def gather_exitance(out, c, plan, rd, ld, planes, x0):
+    """out[..., c] = Rd(x) sum_j w_j(x) planes[j, y, x0 + x], on the device."""
+    rt = get_runtime()
+    h, w, nch = out.shape
+    mf = cl.mem_flags
+    opts, axis_args = _lattice_args(plan)
+    bufs = [_host_buffer(rt, a, mf.READ_ONLY) for a in (rd, *texel_coords(plan, rd, ld),
+                                                         plan.table, planes)]
+    dst = _host_buffer(rt, out, mf.READ_WRITE)
+    cl.Kernel(get_program(rt, "blur_varying", opts), "gather_exitance")(
+        rt.queue, (w, h), None, *bufs, dst, np.int32(w), np.int32(h),
+        np.int32(planes.shape[2]), np.int32(planes.shape[1] * planes.shape[2]), np.int32(x0),
+        np.int32(nch), np.int32(c), *axis_args)
+    _read_back(rt, dst, out)
 
 
 VARYING_METHODS = ("auto", "fft", "gaussians")
 
 
 def channel_plans(shape, *, tol, exact=False, eta=1.4, basis="svd", **physical):
-    """Per channel: (VaryingPlan, Rd, logit Rd, ln ld) maps for an HxWxC image."""
+    """Per channel: (VaryingPlan, Rd map, ld map) for an HxWxC image. Each channel has the plan
+    of its own ranges (a union over channels would need more basis kernels per channel; the
+    kernels' spectra are cheap, so sharing them saves little)."""
     etas = np.broadcast_to(np.atleast_1d(np.asarray(eta, np.float64)), (shape[2],)) \
         if np.ndim(eta) <= 1 and np.size(eta) in (1, shape[2]) else None
     if etas is None:
@@ -440,26 +515,34 @@ def channel_plans(shape, *, tol, exact=False, eta=1.4, basis="svd", **physical):
     out = []
     for c in range(shape[2]):
         rd, ld = texel_parameters(shape, c, eta=float(etas[c]), exact=exact, **physical)
-        t_rd, t_ld = _transformed(rd, ld)
-        out.append((build_plan(t_rd, t_ld, float(etas[c]), tol, exact, basis), rd, t_rd, t_ld))
+        out.append((plan_for_ranges(*parameter_ranges(rd, ld), float(etas[c]), float(tol),
+                                    exact, basis), rd, ld))
     return out
 
 
-def _blur_band(e, plans, rows, method, border):
-    """Blur one image or band (rows: the slice of the parameter maps it covers)."""
-    h, w, nch = e.shape
-    out = np.empty_like(e)
-    ctx = None
+def _blur_band(e, plans, rows, method, border, spectra):
+    """Blur one image or band (rows: the rows of the parameter maps it covers). ``spectra``
+    caches the basis kernels' spectra per plan and FFT shape."""
+    h, w, _ = e.shape
     if method == "gaussians":
         from .blur import _Blur
         ctx = _Blur(e, border)
-    for c, (plan, rd, t_rd, t_ld) in enumerate(plans):
-        weights = weight_planes(plan, rd[rows], t_rd[rows], t_ld[rows])
-        if ctx is not None:
-            ctx.run_varying(c, plan, weights)
-        else:
-            out[..., c] = fft_basis_blur(e[..., c], plan, weights, border)
-    return ctx.result() if ctx is not None else out
+        for c, (plan, rd, ld) in enumerate(plans):
+            ctx.run_varying(c, plan, weight_planes(plan, rd[rows], ld[rows]))
+        return ctx.result()
+    out = np.empty_like(e)
+    planes = None          # the basis blurs, (G, H, FFT width), reused across channels
+    for c, (plan, rd, ld) in enumerate(plans):
+        shape = fft_shape((h, w), plan.radius)
+        key = (id(plan), tuple(shape))
+        if key not in spectra:
+            spectra[key] = kernel_spectra(plan.quadrants(), shape)
+        if planes is None or planes.shape != (len(spectra[key]), h, shape[1]):
+            planes = np.empty((len(spectra[key]), h, shape[1]), np.float32)
+        basis_blurs(e[..., c], plan, spectra[key], border, planes)
+        gather_exitance(out, c, plan, _float32_map(rd[rows]), _float32_map(ld[rows]), planes,
+                        plan.radius)
+    return out
 
 
 def blur_textured(e, *, method, tol, border, exact, return_info, max_memory, **physical):
@@ -474,11 +557,13 @@ def blur_textured(e, *, method, tol, border, exact, return_info, max_memory, **p
     h, w, nch = e.shape
     k = max(p[0].radius for p in plans)
     g = max(len(p[0].kernels) for p in plans)
-    # per band row: input, output, G weight planes, the FFT's padded copy and spectra
-    per_row = w * 4 * (2 * nch + g + 6)
+    # per band row (of width ~ w + 2k): input, output, parameter maps, and per basis kernel its
+    # spectrum, product spectrum (complex) and blurred plane (or its weight plane)
+    per_row = (w + 2 * k) * 4 * (4 * nch + 4 * g + 6)
     rows = h if max_memory is None else max(1, int(max_memory // per_row) - 2 * k)
+    spectra = {}
     if rows >= h:
-        out = _blur_band(e, plans, slice(0, h), used, border)
+        out = _blur_band(e, plans, slice(0, h), used, border, spectra)
     else:
         out = np.empty_like(e)
         for y0 in range(0, h, rows):
@@ -486,7 +571,7 @@ def blur_textured(e, *, method, tol, border, exact, return_info, max_memory, **p
             idx = _halo_rows(y0, y1, k, h, border)
             band = np.where((idx >= 0)[:, None, None], e[np.maximum(idx, 0)], np.float32(0))
             # the halo rows' own parameters are never used (a gather: exit texel's profile)
-            res = _blur_band(band, plans, np.maximum(idx, 0), used, border)
+            res = _blur_band(band, plans, np.maximum(idx, 0), used, border, spectra)
             out[y0:y1] = res[k:k + (y1 - y0)]
     if not return_info:
         return out

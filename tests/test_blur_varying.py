@@ -6,8 +6,8 @@ from scipy.integrate import dblquad
 from bdipole_cl import reference as ref
 from bdipole_cl.blur import blur, channel_parameters, quadrant_weights, unfold_quadrant
 from bdipole_cl.varying import (RD_MAX, RD_MIN, VaryingParameterError, _transformed,
-                                channel_plans, interpolated_weights, node_kernel, texel_coords,
-                                weight_planes)
+                                channel_plans, interpolated_weights, kernel_spectra,
+                                node_kernel, texel_coords, weight_planes)
 
 H, W = 20, 22
 
@@ -108,13 +108,43 @@ def test_banded_equals_whole():
 
 def test_device_weights_match_host_interpolation():
     albedo, mfp = gradient_maps()
-    (plan, rd, t_rd, t_ld), = channel_plans((H, W, 1), tol=1e-3, albedo=albedo, mfp=mfp)
-    dev = weight_planes(plan, rd, t_rd, t_ld)
-    coords = texel_coords(plan, t_rd, t_ld).astype(np.float64)
-    host = interpolated_weights(plan, coords[..., 0], coords[..., 1]) * rd[..., None]
+    (plan, rd, ld), = channel_plans((H, W, 1), tol=1e-3, albedo=albedo, mfp=mfp)
+    dev = weight_planes(plan, rd, ld)
+    cu, cv = texel_coords(plan, rd, ld)
+    host = interpolated_weights(plan, cu, cv) * rd[..., None].astype(np.float64)
     # float32 Lagrange weights and sums of <= 16 taps: a few ulp of the largest weight
     np.testing.assert_allclose(dev, np.moveaxis(host, -1, 0), rtol=0,
                                atol=1e-5 * np.abs(host).max())
+
+
+def test_float32_node_coordinates_match_float64():
+    albedo, mfp = gradient_maps()
+    albedo[0, 0], albedo[1, 1] = 0.0, 0.9995       # clipped to the shape bounds
+    (plan, rd, ld), = channel_plans((H, W, 1), tol=1e-3, albedo=albedo, mfp=mfp)
+    cu, cv = texel_coords(plan, rd, ld)
+    assert cu.dtype == cv.dtype == np.float32
+    t_rd, t_ld = _transformed(rd, ld)
+    # float32 logit/log: a few ulp of |logit| <= 7 over a >= 0.2 step, except at the clip
+    # bound RD_MAX itself, which rounds to 0.99900001 in float32: 1 - Rd then differs by
+    # 1.3e-5 relatively, and so does logit, 3.3e-5 of a 0.4 step (a shape difference far below
+    # the kernel's interpolation error)
+    np.testing.assert_allclose(cu, plan.axes[0].coords(t_rd), rtol=0, atol=5e-5)
+    np.testing.assert_allclose(cv, plan.axes[1].coords(t_ld), rtol=0, atol=1e-5)
+
+
+@pytest.mark.parametrize("k, shape", [(3, (16, 20)), (9, (40, 34)), (12, (26, 26))])
+def test_kernel_spectra_equal_fft_of_the_centred_kernel(k, shape):
+    import scipy.fft as sfft
+    quads = np.random.default_rng(k).uniform(0, 1, (2, k + 1, k + 1))
+    got = kernel_spectra(quads, shape)
+    for q, spec in zip(quads, got):
+        full = np.zeros(shape)
+        idx = np.arange(-k, k + 1)
+        full[np.ix_(idx % shape[0], idx % shape[1])] = unfold_quadrant(q)
+        want = sfft.rfft2(full)
+        assert np.abs(want.imag).max() < 1e-12 * np.abs(want).max()    # even kernel: real
+        # float32 DCT of <= (k+1)^2 terms: ~1e-7 of the spectrum's peak
+        np.testing.assert_allclose(spec, want.real, rtol=0, atol=1e-6 * np.abs(want).max())
 
 
 def test_zero_albedo_texels_give_zero_and_extremes_stay_finite():

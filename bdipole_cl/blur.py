@@ -360,10 +360,10 @@ class _Blur:
 
 
 def fft_shape(shape, k):
-    """The fast even FFT shape (>= the image padded by k) for the circular convolution of the padded
-    image with a (2k+1)^2 kernel: the wrap-around reaches only the first 2k rows and columns of
-    the result, which are the padding (the image is at [2k, 2k + n) with the kernel at
-    [0, 2k], at [k, k + n) with it centred on 0)."""
+    """The fast even FFT shape (>= the image padded by k) for the circular convolution of the
+    padded image with a (2k+1)^2 kernel: the wrap-around reaches only the first 2k rows and
+    columns of the result, which are the padding (the image is at [2k, 2k + n) with the kernel
+    at [0, 2k], at [k, k + n) with it centred on 0)."""
     import scipy.fft as sfft
 
     def even_fast(n):          # even, so that an even kernel's spectrum is a DCT-I
@@ -416,8 +416,9 @@ def blur(irradiance, *, albedo=None, mfp=None, eta=1.4, texel_size=1.0, alpha=No
 
     ``albedo`` (Rd) and ``mfp`` (ld = 1/mu_tr, same unit as ``texel_size``), or ``alpha``
     (alpha') and ``sigma_t`` (sigma_t', 1/unit): scalars, per channel, or HxW(xC) textures
-    (texture-varying: the exit texel's profile, see bdipole_cl/varying.py); ``eta`` per channel. Returns the
-    exitance, HxWxC float32 (and a BlurInfo with ``return_info``). See the module docstring.
+    (texture-varying: the exit texel's profile, see bdipole_cl/varying.py); ``eta`` per
+    channel. Returns the exitance, HxWxC float32 (and a BlurInfo with ``return_info``). See the
+    module docstring.
 
     ``max_memory`` (bytes): blur in bands of rows, each with a halo of the truncation radius
     taken by the border rule, so the working set stays bounded; the result is the same as in

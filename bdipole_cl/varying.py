@@ -37,14 +37,8 @@ import numpy as np
 import pyopencl as cl
 
 from . import reference as ref
-from .blur import (
-    fft_padded,
-    fft_shape,
-    gaussian_1d,
-    quadrant_weights,
-    truncation_radius,
-    unfold_quadrant,
-)
+from .blur import (fft_padded, fft_shape, gaussian_1d, quadrant_weights, truncation_radius,
+                   unfold_quadrant)
 from .device import build_options, get_program, get_runtime
 
 #: the kernel's shape is taken at albedo within these bounds (its energy is always Rd(x))
@@ -107,7 +101,7 @@ def _float32_map(v):
 def texel_parameters(shape, c, *, albedo=None, mfp=None, eta=1.4, texel_size=1.0, alpha=None,
                      sigma_t=None, exact=False):
     """(Rd, ld in texels) HxW float32 maps of channel c, from albedo + mfp or alpha' + sigma_t'
-    (the device computes the node coordinates from these same float32 values)."""
+    (the node coordinates, ``texel_coords``, are computed from these same float32 values)."""
     if alpha is not None or sigma_t is not None:
         if alpha is None or sigma_t is None or albedo is not None or mfp is not None:
             raise ValueError("give either albedo and mfp, or alpha and sigma_t")
@@ -540,8 +534,7 @@ def _blur_band(e, plans, rows, method, border, spectra):
         if planes is None or planes.shape != (len(spectra[key]), h, shape[1]):
             planes = np.empty((len(spectra[key]), h, shape[1]), np.float32)
         basis_blurs(e[..., c], plan, spectra[key], border, planes)
-        gather_exitance(out, c, plan, _float32_map(rd[rows]), _float32_map(ld[rows]), planes,
-                        plan.radius)
+        gather_exitance(out, c, plan, rd[rows], ld[rows], planes, plan.radius)
     return out
 
 

@@ -12,12 +12,14 @@ Each basis blur ``g_j * E`` is done once for the whole image (FFT on the host, o
 OpenCL kernels); only the weights vary per texel. They come from a lattice over the two
 parameters that shape the kernel, logit(Rd) and ln(ld in texels) (an axis on which the texture
 is constant collapses to its one value): the exact normalized kernel of each lattice node is
-fitted by non-negative least squares, and ``w(x)`` is the 4x4-node Lagrange-cubic
-interpolation of the node weights (kernels/blur_varying.cl). Interpolating weights over a fixed
-basis is interpolating the kernels themselves, so the error is the nodes' fit error plus the
-kernel's interpolation error; both are measured (``VaryingPlan.fit_error`` over all nodes and
-``interp_error`` against exact kernels at the range's corners and lattice-cell midpoints) and
-reported as the error bound. Plans depend on the parameter ranges only and are cached.
+fitted in the basis, and ``w(x)`` interpolates the node weights: the 4x4-node Lagrange cubic,
+tabulated REFINE times finer per axis (``fine_table``), then bilinear in that table per texel
+(kernels/blur_varying.cl). Interpolating weights over a fixed basis is interpolating the
+kernels themselves, so the error is the nodes' fit error plus the kernel's interpolation error;
+both are measured (``VaryingPlan.fit_error`` over all nodes and ``interp_error`` against exact
+kernels at the range's corners and lattice-cell midpoints) and reported as the error bound.
+Plans depend on the parameter ranges only and are cached, and so (up to SPECTRA_CACHE_BYTES)
+are their kernels' spectra per FFT shape.
 
 Every texel's kernel is truncated at the common radius K (the largest truncation radius at
 ``tol`` over the texture's nodes) and normalized there: node weights sum to 1, so a constant
@@ -30,6 +32,8 @@ non-finite are errors naming the texel. eta is constant per channel.
 from __future__ import annotations
 
 import itertools
+import os
+from collections import OrderedDict
 from dataclasses import dataclass
 from functools import lru_cache
 
@@ -47,6 +51,11 @@ RD_MIN, RD_MAX = 1e-3, 0.999
 #: (the cubic interpolation error goes as h^4). Measured kernel interpolation error (L1 of the
 #: normalized kernel) at these steps: <= 3e-4 over albedo 0.02..0.98, ld 0.5..16 texels.
 LATTICE_STEPS = (0.4, 0.2)
+#: the texels' weights are bilinear in a table REFINE times finer than the lattice per axis,
+#: whose entries are the lattice's Lagrange-cubic interpolation: 4 taps a texel, not 16 (the
+#: gather's cost). Bilinear interpolation of the cubic adds ~ (h / REFINE)^2 / 8 times the
+#: weights' curvature; it is measured with the rest (``VaryingPlan.interp_error``).
+REFINE = 8
 BASIS_MIN_SIGMA = 0.15      # texels: narrower texel-integrated Gaussians are ~ a delta
 BASIS_RATIO = 1.5           # geometric ratio of the basis sigmas (densified if the fit needs)
 MAX_BASIS = 24
@@ -265,6 +274,7 @@ class VaryingPlan:
     kernels: tuple           # gaussians: 1D texel-integrated weights; svd: (K+1)^2 quadrants
     axes: tuple              # (Axis of Rd via logit, Axis of ld via ln)
     table: np.ndarray        # (n_rd, n_ld, G) float32 node weights; node kernels sum to 1
+    fine: np.ndarray         # (REFINE (n_rd - 1) + 1, ..., G) float32: the gather's table
     eta: float
     fit_error: float         # max L1 error of the node kernels in the basis
     interp_error: float      # max L1 error at the check points (basis + interpolation)
@@ -297,27 +307,53 @@ def parameter_ranges(rd, ld):
 
 
 def lagrange4(t):
-    """Cubic Lagrange weights of nodes -1, 0, 1, 2 at t in [0, 1] (as in blur_varying.cl)."""
+    """Cubic Lagrange weights of nodes -1, 0, 1, 2 at t in [0, 1]."""
     return np.stack([-t * (t - 1) * (t - 2) / 6, (t + 1) * (t - 1) * (t - 2) / 2,
                      -(t + 1) * t * (t - 2) / 2, (t + 1) * t * (t - 1) / 6], axis=-1)
 
 
-def _axis_taps(axis, coord):
-    """(node indices, weights) of the interpolation at coordinate(s) coord on one axis."""
+def _cubic_taps(nodes, coord):
+    """(node indices, weights) of the 4-node cubic at lattice coordinate(s) coord on an axis of
+    ``nodes`` nodes (one node: a constant axis)."""
     coord = np.asarray(coord, np.float64)
-    if axis.step == 0:
+    if nodes == 1:
         return np.zeros(coord.shape + (1,), int), np.ones(coord.shape + (1,))
-    base = np.clip(np.floor(coord).astype(int), 1, len(axis.values) - 3)
+    base = np.clip(np.floor(coord).astype(int), 1, nodes - 3)
     return base[..., None] + np.arange(-1, 3), lagrange4(coord - base)
 
 
-def interpolated_weights(plan, coord_rd, coord_ld):
-    """Host (float64) version of blur_varying.cl's per-texel weights, for checks."""
-    iu, lu = _axis_taps(plan.axes[0], coord_rd)
-    iv, lv = _axis_taps(plan.axes[1], coord_ld)
-    table = plan.table.astype(np.float64)
-    return np.einsum("...a,...b,...abj->...j", lu, lv,
-                     table[iu[..., :, None], iv[..., None, :]])
+def _linear_taps(nodes, coord):
+    """(node indices, weights) of linear interpolation at fine-table coordinate(s) coord (as
+    in blur_varying.cl)."""
+    coord = np.asarray(coord, np.float64)
+    if nodes == 1:
+        return np.zeros(coord.shape + (1,), int), np.ones(coord.shape + (1,))
+    base = np.clip(np.floor(coord).astype(int), 0, nodes - 2)
+    t = (coord - base)[..., None]
+    return base[..., None] + np.arange(2), np.concatenate([1.0 - t, t], axis=-1)
+
+
+def _interpolate(table, taps_u, taps_v):
+    (iu, lu), (iv, lv) = taps_u, taps_v
+    return np.einsum("...a,...b,...abj->...j", lu, lv, table[iu[..., :, None], iv[..., None, :]])
+
+
+def fine_table(table):
+    """The gather's table: the lattice's cubic interpolation of the node weights (n_u, n_v, G)
+    at REFINE points per lattice step (fine node i at lattice coordinate i / REFINE)."""
+    nu, nv, _ = table.shape
+    fu = np.arange(REFINE * (nu - 1) + 1) / REFINE
+    fv = np.arange(REFINE * (nv - 1) + 1) / REFINE
+    taps_u = _cubic_taps(nu, fu[:, None])
+    taps_v = _cubic_taps(nv, fv[None, :])
+    return _interpolate(table.astype(np.float64), taps_u, taps_v).astype(np.float32)
+
+
+def interpolated_weights(plan, cu, cv):
+    """Host (float64) version of blur_varying.cl's per-texel weights at fine-table coordinates
+    (cu, cv), for checks."""
+    nu, nv, _ = plan.fine.shape
+    return _interpolate(plan.fine.astype(np.float64), _linear_taps(nu, cu), _linear_taps(nv, cv))
 
 
 def common_radius(rd_range, ld_range, eta, tol, exact=False):
@@ -349,7 +385,8 @@ def plan_for_ranges(rd_range, ld_range, eta, tol, exact=False, basis="svd", max_
     else:
         kernels, coef, fit_error = _gaussian_fits(targets, radius, tol)
     table = coef.reshape(len(axes[0].values), len(axes[1].values), -1).astype(np.float32)
-    plan = VaryingPlan(radius, basis, kernels, axes, table, eta, fit_error, 0.0, tol)
+    plan = VaryingPlan(radius, basis, kernels, axes, table, fine_table(table), eta, fit_error,
+                       0.0, tol)
     return _with_interp_error(plan, rd_range, ld_range, exact)
 
 
@@ -368,23 +405,30 @@ def _gaussian_fits(targets, radius, tol):
 
 
 def _check_points(lo, hi, step):
-    """Where to check one axis: the range's ends and the midpoints between lattice nodes inside
-    it (where interpolation errs most), at most CHECKS_PER_AXIS evenly chosen."""
+    """Where to check one axis: the range's ends and, inside it, the middles of the fine cells
+    at the lattice cells' midpoints (where the cubic and then the bilinear err most), at most
+    CHECKS_PER_AXIS evenly chosen."""
     if step == 0:
         return [lo]
-    mids = (np.arange(np.floor(lo / step), np.ceil(hi / step)) + 0.5) * step
+    mids = (np.arange(np.floor(lo / step), np.ceil(hi / step)) + 0.5 + 0.5 / REFINE) * step
     pts = np.unique(np.concatenate([[lo, hi], mids[(mids > lo) & (mids < hi)]]))
     return pts[np.linspace(0, len(pts) - 1, min(len(pts), CHECKS_PER_AXIS)).astype(int)]
 
 
+def _fine_coords(axis, t):
+    """Fine-table coordinates of transformed values t on one axis."""
+    return axis.coords(t) * REFINE
+
+
 def _with_interp_error(plan, rd_range, ld_range, exact):
-    """Measure the interpolated kernel against the exact kernel at check points of the
-    parameter range (its corners and lattice-cell midpoints)."""
+    """Measure the gather's kernel (bilinear in the fine table) against the exact kernel at
+    check points of the parameter range (its corners and the lattice cells' midpoints)."""
     quads = plan.quadrants()
     worst = 0.0
     for t_rd, t_ld in itertools.product(_check_points(*rd_range, plan.axes[0].step),
                                         _check_points(*ld_range, plan.axes[1].step)):
-        w = interpolated_weights(plan, plan.axes[0].coords(t_rd), plan.axes[1].coords(t_ld))
+        w = interpolated_weights(plan, _fine_coords(plan.axes[0], t_rd),
+                                 _fine_coords(plan.axes[1], t_ld))
         rd_shape = float(np.clip(_sigmoid(t_rd), RD_MIN, RD_MAX))
         exact_q = node_kernel(rd_shape, float(np.exp(t_ld)), plan.eta, plan.radius, exact)
         worst = max(worst, float(np.abs(unfold_quadrant(np.tensordot(w, quads, 1)
@@ -393,14 +437,14 @@ def _with_interp_error(plan, rd_range, ld_range, exact):
 
 
 def texel_coords(plan, rd, ld):
-    """Node coordinates (float32 maps) of the texels' Rd, ld float32 maps: logit(Rd clipped to
-    [RD_MIN, RD_MAX]) and ln(ld) in lattice steps from node 0 (zeros on a constant axis). In
-    float32 the coordinates are good to ~1e-6 of a lattice step."""
+    """Fine-table coordinates (float32 maps) of the texels' Rd, ld float32 maps: logit(Rd
+    clipped to [RD_MIN, RD_MAX]) and ln(ld) in fine steps (lattice step / REFINE) from node 0
+    (zeros on a constant axis). In float32 they are good to ~1e-6 of a lattice step."""
     def on_axis(axis, t):
         if axis.step == 0:
             return np.zeros(t.shape, np.float32)
-        t *= np.float32(1.0 / axis.step)
-        t -= np.float32(axis.origin)
+        t *= np.float32(REFINE / axis.step)
+        t -= np.float32(REFINE * axis.origin)
         return t
 
     p = np.clip(rd, np.float32(RD_MIN), np.float32(RD_MAX))
@@ -410,9 +454,9 @@ def texel_coords(plan, rd, ld):
 
 def _lattice_args(plan):
     """Program options and the lattice arguments of kernels/blur_varying.cl for a plan."""
-    nu, nv, g = plan.table.shape
-    opts = build_options({"NBASIS": g, "NU_TAPS": 1 if nu == 1 else 4,
-                          "NV_TAPS": 1 if nv == 1 else 4})
+    nu, nv, g = plan.fine.shape
+    opts = build_options({"NBASIS": g, "NU_TAPS": 1 if nu == 1 else 2,
+                          "NV_TAPS": 1 if nv == 1 else 2})
     return opts, (np.int32(nu), np.int32(nv))
 
 
@@ -436,9 +480,9 @@ def weight_planes(plan, rd, ld):
     h, w = rd.shape
     mf = cl.mem_flags
     opts, axis_args = _lattice_args(plan)
-    out = np.empty((plan.table.shape[2], h, w), np.float32)
+    out = np.empty((plan.fine.shape[2], h, w), np.float32)
     bufs = [_host_buffer(rt, a, mf.READ_ONLY) for a in (rd, *texel_coords(plan, rd, ld),
-                                                         plan.table)]
+                                                         plan.fine)]
     dst = _host_buffer(rt, out, mf.WRITE_ONLY)
     cl.Kernel(get_program(rt, "blur_varying", opts), "lattice_weights")(
         rt.queue, (h * w,), None, *bufs, dst, np.int32(h * w), *axis_args)
@@ -447,34 +491,80 @@ def weight_planes(plan, rd, ld):
 
 
 def kernel_spectra(quads, shape):
-    """Real DFTs (G, N0, N1 // 2 + 1) float32 of the even kernels of quadrants quads (G, K+1,
-    K+1) centred on 0, at the even FFT shape (N0, N1). An even kernel's DFT is the cosine sum
-    sum_{a,b} m_a m_b Q(a, b) cos(2 pi f a / N0) cos(2 pi g b / N1) (m: 1 at 0, else 2): the
-    DCT-I of the quadrant zero-padded to (N0/2 + 1, N1/2 + 1), mirrored to the N0 rows."""
+    """Real DFTs (G, N0 // 2 + 1, N1 // 2 + 1) float32, rows 0..N0/2, of the even kernels of
+    quadrants quads (G, K+1, K+1) centred on 0, at the even FFT shape (N0, N1). An even
+    kernel's DFT is the cosine sum sum_{a,b} m_a m_b Q(a, b) cos(2 pi f a / N0) cos(2 pi g b /
+    N1) (m: 1 at 0, else 2): the DCT-I of the quadrant zero-padded to (N0/2 + 1, N1/2 + 1).
+    Rows N0/2 + 1..N0 - 1 are rows N0/2 - 1..1 (``_times_spectrum``)."""
     import scipy.fft as sfft
     n0, n1 = shape
     g, kk = quads.shape[:2]
     half = np.zeros((g, n0 // 2 + 1, n1 // 2 + 1), np.float32)
     half[:, :kk, :kk] = quads
-    spec = sfft.dctn(half, type=1, axes=(1, 2), workers=-1, overwrite_x=True)
-    return np.concatenate([spec, spec[:, n0 // 2 - 1:0:-1]], axis=1)
+    return sfft.dctn(half, type=1, axes=(1, 2), workers=-1, overwrite_x=True)
+
+
+#: kernel spectra are kept across calls up to this many bytes (least recently used first out):
+#: blurring again with the same parameter maps (a material under new light) skips them
+SPECTRA_CACHE_BYTES = 1 << 30
+_spectra_cache = OrderedDict()
+
+
+def cached_spectra(plan, shape):
+    """kernel_spectra of the plan's basis at FFT shape, from the cache when it has them."""
+    key = (id(plan), tuple(shape))
+    hit = _spectra_cache.get(key)
+    if hit is not None and hit[0] is plan:        # the entry holds the plan: its id is its own
+        _spectra_cache.move_to_end(key)
+        return hit[1]
+    spec = kernel_spectra(plan.quadrants(), shape)
+    if spec.nbytes <= SPECTRA_CACHE_BYTES:
+        _spectra_cache[key] = (plan, spec)
+        while sum(v[1].nbytes for v in _spectra_cache.values()) > SPECTRA_CACHE_BYTES:
+            _spectra_cache.popitem(last=False)
+    return spec
+
+
+def _times_spectrum(ks, spec, out):
+    """out = K * spec, K the full (N0, N1 // 2 + 1) spectrum of half spectrum ks (rows
+    0..N0/2): an even kernel's rows N0 - f and f are equal."""
+    m = ks.shape[0]
+    np.multiply(ks, spec[:m], out=out[:m])
+    np.multiply(ks[m - 2:0:-1], spec[m:], out=out[m:])
+
+
+#: threads for the row-wise inverse FFTs (numpy's FFT releases the GIL)
+FFT_THREADS = os.cpu_count() or 1
+
+
+@lru_cache(maxsize=1)
+def _fft_threads():
+    from concurrent.futures import ThreadPoolExecutor
+    return ThreadPoolExecutor(FFT_THREADS, thread_name_prefix="bdipole-irfft")
 
 
 def basis_blurs(e2d, plan, kspec, border, planes):
     """planes[j] = (B_j * E) for every basis kernel of the plan, as (H, W + 2K) float32 rows
-    whose columns [K, K + W) are the image's: float32 FFTs (scipy.fft, all cores), one forward
-    transform, and per basis kernel an inverse transform pruned to the image's rows. One basis
-    kernel at a time, in place where scipy allows: fresh large arrays cost page faults."""
+    whose columns [K, K + W) are the image's: float32 FFTs, one forward transform, and per basis
+    kernel an inverse transform pruned to the image's rows. One basis kernel at a time, in
+    place: scipy.fft (all cores) in place over the columns, then numpy's ``irfft`` straight into
+    the plane, in row blocks on all cores (fresh large arrays and copies cost more here than
+    the FFTs' own threads save)."""
     import scipy.fft as sfft
     k = plan.radius
     h = e2d.shape[0]
     pad, shape = fft_padded(e2d, k, border)
     spec = sfft.rfft2(pad, shape, workers=-1)
     prod = np.empty_like(spec)
+    pool = _fft_threads()
+    edges = np.linspace(0, h, FFT_THREADS + 1).astype(int)
     for plane, ks in zip(planes, kspec):
-        np.multiply(ks, spec, out=prod)
+        _times_spectrum(ks, spec, prod)
         cols = sfft.ifft(prod, axis=0, workers=-1, overwrite_x=True)
-        plane[...] = sfft.irfft(cols[k:k + h], shape[1], axis=-1, workers=-1)
+
+        def rows_of_plane(r0, r1, cols=cols, plane=plane):
+            np.fft.irfft(cols[k + r0:k + r1], shape[1], axis=-1, out=plane[r0:r1])
+        list(pool.map(rows_of_plane, edges[:-1], edges[1:]))
     return planes
 
 
@@ -485,7 +575,7 @@ def gather_exitance(out, c, plan, rd, ld, planes, x0):
     mf = cl.mem_flags
     opts, axis_args = _lattice_args(plan)
     bufs = [_host_buffer(rt, a, mf.READ_ONLY) for a in (rd, *texel_coords(plan, rd, ld),
-                                                         plan.table, planes)]
+                                                         plan.fine, planes)]
     dst = _host_buffer(rt, out, mf.READ_WRITE)
     cl.Kernel(get_program(rt, "blur_varying", opts), "gather_exitance")(
         rt.queue, (w, h), None, *bufs, dst, np.int32(w), np.int32(h),
@@ -514,9 +604,8 @@ def channel_plans(shape, *, tol, exact=False, eta=1.4, basis="svd", **physical):
     return out
 
 
-def _blur_band(e, plans, rows, method, border, spectra):
-    """Blur one image or band (rows: the rows of the parameter maps it covers). ``spectra``
-    caches the basis kernels' spectra per plan and FFT shape."""
+def _blur_band(e, plans, rows, method, border):
+    """Blur one image or band (rows: the rows of the parameter maps it covers)."""
     h, w, _ = e.shape
     if method == "gaussians":
         from .blur import _Blur
@@ -528,12 +617,10 @@ def _blur_band(e, plans, rows, method, border, spectra):
     planes = None          # the basis blurs, (G, H, FFT width), reused across channels
     for c, (plan, rd, ld) in enumerate(plans):
         shape = fft_shape((h, w), plan.radius)
-        key = (id(plan), tuple(shape))
-        if key not in spectra:
-            spectra[key] = kernel_spectra(plan.quadrants(), shape)
-        if planes is None or planes.shape != (len(spectra[key]), h, shape[1]):
-            planes = np.empty((len(spectra[key]), h, shape[1]), np.float32)
-        basis_blurs(e[..., c], plan, spectra[key], border, planes)
+        kspec = cached_spectra(plan, shape)
+        if planes is None or planes.shape != (len(kspec), h, shape[1]):
+            planes = np.empty((len(kspec), h, shape[1]), np.float32)
+        basis_blurs(e[..., c], plan, kspec, border, planes)
         gather_exitance(out, c, plan, rd[rows], ld[rows], planes, plan.radius)
     return out
 
@@ -554,9 +641,8 @@ def blur_textured(e, *, method, tol, border, exact, return_info, max_memory, **p
     # spectrum, product spectrum (complex) and blurred plane (or its weight plane)
     per_row = (w + 2 * k) * 4 * (4 * nch + 4 * g + 6)
     rows = h if max_memory is None else max(1, int(max_memory // per_row) - 2 * k)
-    spectra = {}
     if rows >= h:
-        out = _blur_band(e, plans, slice(0, h), used, border, spectra)
+        out = _blur_band(e, plans, slice(0, h), used, border)
     else:
         out = np.empty_like(e)
         for y0 in range(0, h, rows):
@@ -564,7 +650,7 @@ def blur_textured(e, *, method, tol, border, exact, return_info, max_memory, **p
             idx = _halo_rows(y0, y1, k, h, border)
             band = np.where((idx >= 0)[:, None, None], e[np.maximum(idx, 0)], np.float32(0))
             # the halo rows' own parameters are never used (a gather: exit texel's profile)
-            res = _blur_band(band, plans, np.maximum(idx, 0), used, border, spectra)
+            res = _blur_band(band, plans, np.maximum(idx, 0), used, border)
             out[y0:y1] = res[k:k + (y1 - y0)]
     if not return_info:
         return out

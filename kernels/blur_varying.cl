@@ -1,53 +1,68 @@
 // blur_varying.cl -- texture-varying blur parameters (bdipole_cl/varying.py): per-texel weights
-// of the shared basis, w_j(x) = sum_{a,b} lu[a] lv[b] table[iu + a][iv + b][j], the
-// Lagrange-cubic interpolation (4 nodes per axis) of the node weights at the texel's node
-// coordinates (cu, cv) (logit Rd and ln ld in lattice steps, from varying.texel_coords). An
-// axis on which the texture is constant has one node.
+// of the shared basis, w_j(x) = sum_{a,b = 0,1} lu[a] lv[b] table[iu + a][iv + b][j], the
+// bilinear interpolation (2 nodes per axis) of the fine weight table (varying.fine_table: the
+// node weights' cubic interpolation, REFINE points per lattice step) at the texel's fine-table
+// coordinates (cu, cv) (logit Rd and ln ld, from varying.texel_coords). An axis on which the
+// texture is constant has one node.
 //
-// Specialized by -DNBASIS=G (basis size), -DNU_TAPS, -DNV_TAPS (4, or 1 for a constant axis),
+// Specialized by -DNBASIS=G (basis size), -DNU_TAPS, -DNV_TAPS (2, or 1 for a constant axis),
 // so the loops unroll.
 
 #ifndef NBASIS
 #error "build with -DNBASIS=<basis size>"
 #endif
 #ifndef NU_TAPS
-#define NU_TAPS 4
+#define NU_TAPS 2
 #endif
 #ifndef NV_TAPS
-#define NV_TAPS 4
+#define NV_TAPS 2
 #endif
 
-// first node index and the NTAPS weights of one axis at node coordinate coord
-inline int axis_taps(const float coord, const int nodes, const int ntaps, float l[4])
+// node offsets (floats) of the second node along u and v: 0 on a constant axis, whose
+// second "node" is the first with weight 0 (so every read stays in the table)
+#define DV ((NV_TAPS == 2) ? NBASIS : 0)
+#define DU(nv) ((NU_TAPS == 2) ? (nv) * NBASIS : 0)
+
+// a texel's bilinear taps: the offset of its first node (iu, iv) in the table, and the tap
+// weights of nodes (iu, iv), (iu, iv + 1), (iu + 1, iv), (iu + 1, iv + 1)
+typedef struct {
+    int node;
+    float t00, t01, t10, t11;
+} taps_t;
+
+// node index and fraction of one axis at fine-table coordinate coord (0, 0 on a constant axis)
+inline int axis_base(const float coord, const int nodes, const int ntaps, float *frac)
 {
     if (ntaps == 1) {
-        l[0] = 1.0f;
+        *frac = 0.0f;
         return 0;
     }
-    const int base = clamp((int)floor(coord), 1, nodes - 3);
-    const float t = coord - (float)base;      // cubic Lagrange, nodes -1, 0, 1, 2
-    l[0] = -t * (t - 1.0f) * (t - 2.0f) / 6.0f;
-    l[1] = (t + 1.0f) * (t - 1.0f) * (t - 2.0f) / 2.0f;
-    l[2] = -(t + 1.0f) * t * (t - 2.0f) / 2.0f;
-    l[3] = (t + 1.0f) * t * (t - 1.0f) / 6.0f;
-    return base - 1;
+    const int base = clamp((int)floor(coord), 0, nodes - 2);
+    *frac = coord - (float)base;
+    return base;
 }
 
-// the texel's basis weights acc[j] (without the Rd factor) at node coordinates (cu, cv)
-inline void texel_weights(const float cu, const float cv, __global const float *table,
-                          const int nu, const int nv, float acc[NBASIS])
+inline taps_t texel_taps(const float cu, const float cv, const int nu, const int nv)
 {
-    float lu[4], lv[4];
-    const int iu = axis_taps(cu, nu, NU_TAPS, lu);
-    const int iv = axis_taps(cv, nv, NV_TAPS, lv);
-    for (int j = 0; j < NBASIS; ++j) acc[j] = 0.0f;
-    for (int a = 0; a < NU_TAPS; ++a) {
-        for (int b = 0; b < NV_TAPS; ++b) {
-            const float tap = lu[a] * lv[b];
-            __global const float *node = table + ((iu + a) * nv + iv + b) * NBASIS;
-            for (int j = 0; j < NBASIS; ++j) acc[j] += tap * node[j];
-        }
-    }
+    float fu, fv;
+    const int iu = axis_base(cu, nu, NU_TAPS, &fu);
+    const int iv = axis_base(cv, nv, NV_TAPS, &fv);
+    taps_t r;
+    r.node = (iu * nv + iv) * NBASIS;
+    r.t00 = (1.0f - fu) * (1.0f - fv);
+    r.t01 = (1.0f - fu) * fv;
+    r.t10 = fu * (1.0f - fv);
+    r.t11 = fu * fv;
+    return r;
+}
+
+// weight w_j of basis kernel j (without the Rd factor) from the texel's taps (scalar code, no
+// per-texel arrays: PoCL keeps it in registers)
+inline float texel_weight(__global const float *table, const taps_t tp, const int j,
+                          const int du)
+{
+    __global const float *n = table + tp.node + j;
+    return tp.t00 * n[0] + tp.t01 * n[DV] + tp.t10 * n[du] + tp.t11 * n[du + DV];
 }
 
 // the weight planes: w[j * npix + p] = rd[p] * w_j(p)   (the separable-Gaussian path)
@@ -57,10 +72,10 @@ __kernel void lattice_weights(__global const float *rd, __global const float *cu
 {
     const int p = get_global_id(0);
     if (p >= npix) return;
-    float acc[NBASIS];
-    texel_weights(cu[p], cv[p], table, nu, nv, acc);
+    const taps_t tp = texel_taps(cu[p], cv[p], nu, nv);
     const float scale = rd[p];
-    for (int j = 0; j < NBASIS; ++j) w[(size_t)j * npix + p] = scale * acc[j];
+    for (int j = 0; j < NBASIS; ++j)
+        w[(size_t)j * npix + p] = scale * texel_weight(table, tp, j, DU(nv));
 }
 
 // the exitance of channel c at texel (x, y) of a w x h image (the FFT path), gathered from
@@ -75,10 +90,10 @@ __kernel void gather_exitance(__global const float *rd, __global const float *cu
     const int x = get_global_id(0), y = get_global_id(1);
     if (x >= w || y >= h) return;
     const size_t p = (size_t)y * w + x;
-    float acc[NBASIS];
-    texel_weights(cu[p], cv[p], table, nu, nv, acc);
+    const taps_t tp = texel_taps(cu[p], cv[p], nu, nv);
     __global const float *blurred = planes + (size_t)y * pitch + x0 + x;
     float sum = 0.0f;
-    for (int j = 0; j < NBASIS; ++j) sum += acc[j] * blurred[(size_t)j * plane];
+    for (int j = 0; j < NBASIS; ++j)
+        sum += texel_weight(table, tp, j, DU(nv)) * blurred[(size_t)j * plane];
     out[p * nch + c] = rd[p] * sum;
 }

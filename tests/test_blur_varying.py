@@ -5,9 +5,10 @@ from scipy.integrate import dblquad
 
 from bdipole_cl import reference as ref
 from bdipole_cl.blur import blur, channel_parameters, quadrant_weights, unfold_quadrant
-from bdipole_cl.varying import (RD_MAX, RD_MIN, VaryingParameterError, _transformed,
-                                channel_plans, interpolated_weights, kernel_spectra,
-                                node_kernel, texel_coords, weight_planes)
+from bdipole_cl.varying import (RD_MAX, RD_MIN, REFINE, VaryingParameterError, _times_spectrum,
+                                _transformed, cached_spectra, channel_plans,
+                                interpolated_weights, kernel_spectra, node_kernel, texel_coords,
+                                weight_planes)
 
 H, W = 20, 22
 
@@ -34,11 +35,16 @@ def per_texel_reference(e, albedo, mfp, eta, radius, border="edge"):
     return out
 
 
+@pytest.mark.parametrize("varying", ["both", "albedo", "mfp"])
 @pytest.mark.parametrize("method", ["fft", "gaussians"])
-def test_matches_the_per_exit_texel_reference(method):
+def test_matches_the_per_exit_texel_reference(method, varying):
     rng = np.random.default_rng(5)
     e = rng.uniform(0, 1, (H, W, 1)).astype(np.float32)
     albedo, mfp = gradient_maps()
+    if varying == "albedo":          # a constant ld axis: one node, one tap on it
+        mfp = np.full_like(mfp, 1.7)
+    elif varying == "mfp":
+        albedo = np.full_like(albedo, 0.6)
     out, info = blur(e, albedo=albedo, mfp=mfp, eta=1.4, method=method, return_info=True)
     ch = info.channels[0]
     want = per_texel_reference(e[..., 0], albedo[..., 0], mfp[..., 0], 1.4, ch["radius"])
@@ -112,7 +118,7 @@ def test_device_weights_match_host_interpolation():
     dev = weight_planes(plan, rd, ld)
     cu, cv = texel_coords(plan, rd, ld)
     host = interpolated_weights(plan, cu, cv) * rd[..., None].astype(np.float64)
-    # float32 Lagrange weights and sums of <= 16 taps: a few ulp of the largest weight
+    # float32 bilinear weights and sums of <= 4 taps: a few ulp of the largest weight
     np.testing.assert_allclose(dev, np.moveaxis(host, -1, 0), rtol=0,
                                atol=1e-5 * np.abs(host).max())
 
@@ -128,8 +134,9 @@ def test_float32_node_coordinates_match_float64():
     # bound RD_MAX itself, which rounds to 0.99900001 in float32: 1 - Rd then differs by
     # 1.3e-5 relatively, and so does logit, 3.3e-5 of a 0.4 step (a shape difference far below
     # the kernel's interpolation error)
-    np.testing.assert_allclose(cu, plan.axes[0].coords(t_rd), rtol=0, atol=5e-5)
-    np.testing.assert_allclose(cv, plan.axes[1].coords(t_ld), rtol=0, atol=1e-5)
+    # (texel_coords is in fine-table steps, REFINE per lattice step)
+    np.testing.assert_allclose(cu / REFINE, plan.axes[0].coords(t_rd), rtol=0, atol=5e-5)
+    np.testing.assert_allclose(cv / REFINE, plan.axes[1].coords(t_ld), rtol=0, atol=1e-5)
 
 
 @pytest.mark.parametrize("k, shape", [(3, (16, 20)), (9, (40, 34)), (12, (26, 26))])
@@ -144,7 +151,14 @@ def test_kernel_spectra_equal_fft_of_the_centred_kernel(k, shape):
         want = sfft.rfft2(full)
         assert np.abs(want.imag).max() < 1e-12 * np.abs(want).max()    # even kernel: real
         # float32 DCT of <= (k+1)^2 terms: ~1e-7 of the spectrum's peak
-        np.testing.assert_allclose(spec, want.real, rtol=0, atol=1e-6 * np.abs(want).max())
+        assert spec.shape == (shape[0] // 2 + 1, shape[1] // 2 + 1)
+        np.testing.assert_allclose(spec, want.real[:shape[0] // 2 + 1], rtol=0,
+                                   atol=1e-6 * np.abs(want).max())
+        # the rows above N0/2 mirror those below (what _times_spectrum relies on)
+        full_spec = np.empty(want.shape, np.complex128)
+        _times_spectrum(spec.astype(np.float64), np.ones(want.shape, np.complex128), full_spec)
+        np.testing.assert_allclose(full_spec.real, want.real, rtol=0,
+                                   atol=1e-6 * np.abs(want).max())
 
 
 def test_zero_albedo_texels_give_zero_and_extremes_stay_finite():
@@ -224,3 +238,13 @@ def test_cli_with_parameter_textures(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "e.exr" in err and "x=7, y=4, channel 1" in err
     assert not (tmp_path / "bad.exr").exists()
+
+
+def test_spectra_cached_per_plan_and_shape():
+    albedo, mfp = gradient_maps()
+    (plan, _, _), = channel_plans((H, W, 1), tol=1e-3, albedo=albedo, mfp=mfp)
+    first = cached_spectra(plan, (40, 42))
+    assert cached_spectra(plan, (40, 42)) is first
+    other = cached_spectra(plan, (40, 44))
+    assert other is not first and other.shape[2] == 44 // 2 + 1
+    np.testing.assert_array_equal(first, kernel_spectra(plan.quadrants(), (40, 42)))

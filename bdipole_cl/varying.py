@@ -499,9 +499,11 @@ def kernel_spectra(quads, shape):
     import scipy.fft as sfft
     n0, n1 = shape
     g, kk = quads.shape[:2]
+    rows = np.zeros((g, kk, n1 // 2 + 1), np.float32)      # the other rows are zero: so are
+    rows[:, :, :kk] = quads                                 # their transforms along axis 2
     half = np.zeros((g, n0 // 2 + 1, n1 // 2 + 1), np.float32)
-    half[:, :kk, :kk] = quads
-    return sfft.dctn(half, type=1, axes=(1, 2), workers=-1, overwrite_x=True)
+    half[:, :kk] = sfft.dct(rows, type=1, axis=2, workers=-1, overwrite_x=True)
+    return sfft.dct(half, type=1, axis=1, workers=-1, overwrite_x=True)
 
 
 #: kernel spectra are kept across calls up to this many bytes (least recently used first out):

@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import itertools
 import os
+import threading
 from collections import OrderedDict
 from dataclasses import dataclass
 from functools import lru_cache
@@ -510,20 +511,23 @@ def kernel_spectra(quads, shape):
 #: blurring again with the same parameter maps (a material under new light) skips them
 SPECTRA_CACHE_BYTES = 1 << 30
 _spectra_cache = OrderedDict()
+_spectra_lock = threading.Lock()      # blur may run in several threads (a batch)
 
 
 def cached_spectra(plan, shape):
     """kernel_spectra of the plan's basis at FFT shape, from the cache when it has them."""
     key = (id(plan), tuple(shape))
-    hit = _spectra_cache.get(key)
-    if hit is not None and hit[0] is plan:        # the entry holds the plan: its id is its own
-        _spectra_cache.move_to_end(key)
-        return hit[1]
+    with _spectra_lock:
+        hit = _spectra_cache.get(key)
+        if hit is not None and hit[0] is plan:    # the entry holds the plan: its id is its own
+            _spectra_cache.move_to_end(key)
+            return hit[1]
     spec = kernel_spectra(plan.quadrants(), shape)
     if spec.nbytes <= SPECTRA_CACHE_BYTES:
-        _spectra_cache[key] = (plan, spec)
-        while sum(v[1].nbytes for v in _spectra_cache.values()) > SPECTRA_CACHE_BYTES:
-            _spectra_cache.popitem(last=False)
+        with _spectra_lock:
+            _spectra_cache[key] = (plan, spec)
+            while sum(v[1].nbytes for v in _spectra_cache.values()) > SPECTRA_CACHE_BYTES:
+                _spectra_cache.popitem(last=False)
     return spec
 
 

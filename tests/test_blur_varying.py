@@ -248,3 +248,17 @@ def test_spectra_cached_per_plan_and_shape():
     other = cached_spectra(plan, (40, 44))
     assert other is not first and other.shape[2] == 44 // 2 + 1
     np.testing.assert_array_equal(first, kernel_spectra(plan.quadrants(), (40, 42)))
+
+
+def test_spectra_cache_keeps_to_its_byte_budget(monkeypatch):
+    import bdipole_cl.varying as varying
+    albedo, mfp = gradient_maps()
+    (plan, _, _), = channel_plans((H, W, 1), tol=1e-3, albedo=albedo, mfp=mfp)
+    one = kernel_spectra(plan.quadrants(), (40, 42)).nbytes
+    monkeypatch.setattr(varying, "SPECTRA_CACHE_BYTES", 2 * one)
+    varying._spectra_cache.clear()
+    for n1 in (42, 44, 46):           # a third shape pushes the first out
+        cached_spectra(plan, (40, n1))
+    assert sum(v[1].nbytes for v in varying._spectra_cache.values()) <= 2 * one
+    assert (id(plan), (40, 42)) not in varying._spectra_cache
+    assert (id(plan), (40, 46)) in varying._spectra_cache

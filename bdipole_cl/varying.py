@@ -539,8 +539,10 @@ def _times_spectrum(ks, spec, out):
     np.multiply(ks[m - 2:0:-1], spec[m:], out=out[m:])
 
 
-#: threads for the row-wise inverse FFTs (numpy's FFT releases the GIL)
-FFT_THREADS = os.cpu_count() or 1
+#: threads for the row-wise inverse FFTs (numpy's FFT releases the GIL): the cores this
+#: process may run on
+FFT_THREADS = (len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity")
+               else os.cpu_count() or 1)
 
 
 @lru_cache(maxsize=1)

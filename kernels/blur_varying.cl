@@ -18,15 +18,15 @@
 #define NV_TAPS 2
 #endif
 
-// node offsets (floats) of the second node along u and v: 0 on a constant axis, whose
-// second "node" is the first with weight 0 (so every read stays in the table)
+// offset (floats) of the second node along v: 0 on a constant axis, whose second "node" is
+// the first with weight 0 (so every read stays in the table)
 #define DV ((NV_TAPS == 2) ? NBASIS : 0)
-#define DU(nv) ((NU_TAPS == 2) ? (nv) * NBASIS : 0)
 
-// a texel's bilinear taps: the offset of its first node (iu, iv) in the table, and the tap
-// weights of nodes (iu, iv), (iu, iv + 1), (iu + 1, iv), (iu + 1, iv + 1)
+// a texel's bilinear taps: the offset of its first node (iu, iv) in the table, the offset du
+// of the second node along u (0 on a constant axis, as DV), and the tap weights of nodes
+// (iu, iv), (iu, iv + 1), (iu + 1, iv), (iu + 1, iv + 1)
 typedef struct {
-    int node;
+    int node, du;
     float t00, t01, t10, t11;
 } taps_t;
 
@@ -49,6 +49,7 @@ inline taps_t texel_taps(const float cu, const float cv, const int nu, const int
     const int iv = axis_base(cv, nv, NV_TAPS, &fv);
     taps_t r;
     r.node = (iu * nv + iv) * NBASIS;
+    r.du = (NU_TAPS == 2) ? nv * NBASIS : 0;
     r.t00 = (1.0f - fu) * (1.0f - fv);
     r.t01 = (1.0f - fu) * fv;
     r.t10 = fu * (1.0f - fv);
@@ -58,11 +59,10 @@ inline taps_t texel_taps(const float cu, const float cv, const int nu, const int
 
 // weight w_j of basis kernel j (without the Rd factor) from the texel's taps (scalar code, no
 // per-texel arrays: PoCL keeps it in registers)
-inline float texel_weight(__global const float *table, const taps_t tp, const int j,
-                          const int du)
+inline float texel_weight(__global const float *table, const taps_t tp, const int j)
 {
     __global const float *n = table + tp.node + j;
-    return tp.t00 * n[0] + tp.t01 * n[DV] + tp.t10 * n[du] + tp.t11 * n[du + DV];
+    return tp.t00 * n[0] + tp.t01 * n[DV] + tp.t10 * n[tp.du] + tp.t11 * n[tp.du + DV];
 }
 
 // the weight planes: w[j * npix + p] = rd[p] * w_j(p)   (the separable-Gaussian path)
@@ -75,7 +75,7 @@ __kernel void lattice_weights(__global const float *rd, __global const float *cu
     const taps_t tp = texel_taps(cu[p], cv[p], nu, nv);
     const float scale = rd[p];
     for (int j = 0; j < NBASIS; ++j)
-        w[(size_t)j * npix + p] = scale * texel_weight(table, tp, j, DU(nv));
+        w[(size_t)j * npix + p] = scale * texel_weight(table, tp, j);
 }
 
 // the exitance of channel c at texel (x, y) of a w x h image (the FFT path), gathered from
@@ -94,6 +94,6 @@ __kernel void gather_exitance(__global const float *rd, __global const float *cu
     __global const float *blurred = planes + (size_t)y * pitch + x0 + x;
     float sum = 0.0f;
     for (int j = 0; j < NBASIS; ++j)
-        sum += texel_weight(table, tp, j, DU(nv)) * blurred[(size_t)j * plane];
+        sum += texel_weight(table, tp, j) * blurred[(size_t)j * plane];
     out[p * nch + c] = rd[p] * sum;
 }

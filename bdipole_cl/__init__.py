@@ -4,13 +4,14 @@ TM 12-11) as OpenCL batch kernels with a thin NumPy host layer.
 Float64 reference of every function: ``bdipole_cl.reference``.
 """
 from . import reference
-from .device import DeviceError, get_runtime, list_devices, use_device
+from .device import DeviceError, DeviceState, Runtime, get_runtime, survey, use_device
 from .invert import (METHODS, InvalidInputError, MethodConfig, albedo_to_coefficients,
                      invert_albedo)
 
 __version__ = "0.1.0"
 
 __all__ = [
-    "METHODS", "DeviceError", "InvalidInputError", "MethodConfig", "albedo_to_coefficients",
-    "get_runtime", "invert_albedo", "list_devices", "reference", "use_device",
+    "METHODS", "DeviceError", "DeviceState", "InvalidInputError", "MethodConfig", "Runtime",
+    "albedo_to_coefficients", "get_runtime", "invert_albedo", "reference", "survey",
+    "use_device",
 ]

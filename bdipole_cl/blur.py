@@ -304,8 +304,8 @@ def _check_irradiance(irradiance, on_invalid):
 class _Blur:
     """Device buffers and programs for one image."""
 
-    def __init__(self, e, border):
-        self.rt = rt = get_runtime()
+    def __init__(self, e, border, rt):
+        self.rt = rt
         self.h, self.w, self.c = e.shape
         opts = build_options({f"BORDER_{border.upper()}": None})
         self.direct = cl.Kernel(get_program(rt, "blur_direct", opts), "blur_direct")
@@ -411,7 +411,7 @@ def _halo_rows(y0, y1, k, height, border):
 
 def blur(irradiance, *, albedo=None, mfp=None, eta=1.4, texel_size=1.0, alpha=None,
          sigma_t=None, tol=1e-3, method="auto", border="clamp", exact=False,
-         on_invalid="raise", return_info=False, max_memory=None):
+         on_invalid="raise", return_info=False, max_memory=None, device=None):
     """Texture-space subsurface scattering: ``irradiance`` (HxW or HxWxC) blurred by R(r).
 
     ``albedo`` (Rd) and ``mfp`` (ld = 1/mu_tr, same unit as ``texel_size``), or ``alpha``
@@ -423,6 +423,9 @@ def blur(irradiance, *, albedo=None, mfp=None, eta=1.4, texel_size=1.0, alpha=No
     ``max_memory`` (bytes): blur in bands of rows, each with a halo of the truncation radius
     taken by the border rule, so the working set stays bounded; the result is the same as in
     one piece (the halo holds every texel an interior kernel reaches).
+
+    ``device``: where to run (None, a string such as ``"intel"``, a pyopencl Device or a
+    Runtime; see ``bdipole_cl.device``).
     """
     if method not in BLUR_METHODS:
         raise ValueError(f"method={method!r}: expected one of {BLUR_METHODS}")
@@ -431,12 +434,13 @@ def blur(irradiance, *, albedo=None, mfp=None, eta=1.4, texel_size=1.0, alpha=No
     if border not in BORDERS:
         raise ValueError(f"border={border!r}: expected one of {BORDERS}")
     e = _check_irradiance(irradiance, on_invalid)
+    rt = get_runtime(device)
     if any(np.ndim(v) >= 2 for v in (albedo, mfp, alpha, sigma_t, eta)):
         from .varying import blur_textured
         return blur_textured(e, method=method, tol=tol, border=border, exact=exact,
                              return_info=return_info, max_memory=max_memory, albedo=albedo,
                              mfp=mfp, eta=eta, texel_size=texel_size, alpha=alpha,
-                             sigma_t=sigma_t)
+                             sigma_t=sigma_t, rt=rt)
     params, plans = _channel_plans(e.shape[2], method=method, tol=tol, exact=exact,
                                    albedo=albedo, mfp=mfp, eta=eta, texel_size=texel_size,
                                    alpha=alpha, sigma_t=sigma_t)
@@ -446,14 +450,14 @@ def blur(irradiance, *, albedo=None, mfp=None, eta=1.4, texel_size=1.0, alpha=No
     per_row = w * nch * 4 * 8
     rows = h if max_memory is None else max(1, int(max_memory // per_row) - 2 * k)
     if rows >= h:
-        return _blur_whole(e, params, plans, border, exact, return_info)
+        return _blur_whole(e, params, plans, border, exact, return_info, rt)
     out = np.empty_like(e)
     info = None
     for y0 in range(0, h, rows):
         y1 = min(y0 + rows, h)
         idx = _halo_rows(y0, y1, k, h, border)
         band = np.where((idx >= 0)[:, None, None], e[np.maximum(idx, 0)], np.float32(0))
-        res, info = _blur_whole(band, params, plans, border, exact, True)
+        res, info = _blur_whole(band, params, plans, border, exact, True, rt)
         out[y0:y1] = res[k:k + (y1 - y0)]
     return (out, info) if return_info else out
 
@@ -494,7 +498,7 @@ def _plan(method, alpha, sigma_t, eta, tol, exact):
     return method, ck, None
 
 
-def _blur_whole(e, params, plans, border, exact, return_info):
+def _blur_whole(e, params, plans, border, exact, return_info, rt):
     """``blur`` on one in-memory image (or band with its halo), channel plans resolved."""
     ctx = None
     fft_out = {}
@@ -502,7 +506,7 @@ def _blur_whole(e, params, plans, border, exact, return_info):
     for c, ((a, st, et), (m, ck, picked)) in enumerate(zip(params, plans)):
         tol = ck.tol
         if m in ("direct", "gaussians") and ctx is None:
-            ctx = _Blur(e, border)
+            ctx = _Blur(e, border, rt)
         if m == "direct":
             ctx.run_direct(c, ck)
             bound = tol
@@ -571,6 +575,7 @@ def blur_file(path, output, *, colorspace="auto", half=False, max_memory=256 << 
         colour, alpha_ch = reader.channels()
         space = source_colorspace(spec, colorspace)
         border = kwargs.get("border", "clamp")
+        kwargs["device"] = get_runtime(kwargs.get("device"))   # resolved once for all bands
         varying = any(np.ndim(kwargs.get(key)) >= 2 for key in PARAM_KEYS)
         if varying:
             # parameter textures: one global plan, so the whole image is read and ``blur``

@@ -96,7 +96,7 @@ def _cmd_blur(args) -> int:
 
 
 def _cmd_crosscheck(args) -> int:
-    from .crosscheck import check_user_kernel, format_rows, run_crosscheck
+    from .crosscheck import check_user_kernel, format_rows, run_all_devices, run_crosscheck
     if args.user_kernel:
         if not (args.function and args.against):
             print("error: --user-kernel needs --function and --against", file=sys.stderr)
@@ -108,10 +108,13 @@ def _cmd_crosscheck(args) -> int:
         except (OSError, ValueError) as exc:
             print(f"error: {exc}", file=sys.stderr)
             return 2
+    elif args.all_devices:
+        rows = run_all_devices(_floats(args.eta), n=args.n)
     else:
         rows = run_crosscheck(_floats(args.eta), n=args.n)
-    from .device import get_runtime
-    print(f"device: {get_runtime().describe()}")
+    if not args.all_devices:
+        from .device import get_runtime
+        print(f"device: {get_runtime().describe()}")
     print(format_rows(rows))
     return 1 if any(r.status == "FAIL" for r in rows) else 0
 
@@ -129,18 +132,27 @@ def _cmd_demo(args) -> int:
 
 
 def _cmd_devices(args) -> int:
-    from .device import device_has_fp64, get_runtime, list_devices
-    pairs = list_devices()
-    if not pairs:
-        print("no OpenCL devices found", file=sys.stderr)
+    from .device import REMEDIES, DeviceError, get_runtime, survey
+    from .icd import register_environment_runtimes
+    states = survey()
+    try:
+        chosen = get_runtime().device.int_ptr
+    except DeviceError as exc:
+        chosen = None
+        problem = str(exc)
+    for s in states:
+        mark = "*" if s.device.int_ptr == chosen else " "
+        print(f"{mark} {s.describe()}")
+    for r in register_environment_runtimes():
+        how = "registered" if r.registered else "not registered"
+        print(f"  environment runtime: {r.name} at {r.library} ({how}"
+              + (f"; {r.note}" if r.note else "") + ")")
+    if chosen is None:
+        print(f"error: {problem}", file=sys.stderr)
         return 1
-    chosen = get_runtime().device
-    for i, (platform, d) in enumerate(pairs):
-        mark = "*" if d.int_ptr == chosen.int_ptr else " "
-        print(f"{mark} [{i}] {d.name.strip()} | {platform.name.strip()} | {d.version.strip()} | "
-              f"{d.max_compute_units} CUs | {d.global_mem_size / 2**30:.1f} GiB | "
-              f"fp64: {'yes' if device_has_fp64(d) else 'no'}")
-    print("* = the device bdipole-cl uses (PYOPENCL_CTX overrides)")
+    print("* = the device bdipole-cl uses (--device or PYOPENCL_CTX choose another)")
+    if not any(s.works for s in states):
+        print(REMEDIES)
     return 0
 
 
@@ -148,6 +160,10 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="bdipole-cl", description=__doc__.split("\n")[0],
         epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--device", metavar="SPEC",
+                        help="OpenCL device: P:D as listed by `devices`, or part of its platform "
+                             "or name ('intel', 'pocl'); default: the automatic choice")
+    parser.add_argument("--debug", action="store_true", help="show tracebacks")
     sub = parser.add_subparsers(dest="command", required=True)
     p = sub.add_parser("devices", help="list OpenCL devices and the one in use")
     p.set_defaults(func=_cmd_devices)
@@ -163,6 +179,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--n", type=int, default=500, help="points per sweep segment")
     p.add_argument("--user-kernel", help="an OpenCL C file with your function")
     p.add_argument("--function", help="its name (signatures: see bdipole_cl/crosscheck.py)")
+    p.add_argument("--all-devices", action="store_true",
+                   help="run the built-in checks on every working device, in one table")
     p.add_argument("--against", choices=("rd", "profile", "invert"),
                    help="what it computes: rd(alpha', 2C1, 3C2), profile(r, alpha', sigma_t', "
                         "2C1, 3C2) or invert(Rd, 2C1, 3C2) -> alpha'")
@@ -235,7 +253,17 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
-    return args.func(args)
+    from .device import DeviceError, use_device
+    try:
+        if args.device:
+            use_device(args.device)
+        return args.func(args)
+    except DeviceError as exc:
+        if args.debug:
+            raise
+        # one paragraph, no traceback: which devices failed and what to do
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -43,6 +43,7 @@ class Row:
     unit: str
     bound: float | None
     where: str
+    device: str = ""
 
     @property
     def status(self):
@@ -56,7 +57,7 @@ def _albedo_sweep(n):
                                       np.linspace(1e-6, 0.999, n)])).astype(np.float64)
 
 
-def _physics_rows(etas, double, n):
+def _physics_rows(etas, double, n, rt):
     u = EPS[double]
     prec = "f64" if double else "f32"
     lo = 1e-300 if double else 1e-37
@@ -68,14 +69,15 @@ def _physics_rows(etas, double, n):
     radii = np.float32(np.concatenate([[0.0], np.geomspace(1e-4, 1e3, n // 4)])).astype(
         np.float64)[None, :]
     for eta in etas:
-        got = physics.evaluate("rd", a, eta=eta, double=double)
+        got = physics.evaluate("rd", a, eta=eta, double=double, device=rt)
         want = ref.rd(a, eta)
         ok = want > lo
         err = np.abs(got[ok] / want[ok] - 1) / u
         i = int(np.argmax(err))
         rows.append(Row(f"rd (eta {eta})", prec, err[i], "u", PHYSICS_BOUND_U,
                         f"alpha'={a[ok][i]:.6g}"))
-        got = physics.evaluate("one_minus_rd", q, eta=eta, double=double)
+        got = physics.evaluate("one_minus_rd", q, eta=eta, double=double,
+                               device=rt)
         err = np.abs(got / ref.one_minus_rd_of_rho(q * q, eta) - 1) / u
         i = int(np.argmax(err))
         rows.append(Row(f"1 - rd (eta {eta})", prec, err[i], "u", PHYSICS_BOUND_U,
@@ -83,7 +85,8 @@ def _physics_rows(etas, double, n):
         for func in ("profile", "profile_cdf", "profile_tail"):
             worst, where = 0.0, ""
             for st in (0.1, 1.0, 10.0):
-                got = physics.evaluate(func, radii, alphas, st, eta=eta, double=double)
+                got = physics.evaluate(func, radii, alphas, st, eta=eta, double=double,
+                                       device=rt)
                 want = physics.reference_value(func, radii, alphas, st, eta=eta)
                 if func == "profile":
                     mu_d = st * ref.mu_tr_over_sigma_t(1 - alphas) * np.sqrt(radii**2 + 9 / st**2)
@@ -101,7 +104,7 @@ def _physics_rows(etas, double, n):
     return rows
 
 
-def _invert_rows(etas, n):
+def _invert_rows(etas, n, rt):
     from .invert import MethodConfig, invert_albedo
     rd = _albedo_sweep(n)
     rows = []
@@ -110,7 +113,8 @@ def _invert_rows(etas, n):
     for eta in etas:
         want_a, want_rho = ref.invert_rd_rho(rd, eta)
         for cfg in configs:
-            a, rho = invert_albedo(rd.astype(np.float32), eta, cfg, return_rho=True)
+            a, rho = invert_albedo(rd.astype(np.float32), eta, cfg, return_rho=True,
+                                   device=rt)
             for name, got, want in (("alpha", a, want_a), ("rho", rho, want_rho)):
                 err = np.abs(got / want - 1)
                 i = int(np.argmax(err))
@@ -120,7 +124,7 @@ def _invert_rows(etas, n):
     return rows
 
 
-def _blur_rows():
+def _blur_rows(rt):
     from .blur import blur, channel_kernel, channel_parameters
     rows = []
     e = np.zeros((41, 41, 1), np.float32)
@@ -131,7 +135,7 @@ def _blur_rows():
         k = ck.radius
         for method in ("direct", "gaussians", "fft"):
             out, info = blur(e, albedo=0.8, mfp=mfp, eta=1.4, method=method, border="zero",
-                             return_info=True)
+                             return_info=True, device=rt)
             got = out[20 - k:21 + k, 20 - k:21 + k, 0]
             err = np.abs(got - ck.weights).max() / ck.rd
             rows.append(Row(f"blur {method} impulse (mfp {mfp} texels)", "f32", float(err),
@@ -148,7 +152,7 @@ _USER_WRAPPERS = {
 }
 
 
-def check_user_kernel(path, function, against, *, eta=1.4, n=2000):
+def check_user_kernel(path, function, against, *, eta=1.4, n=2000, device=None):
     """Compile ``function`` from ``path`` and return crosscheck Rows against the reference."""
     if against not in _USER_WRAPPERS:
         raise ValueError(f"--against {against!r}: expected one of {sorted(_USER_WRAPPERS)}")
@@ -158,7 +162,7 @@ def check_user_kernel(path, function, against, *, eta=1.4, n=2000):
                f"float *y, __global const float *z, __global float *out, const float two_c1, "
                f"const float three_c2, const uint n)\n{{\n    uint i = get_global_id(0);\n"
                f"    if (i < n) out[i] = {function}({args});\n}}\n")
-    rt = get_runtime()
+    rt = get_runtime(device)
     try:
         prg = cl.Program(rt.context, source + wrapper).build()
     except cl.RuntimeError as exc:
@@ -217,26 +221,46 @@ def check_user_kernel(path, function, against, *, eta=1.4, n=2000):
 
 
 def run_crosscheck(etas=(1.0, 1.4, 2.5), *, n=500, double=None, include=("physics", "invert",
-                                                                             "blur")):
-    """All built-in checks: a list of Rows."""
-    rt = get_runtime()
+                                                                             "blur"),
+                   device=None):
+    """All built-in checks on one device (``device``: as for ``invert_albedo``): Rows."""
+    rt = get_runtime(device)
     precisions = [False] + ([True] if (double is None and rt.has_fp64) or double else [])
     rows = []
     if "physics" in include:
         for d in precisions:
-            rows += _physics_rows(etas, d, n)
+            rows += _physics_rows(etas, d, n, rt)
     if "invert" in include:
-        rows += _invert_rows(etas, n)
+        rows += _invert_rows(etas, n, rt)
     if "blur" in include:
-        rows += _blur_rows()
+        rows += _blur_rows(rt)
+    return rows
+
+
+def run_all_devices(etas=(1.0, 1.4, 2.5), *, n=500):
+    """``run_crosscheck`` on every working device, each row labelled with its device."""
+    from dataclasses import replace
+
+    from .device import survey
+    rows = []
+    for state in survey():
+        if not state.works:
+            # a broken device is reported, not failed: the automatic choice skips it too
+            rows.append(Row("device probe: broken, skipped", "-", float("nan"), "-", None,
+                            state.reason, f"[{state.index}] {state.platform}"))
+            continue
+        label = f"[{state.index}] {state.platform}"
+        rows += [replace(r, device=label) for r in run_crosscheck(etas, n=n, device=state.device)]
     return rows
 
 
 def format_rows(rows):
-    head = ("function", "prec", "max error", "unit", "bound", "status", "worst at")
-    table = [head] + [(r.function, r.precision, f"{r.max_error:.3g}", r.unit,
-                       "-" if r.bound is None else f"{r.bound:.3g}", r.status, r.where)
-                      for r in rows]
+    with_device = any(r.device for r in rows)
+    head = (("device",) if with_device else ()) + (
+        "function", "prec", "max error", "unit", "bound", "status", "worst at")
+    table = [head] + [(((r.device,) if with_device else ()) + (
+        r.function, r.precision, f"{r.max_error:.3g}", r.unit,
+        "-" if r.bound is None else f"{r.bound:.3g}", r.status, r.where)) for r in rows]
     widths = [max(len(t[i]) for t in table) for i in range(len(head))]
     lines = ["  ".join(c.ljust(w) for c, w in zip(t, widths)).rstrip() for t in table]
     fails = sum(r.status == "FAIL" for r in rows)

@@ -1,28 +1,51 @@
-"""OpenCL device selection, kernel sources and program cache (the thin host layer's core).
+"""OpenCL devices: finding, probing and choosing them, kernel sources and program cache.
 
-Device choice: ``PYOPENCL_CTX`` if set (pyopencl's own syntax, e.g. ``0:0`` or ``portable``),
-else the first CPU device (PoCL from ``pocl-binary-distribution``), else any device. One
-context and queue per process, made on first use; ``use_device`` replaces it.
+Devices come from every OpenCL runtime the ICD loader sees: system drivers, PoCL from
+pyopencl's wheel, and the runtimes installed into the Python environment (``bdipole_cl.icd``
+registers Intel's CPU runtime from PyPI before the first platform query).
+
+Each device is *probed* once per process: a tiny kernel is built and run on it, and its result
+checked. A device that cannot build (the PyPI PoCL on CPUs its LLVM does not know fails with
+``unknown target CPU 'generic'``) or computes wrongly is *broken*, with a one-line reason.
+
+The automatic choice (``device=None`` everywhere): ``PYOPENCL_CTX`` if set (pyopencl's syntax;
+the device it names must work), else the first working device in ``RANK`` order: GPUs, then
+accelerators, then CPUs, and among CPUs Intel's runtime before PoCL (faster in every benchmark
+in README.md), ties in the loader's order. ``device=`` also takes a ``Runtime``, a pyopencl
+``Device``, or a string: ``"P:D"`` (platform and device index as in ``bdipole-cl devices``) or a
+case-insensitive part of "platform device" (``"intel"``, ``"pocl"``, ``"portable"``).
+
+Every call resolves its device to a ``Runtime`` once and passes it down; each process (a Dask
+worker, say) opens its own. ``use_device`` replaces the process default.
 """
 from __future__ import annotations
 
 import os
 import threading
-from dataclasses import dataclass
+import warnings
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+
+from . import icd, reference
+
+icd.register_environment_runtimes()   # before pyopencl's first platform query
 
 try:  # pocl-binary-distribution registers its ICD on import (if pyopencl does not find it)
     import pocl_binary_distribution  # noqa: F401
 except ImportError:  # pragma: no cover - optional at import time, a dependency when installed
     pass
-import pyopencl as cl
-
-from . import reference
+import pyopencl as cl  # noqa: E402
 
 #: The header every kernel source is joined behind.
 HEADER = "bdipole.h"
+
+REMEDIES = (
+    "remedies: `pip install intel-opencl-rt intel-cmplr-lib-rt` into this environment (x86-64 "
+    "CPUs; a dependency of bdipole-cl there), or a system driver (Debian/Ubuntu: `apt install "
+    "pocl-opencl-icd`; a GPU vendor's OpenCL driver), or PYOPENCL_CTX=P:D naming a working "
+    "device (see `bdipole-cl devices`)")
 
 
 class DeviceError(RuntimeError):
@@ -49,85 +72,245 @@ class Runtime:
         return f"{d.name.strip()} ({d.platform.name.strip()}, {d.version.strip()})"
 
 
-_lock = threading.Lock()
-_runtime: Runtime | None = None
+@dataclass(frozen=True)
+class DeviceState:
+    """One device as ``bdipole-cl devices`` shows it: where it is, what it is, whether it works."""
+
+    index: str                  # "P:D", pyopencl's numbering (PYOPENCL_CTX takes it)
+    platform: str
+    name: str
+    kind: str                   # "gpu", "cpu", "accelerator", "other"
+    version: str
+    fp64: bool
+    works: bool
+    reason: str                 # one line; "" when it works
+    device: object = field(default=None, compare=False, repr=False)
+
+    def describe(self) -> str:
+        state = "works" if self.works else f"broken: {self.reason}"
+        return (f"[{self.index}] {self.name} | {self.platform} | {self.version} | {self.kind} | "
+                f"fp64: {'yes' if self.fp64 else 'no'} | {state}")
+
+
+_lock = threading.RLock()
+_default: Runtime | None = None
+_runtimes: dict = {}          # device int_ptr -> Runtime (one context per device and process)
+_probes: dict = {}            # device int_ptr -> reason ("" = works)
 _programs: dict = {}
+
+PROBE_SOURCE = """
+__kernel void bdipole_probe(__global float *x)
+{
+    int i = get_global_id(0);
+    x[i] = sqrt(exp(-x[i])) + (float)i;
+}
+"""
 
 
 def device_has_fp64(device) -> bool:
     return "cl_khr_fp64" in device.extensions or device.double_fp_config != 0
 
 
-def list_devices():
-    """All (platform, device) pairs the ICD loader sees, for ``bdipole-cl devices``."""
+def device_kind(device) -> str:
+    t = device.type
+    for flag, name in ((cl.device_type.GPU, "gpu"), (cl.device_type.ACCELERATOR, "accelerator"),
+                       (cl.device_type.CPU, "cpu")):
+        if t & flag:
+            return name
+    return "other"
+
+
+def _one_line(text: str, limit: int = 200) -> str:
+    """The most telling line of a driver's message: the first one that says 'error'."""
+    lines = [ln.strip() for ln in str(text).splitlines() if ln.strip()]
+    pick = next((ln for ln in lines if "error" in ln.lower()), lines[0] if lines else "failed")
+    return pick if len(pick) <= limit else pick[:limit - 3] + "..."
+
+
+def _runtime_of(device) -> Runtime:
+    key = device.int_ptr
+    with _lock:
+        rt = _runtimes.get(key)
+        if rt is None:
+            ctx = cl.Context([device])
+            rt = _runtimes[key] = Runtime(ctx, cl.CommandQueue(ctx))
+        return rt
+
+
+def probe(device) -> str:
+    """Build and run ``PROBE_SOURCE`` on ``device`` (once per process): "" if it works, else the
+    one-line reason."""
+    key = device.int_ptr
+    with _lock:
+        if key in _probes:
+            return _probes[key]
+    try:
+        rt = _runtime_of(device)
+        prg = _build(rt.context, PROBE_SOURCE)
+        x = np.float32([0.0, 0.5, 2.0, 8.0])
+        buf = cl.Buffer(rt.context, cl.mem_flags.READ_WRITE | cl.mem_flags.COPY_HOST_PTR,
+                        hostbuf=x)
+        prg.bdipole_probe(rt.queue, x.shape, None, buf)
+        got = np.empty_like(x)
+        cl.enqueue_copy(rt.queue, got, buf)
+        rt.queue.finish()
+        want = np.sqrt(np.exp(-x.astype(np.float64))) + np.arange(4)
+        # a few ulp of each value: any working float32 sqrt/exp meets it, garbage does not
+        reason = "" if np.allclose(got, want, rtol=1e-5, atol=0) else (
+            f"probe kernel computed {got.tolist()}, expected {want.round(6).tolist()}")
+    except Exception as exc:  # every driver failure mode: context, build (log in the text), run
+        reason = _one_line(exc)
+    with _lock:
+        _probes[key] = reason
+    return reason
+
+
+def _candidates():
+    """(index, platform, device) for every device the loader sees, in its order."""
     out = []
-    for platform in cl.get_platforms():
+    for p_i, platform in enumerate(cl.get_platforms()):
         try:
             devices = platform.get_devices()
         except cl.Error:
             devices = []
-        out.extend((platform, d) for d in devices)
+        out.extend((f"{p_i}:{d_i}", platform, d) for d_i, d in enumerate(devices))
     return out
 
 
-def _platform_listing() -> str:
+def _state(index, platform, device, reason=None) -> DeviceState:
+    reason = probe(device) if reason is None else reason
+    return DeviceState(index, platform.name.strip(), device.name.strip(), device_kind(device),
+                       device.version.strip(), device_has_fp64(device), not reason, reason,
+                       device)
+
+
+def survey() -> list[DeviceState]:
+    """Every device the loader sees, each probed (``bdipole-cl devices``)."""
     try:
-        platforms = cl.get_platforms()
+        return [_state(*c) for c in _candidates()]
     except cl.Error as exc:
-        return f"  (no OpenCL platform: {exc})"
-    lines = []
-    for p in platforms:
-        try:
-            names = [d.name for d in p.get_devices()]
-        except cl.Error as exc:
-            names = [f"<error: {exc}>"]
-        lines.append(f"  {p.name}: {', '.join(names) or '<no devices>'}")
-    return "\n".join(lines) or "  (no OpenCL platform found)"
+        raise DeviceError(f"no OpenCL platform found ({_one_line(exc)}); {REMEDIES}") from exc
 
 
-def _pick_device():
-    pairs = list_devices()
-    for want in (cl.device_type.CPU, None):
-        for _, d in pairs:
-            if want is None or d.type & want:
-                return d
-    raise DeviceError(
-        "no usable OpenCL device. Platforms seen:\n" + _platform_listing()
-        + "\nInstall pocl-binary-distribution (a dependency of bdipole-cl) for a CPU device, "
-          "or set PYOPENCL_CTX.")
+#: automatic preference: lower ranks first (kind, then implementation), ties in loader order
+KIND_RANK = {"gpu": 0, "accelerator": 1, "cpu": 2, "other": 3}
 
 
-def _make_runtime() -> Runtime:
-    if os.environ.get("PYOPENCL_CTX"):
-        try:
-            ctx = cl.create_some_context(interactive=False)
-        except Exception as exc:  # pyopencl raises several types here
-            raise DeviceError(f"PYOPENCL_CTX={os.environ['PYOPENCL_CTX']!r} selects no usable "
-                              f"device ({exc}). Platforms seen:\n{_platform_listing()}") from exc
+def rank(state: DeviceState) -> tuple:
+    platform = state.platform.lower()
+    impl = 0 if "intel" in platform else 1 if "portable" in platform else 2
+    return (KIND_RANK.get(state.kind, 3), impl)
+
+
+def choose(states, probe_fn=None) -> DeviceState:
+    """The automatic choice among ``states`` (DeviceState with ``works`` unknown or known):
+    the best-ranked device whose probe passes. Probes lazily in rank order, so a broken device
+    costs one failed build and the rest are not built at all. Raises DeviceError naming every
+    device's failure and the remedies when none works."""
+    states = list(states)
+    order = sorted(range(len(states)), key=lambda i: (rank(states[i]), i))
+    failures = []
+    for i in order:
+        s = states[i]
+        reason = s.reason if probe_fn is None else probe_fn(s)
+        if not reason:
+            return s
+        failures.append(f"[{s.index}] {s.name} ({s.platform}): {reason}")
+    if not failures:
+        raise DeviceError(f"no OpenCL device found; {REMEDIES}")
+    raise DeviceError("no working OpenCL device: " + "; ".join(failures) + f"; {REMEDIES}")
+
+
+def _lazy_states():
+    """Candidates as DeviceStates whose probe has not run yet (reason filled by ``choose``)."""
+    try:
+        cands = _candidates()
+    except cl.Error as exc:
+        raise DeviceError(f"no OpenCL platform found ({_one_line(exc)}); {REMEDIES}") from exc
+    return [_state(i, p, d, reason="?") for i, p, d in cands]
+
+
+def _from_pyopencl_ctx(spec: str) -> Runtime:
+    try:
+        ctx = cl.create_some_context(interactive=False)
+    except Exception as exc:  # pyopencl raises several types here
+        raise DeviceError(f"PYOPENCL_CTX={spec!r} selects no device ({_one_line(exc)}); "
+                          f"`bdipole-cl devices` lists them") from exc
+    device = ctx.devices[0]
+    reason = probe(device)
+    if reason:
+        raise DeviceError(f"PYOPENCL_CTX={spec!r} selects {device.name.strip()} "
+                          f"({device.platform.name.strip()}), which is broken: {reason}; "
+                          f"{REMEDIES}")
+    return _runtime_of(device)
+
+
+#: short names users type for implementations whose platform name is long
+ALIASES = {"pocl": "portable computing language"}
+
+
+def _build(context, source, options=()):
+    """Build quietly: a non-empty build log is normal for some drivers (Intel's prints one for
+    every build) and pyopencl would warn on each; failures still raise with the log."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", cl.CompilerWarning)
+        return cl.Program(context, source).build(options=list(options))
+
+
+def _from_string(spec: str) -> Runtime:
+    states = _lazy_states()
+    if ":" in spec and all(part.isdigit() for part in spec.split(":", 1)):
+        matches = [s for s in states if s.index == spec]
     else:
-        ctx = cl.Context([_pick_device()])
-    return Runtime(ctx, cl.CommandQueue(ctx))
+        needle = ALIASES.get(spec.lower(), spec.lower())
+        matches = [s for s in states if needle in f"{s.platform} {s.name}".lower()]
+    if not matches:
+        listing = ", ".join(f"{s.index} {s.platform} / {s.name}" for s in states) or "none"
+        raise DeviceError(f"device {spec!r} matches no OpenCL device (seen: {listing})")
+    return _runtime_of(choose(matches, probe_fn=lambda s: probe(s.device)).device)
 
 
-def get_runtime() -> Runtime:
-    """The process's OpenCL runtime, created on first use."""
-    global _runtime
-    with _lock:
-        if _runtime is None:
-            _runtime = _make_runtime()
-        return _runtime
+def _make_default() -> Runtime:
+    spec = os.environ.get("PYOPENCL_CTX")
+    if spec:
+        return _from_pyopencl_ctx(spec)
+    return _runtime_of(choose(_lazy_states(), probe_fn=lambda s: probe(s.device)).device)
+
+
+def get_runtime(device=None) -> Runtime:
+    """The Runtime for ``device`` (see the module docstring); None: the process default,
+    chosen on first use."""
+    global _default
+    if isinstance(device, Runtime):
+        return device
+    if device is None:
+        with _lock:
+            if _default is None:
+                _default = _make_default()
+            return _default
+    if isinstance(device, str):
+        return _from_string(device)
+    if isinstance(device, cl.Device):
+        reason = probe(device)
+        if reason:
+            raise DeviceError(f"{device.name.strip()} ({device.platform.name.strip()}) is "
+                              f"broken: {reason}")
+        return _runtime_of(device)
+    raise TypeError(f"device={device!r}: expected None, a Runtime, a pyopencl Device or a "
+                    f"string such as '0:0' or 'intel'")
 
 
 def use_device(device=None) -> Runtime:
-    """Make ``device`` (a pyopencl Device, or None for the default choice) the process's device."""
-    global _runtime
+    """Make ``device`` (anything ``get_runtime`` takes; None: choose again) the default."""
+    global _default
     with _lock:
-        if device is None:
-            _runtime = _make_runtime()
-        else:
-            ctx = cl.Context([device])
-            _runtime = Runtime(ctx, cl.CommandQueue(ctx))
-        return _runtime
+        _default = None if device is None else get_runtime(device)
+    return get_runtime()
+
+
+def working_runtimes() -> list[Runtime]:
+    """A Runtime for every working device (tests and ``crosscheck --all-devices``)."""
+    return [_runtime_of(s.device) for s in survey() if s.works]
 
 
 # {{{ kernel sources and programs
@@ -168,7 +351,7 @@ def get_program(rt: Runtime, name: str, options=()) -> cl.Program:
         if any(o == "-DBD_DOUBLE" for o in options) and not rt.has_fp64:
             raise DeviceError(f"{rt.describe()} has no cl_khr_fp64: float64 is not available")
         try:
-            prg = cl.Program(rt.context, kernel_source(name)).build(options=list(options))
+            prg = _build(rt.context, kernel_source(name), options)
         except cl.RuntimeError as exc:
             raise DeviceError(f"building kernels/{name}.cl with {' '.join(options)} failed:\n"
                               f"{exc}") from exc

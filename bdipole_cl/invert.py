@@ -152,7 +152,7 @@ class InversionKernel:
 
     def __init__(self, etas, config: MethodConfig, *, exact=False, model="better",
                  double=False, runtime=None):
-        self.rt = runtime or get_runtime()
+        self.rt = get_runtime(runtime)
         self.dtype = real_dtype(double)
         self.nchan = len(etas)
         for e in etas:
@@ -204,7 +204,7 @@ class InversionKernel:
 
 def invert_albedo(rd, eta, method="table", *, return_rho=False, model="better", exact=False,
                   double=False, on_invalid="raise", iterations=None, tol=None, table_size=None,
-                  polish=None, seed_size=None):
+                  polish=None, seed_size=None, device=None):
     """Invert memo eq. 3 on the device: reduced albedo alpha' (and rho = 1 - alpha') of ``rd``.
 
     Parameters
@@ -229,6 +229,8 @@ def invert_albedo(rd, eta, method="table", *, return_rho=False, model="better", 
     on_invalid : {"raise", "clamp"}
         Rd that is NaN, infinite or > 1: raise InvalidInputError (count, first index), or clamp
         (NaN and -inf -> 0, > 1 -> 1).
+    device : None, str, pyopencl.Device or Runtime
+        Where to run (``bdipole_cl.device``): None is the automatic choice.
 
     Returns
     -------
@@ -243,7 +245,8 @@ def invert_albedo(rd, eta, method="table", *, return_rho=False, model="better", 
     bad = ~(rd <= 1.0) | np.isinf(rd)
     if _check("albedo", rd, bad, "NaN, infinite or > 1", on_invalid):
         rd = np.where(np.isnan(rd) | np.isneginf(rd), 0.0, np.minimum(rd, 1.0))
-    kernel = InversionKernel(etas, config, exact=exact, model=model, double=double)
+    kernel = InversionKernel(etas, config, exact=exact, model=model, double=double,
+                             runtime=device)
     outs = kernel.run(rd, None, ("alpha", "rho") if return_rho else ("alpha",))
     alpha = outs["alpha"].reshape(rd.shape)
     return (alpha, outs["rho"].reshape(rd.shape)) if return_rho else alpha
@@ -272,7 +275,7 @@ class CoefficientMapper:
     ``albedo_to_coefficients`` and of the texture pipeline (called once per band)."""
 
     def __init__(self, etas, config: MethodConfig, *, outputs=("sigma_a", "sigma_s"),
-                 model="better", exact=False, double=False, on_invalid="raise"):
+                 model="better", exact=False, double=False, on_invalid="raise", device=None):
         unknown = set(outputs) - set(OUTPUTS)
         if unknown:
             raise ValueError(f"unknown outputs {sorted(unknown)}: expected some of {OUTPUTS}")
@@ -280,7 +283,8 @@ class CoefficientMapper:
             raise ValueError(f"on_invalid={on_invalid!r}: expected 'raise' or 'clamp'")
         self.outputs = tuple(outputs)
         self.on_invalid = on_invalid
-        self.kernel = InversionKernel(etas, config, exact=exact, model=model, double=double)
+        self.kernel = InversionKernel(etas, config, exact=exact, model=model, double=double,
+                                      runtime=device)
         wanted = set(outputs)
         self.kernel_wants = tuple(
             k for k in ("alpha", "rho", "sigma_a", "sigma_s")
@@ -300,7 +304,7 @@ class CoefficientMapper:
 
 def albedo_to_coefficients(rd, mfp, eta, method="table", *, model="better", exact=False,
                            double=False, on_invalid="raise", outputs=("sigma_a", "sigma_s"),
-                           **knobs):
+                           device=None, **knobs):
     """The memo's drop-in mapping: (albedo Rd, mean free path ld, eta) -> (sigma_a, sigma_s').
 
     ``ld = 1/mu_tr`` (Jensen/Hery skin convention, SPEC.md): ``sigma_t' = 1/(ld * mu_tr/sigma_t')``
@@ -314,6 +318,7 @@ def albedo_to_coefficients(rd, mfp, eta, method="table", *, model="better", exac
     sigma_t'), NaN albedo to 0, and mfp into ``MFP_CLAMP_RANGE`` (NaN -> its top).
 
     ``outputs`` picks what is returned, in order, from alpha, rho, sigma_a, sigma_s, sigma_t.
+    ``device``: where to run, as for ``invert_albedo``.
     """
     config = resolve_method(method, **knobs)
     rd, mfp = np.broadcast_arrays(np.asarray(rd), np.asarray(mfp))
@@ -321,7 +326,7 @@ def albedo_to_coefficients(rd, mfp, eta, method="table", *, model="better", exac
     mfp = mfp.astype(np.float64) if mfp.dtype.kind != "f" else mfp
     etas = _channel_etas(eta, rd.shape)
     mapper = CoefficientMapper(etas, config, outputs=outputs, model=model, exact=exact,
-                               double=double, on_invalid=on_invalid)
+                               double=double, on_invalid=on_invalid, device=device)
     outs, _ = mapper(rd, mfp)
     result = tuple(outs[k] for k in outputs)
     return result if len(result) > 1 else result[0]

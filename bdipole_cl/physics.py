@@ -23,14 +23,15 @@ FUNCTIONS = {
 }
 
 
-def evaluate(func, x, y=0.0, z=1.0, *, eta=1.4, exact=False, double=False, rho=None):
+def evaluate(func, x, y=0.0, z=1.0, *, eta=1.4, exact=False, double=False, rho=None,
+             device=None):
     """Evaluate kernel function ``func`` (a key of FUNCTIONS) on the device, elementwise.
 
     ``x``: alpha' (rd), q (one_minus_rd) or r (profile*); ``y``: alpha'; ``z``: sigma_t'.
     ``rho`` defaults to 1 - y computed in float64 (pass it where 1 - alpha' would cancel).
     """
     define, _ = FUNCTIONS[func]
-    rt = get_runtime()
+    rt = get_runtime(device)
     dtype = real_dtype(double)
     ref.check_eta(eta, exact)
     x, y, z = np.broadcast_arrays(*(np.asarray(v, dtype=np.float64) for v in (x, y, z)))

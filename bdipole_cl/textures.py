@@ -36,6 +36,7 @@ import numpy as np
 import OpenImageIO as oiio
 
 from . import __version__
+from .device import get_runtime
 from .invert import CoefficientMapper, InvalidInputError, resolve_method
 
 UDIM_TOKEN = "<UDIM>"
@@ -387,7 +388,8 @@ def _process_file(job, settings, device_lock, progress):
         with device_lock:
             mapper = CoefficientMapper(tuple(etas), settings["config"], outputs=outputs,
                                        model=settings["model"], exact=settings["exact"],
-                                       on_invalid=settings["on_invalid"])
+                                       on_invalid=settings["on_invalid"],
+                                       device=settings["runtime"])
         per_texel = 4 * 3 * (spec.nchannels + ncolor * (1 + len(outputs)) + len(out_names))
         rows = _band_rows(spec, per_texel, settings["max_memory"])
         bands = [(y, min(y + rows, spec.height)) for y in range(0, spec.height, rows)]
@@ -456,7 +458,8 @@ def process_textures(inputs, *, mfp=1.0, eta=1.4, output=DEFAULT_OUTPUT,
                      outputs=("sigma_a", "sigma_s"), method="table", model="better",
                      exact=False, half=False, colorspace="auto", alpha="keep",
                      on_invalid="raise", max_memory=256 << 20, jobs=1, skip_existing=False,
-                     unit="mm", mfp_scale=1.0, progress=False, **knobs) -> BatchReport:
+                     unit="mm", mfp_scale=1.0, progress=False, device=None,
+                     **knobs) -> BatchReport:
     """Invert albedo textures into scattering-coefficient EXRs (the ``bdipole-cl invert`` job).
 
     Parameters
@@ -495,6 +498,8 @@ def process_textures(inputs, *, mfp=1.0, eta=1.4, output=DEFAULT_OUTPUT,
         Multiplies mfp values (constants and textures).
     progress : bool
         Show a tqdm progress bar (texels).
+    device : None, str, pyopencl.Device or Runtime
+        Where to run (``bdipole_cl.device``); every file of the batch uses this one device.
     """
     if isinstance(inputs, (str, os.PathLike)):
         inputs = [inputs]
@@ -507,9 +512,11 @@ def process_textures(inputs, *, mfp=1.0, eta=1.4, output=DEFAULT_OUTPUT,
                     mfp=_parse_constant(mfp, "mfp"), mfp_scale=float(mfp_scale),
                     config=config, model=model, exact=exact, half=half,
                     colorspace=colorspace, alpha=alpha, on_invalid=on_invalid,
-                    max_memory=int(max_memory), outputs=tuple(outputs), unit=unit)
+                    max_memory=int(max_memory), outputs=tuple(outputs), unit=unit,
+                    runtime=get_runtime(device))
     CoefficientMapper((settings["eta"][0],), config, outputs=settings["outputs"], model=model,
-                      exact=exact, on_invalid=on_invalid)  # fail fast on bad settings
+                      exact=exact, on_invalid=on_invalid,
+                      device=settings["runtime"])  # fail fast on bad settings
     jobs_list, results = [], []
     files = expand_inputs(inputs)
     for path, udim in files:

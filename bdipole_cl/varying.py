@@ -44,7 +44,7 @@ import pyopencl as cl
 from . import reference as ref
 from .blur import (fft_padded, fft_shape, gaussian_1d, quadrant_weights, truncation_radius,
                    unfold_quadrant)
-from .device import build_options, get_program, get_runtime
+from .device import build_options, get_program
 
 #: the kernel's shape is taken at albedo within these bounds (its energy is always Rd(x))
 RD_MIN, RD_MAX = 1e-3, 0.999
@@ -475,9 +475,8 @@ def _read_back(rt, buf, array):
     rt.queue.finish()
 
 
-def weight_planes(plan, rd, ld):
-    """w_j(x) * Rd(x), (G, H, W) float32, computed on the device (kernels/blur_varying.cl)."""
-    rt = get_runtime()
+def weight_planes(plan, rd, ld, rt):
+    """w_j(x) * Rd(x), (G, H, W) float32, computed on ``rt``'s device (kernels/blur_varying.cl)."""
     h, w = rd.shape
     mf = cl.mem_flags
     opts, axis_args = _lattice_args(plan)
@@ -576,9 +575,8 @@ def basis_blurs(e2d, plan, kspec, border, planes):
     return planes
 
 
-def gather_exitance(out, c, plan, rd, ld, planes, x0):
-    """out[..., c] = Rd(x) sum_j w_j(x) planes[j, y, x0 + x], on the device."""
-    rt = get_runtime()
+def gather_exitance(out, c, plan, rd, ld, planes, x0, rt):
+    """out[..., c] = Rd(x) sum_j w_j(x) planes[j, y, x0 + x], on ``rt``'s device."""
     h, w, nch = out.shape
     mf = cl.mem_flags
     opts, axis_args = _lattice_args(plan)
@@ -612,14 +610,14 @@ def channel_plans(shape, *, tol, exact=False, eta=1.4, basis="svd", **physical):
     return out
 
 
-def _blur_band(e, plans, rows, method, border):
+def _blur_band(e, plans, rows, method, border, rt):
     """Blur one image or band (rows: the rows of the parameter maps it covers)."""
     h, w, _ = e.shape
     if method == "gaussians":
         from .blur import _Blur
-        ctx = _Blur(e, border)
+        ctx = _Blur(e, border, rt)
         for c, (plan, rd, ld) in enumerate(plans):
-            ctx.run_varying(c, plan, weight_planes(plan, rd[rows], ld[rows]))
+            ctx.run_varying(c, plan, weight_planes(plan, rd[rows], ld[rows], rt))
         return ctx.result()
     out = np.empty_like(e)
     planes = None          # the basis blurs, (G, H, FFT width), reused across channels
@@ -629,11 +627,11 @@ def _blur_band(e, plans, rows, method, border):
         if planes is None or planes.shape != (len(kspec), h, shape[1]):
             planes = np.empty((len(kspec), h, shape[1]), np.float32)
         basis_blurs(e[..., c], plan, kspec, border, planes)
-        gather_exitance(out, c, plan, rd[rows], ld[rows], planes, plan.radius)
+        gather_exitance(out, c, plan, rd[rows], ld[rows], planes, plan.radius, rt)
     return out
 
 
-def blur_textured(e, *, method, tol, border, exact, return_info, max_memory, **physical):
+def blur_textured(e, *, method, tol, border, exact, return_info, max_memory, rt, **physical):
     """``blur`` with texture-varying parameters (see the module docstring)."""
     from .blur import BlurInfo, _halo_rows
     if method not in VARYING_METHODS:
@@ -650,7 +648,7 @@ def blur_textured(e, *, method, tol, border, exact, return_info, max_memory, **p
     per_row = (w + 2 * k) * 4 * (4 * nch + 4 * g + 6)
     rows = h if max_memory is None else max(1, int(max_memory // per_row) - 2 * k)
     if rows >= h:
-        out = _blur_band(e, plans, slice(0, h), used, border)
+        out = _blur_band(e, plans, slice(0, h), used, border, rt)
     else:
         out = np.empty_like(e)
         for y0 in range(0, h, rows):
@@ -658,7 +656,7 @@ def blur_textured(e, *, method, tol, border, exact, return_info, max_memory, **p
             idx = _halo_rows(y0, y1, k, h, border)
             band = np.where((idx >= 0)[:, None, None], e[np.maximum(idx, 0)], np.float32(0))
             # the halo rows' own parameters are never used (a gather: exit texel's profile)
-            res = _blur_band(band, plans, np.maximum(idx, 0), used, border)
+            res = _blur_band(band, plans, np.maximum(idx, 0), used, border, rt)
             out[y0:y1] = res[k:k + (y1 - y0)]
     if not return_info:
         return out

@@ -115,22 +115,41 @@ inline void invert_one(real rd, bd_params p, __global const float4 *table, real 
     *rho = BD_LIT(1.0) - xmid;
 }
 #elif defined(METHOD_TABLE)
+#if POLISH > 0
+// POLISH Newton steps on one half's residual, kept inside that half's domain [0, hi]. Each half
+// has its own call with a constant bound: a per-lane `upper ? UPPER_HI : LOWER_HI` bound inside
+// the loop was vectorised wrongly by Intel's CPU runtime (upper lanes clamped to 1/2 whenever a
+// vector also held lower lanes), which PoCL did not show.
+inline real polish_half(int upper, real v, real target, real hi, bd_params p)
+{
+    real df;
+    for (int k = 0; k < POLISH; ++k) {
+        real f = half_residual(upper, v, p, &df) - target;
+        v = clamp(v - f / df, BD_LIT(0.0), hi);
+    }
+    return v;
+}
+#endif
+
 inline void invert_one(real rd, bd_params p, __global const float4 *table, real *alpha, real *rho)
 {
     real x = BD_POWER == 2 ? sqrt(rd) : rd;
     real slope;
     real v = table_guess(rd, x, p, table, &slope);
-    int upper = rd >= p.rd_split;
+    if (rd < p.rd_split) {
 #if POLISH > 0
-    real target = upper ? (rd >= BD_LIT(0.5) ? -log1p(-(BD_LIT(1.0) - rd)) : -log(rd)) : x;
-    real df;
-    for (int k = 0; k < POLISH; ++k) {
-        real f = half_residual(upper, v, p, &df) - target;
-        v = clamp(v - f / df, BD_LIT(0.0), upper ? UPPER_HI : LOWER_HI);
-    }
+        v = polish_half(0, v, x, LOWER_HI, p);
 #endif
-    if (upper) { *rho = v * v; *alpha = BD_LIT(1.0) - *rho; }
-    else { *alpha = v; *rho = BD_LIT(1.0) - v; }
+        *alpha = v;
+        *rho = BD_LIT(1.0) - v;
+    } else {
+#if POLISH > 0
+        real g = rd >= BD_LIT(0.5) ? -log1p(-(BD_LIT(1.0) - rd)) : -log(rd);
+        v = polish_half(1, v, g, UPPER_HI, p);
+#endif
+        *rho = v * v;
+        *alpha = BD_LIT(1.0) - *rho;
+    }
 }
 #else
 inline void invert_one(real rd, bd_params p, __global const float4 *table, real *alpha, real *rho)

@@ -1,7 +1,15 @@
+"""Shared test helpers. Kernel tests run once per working OpenCL device, in the manner of
+pyopencl's ``ctx_factory``: the ``runtime`` fixture is parametrised over
+``bdipole_cl.device.working_runtimes()`` (restrict with ``BDIPOLE_CL_TEST_DEVICES``, a comma list
+of device specs such as ``intel,pocl`` or ``0:0``). Modules that reach kernels through the public
+API use ``on_device``, which makes the parametrised device the default for the test."""
+import os
+
 import numpy as np
 import pytest
 
 import bdipole_cl
+from bdipole_cl import device
 from bdipole_cl import reference as ref
 
 #: float32 unit roundoff (half an ulp of 1); tolerances below are multiples of it.
@@ -9,9 +17,51 @@ EPS32 = 2.0**-24
 EPS64 = 2.0**-53
 
 
+def short_id(rt):
+    """A test id per device: the implementation's short name (and index if it repeats)."""
+    platform = rt.device.platform.name.lower()
+    return ("intel" if "intel" in platform else "pocl" if "portable" in platform
+            else rt.device.name.strip().split()[0].lower())
+
+
+def _test_runtimes():
+    wanted = os.environ.get("BDIPOLE_CL_TEST_DEVICES")
+    if wanted:
+        rts = [device.get_runtime(spec.strip()) for spec in wanted.split(",") if spec.strip()]
+    else:
+        rts = device.working_runtimes()
+    if not rts:
+        # never an empty parametrisation (pytest would skip every kernel test silently)
+        raise device.DeviceError("no working OpenCL device to test on; see `bdipole-cl devices`")
+    return rts
+
+
+RUNTIMES = _test_runtimes()
+_ids = [short_id(rt) for rt in RUNTIMES]
+RUNTIME_IDS = [i if _ids.count(i) == 1 else f"{i}{k}" for k, i in enumerate(_ids)]
+
+
+def pytest_generate_tests(metafunc):
+    if "runtime" in metafunc.fixturenames:
+        metafunc.parametrize("runtime", RUNTIMES, ids=RUNTIME_IDS, indirect=True,
+                             scope="session")
+
+
+def pytest_report_header(config):
+    return ["OpenCL devices under test: " + "; ".join(
+        f"{i} = {rt.describe()}" for i, rt in zip(RUNTIME_IDS, RUNTIMES))]
+
+
 @pytest.fixture(scope="session")
-def runtime():
-    return bdipole_cl.get_runtime()
+def runtime(request):
+    return request.param
+
+
+@pytest.fixture
+def on_device(runtime):
+    """The parametrised device as the process default, for code that takes ``device=None``."""
+    bdipole_cl.use_device(runtime)
+    return runtime
 
 
 @pytest.fixture(scope="session")

@@ -11,6 +11,10 @@ METHODS = ["direct", "gaussians", "fft", "auto"]
 # (float32 accumulation ~1e-6); gaussians carry their fit error, reported as error_bound.
 
 
+#: every test here runs once per working OpenCL device (tests/conftest.py)
+pytestmark = pytest.mark.usefixtures("on_device")
+
+
 def impulse(h=31, w=33, c=1, value=1.0):
     e = np.zeros((h, w, c), np.float32)
     e[h // 2, w // 2] = value

@@ -10,6 +10,9 @@ from bdipole_cl.varying import (RD_MAX, RD_MIN, REFINE, VaryingParameterError, _
                                 interpolated_weights, kernel_spectra, node_kernel, texel_coords,
                                 weight_planes)
 
+#: every test here runs once per working OpenCL device (tests/conftest.py)
+pytestmark = pytest.mark.usefixtures("on_device")
+
 H, W = 20, 22
 
 
@@ -112,10 +115,10 @@ def test_banded_equals_whole():
         np.testing.assert_allclose(banded, whole, rtol=1e-5, atol=1e-7)
 
 
-def test_device_weights_match_host_interpolation():
+def test_device_weights_match_host_interpolation(runtime):
     albedo, mfp = gradient_maps()
     (plan, rd, ld), = channel_plans((H, W, 1), tol=1e-3, albedo=albedo, mfp=mfp)
-    dev = weight_planes(plan, rd, ld)
+    dev = weight_planes(plan, rd, ld, runtime)
     cu, cv = texel_coords(plan, rd, ld)
     host = interpolated_weights(plan, cu, cv) * rd[..., None].astype(np.float64)
     # float32 bilinear weights and sums of <= 4 taps: a few ulp of the largest weight

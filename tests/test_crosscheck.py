@@ -1,8 +1,14 @@
 """``bdipole-cl crosscheck`` (bdipole_cl/crosscheck.py): built-in table and user kernels."""
+import pytest
+
 from bdipole_cl.cli import main as cli_main
 from bdipole_cl.crosscheck import check_user_kernel, run_crosscheck
 
 MEMO_CL = "tools/examples/memo_hery_tm_12_11.cl"
+
+
+#: every test here runs once per working OpenCL device (tests/conftest.py)
+pytestmark = pytest.mark.usefixtures("on_device")
 
 
 def test_every_builtin_kernel_meets_its_bound(capsys):

@@ -16,6 +16,10 @@ PRECISIONS = [pytest.param(False, id="float32"), pytest.param(True, id="float64"
 ETAS = [0.6, 1.0, 1.4, 2.5]
 
 
+#: every test here runs once per working OpenCL device (tests/conftest.py)
+pytestmark = pytest.mark.usefixtures("on_device")
+
+
 def unit(double):
     return EPS64 if double else EPS32
 

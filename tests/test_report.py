@@ -12,6 +12,10 @@ from bdipole_cl.report import (AUTO_DATA, Point, auto_inversion_config, mark_par
                                run_report)
 
 
+#: every test here runs once per working OpenCL device (tests/conftest.py)
+pytestmark = pytest.mark.usefixtures("on_device")
+
+
 @pytest.mark.parametrize("tol", [1e-3, 1e-5, 1e-6])
 def test_auto_picks_the_cheapest_measured_config_meeting_tol(tol, caplog):
     data = json.loads(AUTO_DATA.read_text())["configs"]

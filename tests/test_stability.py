@@ -15,6 +15,10 @@ ALPHA_TOL, RHO_TOL = 1e-6, 1e-4              # issue 3's bounds
 
 # {{{ albedo
 
+#: every test here runs once per working OpenCL device (tests/conftest.py)
+pytestmark = pytest.mark.usefixtures("on_device")
+
+
 @pytest.mark.parametrize("method", METHODS)
 @pytest.mark.parametrize("rd", [0.0, DENORMAL, 1e-30, 1e-6, 0.5, 1 - 1e-7, 1.0],
                          ids=["0", "denormal", "1e-30", "1e-6", "0.5", "1-1e-7", "1"])

@@ -11,6 +11,9 @@ from bdipole_cl.cli import main as cli_main
 from bdipole_cl.demo import write_exr
 from bdipole_cl.textures import expand_inputs, process_textures
 
+#: every test here runs once per working OpenCL device (tests/conftest.py)
+pytestmark = pytest.mark.usefixtures("on_device")
+
 W, H = 24, 16
 
 

@@ -23,7 +23,7 @@ import time
 import numpy as np
 from scipy.signal import fftconvolve
 
-from bdipole_cl import get_runtime
+from bdipole_cl import get_runtime, use_device
 from bdipole_cl.blur import blur, channel_kernel, channel_parameters
 from bdipole_cl.varying import _spectra_cache
 
@@ -49,7 +49,10 @@ def main(argv=None):
     ap.add_argument("--varying-methods", nargs="*", default=["auto"],
                     help="methods for texture-varying parameters (none: skip)")
     ap.add_argument("--samples", type=int, default=48, help="texels checked per channel")
+    ap.add_argument("--device", help="OpenCL device (as `bdipole-cl --device`); default: automatic")
     args = ap.parse_args(argv)
+    if args.device:
+        use_device(args.device)
     print(f"device: {get_runtime().describe()}")
     rng = np.random.default_rng(0)
     e = rng.uniform(0.0, 1.0, (args.size, args.size, 3)).astype(np.float32)

@@ -13,7 +13,7 @@ import argparse
 import sys
 import time
 
-from bdipole_cl import get_runtime
+from bdipole_cl import get_runtime, use_device
 from bdipole_cl.benchmark import (inversion_workload, reference_inverse, time_copy,
                                   time_inversion)
 from bdipole_cl.invert import MethodConfig
@@ -39,7 +39,10 @@ def main(argv=None):
     ap.add_argument("--eta", type=float, default=1.4)
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--double", action="store_true", help="also time float64 kernels")
+    ap.add_argument("--device", help="OpenCL device (as `bdipole-cl --device`); default: automatic")
     args = ap.parse_args(argv)
+    if args.device:
+        use_device(args.device)
     rt = get_runtime()
     print(f"device: {rt.describe()}")
     rd = inversion_workload(args.n)

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import OpenImageIO as oiio
 
-from bdipole_cl import get_runtime
+from bdipole_cl import get_runtime, use_device
 from bdipole_cl.benchmark import inversion_workload, median_time
 from bdipole_cl.invert import InversionKernel, MethodConfig
 from bdipole_cl.textures import process_textures
@@ -43,7 +43,10 @@ def main(argv=None):
     ap.add_argument("--size", type=int, default=8192)
     ap.add_argument("--max-memory", type=int, default=256 << 20)
     ap.add_argument("--dir", default=None, help="work folder (default: a temporary one)")
+    ap.add_argument("--device", help="OpenCL device (as `bdipole-cl --device`); default: automatic")
     args = ap.parse_args(argv)
+    if args.device:
+        use_device(args.device)
     rt = get_runtime()
     print(f"device: {rt.describe()}")
     work = Path(args.dir or tempfile.mkdtemp(prefix="bdipole_bench_"))

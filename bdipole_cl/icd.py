@@ -1,0 +1,153 @@
+"""OpenCL runtimes installed into the Python environment, made visible to the ICD loader.
+
+pyopencl's wheel ships the ocl-icd loader and finds its own PoCL by itself. Intel's CPU runtime
+from PyPI (``intel-opencl-rt``) is different: its wheel puts ``libintelocl.so`` in the
+environment's ``lib/`` and an ``etc/OpenCL/vendors/intel-cpu.icd`` whose path is a build-time
+placeholder, so the loader never finds it. ``register_environment_runtimes`` fixes that
+without any variable set by the user:
+
+- it writes a vendors directory holding every ``.icd`` the loader would have read anyway (the
+  user's ``OCL_ICD_VENDORS`` if set, else ``/etc/OpenCL/vendors``) plus one naming the absolute
+  path of the environment's ``libintelocl.so``, and points ``OCL_ICD_VENDORS`` at it;
+- it preloads the runtime's support libraries (``libimf``, ``libintlc``, ``libirng``,
+  ``libsvml``) from the same ``lib/``, globally, so that the runtime and the code it compiles
+  resolve them whatever the loader's search path.
+
+It must run before the first platform query of the process (``bdipole_cl.device`` calls it on
+import, before importing pyopencl). ``PYOPENCL_CTX`` is untouched and still selects among all.
+Set ``BDIPOLE_CL_ENV_RUNTIMES=0`` to leave the loader exactly as the user configured it.
+"""
+from __future__ import annotations
+
+import ctypes
+import hashlib
+import os
+import site
+import sys
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+#: the ICD library of Intel's CPU runtime, as the ``intel-opencl-rt`` wheel installs it
+INTEL_ICD_LIBRARY = "libintelocl.so"
+#: its support libraries (``intel-cmplr-lib-rt``), preloaded with RTLD_GLOBAL
+INTEL_SUPPORT_LIBRARIES = ("libimf.so", "libintlc.so.5", "libirng.so", "libsvml.so")
+SYSTEM_VENDORS = Path("/etc/OpenCL/vendors")
+SWITCH = "BDIPOLE_CL_ENV_RUNTIMES"
+
+
+@dataclass(frozen=True)
+class EnvironmentRuntime:
+    """One runtime found in the environment and how it was registered."""
+
+    name: str
+    library: Path
+    registered: bool
+    note: str = ""
+
+
+_registered: list[EnvironmentRuntime] | None = None
+
+
+def environment_lib_dirs() -> list[Path]:
+    """Where pip puts a wheel's ``data/lib`` files: the environment's prefix, then the user's
+    base (``pip install --user``)."""
+    dirs = [Path(sys.prefix) / "lib"]
+    user = site.getuserbase()
+    if user:
+        dirs.append(Path(user) / "lib")
+    return [d for d in dict.fromkeys(dirs) if d.is_dir()]
+
+
+def find_intel_runtime(lib_dirs=None) -> Path | None:
+    """``libintelocl.so`` of the environment, or None."""
+    for d in environment_lib_dirs() if lib_dirs is None else lib_dirs:
+        candidate = Path(d) / INTEL_ICD_LIBRARY
+        if candidate.is_file():
+            return candidate.resolve()
+    return None
+
+
+def existing_icd_entries(vendors: str | None) -> dict[str, str]:
+    """The ``.icd`` files the loader would read on its own: {file name: content}.
+
+    ``vendors`` is ``OCL_ICD_VENDORS`` as the user set it (a directory, an ``.icd`` file or a
+    library path; ocl-icd accepts all three), or None for the system directory."""
+    if vendors:
+        path = Path(vendors)
+        if path.is_dir():
+            files = sorted(path.glob("*.icd"))
+        elif path.suffix == ".icd" and path.is_file():
+            files = [path]
+        else:                                   # a library named directly
+            return {f"user-{path.name}.icd": str(path) + "\n"}
+    else:
+        files = sorted(SYSTEM_VENDORS.glob("*.icd")) if SYSTEM_VENDORS.is_dir() else []
+    entries = {}
+    for f in files:
+        try:
+            entries[f.name] = f.read_text()
+        except OSError:
+            continue
+    return entries
+
+
+def vendors_directory(entries: dict[str, str]) -> Path:
+    """A directory holding exactly ``entries``, named by their content so that processes with
+    the same set share it; written atomically (each file via a temporary name)."""
+    digest = hashlib.sha256(repr(sorted(entries.items())).encode()).hexdigest()[:16]
+    base = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "bdipole_cl"
+    for root in (base, Path(tempfile.gettempdir()) / f"bdipole_cl-{os.getuid()}"):
+        target = root / f"icd-{digest}"
+        try:
+            target.mkdir(parents=True, exist_ok=True)
+            for name, content in entries.items():
+                dest = target / name
+                if not dest.is_file() or dest.read_text() != content:
+                    tmp = target / f".{name}.{os.getpid()}.tmp"
+                    tmp.write_text(content)
+                    os.replace(tmp, dest)
+            return target
+        except OSError:
+            continue
+    raise OSError(f"no writable directory for the OpenCL vendors list (tried {base} and "
+                  f"{tempfile.gettempdir()})")
+
+
+def _preload(lib_dir: Path) -> list[str]:
+    missing = []
+    for name in INTEL_SUPPORT_LIBRARIES:
+        path = lib_dir / name
+        try:
+            ctypes.CDLL(str(path), mode=ctypes.RTLD_GLOBAL)
+        except OSError:
+            missing.append(name)
+    return missing
+
+
+def register_environment_runtimes() -> list[EnvironmentRuntime]:
+    """Register the environment's OpenCL runtimes with the ICD loader (once per process)."""
+    global _registered
+    if _registered is not None:
+        return _registered
+    _registered = []
+    if os.environ.get(SWITCH, "1") == "0":
+        return _registered
+    library = find_intel_runtime()
+    if library is None:
+        return _registered
+    entries = existing_icd_entries(os.environ.get("OCL_ICD_VENDORS"))
+    if any(Path(c.strip()).name == INTEL_ICD_LIBRARY for c in entries.values()):
+        _registered.append(EnvironmentRuntime("Intel CPU runtime", library, False,
+                                              "already registered by the system"))
+        return _registered
+    missing = _preload(library.parent)
+    entries["bdipole_cl-intel-cpu.icd"] = f"{library}\n"
+    try:
+        os.environ["OCL_ICD_VENDORS"] = str(vendors_directory(entries))
+    except OSError as exc:
+        _registered.append(EnvironmentRuntime("Intel CPU runtime", library, False, str(exc)))
+        return _registered
+    note = f"support libraries not found: {', '.join(missing)}" if missing else ""
+    _registered.append(EnvironmentRuntime("Intel CPU runtime", library, True, note))
+    return _registered

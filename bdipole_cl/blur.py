@@ -434,6 +434,8 @@ def blur(irradiance, *, albedo=None, mfp=None, eta=1.4, texel_size=1.0, alpha=No
     if border not in BORDERS:
         raise ValueError(f"border={border!r}: expected one of {BORDERS}")
     e = _check_irradiance(irradiance, on_invalid)
+    if e.shape[0] == 0 or e.shape[1] == 0:
+        raise ValueError(f"irradiance is empty (shape {np.shape(irradiance)}): nothing to blur")
     rt = get_runtime(device)
     if any(np.ndim(v) >= 2 for v in (albedo, mfp, alpha, sigma_t, eta)):
         from .varying import blur_textured
@@ -560,14 +562,24 @@ def read_parameter_texture(path, what, colour=False, colorspace="auto"):
 
 
 def blur_file(path, output, *, colorspace="auto", half=False, max_memory=256 << 20,
-              **kwargs):
+              sources=None, cancel=None, **kwargs):
     """``bdipole-cl blur``: blur an irradiance image file into an EXR, streamed in bands of
     rows with a halo of the truncation radius (memory bounded by ``max_memory``). Integer
-    files are decoded to linear as in ``process_textures``; alpha is copied through."""
+    files are decoded to linear as in ``process_textures``; alpha is copied through.
+
+    ``sources``: {parameter name: file} of parameter textures given as arrays, so that errors
+    name the file they come from and ``output`` never overwrites one of them. ``cancel`` (threading.Event): when set, the next band raises Cancelled
+    and the temporary output is removed."""
+    import os
     from pathlib import Path
 
-    from .textures import (TextureError, _output_spec, _Reader, _Writer, source_colorspace,
-                           to_linear)
+    from .textures import (Cancelled, TextureError, _output_spec, _Reader, _Writer,
+                           check_output_format, source_colorspace, to_linear)
+    check_output_format(output)
+    sources = dict(sources or {})
+    for src in (path, *sources.values()):
+        if os.path.exists(output) and os.path.exists(src) and os.path.samefile(output, src):
+            raise ValueError(f"{output}: the output would overwrite the input {src}")
     reader = _Reader(path, "irradiance")
     writer = None
     try:
@@ -598,6 +610,8 @@ def blur_file(path, output, *, colorspace="auto", half=False, max_memory=256 << 
             names.append(spec.channelnames[alpha_ch])
         info = None
         for y0 in range(0, spec.height, rows):
+            if cancel is not None and cancel.is_set():
+                raise Cancelled(f"{path}: interrupted; nothing written")
             y1 = min(y0 + rows, spec.height)
             px = _read_rows(reader, _halo_rows(y0, y1, k, spec.height, border))
             e = px[..., colour]
@@ -621,7 +635,8 @@ def blur_file(path, output, *, colorspace="auto", half=False, max_memory=256 << 
         writer = None
         return info
     except (OSError, ValueError) as exc:
-        raise TextureError(f"{path}: {exc}") from exc
+        where = sources.get(getattr(exc, "parameter", None), path)
+        raise TextureError(f"{where}: {exc}") from exc
     finally:
         if writer is not None:
             writer.abort()

@@ -2,7 +2,9 @@
 from __future__ import annotations
 
 import argparse
+import signal
 import sys
+import threading
 
 EPILOG = """examples:
   bdipole-cl demo                                   # built-in example, writes ./bdipole_demo
@@ -16,14 +18,98 @@ EPILOG = """examples:
 
 
 def _size(text):
-    """'512M', '2G', '1048576' -> bytes."""
-    text = str(text).strip().upper()
-    mult = {"K": 1 << 10, "M": 1 << 20, "G": 1 << 30}.get(text[-1:], 1)
-    return int(float(text[:-1] if text[-1:] in "KMG" else text) * mult)
+    """'512M', '2G', '1048576' -> bytes (an argparse type: bad values are usage errors)."""
+    raw = str(text).strip().upper()
+    mult = {"K": 1 << 10, "M": 1 << 20, "G": 1 << 30}.get(raw[-1:], 1)
+    try:
+        value = int(float(raw[:-1] if raw[-1:] in "KMG" else raw) * mult)
+    except ValueError:
+        value = 0
+    if value <= 0:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected a size such as 512M, 2G or "
+                                         f"1048576 (bytes)")
+    return value
 
 
 def _floats(text):
-    return tuple(float(v) for v in str(text).split(","))
+    """'1.4' or '1.3,1.4,1.5' -> a tuple of finite floats (an argparse type)."""
+    try:
+        values = tuple(float(v) for v in str(text).split(","))
+    except ValueError:
+        values = ()
+    if not values or not all(v == v and abs(v) != float("inf") for v in values):
+        raise argparse.ArgumentTypeError(f"{text!r}: expected a number or a comma list such as "
+                                         f"1.3,1.4,1.5")
+    return values
+
+
+def _positive_int(text):
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if value <= 0:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected a whole number >= 1")
+    return value
+
+
+def _positive_float(text):
+    try:
+        value = float(text)
+    except ValueError:
+        value = float("nan")
+    if not (value > 0 and value != float("inf")):
+        raise argparse.ArgumentTypeError(f"{text!r}: expected a number > 0")
+    return value
+
+
+def _fraction(text):
+    try:
+        value = float(text)
+    except ValueError:
+        value = float("nan")
+    if not 0 < value < 1:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected a number in (0, 1), e.g. 1e-3")
+    return value
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse with one-line usage errors (``prog: error: ...``, exit 2), no usage block."""
+
+    def error(self, message):
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
+def _output_list(text):
+    from .invert import OUTPUTS
+    names = tuple(o.strip() for o in str(text).split(",") if o.strip())
+    unknown = [o for o in names if o not in OUTPUTS]
+    if not names or unknown:
+        raise argparse.ArgumentTypeError(f"{text!r}: {', '.join(unknown) or 'empty'} not "
+                                         f"allowed; choose from {', '.join(OUTPUTS)}")
+    return names
+
+
+class _Stop:
+    """SIGINT/SIGTERM during a batch: set ``event`` so that files stop at their next band
+    (temporaries removed, finished files kept), remember the signal for the exit code."""
+
+    def __init__(self):
+        self.event = threading.Event()
+        self.signum = None
+
+    def install(self):
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(sig, self._handle)
+        return self
+
+    def _handle(self, signum, frame):
+        self.signum = signum
+        self.event.set()
+
+    @property
+    def exit_code(self):
+        return 128 + self.signum if self.signum else None
 
 
 def _add_method_args(p):
@@ -49,30 +135,54 @@ def _method_knobs(args):
 
 def _cmd_invert(args) -> int:
     from .textures import process_textures
+    stop = _Stop().install()
     report = process_textures(
-        args.inputs, mfp=args.mfp, eta=_floats(args.eta), output=args.output,
-        outputs=tuple(o.strip() for o in args.outputs.split(",")), method=args.method,
+        args.inputs, mfp=args.mfp, eta=args.eta, output=args.output, cancel=stop.event,
+        outputs=args.outputs, method=args.method,
         model=args.model, exact=args.exact, half=args.half, colorspace=args.colorspace,
-        alpha=args.alpha, on_invalid=args.on_invalid, max_memory=_size(args.max_memory),
-        jobs=args.jobs, skip_existing=args.skip_existing, unit=args.unit,
+        alpha=args.alpha, on_invalid=args.on_invalid, max_memory=args.max_memory,
+        jobs=args.jobs, skip_existing=args.skip_existing, unit=args.unit, double=args.double,
         mfp_scale=args.mfp_scale, progress=not args.no_progress, **_method_knobs(args))
     print(report.summary())
+    if stop.exit_code:
+        print(f"interrupted by signal {stop.signum}: finished files kept, unfinished ones not "
+              f"written", file=sys.stderr)
+        return stop.exit_code
     return report.exit_code
+
+
+def _is_number_list(text):
+    try:
+        _floats(text)
+        return True
+    except argparse.ArgumentTypeError:
+        return False
 
 
 def _param(text, what, colour=False):
     """A blur parameter: numbers ('0.8' or 'r,g,b'), else the path of a texture."""
-    try:
+    if _is_number_list(text):
         return _floats(text)
-    except ValueError:
+    else:
         from .blur import read_parameter_texture
         return read_parameter_texture(text, what, colour=colour)
 
 
 def _cmd_blur(args) -> int:
     from .blur import blur_file
-    from .textures import TextureError
-    kw = dict(eta=_floats(args.eta), texel_size=args.texel_size, tol=args.tol,
+    from .textures import Cancelled, TextureError
+    if args.alpha_prime is None and (args.albedo is None or args.mfp is None):
+        print("bdipole-cl blur: error: give --albedo and --mfp (values or textures), or "
+              "--alpha-prime and --sigma-t", file=sys.stderr)
+        return 2
+    if args.alpha_prime is not None and args.sigma_t is None:
+        print("bdipole-cl blur: error: --alpha-prime needs --sigma-t", file=sys.stderr)
+        return 2
+    sources = {name: v for name, v in (("albedo", args.albedo), ("mfp", args.mfp),
+                                       ("alpha", args.alpha_prime), ("sigma_t", args.sigma_t))
+               if v is not None and not _is_number_list(v)}
+    stop = _Stop().install()
+    kw = dict(eta=args.eta, texel_size=args.texel_size, tol=args.tol,
               method=args.method, border=args.border, on_invalid=args.on_invalid,
               exact=args.exact)
     try:
@@ -82,8 +192,11 @@ def _cmd_blur(args) -> int:
         else:
             kw.update(albedo=_param(args.albedo, "albedo", colour=True),
                       mfp=_param(args.mfp, "mfp"))
-        info = blur_file(args.input, args.output, half=args.half,
-                         max_memory=_size(args.max_memory), **kw)
+        info = blur_file(args.input, args.output, half=args.half, sources=sources,
+                         max_memory=args.max_memory, cancel=stop.event, **kw)
+    except Cancelled as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return stop.exit_code or 1
     except TextureError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1
@@ -103,15 +216,15 @@ def _cmd_crosscheck(args) -> int:
             return 2
         try:
             rows = []
-            for eta in _floats(args.eta):
+            for eta in args.eta:
                 rows += check_user_kernel(args.user_kernel, args.function, args.against, eta=eta)
         except (OSError, ValueError) as exc:
             print(f"error: {exc}", file=sys.stderr)
             return 2
     elif args.all_devices:
-        rows = run_all_devices(_floats(args.eta), n=args.n)
+        rows = run_all_devices(args.eta, n=args.n)
     else:
-        rows = run_crosscheck(_floats(args.eta), n=args.n)
+        rows = run_crosscheck(args.eta, n=args.n)
     if not args.all_devices:
         from .device import get_runtime
         print(f"device: {get_runtime().describe()}")
@@ -157,7 +270,7 @@ def _cmd_devices(args) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="bdipole-cl", description=__doc__.split("\n")[0],
         epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--device", metavar="SPEC",
@@ -175,8 +288,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("crosscheck",
                        help="every kernel (or your own OpenCL function) vs the float64 reference")
-    p.add_argument("--eta", default="1.0,1.4,2.5", help="etas to sweep (comma list)")
-    p.add_argument("--n", type=int, default=500, help="points per sweep segment")
+    p.add_argument("--eta", type=_floats, default=(1.0, 1.4, 2.5),
+                   help="etas to sweep (comma list)")
+    p.add_argument("--n", type=_positive_int, default=500, help="points per sweep segment")
     p.add_argument("--user-kernel", help="an OpenCL C file with your function")
     p.add_argument("--function", help="its name (signatures: see bdipole_cl/crosscheck.py)")
     p.add_argument("--all-devices", action="store_true",
@@ -198,24 +312,25 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("blur", help="blur an irradiance map with the Better Dipole profile R(r)")
     p.add_argument("input", help="irradiance image (EXR/TIFF/PNG...)")
     p.add_argument("-o", "--output", required=True, help="output EXR")
-    p.add_argument("--albedo", default="0.8",
+    p.add_argument("--albedo",
                    help="Rd: one value, per channel 'r,g,b', or a texture (texture-varying)")
-    p.add_argument("--mfp", default="1", help="mean free path ld = 1/mu_tr, same unit as "
-                                               "--texel-size; value(s) or a texture")
+    p.add_argument("--mfp", help="mean free path ld = 1/mu_tr, same unit as "
+                                 "--texel-size; value(s) or a texture")
     p.add_argument("--alpha-prime", help="alpha': value(s) or a texture (instead of "
                                          "--albedo/--mfp)")
     p.add_argument("--sigma-t", help="sigma_t', 1/unit: value(s) or a texture (with "
                                      "--alpha-prime)")
-    p.add_argument("--eta", default="1.4")
-    p.add_argument("--texel-size", type=float, default=1.0, help="world size of a texel")
-    p.add_argument("--tol", type=float, default=1e-3, help="energy left out, relative to Rd")
+    p.add_argument("--eta", type=_floats, default=(1.4,), help="one or per channel 'r,g,b'")
+    p.add_argument("--texel-size", type=_positive_float, default=1.0,
+                   help="world size of a texel")
+    p.add_argument("--tol", type=_fraction, default=1e-3, help="energy left out, relative to Rd")
     p.add_argument("--method", default="auto", choices=("auto", "direct", "gaussians", "fft"))
     p.add_argument("--border", default="clamp", choices=("clamp", "zero", "wrap"))
     p.add_argument("--on-invalid", default="raise", choices=("raise", "zero"),
                    help="NaN/Inf irradiance: fail, or treat as unlit")
     p.add_argument("--exact", action="store_true", help="exact Fresnel moments")
     p.add_argument("--half", action="store_true")
-    p.add_argument("--max-memory", default="256M",
+    p.add_argument("--max-memory", type=_size, default="256M",
                    help="host memory for bands of rows (each with a halo of the radius)")
     p.set_defaults(func=_cmd_blur)
 
@@ -228,8 +343,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "path/pattern ({stem}, {dir}, <UDIM>) (default 1)")
     p.add_argument("--unit", default="mm", help="length unit of the mfp (default mm)")
     p.add_argument("--mfp-scale", type=float, default=1.0, help="multiplies mfp values")
-    p.add_argument("--eta", default="1.4", help="relative IOR, one or per channel 'r,g,b'")
-    p.add_argument("--outputs", default="sigma_a,sigma_s",
+    p.add_argument("--eta", type=_floats, default=(1.4,),
+                   help="relative IOR, one or per channel 'r,g,b'")
+    p.add_argument("--outputs", type=_output_list, default="sigma_a,sigma_s",
                    help="comma list from alpha, rho, sigma_a, sigma_s, sigma_t")
     p.add_argument("-o", "--output", default="{dir}/{stem}.bdipole.exr",
                    help="output path pattern: {dir} {stem} {name} {udim} <UDIM>")
@@ -241,29 +357,45 @@ def build_parser() -> argparse.ArgumentParser:
                    help="alpha channel: copied through or dropped (never inverted)")
     p.add_argument("--on-invalid", default="raise", choices=("raise", "clamp"),
                    help="NaN/Inf/>=1 albedo or bad mfp texels: fail the file, or clamp")
-    p.add_argument("--max-memory", default="256M", help="host memory per file (e.g. 512M)")
-    p.add_argument("-j", "--jobs", type=int, default=1, help="files processed at once")
+    p.add_argument("--max-memory", type=_size, default="256M",
+                   help="host memory per file (e.g. 512M)")
+    p.add_argument("-j", "--jobs", type=_positive_int, default=1,
+                   help="files processed at once")
     p.add_argument("--skip-existing", action="store_true",
                    help="skip files whose output is newer than their inputs")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.add_argument("--double", action="store_true",
+                   help="compute in float64 (devices with cl_khr_fp64); written as float/half")
     _add_method_args(p)
     p.set_defaults(func=_cmd_invert)
     return parser
 
 
 def main(argv=None) -> int:
+    """Usage errors (bad options or values) exit 2, failures 1, a signal 128 + its number; each
+    is one line on stderr, with the traceback only under --debug."""
     args = build_parser().parse_args(argv)
     from .device import DeviceError, use_device
+    from .textures import TextureError
     try:
         if args.device:
             use_device(args.device)
         return args.func(args)
-    except DeviceError as exc:
+    except KeyboardInterrupt:
         if args.debug:
             raise
-        # one paragraph, no traceback: which devices failed and what to do
-        print(f"error: {exc}", file=sys.stderr)
-        return 1
+        print("interrupted", file=sys.stderr)
+        return 130
+    except Exception as exc:
+        if args.debug:
+            raise
+        usage = isinstance(exc, ValueError) and not isinstance(exc, TextureError)
+        expected = isinstance(exc, (ValueError, DeviceError, TextureError, OSError))
+        kind = "" if expected else f"{type(exc).__name__}: "
+        hint = "" if expected else " (an unexpected error: rerun with --debug for the traceback)"
+        text = " ".join(str(exc).split()) if not isinstance(exc, DeviceError) else str(exc)
+        print(f"bdipole-cl {args.command}: error: {kind}{text}{hint}", file=sys.stderr)
+        return 2 if usage else 1
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -125,7 +125,7 @@ def _channel_etas(eta, shape):
 AUTO_DEFAULT_TOL = 1e-4
 
 
-def resolve_method(method="table", **knobs) -> MethodConfig:
+def resolve_method(method="table", double=False, **knobs) -> MethodConfig:
     """A MethodConfig from a method name and knobs (None knobs keep the defaults).
 
     ``method="auto"``: the cheapest configuration whose measured max relative error of rho is

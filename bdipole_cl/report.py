@@ -245,7 +245,9 @@ def auto_inversion_config(tol):
             return _parse_config(entry["config"]), entry
     best = min(data["configs"], key=lambda e: e["max_rho_error"])
     raise ValueError(f"tol={tol:g}: no float32 configuration reaches it (best measured: "
-                     f"{best['config']} at {best['max_rho_error']:.2e}); use double=True")
+                     f"{best['config']} at {best['max_rho_error']:.2e}); compute in float64 "
+                     f"with an explicit method instead (double=True, --double on the command "
+                     f"line; e.g. table with polish 2)")
 
 # }}}
 

@@ -47,6 +47,15 @@ class TextureError(RuntimeError):
     """A file that cannot be processed; the message names the file and the reason."""
 
 
+class Cancelled(TextureError):
+    """The batch was stopped (SIGINT/SIGTERM) before this file was complete."""
+
+
+#: what half floats hold: larger finite values become inf, smaller nonzero ones become 0
+HALF_MAX = float(np.finfo(np.float16).max)
+HALF_TINY = float(np.finfo(np.float16).smallest_subnormal)
+
+
 # {{{ file sets
 
 def expand_inputs(patterns):
@@ -74,8 +83,41 @@ def expand_inputs(patterns):
 
 
 def _stem(path):
+    """The file name without its extension: ``diffuse.1001.exr`` -> ``diffuse.1001``, so that
+    the tiles of a UDIM set keep distinct names."""
     name = Path(path).name
-    return name.split(".")[0] if "." in name else name
+    return name.rsplit(".", 1)[0] if "." in name else name
+
+
+def check_output_format(path):
+    """Outputs are OpenEXR: only EXR holds float/half values in any number of named channels
+    (``sigma_a.R``, ...). Any other extension would drop channels or quantise: refused."""
+    suffix = Path(path).suffix.lower()
+    if suffix != ".exr":
+        raise ValueError(f"{path}: output must be an OpenEXR file (.exr), got "
+                           f"'{suffix or 'no extension'}': other formats would drop channels or "
+                           f"quantise the float values")
+
+
+def output_collisions(jobs):
+    """{output: reason} for outputs that two jobs share or that are some job's input: each
+    such job would overwrite another's result or a user's file."""
+    def key(p):
+        return os.path.realpath(p)
+    inputs = {key(p) for j in jobs for p in (j.path, j.mfp_path) if p}
+    writers = {}
+    for j in jobs:
+        writers.setdefault(key(j.output), []).append(j.path)
+    bad = {}
+    for j in jobs:
+        k = key(j.output)
+        if k in inputs:
+            bad[j.output] = f"{j.path}: output {j.output} would overwrite an input"
+        elif len(writers[k]) > 1:
+            others = ", ".join(p for p in writers[k] if p != j.path)
+            bad[j.output] = (f"{j.path}: output {j.output} is also the output of {others}: put "
+                             f"<UDIM>, {{udim}}, {{stem}} or {{name}} in -o so each input has its own")
+    return bad
 
 
 def companion_path(pattern, path, udim):
@@ -95,6 +137,37 @@ def companion_path(pattern, path, udim):
 # }}}
 
 
+# {{{ channels
+
+COLOUR_NAMES = ("r", "g", "b", "y", "red", "green", "blue", "l", "gray", "grey")
+ALPHA_NAMES = ("a", "alpha")
+
+
+def classify_channels(names, alpha_channel=-1):
+    """(colour, alpha, other) channel indices of a file, by name (the part after the last '.',
+    case-insensitive) and the file's declared alpha channel:
+
+    - alpha: the declared alpha channel, else the first named A or alpha;
+    - colour: channels named R, G, B, Y (also red, green, blue, L, gray, grey), in file order;
+    - a file whose channels have none of these names but exactly one non-alpha channel: that
+      channel is grey (a 1-channel file of any name; 2 channels of which one is alpha);
+    - everything else (Z, depth, masks, ...) is other: never inverted, never written.
+
+    So 1 channel is grey; 2 are grey + alpha when one is alpha, else as named (e.g. R and G);
+    4 or more are R, G, B (+ A) with any extra channels left out."""
+    short = [str(n).rsplit(".", 1)[-1].strip().lower() for n in names]
+    alpha = alpha_channel if 0 <= alpha_channel < len(names) else next(
+        (i for i, s in enumerate(short) if s in ALPHA_NAMES), -1)
+    rest = [i for i in range(len(names)) if i != alpha]
+    colour = [i for i in rest if short[i] in COLOUR_NAMES]
+    if not colour and len(rest) == 1:
+        colour = rest
+    other = [i for i in rest if i not in colour]
+    return colour, alpha, other
+
+# }}}
+
+
 # {{{ reading and writing bands
 
 class _Reader:
@@ -102,6 +175,11 @@ class _Reader:
 
     def __init__(self, path, what):
         self.path = path
+        self.inp = None
+        if os.path.isdir(path):
+            raise TextureError(f"{path}: is a directory, not an image ({what})")
+        if not os.path.exists(path):
+            raise TextureError(f"{path}: no such file ({what})")
         self.inp = oiio.ImageInput.open(str(path))
         if self.inp is None:
             raise TextureError(f"{path}: cannot read {what}: {oiio.geterror() or 'unknown error'}")
@@ -109,9 +187,14 @@ class _Reader:
         self.lock = threading.Lock()
 
     def channels(self):
-        """Indices of the colour (non-alpha) channels and of the alpha channel (or -1)."""
-        a = self.spec.alpha_channel
-        return [c for c in range(self.spec.nchannels) if c != a], a
+        """Indices of the colour channels and of the alpha channel (or -1), by
+        ``classify_channels``; a file with no colour channel is a TextureError."""
+        colour, alpha, _ = classify_channels(self.spec.channelnames, self.spec.alpha_channel)
+        if not colour:
+            raise TextureError(f"{self.path}: no colour channel among "
+                               f"{', '.join(self.spec.channelnames)} (colour is R, G, B or Y, "
+                               f"or a single channel that is not alpha)")
+        return colour, alpha
 
     def read_band(self, y0, y1):
         s = self.spec
@@ -237,6 +320,19 @@ def source_colorspace(spec, colorspace="auto"):
     return None if str(colorspace).lower() in _LINEAR_NAMES else colorspace
 
 
+def check_colorspace(colorspace):
+    """A ``colorspace`` option OpenImageIO can decode from (a 1-texel conversion), else
+    ValueError naming the known spaces."""
+    if colorspace == "auto" or str(colorspace).lower() in _LINEAR_NAMES:
+        return
+    try:
+        to_linear(np.full((1, 1, 3), 0.5, np.float32), colorspace)
+    except TextureError:
+        names = ", ".join(oiio.ColorConfig().getColorSpaceNames())
+        raise ValueError(f"colorspace {colorspace!r} is unknown to OpenImageIO; use auto, "
+                         f"linear, sRGB or one of: {names}") from None
+
+
 def to_linear(pixels, colorspace):
     """Decode (rows, width, channels) colour pixels from ``colorspace`` to linear with OIIO."""
     if colorspace is None:
@@ -254,15 +350,37 @@ def to_linear(pixels, colorspace):
 
 # {{{ the batch
 
+def fit_half(block, on_invalid, path, names, x0, y0):
+    """``block`` (rows, width, channels) made safe to store as half floats. A finite value
+    above HALF_MAX would be written as inf, a nonzero one below HALF_TINY/2 as 0: both are
+    invalid, and ``on_invalid`` says what happens ("raise": TextureError naming the first
+    texel; "clamp": clamped into [HALF_TINY, HALF_MAX] with its sign). Returns (block, count)."""
+    with np.errstate(over="ignore"):            # the overflow is what is being detected
+        h = block.astype(np.float16)
+    bad = (np.isfinite(block) & ~np.isfinite(h)) | ((block != 0) & (h == 0))
+    n = int(np.count_nonzero(bad))
+    if n == 0:
+        return block, 0
+    if on_invalid != "clamp":
+        yy, xx, cc = (int(v) for v in np.argwhere(bad)[0])
+        raise TextureError(
+            f"{path}: {n} value(s) outside the half-float range [{HALF_TINY:.3g}, {HALF_MAX:g}]; "
+            f"first at x={x0 + xx}, y={y0 + yy}, channel {names[cc]}: {float(block[yy, xx, cc]):g}"
+            f" (write float instead of half, or clamp with --on-invalid clamp / "
+            f"on_invalid='clamp')")
+    return np.where(bad, np.sign(block) * np.clip(np.abs(block), HALF_TINY, HALF_MAX), block), n
+
+
 @dataclass
 class FileResult:
     path: str
     output: str | None = None
-    status: str = "failed"            # ok | failed | skipped
+    status: str = "failed"            # ok | failed | skipped | cancelled
     error: str | None = None
     texels: int = 0
     seconds: float = 0.0
     invalid: dict = field(default_factory=dict)
+    notes: list = field(default_factory=list)       # e.g. channels left out
 
     @property
     def mtexel_per_s(self):
@@ -275,7 +393,7 @@ class BatchReport:
 
     @property
     def ok(self):
-        return all(r.status != "failed" for r in self.results)
+        return all(r.status in ("ok", "skipped") for r in self.results)
 
     @property
     def exit_code(self):
@@ -286,14 +404,17 @@ class BatchReport:
         for r in self.results:
             inv = ", ".join(f"{k} {v}" for k, v in r.invalid.items() if v) or "0"
             rows.append((r.path, r.status, f"{r.texels}", f"{r.mtexel_per_s:.1f}", inv,
-                         r.error if r.status == "failed" else (r.output or "")))
+                         r.error if r.status in ("failed", "cancelled") else
+                         (r.output or "") + "".join(f" ({n})" for n in r.notes)))
         widths = [max(len(row[i]) for row in rows) for i in range(5)]
         lines = ["  ".join(c.ljust(w) for c, w in zip(row[:5], widths)) + "  " + row[5]
                  for row in rows]
         done = sum(r.status == "ok" for r in self.results)
         failed = sum(r.status == "failed" for r in self.results)
         skipped = sum(r.status == "skipped" for r in self.results)
-        lines.append(f"{done} done, {failed} failed, {skipped} skipped")
+        cancelled = sum(r.status == "cancelled" for r in self.results)
+        lines.append(f"{done} done, {failed} failed, {skipped} skipped"
+                     + (f", {cancelled} cancelled" if cancelled else ""))
         return "\n".join(lines)
 
 
@@ -346,9 +467,11 @@ def _process_file(job, settings, device_lock, progress):
         readers.append(alb)
         colour, alpha_ch = alb.channels()
         ncolor = len(colour)
-        if ncolor == 0:
-            raise TextureError(f"{job.path}: no colour channel (only alpha)")
         spec = alb.spec
+        _, _, other = classify_channels(spec.channelnames, spec.alpha_channel)
+        if other:
+            result.notes.append("not colour, left out: "
+                                + ", ".join(spec.channelnames[c] for c in other))
         names = [spec.channelnames[c] for c in colour]
         etas = _per_channel(settings["eta"], ncolor, "eta", job.path)
         mfp_reader = None
@@ -389,7 +512,7 @@ def _process_file(job, settings, device_lock, progress):
             mapper = CoefficientMapper(tuple(etas), settings["config"], outputs=outputs,
                                        model=settings["model"], exact=settings["exact"],
                                        on_invalid=settings["on_invalid"],
-                                       device=settings["runtime"])
+                                       device=settings["runtime"], double=settings["double"])
         per_texel = 4 * 3 * (spec.nchannels + ncolor * (1 + len(outputs)) + len(out_names))
         rows = _band_rows(spec, per_texel, settings["max_memory"])
         bands = [(y, min(y + rows, spec.height)) for y in range(0, spec.height, rows)]
@@ -419,20 +542,32 @@ def _process_file(job, settings, device_lock, progress):
                     raise TextureError(
                         f"{job.path}: {exc.count} invalid {exc.name} texel(s) ({exc.why}) in "
                         f"rows {y0}..{y1 - 1}; first at x={spec.x + xx}, y={spec.y + y0 + yy}, "
-                        f"channel {names[cc]}: {exc.first_value!r} "
-                        f"(on_invalid='clamp' clamps them)") from None
+                        f"channel {names[cc]}: {float(exc.first_value):g} "
+                        f"(--on-invalid clamp / on_invalid='clamp' clamps them)") from None
                 for key, n in counts.items():
                     result.invalid[key] = result.invalid.get(key, 0) + n
                 parts = [outs[o] for o in outputs]
                 if keep_alpha:
                     parts.append(a[..., alpha_ch:alpha_ch + 1])
-                writer.write_band(y0, y1, np.concatenate(parts, axis=-1))
+                block = np.concatenate(parts, axis=-1)
+                if settings["half"]:
+                    block, n = fit_half(block, settings["on_invalid"], job.path, out_names,
+                                        spec.x, spec.y + y0)
+                    if n:
+                        result.invalid["half range"] = result.invalid.get("half range", 0) + n
+                cancel = settings["cancel"]
+                if cancel is not None and cancel.is_set():
+                    raise Cancelled(f"{job.path}: interrupted; nothing written")
+                writer.write_band(y0, y1, block)
                 if progress is not None:
                     progress.update((y1 - y0) * spec.width)
         writer.commit()
         writer = None
         result.status = "ok"
         result.texels = spec.width * spec.height
+    except Cancelled as exc:
+        result.status = "cancelled"
+        result.error = str(exc)
     except TextureError as exc:
         result.error = str(exc)
     except (OSError, ValueError) as exc:
@@ -458,8 +593,8 @@ def process_textures(inputs, *, mfp=1.0, eta=1.4, output=DEFAULT_OUTPUT,
                      outputs=("sigma_a", "sigma_s"), method="table", model="better",
                      exact=False, half=False, colorspace="auto", alpha="keep",
                      on_invalid="raise", max_memory=256 << 20, jobs=1, skip_existing=False,
-                     unit="mm", mfp_scale=1.0, progress=False, device=None,
-                     **knobs) -> BatchReport:
+                     unit="mm", mfp_scale=1.0, progress=False, device=None, cancel=None,
+                     double=False, **knobs) -> BatchReport:
     """Invert albedo textures into scattering-coefficient EXRs (the ``bdipole-cl invert`` job).
 
     Parameters
@@ -475,8 +610,8 @@ def process_textures(inputs, *, mfp=1.0, eta=1.4, output=DEFAULT_OUTPUT,
         Output path pattern (``{dir}``, ``{stem}``, ``{name}``, ``{udim}``, ``<UDIM>``).
     outputs : sequence of str
         Channel groups to write, from alpha, rho, sigma_a, sigma_s, sigma_t.
-    method, model, exact, **knobs
-        As for ``invert_albedo``.
+    method, model, exact, double, **knobs
+        As for ``invert_albedo`` (``double``: computed in float64; written as float or half).
     half : bool
         Write half floats instead of float.
     colorspace : str
@@ -500,12 +635,17 @@ def process_textures(inputs, *, mfp=1.0, eta=1.4, output=DEFAULT_OUTPUT,
         Show a tqdm progress bar (texels).
     device : None, str, pyopencl.Device or Runtime
         Where to run (``bdipole_cl.device``); every file of the batch uses this one device.
+    cancel : threading.Event or None
+        When set (the CLI sets it on SIGINT/SIGTERM), files stop at their next band: their
+        temporary files are removed, finished files stay, and they are reported "cancelled".
     """
+    check_output_format(output)
+    check_colorspace(colorspace)
     if isinstance(inputs, (str, os.PathLike)):
         inputs = [inputs]
     if alpha not in ("keep", "drop"):
         raise ValueError(f"alpha={alpha!r}: expected 'keep' or 'drop'")
-    config = resolve_method(method, **knobs)
+    config = resolve_method(method, double=double, **knobs)
     if method == "auto" and progress:
         print(f"method='auto': using {config.describe()}")
     settings = dict(eta=tuple(np.atleast_1d(np.asarray(eta, np.float64)).tolist()),
@@ -513,27 +653,33 @@ def process_textures(inputs, *, mfp=1.0, eta=1.4, output=DEFAULT_OUTPUT,
                     config=config, model=model, exact=exact, half=half,
                     colorspace=colorspace, alpha=alpha, on_invalid=on_invalid,
                     max_memory=int(max_memory), outputs=tuple(outputs), unit=unit,
-                    runtime=get_runtime(device))
+                    runtime=get_runtime(device), cancel=cancel, double=bool(double))
     CoefficientMapper((settings["eta"][0],), config, outputs=settings["outputs"], model=model,
                       exact=exact, on_invalid=on_invalid,
                       device=settings["runtime"])  # fail fast on bad settings
     jobs_list, results = [], []
     files = expand_inputs(inputs)
+    unmatched = {p for p, _ in files if UDIM_TOKEN in p or glob.has_magic(p)}
     for path, udim in files:
+        if path in unmatched:
+            results.append(FileResult(path, error=f"{path}: no file matches this pattern"
+                                      + (" (a UDIM is a 4-digit tile number, 1001-9999)"
+                                         if UDIM_TOKEN in path else "")))
+            continue
         try:
             out = companion_path(output, path, udim)
             mfp_path = None if settings["mfp"] is not None else companion_path(mfp, path, udim)
         except TextureError as exc:
             results.append(FileResult(path, error=str(exc)))
             continue
-        if os.path.abspath(out) in (os.path.abspath(path), os.path.abspath(mfp_path or "")):
-            results.append(FileResult(path, out, error=f"{path}: output {out} would overwrite "
-                                                         "an input"))
-            continue
         if skip_existing and os.path.exists(path) and _newer_than_inputs(out, [path, mfp_path]):
             results.append(FileResult(path, out, status="skipped"))
             continue
         jobs_list.append(_Job(path, udim, out, mfp_path))
+    clashes = output_collisions(jobs_list)
+    results += [FileResult(j.path, j.output, error=clashes[j.output])
+                for j in jobs_list if j.output in clashes]
+    jobs_list = [j for j in jobs_list if j.output not in clashes]
     bar = None
     if progress:
         from tqdm import tqdm

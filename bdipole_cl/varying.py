@@ -64,7 +64,12 @@ CHECKS_PER_AXIS = 4         # interpolation checked at up to 4 x 4 points of the
 
 
 class VaryingParameterError(ValueError):
-    """A texel's parameters are invalid (the message names the texel and channel)."""
+    """A texel's parameters are invalid (the message names the texel and channel);
+    ``parameter`` is the parameter's name (albedo, mfp, alpha, sigma_t)."""
+
+    def __init__(self, message, parameter=None):
+        super().__init__(message)
+        self.parameter = parameter
 
 
 def _texture_channel(value, shape, c, name):
@@ -100,7 +105,8 @@ def _checked(value, shape, c, name, rule):
     if bad.any():
         y, x = (int(i) for i in np.argwhere(bad)[0])
         raise VaryingParameterError(f"{int(bad.sum())} texel(s) of {name} outside {rule}; "
-                                    f"first at x={x}, y={y}, channel {c}: {v[y, x]!r}")
+                                    f"first at x={x}, y={y}, channel {c}: {float(v[y, x]):g}",
+                                    parameter=name)
     return v
 
 

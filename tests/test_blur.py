@@ -151,7 +151,8 @@ def test_blur_cli_on_an_exr(tmp_path, capsys):
         np.testing.assert_allclose(banded, blur(e, albedo=(0.8, 0.6, 0.4), mfp=(1, 0.5, 0.25),
                                                 texel_size=0.5, border=border),
                                    rtol=1e-5, atol=1e-6)
-    assert cli_main(["blur", str(tmp_path / "missing.exr"), "-o", str(tmp_path / "x.exr")]) == 1
+    assert cli_main(["blur", str(tmp_path / "missing.exr"), "-o", str(tmp_path / "x.exr"),
+                     "--albedo", "0.8", "--mfp", "1"]) == 1
     assert not (tmp_path / "x.exr").exists()
 
 

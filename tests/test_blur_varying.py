@@ -239,7 +239,8 @@ def test_cli_with_parameter_textures(tmp_path, capsys):
     write_exr(tmp_path / "albedo.exr", albedo.astype(np.float32), ("R", "G", "B"))
     assert cli_main(args[:3] + [str(tmp_path / "bad.exr")] + args[4:]) == 1
     err = capsys.readouterr().err
-    assert "e.exr" in err and "x=7, y=4, channel 1" in err
+    # the parameter texture that holds the bad texel is named, not the irradiance
+    assert "albedo.exr: " in err and "x=7, y=4, channel 1: 1.5" in err
     assert not (tmp_path / "bad.exr").exists()
 
 

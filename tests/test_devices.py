@@ -103,7 +103,8 @@ def test_all_devices_broken_is_one_clear_error(monkeypatch, fresh_default, capsy
         monkeypatch.setitem(device._probes, s.device.int_ptr, ZEN5_POCL)
     assert cli_main(["crosscheck", "--n", "10"]) == 1
     err = capsys.readouterr().err
-    assert err.startswith("error: no working OpenCL device:") and ZEN5_POCL in err
+    assert err.startswith("bdipole-cl crosscheck: error: no working OpenCL device:")
+    assert ZEN5_POCL in err
     assert "Traceback" not in err and "remedies" in err
 
 

@@ -156,7 +156,7 @@ def test_bad_inputs_are_reported_and_the_others_finish(tmp_path, capsys):
     assert rc == 1
     assert (out / "good.exr").exists()
     assert not (out / "nan.exr").exists() and not (out / "corrupt.exr").exists()
-    assert "missing.exr: cannot read albedo" in text
+    assert "missing.exr: no such file (albedo)" in text
     assert "corrupt.exr: cannot read albedo" in text
     assert "x=5, y=9, channel G: nan" in text
     assert "1 done, 3 failed" in text

@@ -1,0 +1,296 @@
+"""Bad inputs to the CLI and the API: each asserts the exit code, the message and the files left.
+
+Usage errors exit 2 and failed files 1, with one line on stderr and no traceback; signals stop
+a batch cleanly (exit 128 + signal). Run in-process where only the exit code and message
+matter, as subprocesses where signals do."""
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import OpenImageIO as oiio
+import pytest
+
+from bdipole_cl.cli import main as cli_main
+from bdipole_cl.textures import process_textures
+
+
+def write_exr(path, pixels, names=None):
+    pixels = np.ascontiguousarray(pixels, np.float32)
+    h, w, c = pixels.shape
+    spec = oiio.ImageSpec(w, h, c, "float")
+    if names:
+        spec.channelnames = tuple(names)
+    out = oiio.ImageOutput.create(str(path))
+    assert out.open(str(path), spec)
+    assert out.write_image(pixels)
+    out.close()
+
+
+def read_exr(path):
+    inp = oiio.ImageInput.open(str(path))
+    assert inp is not None, oiio.geterror()
+    px = inp.read_image(oiio.FLOAT)
+    names = inp.spec().channelnames
+    inp.close()
+    return np.asarray(px), names
+
+
+def albedo(h=8, w=10, value=0.5):
+    return np.full((h, w, 3), value, np.float32)
+
+
+def files_in(d):
+    return sorted(p.name for p in d.rglob("*") if p.is_file())
+
+
+def one_line_error(err):
+    lines = [ln for ln in err.strip().splitlines() if ln.strip()]
+    assert len(lines) == 1 and "Traceback" not in err, err
+    return lines[0]
+
+
+# {{{ outputs never collide, never overwrite an input, never lose channels
+
+def test_udim_tiles_keep_distinct_outputs_with_stem(tmp_path):
+    for tile, v in (("1001", 0.3), ("1002", 0.6)):
+        write_exr(tmp_path / f"diffuse.{tile}.exr", albedo(value=v))
+    out = tmp_path / "out"
+    rep = process_textures(str(tmp_path / "diffuse.<UDIM>.exr"), mfp=1.0,
+                           output=str(out / "{stem}.exr"))
+    assert rep.exit_code == 0, rep.summary()
+    assert files_in(out) == ["diffuse.1001.exr", "diffuse.1002.exr"]
+    a, _ = read_exr(out / "diffuse.1001.exr")
+    b, _ = read_exr(out / "diffuse.1002.exr")
+    assert not np.array_equal(a, b)
+
+
+def test_two_inputs_one_output_fail_both_and_write_nothing(tmp_path, capsys):
+    for name in ("a.exr", "b.exr"):
+        write_exr(tmp_path / name, albedo())
+    out = tmp_path / "out"
+    rc = cli_main(["invert", str(tmp_path / "a.exr"), str(tmp_path / "b.exr"), "--no-progress",
+                   "-o", str(out / "fixed.exr")])
+    text = capsys.readouterr().out
+    assert rc == 1
+    assert text.count("is also the output of") == 2 and "0 done, 2 failed" in text
+    assert not out.exists() or files_in(out) == []
+
+
+def test_output_that_is_another_files_mfp_input_is_refused(tmp_path):
+    write_exr(tmp_path / "a.exr", albedo())
+    write_exr(tmp_path / "a_mfp.exr", np.ones((8, 10, 1), np.float32))
+    before = (tmp_path / "a_mfp.exr").read_bytes()
+    rep = process_textures(str(tmp_path / "a.exr"), mfp=str(tmp_path / "{stem}_mfp.exr"),
+                           output=str(tmp_path / "{stem}_mfp.exr"))
+    assert rep.exit_code == 1 and "would overwrite an input" in rep.results[0].error
+    assert (tmp_path / "a_mfp.exr").read_bytes() == before
+
+
+@pytest.mark.parametrize("suffix", [".jpg", ".png", ".tif", ""])
+def test_formats_that_cannot_hold_the_result_are_refused(tmp_path, capsys, suffix):
+    write_exr(tmp_path / "a.exr", albedo())
+    rc = cli_main(["invert", str(tmp_path / "a.exr"), "--no-progress",
+                   "-o", str(tmp_path / f"out{suffix}")])
+    line = one_line_error(capsys.readouterr().err)
+    assert rc == 2 and "output must be an OpenEXR file (.exr)" in line
+    assert files_in(tmp_path) == ["a.exr"]
+
+
+def test_blur_output_equal_to_its_input_is_refused(tmp_path, capsys):
+    path = tmp_path / "irr.exr"
+    write_exr(path, np.ones((8, 8, 3), np.float32))
+    before = path.read_bytes()
+    rc = cli_main(["blur", str(path), "--albedo", "0.5", "--mfp", "1", "-o", str(path)])
+    line = one_line_error(capsys.readouterr().err)
+    assert rc == 2 and "would overwrite the input" in line
+    assert path.read_bytes() == before and files_in(tmp_path) == ["irr.exr"]
+
+
+def test_blur_output_equal_to_a_parameter_texture_is_refused(tmp_path, capsys):
+    write_exr(tmp_path / "irr.exr", np.ones((8, 8, 3), np.float32))
+    write_exr(tmp_path / "alb.exr", np.full((8, 8, 3), 0.5, np.float32))
+    before = (tmp_path / "alb.exr").read_bytes()
+    rc = cli_main(["blur", str(tmp_path / "irr.exr"), "--albedo", str(tmp_path / "alb.exr"),
+                   "--mfp", "1", "-o", str(tmp_path / "alb.exr")])
+    assert rc == 2 and "would overwrite the input" in capsys.readouterr().err
+    assert (tmp_path / "alb.exr").read_bytes() == before
+
+# }}}
+
+
+# {{{ half floats: values out of range are invalid, never written as "ok"
+
+def test_half_overflow_fails_the_file_naming_the_texel(tmp_path, capsys):
+    write_exr(tmp_path / "a.exr", albedo())
+    out = tmp_path / "out"
+    rc = cli_main(["invert", str(tmp_path / "a.exr"), "--mfp", "1e-6", "--half",
+                   "--no-progress", "-o", str(out / "{stem}.exr")])
+    text = capsys.readouterr().out
+    assert rc == 1
+    assert "outside the half-float range" in text and "x=0, y=0" in text
+    assert "--on-invalid clamp" in text
+    assert not out.exists() or files_in(out) == []
+
+
+def test_half_overflow_clamped_and_counted(tmp_path):
+    write_exr(tmp_path / "a.exr", albedo())
+    rep = process_textures(str(tmp_path / "a.exr"), mfp=1e-6, half=True, on_invalid="clamp",
+                           output=str(tmp_path / "out" / "{stem}.exr"))
+    r = rep.results[0]
+    assert rep.exit_code == 0 and r.invalid["half range"] > 0, rep.summary()
+    px, _ = read_exr(r.output)
+    assert np.all(np.isfinite(px)) and np.all(px > 0)
+    assert "half range" in rep.summary()
+
+
+def test_half_in_range_is_unchanged(tmp_path):
+    write_exr(tmp_path / "a.exr", albedo())
+    rep = process_textures(str(tmp_path / "a.exr"), mfp=1.0, half=True,
+                           output=str(tmp_path / "out" / "{stem}.exr"))
+    assert rep.exit_code == 0 and not rep.results[0].invalid.get("half range")
+
+# }}}
+
+
+# {{{ usage errors: exit 2, one line, no traceback
+
+USAGE = [
+    (["invert", "X", "--eta", "abc"], "argument --eta: 'abc': expected a number"),
+    (["invert", "X", "--colorspace", "bogus"], "colorspace 'bogus' is unknown to OpenImageIO"),
+    (["blur", "X", "--albedo", "0.5", "--mfp", "1", "--tol", "2", "-o", "y.exr"],
+     "argument --tol: '2': expected a number in (0, 1)"),
+    (["blur", "X", "--albedo", "0.5", "--mfp", "1", "--texel-size", "-1", "-o", "y.exr"],
+     "argument --texel-size: '-1': expected a number > 0"),
+    (["invert", "X", "--outputs", "sigma_a,sigmas"], "sigmas not allowed; choose from"),
+    (["invert", "X", "--max-memory", "12Q"], "'12Q': expected a size such as 512M"),
+    (["invert", "X", "--jobs", "0"], "'0': expected a whole number >= 1"),
+    (["crosscheck", "--n", "0"], "'0': expected a whole number >= 1"),
+    (["invert", "X", "--method", "auto", "--tol", "1e-9"], "--double on the command line"),
+    (["blur", "X", "-o", "y.exr"], "give --albedo and --mfp"),
+    (["blur", "X", "--alpha-prime", "0.9", "-o", "y.exr"], "--alpha-prime needs --sigma-t"),
+]
+
+
+@pytest.mark.parametrize("argv, message", USAGE, ids=[" ".join(a[:3]) for a, _ in USAGE])
+def test_usage_errors_are_one_line_with_exit_2(argv, message, capsys, tmp_path):
+    argv = [str(tmp_path / "in.exr") if a == "X" else a for a in argv]
+    try:
+        rc = cli_main(argv)
+    except SystemExit as exc:          # argparse's own usage errors
+        rc = exc.code
+    line = one_line_error(capsys.readouterr().err)
+    assert rc == 2 and message in line, line
+    assert files_in(tmp_path) == []
+
+
+def test_eta_out_of_range_is_a_usage_error(tmp_path, capsys):
+    write_exr(tmp_path / "a.exr", albedo())
+    rc = cli_main(["invert", str(tmp_path / "a.exr"), "--eta", "10", "--no-progress"])
+    line = one_line_error(capsys.readouterr().err)
+    assert rc == 2 and "eta" in line and "10" in line
+
+# }}}
+
+
+# {{{ signals: stop cleanly, keep finished files, remove temporaries, exit 128 + signal
+
+def _slow_batch(tmp_path, n=3):
+    """Files big enough, in bands small enough, that a signal lands mid-batch."""
+    for i in range(n):
+        write_exr(tmp_path / f"t{i}.exr", np.random.default_rng(i).uniform(
+            0.05, 0.9, (256, 512, 3)).astype(np.float32))
+    return [sys.executable, "-m", "bdipole_cl.cli", "invert", str(tmp_path / "t*.exr"),
+            "--max-memory", "64K", "--no-progress", "-o", str(tmp_path / "out" / "{stem}.exr")]
+
+
+@pytest.mark.parametrize("sig, code", [(signal.SIGTERM, 143), (signal.SIGINT, 130)],
+                         ids=["SIGTERM", "SIGINT"])
+def test_signal_stops_the_batch_cleanly(tmp_path, sig, code):
+    argv = _slow_batch(tmp_path)
+    proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    out_dir = tmp_path / "out"
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and proc.poll() is None:
+        if out_dir.exists() and any(".partial-" in p for p in os.listdir(out_dir)):
+            break
+        time.sleep(0.01)
+    assert proc.poll() is None, "the batch ended before a signal could be sent"
+    proc.send_signal(sig)
+    stdout, stderr = proc.communicate(timeout=120)
+    assert proc.returncode == code, (stdout, stderr)
+    assert "Traceback" not in stderr and "interrupted by signal" in stderr
+    assert "cancelled" in stdout                      # the summary is printed
+    left = os.listdir(out_dir)
+    assert not [p for p in left if ".partial-" in p], left
+    for name in left:                                 # finished files are complete
+        px, names = read_exr(out_dir / name)
+        assert px.shape == (256, 512, 6) and np.all(np.isfinite(px))
+
+# }}}
+
+
+# {{{ channels, parameter textures, unclear messages
+
+def test_only_colour_channels_are_inverted(tmp_path):
+    px = np.concatenate([albedo(), np.ones((8, 10, 1)), np.full((8, 10, 1), 7.0)], axis=-1)
+    write_exr(tmp_path / "rgbaz.exr", px, names=["R", "G", "B", "A", "Z"])
+    rep = process_textures(str(tmp_path / "rgbaz.exr"), mfp=1.0,
+                           output=str(tmp_path / "out" / "{stem}.exr"))
+    assert rep.exit_code == 0, rep.summary()
+    _, names = read_exr(rep.results[0].output)
+    assert not any(n.endswith(".Z") or n.endswith(".A") for n in names), names
+    assert "A" in names and "not colour, left out: Z" in rep.summary()
+
+
+def test_grey_plus_alpha_is_one_colour(tmp_path):
+    px = np.concatenate([np.full((8, 10, 1), 0.4), np.ones((8, 10, 1))], axis=-1)
+    write_exr(tmp_path / "ya.exr", px, names=["Y", "A"])
+    rep = process_textures(str(tmp_path / "ya.exr"), mfp=1.0,
+                           output=str(tmp_path / "out" / "{stem}.exr"))
+    _, names = read_exr(rep.results[0].output)
+    assert sorted(names) == ["A", "sigma_a.Y", "sigma_s.Y"], names   # EXR sorts channels
+
+
+def test_bad_parameter_texture_is_named_with_its_texel(tmp_path, capsys):
+    write_exr(tmp_path / "irr.exr", np.ones((8, 8, 3), np.float32))
+    alb = np.full((8, 8, 3), 0.5, np.float32)
+    alb[3, 5, 1] = 1.0
+    write_exr(tmp_path / "alb.exr", alb)
+    rc = cli_main(["blur", str(tmp_path / "irr.exr"), "--albedo", str(tmp_path / "alb.exr"),
+                   "--mfp", "1", "-o", str(tmp_path / "out.exr")])
+    line = one_line_error(capsys.readouterr().err)
+    assert rc == 1 and line.startswith(f"error: {tmp_path / 'alb.exr'}:")
+    assert "x=5, y=3, channel 1: 1" in line and "np.float32" not in line
+    assert not (tmp_path / "out.exr").exists()
+
+
+def test_directory_as_input_is_named_clearly(tmp_path):
+    (tmp_path / "dir.exr").mkdir()
+    rep = process_textures(str(tmp_path / "dir.exr"), mfp=1.0,
+                           output=str(tmp_path / "out" / "{stem}.x.exr"))
+    assert rep.exit_code == 1 and "is a directory" in rep.results[0].error
+
+
+def test_udim_pattern_matching_nothing_says_so(tmp_path):
+    rep = process_textures(str(tmp_path / "none.<UDIM>.exr"), mfp=1.0,
+                           output=str(tmp_path / "out" / "{stem}.exr"))
+    assert rep.exit_code == 1 and "no file matches" in rep.results[0].error
+
+
+def test_demo_in_an_unwritable_place_is_one_line(tmp_path, capsys):
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    rc = cli_main(["demo", "--dir", str(blocker / "sub"), "--no-progress"])
+    line = one_line_error(capsys.readouterr().err)
+    assert rc == 1 and str(blocker) in line
+
+
+def test_blur_of_an_empty_array_is_a_clear_error():
+    from bdipole_cl.blur import blur
+    with pytest.raises(ValueError, match="irradiance is empty"):
+        blur(np.zeros((0, 0, 3), np.float32), albedo=0.5, mfp=1.0)
+
+# }}}

@@ -1,7 +1,7 @@
 // bdipole.h -- Better Dipole physics shared by every bdipole_cl kernel.
 //
 // The one OpenCL source of truth for the model; the float64 NumPy twin of every function here is
-// in bdipole_cl/reference.py (same names without the bd_ prefix), and tests/ compare the two.
+// in bdipole_cl/physics/reference.py (same names without the bd_ prefix), and tests/ compare the two.
 // Sources: d'Eon, "A better dipole" (2012); Hery, Pixar Tech Memo 12-11 (eqs. 1-4);
 // Jensen et al. 2001 for the classical dipole (BD_MODEL_DIPOLE).
 //
@@ -10,7 +10,7 @@
 //   -DBD_DOUBLE         compute and store in double (needs cl_khr_fp64), else float
 //   -DBD_MODEL_DIPOLE   Jensen's dipole, Rd = a/2 (1 + e^{-4/3 A s}) e^{-s}, s = sqrt(3 rho)
 // Per-channel boundary constants (Cphi, Ce, A and the inversion's split point) come from a small
-// __constant array built on the host from eta (bdipole_cl/device.py: channel_params), so one
+// __constant array built on the host from eta (bdipole_cl/device/layout.py: channel_params), so one
 // compiled program serves every eta and every channel.
 
 // {{{ precision
@@ -31,19 +31,9 @@ typedef float real;
 
 // {{{ per-channel constants
 
-// Layout of one channel's record in the params array (BD_PARAM_STRIDE reals per channel).
-#define BD_P_CPHI 0      // Cphi = (1 - 2 C1)/4
-#define BD_P_CE 1        // Ce   = (1 - 3 C2)/2
-#define BD_P_A 2         // A    = (1 + 3 C2)/(1 - 2 C1)   (Jensen: (1 + Fdr)/(1 - Fdr))
-#define BD_P_RD_SPLIT 3  // Rd(alpha' = 1/2): below it the solvers work in alpha', above in q
-#define BD_P_X_SPLIT 4   // Rd_split^(1/n): the lower residual at the split
-#define BD_P_G_SPLIT 5   // -log Rd_split: the upper residual at the split
-#define BD_P_SCALE0 6    // table segment 0: intervals per unit of Rd^(1/n) on [0, x_split]
-#define BD_P_SCALE1 7    // table segment 1: intervals per unit of Rd^(1/n) on [x_split, 2^(-1/n)]
-#define BD_P_SCALE2 8    // table segment 2: intervals per unit of 1 - Rd on [0, 1/2]
-#define BD_P_SLOPE0 9    // F'(0) = exp(K(1)/n) = min of F(a)/a on the lower half
-#define BD_PARAM_STRIDE 12
-
+// One channel's record in the params array: BD_PARAM_STRIDE reals, field BD_P_<NAME> at its
+// index. Both are generated from bdipole_cl/device/layout.py (PARAM_FIELDS) and joined in front
+// of this header by the host, so host and kernels share one definition.
 typedef struct {
     real cphi, ce, a_coef, rd_split, x_split, g_split, scale0, scale1, scale2, slope0;
 } bd_params;
@@ -285,7 +275,7 @@ inline real bd_profile_total(bd_geometry g)
     return bd_profile_tail(BD_LIT(0.0), g);
 }
 
-// Energy within radius r: 2 pi Int_0^r R(s) s ds (closed form, SPEC.md); -> Rd as r -> inf.
+// Energy within radius r: 2 pi Int_0^r R(s) s ds (closed form, docs/model.md); -> Rd as r -> inf.
 // Summed directly while the tail holds at least half the energy; past that as total - tail,
 // because the two sources' Cphi terms cancel at large r when mu_tr is small (alpha' -> 1).
 inline real bd_profile_cdf(real r, bd_geometry g)
@@ -304,9 +294,9 @@ inline real bd_profile_cdf(real r, bd_geometry g)
 inline int bd_border(int i, int n)
 {
     if (i >= 0 && i < n) return i;
-#if defined(BORDER_ZERO)
+#if defined(BD_BORDER_ZERO)
     return -1;
-#elif defined(BORDER_WRAP)
+#elif defined(BD_BORDER_WRAP)
     int m = i % n;
     return m < 0 ? m + n : m;
 #else

@@ -1,37 +1,37 @@
 // blur_direct.cl -- M(x) = sum_cells E(cell) W(cell - x): a 2D gather with the texel-integrated
-// Better Dipole weights of one channel (bdipole_cl/blur.py: profile_weights). Needs bdipole.h
-// in front; border mode by -DBORDER_{CLAMP,ZERO,WRAP}.
+// Better Dipole weights of one channel (bdipole_cl/ops/blur/weights.py: channel_kernel). Needs bdipole.h
+// in front; border mode by -DBD_BORDER_{CLAMP,ZERO,WRAP}.
 //
-// Work-groups of TILE x TILE outputs stage their (TILE + 2K)^2 input footprint in local memory
-// in chunks of CHUNK rows of taps, so each input texel is read from global memory once per
+// Work-groups of BD_TILE x BD_TILE outputs stage their (BD_TILE + 2K)^2 input footprint in local memory
+// in chunks of BD_CHUNK rows of taps, so each input texel is read from global memory once per
 // work-group and chunk instead of once per tap.
 
-#ifndef TILE
-#define TILE 16
+#ifndef BD_TILE
+#define BD_TILE 16
 #endif
-#ifndef CHUNK
-#define CHUNK 16
+#ifndef BD_CHUNK
+#define BD_CHUNK 16
 #endif
 
-__kernel __attribute__((reqd_work_group_size(TILE, TILE, 1)))
+__kernel __attribute__((reqd_work_group_size(BD_TILE, BD_TILE, 1)))
 void blur_direct(__global const float *src, __global float *dst, __global const float *weights,
                  const int width, const int height, const int nchan, const int channel,
                  const int radius)
 {
-    __local float tile[(TILE + 2 * CHUNK) * (TILE + 2 * CHUNK)];
+    __local float tile[(BD_TILE + 2 * BD_CHUNK) * (BD_TILE + 2 * BD_CHUNK)];
     const int lx = get_local_id(0), ly = get_local_id(1);
     const int x = get_global_id(0), y = get_global_id(1);
-    const int x0 = get_group_id(0) * TILE, y0 = get_group_id(1) * TILE;
+    const int x0 = get_group_id(0) * BD_TILE, y0 = get_group_id(1) * BD_TILE;
     const int side = 2 * radius + 1;
-    const int span = TILE + 2 * CHUNK;
+    const int span = BD_TILE + 2 * BD_CHUNK;
     float acc = 0.0f;
-    // the (2K+1)^2 taps in blocks of (2 CHUNK + 1)^2 centred offsets (cx, cy)
-    for (int cy = -radius; cy <= radius; cy += 2 * CHUNK + 1) {
-        for (int cx = -radius; cx <= radius; cx += 2 * CHUNK + 1) {
+    // the (2K+1)^2 taps in blocks of (2 BD_CHUNK + 1)^2 centred offsets (cx, cy)
+    for (int cy = -radius; cy <= radius; cy += 2 * BD_CHUNK + 1) {
+        for (int cx = -radius; cx <= radius; cx += 2 * BD_CHUNK + 1) {
             // stage this block's inputs: rows y0 + cy + [0, span), columns x0 + cx + [0, span)
             barrier(CLK_LOCAL_MEM_FENCE);
-            for (int j = ly; j < span; j += TILE) {
-                for (int i = lx; i < span; i += TILE) {
+            for (int j = ly; j < span; j += BD_TILE) {
+                for (int i = lx; i < span; i += BD_TILE) {
                     int gy = bd_border(y0 + cy + j, height);
                     int gx = bd_border(x0 + cx + i, width);
                     tile[j * span + i] = (gx < 0 || gy < 0) ? 0.0f
@@ -39,12 +39,12 @@ void blur_direct(__global const float *src, __global float *dst, __global const 
                 }
             }
             barrier(CLK_LOCAL_MEM_FENCE);
-            for (int dy = 0; dy <= 2 * CHUNK; ++dy) {
+            for (int dy = 0; dy <= 2 * BD_CHUNK; ++dy) {
                 int oy = cy + dy;                    // tap offset in y
                 if (oy > radius) break;
                 __global const float *wrow = weights + (oy + radius) * side + radius;
                 __local const float *trow = tile + (ly + dy) * span + lx;
-                for (int dx = 0; dx <= 2 * CHUNK; ++dx) {
+                for (int dx = 0; dx <= 2 * BD_CHUNK; ++dx) {
                     int ox = cx + dx;
                     if (ox > radius) break;
                     acc += wrow[ox] * trow[dx];

@@ -1,10 +1,10 @@
 // blur_separable.cl -- one separable Gaussian of the sum-of-Gaussians blur
-// (bdipole_cl/blur.py: fit_gaussians): rows then columns with the same texel-integrated 1D
+// (bdipole_cl/ops/blur/fit.py: fit_gaussians): rows then columns with the same texel-integrated 1D
 // weights g[-K..K], the column pass adding weight * result into the output channel.
-// Needs bdipole.h in front; border mode by -DBORDER_{CLAMP,ZERO,WRAP}. -DPER_TEXEL_WEIGHT: the
-// column pass's weight is a per-texel plane (H x W, texture-varying parameters: varying.py).
+// Needs bdipole.h in front; border mode by -DBD_BORDER_{CLAMP,ZERO,WRAP}. -DPER_TEXEL_WEIGHT: the
+// column pass's weight is a per-texel plane (H x W, texture-varying parameters: bdipole_cl/ops/blur/textured.py).
 
-#ifdef PER_TEXEL_WEIGHT
+#ifdef BD_PER_TEXEL_WEIGHT
 #define WEIGHT_PARAM __global const float *weight
 #define WEIGHT_AT(p) weight[p]
 #else

@@ -1,4 +1,4 @@
-// blur_varying.cl -- texture-varying blur parameters (bdipole_cl/varying.py): per-texel weights
+// blur_varying.cl -- texture-varying blur parameters (bdipole_cl/ops/blur/textured.py): per-texel weights
 // of the shared basis, w_j(x) = sum_{a,b = 0,1} lu[a] lv[b] table[iu + a][iv + b][j], the
 // bilinear interpolation (2 nodes per axis) of the fine weight table (varying.fine_table: the
 // node weights' cubic interpolation, REFINE points per lattice step) at the texel's fine-table
@@ -8,19 +8,19 @@
 // Specialized by -DNBASIS=G (basis size), -DNU_TAPS, -DNV_TAPS (2, or 1 for a constant axis),
 // so the loops unroll.
 
-#ifndef NBASIS
+#ifndef BD_NBASIS
 #error "build with -DNBASIS=<basis size>"
 #endif
-#ifndef NU_TAPS
-#define NU_TAPS 2
+#ifndef BD_NU_TAPS
+#define BD_NU_TAPS 2
 #endif
-#ifndef NV_TAPS
-#define NV_TAPS 2
+#ifndef BD_NV_TAPS
+#define BD_NV_TAPS 2
 #endif
 
 // offset (floats) of the second node along v: 0 on a constant axis, whose second "node" is
 // the first with weight 0 (so every read stays in the table)
-#define DV ((NV_TAPS == 2) ? NBASIS : 0)
+#define DV ((BD_NV_TAPS == 2) ? BD_NBASIS : 0)
 
 // a texel's bilinear taps: the offset of its first node (iu, iv) in the table, the offset du
 // of the second node along u (0 on a constant axis, as DV), and the tap weights of nodes
@@ -45,11 +45,11 @@ inline int axis_base(const float coord, const int nodes, const int ntaps, float 
 inline taps_t texel_taps(const float cu, const float cv, const int nu, const int nv)
 {
     float fu, fv;
-    const int iu = axis_base(cu, nu, NU_TAPS, &fu);
-    const int iv = axis_base(cv, nv, NV_TAPS, &fv);
+    const int iu = axis_base(cu, nu, BD_NU_TAPS, &fu);
+    const int iv = axis_base(cv, nv, BD_NV_TAPS, &fv);
     taps_t r;
-    r.node = (iu * nv + iv) * NBASIS;
-    r.du = (NU_TAPS == 2) ? nv * NBASIS : 0;
+    r.node = (iu * nv + iv) * BD_NBASIS;
+    r.du = (BD_NU_TAPS == 2) ? nv * BD_NBASIS : 0;
     r.t00 = (1.0f - fu) * (1.0f - fv);
     r.t01 = (1.0f - fu) * fv;
     r.t10 = fu * (1.0f - fv);
@@ -74,7 +74,7 @@ __kernel void lattice_weights(__global const float *rd, __global const float *cu
     if (p >= npix) return;
     const taps_t tp = texel_taps(cu[p], cv[p], nu, nv);
     const float scale = rd[p];
-    for (int j = 0; j < NBASIS; ++j)
+    for (int j = 0; j < BD_NBASIS; ++j)
         w[(size_t)j * npix + p] = scale * texel_weight(table, tp, j);
 }
 
@@ -93,7 +93,7 @@ __kernel void gather_exitance(__global const float *rd, __global const float *cu
     const taps_t tp = texel_taps(cu[p], cv[p], nu, nv);
     __global const float *blurred = planes + (size_t)y * pitch + x0 + x;
     float sum = 0.0f;
-    for (int j = 0; j < NBASIS; ++j)
+    for (int j = 0; j < BD_NBASIS; ++j)
         sum += texel_weight(table, tp, j) * blurred[(size_t)j * plane];
     out[p * nch + c] = rd[p] * sum;
 }

@@ -1,28 +1,30 @@
 // invert.cl -- albedo Rd -> (alpha', rho = 1 - alpha'), and optionally (sigma_a, sigma_s').
 //
 // Needs bdipole.h in front. One kernel; the method is chosen by build options:
-//   -DMETHOD_MEMO       Hery TM 12-11's float bisection in alpha' verbatim (baseline);
-//                       -DITERATIONS=n (memo: 50)
-//   -DMETHOD_BISECTION  bisection in the split variables; -DITERATIONS=n
-//   -DMETHOD_SECANT     safeguarded secant in the split variables, seeded (value and slope)
-//                       from a coarse table; -DITERATIONS=max evaluations, -DTOL=relative,
-//                       -DTABLE_N=seed intervals per segment
-//   -DMETHOD_TABLE      cubic Hermite table of the inverse, -DTABLE_N intervals per segment,
-//                       -DPOLISH=Newton steps on the split residual afterwards
+//   -DBD_METHOD_MEMO       Hery TM 12-11's float bisection in alpha' verbatim (baseline);
+//                          -DBD_ITERATIONS=n (memo: 50)
+//   -DBD_METHOD_BISECTION  bisection in the split variables; -DBD_ITERATIONS=n
+//   -DBD_METHOD_SECANT     safeguarded secant in the split variables, seeded (value and slope)
+//                          from a coarse table; -DBD_ITERATIONS=max evaluations,
+//                          -DBD_TOL=relative, -DBD_TABLE_N=seed intervals per segment
+//   -DBD_METHOD_TABLE      cubic Hermite table of the inverse, -DBD_TABLE_N intervals per
+//                          segment, -DBD_POLISH=Newton steps on the split residual afterwards
+// (bdipole_cl/methods/registry.py: MethodConfig.defines writes these)
 //
-// Split variables (reference.py): below Rd_split = Rd(alpha' = 1/2) the unknown is alpha' with
+// Split variables (docs/model.md): below Rd_split = Rd(alpha' = 1/2) the unknown is alpha' with
 // residual F(a) = Rd^(1/n); above it the unknown is q = sqrt(rho) with residual G(q) = -log Rd.
 // Both are increasing and nearly linear, so rho never comes from 1 - alpha' near alpha' = 1.
 //
-// The table has three segments, each TABLE_N intervals, each analytic in its variable and none
+// The table has three segments, each BD_TABLE_N intervals, each analytic in its variable and none
 // needing a log of the input:
 //   segment 0: x = Rd^(1/n) in [0, x_split]          -> alpha'
 //   segment 1: x = Rd^(1/n) in [x_split, 2^(-1/n)]   -> q     (Rd in [Rd_split, 1/2))
 //   segment 2: x = 1 - Rd  in [0, 1/2] (exact)       -> q     (Rd in [1/2, 1))
 // Each interval holds the cubic's coefficients in u in [0, 1): v = c.x + u (c.y + u (c.z + u c.w)).
 
-#define LOWER_HI BD_LIT(0.5)                  // alpha' at the split
-#define UPPER_HI BD_LIT(0.70710678118654752)  // q = sqrt(1/2) at the split
+// The split (generated from reference.ALPHA_SPLIT, bdipole_cl/device/layout.py)
+#define LOWER_HI BD_ALPHA_SPLIT               // alpha' at the split
+#define UPPER_HI BD_Q_SPLIT                   // q = sqrt(1 - alpha') at the split
 
 // Residual of the chosen half (0: F(alpha'), 1: G(q)) and its derivative.
 inline real half_residual(int upper, real v, bd_params p, real *df)
@@ -30,13 +32,13 @@ inline real half_residual(int upper, real v, bd_params p, real *df)
     return upper ? bd_upper_residual(v, p, df) : bd_lower_residual(v, p, df);
 }
 
-#if defined(METHOD_TABLE) || defined(METHOD_SECANT)
+#if defined(BD_METHOD_TABLE) || defined(BD_METHOD_SECANT)
 // Table lookup: the segment's value v and dv/dx (x the segment's variable).
 inline real table_value(__global const float4 *table, int seg, real t, real scale, real *dvdx)
 {
-    int i = clamp((int)t, 0, TABLE_N - 1);
+    int i = clamp((int)t, 0, BD_TABLE_N - 1);
     real u = t - (real)i;
-    float4 c = table[seg * TABLE_N + i];
+    float4 c = table[seg * BD_TABLE_N + i];
     *dvdx = scale * ((real)c.y + u * (BD_LIT(2.0) * (real)c.z + u * BD_LIT(3.0) * (real)c.w));
     return (real)c.x + u * ((real)c.y + u * ((real)c.z + u * (real)c.w));
 }
@@ -61,7 +63,7 @@ inline real table_guess(real rd, real x, bd_params p, __global const float4 *tab
 }
 #endif
 
-#if defined(METHOD_BISECTION)
+#if defined(BD_METHOD_BISECTION)
 // On the lower half F(a)/a = exp(K/n) increases from F'(0) to F(1/2)/(1/2) = 2 x_split, so the
 // root lies in [target/(2 x_split), target/F'(0)]: a bracket relative to the root, which keeps
 // full relative precision down to denormal albedos (a bracket [0, 1/2] would stop at 2^-51).
@@ -70,18 +72,18 @@ inline real solve_half(int upper, real target, real rd, real x, bd_params p,
 {
     real lo = upper ? BD_LIT(0.0) : target / (BD_LIT(2.0) * p.x_split);
     real hi = upper ? UPPER_HI : fmin(LOWER_HI, target / p.slope0), df;
-    for (int i = 0; i < ITERATIONS; ++i) {
+    for (int i = 0; i < BD_ITERATIONS; ++i) {
         real mid = BD_LIT(0.5) * (lo + hi);
         if (half_residual(upper, mid, p, &df) < target) lo = mid; else hi = mid;
     }
     return BD_LIT(0.5) * (lo + hi);
 }
-#elif defined(METHOD_SECANT)
+#elif defined(BD_METHOD_SECANT)
 // Secant steps on the last two iterates, the first step using the seed table's slope. Every
 // evaluation shrinks the bracket [lo, hi] (known residuals at both ends: F(0) = 0 and the
 // split values from the host), and a step that would leave it is replaced by the midpoint, so
-// the method never leaves [0, 1] and never stalls. Stops when |residual| <= TOL * target: a
-// relative error of ~TOL in the unknown, since both residuals are ~ linear through 0.
+// the method never leaves [0, 1] and never stalls. Stops when |residual| <= BD_TOL * target: a
+// relative error of ~BD_TOL in the unknown, since both residuals are ~ linear through 0.
 inline real solve_half(int upper, real target, real rd, real x, bd_params p,
                        __global const float4 *table)
 {
@@ -89,9 +91,9 @@ inline real solve_half(int upper, real target, real rd, real x, bd_params p,
     real slope;
     real v = clamp(table_guess(rd, x, p, table, &slope), lo, hi);
     real v_prev = v, f_prev = BD_LIT(0.0);
-    for (int i = 0; i < ITERATIONS; ++i) {
+    for (int i = 0; i < BD_ITERATIONS; ++i) {
         real f = half_residual(upper, v, p, &df) - target;
-        if (fabs(f) <= (real)TOL * target) break;
+        if (fabs(f) <= (real)BD_TOL * target) break;
         if (f < BD_LIT(0.0)) lo = v; else hi = v;
         if (i > 0 && f != f_prev) slope = (f - f_prev) / (v - v_prev);
         v_prev = v;
@@ -103,27 +105,27 @@ inline real solve_half(int upper, real target, real rd, real x, bd_params p,
 }
 #endif
 
-#if defined(METHOD_MEMO)
+#if defined(BD_METHOD_MEMO)
 inline void invert_one(real rd, bd_params p, __global const float4 *table, real *alpha, real *rho)
 {
     real x0 = BD_LIT(0.0), x1 = BD_LIT(1.0), xmid = BD_LIT(0.5);
-    for (int i = 0; i < ITERATIONS; ++i) {
+    for (int i = 0; i < BD_ITERATIONS; ++i) {
         xmid = BD_LIT(0.5) * (x0 + x1);
         if (bd_rd_memo(xmid, p) < rd) x0 = xmid; else x1 = xmid;
     }
     *alpha = xmid;
     *rho = BD_LIT(1.0) - xmid;
 }
-#elif defined(METHOD_TABLE)
-#if POLISH > 0
-// POLISH Newton steps on one half's residual, kept inside that half's domain [0, hi]. Each half
+#elif defined(BD_METHOD_TABLE)
+#if BD_POLISH > 0
+// BD_POLISH Newton steps on one half's residual, kept inside that half's domain [0, hi]. Each half
 // has its own call with a constant bound: a per-lane `upper ? UPPER_HI : LOWER_HI` bound inside
 // the loop was vectorised wrongly by Intel's CPU runtime (upper lanes clamped to 1/2 whenever a
 // vector also held lower lanes), which PoCL did not show.
 inline real polish_half(int upper, real v, real target, real hi, bd_params p)
 {
     real df;
-    for (int k = 0; k < POLISH; ++k) {
+    for (int k = 0; k < BD_POLISH; ++k) {
         real f = half_residual(upper, v, p, &df) - target;
         v = clamp(v - f / df, BD_LIT(0.0), hi);
     }
@@ -137,13 +139,13 @@ inline void invert_one(real rd, bd_params p, __global const float4 *table, real 
     real slope;
     real v = table_guess(rd, x, p, table, &slope);
     if (rd < p.rd_split) {
-#if POLISH > 0
+#if BD_POLISH > 0
         v = polish_half(0, v, x, LOWER_HI, p);
 #endif
         *alpha = v;
         *rho = BD_LIT(1.0) - v;
     } else {
-#if POLISH > 0
+#if BD_POLISH > 0
         real g = rd >= BD_LIT(0.5) ? -log1p(-(BD_LIT(1.0) - rd)) : -log(rd);
         v = polish_half(1, v, g, UPPER_HI, p);
 #endif
@@ -171,7 +173,7 @@ inline void invert_one(real rd, bd_params p, __global const float4 *table, real 
 
 // Element i is texel i / nchan, channel i % nchan. Outputs may be NULL (not wanted).
 // Rd <= 0 (and NaN, which the host reports or clamps first) -> (0, 1); Rd >= 1 -> (1, 0).
-// With mfp (ld = 1/mu_tr, SPEC.md): sigma_t' = 1/(ld mu_tr/sigma_t'), sigma_a = sigma_t' rho,
+// With mfp (ld = 1/mu_tr, docs/model.md): sigma_t' = 1/(ld mu_tr/sigma_t'), sigma_a = sigma_t' rho,
 // sigma_s' = sigma_t' alpha'.
 __kernel void invert_albedo(__global const real *rd, __global const real *mfp,
                             __global real *alpha_out, __global real *rho_out,

@@ -13,8 +13,8 @@ import numpy as np
 import OpenImageIO as oiio
 import pytest
 
-from bdipole_cl.cli import main as cli_main
-from bdipole_cl.textures import process_textures
+from bdipole_cl.apps.cli import main as cli_main
+from bdipole_cl.io.batch import process_textures
 
 
 def write_exr(path, pixels, names=None):
@@ -202,7 +202,7 @@ def _slow_batch(tmp_path, n=3):
     for i in range(n):
         write_exr(tmp_path / f"t{i}.exr", np.random.default_rng(i).uniform(
             0.05, 0.9, (256, 512, 3)).astype(np.float32))
-    return [sys.executable, "-m", "bdipole_cl.cli", "invert", str(tmp_path / "t*.exr"),
+    return [sys.executable, "-m", "bdipole_cl", "invert", str(tmp_path / "t*.exr"),
             "--max-memory", "64K", "--no-progress", "-o", str(tmp_path / "out" / "{stem}.exr")]
 
 
@@ -289,7 +289,7 @@ def test_demo_in_an_unwritable_place_is_one_line(tmp_path, capsys):
 
 
 def test_blur_of_an_empty_array_is_a_clear_error():
-    from bdipole_cl.blur import blur
+    from bdipole_cl import blur
     with pytest.raises(ValueError, match="irradiance is empty"):
         blur(np.zeros((0, 0, 3), np.float32), albedo=0.5, mfp=1.0)
 

@@ -3,8 +3,11 @@ import numpy as np
 import pytest
 from scipy.integrate import dblquad
 
+from bdipole_cl import InvalidInputError
 from bdipole_cl import reference as ref
-from bdipole_cl.blur import blur, channel_kernel, channel_parameters, fit_gaussians
+from bdipole_cl.ops.bands import band_rows, bands
+from bdipole_cl.ops.blur import blur, channel_kernel, channel_parameters, fit_gaussians
+from bdipole_cl.ops.blur.planning import channel_plans, constant_row_bytes, halo_of
 
 METHODS = ["direct", "gaussians", "fft", "auto"]
 # 2e-3 relative: the bound for centre and near texels. direct/fft use the exact weights
@@ -39,7 +42,8 @@ def test_impulse_response_is_the_texel_integrated_profile(method):
     out, info = blur(impulse(), albedo=0.8, mfp=1.5, eta=1.4, method=method, border="zero",
                      return_info=True)
     # the weights of the configuration used (auto may pick a tighter truncation from data)
-    used_tol = info.channels[0].get("auto", {}).get("truncation_tol", 1e-3)
+    auto = info.channels[0].auto
+    used_tol = auto.truncation_tol if auto is not None else 1e-3
     ck = channel_kernel(*channel_parameters(1, albedo=0.8, mfp=1.5, eta=1.4)[0], used_tol)
     k = ck.radius
     got = out[15 - k:16 + k, 16 - k:17 + k, 0]
@@ -47,7 +51,7 @@ def test_impulse_response_is_the_texel_integrated_profile(method):
     rel = np.abs(got[near, near] / ck.weights[near, near] - 1).max()
     assert rel < 2e-3, (method, rel)
     # everywhere: within the method's own bound relative to max(E) * Rd
-    assert np.abs(got - ck.weights).max() <= info.channels[0]["error_bound"] * ck.rd
+    assert np.abs(got - ck.weights).max() <= info.channels[0].error_bound * ck.rd
 
 
 @pytest.mark.parametrize("method", METHODS)
@@ -57,7 +61,7 @@ def test_constant_irradiance_returns_rd_in_the_interior(method):
     out, info = blur(e, albedo=albedo, mfp=(2.0, 1.0, 0.5), eta=(1.3, 1.4, 1.5), method=method,
                      return_info=True)
     for c in range(3):
-        bound = max(info.channels[c]["error_bound"], 1e-5)
+        bound = max(info.channels[c].error_bound, 1e-5)
         np.testing.assert_allclose(out[24, 24, c], 2.0 * albedo[c], rtol=bound)
     # clamp border: constant everywhere, edges included
     np.testing.assert_allclose(out[0, 0], 2.0 * np.array(albedo), rtol=3e-3)
@@ -86,10 +90,14 @@ def test_hdr_values_do_not_overflow(method):
 def test_nan_irradiance_policy():
     e = impulse()
     e[3, 4, 0] = np.nan
-    with pytest.raises(ValueError, match="1 NaN/Inf irradiance texel.*x=4, y=3"):
+    with pytest.raises(InvalidInputError,
+                       match=r"1 invalid irradiance value\(s\) \(NaN or infinite\).*x=4, y=3"):
         blur(e, albedo=0.8, mfp=1.0)
-    out = blur(e, albedo=0.8, mfp=1.0, on_invalid="zero")
+    # clamp: non-finite irradiance is unlit (the one policy vocabulary, bdipole_cl/errors.py)
+    out = blur(e, albedo=0.8, mfp=1.0, on_invalid="clamp")
     np.testing.assert_allclose(out, blur(impulse(), albedo=0.8, mfp=1.0), rtol=1e-6)
+    with pytest.raises(ValueError, match="on_invalid='zero': expected one of raise, clamp"):
+        blur(e, albedo=0.8, mfp=1.0, on_invalid="zero")
 
 
 def test_alpha_sigma_t_parameters_and_texel_size():
@@ -118,7 +126,7 @@ def test_bad_arguments():
         blur(impulse(), albedo=np.full((31, 33, 1), 0.5), mfp=1.0, method="direct")
     with pytest.raises(ValueError, match="method"):
         blur(impulse(), albedo=0.5, mfp=1.0, method="box")
-    with pytest.raises(ValueError, match="albedo must be in"):
+    with pytest.raises(ValueError, match=r"albedo=\[1.0\]: expected values in \(0, 1\)"):
         blur(impulse(), albedo=1.0, mfp=1.0)
     with pytest.raises(ValueError, match="border"):
         blur(impulse(), albedo=0.5, mfp=1.0, border="mirror", method="direct")
@@ -127,8 +135,8 @@ def test_bad_arguments():
 def test_blur_cli_on_an_exr(tmp_path, capsys):
     import OpenImageIO as oiio
 
-    from bdipole_cl.cli import main as cli_main
-    from bdipole_cl.demo import write_exr
+    from bdipole_cl.apps.cli import main as cli_main
+    from bdipole_cl.apps.demo import write_exr
     e = np.random.default_rng(5).uniform(0, 1, (20, 22, 3)).astype(np.float32)
     write_exr(tmp_path / "e.exr", e, ("R", "G", "B"))
     rc = cli_main(["blur", str(tmp_path / "e.exr"), "-o", str(tmp_path / "m.exr"),
@@ -162,19 +170,34 @@ def test_banded_blur_with_halo_equals_whole_image(method, border):
     e = np.random.default_rng(9).uniform(0, 1, (37, 29, 2)).astype(np.float32)
     kw = dict(albedo=(0.8, 0.5), mfp=(2.0, 1.0), eta=1.4, method=method, border=border)
     whole = blur(e, **kw)
-    per_row = 29 * 2 * 4 * 8
-    k = 10   # the truncation radius of these parameters is below this
-    banded = blur(e, max_memory=per_row * (5 + 2 * k), **kw)   # bands of ~5 rows
+    _, plans = channel_plans(2, method=method, tol=1e-3, exact=False,
+                             **{k: v for k, v in kw.items() if k not in ("method", "border")})
+    k = halo_of(plans)
+    # a budget of 5 rows plus the halos, by the one band rule (bdipole_cl/ops/bands.py)
+    budget = constant_row_bytes(29, 2) * (5 + 2 * k)
+    assert band_rows(37, constant_row_bytes(29, 2), budget, halo=k) == 5
+    banded = blur(e, max_memory=budget, **kw)
     np.testing.assert_allclose(banded, whole, rtol=1e-5, atol=1e-6)
+
+
+def test_band_rule():
+    assert band_rows(100, 10, None) == 100                       # no budget: one band
+    assert band_rows(100, 10, 500, halo=3) == 44                 # 50 rows less two halos
+    assert band_rows(100, 10, 10, halo=3) == 1                   # at least one row
+    assert band_rows(100, 10, 500, halo=3, tile_height=16) == 32  # whole tiles
+    assert band_rows(100, 10, 5000) == 100                       # never past the image
+    assert [b[:2] for b in bands(10, 4)] == [(0, 4), (4, 8), (8, 10)]
+    assert bands(10, 4, 2, "clamp").__next__()[2].tolist() == [0, 0, 0, 1, 2, 3, 4, 5]
 
 
 def test_banded_file_blur_halo_follows_auto_plan(tmp_path):
     # a small kernel for which auto picks a tighter truncation (larger radius) than tol gives
-    from bdipole_cl.blur import _plan, blur_file
-    from bdipole_cl.demo import write_exr
+    from bdipole_cl.apps.demo import write_exr
+    from bdipole_cl.io.blur_file import blur_file
+    from bdipole_cl.ops.blur.planning import plan_channel
     (a, st, eta), = channel_parameters(1, albedo=0.8, mfp=1.0, eta=1.4)
-    m, ck, picked = _plan("auto", a, st, eta, 1e-3, False)
-    assert ck.radius > channel_kernel(a, st, eta, 1e-3).radius, (m, picked)
+    plan = plan_channel("auto", a, st, eta, 1e-3, False)
+    assert plan.kernel.radius > channel_kernel(a, st, eta, 1e-3).radius, plan
     e = np.random.default_rng(6).uniform(0, 1, (24, 20, 1)).astype(np.float32)
     write_exr(tmp_path / "e.exr", e, ("Y",))
     blur_file(tmp_path / "e.exr", tmp_path / "m.exr", albedo=0.8, mfp=1.0, max_memory=1)

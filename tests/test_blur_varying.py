@@ -1,14 +1,18 @@
-"""Texture-varying blur parameters (bdipole_cl/varying.py, kernels/blur_varying.cl)."""
+"""Texture-varying blur parameters (bdipole_cl/ops/blur/textured*.py, kernels/blur_varying.cl)."""
 import numpy as np
 import pytest
 from scipy.integrate import dblquad
 
 from bdipole_cl import reference as ref
-from bdipole_cl.blur import blur, channel_parameters, quadrant_weights, unfold_quadrant
-from bdipole_cl.varying import (RD_MAX, RD_MIN, REFINE, VaryingParameterError, _times_spectrum,
-                                _transformed, cached_spectra, channel_plans,
-                                interpolated_weights, kernel_spectra, node_kernel, texel_coords,
-                                weight_planes)
+from bdipole_cl import InvalidInputError
+from bdipole_cl.ops.blur import blur, channel_parameters
+from bdipole_cl.ops.blur import fft as blur_fft
+from bdipole_cl.ops.blur.dispatch import weight_planes
+from bdipole_cl.ops.blur.fft import cached_spectra, kernel_spectra, times_spectrum
+from bdipole_cl.ops.blur.textured import textured_plans as channel_plans
+from bdipole_cl.ops.blur.textured_plan import (RD_MAX, RD_MIN, REFINE, interpolated_weights,
+                                               node_kernel, texel_coords, transformed)
+from bdipole_cl.ops.blur.weights import quadrant_weights, unfold_quadrant
 
 #: every test here runs once per working OpenCL device (tests/conftest.py)
 pytestmark = pytest.mark.usefixtures("on_device")
@@ -50,13 +54,13 @@ def test_matches_the_per_exit_texel_reference(method, varying):
         albedo = np.full_like(albedo, 0.6)
     out, info = blur(e, albedo=albedo, mfp=mfp, eta=1.4, method=method, return_info=True)
     ch = info.channels[0]
-    want = per_texel_reference(e[..., 0], albedo[..., 0], mfp[..., 0], 1.4, ch["radius"])
+    want = per_texel_reference(e[..., 0], albedo[..., 0], mfp[..., 0], 1.4, ch.radius)
     err = np.abs(out[..., 0] - want) / (e.max() * albedo[..., 0])
     # the kernel error measured by the plan (fit + interpolation, L1 of the normalized kernel)
     # bounds the output error relative to max(E) * Rd(x); + 1e-5 for float32 accumulation
-    assert err.max() <= max(ch["fit_error"], ch["interp_error"]) + 1e-5, (err.max(), ch)
+    assert err.max() <= max(ch.fit_error, ch.interp_error) + 1e-5, (err.max(), ch)
     assert err.max() < 2e-3
-    assert ch["error_bound"] < 3e-3
+    assert ch.error_bound < 3e-3
 
 
 def test_uniform_texture_equals_constant_parameters():
@@ -70,7 +74,7 @@ def test_uniform_texture_equals_constant_parameters():
                      return_info=True)
     # one node per channel: its exact kernel, at the same truncation radius as the constant
     # path; they differ by float32 FFT rounding only
-    assert [c["nodes"] for c in info.channels] == [1, 1]
+    assert [c.nodes for c in info.channels] == [1, 1]
     np.testing.assert_allclose(out, const, rtol=0, atol=2e-6 * e.max())
 
 
@@ -132,7 +136,7 @@ def test_float32_node_coordinates_match_float64():
     (plan, rd, ld), = channel_plans((H, W, 1), tol=1e-3, albedo=albedo, mfp=mfp)
     cu, cv = texel_coords(plan, rd, ld)
     assert cu.dtype == cv.dtype == np.float32
-    t_rd, t_ld = _transformed(rd, ld)
+    t_rd, t_ld = transformed(rd, ld)
     # float32 logit/log: a few ulp of |logit| <= 7 over a >= 0.2 step, except at the clip
     # bound RD_MAX itself, which rounds to 0.99900001 in float32: 1 - Rd then differs by
     # 1.3e-5 relatively, and so does logit, 3.3e-5 of a 0.4 step (a shape difference far below
@@ -157,9 +161,9 @@ def test_kernel_spectra_equal_fft_of_the_centred_kernel(k, shape):
         assert spec.shape == (shape[0] // 2 + 1, shape[1] // 2 + 1)
         np.testing.assert_allclose(spec, want.real[:shape[0] // 2 + 1], rtol=0,
                                    atol=1e-6 * np.abs(want).max())
-        # the rows above N0/2 mirror those below (what _times_spectrum relies on)
+        # the rows above N0/2 mirror those below (what times_spectrum relies on)
         full_spec = np.empty(want.shape, np.complex128)
-        _times_spectrum(spec.astype(np.float64), np.ones(want.shape, np.complex128), full_spec)
+        times_spectrum(spec.astype(np.float64), np.ones(want.shape, np.complex128), full_spec)
         np.testing.assert_allclose(full_spec.real, want.real, rtol=0,
                                    atol=1e-6 * np.abs(want).max())
 
@@ -183,7 +187,7 @@ def test_bad_texels_name_the_texel(name, value, what):
     albedo, mfp = gradient_maps()
     maps = {"albedo": albedo, "mfp": mfp}
     maps[name][3, 5] = value
-    with pytest.raises(VaryingParameterError, match=rf"{what}.*x=5, y=3, channel 0"):
+    with pytest.raises(InvalidInputError, match=rf"{what}.*x=5, y=3, channel 0"):
         blur(np.ones((H, W, 1), np.float32), eta=1.4, **maps)
 
 
@@ -209,15 +213,15 @@ def test_far_cells_match_independent_quadrature():
 
 
 def test_transformed_coordinates_clip_albedo_shape_only():
-    t_rd, _ = _transformed(np.array([0.0, 0.5, 0.99999]), np.ones(3))
+    t_rd, _ = transformed(np.array([0.0, 0.5, 0.99999]), np.ones(3))
     assert np.all(np.isfinite(t_rd))
 
 
 def test_cli_with_parameter_textures(tmp_path, capsys):
     import OpenImageIO as oiio
 
-    from bdipole_cl.cli import main as cli_main
-    from bdipole_cl.demo import write_exr
+    from bdipole_cl.apps.cli import main as cli_main
+    from bdipole_cl.apps.demo import write_exr
     rng = np.random.default_rng(10)
     e = rng.uniform(0, 1, (H, W, 3)).astype(np.float32)
     albedo, mfp = gradient_maps(3)
@@ -255,14 +259,14 @@ def test_spectra_cached_per_plan_and_shape():
 
 
 def test_spectra_cache_keeps_to_its_byte_budget(monkeypatch):
-    import bdipole_cl.varying as varying
     albedo, mfp = gradient_maps()
     (plan, _, _), = channel_plans((H, W, 1), tol=1e-3, albedo=albedo, mfp=mfp)
     one = kernel_spectra(plan.quadrants(), (40, 42)).nbytes
-    monkeypatch.setattr(varying, "SPECTRA_CACHE_BYTES", 2 * one)
-    varying._spectra_cache.clear()
+    cache = blur_fft.SPECTRA_CACHE
+    monkeypatch.setattr(cache, "max_bytes", 2 * one)
+    cache.clear()
     for n1 in (42, 44, 46):           # a third shape pushes the first out
         cached_spectra(plan, (40, n1))
-    assert sum(v[1].nbytes for v in varying._spectra_cache.values()) <= 2 * one
-    assert (id(plan), (40, 42)) not in varying._spectra_cache
-    assert (id(plan), (40, 46)) in varying._spectra_cache
+    assert cache.nbytes <= 2 * one
+    assert cache.get((id(plan), (40, 42))) is None
+    assert cache.get((id(plan), (40, 46))) is not None

@@ -1,8 +1,8 @@
 """``bdipole-cl crosscheck`` (bdipole_cl/crosscheck.py): built-in table and user kernels."""
 import pytest
 
-from bdipole_cl.cli import main as cli_main
-from bdipole_cl.crosscheck import check_user_kernel, run_crosscheck
+from bdipole_cl.apps.cli import main as cli_main
+from bdipole_cl.apps.crosscheck import check_user_kernel, run_crosscheck
 
 MEMO_CL = "tools/examples/memo_hery_tm_12_11.cl"
 

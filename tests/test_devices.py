@@ -9,8 +9,9 @@ import numpy as np
 import pytest
 
 import bdipole_cl
-from bdipole_cl import device, icd
-from bdipole_cl.cli import main as cli_main
+from bdipole_cl.apps.cli import main as cli_main
+from bdipole_cl.device import icd
+from bdipole_cl.device import runtime as device
 
 ZEN5_POCL = "error: unknown target CPU 'generic'"
 
@@ -126,7 +127,7 @@ def test_every_entry_point_takes_an_explicit_device(runtime):
         np.testing.assert_array_equal(bdipole_cl.invert_albedo(rd, 1.4, device=spec), want)
     sa, ss = bdipole_cl.albedo_to_coefficients(rd, 1.0, 1.4, device=runtime)
     assert np.all(sa > 0) and np.all(ss > 0)
-    from bdipole_cl.blur import blur
+    from bdipole_cl import blur
     e = np.zeros((9, 9, 1), np.float32)
     e[4, 4] = 1
     out = blur(e, albedo=0.5, mfp=0.5, method="direct", border="zero", device=runtime)

@@ -9,7 +9,8 @@ the extra (1 + mu d) factor. Energies (cdf, tail) are judged relative to the tot
 import numpy as np
 import pytest
 
-from bdipole_cl import physics, reference as ref
+from bdipole_cl import reference as ref
+from bdipole_cl.ops import physics_eval as physics
 from conftest import EPS32, EPS64, f32
 
 PRECISIONS = [pytest.param(False, id="float32"), pytest.param(True, id="float64")]

@@ -20,11 +20,11 @@ def test_wheel_ships_kernels_and_runs_outside_the_source_tree(tmp_path):
     kernels = {p.name for p in (ROOT / "kernels").iterdir()}
     for k in kernels:
         assert f"bdipole_cl/kernels/{k}" in names, k
-    assert "bdipole_cl/data/inversion_auto.json" in names
+    assert "bdipole_cl/data/choice.json" in names
     target = tmp_path / "site"
     subprocess.run([sys.executable, "-m", "pip", "install", "--no-deps", "-q", "--target",
                     str(target), str(wheel)], check=True)
-    code = ("import bdipole_cl, bdipole_cl.device as d; "
+    code = ("import bdipole_cl, bdipole_cl.device.programs as d; "
             "assert str(d.kernel_dir()).startswith(%r), d.kernel_dir(); "
             "a = bdipole_cl.invert_albedo([0.5], 1.4, 'auto'); "
             "print(bdipole_cl.__file__, float(a[0]))" % str(target))

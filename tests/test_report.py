@@ -1,5 +1,4 @@
-"""Error-vs-runtime report (bdipole_cl/report.py) and method='auto'."""
-import json
+"""Error-vs-runtime report (bdipole_cl/apps/report.py) and method='auto'."""
 import logging
 
 import numpy as np
@@ -7,9 +6,8 @@ import pytest
 
 from bdipole_cl import invert_albedo
 from bdipole_cl import reference as ref
-from bdipole_cl.invert import resolve_method
-from bdipole_cl.report import (AUTO_DATA, Point, auto_inversion_config, mark_pareto, read_csv,
-                               run_report)
+from bdipole_cl.apps.report import Point, mark_pareto, read_csv, run_report
+from bdipole_cl.methods.choice import auto_inversion_config, load_choice_data, resolve_method
 
 
 #: every test here runs once per working OpenCL device (tests/conftest.py)
@@ -18,11 +16,11 @@ pytestmark = pytest.mark.usefixtures("on_device")
 
 @pytest.mark.parametrize("tol", [1e-3, 1e-5, 1e-6])
 def test_auto_picks_the_cheapest_measured_config_meeting_tol(tol, caplog):
-    data = json.loads(AUTO_DATA.read_text())["configs"]
-    config, entry = auto_inversion_config(tol)
-    assert entry["max_rho_error"] <= tol
-    cheaper = data[:data.index(entry)]
-    assert all(e["max_rho_error"] > tol for e in cheaper)      # nothing cheaper qualifies
+    data = [c for c in load_choice_data().inversion if c.precision == "f32"]
+    choice = auto_inversion_config(tol)
+    assert choice.max_rho_error <= tol
+    cheaper = [c for c in data if c.median_s < choice.median_s]
+    assert all(c.max_rho_error > tol for c in cheaper)         # nothing cheaper qualifies
     # and the choice really meets tol on a fresh stiff sweep
     rd = np.float32(np.concatenate([np.geomspace(1e-6, 0.5, 2000), 1 - np.geomspace(1e-3, 0.5, 2000)]))
     with caplog.at_level(logging.INFO, logger="bdipole_cl"):
@@ -58,14 +56,15 @@ def test_small_report_run_writes_table_csv_plot(tmp_path):
 
 @pytest.mark.parametrize("tol", [2e-3, 2e-4, 3e-5])
 def test_blur_auto_picks_a_measured_config_meeting_tol(tol):
-    from bdipole_cl.blur import blur, channel_kernel, channel_parameters, fft_blur_channel
+    from bdipole_cl.ops.blur import blur, channel_kernel, channel_parameters
+    from bdipole_cl.ops.blur.fft import fft_blur_channel
     e = np.random.default_rng(4).uniform(0, 1, (40, 40, 1)).astype(np.float32)
     out, info = blur(e, albedo=0.8, mfp=3.0, tol=tol, method="auto", return_info=True)
-    picked = info.channels[0]["auto"]
-    assert picked["measured_error"] <= tol, picked
-    data = json.loads(AUTO_DATA.read_text())["blur"]
-    same = [d for d in data if d["radius"] == picked["workload_radius"] and d["max_error"] <= tol]
-    assert picked["measured_ms"] == pytest.approx(min(d["median_s"] for d in same) * 1e3)
+    picked = info.channels[0].auto
+    assert picked.measured_error <= tol, picked
+    data = load_choice_data().blur
+    same = [d for d in data if d.radius == picked.workload_radius and d.max_error <= tol]
+    assert picked.measured_ms == pytest.approx(min(d.median_s for d in same) * 1e3)
     # and it holds here: error vs the exact discrete convolution relative to max(E) * Rd
     p = channel_parameters(1, albedo=0.8, mfp=3.0, eta=1.4)[0]
     exact_k = channel_kernel(*p, 1e-9)
@@ -80,7 +79,7 @@ def test_copy_kernel_floor_copies_and_times():
     # kernels/copy.cl: the memory-bound floor the benchmarks compare against
     import pyopencl as cl
 
-    from bdipole_cl.benchmark import time_copy
+    from bdipole_cl.apps.benchmark import time_copy
     from bdipole_cl.device import build_options, get_program, get_runtime
     rt = get_runtime()
     knl = cl.Kernel(get_program(rt, "copy", build_options()), "copy")

@@ -6,7 +6,7 @@ import pytest
 
 from bdipole_cl import InvalidInputError, albedo_to_coefficients, invert_albedo
 from bdipole_cl import reference as ref
-from bdipole_cl.blur import blur
+from bdipole_cl import blur
 
 DENORMAL = float(np.float32(1e-40))          # a float32 denormal
 METHODS = ["table", "secant", "bisection"]
@@ -119,9 +119,9 @@ def test_FINITE_texel_size_extremes(texel_over_mfp):
     out, info = blur(e, albedo=0.7, mfp=1.0, texel_size=texel_over_mfp, return_info=True)
     assert np.all(np.isfinite(out))
     # constant irradiance: Rd everywhere (clamp border), to the method's bound
-    np.testing.assert_allclose(out, 3.0 * 0.7, rtol=max(info.channels[0]["error_bound"], 1e-5))
+    np.testing.assert_allclose(out, 3.0 * 0.7, rtol=max(info.channels[0].error_bound, 1e-5))
     if texel_over_mfp > 1:
-        assert info.channels[0]["radius"] == 0          # all energy in the texel itself
+        assert info.channels[0].radius == 0          # all energy in the texel itself
 
 
 @pytest.mark.parametrize("method", ["direct", "gaussians", "fft"])
@@ -140,6 +140,6 @@ def test_ERROR_nan_irradiance_or_zero_policy():
     e[2, 3] = np.nan
     with pytest.raises(ValueError, match="x=3, y=2"):
         blur(e, albedo=0.8, mfp=1.0)
-    assert np.all(np.isfinite(blur(e, albedo=0.8, mfp=1.0, on_invalid="zero")))
+    assert np.all(np.isfinite(blur(e, albedo=0.8, mfp=1.0, on_invalid="clamp")))
 
 # }}}

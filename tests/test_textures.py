@@ -1,4 +1,4 @@
-"""Texture batches (bdipole_cl/textures.py, ``bdipole-cl invert``) on generated files."""
+"""Texture batches (bdipole_cl/io/batch.py, ``bdipole-cl invert``) on generated files."""
 import os
 from pathlib import Path
 
@@ -7,9 +7,9 @@ import OpenImageIO as oiio
 import pytest
 
 from bdipole_cl import reference as ref
-from bdipole_cl.cli import main as cli_main
-from bdipole_cl.demo import write_exr
-from bdipole_cl.textures import expand_inputs, process_textures
+from bdipole_cl.apps.cli import main as cli_main
+from bdipole_cl.apps.demo import write_exr
+from bdipole_cl.io.batch import expand_inputs, process_textures
 
 #: every test here runs once per working OpenCL device (tests/conftest.py)
 pytestmark = pytest.mark.usefixtures("on_device")

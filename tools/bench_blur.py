@@ -24,8 +24,8 @@ import numpy as np
 from scipy.signal import fftconvolve
 
 from bdipole_cl import get_runtime, use_device
-from bdipole_cl.blur import blur, channel_kernel, channel_parameters
-from bdipole_cl.varying import _spectra_cache
+from bdipole_cl.ops.blur import blur, channel_kernel, channel_parameters
+from bdipole_cl.ops.blur.fft import SPECTRA_CACHE
 
 ALBEDO = (0.8, 0.6, 0.4)
 
@@ -97,12 +97,12 @@ def varying_maps(n, mfp):
 def sampled_error(e, out, albedo, mfp, info, samples, rng):
     """max |M - exact| / (max E * Rd(x)) over sampled texels, the exact value from the texel's
     own exact kernel at the plan's radius (float64)."""
-    from bdipole_cl.blur import unfold_quadrant
-    from bdipole_cl.varying import RD_MAX, RD_MIN, node_kernel
+    from bdipole_cl.ops.blur.textured_plan import RD_MAX, RD_MIN, node_kernel
+    from bdipole_cl.ops.blur.weights import unfold_quadrant
     h, w, nch = e.shape
     worst = 0.0
     for c in range(nch):
-        k = info.channels[c]["radius"]
+        k = info.channels[c].radius
         for y, x in zip(rng.integers(0, h, samples), rng.integers(0, w, samples)):
             rd = float(albedo[y, x, c])
             ld = float(mfp[y, x] if mfp.ndim == 2 else mfp[y, x, c])
@@ -126,14 +126,14 @@ def varying_rows(e, mfp, t_const, args):
         run()
         cold = time.perf_counter() - t0
         t, (out, info) = timed(run, args.repeats)
-        t_nospec, _ = timed(lambda: (_spectra_cache.clear(), run()), args.repeats)
+        t_nospec, _ = timed(lambda: (SPECTRA_CACHE.clear(), run()), args.repeats)
         err = sampled_error(e, out, albedo, mfps, info, args.samples, rng)
-        k = max(c["radius"] for c in info.channels)
-        basis = "/".join(str(c["method"].split(", ")[1].split()[0]) for c in info.channels)
+        k = max(c.radius for c in info.channels)
+        basis = "/".join(str(c.method.split(", ")[1].split()[0]) for c in info.channels)
         print(f"{mfp:5g} {'varying ' + m:10s} {k:6d} {t:8.2f} {err:9.1e} "
               f"{'':11s} cold {cold:.2f} s, {t / t_const:.2f}x the constant default, "
               f"without the spectra cache {t_nospec:.2f} s ({t_nospec / t_const:.2f}x), "
-              f"basis {basis}, bound {max(c['error_bound'] for c in info.channels):.1e}")
+              f"basis {basis}, bound {max(c.error_bound for c in info.channels):.1e}")
 
 
 if __name__ == "__main__":

@@ -14,9 +14,9 @@ import sys
 import time
 
 from bdipole_cl import get_runtime, use_device
-from bdipole_cl.benchmark import (inversion_workload, reference_inverse, time_copy,
+from bdipole_cl.apps.benchmark import (inversion_workload, reference_inverse, time_copy,
                                   time_inversion)
-from bdipole_cl.invert import MethodConfig
+from bdipole_cl.methods.registry import MethodConfig
 
 CONFIGS = [
     MethodConfig("memo", iterations=50),

@@ -17,9 +17,10 @@ import numpy as np
 import OpenImageIO as oiio
 
 from bdipole_cl import get_runtime, use_device
-from bdipole_cl.benchmark import inversion_workload, median_time
-from bdipole_cl.invert import InversionKernel, MethodConfig
-from bdipole_cl.textures import process_textures
+from bdipole_cl.apps.benchmark import inversion_workload, median_time
+from bdipole_cl.io.batch import process_textures
+from bdipole_cl.methods.registry import MethodConfig
+from bdipole_cl.ops.invert import InversionKernel
 
 
 def make_exr(path, size, band=512):

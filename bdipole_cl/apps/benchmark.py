@@ -13,9 +13,10 @@ from dataclasses import dataclass
 import numpy as np
 import pyopencl as cl
 
-from . import reference as ref
-from .device import build_options, get_program, get_runtime, real_dtype
-from .invert import InversionKernel, MethodConfig
+from ..device import build_options, get_program, get_runtime, real_dtype
+from ..methods.registry import MethodConfig
+from ..ops.invert import InversionKernel
+from ..physics import reference as ref
 
 
 def median_time(fn, repeats=5, warmup=1, queue=None):

@@ -1,113 +1,34 @@
-"""Albedo inversion on the OpenCL device: Rd -> alpha', rho and (with a mean free path)
-sigma_a, sigma_s' (kernels/invert.cl).
-
-Methods (``method=``), each a specialization of the one kernel by build options:
-
-=============  ===========================================================  ==================
-name           what                                                         knobs
-=============  ===========================================================  ==================
-``table``      cubic Hermite table of the inverse in split variables        ``table_size``,
-               (default; see tables.py), optional Newton polish             ``polish``
-``secant``     safeguarded secant in the split variables, seeded from a     ``tol``,
-               coarse table (value and slope), bracketed                    ``iterations``,
-                                                                            ``seed_size``
-``bisection``  bisection in the split variables (robust fallback)           ``iterations``
-``memo``       Hery TM 12-11's float bisection in alpha', verbatim          ``iterations``
-               (baseline; loses rho near alpha' = 1, see SPEC.md)
-=============  ===========================================================  ==================
+"""Albedo inversion on an OpenCL device: Rd -> alpha', rho and (with a mean free path)
+sigma_a, sigma_s' (kernels/invert.cl). The methods and their knobs are in
+``bdipole_cl.methods.registry``; ``method="auto"`` is resolved by ``bdipole_cl.methods.choice``.
 """
 from __future__ import annotations
-
-import logging
-from dataclasses import dataclass
 
 import numpy as np
 import pyopencl as cl
 
-from . import reference as ref
-from . import tables
-from .device import build_options, get_program, get_runtime, real_dtype
+from ..device import build_options, get_program, get_runtime, real_dtype
+from ..device.layout import channel_params
+from ..errors import check_policy, find_invalid
+from ..methods.choice import resolve_method
+from ..methods.registry import MethodConfig
+from ..physics import reference as ref
+from ..physics import tables
+
 
 #: largest float32 below 1: where ``on_invalid="clamp"`` puts Rd >= 1 for coefficients.
 RD_CLAMP_MAX = float(np.nextafter(np.float32(1.0), np.float32(0.0)))
+
+
 #: where ``on_invalid="clamp"`` puts mfp values that are NaN, <= 0 or infinite.
 MFP_CLAMP_RANGE = (1e-20, 1e20)
+
+
 #: elements per kernel launch (bounds device memory for huge arrays).
 CHUNK = 1 << 22
 
 
-METHODS = ("table", "secant", "bisection", "memo")
-
-
-@dataclass(frozen=True)
-class MethodConfig:
-    """One inversion configuration: a method and its cost knobs."""
-
-    method: str = "table"
-    iterations: int | None = None
-    tol: float | None = None
-    table_size: int = 256
-    polish: int = 0
-    seed_size: int = 16
-
-    def __post_init__(self):
-        if self.method not in METHODS:
-            raise ValueError(f"method={self.method!r}: expected one of {METHODS}")
-        for knob in ("iterations", "table_size", "seed_size"):
-            value = getattr(self, knob)
-            if value is not None and (int(value) != value or value < 1):
-                raise ValueError(f"{knob}={value!r}: expected a positive integer")
-        if self.polish < 0:
-            raise ValueError(f"polish={self.polish!r}: expected >= 0")
-        if self.tol is not None and not self.tol > 0:
-            raise ValueError(f"tol={self.tol!r}: expected > 0")
-
-    def defines(self, double: bool) -> dict:
-        m = self.method
-        if m in ("memo", "bisection"):
-            return {f"METHOD_{m.upper()}": None, "ITERATIONS": self.iterations or 50}
-        if m == "secant":
-            tol = self.tol if self.tol is not None else (1e-12 if double else 2e-7)
-            return {"METHOD_SECANT": None, "ITERATIONS": self.iterations or 40,
-                    "TOL": repr(float(tol)), "TABLE_N": self.seed_size}
-        if m == "table":
-            return {"METHOD_TABLE": None, "TABLE_N": self.table_size, "POLISH": self.polish}
-        raise ValueError(f"method={m!r}: expected one of {METHODS}")
-
-    def describe(self) -> str:
-        m = self.method
-        if m in ("memo", "bisection"):
-            return f"{m}(iterations={self.iterations or 50})"
-        if m == "secant":
-            return (f"secant(tol={self.tol if self.tol is not None else 'default'}, "
-                    f"seed={self.seed_size})")
-        return f"table(size={self.table_size}, polish={self.polish})"
-
-
-class InvalidInputError(ValueError):
-    """Texels that the model cannot take (reported with their count and first index)."""
-
-    def __init__(self, name, count, first_index, first_value, why):
-        self.name, self.count, self.first_index, self.first_value = (name, count, first_index,
-                                                                     first_value)
-        self.why = why
-        super().__init__(f"{count} invalid {name} value(s) ({why}); first at index "
-                         f"{first_index}: {first_value!r}. Use on_invalid='clamp' to clamp them.")
-
-
-def _check(name, values, bad, why, on_invalid):
-    """Raise InvalidInputError for ``bad`` texels if on_invalid == 'raise'; return their count."""
-    if on_invalid not in ("raise", "clamp"):
-        raise ValueError(f"on_invalid={on_invalid!r}: expected 'raise' or 'clamp'")
-    count = int(np.count_nonzero(bad))
-    if count and on_invalid == "raise":
-        first = np.unravel_index(int(np.flatnonzero(bad.reshape(-1))[0]), bad.shape)
-        first = tuple(int(i) for i in first)
-        raise InvalidInputError(name, count, first, values[first].item(), why)
-    return count
-
-
-def _channel_etas(eta, shape):
+def channel_etas(eta, shape):
     """Etas per channel: one eta (also when all are equal), or one per channel along the last
     axis of ``shape``."""
     etas = np.atleast_1d(np.asarray(eta, dtype=np.float64))
@@ -119,31 +40,6 @@ def _channel_etas(eta, shape):
         raise ValueError(f"eta has {etas.size} values but the input's last axis has "
                          f"{shape[-1] if shape else 'no'} channels")
     return tuple(float(e) for e in etas)
-
-
-#: rho accuracy that ``method="auto"`` aims for when no ``tol`` is given (issue 3's bound)
-AUTO_DEFAULT_TOL = 1e-4
-
-
-def resolve_method(method="table", double=False, **knobs) -> MethodConfig:
-    """A MethodConfig from a method name and knobs (None knobs keep the defaults).
-
-    ``method="auto"``: the cheapest configuration whose measured max relative error of rho is
-    <= ``tol`` (default AUTO_DEFAULT_TOL), from ``bdipole-cl report``'s measurements
-    (bdipole_cl/data/inversion_auto.json); the choice is logged (logger "bdipole_cl").
-    """
-    if isinstance(method, MethodConfig):
-        return method
-    if method == "auto":
-        from .report import auto_inversion_config
-        tol = knobs.get("tol") or AUTO_DEFAULT_TOL
-        config, entry = auto_inversion_config(tol)
-        logging.getLogger("bdipole_cl").info(
-            "method='auto', tol=%g: picked %s (measured max rho error %.2e, %.2f ms on %d "
-            "albedos in the report run)", tol, config.describe(), entry["max_rho_error"],
-            entry["median_s"] * 1e3, 1 << 20)
-        return config
-    return MethodConfig(method, **{k: v for k, v in knobs.items() if v is not None})
 
 
 class InversionKernel:
@@ -159,9 +55,8 @@ class InversionKernel:
             ref.check_eta(e, exact, model)
         opts = build_options(config.defines(double), double=double, model=model)
         self.kernel = cl.Kernel(get_program(self.rt, "invert", opts), "invert_albedo")
-        self.table_n = {"table": config.table_size,
-                        "secant": config.seed_size}.get(config.method, 0)
-        params = tables.channel_params(etas, exact=exact, model=model, table_n=self.table_n,
+        self.table_n = config.table_n
+        params = channel_params(etas, exact=exact, model=model, table_n=self.table_n,
                                        dtype=self.dtype)
         tab = (tables.channel_tables(etas, self.table_n, exact=exact, model=model)
                if self.table_n else np.zeros((1, 4), np.float32))
@@ -241,9 +136,9 @@ def invert_albedo(rd, eta, method="table", *, return_rho=False, model="better", 
     rd = np.asarray(rd)
     if rd.dtype.kind != "f":
         rd = rd.astype(np.float64)
-    etas = _channel_etas(eta, rd.shape)
+    etas = channel_etas(eta, rd.shape)
     bad = ~(rd <= 1.0) | np.isinf(rd)
-    if _check("albedo", rd, bad, "NaN, infinite or > 1", on_invalid):
+    if find_invalid("albedo", rd, bad, "NaN, infinite or > 1", on_invalid):
         rd = np.where(np.isnan(rd) | np.isneginf(rd), 0.0, np.minimum(rd, 1.0))
     kernel = InversionKernel(etas, config, exact=exact, model=model, double=double,
                              runtime=device)
@@ -256,14 +151,16 @@ OUTPUTS = ("alpha", "rho", "sigma_a", "sigma_s", "sigma_t")
 
 
 def _sanitize_albedo_for_coefficients(rd, on_invalid):
-    n = _check("albedo", rd, ~(rd < 1.0) | np.isneginf(rd), "NaN, infinite or >= 1", on_invalid)
+    n = find_invalid("albedo", rd, ~(rd < 1.0) | np.isneginf(rd), "NaN, infinite or >= 1",
+                     on_invalid)
     if n:
         rd = np.where(np.isnan(rd) | np.isneginf(rd), 0.0, np.minimum(rd, RD_CLAMP_MAX))
     return rd, n
 
 
 def _sanitize_mfp(mfp, on_invalid):
-    n = _check("mfp", mfp, ~((mfp > 0.0) & np.isfinite(mfp)), "NaN, <= 0 or infinite", on_invalid)
+    n = find_invalid("mfp", mfp, ~((mfp > 0.0) & np.isfinite(mfp)), "NaN, <= 0 or infinite",
+                     on_invalid)
     if n:
         lo, hi = MFP_CLAMP_RANGE
         mfp = np.clip(np.nan_to_num(mfp, nan=hi, posinf=hi, neginf=lo), lo, hi)
@@ -279,10 +176,8 @@ class CoefficientMapper:
         unknown = set(outputs) - set(OUTPUTS)
         if unknown:
             raise ValueError(f"unknown outputs {sorted(unknown)}: expected some of {OUTPUTS}")
-        if on_invalid not in ("raise", "clamp"):
-            raise ValueError(f"on_invalid={on_invalid!r}: expected 'raise' or 'clamp'")
         self.outputs = tuple(outputs)
-        self.on_invalid = on_invalid
+        self.on_invalid = check_policy(on_invalid)
         self.kernel = InversionKernel(etas, config, exact=exact, model=model, double=double,
                                       runtime=device)
         wanted = set(outputs)
@@ -307,8 +202,9 @@ def albedo_to_coefficients(rd, mfp, eta, method="table", *, model="better", exac
                            device=None, **knobs):
     """The memo's drop-in mapping: (albedo Rd, mean free path ld, eta) -> (sigma_a, sigma_s').
 
-    ``ld = 1/mu_tr`` (Jensen/Hery skin convention, SPEC.md): ``sigma_t' = 1/(ld * mu_tr/sigma_t')``
-    with ``mu_tr/sigma_t' = sqrt(3 rho/(1 + rho))`` (``sqrt(3 rho)`` for ``model="dipole"``),
+    ``ld = 1/mu_tr`` (Jensen/Hery skin convention, docs/model.md "Mean free path"):
+    ``sigma_t' = 1/(ld * mu_tr/sigma_t')`` with ``mu_tr/sigma_t' = sqrt(3 rho/(1 + rho))``
+    (``sqrt(3 rho)`` for ``model="dipole"``),
     ``sigma_a = sigma_t' rho``, ``sigma_s' = sigma_t' alpha'``, in 1/(unit of mfp).
 
     ``rd`` and ``mfp`` are scalars, per-channel tuples or arrays, broadcast against each other;
@@ -324,7 +220,7 @@ def albedo_to_coefficients(rd, mfp, eta, method="table", *, model="better", exac
     rd, mfp = np.broadcast_arrays(np.asarray(rd), np.asarray(mfp))
     rd = rd.astype(np.float64) if rd.dtype.kind != "f" else rd
     mfp = mfp.astype(np.float64) if mfp.dtype.kind != "f" else mfp
-    etas = _channel_etas(eta, rd.shape)
+    etas = channel_etas(eta, rd.shape)
     mapper = CoefficientMapper(etas, config, outputs=outputs, model=model, exact=exact,
                                double=double, on_invalid=on_invalid, device=device)
     outs, _ = mapper(rd, mfp)

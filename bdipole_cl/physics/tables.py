@@ -1,4 +1,4 @@
-"""Per-channel kernel constants and the inversion tables, built on the host in float64.
+"""The inversion tables, built on the host in float64 (the physics layer).
 
 The table method interpolates the inverse of Rd on three segments (kernels/invert.cl):
 
@@ -6,23 +6,22 @@ The table method interpolates the inverse of Rd on three segments (kernels/inver
 * segment 1: ``q = sqrt(1 - alpha')`` of ``x = Rd^(1/n)`` on ``[Rd_split^(1/n), 2^(-1/n)]``;
 * segment 2: ``q`` of ``x = 1 - Rd`` on ``[0, 1/2]`` (exact in float32 for Rd >= 1/2).
 
-Each inverse is analytic up to and including its ends (SPEC.md's square-root behaviour at
-both ends is absorbed by the variables), so a uniform cubic Hermite table with exact node
-slopes converges as h^4 everywhere, the stiff ends included, and no texel needs a log. Node
-values come from the float64 solver and slopes from the analytic derivatives.
+Each inverse is analytic up to and including its ends (the square-root behaviour of Rd at
+both ends, docs/model.md "Stiffness", is absorbed by the variables), so a uniform cubic
+Hermite table with exact node slopes converges as h^4 everywhere, the stiff ends included,
+and no texel needs a log. Node values come from the float64 solver and slopes from the
+analytic derivatives.
 """
 from __future__ import annotations
 
-from functools import lru_cache
-
 import numpy as np
 
+from ..caches import ByteCache
 from . import reference as ref
 
-PARAM_STRIDE = 12  # kernels/bdipole.h: BD_PARAM_STRIDE
-(P_CPHI, P_CE, P_A, P_RD_SPLIT, P_X_SPLIT, P_G_SPLIT, P_SCALE0, P_SCALE1,
- P_SCALE2, P_SLOPE0) = range(10)
 SEGMENTS = 3
+#: tables kept across calls (a 1024-interval table is 48 KiB)
+TABLE_CACHE = ByteCache("inversion tables", 16 << 20)
 
 
 def _hermite_coefficients(x0, x1, values, slopes):
@@ -35,11 +34,11 @@ def _hermite_coefficients(x0, x1, values, slopes):
 
 
 def _solve_q(c, model, neg_log_rd):
-    return ref._solve_increasing(lambda v, i: ref.upper_residual(v, c, model), neg_log_rd,
+    return ref.solve_increasing(lambda v, i: ref.upper_residual(v, c, model), neg_log_rd,
                                  0.0, np.sqrt(1.0 - ref.ALPHA_SPLIT))
 
 
-@lru_cache(maxsize=64)
+@TABLE_CACHE.memoize
 def inversion_table(eta: float, n: int, exact: bool = False, model: str = "better"):
     """``(coefficients float32 (3n, 4), scales (3,))`` of one eta: n intervals a segment."""
     c = ref.dipole_constants(eta, exact, model)
@@ -50,7 +49,7 @@ def inversion_table(eta: float, n: int, exact: bool = False, model: str = "bette
     x_split, x_mid = split ** (1.0 / power), 0.5 ** (1.0 / power)
     # segment 0: alpha' of x = Rd^(1/n); dalpha/dx = 1/F'(alpha)
     x0 = np.linspace(0.0, x_split, n + 1)
-    a = ref._solve_increasing(lambda v, i: ref.lower_residual(v, c, model), x0, 0.0,
+    a = ref.solve_increasing(lambda v, i: ref.lower_residual(v, c, model), x0, 0.0,
                               ref.ALPHA_SPLIT)
     seg0 = _hermite_coefficients(0.0, x_split, a, 1.0 / ref.lower_residual(a, c, model)[1])
     # segment 1: q of x = Rd^(1/n), G = -n log x; dq/dx = (dG/dx)/G'(q) = -n/(x G'(q))
@@ -61,27 +60,11 @@ def inversion_table(eta: float, n: int, exact: bool = False, model: str = "bette
     # segment 2: q of x = 1 - Rd, G = -log(1 - x); dq/dx = 1/((1 - x) G'(q))
     x2 = np.linspace(0.0, 0.5, n + 1)
     q2 = _solve_q(c, model, -np.log1p(-x2))
-    seg2 = _hermite_coefficients(0.0, 0.5, q2, 1.0 / ((1.0 - x2) * ref.upper_residual(q2, c, model)[1]))
+    seg2 = _hermite_coefficients(0.0, 0.5, q2,
+                                 1.0 / ((1.0 - x2) * ref.upper_residual(q2, c, model)[1]))
     coefs = np.concatenate([seg0, seg1, seg2]).astype(np.float32)
     coefs.setflags(write=False)
     return coefs, (n / x_split, n / (x_mid - x_split), n / 0.5)
-
-
-def channel_params(etas, *, exact=False, model="better", table_n=0, dtype=np.float32):
-    """The kernels' per-channel constant records (bdipole.h: BD_P_*) for a tuple of etas."""
-    out = np.zeros((len(etas), PARAM_STRIDE), dtype=np.float64)
-    power = 2 if model == "better" else 1
-    for i, eta in enumerate(etas):
-        c = ref.dipole_constants(eta, exact, model)
-        split = ref.rd_split(c, model)
-        out[i, P_CPHI], out[i, P_CE], out[i, P_A] = c.cphi, c.ce, c.a_coef
-        out[i, P_RD_SPLIT] = split
-        out[i, P_X_SPLIT] = split ** (1.0 / power)
-        out[i, P_G_SPLIT] = -np.log(split)
-        out[i, P_SLOPE0] = ref.lower_residual(0.0, c, model)[1]      # F'(0)
-        if table_n:
-            out[i, P_SCALE0:P_SCALE2 + 1] = inversion_table(float(eta), table_n, exact, model)[1]
-    return out.astype(dtype).reshape(-1)
 
 
 def channel_tables(etas, n, *, exact=False, model="better"):

@@ -327,7 +327,7 @@ def rd_derivative(alpha, eta, exact=False, model="better"):
 
 # {{{ inversion
 
-def _solve_increasing(f, target, lo, hi, iters=100):
+def solve_increasing(f, target, lo, hi, iters=100):
     """Vectorized safeguarded Newton for increasing ``f`` on [lo, hi]: ``f(v) = target``.
 
     ``f`` returns (value, derivative) and must accept a subset of the elements through its
@@ -384,9 +384,9 @@ def invert_rd_rho(rd_value, eta, exact=False, model="better"):
     alpha = np.where(rdv >= 1.0, 1.0, 0.0)
     rho = 1.0 - alpha
     sub = lambda idx: DipoleConstants(*(x[idx] for x in c))  # noqa: E731
-    a_lo = _solve_increasing(lambda a, i: lower_residual(a, sub(lower[i]), model),
+    a_lo = solve_increasing(lambda a, i: lower_residual(a, sub(lower[i]), model),
                              rdv[lower] ** (1.0 / n), 0.0, ALPHA_SPLIT)
-    q_hi = _solve_increasing(lambda q, i: upper_residual(q, sub(upper[i]), model),
+    q_hi = solve_increasing(lambda q, i: upper_residual(q, sub(upper[i]), model),
                              -np.log(rdv[upper]), 0.0, np.sqrt(1.0 - ALPHA_SPLIT))
     alpha[lower], rho[lower] = a_lo, 1.0 - a_lo
     alpha[upper], rho[upper] = 1.0 - q_hi * q_hi, q_hi * q_hi
@@ -506,7 +506,8 @@ def profile_cdf(r, alpha, sigma_t, eta, exact=False):
 
 
 def profile_tail(r, alpha, sigma_t, eta, exact=False):
-    """Energy beyond radius r: ``2 pi Int_r^inf R(s) s ds`` = rd - profile_cdf, without cancellation.
+    """Energy beyond radius r: ``2 pi Int_r^inf R(s) s ds`` = rd - profile_cdf, without
+    cancellation.
 
     Ce term: z e^{-mu d}/d per source; Cphi/D term: e^{-mu d}/mu per source, the difference of
     the two sources' Cphi terms written as e^{-mu d_r} (d_v - d_r) phi1(mu (d_v - d_r)).

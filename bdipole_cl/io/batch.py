@@ -7,19 +7,11 @@ device works on the current one. Outputs are written to a temporary file beside 
 renamed when complete, so an interrupted or failed file leaves nothing half-written. A failing
 file is reported (path and reason) and the batch goes on.
 
-Conventions
------------
-* Pixels are read as float32. Integer-encoded (8/16-bit) albedo is decoded to linear through
-  OpenImageIO's colour conversion: ``colorspace="auto"`` takes the space the file declares
-  (``oiio:ColorSpace``), else sRGB for 8-bit and linear for 16-bit; a named space overrides it
-  for integer files. Float/half files are taken as linear. Decoded values are clamped to
-  [0, 1] (the conversion's own overshoot, e.g. 1.0000241 for sRGB white).
-* The alpha channel (``spec.alpha_channel``) is never inverted: ``alpha="keep"`` copies it to
-  the output, ``"drop"`` leaves it out.
-* mfp textures are data: no colour conversion; values times ``mfp_scale``, in ``unit``.
-* Output channels are named ``<output>.<channel>`` (``sigma_a.R``), float or half, zip
-  compression, same size, data window and tiling as the albedo, its metadata kept, and the
-  parameters used written as ``bdipole:*`` attributes.
+Images are read and written by ``images`` (conventions there); mfp textures are data (no
+colour conversion), values times ``mfp_scale``, in ``unit``. Output channels are named
+``<output>.<channel>`` (``sigma_a.R``), float or half, zip compression, same size, data window
+and tiling as the albedo, its metadata kept, and the parameters used written as ``bdipole:*``
+attributes.
 """
 from __future__ import annotations
 
@@ -35,28 +27,23 @@ from pathlib import Path
 import numpy as np
 import OpenImageIO as oiio
 
-from . import __version__
-from .device import get_runtime
-from .invert import CoefficientMapper, InvalidInputError, resolve_method
+from ..device import Runtime, get_runtime
+from ..errors import InvalidInputError, check_policy
+from ..methods.choice import resolve_method
+from ..methods.registry import MethodConfig
+from ..ops.bands import band_rows
+from ..ops.invert import CoefficientMapper
+from ..version import __version__
+from .images import (Cancelled, Reader, TextureError, Writer, check_colorspace,
+                     check_output_format, classify_channels, fit_half, output_spec,
+                     source_colorspace, to_linear)
+
 
 UDIM_TOKEN = "<UDIM>"
+
+
 DEFAULT_OUTPUT = "{dir}/{stem}.bdipole.exr"
 
-
-class TextureError(RuntimeError):
-    """A file that cannot be processed; the message names the file and the reason."""
-
-
-class Cancelled(TextureError):
-    """The batch was stopped (SIGINT/SIGTERM) before this file was complete."""
-
-
-#: what half floats hold: larger finite values become inf, smaller nonzero ones become 0
-HALF_MAX = float(np.finfo(np.float16).max)
-HALF_TINY = float(np.finfo(np.float16).smallest_subnormal)
-
-
-# {{{ file sets
 
 def expand_inputs(patterns):
     """Files named by paths, globs (``textures/*.tif``) or UDIM patterns (``a.<UDIM>.exr``),
@@ -82,21 +69,11 @@ def expand_inputs(patterns):
     return out
 
 
-def _stem(path):
+def stem(path):
     """The file name without its extension: ``diffuse.1001.exr`` -> ``diffuse.1001``, so that
     the tiles of a UDIM set keep distinct names."""
     name = Path(path).name
     return name.rsplit(".", 1)[0] if "." in name else name
-
-
-def check_output_format(path):
-    """Outputs are OpenEXR: only EXR holds float/half values in any number of named channels
-    (``sigma_a.R``, ...). Any other extension would drop channels or quantise: refused."""
-    suffix = Path(path).suffix.lower()
-    if suffix != ".exr":
-        raise ValueError(f"{path}: output must be an OpenEXR file (.exr), got "
-                           f"'{suffix or 'no extension'}': other formats would drop channels or "
-                           f"quantise the float values")
 
 
 def output_collisions(jobs):
@@ -115,15 +92,16 @@ def output_collisions(jobs):
             bad[j.output] = f"{j.path}: output {j.output} would overwrite an input"
         elif len(writers[k]) > 1:
             others = ", ".join(p for p in writers[k] if p != j.path)
-            bad[j.output] = (f"{j.path}: output {j.output} is also the output of {others}: put "
-                             f"<UDIM>, {{udim}}, {{stem}} or {{name}} in -o so each input has its own")
+            bad[j.output] = (f"{j.path}: output {j.output} is also the output of {others}: "
+                             f"put <UDIM>, {{udim}}, {{stem}} or {{name}} in -o so each input "
+                             f"has its own")
     return bad
 
 
 def companion_path(pattern, path, udim):
     """Fill ``{stem}``, ``{dir}``, ``{name}``, ``{udim}`` and ``<UDIM>`` for one input file."""
     p = Path(path)
-    fields = {"stem": _stem(path), "dir": str(p.parent), "name": p.name, "udim": udim or ""}
+    fields = {"stem": stem(path), "dir": str(p.parent), "name": p.name, "udim": udim or ""}
     text = str(pattern)
     if UDIM_TOKEN in text:
         if udim is None:
@@ -133,242 +111,6 @@ def companion_path(pattern, path, udim):
         return text.format(**fields)
     except (KeyError, IndexError) as exc:
         raise TextureError(f"pattern {pattern!r}: unknown field {exc}") from exc
-
-# }}}
-
-
-# {{{ channels
-
-COLOUR_NAMES = ("r", "g", "b", "y", "red", "green", "blue", "l", "gray", "grey")
-ALPHA_NAMES = ("a", "alpha")
-
-
-def classify_channels(names, alpha_channel=-1):
-    """(colour, alpha, other) channel indices of a file, by name (the part after the last '.',
-    case-insensitive) and the file's declared alpha channel:
-
-    - alpha: the declared alpha channel, else the first named A or alpha;
-    - colour: channels named R, G, B, Y (also red, green, blue, L, gray, grey), in file order;
-    - a file whose channels have none of these names but exactly one non-alpha channel: that
-      channel is grey (a 1-channel file of any name; 2 channels of which one is alpha);
-    - everything else (Z, depth, masks, ...) is other: never inverted, never written.
-
-    So 1 channel is grey; 2 are grey + alpha when one is alpha, else as named (e.g. R and G);
-    4 or more are R, G, B (+ A) with any extra channels left out."""
-    short = [str(n).rsplit(".", 1)[-1].strip().lower() for n in names]
-    alpha = alpha_channel if 0 <= alpha_channel < len(names) else next(
-        (i for i, s in enumerate(short) if s in ALPHA_NAMES), -1)
-    rest = [i for i in range(len(names)) if i != alpha]
-    colour = [i for i in rest if short[i] in COLOUR_NAMES]
-    if not colour and len(rest) == 1:
-        colour = rest
-    other = [i for i in rest if i not in colour]
-    return colour, alpha, other
-
-# }}}
-
-
-# {{{ reading and writing bands
-
-class _Reader:
-    """One image file open for band reads (scanline or tiled), float32 out."""
-
-    def __init__(self, path, what):
-        self.path = path
-        self.inp = None
-        if os.path.isdir(path):
-            raise TextureError(f"{path}: is a directory, not an image ({what})")
-        if not os.path.exists(path):
-            raise TextureError(f"{path}: no such file ({what})")
-        self.inp = oiio.ImageInput.open(str(path))
-        if self.inp is None:
-            raise TextureError(f"{path}: cannot read {what}: {oiio.geterror() or 'unknown error'}")
-        self.spec = self.inp.spec()
-        self.lock = threading.Lock()
-
-    def channels(self):
-        """Indices of the colour channels and of the alpha channel (or -1), by
-        ``classify_channels``; a file with no colour channel is a TextureError."""
-        colour, alpha, _ = classify_channels(self.spec.channelnames, self.spec.alpha_channel)
-        if not colour:
-            raise TextureError(f"{self.path}: no colour channel among "
-                               f"{', '.join(self.spec.channelnames)} (colour is R, G, B or Y, "
-                               f"or a single channel that is not alpha)")
-        return colour, alpha
-
-    def read_band(self, y0, y1):
-        s = self.spec
-        with self.lock:
-            if s.tile_width:
-                px = self.inp.read_tiles(0, 0, s.x, s.x + s.width, s.y + y0, s.y + y1, s.z,
-                                         s.z + max(s.depth, 1), 0, s.nchannels, oiio.FLOAT)
-            else:
-                px = self.inp.read_scanlines(0, 0, s.y + y0, s.y + y1, s.z, 0, s.nchannels,
-                                             oiio.FLOAT)
-        if px is None:
-            raise TextureError(f"{self.path}: read of rows {y0}..{y1} failed: "
-                               f"{self.inp.geterror() or oiio.geterror()}")
-        return np.asarray(px, dtype=np.float32).reshape(y1 - y0, s.width, s.nchannels)
-
-    def close(self):
-        if self.inp is not None:
-            self.inp.close()
-            self.inp = None
-
-
-_SKIP_ATTRIBS = ("compression", "oiio:ColorSpace", "oiio:BitsPerSample", "oiio:UnassociatedAlpha",
-                 "oiio:Gamma", "openexr:lineOrder", "PixelAspectRatio")
-
-
-def _output_spec(in_spec, channel_names, alpha_index, half, params):
-    spec = oiio.ImageSpec(in_spec.width, in_spec.height, len(channel_names),
-                          "half" if half else "float")
-    spec.x, spec.y, spec.z = in_spec.x, in_spec.y, in_spec.z
-    spec.full_x, spec.full_y = in_spec.full_x, in_spec.full_y
-    spec.full_width, spec.full_height = in_spec.full_width, in_spec.full_height
-    spec.tile_width, spec.tile_height = in_spec.tile_width, in_spec.tile_height
-    spec.channelnames = tuple(channel_names)
-    spec.alpha_channel = alpha_index
-    for attr in in_spec.extra_attribs:
-        if attr.name in _SKIP_ATTRIBS or attr.name.startswith(("bdipole:", "png:", "tiff:",
-                                                               "jpeg:")):
-            continue
-        try:
-            spec.attribute(attr.name, attr.type, attr.value)
-        except Exception:  # an attribute type the Python binding cannot copy: leave it out
-            pass
-    spec.attribute("compression", "zip")
-    spec.attribute("oiio:ColorSpace", "lin_rec709_scene")
-    for key, value in params.items():
-        spec.attribute(f"bdipole:{key}", str(value))
-    return spec
-
-
-class _Writer:
-    """An EXR written band by band into a temporary file, renamed by ``commit``."""
-
-    def __init__(self, path, spec):
-        self.path = Path(path)
-        self.tmp = self.path.with_name(f".{self.path.stem}.partial-{os.getpid()}"
-                                       f"-{threading.get_ident()}{self.path.suffix}")
-        self.spec = spec
-        self.out = oiio.ImageOutput.create(str(self.tmp))
-        if self.out is None:
-            raise TextureError(f"{path}: cannot create output: {oiio.geterror()}")
-        if not self.out.open(str(self.tmp), spec):
-            err = self.out.geterror() or oiio.geterror()
-            self.out = None
-            self._remove_tmp()
-            raise TextureError(f"{path}: cannot write output: {err}")
-
-    def write_band(self, y0, y1, pixels):
-        s = self.spec
-        pixels = np.ascontiguousarray(pixels, dtype=np.float32)
-        if s.tile_width:
-            ok = self.out.write_tiles(s.x, s.x + s.width, s.y + y0, s.y + y1, s.z,
-                                      s.z + max(s.depth, 1), pixels)
-        else:
-            ok = self.out.write_scanlines(s.y + y0, s.y + y1, s.z, pixels)
-        if not ok:
-            raise TextureError(f"{self.path}: write of rows {y0}..{y1} failed: "
-                               f"{self.out.geterror()}")
-
-    def commit(self):
-        ok = self.out.close()
-        self.out = None
-        if not ok:
-            self._remove_tmp()
-            raise TextureError(f"{self.path}: closing the output failed: {oiio.geterror()}")
-        os.replace(self.tmp, self.path)
-
-    def abort(self):
-        if self.out is not None:
-            self.out.close()
-            self.out = None
-        self._remove_tmp()
-
-    def _remove_tmp(self):
-        try:
-            self.tmp.unlink()
-        except FileNotFoundError:
-            pass
-
-# }}}
-
-
-# {{{ colour
-
-def _is_integer(spec):
-    return spec.format.basetype in (oiio.UINT8, oiio.INT8, oiio.UINT16, oiio.INT16, oiio.UINT32,
-                                    oiio.INT32)
-
-
-_LINEAR_NAMES = {"linear", "lin_rec709_scene", "lin_rec709", "scene_linear", "raw",
-                 "linear rec.709 (srgb)"}
-
-
-def source_colorspace(spec, colorspace="auto"):
-    """The colour space integer-encoded albedo is decoded from, or None for linear data."""
-    if not _is_integer(spec):
-        return None
-    if colorspace == "auto":
-        declared = spec.getattribute("oiio:ColorSpace")
-        if declared:
-            colorspace = declared
-        else:
-            colorspace = "sRGB" if spec.format.size() == 1 else "linear"
-    return None if str(colorspace).lower() in _LINEAR_NAMES else colorspace
-
-
-def check_colorspace(colorspace):
-    """A ``colorspace`` option OpenImageIO can decode from (a 1-texel conversion), else
-    ValueError naming the known spaces."""
-    if colorspace == "auto" or str(colorspace).lower() in _LINEAR_NAMES:
-        return
-    try:
-        to_linear(np.full((1, 1, 3), 0.5, np.float32), colorspace)
-    except TextureError:
-        names = ", ".join(oiio.ColorConfig().getColorSpaceNames())
-        raise ValueError(f"colorspace {colorspace!r} is unknown to OpenImageIO; use auto, "
-                         f"linear, sRGB or one of: {names}") from None
-
-
-def to_linear(pixels, colorspace):
-    """Decode (rows, width, channels) colour pixels from ``colorspace`` to linear with OIIO."""
-    if colorspace is None:
-        return pixels
-    rows, width, nch = pixels.shape
-    buf = oiio.ImageBuf(oiio.ImageSpec(width, rows, nch, "float"))
-    buf.set_pixels(oiio.ROI(), np.ascontiguousarray(pixels))
-    out = oiio.ImageBufAlgo.colorconvert(buf, colorspace, "linear")
-    if out.has_error:
-        raise TextureError(f"colour conversion from {colorspace!r} failed: {out.geterror()}")
-    return np.clip(out.get_pixels(oiio.FLOAT).reshape(rows, width, nch), 0.0, 1.0)
-
-# }}}
-
-
-# {{{ the batch
-
-def fit_half(block, on_invalid, path, names, x0, y0):
-    """``block`` (rows, width, channels) made safe to store as half floats. A finite value
-    above HALF_MAX would be written as inf, a nonzero one below HALF_TINY/2 as 0: both are
-    invalid, and ``on_invalid`` says what happens ("raise": TextureError naming the first
-    texel; "clamp": clamped into [HALF_TINY, HALF_MAX] with its sign). Returns (block, count)."""
-    with np.errstate(over="ignore"):            # the overflow is what is being detected
-        h = block.astype(np.float16)
-    bad = (np.isfinite(block) & ~np.isfinite(h)) | ((block != 0) & (h == 0))
-    n = int(np.count_nonzero(bad))
-    if n == 0:
-        return block, 0
-    if on_invalid != "clamp":
-        yy, xx, cc = (int(v) for v in np.argwhere(bad)[0])
-        raise TextureError(
-            f"{path}: {n} value(s) outside the half-float range [{HALF_TINY:.3g}, {HALF_MAX:g}]; "
-            f"first at x={x0 + xx}, y={y0 + yy}, channel {names[cc]}: {float(block[yy, xx, cc]):g}"
-            f" (write float instead of half, or clamp with --on-invalid clamp / "
-            f"on_invalid='clamp')")
-    return np.where(bad, np.sign(block) * np.clip(np.abs(block), HALF_TINY, HALF_MAX), block), n
 
 
 @dataclass
@@ -418,7 +160,7 @@ class BatchReport:
         return "\n".join(lines)
 
 
-def _parse_constant(value, what):
+def parse_constant(value, what):
     """A float, a per-channel tuple, or a comma-separated string of them, or None (a path)."""
     if isinstance(value, (int, float)):
         return (float(value),)
@@ -432,7 +174,7 @@ def _parse_constant(value, what):
     raise TypeError(f"{what}: expected a number, per-channel numbers or a path, got {value!r}")
 
 
-def _per_channel(values, ncolor, what, path):
+def per_channel(values, ncolor, what, path):
     if len(values) == 1:
         return values * ncolor
     if len(values) != ncolor:
@@ -441,29 +183,42 @@ def _per_channel(values, ncolor, what, path):
     return tuple(values)
 
 
-def _band_rows(spec, bytes_per_texel, max_memory):
-    rows = max(1, int(max_memory // max(1, spec.width * bytes_per_texel)))
-    rows = min(rows, spec.height)
-    if spec.tile_width and spec.tile_height:
-        th = spec.tile_height
-        rows = max(th, rows - rows % th)
-    return rows
-
-
 @dataclass
-class _Job:
+class Job:
     path: str
     udim: str | None
     output: str
     mfp_path: str | None
 
 
-def _process_file(job, settings, device_lock, progress):
+@dataclass(frozen=True)
+class BatchSettings:
+    """What every file of a batch is processed with (``process_textures``' arguments)."""
+
+    eta: tuple
+    mfp: tuple | None            # constants per channel, or None: a texture per file
+    mfp_scale: float
+    config: MethodConfig
+    model: str
+    exact: bool
+    half: bool
+    colorspace: str
+    alpha: str                   # keep | drop
+    on_invalid: str              # raise | clamp
+    max_memory: int
+    outputs: tuple
+    unit: str
+    runtime: Runtime
+    double: bool = False
+    cancel: object = None        # threading.Event or None
+
+
+def process_file(job, settings, device_lock, progress):
     result = FileResult(job.path, job.output)
     t0 = time.perf_counter()
     readers, writer = [], None
     try:
-        alb = _Reader(job.path, "albedo")
+        alb = Reader(job.path, "albedo")
         readers.append(alb)
         colour, alpha_ch = alb.channels()
         ncolor = len(colour)
@@ -473,10 +228,10 @@ def _process_file(job, settings, device_lock, progress):
             result.notes.append("not colour, left out: "
                                 + ", ".join(spec.channelnames[c] for c in other))
         names = [spec.channelnames[c] for c in colour]
-        etas = _per_channel(settings["eta"], ncolor, "eta", job.path)
+        etas = per_channel(settings.eta, ncolor, "eta", job.path)
         mfp_reader = None
         if job.mfp_path is not None:
-            mfp_reader = _Reader(job.mfp_path, "mfp texture")
+            mfp_reader = Reader(job.mfp_path, "mfp texture")
             readers.append(mfp_reader)
             ms = mfp_reader.spec
             if (ms.width, ms.height) != (spec.width, spec.height):
@@ -489,32 +244,33 @@ def _process_file(job, settings, device_lock, progress):
                                    f"{len(mfp_colour)} channels; expected 1 or {ncolor}")
             mfp_const = None
         else:
-            mfp_const = np.array(_per_channel(settings["mfp"], ncolor, "mfp", job.path),
-                                 np.float32) * settings["mfp_scale"]
-        from_space = source_colorspace(spec, settings["colorspace"])
-        keep_alpha = alpha_ch >= 0 and settings["alpha"] == "keep"
-        outputs = settings["outputs"]
+            mfp_const = np.array(per_channel(settings.mfp, ncolor, "mfp", job.path),
+                                 np.float32) * settings.mfp_scale
+        from_space = source_colorspace(spec, settings.colorspace)
+        keep_alpha = alpha_ch >= 0 and settings.alpha == "keep"
+        outputs = settings.outputs
         out_names = [f"{o}.{n}" for o in outputs for n in names]
         if keep_alpha:
             out_names.append(spec.channelnames[alpha_ch])
-        params = {"version": __version__, "method": settings["config"].describe(),
-                  "model": settings["model"], "eta": ",".join(f"{e:g}" for e in etas),
+        params = {"version": __version__, "method": settings.config.describe(),
+                  "model": settings.model, "eta": ",".join(f"{e:g}" for e in etas),
                   "mfp": job.mfp_path or ",".join(f"{m:g}" for m in mfp_const),
-                  "mfp_scale": settings["mfp_scale"], "unit": settings["unit"],
-                  "coefficient_unit": f"1/{settings['unit']}",
+                  "mfp_scale": settings.mfp_scale, "unit": settings.unit,
+                  "coefficient_unit": f"1/{settings.unit}",
                   "albedo": job.path, "albedo_colorspace": from_space or "linear",
                   "mfp_convention": "ld = 1/mu_tr (Jensen/Hery)"}
-        out_spec = _output_spec(spec, out_names, len(out_names) - 1 if keep_alpha else -1,
-                                settings["half"], params)
+        out_spec = output_spec(spec, out_names, len(out_names) - 1 if keep_alpha else -1,
+                                settings.half, params)
         Path(job.output).parent.mkdir(parents=True, exist_ok=True)
-        writer = _Writer(job.output, out_spec)
+        writer = Writer(job.output, out_spec)
         with device_lock:
-            mapper = CoefficientMapper(tuple(etas), settings["config"], outputs=outputs,
-                                       model=settings["model"], exact=settings["exact"],
-                                       on_invalid=settings["on_invalid"],
-                                       device=settings["runtime"], double=settings["double"])
+            mapper = CoefficientMapper(tuple(etas), settings.config, outputs=outputs,
+                                       model=settings.model, exact=settings.exact,
+                                       on_invalid=settings.on_invalid,
+                                       device=settings.runtime, double=settings.double)
         per_texel = 4 * 3 * (spec.nchannels + ncolor * (1 + len(outputs)) + len(out_names))
-        rows = _band_rows(spec, per_texel, settings["max_memory"])
+        rows = band_rows(spec.height, spec.width * per_texel, settings.max_memory,
+                         tile_height=spec.tile_height if spec.tile_width else 0)
         bands = [(y, min(y + rows, spec.height)) for y in range(0, spec.height, rows)]
 
         def read(band):
@@ -533,7 +289,7 @@ def _process_file(job, settings, device_lock, progress):
                 if m is None:
                     mfp = mfp_const
                 else:
-                    mfp = m[..., mfp_colour] * np.float32(settings["mfp_scale"])
+                    mfp = m[..., mfp_colour] * np.float32(settings.mfp_scale)
                 try:
                     with device_lock:
                         outs, counts = mapper(albedo, mfp)
@@ -550,12 +306,12 @@ def _process_file(job, settings, device_lock, progress):
                 if keep_alpha:
                     parts.append(a[..., alpha_ch:alpha_ch + 1])
                 block = np.concatenate(parts, axis=-1)
-                if settings["half"]:
-                    block, n = fit_half(block, settings["on_invalid"], job.path, out_names,
+                if settings.half:
+                    block, n = fit_half(block, settings.on_invalid, job.path, out_names,
                                         spec.x, spec.y + y0)
                     if n:
                         result.invalid["half range"] = result.invalid.get("half range", 0) + n
-                cancel = settings["cancel"]
+                cancel = settings.cancel
                 if cancel is not None and cancel.is_set():
                     raise Cancelled(f"{job.path}: interrupted; nothing written")
                 writer.write_band(y0, y1, block)
@@ -581,7 +337,7 @@ def _process_file(job, settings, device_lock, progress):
     return result
 
 
-def _newer_than_inputs(output, inputs):
+def newer_than_inputs(output, inputs):
     try:
         t = os.path.getmtime(output)
     except OSError:
@@ -648,15 +404,16 @@ def process_textures(inputs, *, mfp=1.0, eta=1.4, output=DEFAULT_OUTPUT,
     config = resolve_method(method, double=double, **knobs)
     if method == "auto" and progress:
         print(f"method='auto': using {config.describe()}")
-    settings = dict(eta=tuple(np.atleast_1d(np.asarray(eta, np.float64)).tolist()),
-                    mfp=_parse_constant(mfp, "mfp"), mfp_scale=float(mfp_scale),
-                    config=config, model=model, exact=exact, half=half,
-                    colorspace=colorspace, alpha=alpha, on_invalid=on_invalid,
-                    max_memory=int(max_memory), outputs=tuple(outputs), unit=unit,
-                    runtime=get_runtime(device), cancel=cancel, double=bool(double))
-    CoefficientMapper((settings["eta"][0],), config, outputs=settings["outputs"], model=model,
+    settings = BatchSettings(
+        eta=tuple(np.atleast_1d(np.asarray(eta, np.float64)).tolist()),
+        mfp=parse_constant(mfp, "mfp"), mfp_scale=float(mfp_scale), config=config,
+        model=model, exact=exact, half=half, colorspace=colorspace, alpha=alpha,
+        on_invalid=check_policy(on_invalid), max_memory=int(max_memory),
+        outputs=tuple(outputs), unit=unit, runtime=get_runtime(device), double=bool(double),
+        cancel=cancel)
+    CoefficientMapper((settings.eta[0],), config, outputs=settings.outputs, model=model,
                       exact=exact, on_invalid=on_invalid,
-                      device=settings["runtime"])  # fail fast on bad settings
+                      device=settings.runtime)  # fail fast on bad settings
     jobs_list, results = [], []
     files = expand_inputs(inputs)
     unmatched = {p for p, _ in files if UDIM_TOKEN in p or glob.has_magic(p)}
@@ -668,14 +425,14 @@ def process_textures(inputs, *, mfp=1.0, eta=1.4, output=DEFAULT_OUTPUT,
             continue
         try:
             out = companion_path(output, path, udim)
-            mfp_path = None if settings["mfp"] is not None else companion_path(mfp, path, udim)
+            mfp_path = None if settings.mfp is not None else companion_path(mfp, path, udim)
         except TextureError as exc:
             results.append(FileResult(path, error=str(exc)))
             continue
-        if skip_existing and os.path.exists(path) and _newer_than_inputs(out, [path, mfp_path]):
+        if skip_existing and os.path.exists(path) and newer_than_inputs(out, [path, mfp_path]):
             results.append(FileResult(path, out, status="skipped"))
             continue
-        jobs_list.append(_Job(path, udim, out, mfp_path))
+        jobs_list.append(Job(path, udim, out, mfp_path))
     clashes = output_collisions(jobs_list)
     results += [FileResult(j.path, j.output, error=clashes[j.output])
                 for j in jobs_list if j.output in clashes]
@@ -693,12 +450,10 @@ def process_textures(inputs, *, mfp=1.0, eta=1.4, output=DEFAULT_OUTPUT,
     lock = threading.Lock()
     try:
         with ThreadPoolExecutor(max(1, int(jobs))) as pool:
-            results += list(pool.map(lambda j: _process_file(j, settings, lock, bar), jobs_list))
+            results += list(pool.map(lambda j: process_file(j, settings, lock, bar), jobs_list))
     finally:
         if bar is not None:
             bar.close()
     order = {p: i for i, (p, _) in enumerate(files)}
     results.sort(key=lambda r: order.get(r.path, len(order)))
     return BatchReport(results)
-
-# }}}

@@ -25,14 +25,14 @@ from pathlib import Path
 import numpy as np
 import pyopencl as cl
 
-from . import physics
-from . import reference as ref
-from .device import get_runtime
+from ..device import get_runtime
+from ..ops import physics_eval as physics
+from ..physics import reference as ref
 
 EPS = {False: 2.0**-24, True: 2.0**-53}
 #: physics bounds in units of u (tests/test_kernels_physics.py explains them)
 PHYSICS_BOUND_U = 16
-INVERT_BOUNDS = {"alpha": 1e-6, "rho": 1e-4}   # issue 3's accuracy bounds
+INVERT_BOUNDS = {"alpha": 1e-6, "rho": 1e-4}   # the accuracy contract (docs/model.md "Accuracy")
 
 
 @dataclass
@@ -105,7 +105,8 @@ def _physics_rows(etas, double, n, rt):
 
 
 def _invert_rows(etas, n, rt):
-    from .invert import MethodConfig, invert_albedo
+    from ..methods.registry import MethodConfig
+    from ..ops.invert import invert_albedo
     rd = _albedo_sweep(n)
     rows = []
     configs = [MethodConfig("table"), MethodConfig("secant"), MethodConfig("bisection"),
@@ -125,7 +126,7 @@ def _invert_rows(etas, n, rt):
 
 
 def _blur_rows(rt):
-    from .blur import blur, channel_kernel, channel_parameters
+    from ..ops.blur import blur, channel_kernel, channel_parameters
     rows = []
     e = np.zeros((41, 41, 1), np.float32)
     e[20, 20] = 1.0
@@ -139,7 +140,7 @@ def _blur_rows(rt):
             got = out[20 - k:21 + k, 20 - k:21 + k, 0]
             err = np.abs(got - ck.weights).max() / ck.rd
             rows.append(Row(f"blur {method} impulse (mfp {mfp} texels)", "f32", float(err),
-                            "of Rd", info.channels[0]["error_bound"], f"radius {k}"))
+                            "of Rd", info.channels[0].error_bound, f"radius {k}"))
     return rows
 
 
@@ -241,7 +242,7 @@ def run_all_devices(etas=(1.0, 1.4, 2.5), *, n=500):
     """``run_crosscheck`` on every working device, each row labelled with its device."""
     from dataclasses import replace
 
-    from .device import survey
+    from ..device import survey
     rows = []
     for state in survey():
         if not state.works:

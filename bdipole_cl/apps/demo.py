@@ -44,8 +44,8 @@ def make_inputs(folder):
 
 
 def run_demo(folder="bdipole_demo", progress=True) -> int:
-    from .device import get_runtime
-    from .textures import process_textures
+    from ..device import get_runtime
+    from ..io.batch import process_textures
     rt = get_runtime()
     print(f"device: {rt.describe()}")
     paths = make_inputs(folder)
@@ -59,14 +59,13 @@ def run_demo(folder="bdipole_demo", progress=True) -> int:
                               outputs=("alpha", "rho", "sigma_a", "sigma_s"),
                               on_invalid="clamp", progress=progress)
     print(report.summary())
-    from .blur import blur_file
+    from ..io.blur_file import blur_file
     out = Path(folder) / "exitance.exr"
     print("\n2. irradiance -> exitance: blur with R(r), albedo (0.8, 0.6, 0.4), mfp (4, 2, 1) mm, "
           "texel 0.5 mm, tol 1e-3.")
     info = blur_file(paths["irradiance"], out, albedo=(0.8, 0.6, 0.4), mfp=(4.0, 2.0, 1.0),
                      eta=1.4, texel_size=0.5, tol=1e-3)
     for c in info.channels:
-        print(f"   channel {c['channel']}: {c['method']}, radius {c['radius']} texels, "
-              f"Rd {c['rd']:.3f}")
+        print(f"   channel {c.channel}: {c.method}, radius {c.radius} texels, Rd {c.rd:.3f}")
     print(f"   wrote {out}")
     return report.exit_code

@@ -6,6 +6,8 @@ import signal
 import sys
 import threading
 
+from ..errors import POLICIES
+
 EPILOG = """examples:
   bdipole-cl demo                                   # built-in example, writes ./bdipole_demo
   bdipole-cl devices
@@ -81,7 +83,7 @@ class _Parser(argparse.ArgumentParser):
 
 
 def _output_list(text):
-    from .invert import OUTPUTS
+    from ..ops.invert import OUTPUTS
     names = tuple(o.strip() for o in str(text).split(",") if o.strip())
     unknown = [o for o in names if o not in OUTPUTS]
     if not names or unknown:
@@ -113,7 +115,7 @@ class _Stop:
 
 
 def _add_method_args(p):
-    from .invert import METHODS
+    from ..methods.registry import METHODS
     p.add_argument("--method", default="table", choices=METHODS + ("auto",),
                    help="inversion method (auto: the cheapest meeting --tol in rho)")
     p.add_argument("--model", default="better", choices=("better", "dipole"),
@@ -134,7 +136,7 @@ def _method_knobs(args):
 
 
 def _cmd_invert(args) -> int:
-    from .textures import process_textures
+    from ..io.batch import process_textures
     stop = _Stop().install()
     report = process_textures(
         args.inputs, mfp=args.mfp, eta=args.eta, output=args.output, cancel=stop.event,
@@ -164,13 +166,13 @@ def _param(text, what, colour=False):
     if _is_number_list(text):
         return _floats(text)
     else:
-        from .blur import read_parameter_texture
+        from ..io.images import read_parameter_texture
         return read_parameter_texture(text, what, colour=colour)
 
 
 def _cmd_blur(args) -> int:
-    from .blur import blur_file
-    from .textures import Cancelled, TextureError
+    from ..io.blur_file import blur_file
+    from ..io.images import Cancelled, TextureError
     if args.alpha_prime is None and (args.albedo is None or args.mfp is None):
         print("bdipole-cl blur: error: give --albedo and --mfp (values or textures), or "
               "--alpha-prime and --sigma-t", file=sys.stderr)
@@ -201,9 +203,9 @@ def _cmd_blur(args) -> int:
         print(f"error: {exc}", file=sys.stderr)
         return 1
     for c in info.channels:
-        rd = f"Rd {c['rd']:.4f}" if "rd" in c else "Rd per texel"
-        print(f"channel {c['channel']}: {c['method']}, radius {c['radius']} texels, {rd}, "
-              f"error <= {c['error_bound']:.1e} x max(E) x Rd")
+        rd = f"Rd {c.rd:.4f}" if c.rd is not None else "Rd per texel"
+        print(f"channel {c.channel}: {c.method}, radius {c.radius} texels, {rd}, "
+              f"error <= {c.error_bound:.1e} x max(E) x Rd")
     print(f"wrote {args.output}")
     return 0
 
@@ -226,7 +228,7 @@ def _cmd_crosscheck(args) -> int:
     else:
         rows = run_crosscheck(args.eta, n=args.n)
     if not args.all_devices:
-        from .device import get_runtime
+        from ..device import get_runtime
         print(f"device: {get_runtime().describe()}")
     print(format_rows(rows))
     return 1 if any(r.status == "FAIL" for r in rows) else 0
@@ -235,7 +237,7 @@ def _cmd_crosscheck(args) -> int:
 def _cmd_report(args) -> int:
     from .report import run_report
     run_report(args.output, n=args.n, blur_size=args.blur_size, repeats=args.repeats,
-               update_auto=args.update_auto)
+               write_choice_to=args.write_choice)
     return 0
 
 
@@ -245,8 +247,8 @@ def _cmd_demo(args) -> int:
 
 
 def _cmd_devices(args) -> int:
-    from .device import REMEDIES, DeviceError, get_runtime, survey
-    from .icd import register_environment_runtimes
+    from ..device import REMEDIES, DeviceError, get_runtime, survey
+    from ..device.icd import register_environment_runtimes
     states = survey()
     try:
         chosen = get_runtime().device.int_ptr
@@ -305,8 +307,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--n", type=int, default=1 << 20, help="albedos in the inversion workload")
     p.add_argument("--blur-size", type=int, default=512, help="side of the blur workload")
     p.add_argument("--repeats", type=int, default=3)
-    p.add_argument("--update-auto", action="store_true",
-                   help="also write the measured inversion configurations for method='auto'")
+    p.add_argument("--write-choice", metavar="PATH",
+                   help="also write every measured configuration as method='auto' choice data "
+                        "(JSON; use it with BDIPOLE_CL_CHOICE_DATA=PATH)")
     p.set_defaults(func=_cmd_report)
 
     p = sub.add_parser("blur", help="blur an irradiance map with the Better Dipole profile R(r)")
@@ -326,8 +329,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--tol", type=_fraction, default=1e-3, help="energy left out, relative to Rd")
     p.add_argument("--method", default="auto", choices=("auto", "direct", "gaussians", "fft"))
     p.add_argument("--border", default="clamp", choices=("clamp", "zero", "wrap"))
-    p.add_argument("--on-invalid", default="raise", choices=("raise", "zero"),
-                   help="NaN/Inf irradiance: fail, or treat as unlit")
+    p.add_argument("--on-invalid", default="raise", choices=POLICIES,
+                   help="NaN/Inf irradiance or parameter texels out of range: fail, or clamp "
+                        "(irradiance: unlit, 0; parameters: into their valid range)")
     p.add_argument("--exact", action="store_true", help="exact Fresnel moments")
     p.add_argument("--half", action="store_true")
     p.add_argument("--max-memory", type=_size, default="256M",
@@ -355,7 +359,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "8-bit, linear for 16-bit)")
     p.add_argument("--alpha", default="keep", choices=("keep", "drop"),
                    help="alpha channel: copied through or dropped (never inverted)")
-    p.add_argument("--on-invalid", default="raise", choices=("raise", "clamp"),
+    p.add_argument("--on-invalid", default="raise", choices=POLICIES,
                    help="NaN/Inf/>=1 albedo or bad mfp texels: fail the file, or clamp")
     p.add_argument("--max-memory", type=_size, default="256M",
                    help="host memory per file (e.g. 512M)")
@@ -375,8 +379,8 @@ def main(argv=None) -> int:
     """Usage errors (bad options or values) exit 2, failures 1, a signal 128 + its number; each
     is one line on stderr, with the traceback only under --debug."""
     args = build_parser().parse_args(argv)
-    from .device import DeviceError, use_device
-    from .textures import TextureError
+    from ..device import DeviceError, use_device
+    from ..io.images import TextureError
     try:
         if args.device:
             use_device(args.device)

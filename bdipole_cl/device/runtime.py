@@ -1,7 +1,7 @@
-"""OpenCL devices: finding, probing and choosing them, kernel sources and program cache.
+"""OpenCL devices: finding, probing and choosing them (the device layer).
 
 Devices come from every OpenCL runtime the ICD loader sees: system drivers, PoCL from
-pyopencl's wheel, and the runtimes installed into the Python environment (``bdipole_cl.icd``
+pyopencl's wheel, and the runtimes installed into the Python environment (``bdipole_cl.device.icd``
 registers Intel's CPU runtime from PyPI before the first platform query).
 
 Each device is *probed* once per process: a tiny kernel is built and run on it, and its result
@@ -24,11 +24,10 @@ import os
 import threading
 import warnings
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 
-from . import icd, reference
+from . import icd
 
 icd.register_environment_runtimes()   # before pyopencl's first platform query
 
@@ -38,8 +37,6 @@ except ImportError:  # pragma: no cover - optional at import time, a dependency 
     pass
 import pyopencl as cl  # noqa: E402
 
-#: The header every kernel source is joined behind.
-HEADER = "bdipole.h"
 
 REMEDIES = (
     "remedies: `pip install intel-opencl-rt intel-cmplr-lib-rt` into this environment (x86-64 "
@@ -96,7 +93,7 @@ _lock = threading.RLock()
 _default: Runtime | None = None
 _runtimes: dict = {}          # device int_ptr -> Runtime (one context per device and process)
 _probes: dict = {}            # device int_ptr -> reason ("" = works)
-_programs: dict = {}
+
 
 PROBE_SOURCE = """
 __kernel void bdipole_probe(__global float *x)
@@ -146,7 +143,7 @@ def probe(device) -> str:
             return _probes[key]
     try:
         rt = _runtime_of(device)
-        prg = _build(rt.context, PROBE_SOURCE)
+        prg = build_quietly(rt.context, PROBE_SOURCE)
         x = np.float32([0.0, 0.5, 2.0, 8.0])
         buf = cl.Buffer(rt.context, cl.mem_flags.READ_WRITE | cl.mem_flags.COPY_HOST_PTR,
                         hostbuf=x)
@@ -249,7 +246,7 @@ def _from_pyopencl_ctx(spec: str) -> Runtime:
 ALIASES = {"pocl": "portable computing language"}
 
 
-def _build(context, source, options=()):
+def build_quietly(context, source, options=()):
     """Build quietly: a non-empty build log is normal for some drivers (Intel's prints one for
     every build) and pyopencl would warn on each; failures still raise with the log."""
     with warnings.catch_warnings():
@@ -311,56 +308,3 @@ def use_device(device=None) -> Runtime:
 def working_runtimes() -> list[Runtime]:
     """A Runtime for every working device (tests and ``crosscheck --all-devices``)."""
     return [_runtime_of(s.device) for s in survey() if s.works]
-
-
-# {{{ kernel sources and programs
-
-def kernel_dir() -> Path:
-    """``bdipole_cl/kernels`` in an installed wheel, else the source tree's top-level ``kernels``."""
-    here = Path(__file__).resolve().parent
-    for candidate in (here / "kernels", here.parent / "kernels"):
-        if (candidate / HEADER).is_file():
-            return candidate
-    raise DeviceError(f"kernel sources not found next to {here} (looked for {HEADER})")
-
-
-def kernel_source(name: str) -> str:
-    """The header joined in front of ``kernels/<name>.cl``."""
-    d = kernel_dir()
-    return (d / HEADER).read_text() + f"\n#line 1 \"{name}.cl\"\n" + (d / f"{name}.cl").read_text()
-
-
-def build_options(defines: dict | None = None, double: bool = False, model: str = "better"):
-    """Build options (sorted, so that equal specializations share one cache entry)."""
-    opts = {} if defines is None else dict(defines)
-    if double:
-        opts["BD_DOUBLE"] = None
-    if model == "dipole":
-        opts["BD_MODEL_DIPOLE"] = None
-    elif model != "better":
-        raise ValueError(f"model={model!r}: expected one of {reference.MODELS}")
-    return tuple(f"-D{k}" if v is None else f"-D{k}={v}" for k, v in sorted(opts.items()))
-
-
-def get_program(rt: Runtime, name: str, options=()) -> cl.Program:
-    """Build (once per runtime, source name and options) the program of ``kernels/<name>.cl``."""
-    key = (id(rt.context), name, tuple(options))
-    with _lock:
-        prg = _programs.get(key)
-    if prg is None:
-        if any(o == "-DBD_DOUBLE" for o in options) and not rt.has_fp64:
-            raise DeviceError(f"{rt.describe()} has no cl_khr_fp64: float64 is not available")
-        try:
-            prg = _build(rt.context, kernel_source(name), options)
-        except cl.RuntimeError as exc:
-            raise DeviceError(f"building kernels/{name}.cl with {' '.join(options)} failed:\n"
-                              f"{exc}") from exc
-        with _lock:
-            _programs[key] = prg
-    return prg
-
-# }}}
-
-
-def real_dtype(double: bool):
-    return np.dtype(np.float64 if double else np.float32)

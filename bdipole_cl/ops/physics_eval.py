@@ -1,24 +1,25 @@
-"""Elementwise evaluation of the kernels' physics functions (kernels/physics_eval.cl), for
-cross-checks against ``bdipole_cl.reference``."""
+"""Elementwise evaluation of the kernels' physics functions on a device
+(kernels/physics_eval.cl), for cross-checks against ``bdipole_cl.physics.reference``."""
 from __future__ import annotations
 
 import numpy as np
 import pyopencl as cl
 import pyopencl.array as cla
 
-from . import reference as ref
-from . import tables
-from .device import build_options, get_program, get_runtime, real_dtype
+from ..device import build_options, get_program, get_runtime, real_dtype
+from ..device.layout import channel_params
+from ..physics import reference as ref
+
 
 #: function name -> (build define, reference evaluator taking (x, y, z, eta, exact))
 FUNCTIONS = {
-    "rd": ("FUNC_RD", lambda x, y, z, eta, exact: ref.rd(x, eta, exact)),
-    "one_minus_rd": ("FUNC_ONE_MINUS_RD",
+    "rd": ("BD_FUNC_RD", lambda x, y, z, eta, exact: ref.rd(x, eta, exact)),
+    "one_minus_rd": ("BD_FUNC_ONE_MINUS_RD",
                      lambda x, y, z, eta, exact: ref.one_minus_rd_of_rho(x * x, eta, exact)),
-    "profile": ("FUNC_PROFILE", lambda x, y, z, eta, exact: ref.profile(x, y, z, eta, exact)),
-    "profile_cdf": ("FUNC_PROFILE_CDF",
+    "profile": ("BD_FUNC_PROFILE", lambda x, y, z, eta, exact: ref.profile(x, y, z, eta, exact)),
+    "profile_cdf": ("BD_FUNC_PROFILE_CDF",
                     lambda x, y, z, eta, exact: ref.profile_cdf(x, y, z, eta, exact)),
-    "profile_tail": ("FUNC_PROFILE_TAIL",
+    "profile_tail": ("BD_FUNC_PROFILE_TAIL",
                      lambda x, y, z, eta, exact: ref.profile_tail(x, y, z, eta, exact)),
 }
 
@@ -40,7 +41,7 @@ def evaluate(func, x, y=0.0, z=1.0, *, eta=1.4, exact=False, double=False, rho=N
     args = [cla.to_device(rt.queue, np.ascontiguousarray(v, dtype=dtype).reshape(-1))
             for v in (x, y, z, w)]
     out = cla.empty(rt.queue, x.size, dtype)
-    params = tables.channel_params((eta,), exact=exact, dtype=dtype)
+    params = channel_params((eta,), exact=exact, dtype=dtype)
     params_buf = cl.Buffer(rt.context, cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR,
                            hostbuf=params)
     if x.size:

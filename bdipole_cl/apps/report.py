@@ -3,8 +3,10 @@
 On the current device, on fixed workloads (seeded), it measures for each configuration the max
 and mean error against the float64 reference and the median run time, and writes
 ``report.md`` (table), ``report.csv`` and ``report.png`` (log-log error vs time, one curve per
-method, Pareto front circled). With ``--update-auto`` it also writes the measured inversion
-configurations to ``bdipole_cl/data/inversion_auto.json``, from which ``method="auto"`` picks.
+method, Pareto front circled). With ``--write-choice PATH`` it also writes every measured
+configuration, as structured fields, to the JSON file ``method="auto"`` picks from
+(``bdipole_cl.methods.choice``: the package's ``bdipole_cl/data/choice.json`` is written this
+way from a source checkout; ``BDIPOLE_CL_CHOICE_DATA`` makes an installed package use another).
 
 Inversion error: max relative error of rho (= sigma_a/sigma_t', the stiff quantity; alpha'
 errors are smaller for every method but the memo's, whose rho is reported as it is).
@@ -14,18 +16,15 @@ tol = 1e-9 weights in float64 by FFT.
 from __future__ import annotations
 
 import csv
-import json
-from dataclasses import dataclass, field
-from functools import lru_cache
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from ..device import get_runtime
+from ..methods.choice import ChoiceData, write_choice_data
+from ..methods.registry import BlurChoice, InversionChoice, MethodConfig
 from .benchmark import inversion_workload, reference_inverse, time_inversion
-from .device import get_runtime
-from .invert import MethodConfig
-
-AUTO_DATA = Path(__file__).resolve().parent / "data" / "inversion_auto.json"
 
 INVERSION_SWEEP = (
     [MethodConfig("memo", iterations=i) for i in (12, 24, 50)]
@@ -53,7 +52,7 @@ class Point:
     max_error: float
     mean_error: float
     pareto: bool = False
-    meta: dict = field(default_factory=dict, compare=False)
+    choice: InversionChoice | BlurChoice | None = None    # the measurement as choice data
 
 
 def inversion_points(n=1 << 20, eta=1.4, repeats=3, progress=print):
@@ -68,7 +67,8 @@ def inversion_points(n=1 << 20, eta=1.4, repeats=3, progress=print):
         r = time_inversion(cfg, rd, eta, want_a, want_rho, double=double, repeats=repeats)
         prec = "f64" if double else "f32"
         points.append(Point("inversion", f"{cfg.method} {prec}", cfg.describe(), prec,
-                            r.seconds, r.max_err_rho, r.mean_err_rho))
+                            r.seconds, r.max_err_rho, r.mean_err_rho,
+                            choice=InversionChoice(cfg, prec, r.max_err_rho, r.seconds)))
         progress(f"  {cfg.describe():34s} {prec}  {r.seconds * 1e3:9.2f} ms  "
                  f"max rho err {r.max_err_rho:.2e}")
     return points
@@ -79,7 +79,8 @@ def blur_points(size=512, mfps=BLUR_WORKLOADS, repeats=3, progress=print):
     import statistics
     import time
 
-    from .blur import blur, channel_kernel, channel_parameters, fft_blur_channel
+    from ..ops.blur import blur, channel_kernel, channel_parameters
+    from ..ops.blur.fft import fft_blur_channel
     rng = np.random.default_rng(1)
     e = rng.uniform(0, 1, (size, size, 1)).astype(np.float32)
     points = []
@@ -97,9 +98,10 @@ def blur_points(size=512, mfps=BLUR_WORKLOADS, repeats=3, progress=print):
                 out = blur(e, albedo=0.8, mfp=mfp, tol=tol, method=method)
                 times.append(time.perf_counter() - t0)
             err = np.abs(out[..., 0] - exact) / norm
+            seconds = statistics.median(times)
             p = Point(f"blur mfp {mfp:g}", method, f"{method}(tol={tol:g})", "f32",
-                      statistics.median(times), float(err.max()), float(err.mean()),
-                      meta={"method": method, "tol": tol, "radius": radius, "mfp": mfp})
+                      seconds, float(err.max()), float(err.mean()),
+                      choice=BlurChoice(method, tol, radius, mfp, float(err.max()), seconds))
             points.append(p)
             progress(f"  mfp {mfp:g} (radius {radius}) {p.config:22s} {p.seconds * 1e3:9.1f} ms"
                      f"  max err {p.max_error:.2e}")
@@ -171,31 +173,22 @@ def _plot(points, path, device):
 
 def read_csv(path):
     """Points back from a report.csv (to re-plot or re-table without re-measuring; blur
-    points come back without their ``meta``)."""
+    points come back without their ``choice``)."""
     with open(path, newline="") as f:
         return [Point(r["kind"], r["method"], r["config"], r["precision"], float(r["median_s"]),
                       float(r["max_error"]), float(r["mean_error"]), r["pareto"] == "1")
                 for r in csv.DictReader(f)]
 
 
-def write_auto_data(points, path=AUTO_DATA):
-    """The measured configurations, in cost order, for ``method="auto"``: float32 inversion
-    configurations with their max rho error, and blur configurations per workload radius."""
-    inv = sorted((p for p in points if p.kind == "inversion" and p.precision == "f32"),
-                 key=lambda p: p.seconds)
-    blur = sorted((p for p in points if p.kind.startswith("blur")),
-                  key=lambda p: (p.meta["radius"], p.seconds))
-    data = {"device": get_runtime().describe(),
-            "configs": [{"config": p.config, "max_rho_error": p.max_error,
-                         "median_s": p.seconds} for p in inv],
-            "blur": [dict(p.meta, max_error=p.max_error, median_s=p.seconds) for p in blur]}
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(data, indent=1))
-    _auto_data.cache_clear()
-    return path
+def write_choice(points, path):
+    """Every measured configuration as choice data for ``method="auto"``, cheapest first."""
+    inv = sorted((p.choice for p in points if p.kind == "inversion"), key=lambda c: c.median_s)
+    blur = sorted((p.choice for p in points if p.kind.startswith("blur")),
+                  key=lambda c: (c.radius, c.median_s))
+    return write_choice_data(ChoiceData(get_runtime().describe(), tuple(inv), tuple(blur)), path)
 
 
-def run_report(folder="report_out", *, n=1 << 20, blur_size=512, repeats=3, update_auto=False,
+def run_report(folder="report_out", *, n=1 << 20, blur_size=512, repeats=3, write_choice_to=None,
                progress=print):
     rt = get_runtime()
     progress(f"device: {rt.describe()}")
@@ -210,59 +203,7 @@ def run_report(folder="report_out", *, n=1 << 20, blur_size=512, repeats=3, upda
                  f"0.8, mfp {' and '.join(f'{m:g}' for m in BLUR_WORKLOADS)} texels, eta 1.4, "
                  f"border clamp, median of {repeats} calls (host to host)."]
     out = write_outputs(points, folder, rt.describe(), workloads)
-    if update_auto:
-        progress(f"wrote {write_auto_data(points)}")
+    if write_choice_to:
+        progress(f"wrote {write_choice(points, write_choice_to)}")
     progress(f"wrote {out / 'report.md'}, {out / 'report.csv'}, {out / 'report.png'}")
     return points
-
-
-# {{{ method="auto" for the inversion
-
-def _parse_config(text):
-    """'table(size=256, polish=0)' -> MethodConfig (the inverse of MethodConfig.describe)."""
-    name, _, args = text.partition("(")
-    kv = dict(item.split("=") for item in args.rstrip(")").split(", ") if item)
-    if name == "table":
-        return MethodConfig("table", table_size=int(kv["size"]), polish=int(kv["polish"]))
-    if name == "secant":
-        tol = None if kv["tol"] == "default" else float(kv["tol"])
-        return MethodConfig("secant", tol=tol, seed_size=int(kv["seed"]))
-    return MethodConfig(name, iterations=int(kv["iterations"]))
-
-
-@lru_cache(maxsize=1)
-def _auto_data():
-    """bdipole_cl/data/inversion_auto.json, read once per process."""
-    return json.loads(AUTO_DATA.read_text())
-
-
-def auto_inversion_config(tol):
-    """The cheapest measured configuration whose max relative rho error is <= tol
-    (bdipole_cl/data/inversion_auto.json, written by ``bdipole-cl report --update-auto``)."""
-    data = _auto_data()
-    for entry in data["configs"]:
-        if entry["max_rho_error"] <= tol:
-            return _parse_config(entry["config"]), entry
-    best = min(data["configs"], key=lambda e: e["max_rho_error"])
-    raise ValueError(f"tol={tol:g}: no float32 configuration reaches it (best measured: "
-                     f"{best['config']} at {best['max_rho_error']:.2e}); compute in float64 "
-                     f"with an explicit method instead (double=True, --double on the command "
-                     f"line; e.g. table with polish 2)")
-
-# }}}
-
-
-def auto_blur_config(radius, tol):
-    """(method, truncation tol, entry) for ``blur(method="auto", tol=tol)`` on a kernel of
-    ``radius`` texels: the cheapest measured configuration, on the measured workload of the
-    nearest radius, whose measured max error is <= tol; None if none qualifies."""
-    data = _auto_data().get("blur", [])
-    if not data:
-        return None
-    radii = sorted({e["radius"] for e in data})
-    near = min(radii, key=lambda r: abs(np.log((r + 1.0) / (radius + 1.0))))
-    ok = [e for e in data if e["radius"] == near and e["max_error"] <= tol]
-    if not ok:
-        return None
-    best = min(ok, key=lambda e: e["median_s"])
-    return best["method"], best["tol"], best

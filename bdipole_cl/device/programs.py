@@ -1,0 +1,96 @@
+"""Kernel sources, build options and the program cache (the device layer).
+
+A kernel's source is the generated parameter layout (``layout.header``), then the one physics
+header kernels/bdipole.h, then ``kernels/<name>.cl``, joined as text (no ``#include``: PoCL
+compiles from a temporary file, so relative include paths break), with ``#line`` markers so
+that compiler messages point at the right file. Build options specialize it; every option is
+``-DBD_<NAME>`` (kernels/bdipole.h lists them). Programs are built once per context, source
+name and options, and dropped by ``bdipole_cl.clear_caches()``.
+"""
+from __future__ import annotations
+
+import threading
+from pathlib import Path
+
+import numpy as np
+import pyopencl as cl
+
+from ..caches import register_clearer
+from ..physics import reference
+from . import layout
+from .runtime import DeviceError, Runtime, build_quietly
+
+#: The header every kernel source is joined behind.
+HEADER = "bdipole.h"
+
+_lock = threading.Lock()
+_programs: dict = {}
+
+
+def kernel_dir() -> Path:
+    """``bdipole_cl/kernels`` in an installed wheel, else the source tree's ``kernels``."""
+    package = Path(__file__).resolve().parent.parent
+    for candidate in (package / "kernels", package.parent / "kernels"):
+        if (candidate / HEADER).is_file():
+            return candidate
+    raise DeviceError(f"kernel sources not found next to {package} (looked for {HEADER})")
+
+
+def kernel_source(name: str, body: str | None = None) -> str:
+    """The generated layout, then the physics header, then ``kernels/<name>.cl`` (or ``body``,
+    a kernel's text given directly, named ``name``)."""
+    d = kernel_dir()
+    text = (d / f"{name}.cl").read_text() if body is None else body
+    return (layout.header() + f"#line 1 \"{HEADER}\"\n" + (d / HEADER).read_text()
+            + f"\n#line 1 \"{name}.cl\"\n" + text)
+
+
+def build_options(defines: dict | None = None, double: bool = False, model: str = "better"):
+    """Build options (sorted, so that equal specializations share one cache entry). Every
+    name carries the ``BD_`` prefix."""
+    opts = {} if defines is None else dict(defines)
+    stray = [k for k in opts if not k.startswith("BD_")]
+    if stray:
+        raise ValueError(f"build options {stray}: every kernel option is named BD_<NAME>")
+    if double:
+        opts["BD_DOUBLE"] = None
+    if model == "dipole":
+        opts["BD_MODEL_DIPOLE"] = None
+    elif model != "better":
+        raise ValueError(f"model={model!r}: expected one of {reference.MODELS}")
+    return tuple(f"-D{k}" if v is None else f"-D{k}={v}" for k, v in sorted(opts.items()))
+
+
+def get_program(rt: Runtime, name: str, options=()) -> cl.Program:
+    """Build (once per runtime, source name and options) the program of ``kernels/<name>.cl``."""
+    key = (id(rt.context), name, tuple(options))
+    with _lock:
+        prg = _programs.get(key)
+    if prg is None:
+        if any(o == "-DBD_DOUBLE" for o in options) and not rt.has_fp64:
+            raise DeviceError(f"{rt.describe()} has no cl_khr_fp64: float64 is not available")
+        try:
+            prg = build_quietly(rt.context, kernel_source(name), options)
+        except cl.RuntimeError as exc:
+            raise DeviceError(f"building kernels/{name}.cl with {' '.join(options)} failed:\n"
+                              f"{exc}") from exc
+        with _lock:
+            _programs[key] = prg
+    return prg
+
+
+def real_dtype(double: bool):
+    return np.dtype(np.float64 if double else np.float32)
+
+
+def program_count() -> int:
+    """Programs built and kept in this process."""
+    with _lock:
+        return len(_programs)
+
+
+@register_clearer
+def clear_programs():
+    """Forget every built program (``bdipole_cl.clear_caches`` calls this)."""
+    with _lock:
+        _programs.clear()

@@ -1,0 +1,59 @@
+"""The invalid-input error family and the one policy vocabulary (the foundation layer).
+
+Every operation that meets input the model cannot take (an albedo >= 1, a NaN mfp, an infinite
+irradiance) raises ``InvalidInputError`` or, under ``on_invalid="clamp"``, replaces the values
+by the nearest valid ones and counts them. The words are the same everywhere: the Python
+``on_invalid=`` argument and the CLI's ``--on-invalid`` both take ``raise`` or ``clamp``. What
+"nearest valid" means is each quantity's own rule, stated where it is applied (albedo: into
+[0, 1); mfp: into [1e-20, 1e20]; irradiance, which has no upper bound: non-finite texels are
+unlit, 0).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+#: what ``on_invalid`` takes, everywhere
+POLICIES = ("raise", "clamp")
+
+
+def check_policy(on_invalid: str) -> str:
+    if on_invalid not in POLICIES:
+        raise ValueError(f"on_invalid={on_invalid!r}: expected one of {', '.join(POLICIES)}")
+    return on_invalid
+
+
+class InvalidInputError(ValueError):
+    """Input values the model cannot take.
+
+    ``name`` (albedo, mfp, irradiance, alpha, sigma_t), ``count``, the first bad element's
+    ``first_index`` (a tuple; for HxWxC texel data ``(y, x, c)``) and ``first_value``, and
+    ``why`` (the rule they break). The message names the first element as a texel (x, y,
+    channel) when ``texels`` is true, else by its index."""
+
+    def __init__(self, name, count, first_index, first_value, why, texels=False):
+        self.name, self.count, self.first_index = name, count, tuple(first_index)
+        self.first_value, self.why = first_value, why
+        if texels and len(self.first_index) == 3:
+            y, x, c = self.first_index
+            where = f"x={x}, y={y}, channel {c}"
+        else:
+            where = f"index {self.first_index}"
+        super().__init__(f"{count} invalid {name} value(s) ({why}); first at {where}: "
+                         f"{float(first_value):g} (on_invalid='clamp' / --on-invalid clamp "
+                         f"clamps them)")
+
+
+def find_invalid(name, values, bad, why, on_invalid, texels=False, channel=None) -> int:
+    """The count of ``bad`` elements of ``values``; with ``on_invalid="raise"`` and any bad,
+    an InvalidInputError naming the first. ``texels``: the data are HxWxC texels (or HxW of
+    channel ``channel``), named by x, y and channel."""
+    check_policy(on_invalid)
+    count = int(np.count_nonzero(bad))
+    if count and on_invalid == "raise":
+        first = np.unravel_index(int(np.flatnonzero(np.reshape(bad, -1))[0]), np.shape(bad))
+        first = tuple(int(i) for i in first)
+        value = np.asarray(values)[first].item()
+        if channel is not None:
+            first += (int(channel),)
+        raise InvalidInputError(name, count, first, value, why, texels)
+    return count

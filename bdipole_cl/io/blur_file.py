@@ -1,0 +1,93 @@
+"""File-to-file blur (``bdipole-cl blur``): an irradiance image in, an exitance EXR out, in
+bands of rows with a halo of the truncation radius (I/O layer)."""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+from ..device import get_runtime
+from ..ops.bands import band_rows, bands
+from ..ops.blur import PARAM_KEYS, blur, is_textured
+from ..ops.blur.planning import channel_plans, halo_of
+from .images import (Cancelled, Reader, TextureError, Writer, check_output_format, output_spec,
+                     read_rows, source_colorspace, to_linear)
+
+#: working set per row of a streamed band, in floats per texel and channel of the file: the
+#: band as read, the colour planes, the blur's own working set (``constant_row_bytes``) and
+#: the output with alpha
+FILE_ROW_FLOATS = 10
+
+
+def blur_file(path, output, *, colorspace="auto", half=False, max_memory=256 << 20,
+              sources=None, cancel=None, **kwargs):
+    """Blur an irradiance image file into an EXR, streamed in bands of rows with a halo of the
+    truncation radius (memory bounded by ``max_memory``). Integer files are decoded to linear
+    as in ``process_textures``; alpha is copied through. ``kwargs`` are ``blur``'s.
+
+    ``sources``: {parameter name: file} of parameter textures given as arrays, so that errors
+    name the file they come from and ``output`` never overwrites one of them. ``cancel``
+    (threading.Event): when set, the next band raises Cancelled and the temporary output is
+    removed. Returns the BlurInfo."""
+    check_output_format(output)
+    sources = dict(sources or {})
+    for src in (path, *sources.values()):
+        if os.path.exists(output) and os.path.exists(src) and os.path.samefile(output, src):
+            raise ValueError(f"{output}: the output would overwrite the input {src}")
+    reader = Reader(path, "irradiance")
+    writer = None
+    try:
+        spec = reader.spec
+        colour, alpha_ch = reader.channels()
+        space = source_colorspace(spec, colorspace)
+        border = kwargs.get("border", "clamp")
+        kwargs["device"] = get_runtime(kwargs.get("device"))   # resolved once for all bands
+        physical = {key: kwargs[key] for key in PARAM_KEYS if key in kwargs}
+        if is_textured(**physical):
+            # parameter textures: one global plan, so the whole image is read and ``blur``
+            # bands it internally (its halo follows that plan)
+            k, rows = 0, spec.height
+            kwargs["max_memory"] = max_memory
+        else:
+            # the halo follows each channel's plan (auto may pick a tighter truncation than tol)
+            _, plans = channel_plans(len(colour), method=kwargs.get("method", "auto"),
+                                     tol=kwargs.get("tol", 1e-3),
+                                     exact=kwargs.get("exact", False), **physical)
+            k = halo_of(plans)
+            rows = band_rows(spec.height, spec.width * spec.nchannels * 4 * FILE_ROW_FLOATS,
+                             max_memory, halo=k, tile_height=spec.tile_height)
+        names = [spec.channelnames[c] for c in colour]
+        if alpha_ch >= 0:
+            names.append(spec.channelnames[alpha_ch])
+        info = None
+        for y0, y1, idx in bands(spec.height, rows, k, border):
+            if cancel is not None and cancel.is_set():
+                raise Cancelled(f"{path}: interrupted; nothing written")
+            px = read_rows(reader, idx)
+            e = px[..., colour]
+            if space is not None:
+                e = to_linear(e, space)
+            out, info = blur(e, return_info=True, **kwargs)
+            parts = [out[k:k + y1 - y0]]
+            if alpha_ch >= 0:
+                parts.append(px[k:k + y1 - y0, :, alpha_ch:alpha_ch + 1])
+            if writer is None:
+                meta = {key: (v if np.ndim(v) < 2 else "texture")
+                        for key, v in kwargs.items() if key in PARAM_KEYS + ("tol", "border")}
+                meta["methods"] = ",".join(f"{c.method}(r={c.radius})" for c in info.channels)
+                meta["source"] = str(path)
+                Path(output).parent.mkdir(parents=True, exist_ok=True)
+                writer = Writer(output, output_spec(
+                    spec, names, len(names) - 1 if alpha_ch >= 0 else -1, half, meta))
+            writer.write_band(y0, y1, np.concatenate(parts, axis=-1))
+        writer.commit()
+        writer = None
+        return info
+    except (OSError, ValueError) as exc:
+        where = sources.get(getattr(exc, "name", None), path)
+        raise TextureError(f"{where}: {exc}") from exc
+    finally:
+        if writer is not None:
+            writer.abort()
+        reader.close()

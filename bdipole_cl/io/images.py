@@ -1,0 +1,293 @@
+"""Images: reading and writing bands of OpenImageIO files, channels and colour (I/O layer).
+
+* Pixels are read as float32 (``Reader``), respecting the data window, scanline or tiled.
+* Channels are classified by name (``classify_channels``): only colour is ever inverted.
+* Integer-encoded (8/16-bit) colour is decoded to linear through OpenImageIO's colour
+  conversion: ``colorspace="auto"`` takes the space the file declares (``oiio:ColorSpace``),
+  else sRGB for 8-bit and linear for 16-bit; a named space overrides it for integer files.
+  Float/half files are taken as linear. Decoded values are clamped to [0, 1] (the conversion's
+  own overshoot, e.g. 1.0000241 for sRGB white).
+* Outputs are OpenEXR (``check_output_format``), written band by band into a temporary file
+  beside the target and renamed when complete (``Writer``); half-float outputs are checked for
+  values half cannot hold (``fit_half``).
+"""
+from __future__ import annotations
+
+import os
+import threading
+from pathlib import Path
+
+import numpy as np
+import OpenImageIO as oiio
+
+
+class TextureError(RuntimeError):
+    """A file that cannot be processed; the message names the file and the reason."""
+
+
+class Cancelled(TextureError):
+    """The batch was stopped (SIGINT/SIGTERM) before this file was complete."""
+
+
+#: what half floats hold: larger finite values become inf, smaller nonzero ones become 0
+HALF_MAX = float(np.finfo(np.float16).max)
+HALF_TINY = float(np.finfo(np.float16).smallest_subnormal)
+
+
+def check_output_format(path):
+    """Outputs are OpenEXR: only EXR holds float/half values in any number of named channels
+    (``sigma_a.R``, ...). Any other extension would drop channels or quantise: refused."""
+    suffix = Path(path).suffix.lower()
+    if suffix != ".exr":
+        raise ValueError(f"{path}: output must be an OpenEXR file (.exr), got "
+                           f"'{suffix or 'no extension'}': other formats would drop channels or "
+                           f"quantise the float values")
+
+
+COLOUR_NAMES = ("r", "g", "b", "y", "red", "green", "blue", "l", "gray", "grey")
+ALPHA_NAMES = ("a", "alpha")
+
+
+def classify_channels(names, alpha_channel=-1):
+    """(colour, alpha, other) channel indices of a file, by name (the part after the last '.',
+    case-insensitive) and the file's declared alpha channel:
+
+    - alpha: the declared alpha channel, else the first named A or alpha;
+    - colour: channels named R, G, B, Y (also red, green, blue, L, gray, grey), in file order;
+    - a file whose channels have none of these names but exactly one non-alpha channel: that
+      channel is grey (a 1-channel file of any name; 2 channels of which one is alpha);
+    - everything else (Z, depth, masks, ...) is other: never inverted, never written.
+
+    So 1 channel is grey; 2 are grey + alpha when one is alpha, else as named (e.g. R and G);
+    4 or more are R, G, B (+ A) with any extra channels left out."""
+    short = [str(n).rsplit(".", 1)[-1].strip().lower() for n in names]
+    alpha = alpha_channel if 0 <= alpha_channel < len(names) else next(
+        (i for i, s in enumerate(short) if s in ALPHA_NAMES), -1)
+    rest = [i for i in range(len(names)) if i != alpha]
+    colour = [i for i in rest if short[i] in COLOUR_NAMES]
+    if not colour and len(rest) == 1:
+        colour = rest
+    other = [i for i in rest if i not in colour]
+    return colour, alpha, other
+
+
+class Reader:
+    """One image file open for band reads (scanline or tiled), float32 out."""
+
+    def __init__(self, path, what):
+        self.path = path
+        self.inp = None
+        if os.path.isdir(path):
+            raise TextureError(f"{path}: is a directory, not an image ({what})")
+        if not os.path.exists(path):
+            raise TextureError(f"{path}: no such file ({what})")
+        self.inp = oiio.ImageInput.open(str(path))
+        if self.inp is None:
+            raise TextureError(f"{path}: cannot read {what}: {oiio.geterror() or 'unknown error'}")
+        self.spec = self.inp.spec()
+        self.lock = threading.Lock()
+
+    def channels(self):
+        """Indices of the colour channels and of the alpha channel (or -1), by
+        ``classify_channels``; a file with no colour channel is a TextureError."""
+        colour, alpha, _ = classify_channels(self.spec.channelnames, self.spec.alpha_channel)
+        if not colour:
+            raise TextureError(f"{self.path}: no colour channel among "
+                               f"{', '.join(self.spec.channelnames)} (colour is R, G, B or Y, "
+                               f"or a single channel that is not alpha)")
+        return colour, alpha
+
+    def read_band(self, y0, y1):
+        s = self.spec
+        with self.lock:
+            if s.tile_width:
+                px = self.inp.read_tiles(0, 0, s.x, s.x + s.width, s.y + y0, s.y + y1, s.z,
+                                         s.z + max(s.depth, 1), 0, s.nchannels, oiio.FLOAT)
+            else:
+                px = self.inp.read_scanlines(0, 0, s.y + y0, s.y + y1, s.z, 0, s.nchannels,
+                                             oiio.FLOAT)
+        if px is None:
+            raise TextureError(f"{self.path}: read of rows {y0}..{y1} failed: "
+                               f"{self.inp.geterror() or oiio.geterror()}")
+        return np.asarray(px, dtype=np.float32).reshape(y1 - y0, s.width, s.nchannels)
+
+    def close(self):
+        if self.inp is not None:
+            self.inp.close()
+            self.inp = None
+
+
+SKIP_ATTRIBS = ("compression", "oiio:ColorSpace", "oiio:BitsPerSample", "oiio:UnassociatedAlpha",
+                 "oiio:Gamma", "openexr:lineOrder", "PixelAspectRatio")
+
+
+def output_spec(in_spec, channel_names, alpha_index, half, params):
+    spec = oiio.ImageSpec(in_spec.width, in_spec.height, len(channel_names),
+                          "half" if half else "float")
+    spec.x, spec.y, spec.z = in_spec.x, in_spec.y, in_spec.z
+    spec.full_x, spec.full_y = in_spec.full_x, in_spec.full_y
+    spec.full_width, spec.full_height = in_spec.full_width, in_spec.full_height
+    spec.tile_width, spec.tile_height = in_spec.tile_width, in_spec.tile_height
+    spec.channelnames = tuple(channel_names)
+    spec.alpha_channel = alpha_index
+    for attr in in_spec.extra_attribs:
+        if attr.name in SKIP_ATTRIBS or attr.name.startswith(("bdipole:", "png:", "tiff:",
+                                                               "jpeg:")):
+            continue
+        try:
+            spec.attribute(attr.name, attr.type, attr.value)
+        except Exception:  # an attribute type the Python binding cannot copy: leave it out
+            pass
+    spec.attribute("compression", "zip")
+    spec.attribute("oiio:ColorSpace", "lin_rec709_scene")
+    for key, value in params.items():
+        spec.attribute(f"bdipole:{key}", str(value))
+    return spec
+
+
+class Writer:
+    """An EXR written band by band into a temporary file, renamed by ``commit``."""
+
+    def __init__(self, path, spec):
+        self.path = Path(path)
+        self.tmp = self.path.with_name(f".{self.path.stem}.partial-{os.getpid()}"
+                                       f"-{threading.get_ident()}{self.path.suffix}")
+        self.spec = spec
+        self.out = oiio.ImageOutput.create(str(self.tmp))
+        if self.out is None:
+            raise TextureError(f"{path}: cannot create output: {oiio.geterror()}")
+        if not self.out.open(str(self.tmp), spec):
+            err = self.out.geterror() or oiio.geterror()
+            self.out = None
+            self._remove_tmp()
+            raise TextureError(f"{path}: cannot write output: {err}")
+
+    def write_band(self, y0, y1, pixels):
+        s = self.spec
+        pixels = np.ascontiguousarray(pixels, dtype=np.float32)
+        if s.tile_width:
+            ok = self.out.write_tiles(s.x, s.x + s.width, s.y + y0, s.y + y1, s.z,
+                                      s.z + max(s.depth, 1), pixels)
+        else:
+            ok = self.out.write_scanlines(s.y + y0, s.y + y1, s.z, pixels)
+        if not ok:
+            raise TextureError(f"{self.path}: write of rows {y0}..{y1} failed: "
+                               f"{self.out.geterror()}")
+
+    def commit(self):
+        ok = self.out.close()
+        self.out = None
+        if not ok:
+            self._remove_tmp()
+            raise TextureError(f"{self.path}: closing the output failed: {oiio.geterror()}")
+        os.replace(self.tmp, self.path)
+
+    def abort(self):
+        if self.out is not None:
+            self.out.close()
+            self.out = None
+        self._remove_tmp()
+
+    def _remove_tmp(self):
+        try:
+            self.tmp.unlink()
+        except FileNotFoundError:
+            pass
+
+
+def is_integer(spec):
+    return spec.format.basetype in (oiio.UINT8, oiio.INT8, oiio.UINT16, oiio.INT16, oiio.UINT32,
+                                    oiio.INT32)
+
+
+LINEAR_NAMES = {"linear", "lin_rec709_scene", "lin_rec709", "scene_linear", "raw",
+                 "linear rec.709 (srgb)"}
+
+
+def source_colorspace(spec, colorspace="auto"):
+    """The colour space integer-encoded albedo is decoded from, or None for linear data."""
+    if not is_integer(spec):
+        return None
+    if colorspace == "auto":
+        declared = spec.getattribute("oiio:ColorSpace")
+        if declared:
+            colorspace = declared
+        else:
+            colorspace = "sRGB" if spec.format.size() == 1 else "linear"
+    return None if str(colorspace).lower() in LINEAR_NAMES else colorspace
+
+
+def check_colorspace(colorspace):
+    """A ``colorspace`` option OpenImageIO can decode from (a 1-texel conversion), else
+    ValueError naming the known spaces."""
+    if colorspace == "auto" or str(colorspace).lower() in LINEAR_NAMES:
+        return
+    try:
+        to_linear(np.full((1, 1, 3), 0.5, np.float32), colorspace)
+    except TextureError:
+        names = ", ".join(oiio.ColorConfig().getColorSpaceNames())
+        raise ValueError(f"colorspace {colorspace!r} is unknown to OpenImageIO; use auto, "
+                         f"linear, sRGB or one of: {names}") from None
+
+
+def to_linear(pixels, colorspace):
+    """Decode (rows, width, channels) colour pixels from ``colorspace`` to linear with OIIO."""
+    if colorspace is None:
+        return pixels
+    rows, width, nch = pixels.shape
+    buf = oiio.ImageBuf(oiio.ImageSpec(width, rows, nch, "float"))
+    buf.set_pixels(oiio.ROI(), np.ascontiguousarray(pixels))
+    out = oiio.ImageBufAlgo.colorconvert(buf, colorspace, "linear")
+    if out.has_error:
+        raise TextureError(f"colour conversion from {colorspace!r} failed: {out.geterror()}")
+    return np.clip(out.get_pixels(oiio.FLOAT).reshape(rows, width, nch), 0.0, 1.0)
+
+
+def fit_half(block, on_invalid, path, names, x0, y0):
+    """``block`` (rows, width, channels) made safe to store as half floats. A finite value
+    above HALF_MAX would be written as inf, a nonzero one below HALF_TINY/2 as 0: both are
+    invalid, and ``on_invalid`` says what happens ("raise": TextureError naming the first
+    texel; "clamp": clamped into [HALF_TINY, HALF_MAX] with its sign). Returns (block, count)."""
+    with np.errstate(over="ignore"):            # the overflow is what is being detected
+        h = block.astype(np.float16)
+    bad = (np.isfinite(block) & ~np.isfinite(h)) | ((block != 0) & (h == 0))
+    n = int(np.count_nonzero(bad))
+    if n == 0:
+        return block, 0
+    if on_invalid != "clamp":
+        yy, xx, cc = (int(v) for v in np.argwhere(bad)[0])
+        raise TextureError(
+            f"{path}: {n} value(s) outside the half-float range [{HALF_TINY:.3g}, {HALF_MAX:g}]; "
+            f"first at x={x0 + xx}, y={y0 + yy}, channel {names[cc]}: {float(block[yy, xx, cc]):g}"
+            f" (write float instead of half, or clamp with --on-invalid clamp / "
+            f"on_invalid='clamp')")
+    return np.where(bad, np.sign(block) * np.clip(np.abs(block), HALF_TINY, HALF_MAX), block), n
+
+
+def read_rows(reader, idx):
+    """Rows ``idx`` (-1: zeros) of an open image, reading each contiguous run once."""
+    spec = reader.spec
+    out = np.zeros((len(idx), spec.width, spec.nchannels), np.float32)
+    valid = np.flatnonzero(idx >= 0)
+    if valid.size:
+        lo, hi = int(idx[valid].min()), int(idx[valid].max()) + 1
+        if hi - lo <= 2 * len(idx):
+            block = reader.read_band(lo, hi)
+            out[valid] = block[idx[valid] - lo]
+        else:                                   # wrap halos: the two ends separately
+            for j in valid:
+                out[j] = reader.read_band(int(idx[j]), int(idx[j]) + 1)[0]
+    return out
+
+
+def read_parameter_texture(path, what, colour=False, colorspace="auto"):
+    """A parameter texture (albedo, mfp, alpha', sigma_t') as HxWxC float32, alpha dropped;
+    ``colour``: integer-encoded files are decoded to linear (albedo), else read as data."""
+    reader = Reader(path, what)
+    try:
+        cols, _ = reader.channels()
+        px = reader.read_band(0, reader.spec.height)[..., cols]
+        space = source_colorspace(reader.spec, colorspace) if colour else None
+        return to_linear(px, space) if space is not None else px
+    finally:
+        reader.close()

@@ -1,0 +1,101 @@
+"""Radial-profile blur of irradiance maps with the Better Dipole profile R(r), per channel.
+
+The subpackage, one concern a module: ``weights`` (the exact texel-integrated kernel),
+``fit`` (sums of separable Gaussians), ``params`` (parameters and their checks), ``fft`` (host
+FFT paths), ``dispatch`` (OpenCL kernels), ``planning`` (constant parameters: method, kernel,
+``auto``; BlurInfo), ``textured_plan`` and ``textured`` (texture-varying parameters). ``blur``
+below is the entry point. The definition (exitance as a discrete convolution with exact
+texel-integrated weights, truncated and renormalized to sum to Rd) is in ``weights`` and
+docs/model.md "Texel-integrated weights".
+
+Methods (``method=``)
+---------------------
+``direct``     2D gather of the exact weights (kernels/blur_direct.cl), local-memory tiles.
+``gaussians``  the weights fitted (non-negative least squares) by a sum of separable
+               texel-integrated Gaussians (d'Eon et al. 2007's texture-space diffusion);
+               the fit's L1 error, a bound on the output error relative to max(E) * Rd, is
+               reported and kept <= tol where the basis allows (kernels/blur_separable.cl).
+``fft``        the exact weights by FFT convolution on the host (scipy.fft, all cores).
+``auto``       the cheapest configuration (method, truncation tol) that ``bdipole-cl report``
+               measured to meet ``tol`` on the workload of the nearest kernel radius
+               (``bdipole_cl.methods.choice``); BlurInfo says which and why. With
+               ``auto``, ``tol`` is the error target relative to max(E) * Rd; with an
+               explicit method it is the truncation tolerance (which bounds that error).
+
+Parameters are scalars, per-channel tuples or HxW / HxWxC textures. With textures each texel
+uses its own (the exit texel's) profile, through per-texel weights over a shared basis
+(``textured``; methods fft, gaussians, auto).
+
+Invalid input follows ``on_invalid``: ``"raise"`` (default) reports the count and first texel;
+``"clamp"`` treats NaN/Inf irradiance as unlit (0) and clamps parameter texels into range.
+HDR values are fine: weights sum to Rd <= 1.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ...device import get_runtime
+from ...errors import check_policy
+from ...methods.registry import BLUR_METHODS, BORDERS
+from ..bands import band_rows, bands, gather_rows
+from .fit import fit_gaussians
+from .params import PARAM_KEYS, channel_parameters, checked_irradiance
+from .planning import BlurInfo, ChannelInfo, blur_whole, channel_plans, constant_row_bytes, halo_of
+from .textured import blur_textured
+from .weights import channel_kernel
+
+__all__ = ["BLUR_METHODS", "BORDERS", "PARAM_KEYS", "BlurInfo", "ChannelInfo", "blur",
+           "channel_kernel", "channel_parameters", "fit_gaussians", "is_textured"]
+
+
+def is_textured(**physical) -> bool:
+    """Whether any physical parameter is a texture (2D or more) rather than per channel."""
+    return any(np.ndim(v) >= 2 for v in physical.values() if v is not None)
+
+
+def blur(irradiance, *, albedo=None, mfp=None, eta=1.4, texel_size=1.0, alpha=None,
+         sigma_t=None, tol=1e-3, method="auto", border="clamp", exact=False,
+         on_invalid="raise", return_info=False, max_memory=None, device=None):
+    """Texture-space subsurface scattering: ``irradiance`` (HxW or HxWxC) blurred by R(r).
+
+    ``albedo`` (Rd) and ``mfp`` (ld = 1/mu_tr, same unit as ``texel_size``), or ``alpha``
+    (alpha') and ``sigma_t`` (sigma_t', 1/unit): scalars, per channel, or HxW(xC) textures
+    (texture-varying: the exit texel's profile); ``eta`` per channel. Returns the exitance,
+    HxWxC float32 (and a BlurInfo with ``return_info``). See the package docstring.
+
+    ``max_memory`` (bytes): blur in bands of rows, each with a halo of the truncation radius
+    taken by the border rule, so the working set stays bounded; the result is the same as in
+    one piece (the halo holds every texel an interior kernel reaches).
+
+    ``device``: where to run (None, a string such as ``"intel"``, a pyopencl Device or a
+    Runtime; see ``bdipole_cl.device``).
+    """
+    if method not in BLUR_METHODS:
+        raise ValueError(f"method={method!r}: expected one of {BLUR_METHODS}")
+    if not 0 < tol < 1:
+        raise ValueError(f"tol={tol!r}: expected 0 < tol < 1")
+    if border not in BORDERS:
+        raise ValueError(f"border={border!r}: expected one of {BORDERS}")
+    check_policy(on_invalid)
+    e = checked_irradiance(irradiance, on_invalid)
+    rt = get_runtime(device)
+    physical = dict(albedo=albedo, mfp=mfp, eta=eta, texel_size=texel_size, alpha=alpha,
+                    sigma_t=sigma_t)
+    if is_textured(**physical):
+        out, info = blur_textured(e, method=method, tol=tol, border=border, exact=exact,
+                                  max_memory=max_memory, rt=rt, on_invalid=on_invalid,
+                                  **physical)
+        return (out, info) if return_info else out
+    params, plans = channel_plans(e.shape[2], method=method, tol=tol, exact=exact, **physical)
+    h, w, nch = e.shape
+    k = halo_of(plans)
+    rows = band_rows(h, constant_row_bytes(w, nch), max_memory, halo=k)
+    if rows >= h:
+        out, info = blur_whole(e, params, plans, border, exact, rt)
+        return (out, info) if return_info else out
+    out = np.empty_like(e)
+    info = None
+    for y0, y1, idx in bands(h, rows, k, border):
+        res, info = blur_whole(gather_rows(e, idx), params, plans, border, exact, rt)
+        out[y0:y1] = res[k:k + (y1 - y0)]
+    return (out, info) if return_info else out

@@ -1,0 +1,125 @@
+"""The host FFT paths of the blur: the constant kernel's convolution, and the texture-varying
+basis blurs with their kernel spectra (scipy.fft and numpy.fft on all cores).
+
+Shapes are even and fast (``fft_shape``), padded by the border rule (``fft_padded``); a
+circular convolution on the padded image then equals the linear one on the image. The
+texture-varying basis kernels' spectra are real (even kernels: a DCT-I of the quadrant) and kept
+across calls in ``SPECTRA_CACHE``, bounded in bytes.
+"""
+from __future__ import annotations
+
+import os
+from concurrent.futures import ThreadPoolExecutor
+from functools import lru_cache
+
+import numpy as np
+
+from ...caches import ByteCache
+
+
+def fft_shape(shape, k):
+    """The fast even FFT shape (>= the image padded by k) for the circular convolution of the
+    padded image with a (2k+1)^2 kernel: the wrap-around reaches only the first 2k rows and
+    columns of the result, which are the padding (the image is at [2k, 2k + n) with the kernel
+    at [0, 2k], at [k, k + n) with it centred on 0)."""
+    import scipy.fft as sfft
+
+    def even_fast(n):          # even, so that an even kernel's spectrum is a DCT-I
+        n = sfft.next_fast_len(n, real=True)
+        return n if n % 2 == 0 else even_fast(n + 1)
+    return [even_fast(n + 2 * k) for n in shape]
+
+
+def fft_padded(e2d, k, border):
+    """The image padded by k texels by the border rule, and its ``fft_shape``."""
+    mode = {"clamp": "edge", "zero": "constant", "wrap": "wrap"}[border]
+    return np.pad(e2d, k, mode=mode), fft_shape(e2d.shape, k)
+
+
+def fft_blur_channel(e2d, weights, border):
+    """Exact-weights convolution of one channel by FFT (scipy.fft, all cores), with the same
+    border rule as the kernels (the image padded by the kernel radius)."""
+    import scipy.fft as sfft
+    k = (weights.shape[0] - 1) // 2
+    pad, shape = fft_padded(e2d.astype(np.float64), k, border)
+    spec = sfft.rfft2(pad, shape, workers=-1) * sfft.rfft2(weights, shape, workers=-1)
+    full = sfft.irfft2(spec, shape, workers=-1)
+    h, w = e2d.shape
+    return full[2 * k:2 * k + h, 2 * k:2 * k + w]
+
+
+def kernel_spectra(quads, shape):
+    """Real DFTs (G, N0 // 2 + 1, N1 // 2 + 1) float32, rows 0..N0/2, of the even kernels of
+    quadrants quads (G, K+1, K+1) centred on 0, at the even FFT shape (N0, N1). An even
+    kernel's DFT is the cosine sum sum_{a,b} m_a m_b Q(a, b) cos(2 pi f a / N0) cos(2 pi g b /
+    N1) (m: 1 at 0, else 2): the DCT-I of the quadrant zero-padded to (N0/2 + 1, N1/2 + 1).
+    Rows N0/2 + 1..N0 - 1 are rows N0/2 - 1..1 (``_times_spectrum``)."""
+    import scipy.fft as sfft
+    n0, n1 = shape
+    g, kk = quads.shape[:2]
+    rows = np.zeros((g, kk, n1 // 2 + 1), np.float32)      # the other rows are zero: so are
+    rows[:, :, :kk] = quads                                 # their transforms along axis 2
+    half = np.zeros((g, n0 // 2 + 1, n1 // 2 + 1), np.float32)
+    half[:, :kk] = sfft.dct(rows, type=1, axis=2, workers=-1, overwrite_x=True)
+    return sfft.dct(half, type=1, axis=1, workers=-1, overwrite_x=True)
+
+
+#: kernel spectra are kept across calls up to this many bytes (least recently used first out):
+#: blurring again with the same parameter maps (a material under new light) skips them
+SPECTRA_CACHE_BYTES = 1 << 30
+SPECTRA_CACHE = ByteCache("kernel spectra", SPECTRA_CACHE_BYTES)
+
+
+def cached_spectra(plan, shape):
+    """kernel_spectra of the plan's basis at FFT shape, from the cache when it has them."""
+    key = (id(plan), tuple(shape))
+    hit = SPECTRA_CACHE.get(key)
+    if hit is not None and hit[0] is plan:    # the entry holds the plan: its id is its own
+        return hit[1]
+    spec = kernel_spectra(plan.quadrants(), shape)
+    SPECTRA_CACHE.put(key, (plan, spec), spec.nbytes)
+    return spec
+
+
+def times_spectrum(ks, spec, out):
+    """out = K * spec, K the full (N0, N1 // 2 + 1) spectrum of half spectrum ks (rows
+    0..N0/2): an even kernel's rows N0 - f and f are equal."""
+    m = ks.shape[0]
+    np.multiply(ks, spec[:m], out=out[:m])
+    np.multiply(ks[m - 2:0:-1], spec[m:], out=out[m:])
+
+
+#: threads for the row-wise inverse FFTs (numpy's FFT releases the GIL): the cores this
+#: process may run on
+FFT_THREADS = (len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity")
+               else os.cpu_count() or 1)
+
+
+@lru_cache(maxsize=1)
+def _fft_threads():
+    return ThreadPoolExecutor(FFT_THREADS, thread_name_prefix="bdipole-irfft")
+
+
+def basis_blurs(e2d, plan, kspec, border, planes):
+    """planes[j] = (B_j * E) for every basis kernel of the plan, as (H, W + 2K) float32 rows
+    whose columns [K, K + W) are the image's: float32 FFTs, one forward transform, and per basis
+    kernel an inverse transform pruned to the image's rows. One basis kernel at a time, in
+    place: scipy.fft (all cores) in place over the columns, then numpy's ``irfft`` straight into
+    the plane, in row blocks on all cores (fresh large arrays and copies cost more here than
+    the FFTs' own threads save)."""
+    import scipy.fft as sfft
+    k = plan.radius
+    h = e2d.shape[0]
+    pad, shape = fft_padded(e2d, k, border)
+    spec = sfft.rfft2(pad, shape, workers=-1)
+    prod = np.empty_like(spec)
+    pool = _fft_threads()
+    edges = np.linspace(0, h, FFT_THREADS + 1).astype(int)
+    for plane, ks in zip(planes, kspec):
+        times_spectrum(ks, spec, prod)
+        cols = sfft.ifft(prod, axis=0, workers=-1, overwrite_x=True)
+
+        def rows_of_plane(r0, r1, cols=cols, plane=plane):
+            np.fft.irfft(cols[k + r0:k + r1], shape[1], axis=-1, out=plane[r0:r1])
+        list(pool.map(rows_of_plane, edges[:-1], edges[1:]))
+    return planes

@@ -1,0 +1,147 @@
+"""Blur parameters: constants per channel or textures per texel, checked by one rule table.
+
+Physical parameters are ``albedo`` (Rd) and ``mfp`` (ld = 1/mu_tr, in the unit of
+``texel_size``), or ``alpha`` (alpha') and ``sigma_t`` (sigma_t', 1/unit), with ``eta`` per
+channel (docs/model.md "Mean free path"). Constants give each channel's (alpha', sigma_t' per
+texel, eta) in float64 (``channel_parameters``); textures give each texel's Rd and ld in texels
+as float32 maps (``texel_parameters``). Both check their values with ``RULES``; textures follow
+``on_invalid`` (raise, or clamp into the rule's range).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ...errors import check_policy, find_invalid
+from ...physics import reference as ref
+
+#: the physical parameters of ``blur``
+PARAM_KEYS = ("albedo", "mfp", "eta", "texel_size", "alpha", "sigma_t")
+#: each parameter's valid range: (rule text, test, clamp range)
+RULES = {
+    "albedo": ("[0, 1)", lambda v: (v >= 0) & (v < 1), (0.0, float(np.nextafter(1, 0)))),
+    "alpha": ("[0, 1)", lambda v: (v >= 0) & (v < 1), (0.0, float(np.nextafter(1, 0)))),
+    "mfp": ("(0, inf)", lambda v: (v > 0) & np.isfinite(v), (1e-20, 1e20)),
+    "sigma_t": ("(0, inf)", lambda v: (v > 0) & np.isfinite(v), (1e-20, 1e20)),
+}
+#: constants must also give a kernel: albedo and alpha' of 0 have no profile to blur with
+CONSTANT_RULES = {"albedo": ("(0, 1)", lambda v: (v > 0) & (v < 1)),
+                  "alpha": ("[0, 1)", RULES["alpha"][1]),
+                  "mfp": RULES["mfp"][:2], "sigma_t": RULES["sigma_t"][:2]}
+
+
+def parameter_pair(albedo, mfp, alpha, sigma_t) -> str:
+    """Which pair is given: "albedo" (albedo and mfp) or "alpha" (alpha and sigma_t)."""
+    if alpha is not None or sigma_t is not None:
+        if alpha is None or sigma_t is None or albedo is not None or mfp is not None:
+            raise ValueError("give either albedo and mfp, or alpha and sigma_t")
+        return "alpha"
+    if albedo is None or mfp is None:
+        raise ValueError("give albedo and mfp (or alpha and sigma_t)")
+    return "albedo"
+
+
+def channel_values(value, nchan, name):
+    """One value or one per channel, as a (nchan,) float64 array checked by CONSTANT_RULES."""
+    v = np.atleast_1d(np.asarray(value, np.float64))
+    if v.ndim > 1:
+        raise ValueError(f"{name}: one value or one per channel here; texture-varying "
+                         f"parameters go to blur() (bdipole_cl.ops.blur.textured)")
+    if v.size not in (1, nchan):
+        raise ValueError(f"{name} has {v.size} values for {nchan} channels")
+    if name in CONSTANT_RULES:
+        rule, ok = CONSTANT_RULES[name]
+        if not np.all(ok(v)):
+            raise ValueError(f"{name}={v.tolist()}: expected values in {rule}")
+    return np.broadcast_to(v, (nchan,))
+
+
+def channel_parameters(nchan, *, albedo=None, mfp=None, eta=1.4, texel_size=1.0, alpha=None,
+                       sigma_t=None, exact=False):
+    """Per-channel (alpha', sigma_t' per texel, eta) from albedo + mfp (memo's mapping, float64)
+    or directly from alpha' + sigma_t' (per world unit)."""
+    etas = channel_values(eta, nchan, "eta")
+    if parameter_pair(albedo, mfp, alpha, sigma_t) == "alpha":
+        a = channel_values(alpha, nchan, "alpha")
+        st = channel_values(sigma_t, nchan, "sigma_t")
+    else:
+        rd = channel_values(albedo, nchan, "albedo")
+        ld = channel_values(mfp, nchan, "mfp")
+        sa = np.empty(nchan)
+        ss = np.empty(nchan)
+        for c in range(nchan):
+            sa[c], ss[c] = ref.albedo_to_coefficients(rd[c], ld[c], etas[c], exact)
+        st = sa + ss
+        a = ss / st
+    if not np.all(texel_size > 0):
+        raise ValueError(f"texel_size={texel_size!r} must be > 0")
+    return [(float(a[c]), float(st[c] * texel_size), float(etas[c])) for c in range(nchan)]
+
+
+def texture_channel(value, shape, c, name):
+    """Channel c of a scalar, per-channel tuple, HxW or HxWxC parameter, as an HxW array (a
+    texture keeps its float type: it is checked before it is rounded to float32)."""
+    h, w, nch = shape
+    v = np.asarray(value)
+    if not np.issubdtype(v.dtype, np.floating):
+        v = v.astype(np.float64)
+    if v.ndim <= 1:
+        v = np.atleast_1d(v)
+        if v.size not in (1, nch):
+            raise ValueError(f"{name} has {v.size} values for {nch} channels")
+        return np.full((h, w), v[c if v.size > 1 else 0])
+    if v.ndim == 2:
+        v = v[..., None]
+    if v.shape[:2] != (h, w) or v.shape[2] not in (1, nch):
+        raise ValueError(f"{name} texture has shape {v.shape}; expected ({h}, {w}) or "
+                         f"({h}, {w}, {nch}) to match the irradiance")
+    return v[..., c if v.shape[2] > 1 else 0]
+
+
+def checked_parameter(value, shape, c, name, on_invalid="raise"):
+    """Channel c of a parameter as HxW, every texel within ``RULES[name]``: else an
+    InvalidInputError naming the count and the first bad texel, or, with
+    ``on_invalid="clamp"``, the texels clamped into the rule's range (NaN to its bottom)."""
+    rule, ok, (lo, hi) = RULES[name]
+    v = texture_channel(value, shape, c, name)
+    bad = ~ok(v)
+    if find_invalid(name, v, bad, f"outside {rule}", check_policy(on_invalid), texels=True,
+                    channel=c):
+        v = np.clip(np.nan_to_num(v, nan=lo, posinf=hi, neginf=lo), lo, hi)
+    return v
+
+
+def float32_map(v):
+    return np.ascontiguousarray(v, np.float32)
+
+
+def texel_parameters(shape, c, *, albedo=None, mfp=None, eta=1.4, texel_size=1.0, alpha=None,
+                     sigma_t=None, exact=False, on_invalid="raise"):
+    """(Rd, ld in texels) HxW float32 maps of channel c, from albedo + mfp or alpha' + sigma_t'
+    (the node coordinates, ``texel_coords``, are computed from these same float32 values)."""
+    if parameter_pair(albedo, mfp, alpha, sigma_t) == "alpha":
+        a = checked_parameter(alpha, shape, c, "alpha", on_invalid).astype(np.float64)
+        st = checked_parameter(sigma_t, shape, c, "sigma_t", on_invalid).astype(np.float64)
+        ld = 1.0 / (st * texel_size * ref.mu_tr_over_sigma_t(1.0 - a))
+        return float32_map(ref.rd(a, eta, exact)), float32_map(ld)
+    rd = float32_map(checked_parameter(albedo, shape, c, "albedo", on_invalid))
+    mfp = checked_parameter(mfp, shape, c, "mfp", on_invalid)
+    return rd, float32_map(mfp if texel_size == 1.0 else mfp / texel_size)
+
+
+def checked_irradiance(irradiance, on_invalid="raise"):
+    """Irradiance as HxWxC float32. NaN and infinite texels are invalid: an InvalidInputError
+    naming the first, or with ``on_invalid="clamp"`` unlit (0): irradiance has no upper bound
+    to clamp to, and an unlit texel neither adds nor removes light that is really there."""
+    e = np.asarray(irradiance)
+    if e.ndim == 2:
+        e = e[..., None]
+    if e.ndim != 3:
+        raise ValueError(f"irradiance must be HxW or HxWxC, got shape {e.shape}")
+    e = np.ascontiguousarray(e, dtype=np.float32)
+    if e.shape[0] == 0 or e.shape[1] == 0:
+        raise ValueError(f"irradiance is empty (shape {e.shape}): nothing to blur")
+    bad = ~np.isfinite(e)
+    if find_invalid("irradiance", e, bad, "NaN or infinite", check_policy(on_invalid),
+                    texels=True):
+        e = np.where(bad, np.float32(0), e)
+    return e

@@ -1,0 +1,332 @@
+"""Texture-varying blur: the plan (lattice, node kernels, shared basis, node weights).
+
+With albedo/mfp (or alpha'/sigma_t') given as textures, texel x scatters with *its own*
+profile (the exit texel's parameters, a gather): ``M(x) = sum_cells E(cell) W_x(cell - x)``,
+``W_x`` the texel-integrated weights of x's parameters. Every ``W_x`` is written over one
+shared basis of separable texel-integrated Gaussians ``g_j`` (sigmas geometric from 0.15
+texel to half the common radius):
+
+    W_x ~ Rd(x) * sum_j w_j(x) g_j      so      M(x) = Rd(x) * sum_j w_j(x) (g_j * E)(x).
+
+Each basis blur ``g_j * E`` is done once for the whole image (FFT on the host, or the separable
+OpenCL kernels); only the weights vary per texel. They come from a lattice over the two
+parameters that shape the kernel, logit(Rd) and ln(ld in texels) (an axis on which the texture
+is constant collapses to its one value): the exact normalized kernel of each lattice node is
+fitted in the basis, and ``w(x)`` interpolates the node weights: the 4x4-node Lagrange cubic,
+tabulated REFINE times finer per axis (``fine_table``), then bilinear in that table per texel
+(kernels/blur_varying.cl; applied by ``textured``). Interpolating weights over a fixed basis is
+interpolating the kernels themselves, so the error is the nodes' fit error plus the kernel's
+interpolation error; both are measured (``TexturedPlan.fit_error`` over all nodes and
+``interp_error`` against exact kernels at the range's corners and lattice-cell midpoints) and
+reported as the error bound. Plans depend on the parameter ranges only and are cached (up to
+PLAN_CACHE's bytes), and so are their kernels' spectra per FFT shape (``fft.SPECTRA_CACHE``).
+
+Every texel's kernel is truncated at the common radius K (the largest truncation radius at
+``tol`` over the texture's nodes) and normalized there: node weights sum to 1, so a constant
+irradiance E returns E * Rd(x) at every interior texel, exactly (energy-conserving).
+
+Albedo is used in [RD_MIN, RD_MAX] for the kernel's *shape* (texels outside take the shape of
+the bound; the energy is always Rd(x), and Rd = 0 gives 0); Rd >= 1, Rd < 0, NaN, mfp <= 0 or
+non-finite are invalid (``params.checked_parameter``). eta is constant per channel.
+"""
+from __future__ import annotations
+
+import itertools
+from dataclasses import dataclass
+
+import numpy as np
+
+from ...caches import ByteCache
+from ...physics import reference as ref
+from .fit import (BASIS_RATIO, MAX_BASIS, basis_columns, basis_count, basis_kernels,
+                  basis_sigmas, fit_node)
+from .weights import (multiplicity, quadrant_sum, quadrant_weights, truncation_radius,
+                      unfold_quadrant)
+
+#: node kernels (each up to (K+1)^2 float64), plans (their tables and basis), per process
+NODE_CACHE = ByteCache("node kernels", 256 << 20)
+PLAN_CACHE = ByteCache("texture-varying plans", 256 << 20)
+
+
+#: the kernel's shape is taken at albedo within these bounds (its energy is always Rd(x))
+RD_MIN, RD_MAX = 1e-3, 0.999
+
+
+#: lattice steps in logit(Rd) and ln(ld) at tol = 1e-3; halved per factor 16 of tighter tol
+#: (the cubic interpolation error goes as h^4). Measured kernel interpolation error (L1 of the
+#: normalized kernel) at these steps: <= 3e-4 over albedo 0.02..0.98, ld 0.5..16 texels.
+LATTICE_STEPS = (0.4, 0.2)
+
+
+#: the texels' weights are bilinear in a table REFINE times finer than the lattice per axis,
+#: whose entries are the lattice's Lagrange-cubic interpolation: 4 taps a texel, not 16 (the
+#: gather's cost). Bilinear interpolation of the cubic adds ~ (h / REFINE)^2 / 8 times the
+#: weights' curvature; it is measured with the rest (``TexturedPlan.interp_error``).
+REFINE = 8
+
+
+CHECKS_PER_AXIS = 4         # interpolation checked at up to 4 x 4 points of the range
+
+
+def logit(p):
+    return np.log(p) - np.log1p(-p)
+
+
+def sigmoid(t):
+    return 1.0 / (1.0 + np.exp(-t))
+
+
+@dataclass(frozen=True)
+class Axis:
+    """One parameter axis: node values, and the map from texel values to node coordinates."""
+
+    values: tuple            # the parameter (Rd or ld) at the nodes
+    origin: float            # lattice index of node 0 (0 for a constant axis)
+    step: float              # lattice step in the transformed variable (0: constant axis)
+
+    def coords(self, t):
+        """Node coordinates (float, node 0 at 0) of transformed values t."""
+        if self.step == 0:
+            return np.zeros(np.shape(t))
+        return np.asarray(t) / self.step - self.origin
+
+
+def _axis(lo, hi, step, back):
+    """Nodes covering transformed values [lo, hi] for a 4-point cubic; one node if lo == hi."""
+    if hi - lo <= 1e-12 * max(1.0, abs(lo)):
+        return Axis((float(back(lo)),), 0.0, 0.0)
+    i0 = int(np.floor(lo / step)) - 1
+    i1 = max(int(np.floor(hi / step)) + 2, i0 + 3)
+    return Axis(tuple(float(back(i * step)) for i in range(i0, i1 + 1)), float(i0), step)
+
+
+def lattice_steps(tol):
+    """LATTICE_STEPS, halved per factor 16 of tol below 1e-3."""
+    level = max(0, int(np.ceil(np.log2(max(1e-3 / tol, 1.0)) / 4.0)))
+    return tuple(s / 2**level for s in LATTICE_STEPS)
+
+
+@NODE_CACHE.memoize
+def node_kernel(rd, ld, eta, radius, exact=False):
+    """Exact normalized (sums to 1) quadrant of the kernel of (Rd, ld texels) at radius K."""
+    sa, ss = ref.albedo_to_coefficients(rd, ld, eta, exact)
+    st = float(sa + ss)
+    q = quadrant_weights(float(ss / st), st, eta, radius, exact)
+    q /= quadrant_sum(q)
+    q.setflags(write=False)
+    return q
+
+
+@NODE_CACHE.memoize
+def node_radius(rd, ld, eta, tol, exact=False):
+    sa, ss = ref.albedo_to_coefficients(rd, ld, eta, exact)
+    st = float(sa + ss)
+    r_t = truncation_radius(float(ss / st), st, eta, tol, exact)
+    return int(np.ceil(r_t - 0.5)) if r_t > 0.5 else 0
+
+
+def svd_basis(targets, tol):
+    """Eigen-kernels of the node kernels (SVD of the quadrants, weighted by cell multiplicity
+    so that it is the SVD of the whole kernels): the fewest whose reconstruction of every node
+    is within L1 error tol (or all of them). Returns (quadrants (G, K+1, K+1), node
+    coefficients (nodes, G), each row scaled so that its kernel sums to 1)."""
+    shape = targets[0].shape
+    mult = multiplicity(shape[0] - 1).ravel()
+    sw = np.sqrt(mult)
+    a_mat = np.stack([t.ravel() * sw for t in targets], axis=1)        # cells x nodes
+    u, _, _ = np.linalg.svd(a_mat, full_matrices=False)
+    for rank in range(1, u.shape[1] + 1):
+        phi = u[:, :rank] / sw[:, None]                                 # quadrant values
+        coef = (u[:, :rank].T @ a_mat).T                                # nodes x rank
+        coef /= (coef @ (phi.T @ mult))[:, None]                        # kernels sum to 1
+        err = np.abs(phi @ coef.T - a_mat / sw[:, None]).T @ mult
+        if err.max() <= tol:
+            break
+    return phi.T.reshape((rank,) + shape), coef
+
+
+@dataclass(frozen=True)
+class TexturedPlan:
+    """One channel's shared basis, lattice and node weights."""
+
+    radius: int              # K, the common kernel radius (texels)
+    basis: str               # "gaussians" (separable, NNLS weights) or "svd" (eigen-kernels)
+    kernels: tuple           # gaussians: 1D texel-integrated weights; svd: (K+1)^2 quadrants
+    axes: tuple              # (Axis of Rd via logit, Axis of ld via ln)
+    table: np.ndarray        # (n_rd, n_ld, G) float32 node weights; node kernels sum to 1
+    fine: np.ndarray         # (REFINE (n_rd - 1) + 1, ..., G) float32: the gather's table
+    eta: float
+    fit_error: float         # max L1 error of the node kernels in the basis
+    interp_error: float      # max L1 error at the check points (basis + interpolation)
+    truncation_tol: float
+
+    @property
+    def error_bound(self):
+        """Bound on |M - exact| / (max E * Rd(x)): truncation + the measured kernel error."""
+        return self.truncation_tol + max(self.fit_error, self.interp_error)
+
+    def quadrants(self):
+        """(G, K+1, K+1) quadrant of each basis kernel."""
+        if self.basis == "svd":
+            return np.asarray(self.kernels)
+        return basis_columns(self.kernels, self.radius).T.reshape(
+            (-1, self.radius + 1, self.radius + 1))
+
+
+def transformed(rd, ld):
+    """The lattice variables (logit Rd, with Rd clipped to [RD_MIN, RD_MAX]; ln ld), float64."""
+    return (logit(np.clip(np.asarray(rd, np.float64), RD_MIN, RD_MAX)),
+            np.log(np.asarray(ld, np.float64)))
+
+
+def parameter_ranges(rd, ld):
+    """((lo, hi) of logit Rd, (lo, hi) of ln ld) over maps rd, ld: the transforms are monotone,
+    so these are the transformed extremes."""
+    t_rd = transformed([rd.min(), rd.max()], [ld.min(), ld.max()])
+    return tuple((float(t[0]), float(t[1])) for t in t_rd)
+
+
+def lagrange4(t):
+    """Cubic Lagrange weights of nodes -1, 0, 1, 2 at t in [0, 1]."""
+    return np.stack([-t * (t - 1) * (t - 2) / 6, (t + 1) * (t - 1) * (t - 2) / 2,
+                     -(t + 1) * t * (t - 2) / 2, (t + 1) * t * (t - 1) / 6], axis=-1)
+
+
+def _cubic_taps(nodes, coord):
+    """(node indices, weights) of the 4-node cubic at lattice coordinate(s) coord on an axis of
+    ``nodes`` nodes (one node: a constant axis)."""
+    coord = np.asarray(coord, np.float64)
+    if nodes == 1:
+        return np.zeros(coord.shape + (1,), int), np.ones(coord.shape + (1,))
+    base = np.clip(np.floor(coord).astype(int), 1, nodes - 3)
+    return base[..., None] + np.arange(-1, 3), lagrange4(coord - base)
+
+
+def _linear_taps(nodes, coord):
+    """(node indices, weights) of linear interpolation at fine-table coordinate(s) coord (as
+    in blur_varying.cl)."""
+    coord = np.asarray(coord, np.float64)
+    if nodes == 1:
+        return np.zeros(coord.shape + (1,), int), np.ones(coord.shape + (1,))
+    base = np.clip(np.floor(coord).astype(int), 0, nodes - 2)
+    t = (coord - base)[..., None]
+    return base[..., None] + np.arange(2), np.concatenate([1.0 - t, t], axis=-1)
+
+
+def _interpolate(table, taps_u, taps_v):
+    (iu, lu), (iv, lv) = taps_u, taps_v
+    return np.einsum("...a,...b,...abj->...j", lu, lv, table[iu[..., :, None], iv[..., None, :]])
+
+
+def fine_table(table):
+    """The gather's table: the lattice's cubic interpolation of the node weights (n_u, n_v, G)
+    at REFINE points per lattice step (fine node i at lattice coordinate i / REFINE)."""
+    nu, nv, _ = table.shape
+    fu = np.arange(REFINE * (nu - 1) + 1) / REFINE
+    fv = np.arange(REFINE * (nv - 1) + 1) / REFINE
+    taps_u = _cubic_taps(nu, fu[:, None])
+    taps_v = _cubic_taps(nv, fv[None, :])
+    return _interpolate(table.astype(np.float64), taps_u, taps_v).astype(np.float32)
+
+
+def interpolated_weights(plan, cu, cv):
+    """Host (float64) version of blur_varying.cl's per-texel weights at fine-table coordinates
+    (cu, cv), for checks."""
+    nu, nv, _ = plan.fine.shape
+    return _interpolate(plan.fine.astype(np.float64), _linear_taps(nu, cu), _linear_taps(nv, cv))
+
+
+def common_radius(rd_range, ld_range, eta, tol, exact=False):
+    """K: the largest truncation radius at tol over the texels' parameter range (the profile
+    widens with ld; its dependence on Rd is sampled at 9 albedos across the range)."""
+    ld_max = float(np.exp(ld_range[1]))
+    rds = sigmoid(np.linspace(rd_range[0], rd_range[1], 9))
+    return max(node_radius(float(np.clip(r, RD_MIN, RD_MAX)), ld_max, eta, tol, exact)
+               for r in rds)
+
+
+@PLAN_CACHE.memoize
+def plan_for_ranges(rd_range, ld_range, eta, tol, exact=False, basis="svd", max_radius=2048):
+    """The TexturedPlan for logit(Rd) in rd_range and ln(ld texels) in ld_range."""
+    steps = lattice_steps(tol)
+    axes = (_axis(*rd_range, steps[0], lambda t: min(max(sigmoid(t), RD_MIN), RD_MAX)),
+            _axis(*ld_range, steps[1], np.exp))
+    radius = common_radius(rd_range, ld_range, eta, tol, exact)
+    if radius > max_radius:
+        raise ValueError(f"truncation radius {radius} texels exceeds max_radius={max_radius}: "
+                         f"raise tol or the texel size")
+    targets = [node_kernel(a, b, eta, radius, exact) for a in axes[0].values
+               for b in axes[1].values]
+    if basis == "svd":
+        quads, coef = svd_basis(targets, tol)
+        kernels = tuple(quads)
+        fit_error = float(max(np.abs(unfold_quadrant(np.tensordot(c, quads, 1) - t)).sum()
+                              for c, t in zip(coef, targets)))
+    else:
+        kernels, coef, fit_error = _gaussian_fits(targets, radius, tol)
+    table = coef.reshape(len(axes[0].values), len(axes[1].values), -1).astype(np.float32)
+    plan = TexturedPlan(radius, basis, kernels, axes, table, fine_table(table), eta, fit_error,
+                       0.0, tol)
+    return _with_interp_error(plan, rd_range, ld_range, exact)
+
+
+def _gaussian_fits(targets, radius, tol):
+    """Shared separable Gaussian basis and NNLS node weights, densified until every node fits
+    within L1 error tol (or MAX_BASIS is reached)."""
+    ratio = BASIS_RATIO
+    while True:
+        kernels = basis_kernels(basis_sigmas(radius, basis_count(radius, ratio)), radius)
+        columns = basis_columns(kernels, radius)
+        fits = [fit_node(t, columns) for t in targets]
+        fit_error = max(err for _, err in fits)
+        if fit_error <= tol or len(kernels) >= MAX_BASIS:
+            return kernels, np.stack([c for c, _ in fits]), fit_error
+        ratio = ratio ** (2.0 / 3.0)
+
+
+def _check_points(lo, hi, step):
+    """Where to check one axis: the range's ends and, inside it, the middles of the fine cells
+    at the lattice cells' midpoints (where the cubic and then the bilinear err most), at most
+    CHECKS_PER_AXIS evenly chosen."""
+    if step == 0:
+        return [lo]
+    mids = (np.arange(np.floor(lo / step), np.ceil(hi / step)) + 0.5 + 0.5 / REFINE) * step
+    pts = np.unique(np.concatenate([[lo, hi], mids[(mids > lo) & (mids < hi)]]))
+    return pts[np.linspace(0, len(pts) - 1, min(len(pts), CHECKS_PER_AXIS)).astype(int)]
+
+
+def _fine_coords(axis, t):
+    """Fine-table coordinates of transformed values t on one axis."""
+    return axis.coords(t) * REFINE
+
+
+def _with_interp_error(plan, rd_range, ld_range, exact):
+    """Measure the gather's kernel (bilinear in the fine table) against the exact kernel at
+    check points of the parameter range (its corners and the lattice cells' midpoints)."""
+    quads = plan.quadrants()
+    worst = 0.0
+    for t_rd, t_ld in itertools.product(_check_points(*rd_range, plan.axes[0].step),
+                                        _check_points(*ld_range, plan.axes[1].step)):
+        w = interpolated_weights(plan, _fine_coords(plan.axes[0], t_rd),
+                                 _fine_coords(plan.axes[1], t_ld))
+        rd_shape = float(np.clip(sigmoid(t_rd), RD_MIN, RD_MAX))
+        exact_q = node_kernel(rd_shape, float(np.exp(t_ld)), plan.eta, plan.radius, exact)
+        worst = max(worst, float(np.abs(unfold_quadrant(np.tensordot(w, quads, 1)
+                                                        - exact_q)).sum()))
+    return TexturedPlan(**{**plan.__dict__, "interp_error": worst})
+
+
+def texel_coords(plan, rd, ld):
+    """Fine-table coordinates (float32 maps) of the texels' Rd, ld float32 maps: logit(Rd
+    clipped to [RD_MIN, RD_MAX]) and ln(ld) in fine steps (lattice step / REFINE) from node 0
+    (zeros on a constant axis). In float32 they are good to ~1e-6 of a lattice step."""
+    def on_axis(axis, t):
+        if axis.step == 0:
+            return np.zeros(t.shape, np.float32)
+        t *= np.float32(REFINE / axis.step)
+        t -= np.float32(REFINE * axis.origin)
+        return t
+
+    p = np.clip(rd, np.float32(RD_MIN), np.float32(RD_MAX))
+    u = np.log(np.divide(p, np.float32(1.0) - p, out=p), out=p)
+    return on_axis(plan.axes[0], u), on_axis(plan.axes[1], np.log(ld))

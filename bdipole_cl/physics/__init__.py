@@ -1,0 +1,3 @@
+"""The physics layer: the float64 model (``reference``, the one host-side truth, twinned with
+kernels/bdipole.h) and the inversion tables built from it (``tables``). Imports nothing of the
+package but the foundation (caches)."""

@@ -26,4 +26,5 @@ __all__ = [
     "METHODS", "OUTPUTS", "POLICIES", "BlurInfo", "ChannelInfo", "DeviceError", "DeviceState",
     "InvalidInputError", "MethodConfig", "Runtime", "albedo_to_coefficients", "blur",
     "clear_caches", "get_runtime", "invert_albedo", "reference", "survey", "use_device",
+    "__version__",
 ]

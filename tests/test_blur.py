@@ -10,7 +10,7 @@ from bdipole_cl.ops.blur import blur, channel_kernel, channel_parameters, fit_ga
 from bdipole_cl.ops.blur.planning import channel_plans, constant_row_bytes, halo_of
 
 METHODS = ["direct", "gaussians", "fft", "auto"]
-# 2e-3 relative: the bound for centre and near texels. direct/fft use the exact weights
+# 2e-3 relative: the blur's accuracy target for centre and near texels. direct/fft use the exact weights
 # (float32 accumulation ~1e-6); gaussians carry their fit error, reported as error_bound.
 
 
@@ -25,7 +25,7 @@ def impulse(h=31, w=33, c=1, value=1.0):
 
 
 def test_weights_match_independent_2d_quadrature():
-    # the example: albedo 0.8, mfp 1.5 texels, eta 1.4 -> centre 0.497 (point: 3.64)
+    # docs/model.md "Texel-integrated weights": albedo 0.8, mfp 1.5 texels, eta 1.4 -> centre 0.497 (point: 3.64)
     (alpha, st, eta), = channel_parameters(1, albedo=0.8, mfp=1.5, eta=1.4)
     ck = channel_kernel(alpha, st, eta, 1e-6)
     k = ck.radius
@@ -117,7 +117,7 @@ def test_gaussian_fit_error_is_reported_and_small():
     for mfp in (0.5, 2.0, 8.0):
         (a, st, eta), = channel_parameters(1, albedo=0.8, mfp=mfp, eta=1.4)
         fit = fit_gaussians(a, st, eta, 1e-3)
-        # L1 within tol; near cells within the 2e-3 (measured <= 1e-3 at albedo 0.8)
+        # L1 within tol; near cells within the 2e-3 target (measured <= 1e-3 at albedo 0.8)
         assert 0 <= fit.l1_error <= 1e-3 and fit.near_rel_error <= 2e-3, (mfp, fit)
 
 

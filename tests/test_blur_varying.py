@@ -1,4 +1,4 @@
-"""Texture-varying blur parameters (bdipole_cl/ops/blur/textured*.py, kernels/blur_varying.cl)."""
+"""Texture-varying blur parameters (bdipole_cl/ops/blur/textured*.py, kernels/blur_textured.cl)."""
 import numpy as np
 import pytest
 from scipy.integrate import dblquad

@@ -28,7 +28,7 @@ def test_user_kernel_memo_code_is_caught_losing_rho():
     rows = check_user_kernel(MEMO_CL, "computeAlphaPrime", "invert", eta=1.4, n=300)
     by = {r.function.split()[-1]: r for r in rows}
     assert by["alpha"].status == "PASS"           # alpha' itself is fine ...
-    assert by["rho"].status == "FAIL" and by["rho"].max_error > 1e-2   # ... rho is not (SPEC)
+    assert by["rho"].status == "FAIL" and by["rho"].max_error > 1e-2   # ... rho is not (docs/model.md "Stiffness")
 
 
 def test_user_kernel_cli_exit_codes(tmp_path, capsys):

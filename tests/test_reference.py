@@ -81,7 +81,7 @@ def test_profile_cdf_matches_quadrature_of_the_profile():
 
 
 def test_profile_scales_with_sigma_t():
-    # R(r; st) = st^2 R(st r; 1) (SPEC.md)
+    # R(r; st) = st^2 R(st r; 1) (docs/model.md "Model")
     r = np.geomspace(1e-3, 10, 30)
     np.testing.assert_allclose(ref.profile(r, 0.8, 7.0, 1.4), 49.0 * ref.profile(7 * r, 0.8, 1.0, 1.4),
                                rtol=1e-13)
@@ -111,9 +111,9 @@ def test_fits_match_exact_moments_to_1e3_and_spec_values():
     eta = np.linspace(0.6, 2.5, 40)
     fit = np.array(ref.fresnel_moments(eta))
     exact = np.array(ref.fresnel_moments(eta, exact=True))
-    # SPEC.md: "about 1e-3"; the largest gap on [0.6, 2.5] is 1.9e-3 (FM1 at eta = 2.5)
+    # docs/model.md "Fresnel moments": "about 1e-3"; the largest gap on [0.6, 2.5] is 1.9e-3 (FM1 at eta = 2.5)
     assert np.max(np.abs(fit - exact)) < 2e-3
-    # SPEC.md's quoted values at eta = 1.4
+    # docs/model.md "Fresnel moments": the quoted values at eta = 1.4
     np.testing.assert_allclose(ref.fresnel_moments(1.4), (0.26496, 0.12881), atol=1e-5)
     np.testing.assert_allclose(ref.fresnel_moments(1.4, exact=True), (0.26449, 0.12959), atol=1e-5)
     # matched index: no reflection at all
@@ -135,7 +135,7 @@ def _mp_rd(alpha, eta):
 
 @pytest.mark.parametrize("eta", [1.0, 1.4, 2.5])
 def test_inversion_matches_mpmath(eta):
-    # SPEC.md's stiffness table, recomputed by mpmath root finding at 40 digits
+    # docs/model.md "Stiffness": the table, recomputed by mpmath root finding at 40 digits
     mpmath.mp.dps = 40
     for rd in (1e-6, 0.01, 0.5, 0.9, 0.99, 0.999, 1 - 1e-9):
         rho_mp = mpmath.findroot(lambda r: _mp_rd(1 - r, eta) - mpmath.mpf(rd),

@@ -10,7 +10,7 @@ from bdipole_cl import blur
 
 DENORMAL = float(np.float32(1e-40))          # a float32 denormal
 METHODS = ["table", "secant", "bisection"]
-ALPHA_TOL, RHO_TOL = 1e-6, 1e-4              # issue 3's bounds
+ALPHA_TOL, RHO_TOL = 1e-6, 1e-4              # docs/model.md "Accuracy"
 
 
 # {{{ albedo
@@ -73,7 +73,7 @@ def test_FINITE_eta_sweep(eta):
 
 
 def test_FINITE_eta_one_branch_jump_is_small():
-    # SPEC.md: the fits' two branches jump slightly at eta = 1; the inverse stays continuous
+    # docs/model.md "Fresnel moments": the fits' two branches jump slightly at eta = 1; the inverse stays continuous
     # to within that jump (measured: 0.14% in rho at Rd = 0.5)
     lo, hi = invert_albedo(np.float32([0.5, 0.5]), (np.nextafter(1.0, 0), 1.0),
                            return_rho=True)[1]

@@ -36,7 +36,8 @@ def median_time(fn, repeats=5, warmup=1, queue=None):
 
 
 def inversion_workload(n, seed=0):
-    """``n`` float32 albedos: uniform on [1e-6, 0.999] (the issue's range), a fixed seed."""
+    """``n`` float32 albedos: uniform on [1e-6, 0.999] (the accuracy contract's range,
+    docs/model.md "Accuracy"), a fixed seed."""
     rng = np.random.default_rng(seed)
     return rng.uniform(1e-6, 0.999, n).astype(np.float32)
 

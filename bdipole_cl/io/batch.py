@@ -358,7 +358,8 @@ def process_textures(inputs, *, mfp=1.0, eta=1.4, output=DEFAULT_OUTPUT,
     inputs : str or sequence of str
         Albedo files, globs or UDIM patterns (``diffuse.<UDIM>.exr``).
     mfp : float, sequence of float, or str
-        Mean free path ld = 1/mu_tr (SPEC.md): a constant (one or per channel, also as
+        Mean free path ld = 1/mu_tr (docs/model.md "Mean free path"): a constant (one or per
+        channel, also as
         ``"1,0.5,0.25"``) or a texture path/pattern (``{stem}``, ``{dir}``, ``<UDIM>``).
     eta : float or sequence of float
         Relative index of refraction, one or per colour channel.

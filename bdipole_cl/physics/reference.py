@@ -3,7 +3,7 @@
 This module is the single source of truth for every test and every host-side table. It is
 vectorized (NumPy broadcasting on all arguments) and written for accuracy, not speed.
 
-Notation (as in ``SPEC.md`` and the memo)
+Notation (as in docs/model.md and the memo)
 -----------------------------------------
 ``alpha``  reduced albedo alpha' = sigma_s' / sigma_t'            [1]
 ``rho``    1 - alpha' = sigma_a / sigma_t' (the well-conditioned unknown near alpha' = 1) [1]
@@ -38,7 +38,8 @@ import numpy as np
 
 MODELS = ("better", "dipole")
 
-#: eta interval where the d'Eon fits keep Rd(alpha') monotone (SPEC.md: invalid from ~2.9 up).
+#: eta interval where the d'Eon fits keep Rd(alpha') monotone (docs/model.md "Fresnel moments":
+#: invalid from ~2.9 up).
 ETA_FIT_RANGE = (0.5, 2.8)
 #: eta interval accepted with exact (quadrature) Fresnel moments.
 ETA_EXACT_RANGE = (0.2, 5.0)
@@ -474,7 +475,8 @@ def profile_literal(r, alpha, sigma_t, eta, exact=False):
 
 
 def _energy_terms(r, g, z):
-    """``2 pi Int_0^r`` of one source's two terms, divided by alpha'^2/2 (SPEC.md, d dd = r dr).
+    """``2 pi Int_0^r`` of one source's two terms, divided by alpha'^2/2 (docs/model.md
+    "Radial energy", d dd = r dr).
 
     Ce term: z (e^{-mu|z|}/|z| - e^{-mu d}/d); Cphi/D term: (e^{-mu|z|} - e^{-mu d})/mu,
     both rewritten with ``d - |z| = r^2/(d + |z|)`` and expm1 so they are exact as r -> 0

@@ -1,5 +1,5 @@
 """OpenCL dispatch of the blur kernels on one device (kernels/blur_direct.cl,
-kernels/blur_separable.cl, kernels/blur_varying.cl). Every function takes the Runtime it runs
+kernels/blur_separable.cl, kernels/blur_textured.cl). Every function takes the Runtime it runs
 on; nothing here chooses a device."""
 from __future__ import annotations
 
@@ -26,7 +26,7 @@ class DeviceBlur:
                                 "blur_direct")
         sep = get_program(rt, "blur_separable", build_options(border_opt))
         self.rows, self.cols = cl.Kernel(sep, "blur_rows"), cl.Kernel(sep, "blur_cols_add")
-        self.cols_varying = cl.Kernel(get_program(
+        self.cols_textured = cl.Kernel(get_program(
             rt, "blur_separable", build_options({**border_opt, "BD_PER_TEXEL_WEIGHT": None})),
             "blur_cols_add")
         mf = cl.mem_flags
@@ -50,24 +50,24 @@ class DeviceBlur:
     def run_gaussians(self, c, fit):
         """Channel c blurred by the GaussianFit's separable Gaussians."""
         for sigma, weight, radius in zip(fit.sigmas, fit.weights, fit.radii):
-            g = self._buf(gaussian_1d(sigma, radius))
+            taps = self._buf(gaussian_1d(sigma, radius))
             args = (np.int32(self.w), np.int32(self.h), np.int32(self.c), np.int32(c),
                     np.int32(radius))
-            self.rows(self.rt.queue, (self.w, self.h), None, self.src, self.tmp, g, *args)
-            self.cols(self.rt.queue, (self.w, self.h), None, self.tmp, self.dst, g, *args,
+            self.rows(self.rt.queue, (self.w, self.h), None, self.src, self.tmp, taps, *args)
+            self.cols(self.rt.queue, (self.w, self.h), None, self.tmp, self.dst, taps, *args,
                       np.float32(weight))
 
-    def run_varying(self, c, plan, weights):
+    def run_textured(self, c, plan, weights):
         """Texture-varying parameters: each basis Gaussian of the TexturedPlan blurred by the
         separable kernels and added with its per-texel weight plane (w_j(x) * Rd(x))."""
-        for g, plane in zip(plan.kernels, weights):
-            radius = (len(g) - 1) // 2
+        for taps, plane in zip(plan.kernels, weights):
+            radius = (len(taps) - 1) // 2
             args = (np.int32(self.w), np.int32(self.h), np.int32(self.c), np.int32(c),
                     np.int32(radius))
-            self.rows(self.rt.queue, (self.w, self.h), None, self.src, self.tmp, self._buf(g),
-                      *args)
-            self.cols_varying(self.rt.queue, (self.w, self.h), None, self.tmp, self.dst,
-                              self._buf(g), *args, self._buf(plane))
+            self.rows(self.rt.queue, (self.w, self.h), None, self.src, self.tmp,
+                      self._buf(taps), *args)
+            self.cols_textured(self.rt.queue, (self.w, self.h), None, self.tmp, self.dst,
+                              self._buf(taps), *args, self._buf(plane))
 
     def result(self):
         out = np.empty((self.h, self.w, self.c), np.float32)
@@ -91,15 +91,15 @@ def read_back(rt, buf, array):
 
 
 def lattice_args(plan):
-    """Program options and the lattice arguments of kernels/blur_varying.cl for a plan."""
-    nu, nv, g = plan.fine.shape
-    opts = build_options({"BD_NBASIS": g, "BD_NU_TAPS": 1 if nu == 1 else 2,
+    """Program options and the lattice arguments of kernels/blur_textured.cl for a plan."""
+    nu, nv, nbasis = plan.fine.shape
+    opts = build_options({"BD_NBASIS": nbasis, "BD_NU_TAPS": 1 if nu == 1 else 2,
                           "BD_NV_TAPS": 1 if nv == 1 else 2})
     return opts, (np.int32(nu), np.int32(nv))
 
 
 def weight_planes(plan, rd, ld, rt):
-    """w_j(x) * Rd(x), (G, H, W) float32, computed on ``rt``'s device (kernels/blur_varying.cl)."""
+    """w_j(x) * Rd(x), (G, H, W) float32, computed on ``rt``'s device (kernels/blur_textured.cl)."""
     h, w = rd.shape
     mf = cl.mem_flags
     opts, axis_args = lattice_args(plan)
@@ -107,7 +107,7 @@ def weight_planes(plan, rd, ld, rt):
     bufs = [host_buffer(rt, a, mf.READ_ONLY) for a in (rd, *texel_coords(plan, rd, ld),
                                                          plan.fine)]
     dst = host_buffer(rt, out, mf.WRITE_ONLY)
-    cl.Kernel(get_program(rt, "blur_varying", opts), "lattice_weights")(
+    cl.Kernel(get_program(rt, "blur_textured", opts), "lattice_weights")(
         rt.queue, (h * w,), None, *bufs, dst, np.int32(h * w), *axis_args)
     read_back(rt, dst, out)
     return out
@@ -121,7 +121,7 @@ def gather_exitance(out, c, plan, rd, ld, planes, x0, rt):
     bufs = [host_buffer(rt, a, mf.READ_ONLY) for a in (rd, *texel_coords(plan, rd, ld),
                                                          plan.fine, planes)]
     dst = host_buffer(rt, out, mf.READ_WRITE)
-    cl.Kernel(get_program(rt, "blur_varying", opts), "gather_exitance")(
+    cl.Kernel(get_program(rt, "blur_textured", opts), "gather_exitance")(
         rt.queue, (w, h), None, *bufs, dst, np.int32(w), np.int32(h),
         np.int32(planes.shape[2]), np.int32(planes.shape[1] * planes.shape[2]), np.int32(x0),
         np.int32(nch), np.int32(c), *axis_args)

@@ -56,10 +56,10 @@ def kernel_spectra(quads, shape):
     Rows N0/2 + 1..N0 - 1 are rows N0/2 - 1..1 (``_times_spectrum``)."""
     import scipy.fft as sfft
     n0, n1 = shape
-    g, kk = quads.shape[:2]
-    rows = np.zeros((g, kk, n1 // 2 + 1), np.float32)      # the other rows are zero: so are
+    nbasis, kk = quads.shape[:2]
+    rows = np.zeros((nbasis, kk, n1 // 2 + 1), np.float32)      # the other rows are zero: so are
     rows[:, :, :kk] = quads                                 # their transforms along axis 2
-    half = np.zeros((g, n0 // 2 + 1, n1 // 2 + 1), np.float32)
+    half = np.zeros((nbasis, n0 // 2 + 1, n1 // 2 + 1), np.float32)
     half[:, :kk] = sfft.dct(rows, type=1, axis=2, workers=-1, overwrite_x=True)
     return sfft.dct(half, type=1, axis=1, workers=-1, overwrite_x=True)
 

@@ -51,10 +51,10 @@ def basis_kernels(sigmas, radius):
 def basis_columns(kernels, radius):
     """The quadrant (offsets 0..K) of each separable basis kernel, flattened as columns."""
     cols = []
-    for g in kernels:
-        r = (len(g) - 1) // 2
+    for taps in kernels:
+        r = (len(taps) - 1) // 2
         half = np.zeros(radius + 1)
-        half[:r + 1] = g[r:]
+        half[:r + 1] = taps[r:]
         cols.append(np.outer(half, half).ravel())
     return np.stack(cols, axis=1)
 
@@ -98,7 +98,7 @@ def fit_gaussians(alpha, sigma_t_texels, eta, tol, exact=False):
     for count in range(2, MAX_GAUSSIANS + 1):
         sigmas = basis_sigmas(k, count)
         kernels = basis_kernels(sigmas, k)
-        radii = [(len(g) - 1) // 2 for g in kernels]
+        radii = [(len(taps) - 1) // 2 for taps in kernels]
         cols = basis_columns(kernels, k)
         coef, _ = nnls(cols * row_w[:, None], target.ravel() * row_w)
         fitted = (cols @ coef).reshape(target.shape)

@@ -1,6 +1,6 @@
 """Texture-varying blur applied: per channel a TexturedPlan (``textured_plan``), the basis
 blurs (host FFT, or the separable OpenCL kernels for ``gaussians``), and the per-texel gather
-of their weights on the device (kernels/blur_varying.cl)."""
+of their weights on the device (kernels/blur_textured.cl)."""
 from __future__ import annotations
 
 import numpy as np
@@ -39,7 +39,7 @@ def blur_band(e, plans, rows, method, border, rt):
     if method == "gaussians":
         device = DeviceBlur(e, border, rt)
         for c, (plan, rd, ld) in enumerate(plans):
-            device.run_varying(c, plan, weight_planes(plan, rd[rows], ld[rows], rt))
+            device.run_textured(c, plan, weight_planes(plan, rd[rows], ld[rows], rt))
         return device.result()
     out = np.empty_like(e)
     planes = None          # the basis blurs, (G, H, FFT width), reused across channels
@@ -70,8 +70,8 @@ def blur_textured(e, *, method, tol, border, exact, max_memory, rt, on_invalid="
                            basis="gaussians" if used == "gaussians" else "svd", **physical)
     h, w, nch = e.shape
     k = max(p[0].radius for p in plans)
-    g = max(len(p[0].kernels) for p in plans)
-    rows = band_rows(h, textured_row_bytes(w, nch, k, g), max_memory, halo=k)
+    nbasis = max(len(p[0].kernels) for p in plans)
+    rows = band_rows(h, textured_row_bytes(w, nch, k, nbasis), max_memory, halo=k)
     if rows >= h:
         out = blur_band(e, plans, slice(0, h), used, border, rt)
     else:

@@ -14,7 +14,7 @@ parameters that shape the kernel, logit(Rd) and ln(ld in texels) (an axis on whi
 is constant collapses to its one value): the exact normalized kernel of each lattice node is
 fitted in the basis, and ``w(x)`` interpolates the node weights: the 4x4-node Lagrange cubic,
 tabulated REFINE times finer per axis (``fine_table``), then bilinear in that table per texel
-(kernels/blur_varying.cl; applied by ``textured``). Interpolating weights over a fixed basis is
+(kernels/blur_textured.cl; applied by ``textured``). Interpolating weights over a fixed basis is
 interpolating the kernels themselves, so the error is the nodes' fit error plus the kernel's
 interpolation error; both are measured (``TexturedPlan.fit_error`` over all nodes and
 ``interp_error`` against exact kernels at the range's corners and lattice-cell midpoints) and
@@ -111,10 +111,10 @@ def node_kernel(rd, ld, eta, radius, exact=False):
     """Exact normalized (sums to 1) quadrant of the kernel of (Rd, ld texels) at radius K."""
     sa, ss = ref.albedo_to_coefficients(rd, ld, eta, exact)
     st = float(sa + ss)
-    q = quadrant_weights(float(ss / st), st, eta, radius, exact)
-    q /= quadrant_sum(q)
-    q.setflags(write=False)
-    return q
+    quad = quadrant_weights(float(ss / st), st, eta, radius, exact)
+    quad /= quadrant_sum(quad)
+    quad.setflags(write=False)
+    return quad
 
 
 @NODE_CACHE.memoize
@@ -204,7 +204,7 @@ def _cubic_taps(nodes, coord):
 
 def _linear_taps(nodes, coord):
     """(node indices, weights) of linear interpolation at fine-table coordinate(s) coord (as
-    in blur_varying.cl)."""
+    in blur_textured.cl)."""
     coord = np.asarray(coord, np.float64)
     if nodes == 1:
         return np.zeros(coord.shape + (1,), int), np.ones(coord.shape + (1,))
@@ -230,7 +230,7 @@ def fine_table(table):
 
 
 def interpolated_weights(plan, cu, cv):
-    """Host (float64) version of blur_varying.cl's per-texel weights at fine-table coordinates
+    """Host (float64) version of blur_textured.cl's per-texel weights at fine-table coordinates
     (cu, cv), for checks."""
     nu, nv, _ = plan.fine.shape
     return _interpolate(plan.fine.astype(np.float64), _linear_taps(nu, cu), _linear_taps(nv, cv))

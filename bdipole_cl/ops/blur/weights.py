@@ -68,13 +68,13 @@ def truncation_radius(alpha, sigma_t, eta, tol, exact=False):
     return hi
 
 
-def unfold_quadrant(q):
-    """The (2K+1)^2 radially symmetric kernel from its quadrant q[i, j], i, j = 0..K
+def unfold_quadrant(quad):
+    """The (2K+1)^2 radially symmetric kernel from its quadrant quad[i, j], i, j = 0..K
     (offsets >= 0), mirrored in x and y."""
-    k = q.shape[0] - 1
+    k = quad.shape[0] - 1
     w = np.zeros((2 * k + 1, 2 * k + 1))
-    w[k:, k:] = q
-    w[k:, :k + 1] = q[:, ::-1]
+    w[k:, k:] = quad
+    w[k:, :k + 1] = quad[:, ::-1]
     w[:k + 1, :] = w[::-1, :][:k + 1, :]
     return w
 
@@ -86,9 +86,9 @@ def multiplicity(radius):
     return m[:, None] * m[None, :]
 
 
-def quadrant_sum(q):
-    """Sum of the unfolded kernel of quadrant q (axis cells twice, the centre once)."""
-    return float((q * multiplicity(q.shape[0] - 1)).sum())
+def quadrant_sum(quad):
+    """Sum of the unfolded kernel of quadrant quad (axis cells twice, the centre once)."""
+    return float((quad * multiplicity(quad.shape[0] - 1)).sum())
 
 
 @dataclass(frozen=True)
@@ -113,7 +113,7 @@ EXACT_CELLS, GL_NODES = 3, 5
 
 
 def quadrant_weights(alpha, sigma_t_texels, eta, k, exact=False):
-    """Texel-integrated weights ``q[i, j] = Int_cell(i, j) R(|y|) dy``, i, j = 0..k, of the
+    """Texel-integrated weights ``quad[i, j] = Int_cell(i, j) R(|y|) dy``, i, j = 0..k, of the
     whole cells centred at (i, j) texels (float64)."""
     n = min(k, EXACT_CELLS)
     # corners c_-1 = 0, c_i = i + 1/2; cell i spans [c_{i-1}, c_i] (cell 0 only its half)
@@ -122,7 +122,7 @@ def quadrant_weights(alpha, sigma_t_texels, eta, k, exact=False):
     near = f[1:, 1:] - f[:-1, 1:] - f[1:, :-1] + f[:-1, :-1]
     m = np.ones(n + 1)
     m[0] = 2.0
-    q = np.zeros((k + 1, k + 1))
+    quad = np.zeros((k + 1, k + 1))
     if k > n:
         x, w = np.polynomial.legendre.leggauss(GL_NODES)
         x, w = 0.5 * x, 0.5 * w
@@ -131,10 +131,10 @@ def quadrant_weights(alpha, sigma_t_texels, eta, k, exact=False):
         for i0 in range(0, k + 1, 64):                           # rows in chunks: bounded memory
             rows = pos[i0:i0 + 64]
             r = np.hypot(rows[:, None, :, None], pos[None, :, None, :])
-            q[i0:i0 + 64] = np.einsum("ijab,ab->ij", ref.profile(r, alpha, sigma_t_texels,
+            quad[i0:i0 + 64] = np.einsum("ijab,ab->ij", ref.profile(r, alpha, sigma_t_texels,
                                                                   eta, exact), ww)
-    q[:n + 1, :n + 1] = near * m[:, None] * m[None, :]
-    return q
+    quad[:n + 1, :n + 1] = near * m[:, None] * m[None, :]
+    return quad
 
 
 @KERNEL_CACHE.memoize

@@ -1,8 +1,8 @@
-// blur_varying.cl -- texture-varying blur parameters (bdipole_cl/ops/blur/textured.py): per-texel weights
+// blur_textured.cl -- texture-varying blur parameters (bdipole_cl/ops/blur/textured.py): per-texel weights
 // of the shared basis, w_j(x) = sum_{a,b = 0,1} lu[a] lv[b] table[iu + a][iv + b][j], the
-// bilinear interpolation (2 nodes per axis) of the fine weight table (varying.fine_table: the
+// bilinear interpolation (2 nodes per axis) of the fine weight table (textured_plan.fine_table: the
 // node weights' cubic interpolation, REFINE points per lattice step) at the texel's fine-table
-// coordinates (cu, cv) (logit Rd and ln ld, from varying.texel_coords). An axis on which the
+// coordinates (cu, cv) (logit Rd and ln ld, from textured_plan.texel_coords). An axis on which the
 // texture is constant has one node.
 //
 // Specialized by -DNBASIS=G (basis size), -DNU_TAPS, -DNV_TAPS (2, or 1 for a constant axis),

@@ -33,14 +33,28 @@ inline real half_residual(int upper, real v, bd_params p, real *df)
 }
 
 #if defined(BD_METHOD_TABLE) || defined(BD_METHOD_SECANT)
+// Each segment holds BD_TABLE_N + 1 entries: interval i's cubic in entry i, and in entry
+// BD_TABLE_N the end node (its .x). Interval i's value is clamped between its two nodes, the
+// .x of entries i and i + 1, which its neighbours share exactly: with a monotone cubic on
+// every interval (Fritsch-Carlson, checked when the table is built) the lookup is monotone in
+// t across interval boundaries too (docs/model.md "Monotone inverse").
+#define BD_SEGMENT_STRIDE (BD_TABLE_N + 1)
+
 // Table lookup: the segment's value v and dv/dx (x the segment's variable).
 inline real table_value(__global const float4 *table, int seg, real t, real scale, real *dvdx)
 {
     int i = clamp((int)t, 0, BD_TABLE_N - 1);
     real u = t - (real)i;
-    float4 c = table[seg * BD_TABLE_N + i];
+    float4 c = table[seg * BD_SEGMENT_STRIDE + i];
+    real end = (real)table[seg * BD_SEGMENT_STRIDE + i + 1].x;
     *dvdx = scale * ((real)c.y + u * (BD_LIT(2.0) * (real)c.z + u * BD_LIT(3.0) * (real)c.w));
-    return (real)c.x + u * ((real)c.y + u * ((real)c.z + u * (real)c.w));
+    // c0 + (c1 u + u^2 (c2 + c3 u)): the fma's exact argument moves with u by at least |c1| ulp(u),
+    // more than the small term's rounding can take back when |c1| >= 10|c2| + 11|c3| (checked
+    // per interval when the table is built), so the value is monotone in u; Horner's
+    // u (c1 + u (...)) is not (an increasing factor times one that may round down).
+    real small = u * u * ((real)c.z + u * (real)c.w);
+    real v = (real)c.x + fma(u, (real)c.y, small);
+    return clamp(v, fmin((real)c.x, end), fmax((real)c.x, end));
 }
 
 // The table's estimate of the unknown of Rd's half, and (through *slope) dResidual/dUnknown.
@@ -64,19 +78,29 @@ inline real table_guess(real rd, real x, bd_params p, __global const float4 *tab
 #endif
 
 #if defined(BD_METHOD_BISECTION)
-// On the lower half F(a)/a = exp(K/n) increases from F'(0) to F(1/2)/(1/2) = 2 x_split, so the
-// root lies in [target/(2 x_split), target/F'(0)]: a bracket relative to the root, which keeps
-// full relative precision down to denormal albedos (a bracket [0, 1/2] would stop at 2^-51).
+// Bisection over the unknown's bit patterns (positive floats are ordered as their bits): the
+// smallest v in (0, hi] with residual(v) >= target, to one ulp, denormals included, in at most
+// 31 (float) or 63 (double) steps. Monotone in the target by construction: two targets share
+// the path until the first midpoint between them, after which each stays on its own side.
+#ifdef BD_DOUBLE
+typedef ulong bd_bits;
+#define BD_AS_REAL(b) as_double(b)
+#define BD_AS_BITS(v) as_ulong(v)
+#else
+typedef uint bd_bits;
+#define BD_AS_REAL(b) as_float(b)
+#define BD_AS_BITS(v) as_uint(v)
+#endif
 inline real solve_half(int upper, real target, real rd, real x, bd_params p,
                        __global const float4 *table)
 {
-    real lo = upper ? BD_LIT(0.0) : target / (BD_LIT(2.0) * p.x_split);
-    real hi = upper ? UPPER_HI : fmin(LOWER_HI, target / p.slope0), df;
-    for (int i = 0; i < BD_ITERATIONS; ++i) {
-        real mid = BD_LIT(0.5) * (lo + hi);
-        if (half_residual(upper, mid, p, &df) < target) lo = mid; else hi = mid;
+    bd_bits lo = 0, hi = BD_AS_BITS(upper ? UPPER_HI : LOWER_HI);
+    real df;
+    for (int i = 0; i < BD_ITERATIONS && hi - lo > 1; ++i) {
+        bd_bits mid = lo + (hi - lo) / 2;
+        if (half_residual(upper, BD_AS_REAL(mid), p, &df) < target) lo = mid; else hi = mid;
     }
-    return BD_LIT(0.5) * (lo + hi);
+    return BD_AS_REAL(hi);
 }
 #elif defined(BD_METHOD_SECANT)
 // Secant steps on the last two iterates, the first step using the seed table's slope. Every
@@ -104,6 +128,21 @@ inline real solve_half(int upper, real target, real rd, real x, bd_params p,
     return v;
 }
 #endif
+
+// The two halves' results, each kept on its side of the split (alpha' <= 1/2 below, rho <= 1/2
+// above), so that no rounding of q^2 or of the unknown crosses it: the switch at Rd_split is
+// monotone.
+inline void lower_result(real a, real *alpha, real *rho)
+{
+    *alpha = fmin(a, LOWER_HI);
+    *rho = BD_LIT(1.0) - *alpha;
+}
+
+inline void upper_result(real q, real *alpha, real *rho)
+{
+    *rho = fmin(q * q, BD_RHO_SPLIT);
+    *alpha = BD_LIT(1.0) - *rho;
+}
 
 #if defined(BD_METHOD_MEMO)
 inline void invert_one(real rd, bd_params p, __global const float4 *table, real *alpha, real *rho)
@@ -142,15 +181,13 @@ inline void invert_one(real rd, bd_params p, __global const float4 *table, real 
 #if BD_POLISH > 0
         v = polish_half(0, v, x, LOWER_HI, p);
 #endif
-        *alpha = v;
-        *rho = BD_LIT(1.0) - v;
+        lower_result(v, alpha, rho);
     } else {
 #if BD_POLISH > 0
         real g = rd >= BD_LIT(0.5) ? -log1p(-(BD_LIT(1.0) - rd)) : -log(rd);
         v = polish_half(1, v, g, UPPER_HI, p);
 #endif
-        *rho = v * v;
-        *alpha = BD_LIT(1.0) - *rho;
+        upper_result(v, alpha, rho);
     }
 }
 #else
@@ -158,15 +195,11 @@ inline void invert_one(real rd, bd_params p, __global const float4 *table, real 
 {
     real x = BD_POWER == 2 ? sqrt(rd) : rd;
     if (rd < p.rd_split) {
-        real a = solve_half(0, x, rd, x, p, table);
-        *alpha = a;
-        *rho = BD_LIT(1.0) - a;
+        lower_result(solve_half(0, x, rd, x, p, table), alpha, rho);
     } else {
         // -log Rd; for Rd >= 1/2, 1 - Rd is exact (Sterbenz) and log1p keeps its precision
         real g = rd >= BD_LIT(0.5) ? -log1p(-(BD_LIT(1.0) - rd)) : -log(rd);
-        real q = solve_half(1, g, rd, x, p, table);
-        *rho = q * q;
-        *alpha = BD_LIT(1.0) - *rho;
+        upper_result(solve_half(1, g, rd, x, p, table), alpha, rho);
     }
 }
 #endif

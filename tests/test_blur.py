@@ -190,11 +190,18 @@ def test_band_rule():
     assert bands(10, 4, 2, "clamp").__next__()[2].tolist() == [0, 0, 0, 1, 2, 3, 4, 5]
 
 
-def test_banded_file_blur_halo_follows_auto_plan(tmp_path):
-    # a small kernel for which auto picks a tighter truncation (larger radius) than tol gives
+def test_banded_file_blur_halo_follows_auto_plan(tmp_path, monkeypatch):
+    # choice data (BDIPOLE_CL_CHOICE_DATA) in which the cheapest configuration meeting 1e-3 is
+    # a tighter truncation: auto's kernel is larger than tol's, and so must the halo be
     from bdipole_cl.apps.demo import write_exr
     from bdipole_cl.io.blur_file import blur_file
+    from bdipole_cl.methods.choice import ChoiceData, load_choice_data, write_choice_data
+    from bdipole_cl.methods.registry import BlurChoice
     from bdipole_cl.ops.blur.planning import plan_channel
+    data = ChoiceData("test", load_choice_data().inversion,
+                      (BlurChoice("fft", 1e-4, 4, 1.0, 2e-5, 0.001),
+                       BlurChoice("direct", 1e-3, 4, 1.0, 2e-4, 0.002)))
+    monkeypatch.setenv("BDIPOLE_CL_CHOICE_DATA", str(write_choice_data(data, tmp_path / "c.json")))
     (a, st, eta), = channel_parameters(1, albedo=0.8, mfp=1.0, eta=1.4)
     plan = plan_channel("auto", a, st, eta, 1e-3, False)
     assert plan.kernel.radius > channel_kernel(a, st, eta, 1e-3).radius, plan

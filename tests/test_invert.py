@@ -22,7 +22,7 @@ CONFIGS = [
     pytest.param("table", {"table_size": 64, "polish": 1}, id="table64-polish1"),
     pytest.param("secant", {}, id="secant-default"),
     pytest.param("secant", {"seed_size": 1, "iterations": 60}, id="secant-seed1"),
-    pytest.param("bisection", {}, id="bisection50"),
+    pytest.param("bisection", {}, id="bisection"),
 ]
 
 

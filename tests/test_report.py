@@ -31,7 +31,7 @@ def test_auto_picks_the_cheapest_measured_config_meeting_tol(tol, caplog):
 
 
 def test_auto_without_a_reachable_tol_is_a_clear_error():
-    with pytest.raises(ValueError, match="no float32 configuration reaches it"):
+    with pytest.raises(ValueError, match="no monotone f32 configuration reaches it over eta"):
         resolve_method("auto", tol=1e-12)
 
 

@@ -90,6 +90,13 @@ def time_copy(n, *, double=False, repeats=5):
     return median_time(lambda: knl(rt.queue, (n,), None, src, dst, np.uint64(n)), repeats)
 
 
+def stiff_workload(n=4000):
+    """float32 albedos that reach both stiff ends and every table interval: geometric towards
+    0 and towards 1, and uniform between (3n values)."""
+    return np.float32(np.concatenate([np.geomspace(1e-6, 0.5, n), 1 - np.geomspace(6e-8, 0.5, n),
+                                      np.linspace(1e-6, 0.999, n)]))
+
+
 def reference_inverse(rd, eta):
     """float64 (alpha', rho) of the float32 values in ``rd``."""
     return ref.invert_rd_rho(np.asarray(rd, np.float64), eta)

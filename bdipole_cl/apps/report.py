@@ -24,19 +24,25 @@ import numpy as np
 from ..device import get_runtime
 from ..methods.choice import ChoiceData, write_choice_data
 from ..methods.registry import BlurChoice, InversionChoice, MethodConfig
-from .benchmark import inversion_workload, reference_inverse, time_inversion
+from ..ops.invert import InversionKernel
+from .benchmark import inversion_workload, reference_inverse, stiff_workload, time_inversion
 
 INVERSION_SWEEP = (
     [MethodConfig("memo", iterations=i) for i in (12, 24, 50)]
-    + [MethodConfig("bisection", iterations=i) for i in (12, 20, 32, 50)]
+    + [MethodConfig("bisection", iterations=i) for i in (12, 20, 32)]
+    + [MethodConfig("bisection")]
     + [MethodConfig("secant", tol=t) for t in (1e-2, 1e-4, 1e-6, 2e-7)]
     + [MethodConfig("secant", tol=2e-7, seed_size=s) for s in (4, 64)]
-    + [MethodConfig("table", table_size=n) for n in (4, 8, 16, 32, 64, 256, 1024)]
+    + [MethodConfig("table", table_size=n) for n in (4, 8, 16, 32, 64, 128, 256, 1024)]
     + [MethodConfig("table", table_size=n, polish=1) for n in (4, 16)]
 )
-INVERSION_SWEEP_F64 = [MethodConfig("secant", tol=1e-12), MethodConfig("bisection", iterations=64),
+INVERSION_SWEEP_F64 = [MethodConfig("secant", tol=1e-12), MethodConfig("secant"),
+                       MethodConfig("bisection"),
                        MethodConfig("table", table_size=256, polish=1),
-                       MethodConfig("table", table_size=256, polish=2)]
+                       MethodConfig("table", table_size=64, polish=2), MethodConfig("table")]
+#: the errors the choice data hold are the max over these etas (the fits' valid range, end to
+#: end): auto's tol then holds at every eta, not only at the timing workload's 1.4
+ERROR_ETAS = (0.5, 0.7, 0.9, 1.0, 1.1, 1.25, 1.4, 1.6, 1.8, 2.0, 2.2, 2.4, 2.5, 2.6, 2.7, 2.79)
 BLUR_SWEEP = [(m, t) for m in ("direct", "gaussians", "fft") for t in (1e-2, 1e-3, 1e-4)]
 #: blur workloads: mfp in texels (a small and a large kernel radius)
 BLUR_WORKLOADS = (0.5, 4.0)
@@ -55,22 +61,41 @@ class Point:
     choice: InversionChoice | BlurChoice | None = None    # the measurement as choice data
 
 
-def inversion_points(n=1 << 20, eta=1.4, repeats=3, progress=print):
+def error_over_eta(cfg, double, stiff, references, etas=ERROR_ETAS):
+    """(max relative rho error on the stiff workload over ``etas``, monotone at every eta)."""
+    worst, monotone = 0.0, True
+    for eta in etas:
+        kernel = InversionKernel((eta,), cfg, double=double)
+        rho = kernel.run(stiff.astype(kernel.dtype), None, ("rho",))["rho"]
+        worst = max(worst, float(np.max(np.abs(rho / references[eta] - 1.0))))
+        monotone = monotone and kernel.monotone
+    return worst, monotone
+
+
+def inversion_points(n=1 << 20, eta=1.4, repeats=3, progress=print, etas=ERROR_ETAS):
+    """Every configuration: run time on ``n`` uniform albedos at ``eta``; max rho error on
+    those and on a stiff sweep at every eta of ``etas``; monotone or not."""
     rt = get_runtime()
     rd = inversion_workload(n)
     want_a, want_rho = reference_inverse(rd, eta)
+    stiff = stiff_workload()
+    references = {e: reference_inverse(stiff, e)[1] for e in etas}
     runs = [(c, False) for c in INVERSION_SWEEP]
     if rt.has_fp64:
         runs += [(c, True) for c in INVERSION_SWEEP_F64]
     points = []
     for cfg, double in runs:
         r = time_inversion(cfg, rd, eta, want_a, want_rho, double=double, repeats=repeats)
+        over_eta, monotone = error_over_eta(cfg, double, stiff, references, etas)
+        err = max(r.max_err_rho, over_eta)
         prec = "f64" if double else "f32"
-        points.append(Point("inversion", f"{cfg.method} {prec}", cfg.describe(), prec,
-                            r.seconds, r.max_err_rho, r.mean_err_rho,
-                            choice=InversionChoice(cfg, prec, r.max_err_rho, r.seconds)))
-        progress(f"  {cfg.describe():34s} {prec}  {r.seconds * 1e3:9.2f} ms  "
-                 f"max rho err {r.max_err_rho:.2e}")
+        label = cfg.describe(double)
+        choice = InversionChoice(cfg.resolved(double), prec, err, r.seconds, monotone,
+                                 tuple(etas))
+        points.append(Point("inversion", f"{cfg.method} {prec}", label, prec, r.seconds, err,
+                            r.mean_err_rho, choice=choice))
+        progress(f"  {label:34s} {prec}  {r.seconds * 1e3:9.2f} ms  max rho err {err:.2e}"
+                 f"{'  monotone' if monotone else ''}")
     return points
 
 
@@ -131,11 +156,16 @@ def write_outputs(points, folder, device, workloads):
     lines = [f"Device: {device}", "", *workloads, ""]
     for kind in dict.fromkeys(p.kind for p in points):
         err_name = "max rel err rho" if kind == "inversion" else "max err / (max E Rd)"
-        lines += [f"| {kind} config | prec | median ms | {err_name} | mean err | Pareto |",
-                  "|---|---|---:|---:|---:|:---:|"]
+        mono = kind == "inversion"
+        lines += [f"| {kind} config | prec | median ms | {err_name} | mean err | Pareto |"
+                  + (" monotone |" if mono else ""),
+                  "|---|---|---:|---:|---:|:---:|" + ("---|" if mono else "")]
         for p in sorted((p for p in points if p.kind == kind), key=lambda p: p.seconds):
+            flag = ("yes |" if p.choice is not None and p.choice.monotone else "no |") \
+                if mono else ""
             lines.append(f"| {p.config} | {p.precision} | {p.seconds * 1e3:.2f} | "
-                         f"{p.max_error:.2e} | {p.mean_error:.2e} | {'*' if p.pareto else ''} |")
+                         f"{p.max_error:.2e} | {p.mean_error:.2e} | {'*' if p.pareto else ''} |"
+                         + (f" {flag}" if mono else ""))
         lines.append("")
     (folder / "report.md").write_text("\n".join(lines))
     _plot(points, folder / "report.png", device)
@@ -198,7 +228,10 @@ def run_report(folder="report_out", *, n=1 << 20, blur_size=512, repeats=3, writ
     points += blur_points(blur_size, repeats=repeats, progress=progress)
     mark_pareto(points)
     workloads = [f"Inversion: {n} float32 albedos uniform on [1e-6, 0.999], eta 1.4, "
-                 f"median of {repeats} kernel runs on device buffers.",
+                 f"median of {repeats} kernel runs on device buffers. Errors: the max over that "
+                 f"workload and a stiff sweep (12,000 albedos to both ends) at each of "
+                 f"{len(ERROR_ETAS)} etas from {ERROR_ETAS[0]} to {ERROR_ETAS[-1]}. Monotone: "
+                 f"alpha' non-decreasing in Rd by construction (docs/model.md).",
                  f"Blur: {blur_size}x{blur_size} 1-channel uniform random irradiance, albedo "
                  f"0.8, mfp {' and '.join(f'{m:g}' for m in BLUR_WORKLOADS)} texels, eta 1.4, "
                  f"border clamp, median of {repeats} calls (host to host)."]

@@ -41,6 +41,7 @@ def header() -> str:
     # the split between the solvers' halves: alpha' below, q = sqrt(1 - alpha') above, as
     # literals of the kernel's precision
     split = {"BD_ALPHA_SPLIT": repr(float(ref.ALPHA_SPLIT)),
+             "BD_RHO_SPLIT": repr(float(1.0 - ref.ALPHA_SPLIT)),
              "BD_Q_SPLIT": repr(float(np.sqrt(1.0 - ref.ALPHA_SPLIT)))}
     lines.append("#ifdef BD_DOUBLE")
     lines += [f"#define {k} {v}" for k, v in split.items()]

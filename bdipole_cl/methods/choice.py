@@ -43,7 +43,9 @@ def choice_data_path() -> Path:
 def _load(path: str) -> ChoiceData:
     raw = json.loads(Path(path).read_text())
     inversion = tuple(InversionChoice(MethodConfig.from_fields(e["config"]), e["precision"],
-                                      float(e["max_rho_error"]), float(e["median_s"]))
+                                      float(e["max_rho_error"]), float(e["median_s"]),
+                                      bool(e.get("monotone", False)),
+                                      tuple(e.get("etas", ())))
                       for e in raw["inversion"])
     blur = tuple(BlurChoice(e["method"], float(e["tol"]), int(e["radius"]), float(e["mfp"]),
                             float(e["max_error"]), float(e["median_s"])) for e in raw["blur"])
@@ -59,7 +61,8 @@ def write_choice_data(data: ChoiceData, path) -> Path:
     """Write ``data`` as JSON with structured fields (what ``load_choice_data`` reads)."""
     raw = {"device": data.device,
            "inversion": [{"config": c.config.fields(), "precision": c.precision,
-                          "max_rho_error": c.max_rho_error, "median_s": c.median_s}
+                          "max_rho_error": c.max_rho_error, "median_s": c.median_s,
+                          "monotone": c.monotone, "etas": list(c.etas)}
                          for c in data.inversion],
            "blur": [{"method": b.method, "tol": b.tol, "radius": b.radius, "mfp": b.mfp,
                      "max_error": b.max_error, "median_s": b.median_s} for b in data.blur]}
@@ -72,33 +75,41 @@ def write_choice_data(data: ChoiceData, path) -> Path:
     return path
 
 
-def auto_inversion_config(tol: float, data: ChoiceData | None = None) -> InversionChoice:
-    """The cheapest measured float32 configuration whose max relative rho error is <= tol."""
+def auto_inversion_config(tol: float, double: bool = False,
+                          data: ChoiceData | None = None) -> InversionChoice:
+    """The cheapest measured monotone configuration of the precision whose max relative rho
+    error, over every eta the report measured (the valid range, end to end), is <= tol."""
     data = data or load_choice_data()
-    f32 = sorted((c for c in data.inversion if c.precision == "f32"), key=lambda c: c.median_s)
-    for choice in f32:
+    precision = "f64" if double else "f32"
+    pool = sorted((c for c in data.inversion if c.precision == precision and c.monotone),
+                  key=lambda c: c.median_s)
+    for choice in pool:
         if choice.max_rho_error <= tol:
             return choice
-    best = min(f32, key=lambda c: c.max_rho_error)
-    raise ValueError(f"tol={tol:g}: no float32 configuration reaches it (best measured: "
-                     f"{best.config.describe()} at {best.max_rho_error:.2e}); compute in "
-                     f"float64 with an explicit method instead (double=True, --double on the "
-                     f"command line; e.g. table with polish 2)")
+    if not pool:
+        raise ValueError(f"no measured {precision} configuration in {choice_data_path()}")
+    best = min(pool, key=lambda c: c.max_rho_error)
+    hint = ("" if double else "; float64 reaches 1e-12 (double=True, --double on the "
+                              "command line)")
+    raise ValueError(f"tol={tol:g}: no monotone {precision} configuration reaches it over eta "
+                     f"(best measured: {best.config.describe(double)} at "
+                     f"{best.max_rho_error:.2e}){hint}")
 
 
 def resolve_method(method="table", double=False, **knobs) -> MethodConfig:
     """A MethodConfig from a method name and knobs (None knobs keep the defaults).
 
-    ``method="auto"``: the cheapest configuration whose measured max relative error of rho is
-    <= ``tol`` (default AUTO_DEFAULT_TOL); the choice is logged (logger "bdipole_cl")."""
+    ``method="auto"``: the cheapest monotone configuration of the precision (``double``) whose
+    measured max relative error of rho over eta is <= ``tol`` (default AUTO_DEFAULT_TOL); the
+    choice is logged (logger "bdipole_cl")."""
     if isinstance(method, MethodConfig):
         return method
     if method == "auto":
         tol = knobs.get("tol") or AUTO_DEFAULT_TOL
-        choice = auto_inversion_config(tol)
+        choice = auto_inversion_config(tol, double)
         logging.getLogger("bdipole_cl").info(
             "method='auto', tol=%g: picked %s (measured max rho error %.2e, %.2f ms in the "
-            "report run)", tol, choice.config.describe(), choice.max_rho_error,
+            "report run)", tol, choice.config.describe(double), choice.max_rho_error,
             choice.median_s * 1e3)
         return choice.config
     return MethodConfig(method, **{k: v for k, v in knobs.items() if v is not None})

@@ -49,6 +49,8 @@ class InversionKernel:
     def __init__(self, etas, config: MethodConfig, *, exact=False, model="better",
                  double=False, runtime=None):
         self.rt = get_runtime(runtime)
+        config = config.resolved(double)
+        self.config, self.etas, self.exact, self.model = config, tuple(etas), exact, model
         self.dtype = real_dtype(double)
         self.nchan = len(etas)
         for e in etas:
@@ -64,12 +66,26 @@ class InversionKernel:
         self.params = cl.Buffer(self.rt.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=params)
         self.tables = cl.Buffer(self.rt.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=tab)
 
+    @property
+    def monotone(self) -> bool:
+        """Whether alpha' is non-decreasing in Rd over every float32 Rd by construction
+        (docs/model.md "Monotone inverse"): bisection always; the table without polish when
+        every interval of every channel's table meets the margin; secant, memo and Newton
+        polish are not (their last steps round in either direction)."""
+        c = self.config
+        if c.method == "bisection":
+            return True
+        if c.method != "table" or c.polish:
+            return False
+        return all(tables.table_is_monotone(e, c.table_size, self.exact, self.model)
+                   for e in self.etas)
+
     def __call__(self, n, rd, mfp=None, *, alpha=None, rho=None, sigma_a=None, sigma_s=None,
                  wait_for=None):
         """Enqueue over ``n`` elements (a multiple of nchan); returns the kernel's event."""
         return self.kernel(self.rt.queue, (n,), None, rd, mfp, alpha, rho, sigma_a, sigma_s,
                            self.params, self.tables, np.int32(self.nchan),
-                           np.int32(tables.SEGMENTS * self.table_n), np.uint32(n),
+                           np.int32(tables.entries_per_channel(self.table_n)), np.uint32(n),
                            wait_for=wait_for)
 
     def run(self, rd, mfp=None, want=("alpha",)):
@@ -131,8 +147,8 @@ def invert_albedo(rd, eta, method="table", *, return_rho=False, model="better", 
     -------
     alpha or (alpha, rho) : ndarray, shape of ``rd``, float32 (float64 with ``double``)
     """
-    config = resolve_method(method, iterations=iterations, tol=tol, table_size=table_size,
-                            polish=polish, seed_size=seed_size)
+    config = resolve_method(method, double=double, iterations=iterations, tol=tol,
+                            table_size=table_size, polish=polish, seed_size=seed_size)
     rd = np.asarray(rd)
     if rd.dtype.kind != "f":
         rd = rd.astype(np.float64)
@@ -216,7 +232,7 @@ def albedo_to_coefficients(rd, mfp, eta, method="table", *, model="better", exac
     ``outputs`` picks what is returned, in order, from alpha, rho, sigma_a, sigma_s, sigma_t.
     ``device``: where to run, as for ``invert_albedo``.
     """
-    config = resolve_method(method, **knobs)
+    config = resolve_method(method, double=double, **knobs)
     rd, mfp = np.broadcast_arrays(np.asarray(rd), np.asarray(mfp))
     rd = rd.astype(np.float64) if rd.dtype.kind != "f" else rd
     mfp = mfp.astype(np.float64) if mfp.dtype.kind != "f" else mfp

@@ -20,6 +20,11 @@ from ..caches import ByteCache
 from . import reference as ref
 
 SEGMENTS = 3
+
+
+def entries_per_channel(n: int) -> int:
+    """Table rows per channel: each segment's n cubics and its end node (kernels/invert.cl)."""
+    return SEGMENTS * (n + 1)
 #: tables kept across calls (a 1024-interval table is 48 KiB)
 TABLE_CACHE = ByteCache("inversion tables", 16 << 20)
 
@@ -33,6 +38,12 @@ def _hermite_coefficients(x0, x1, values, slopes):
     return np.stack([v0, m0, 3.0 * (v1 - v0) - 2.0 * m0 - m1, 2.0 * (v0 - v1) + m0 + m1], axis=-1)
 
 
+def _segment(x0, x1, values, slopes):
+    """One segment's rows: n cubics and the end node (its .x)."""
+    end = np.array([[values[-1], 0.0, 0.0, 0.0]])
+    return np.concatenate([_hermite_coefficients(x0, x1, values, slopes), end])
+
+
 def _solve_q(c, model, neg_log_rd):
     return ref.solve_increasing(lambda v, i: ref.upper_residual(v, c, model), neg_log_rd,
                                  0.0, np.sqrt(1.0 - ref.ALPHA_SPLIT))
@@ -40,7 +51,10 @@ def _solve_q(c, model, neg_log_rd):
 
 @TABLE_CACHE.memoize
 def inversion_table(eta: float, n: int, exact: bool = False, model: str = "better"):
-    """``(coefficients float32 (3n, 4), scales (3,))`` of one eta: n intervals a segment."""
+    """``(rows float32 (3 (n + 1), 4), scales (3,))`` of one eta: per segment n cubics and its
+    end node. Neighbouring segments share their nodes exactly: segment 0 ends at alpha' =
+    ALPHA_SPLIT and segment 1 starts at q = sqrt(1 - ALPHA_SPLIT) (the split, where the result
+    is clamped to its half), and segments 1 and 2 end at the same float64 q of Rd = 1/2."""
     c = ref.dipole_constants(eta, exact, model)
     split = float(ref.rd_split(c, model))
     if not split < 0.5:
@@ -51,22 +65,39 @@ def inversion_table(eta: float, n: int, exact: bool = False, model: str = "bette
     x0 = np.linspace(0.0, x_split, n + 1)
     a = ref.solve_increasing(lambda v, i: ref.lower_residual(v, c, model), x0, 0.0,
                               ref.ALPHA_SPLIT)
-    seg0 = _hermite_coefficients(0.0, x_split, a, 1.0 / ref.lower_residual(a, c, model)[1])
+    a[-1] = ref.ALPHA_SPLIT
+    seg0 = _segment(0.0, x_split, a, 1.0 / ref.lower_residual(a, c, model)[1])
     # segment 1: q of x = Rd^(1/n), G = -n log x; dq/dx = (dG/dx)/G'(q) = -n/(x G'(q))
     x1 = np.linspace(x_split, x_mid, n + 1)
     q1 = _solve_q(c, model, -power * np.log(x1))
-    seg1 = _hermite_coefficients(x_split, x_mid, q1,
-                                 -power / (x1 * ref.upper_residual(q1, c, model)[1]))
+    q1[0] = np.sqrt(1.0 - ref.ALPHA_SPLIT)
+    seg1 = _segment(x_split, x_mid, q1, -power / (x1 * ref.upper_residual(q1, c, model)[1]))
     # segment 2: q of x = 1 - Rd, G = -log(1 - x); dq/dx = 1/((1 - x) G'(q))
     x2 = np.linspace(0.0, 0.5, n + 1)
     q2 = _solve_q(c, model, -np.log1p(-x2))
-    seg2 = _hermite_coefficients(0.0, 0.5, q2,
-                                 1.0 / ((1.0 - x2) * ref.upper_residual(q2, c, model)[1]))
+    q2[-1] = q1[-1]                       # Rd = 1/2 ends both segments: one value
+    seg2 = _segment(0.0, 0.5, q2, 1.0 / ((1.0 - x2) * ref.upper_residual(q2, c, model)[1]))
     coefs = np.concatenate([seg0, seg1, seg2]).astype(np.float32)
     coefs.setflags(write=False)
     return coefs, (n / x_split, n / (x_mid - x_split), n / 0.5)
 
 
+#: a table interval's float evaluation ``c0 + fma(u, c1, u^2 (c2 + c3 u))`` is monotone in u
+#: when |c1| >= MONOTONE_MARGIN_Z |c2| + MONOTONE_MARGIN_W |c3| (docs/model.md "Monotone
+#: inverse"): the first-order term's growth beats the rest's rounding. The margin also makes the
+#: exact cubic monotone (its derivative c1 + 2 c2 u + 3 c3 u^2 keeps the sign of c1).
+MONOTONE_MARGIN_Z, MONOTONE_MARGIN_W = 10.0, 11.0
+
+
+def table_is_monotone(eta: float, n: int, exact: bool = False, model: str = "better") -> bool:
+    """Whether every interval of the table (float32 coefficients as stored) meets the margin,
+    so that the kernel's lookup is monotone in Rd (with the shared nodes and the clamps)."""
+    rows = inversion_table(float(eta), n, exact, model)[0].astype(np.float64)
+    cubic = rows.reshape(SEGMENTS, n + 1, 4)[:, :n]
+    need = MONOTONE_MARGIN_Z * np.abs(cubic[..., 2]) + MONOTONE_MARGIN_W * np.abs(cubic[..., 3])
+    return bool(np.all(np.abs(cubic[..., 1]) >= need))
+
+
 def channel_tables(etas, n, *, exact=False, model="better"):
-    """All channels' tables stacked, float32 ``(len(etas) * 3n, 4)``."""
+    """All channels' tables stacked, float32 ``(len(etas) * entries_per_channel(n), 4)``."""
     return np.concatenate([inversion_table(float(e), n, exact, model)[0] for e in etas])

@@ -84,9 +84,10 @@ def fit_gaussians(alpha, sigma_t_texels, eta, tol, exact=False):
     """Non-negative least-squares fit of the exact weights by separable Gaussians.
 
     The residual is weighted relatively (``row_weights``), so the peak and the near cells fit
-    as well as the tail. The basis (``basis_sigmas``) grows until the L1 error is <= tol and
-    the near cells are within NEAR_REL_TOL, or MAX_GAUSSIANS is reached; the best fit found is
-    returned.
+    as well as the tail. The weights are scaled to sum to Rd: the fitted kernel conserves
+    energy exactly, as the exact one does; ``l1_error`` is the normalized fit's. The basis
+    (``basis_sigmas``) grows until the L1 error is <= tol and the near cells are within
+    NEAR_REL_TOL, or MAX_GAUSSIANS is reached; the best fit found is returned.
     """
     from scipy.optimize import nnls
     ck = channel_kernel(alpha, sigma_t_texels, eta, tol, exact)
@@ -101,6 +102,9 @@ def fit_gaussians(alpha, sigma_t_texels, eta, tol, exact=False):
         radii = [(len(taps) - 1) // 2 for taps in kernels]
         cols = basis_columns(kernels, k)
         coef, _ = nnls(cols * row_w[:, None], target.ravel() * row_w)
+        # each separable Gaussian sums to 1, so the fitted kernel sums to sum(coef): scaled to
+        # 1, it keeps the energy (M = E Rd for constant E) however poorly the shape fits
+        coef /= coef.sum()
         fitted = (cols @ coef).reshape(target.shape)
         l1 = float(np.abs(unfold_quadrant(fitted) - ck.weights / ck.rd).sum())
         near_rel = float(np.abs(fitted[near, near] / target[near, near] - 1).max())

@@ -3,6 +3,7 @@ the typed record of what a blur did (``BlurInfo``); and one image (or band) blur
 """
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -13,6 +14,11 @@ from .fft import fft_blur_channel
 from .fit import fit_gaussians
 from .params import channel_parameters
 from .weights import ChannelKernel, channel_kernel
+
+
+class BlurAccuracyWarning(UserWarning):
+    """A blur's error bound exceeds the tol it was asked for (the ``gaussians`` fit of a
+    near-delta kernel, say); BlurInfo's ``error_bound`` says by how much."""
 
 
 @dataclass(frozen=True)
@@ -114,6 +120,12 @@ def blur_whole(e, params, plans, border, exact, rt):
             fit = fit_gaussians(a, st, et, ck.tol, exact)
             device.run_gaussians(c, fit)
             bound = ck.tol + fit.l1_error
+            if fit.l1_error > ck.tol:
+                warnings.warn(BlurAccuracyWarning(
+                    f"channel {c}: the gaussians fit of this kernel (radius {ck.radius}, "
+                    f"albedo {ck.rd:.3g}) has L1 error {fit.l1_error:.2e} > tol {ck.tol:g}; "
+                    f"energy is kept, the shape is not: use method='direct' or 'fft' for the "
+                    f"exact kernel"), stacklevel=4)
         else:
             fft_out[c] = fft_blur_channel(e[..., c], ck.weights, border)
             bound = ck.tol

@@ -211,18 +211,22 @@ def _cmd_blur(args) -> int:
 
 
 def _cmd_crosscheck(args) -> int:
-    from .crosscheck import check_user_kernel, format_rows, run_all_devices, run_crosscheck
+    from .crosscheck import format_rows, run_all_devices, run_crosscheck
+    from .user_kernel import UserKernelError, check_user_kernel
     if args.user_kernel:
         if not (args.function and args.against):
-            print("error: --user-kernel needs --function and --against", file=sys.stderr)
+            print("bdipole-cl crosscheck: error: --user-kernel needs --function and --against",
+                  file=sys.stderr)
             return 2
         try:
             rows = []
             for eta in args.eta:
-                rows += check_user_kernel(args.user_kernel, args.function, args.against, eta=eta)
-        except (OSError, ValueError) as exc:
-            print(f"error: {exc}", file=sys.stderr)
-            return 2
+                rows += check_user_kernel(args.user_kernel, args.function, args.against,
+                                          eta=eta, n=args.n, device=args.device,
+                                          timeout=args.timeout)
+        except UserKernelError as exc:
+            print(f"bdipole-cl crosscheck: error: {exc}", file=sys.stderr)
+            return 1 if "did not finish" in str(exc) or "died" in str(exc) else 2
     elif args.all_devices:
         rows = run_all_devices(args.eta, n=args.n)
     else:
@@ -292,14 +296,20 @@ def build_parser() -> argparse.ArgumentParser:
                        help="every kernel (or your own OpenCL function) vs the float64 reference")
     p.add_argument("--eta", type=_floats, default=(1.0, 1.4, 2.5),
                    help="etas to sweep (comma list)")
-    p.add_argument("--n", type=_positive_int, default=500, help="points per sweep segment")
+    p.add_argument("--n", type=_positive_int, default=500,
+                   help="points per sweep segment (user kernels: per Rd range)")
     p.add_argument("--user-kernel", help="an OpenCL C file with your function")
-    p.add_argument("--function", help="its name (signatures: see bdipole_cl/crosscheck.py)")
+    p.add_argument("--function",
+                   help="its name (signatures: bdipole_cl/apps/user_kernel.py, README)")
     p.add_argument("--all-devices", action="store_true",
                    help="run the built-in checks on every working device, in one table")
-    p.add_argument("--against", choices=("rd", "profile", "invert"),
+    p.add_argument("--against", choices=("rd", "profile", "invert", "invert-rho",
+                                         "invert-both"),
                    help="what it computes: rd(alpha', 2C1, 3C2), profile(r, alpha', sigma_t', "
-                        "2C1, 3C2) or invert(Rd, 2C1, 3C2) -> alpha'")
+                        "2C1, 3C2), invert(Rd, 2C1, 3C2) -> alpha', invert-rho -> rho, or "
+                        "invert-both(Rd, 2C1, 3C2, float *alpha', float *rho)")
+    p.add_argument("--timeout", type=_positive_float, default=120.0,
+                   help="seconds a user kernel's run may take before it is stopped")
     p.set_defaults(func=_cmd_crosscheck)
 
     p = sub.add_parser("report", help="error against run time for every method (md, csv, png)")

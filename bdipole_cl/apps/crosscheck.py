@@ -5,25 +5,13 @@ and -> 1, r = 0 and large r), with its max error, the bound it must meet and PAS
 manner of ``idiff``. Errors are in units of the precision's unit roundoff u (2^-24 float32,
 2^-53 float64) for the physics functions, relative for the inversions and the blur.
 
-User kernels
-------------
-``--user-kernel FILE.cl --function NAME --against rd|profile|invert`` compiles a renderer's own
-OpenCL C function and reports its error the same way. Signatures (float32, the memo's
-conventions: the Fresnel terms are 2 C1 and 3 C2 of d'Eon's fits at the given eta)::
-
-    rd:      float NAME(float alpha_prime, float two_c1, float three_c2)      // memo computeRd
-    invert:  float NAME(float rd, float two_c1, float three_c2)               // computeAlphaPrime
-    profile: float NAME(float r, float alpha_prime, float sigma_t, float two_c1, float three_c2)
-
-For ``invert`` both alpha' and rho = 1 - alpha' (computed from the returned alpha') are judged.
+User kernels: ``bdipole_cl.apps.user_kernel`` (a renderer's own OpenCL C function).
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
-import pyopencl as cl
 
 from ..device import get_runtime
 from ..ops import physics_eval as physics
@@ -144,83 +132,6 @@ def _blur_rows(rt):
     return rows
 
 
-# {{{ user kernels
-
-_USER_WRAPPERS = {
-    "rd": ("x[i], two_c1, three_c2", "alpha_prime"),
-    "invert": ("x[i], two_c1, three_c2", "rd"),
-    "profile": ("x[i], y[i], z[i], two_c1, three_c2", "r"),
-}
-
-
-def check_user_kernel(path, function, against, *, eta=1.4, n=2000, device=None):
-    """Compile ``function`` from ``path`` and return crosscheck Rows against the reference."""
-    if against not in _USER_WRAPPERS:
-        raise ValueError(f"--against {against!r}: expected one of {sorted(_USER_WRAPPERS)}")
-    source = Path(path).read_text()
-    args, _ = _USER_WRAPPERS[against]
-    wrapper = (f"\n__kernel void bdipole_user_eval(__global const float *x, __global const "
-               f"float *y, __global const float *z, __global float *out, const float two_c1, "
-               f"const float three_c2, const uint n)\n{{\n    uint i = get_global_id(0);\n"
-               f"    if (i < n) out[i] = {function}({args});\n}}\n")
-    rt = get_runtime(device)
-    try:
-        prg = cl.Program(rt.context, source + wrapper).build()
-    except cl.RuntimeError as exc:
-        raise ValueError(f"{path}: building {function} failed:\n{exc}") from exc
-    knl = cl.Kernel(prg, "bdipole_user_eval")
-    c1, c2 = ref.fresnel_moments(eta)
-    two_c1, three_c2 = np.float32(2 * c1), np.float32(3 * c2)
-
-    def run(x, y=None, z=None):
-        x = np.ascontiguousarray(x, np.float32).reshape(-1)
-        y = np.zeros_like(x) if y is None else np.ascontiguousarray(y, np.float32).reshape(-1)
-        z = np.zeros_like(x) if z is None else np.ascontiguousarray(z, np.float32).reshape(-1)
-        mf = cl.mem_flags
-        bufs = [cl.Buffer(rt.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=v)
-                for v in (x, y, z)]
-        out = np.empty_like(x)
-        ob = cl.Buffer(rt.context, mf.WRITE_ONLY, out.nbytes)
-        knl(rt.queue, (x.size,), None, *bufs, ob, two_c1, three_c2, np.uint32(x.size))
-        cl.enqueue_copy(rt.queue, out, ob)
-        rt.queue.finish()
-        return out.astype(np.float64)
-
-    name = f"user {function} vs {against} (eta {eta})"
-    if against == "rd":
-        a = np.float32(np.concatenate([np.geomspace(1e-6, 0.5, n),
-                                       1 - np.geomspace(2**-24, 0.5, n)])).astype(np.float64)
-        err = np.abs(run(a) / ref.rd(a, eta) - 1)
-        i = int(np.argmax(err))
-        return [Row(name, "f32", float(err[i]), "rel", PHYSICS_BOUND_U * EPS[False],
-                    f"alpha'={a[i]:.6g}")]
-    if against == "invert":
-        rd = _albedo_sweep(n)
-        alpha = run(rd)
-        want_a, want_rho = ref.invert_rd_rho(rd, eta)
-        rows = []
-        for label, got, want in (("alpha", alpha, want_a), ("rho", 1.0 - alpha, want_rho)):
-            err = np.abs(got / want - 1)
-            i = int(np.argmax(err))
-            rows.append(Row(f"{name} {label}", "f32", float(err[i]), "rel",
-                            INVERT_BOUNDS[label], f"Rd={rd[i]:.6g}"))
-        return rows
-    # the built-in profile sweep's radii and albedos (sigma_t' = 1)
-    r = np.float32(np.concatenate([[0.0], np.geomspace(1e-4, 1e3, n // 4)])).astype(np.float64)
-    alphas = np.float32([1e-3, 0.3, 0.9, 0.999, 1 - 1e-6]).astype(np.float64)
-    rr, aa = np.meshgrid(r, alphas)
-    got = run(rr, aa, np.ones_like(rr)).reshape(rr.shape)
-    want = ref.profile(rr, aa, 1.0, eta)
-    ok = want > 1e-30
-    err = np.where(ok, np.abs(got - want) / np.where(ok, want, 1.0), 0.0)
-    j = np.unravel_index(int(np.argmax(err)), err.shape)
-    mu_d = ref.mu_tr_over_sigma_t(1 - aa[j]) * np.hypot(rr[j], 3.0)
-    return [Row(name, "f32", float(err[j]), "rel", PHYSICS_BOUND_U * EPS[False] * (1 + mu_d),
-                f"r={rr[j]:.3g}, alpha'={aa[j]:.6g}, sigma_t=1")]
-
-# }}}
-
-
 def run_crosscheck(etas=(1.0, 1.4, 2.5), *, n=500, double=None, include=("physics", "invert",
                                                                              "blur"),
                    device=None):
@@ -266,6 +177,10 @@ def format_rows(rows):
     lines = ["  ".join(c.ljust(w) for c, w in zip(t, widths)).rstrip() for t in table]
     fails = sum(r.status == "FAIL" for r in rows)
     lines.append(f"{len(rows)} checks, {fails} over their bound"
-                 + (" (memo baseline rows are INFO: the memo has no bound)" if any(
-                     r.status == "INFO" for r in rows) else ""))
+                 + (" (INFO rows are shown, not judged: the memo's baseline, rho derived from a "
+                    "float32 alpha', model notes)" if any(r.status == "INFO" for r in rows)
+                    else ""))
+    if any(r.unit == "ulp" for r in rows):
+        lines.append("alpha' errors are ulps from the correctly rounded float32 alpha'; rho "
+                     "errors relative to the exact rho")
     return "\n".join(lines)

@@ -204,6 +204,32 @@ inline void invert_one(real rd, bd_params p, __global const float4 *table, real 
 }
 #endif
 
+// Specialisation for one scene's job (bdipole_cl/ops/invert.py: InversionKernel(bake=True)):
+//   -DBD_BAKED_PARAMS=v,v,...  the channels' constant records compiled in (the params buffer
+//                              is not read)
+//   -DBD_MFP_CONST=v,...       a constant mfp per channel compiled in (no mfp buffer read)
+//   -DBD_OUTPUTS=bits          the outputs written, known at build time (1 alpha', 2 rho,
+//                              4 sigma_a, 8 sigma_s'): the others are not computed
+#ifdef BD_BAKED_PARAMS
+__constant real bd_baked_params[] = {BD_BAKED_PARAMS};
+#define BD_PARAM_SOURCE bd_baked_params
+#else
+#define BD_PARAM_SOURCE params
+#endif
+#ifdef BD_MFP_CONST
+__constant real bd_mfp_const[] = {BD_MFP_CONST};
+#define BD_MFP(i, c) bd_mfp_const[c]
+#define BD_HAS_MFP 1
+#else
+#define BD_MFP(i, c) mfp[i]
+#define BD_HAS_MFP (mfp != 0)
+#endif
+#ifdef BD_OUTPUTS
+#define BD_WANTS(bit, ptr) ((BD_OUTPUTS) & (bit))
+#else
+#define BD_WANTS(bit, ptr) (ptr != 0)
+#endif
+
 // Element i is texel i / nchan, channel i % nchan. Outputs may be NULL (not wanted).
 // Rd <= 0 (and NaN, which the host reports or clamps first) -> (0, 1); Rd >= 1 -> (1, 0).
 // With mfp (ld = 1/mu_tr, docs/model.md): sigma_t' = 1/(ld mu_tr/sigma_t'), sigma_a = sigma_t' rho,
@@ -217,16 +243,16 @@ __kernel void invert_albedo(__global const real *rd, __global const real *mfp,
     uint i = get_global_id(0);
     if (i >= n) return;
     int c = nchan == 1 ? 0 : (int)(i % (uint)nchan);
-    bd_params p = bd_load_params(params, c);
+    bd_params p = bd_load_params(BD_PARAM_SOURCE, c);
     real r = rd[i], alpha, rho;
     if (!(r > BD_LIT(0.0))) { alpha = BD_LIT(0.0); rho = BD_LIT(1.0); }
     else if (r >= BD_LIT(1.0)) { alpha = BD_LIT(1.0); rho = BD_LIT(0.0); }
     else invert_one(r, p, tables + c * table_stride, &alpha, &rho);
-    if (alpha_out) alpha_out[i] = alpha;
-    if (rho_out) rho_out[i] = rho;
-    if (mfp) {
-        real sigma_t = BD_LIT(1.0) / (mfp[i] * bd_mu_over_sigma_t(rho));
-        if (sigma_a_out) sigma_a_out[i] = sigma_t * rho;
-        if (sigma_s_out) sigma_s_out[i] = sigma_t * alpha;
+    if (BD_WANTS(1, alpha_out)) alpha_out[i] = alpha;
+    if (BD_WANTS(2, rho_out)) rho_out[i] = rho;
+    if (BD_HAS_MFP && (BD_WANTS(4, sigma_a_out) || BD_WANTS(8, sigma_s_out))) {
+        real sigma_t = BD_LIT(1.0) / (BD_MFP(i, c) * bd_mu_over_sigma_t(rho));
+        if (BD_WANTS(4, sigma_a_out)) sigma_a_out[i] = sigma_t * rho;
+        if (BD_WANTS(8, sigma_s_out)) sigma_s_out[i] = sigma_t * alpha;
     }
 }

@@ -17,7 +17,7 @@ LAYERS = {
     "methods": 3,
     "ops": 4,
     "io": 5,
-    "apps": 6, "__main__": 6,
+    "apps": 6, "__main__": 6, "scene": 6,     # bdipole_cl/scene.py: the scene API facade
     "": 7,                 # bdipole_cl/__init__.py: the public facade re-exports every layer
 }
 #: a module this long is a sign of two concerns in one file

@@ -10,6 +10,8 @@ from ..errors import POLICIES
 
 EPILOG = """examples:
   bdipole-cl demo                                   # built-in example, writes ./bdipole_demo
+  bdipole-cl plan scene.toml                        # what a bake computes and leaves out
+  bdipole-cl bake scene.toml                        # run it (only what changed)
   bdipole-cl devices
   bdipole-cl invert diffuse.<UDIM>.exr --mfp mfp.<UDIM>.exr --eta 1.4 -o out/{stem}_coeffs.exr
   bdipole-cl invert 'textures/*.tif' --mfp 1.2,0.6,0.3 --unit mm --half --jobs 2
@@ -238,6 +240,34 @@ def _cmd_crosscheck(args) -> int:
     return 1 if any(r.status == "FAIL" for r in rows) else 0
 
 
+def _cmd_plan(args) -> int:
+    from ..io.scene import load
+    plan = load(args.scene).plan(force=args.force)
+    print(plan.to_json() if args.json else plan.describe())
+    return 0
+
+
+def _cmd_bake(args) -> int:
+    from ..io.scene import load
+    plan = load(args.scene).plan(force=args.force)
+    for problem in plan.missing:            # every missing input, before any work starts
+        print(f"cannot run: {problem}", file=sys.stderr)
+    stop = _Stop().install()
+
+    def progress(job, result):
+        if not args.no_progress:
+            print(f"{result.status:9s} {job.kind} {job.name}"
+                  + (f" [{job.udim}]" if job.udim else "") + f" -> {job.output}", flush=True)
+
+    report = plan.run(cancel=stop.event, progress=progress)
+    print(report.summary())
+    if stop.exit_code:
+        print(f"interrupted by signal {stop.signum}: finished files kept, unfinished ones not "
+              f"written", file=sys.stderr)
+        return stop.exit_code
+    return report.exit_code
+
+
 def _cmd_report(args) -> int:
     from .report import run_report
     run_report(args.output, n=args.n, blur_size=args.blur_size, repeats=args.repeats,
@@ -311,6 +341,18 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--timeout", type=_positive_float, default=120.0,
                    help="seconds a user kernel's run may take before it is stopped")
     p.set_defaults(func=_cmd_crosscheck)
+
+    p = sub.add_parser("plan", help="what a scene's bake computes and leaves out, per job")
+    p.add_argument("scene", help="scene file (TOML)")
+    p.add_argument("--json", action="store_true", help="the plan as JSON")
+    p.add_argument("--force", action="store_true", help="plan every job, up to date or not")
+    p.set_defaults(func=_cmd_plan)
+
+    p = sub.add_parser("bake", help="run a scene's plan: only what is needed, only what changed")
+    p.add_argument("scene", help="scene file (TOML)")
+    p.add_argument("--force", action="store_true", help="rebuild every output")
+    p.add_argument("--no-progress", action="store_true", help="no line per job")
+    p.set_defaults(func=_cmd_bake)
 
     p = sub.add_parser("report", help="error against run time for every method (md, csv, png)")
     p.add_argument("-o", "--output", default="report_out", help="folder for the report")

@@ -189,6 +189,7 @@ class Job:
     udim: str | None
     output: str
     mfp_path: str | None
+    mask_path: str | None = None          # settings.mask == "texture": this file's mask
 
 
 @dataclass(frozen=True)
@@ -211,6 +212,9 @@ class BatchSettings:
     runtime: Runtime
     double: bool = False
     cancel: object = None        # threading.Event or None
+    mask: str | None = None      # None, "alpha" (the albedo's alpha) or "texture" (Job.mask_path)
+    bake: bool = False           # a kernel specialised for the batch (constants compiled in)
+    header: dict = field(default_factory=dict)   # more bdipole:* attributes for the outputs
 
 
 def process_file(job, settings, device_lock, progress):
@@ -258,7 +262,18 @@ def process_file(job, settings, device_lock, progress):
                   "mfp_scale": settings.mfp_scale, "unit": settings.unit,
                   "coefficient_unit": f"1/{settings.unit}",
                   "albedo": job.path, "albedo_colorspace": from_space or "linear",
-                  "mfp_convention": "ld = 1/mu_tr (Jensen/Hery)"}
+                  "mfp_convention": "ld = 1/mu_tr (Jensen/Hery)", **settings.header}
+        mask_reader = None
+        if settings.mask == "alpha" and alpha_ch < 0:
+            raise TextureError(f"{job.path}: mask = 'alpha' but the albedo has no alpha "
+                               f"channel (channels {', '.join(spec.channelnames)})")
+        if settings.mask == "texture":
+            mask_reader = Reader(job.mask_path, "mask texture")
+            readers.append(mask_reader)
+            if (mask_reader.spec.width, mask_reader.spec.height) != (spec.width, spec.height):
+                raise TextureError(f"{job.path}: mask {job.mask_path} is "
+                                   f"{mask_reader.spec.width}x{mask_reader.spec.height}, the "
+                                   f"albedo {spec.width}x{spec.height}: resolutions must match")
         out_spec = output_spec(spec, out_names, len(out_names) - 1 if keep_alpha else -1,
                                 settings.half, params)
         Path(job.output).parent.mkdir(parents=True, exist_ok=True)
@@ -267,7 +282,9 @@ def process_file(job, settings, device_lock, progress):
             mapper = CoefficientMapper(tuple(etas), settings.config, outputs=outputs,
                                        model=settings.model, exact=settings.exact,
                                        on_invalid=settings.on_invalid,
-                                       device=settings.runtime, double=settings.double)
+                                       device=settings.runtime, double=settings.double,
+                                       bake=settings.bake,
+                                       mfp_const=mfp_const if settings.bake else None)
         per_texel = 4 * 3 * (spec.nchannels + ncolor * (1 + len(outputs)) + len(out_names))
         rows = band_rows(spec.height, spec.width * per_texel, settings.max_memory,
                          tile_height=spec.tile_height if spec.tile_width else 0)
@@ -277,12 +294,14 @@ def process_file(job, settings, device_lock, progress):
             y0, y1 = band
             a = alb.read_band(y0, y1)
             m = mfp_reader.read_band(y0, y1) if mfp_reader is not None else None
-            return a, m
+            mask = (a[..., alpha_ch:alpha_ch + 1] if settings.mask == "alpha" else
+                    mask_reader.read_band(y0, y1)[..., :1] if mask_reader is not None else None)
+            return a, m, mask
 
         with ThreadPoolExecutor(1) as prefetch:
             pending = prefetch.submit(read, bands[0]) if bands else None
             for k, (y0, y1) in enumerate(bands):
-                a, m = pending.result()
+                a, m, mask = pending.result()
                 if k + 1 < len(bands):
                     pending = prefetch.submit(read, bands[k + 1])
                 albedo = to_linear(a[..., colour], from_space)
@@ -292,7 +311,7 @@ def process_file(job, settings, device_lock, progress):
                     mfp = m[..., mfp_colour] * np.float32(settings.mfp_scale)
                 try:
                     with device_lock:
-                        outs, counts = mapper(albedo, mfp)
+                        outs, counts = mapper(albedo, mfp, mask)
                 except InvalidInputError as exc:
                     yy, xx, cc = exc.first_index
                     raise TextureError(

@@ -21,7 +21,7 @@ FILE_ROW_FLOATS = 10
 
 
 def blur_file(path, output, *, colorspace="auto", half=False, max_memory=256 << 20,
-              sources=None, cancel=None, **kwargs):
+              sources=None, cancel=None, mask=None, header=None, **kwargs):
     """Blur an irradiance image file into an EXR, streamed in bands of rows with a halo of the
     truncation radius (memory bounded by ``max_memory``). Integer files are decoded to linear
     as in ``process_textures``; alpha is copied through. ``kwargs`` are ``blur``'s.
@@ -29,7 +29,10 @@ def blur_file(path, output, *, colorspace="auto", half=False, max_memory=256 << 
     ``sources``: {parameter name: file} of parameter textures given as arrays, so that errors
     name the file they come from and ``output`` never overwrites one of them. ``cancel``
     (threading.Event): when set, the next band raises Cancelled and the temporary output is
-    removed. Returns the BlurInfo."""
+    removed. ``mask`` (HxW, the image's size): texels where it is 0 give no light and get no
+    exitance (written as 0); bands whose halo'd irradiance is all 0 are not blurred at all.
+    ``header``: more ``bdipole:*`` attributes for the output. Returns the BlurInfo (None when
+    every band was skipped)."""
     check_output_format(output)
     sources = dict(sources or {})
     for src in (path, *sources.values()):
@@ -68,14 +71,26 @@ def blur_file(path, output, *, colorspace="auto", half=False, max_memory=256 << 
             e = px[..., colour]
             if space is not None:
                 e = to_linear(e, space)
-            out, info = blur(e, return_info=True, **kwargs)
-            parts = [out[k:k + y1 - y0]]
+            if mask is not None:
+                e = e * (np.asarray(mask)[np.maximum(idx, 0)] > 0)[..., None] \
+                    * (idx >= 0)[:, None, None]
+            if np.any(e):
+                out, info = blur(e, return_info=True, **kwargs)
+                out = out[k:k + y1 - y0]
+                if mask is not None:
+                    out = out * (np.asarray(mask)[y0:y1] > 0)[..., None]
+            else:                               # no light reaches this band: nothing to blur
+                out = np.zeros((y1 - y0, spec.width, len(colour)), np.float32)
+            parts = [out]
             if alpha_ch >= 0:
                 parts.append(px[k:k + y1 - y0, :, alpha_ch:alpha_ch + 1])
             if writer is None:
                 meta = {key: (v if np.ndim(v) < 2 else "texture")
                         for key, v in kwargs.items() if key in PARAM_KEYS + ("tol", "border")}
-                meta["methods"] = ",".join(f"{c.method}(r={c.radius})" for c in info.channels)
+                if info is not None:
+                    meta["methods"] = ",".join(f"{c.method}(r={c.radius})"
+                                               for c in info.channels)
+                meta.update(header or {})
                 meta["source"] = str(path)
                 Path(output).parent.mkdir(parents=True, exist_ok=True)
                 writer = Writer(output, output_spec(

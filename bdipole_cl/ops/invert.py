@@ -42,12 +42,25 @@ def channel_etas(eta, shape):
     return tuple(float(e) for e in etas)
 
 
+#: kernels/invert.cl's output bits (BD_OUTPUTS)
+OUTPUT_BITS = {"alpha": 1, "rho": 2, "sigma_a": 4, "sigma_s": 8}
+
+
+def _literals(values, double):
+    """C literals of the kernel's precision, comma-separated (a -D initializer list)."""
+    return ",".join(repr(float(v)) + ("" if double else "f") for v in values)
+
+
 class InversionKernel:
     """kernels/invert.cl built for one configuration, precision, model and tuple of etas, with
-    its constant buffers on the device; call it on device buffers (benchmarks do)."""
+    its constant buffers on the device; call it on device buffers (benchmarks do).
+
+    ``bake``: specialise the build for one job (a scene's): the channels' constant records are
+    compiled in, and so are ``mfp_const`` (a constant mfp per channel: no mfp buffer is read)
+    and ``outputs`` (only those are computed). Each distinct specialisation is built once."""
 
     def __init__(self, etas, config: MethodConfig, *, exact=False, model="better",
-                 double=False, runtime=None):
+                 double=False, runtime=None, bake=False, mfp_const=None, outputs=None):
         self.rt = get_runtime(runtime)
         config = config.resolved(double)
         self.config, self.etas, self.exact, self.model = config, tuple(etas), exact, model
@@ -55,11 +68,20 @@ class InversionKernel:
         self.nchan = len(etas)
         for e in etas:
             ref.check_eta(e, exact, model)
-        opts = build_options(config.defines(double), double=double, model=model)
-        self.kernel = cl.Kernel(get_program(self.rt, "invert", opts), "invert_albedo")
         self.table_n = config.table_n
         params = channel_params(etas, exact=exact, model=model, table_n=self.table_n,
-                                       dtype=self.dtype)
+                                dtype=self.dtype)
+        defines = config.defines(double)
+        self.mfp_baked = bake and mfp_const is not None
+        if bake:
+            defines["BD_BAKED_PARAMS"] = _literals(params, double)
+            if mfp_const is not None:
+                mfp_const = np.broadcast_to(np.asarray(mfp_const, np.float64), (self.nchan,))
+                defines["BD_MFP_CONST"] = _literals(mfp_const, double)
+            if outputs is not None:
+                defines["BD_OUTPUTS"] = sum(OUTPUT_BITS[k] for k in outputs)
+        opts = build_options(defines, double=double, model=model)
+        self.kernel = cl.Kernel(get_program(self.rt, "invert", opts), "invert_albedo")
         tab = (tables.channel_tables(etas, self.table_n, exact=exact, model=model)
                if self.table_n else np.zeros((1, 4), np.float32))
         mf = cl.mem_flags
@@ -185,28 +207,49 @@ def _sanitize_mfp(mfp, on_invalid):
 
 class CoefficientMapper:
     """(albedo, mfp) arrays -> the requested outputs, with one prepared kernel; the engine of
-    ``albedo_to_coefficients`` and of the texture pipeline (called once per band)."""
+    ``albedo_to_coefficients`` and of the texture pipeline (called once per band).
+
+    ``bake``: a kernel specialised for this job (``InversionKernel``), with ``mfp_const`` (a
+    constant mfp per channel, valid) compiled in when given."""
 
     def __init__(self, etas, config: MethodConfig, *, outputs=("sigma_a", "sigma_s"),
-                 model="better", exact=False, double=False, on_invalid="raise", device=None):
+                 model="better", exact=False, double=False, on_invalid="raise", device=None,
+                 bake=False, mfp_const=None):
         unknown = set(outputs) - set(OUTPUTS)
         if unknown:
             raise ValueError(f"unknown outputs {sorted(unknown)}: expected some of {OUTPUTS}")
         self.outputs = tuple(outputs)
         self.on_invalid = check_policy(on_invalid)
-        self.kernel = InversionKernel(etas, config, exact=exact, model=model, double=double,
-                                      runtime=device)
         wanted = set(outputs)
         self.kernel_wants = tuple(
             k for k in ("alpha", "rho", "sigma_a", "sigma_s")
             if k in wanted or (k in ("sigma_a", "sigma_s") and "sigma_t" in wanted))
+        if mfp_const is not None:
+            _sanitize_mfp(np.asarray(mfp_const, np.float64), "raise")   # baked: must be valid
+        self.kernel = InversionKernel(etas, config, exact=exact, model=model, double=double,
+                                      runtime=device, bake=bake, mfp_const=mfp_const,
+                                      outputs=self.kernel_wants)
 
-    def __call__(self, rd, mfp):
-        """Returns ({output: array of rd's broadcast shape}, {"albedo": n, "mfp": n} invalid)."""
+    def __call__(self, rd, mfp, mask=None):
+        """Returns ({output: array of rd's broadcast shape}, {"albedo": n, "mfp": n} invalid).
+
+        ``mask`` (broadcast against ``rd``): texels where it is 0 are left out, neither
+        validated nor inverted, and come out as 0."""
         rd, mfp = np.broadcast_arrays(np.asarray(rd), np.asarray(mfp))
+        keep = None if mask is None else np.broadcast_to(np.asarray(mask) > 0, rd.shape)
+        if keep is not None:
+            if not keep.any():                 # nothing to invert: no device call at all
+                zeros = np.zeros(rd.shape, self.kernel.dtype)
+                return {k: zeros for k in self.outputs}, {"albedo": 0, "mfp": 0}
+            rd = np.where(keep, rd, 0.0).astype(rd.dtype, copy=False)
+            mfp = np.where(keep, mfp, 1.0).astype(mfp.dtype, copy=False)
         rd, n_rd = _sanitize_albedo_for_coefficients(rd, self.on_invalid)
         mfp, n_mfp = _sanitize_mfp(mfp, self.on_invalid)
-        outs = self.kernel.run(rd, mfp, self.kernel_wants)
+        outs = self.kernel.run(rd, None if self.kernel.mfp_baked else mfp, self.kernel_wants)
+        if keep is not None:
+            flat = keep.reshape(-1)
+            for k in outs:
+                outs[k][~flat] = 0
         if "sigma_t" in self.outputs:
             outs["sigma_t"] = outs["sigma_a"] + outs["sigma_s"]
         return ({k: outs[k].reshape(rd.shape) for k in self.outputs},

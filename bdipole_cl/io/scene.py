@@ -1,0 +1,458 @@
+"""Scenes: ``bdipole-cl plan/bake scene.toml`` compute what a scene needs and leave out the
+rest (I/O layer; the file format is ``scene_file``).
+
+Per job (one UDIM tile of a material's inversion, or of a blur), the plan says what is
+computed and what is left out, and why:
+
+- **outputs and channels**: only the outputs asked for; as many channels as the albedo has
+  colour channels (a grey albedo is one), alpha carried, other channels left out;
+- **kernel specialisation**: the job's eta constants, model, outputs and a constant mfp are
+  compiled into the inversion kernel (``InversionKernel(bake=True)``), which then reads only
+  the albedo (and an mfp texture if there is one); each distinct build is cached;
+- **table size**: with ``method = "auto"`` (float32), a statistics pass finds the albedo
+  range present (unmasked texels), and the smallest monotone table that meets tol there is
+  used; the table still covers every albedo, so a texel outside the range is still right;
+- **masks**: texels where the mask is 0 are neither inverted nor validated (a white
+  background is no error) and are written as 0, the albedo's alpha kept; bands with no
+  unmasked texel are not sent to the device. Blurs: masked texels give no light and get no
+  exitance; bands with no light are not blurred. The boundary convention: light from unmasked
+  texels spreads over masked ones and is lost there (the islands are cut surfaces: no energy
+  is invented at their edges), and texels of another island within the kernel's radius in
+  texture space do exchange light, as in any texture-space diffusion (keep islands a kernel
+  radius apart, or accept the bleed);
+- **up to date**: an output whose ``bdipole:*`` header records the same parameters digest,
+  library version and input files (size and modification time, else their content digest)
+  is not rebuilt.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import threading
+import time
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+import OpenImageIO as oiio
+
+from ..device import get_runtime
+from ..methods.choice import resolve_method
+from ..methods.registry import MethodConfig
+from ..ops.invert import InversionKernel
+from ..physics import reference as ref
+from ..physics import tables
+from ..version import __version__
+from .batch import (BatchReport, BatchSettings, FileResult, Job, companion_path, expand_inputs,
+                    output_collisions, process_file)
+from .blur_file import blur_file
+from .images import Reader, TextureError, classify_channels, read_parameter_texture
+from .scene_file import SceneData, SceneError
+from .scene_file import load as load_scene_file
+
+#: compile each job's constants into its kernel (tools/bench_scene.py turns it off to measure
+#: what it saves)
+SPECIALISE = True
+#: table sizes tried for a scene's albedo range, smallest first
+TABLE_SIZES = (8, 16, 32, 64, 128, 256)
+#: albedos checked in the range when choosing a table size
+RANGE_SWEEP = 4000
+
+
+@dataclass(frozen=True)
+class Scene(SceneData):
+    """A scene, ready to plan: ``load(path).plan().run()``."""
+
+    def plan(self, force=False, device=None) -> "Plan":
+        """What a bake computes and leaves out, per job."""
+        return plan(self, force=force, device=device)
+
+
+@dataclass
+class PlannedJob:
+    kind: str                        # "invert" or "blur"
+    name: str                        # the material's or blur's name
+    source: str                      # the albedo (invert) or irradiance (blur) file
+    udim: str | None
+    output: str
+    inputs: dict                     # role -> file
+    computes: list = field(default_factory=list)
+    left_out: list = field(default_factory=list)
+    up_to_date: bool = False
+    problem: str | None = None       # a missing input or a collision: the job cannot run
+    params_digest: str = ""
+    config: MethodConfig | None = None
+
+    def describe(self) -> str:
+        head = f"{self.kind} {self.name}" + (f" [{self.udim}]" if self.udim else "")
+        lines = [f"{head}: {self.source} -> {self.output}"]
+        if self.problem:
+            return "\n".join(lines + [f"  cannot run: {self.problem}"])
+        lines += [f"  computes: {c}" for c in self.computes]
+        lines += [f"  leaves out: {x}" for x in self.left_out]
+        return "\n".join(lines)
+
+
+@dataclass
+class Plan:
+    scene: Scene
+    jobs: list
+
+    @property
+    def missing(self):
+        return [j.problem for j in self.jobs if j.problem]
+
+    def describe(self) -> str:
+        todo = sum(not j.up_to_date and not j.problem for j in self.jobs)
+        return "\n".join([j.describe() for j in self.jobs]
+                         + [f"{len(self.jobs)} jobs: {todo} to run, "
+                            f"{sum(j.up_to_date for j in self.jobs)} up to date, "
+                            f"{len(self.missing)} that cannot run"])
+
+    def to_json(self) -> str:
+        return json.dumps([{k: v for k, v in asdict(j).items() if k != "config"}
+                           | {"config": j.config.describe() if j.config else None}
+                           for j in self.jobs], indent=1)
+
+    def run(self, *, cancel=None, device=None, progress=None) -> BatchReport:
+        """Bake every job that is not up to date; a failing job does not stop the others."""
+        return bake(self, cancel=cancel, device=device, progress=progress)
+
+
+# {{{ digests: is an output up to date?
+
+def params_digest(fields: dict) -> str:
+    text = json.dumps(fields, sort_keys=True, default=str)
+    return hashlib.sha256(f"{__version__}\n{text}".encode()).hexdigest()[:32]
+
+
+def file_stat(path) -> list:
+    st = os.stat(path)
+    return [st.st_size, st.st_mtime_ns]
+
+
+def content_digest(paths) -> str:
+    h = hashlib.blake2b(digest_size=16)
+    for p in paths:
+        with open(p, "rb") as f:
+            for block in iter(lambda: f.read(1 << 22), b""):
+                h.update(block)
+    return h.hexdigest()
+
+
+def header_fields(inputs: dict, digest: str) -> dict:
+    """The ``bdipole:*`` attributes that make an output checkable later."""
+    files = sorted(inputs.values())
+    return {"version": __version__, "params_digest": digest,
+            "inputs": json.dumps(inputs, sort_keys=True),
+            "inputs_stat": json.dumps([file_stat(p) for p in files]),
+            "inputs_digest": content_digest(files)}
+
+
+def is_up_to_date(output, inputs: dict, digest: str) -> bool:
+    if not os.path.exists(output):
+        return False
+    inp = oiio.ImageInput.open(str(output))
+    if inp is None:
+        return False
+    spec = inp.spec()
+    inp.close()
+    get = spec.getattribute
+    if get("bdipole:params_digest") != digest or get("bdipole:version") != __version__:
+        return False
+    if get("bdipole:inputs") != json.dumps(inputs, sort_keys=True):
+        return False
+    files = sorted(inputs.values())
+    try:
+        if get("bdipole:inputs_stat") == json.dumps([file_stat(p) for p in files]):
+            return True                  # same sizes and times: unchanged without reading them
+        return get("bdipole:inputs_digest") == content_digest(files)
+    except OSError:
+        return False
+
+# }}}
+
+
+# {{{ the plan
+
+def _material_fields(m) -> dict:
+    return {k: v for k, v in asdict(m).items() if k not in ("name", "albedo", "output")}
+
+
+def _exists(role, path, problems):
+    if path and not os.path.isfile(path):
+        problems.append(f"{role} {path} is missing")
+
+
+def _albedo_stats(path, mask_mode, mask_path, colorspace):
+    """(colour channel names, alpha name, other names, Rd range of unmasked texels, masked
+    fraction) of an albedo file: the statistics pass."""
+    r = Reader(path, "albedo")
+    try:
+        spec = r.spec
+        colour, alpha = r.channels()
+        _, _, other = classify_channels(spec.channelnames, spec.alpha_channel)
+        names = [spec.channelnames[c] for c in colour]
+    finally:
+        r.close()
+    px = read_parameter_texture(path, "albedo", colour=True, colorspace=colorspace)
+    mask = None
+    if mask_mode == "alpha":
+        raw = Reader(path, "albedo")
+        try:
+            if alpha < 0:
+                raise TextureError(f"{path}: mask = 'alpha' but the albedo has no alpha channel")
+            mask = raw.read_band(0, raw.spec.height)[..., alpha] > 0
+        finally:
+            raw.close()
+    elif mask_mode:
+        mask = read_parameter_texture(mask_path, "mask")[..., 0] > 0
+    keep = np.ones(px.shape[:2], bool) if mask is None else mask
+    vals = px[keep]
+    vals = vals[np.isfinite(vals)]
+    rd_range = (float(vals.min()), float(vals.max())) if vals.size else None
+    return (names, spec.channelnames[alpha] if alpha >= 0 else None,
+            [spec.channelnames[c] for c in other], rd_range, 1.0 - keep.mean())
+
+
+_size_cache: dict = {}
+_size_lock = threading.Lock()
+
+
+def table_for_range(etas, rd_range, tol, model, exact, device):
+    """The smallest monotone table meeting tol (max relative rho error) on float32 albedos of
+    ``rd_range`` at every eta; (size, measured error)."""
+    lo, hi = max(rd_range[0], 1e-7), min(rd_range[1], float(np.nextafter(np.float32(1), 0)))
+    key = (tuple(etas), float(np.float32(lo)), float(np.float32(hi)), tol, model, exact)
+    with _size_lock:
+        if key in _size_cache:
+            return _size_cache[key]
+    rd = np.unique(np.float32(np.concatenate([np.geomspace(lo, max(hi, lo), RANGE_SWEEP),
+                                              np.linspace(lo, hi, RANGE_SWEEP)])))
+    wants = {e: ref.invert_rd_rho(rd.astype(np.float64), e, exact, model)[1] for e in etas}
+    choice = (TABLE_SIZES[-1], None)
+    for n in TABLE_SIZES:
+        if not all(tables.table_is_monotone(e, n, exact, model) for e in etas):
+            continue
+        err = 0.0
+        for e in etas:
+            k = InversionKernel((e,), MethodConfig("table", table_size=n), model=model,
+                                exact=exact, runtime=device)
+            rho = k.run(rd, None, ("rho",))["rho"]
+            err = max(err, float(np.max(np.abs(rho / wants[e] - 1.0))))
+        if err <= tol:
+            choice = (n, err)
+            break
+    with _size_lock:
+        _size_cache[key] = choice
+    return choice
+
+
+def _plan_invert(m, path, udim, force, device, problems_all):
+    out = companion_path(m.output, path, udim)
+    inputs = {"albedo": path}
+    problems = []
+    _exists("albedo", path, problems)
+    if isinstance(m.mfp, str):
+        inputs["mfp"] = companion_path(m.mfp, path, udim)
+        _exists("mfp texture", inputs["mfp"], problems)
+    if m.mask and m.mask != "alpha":
+        inputs["mask"] = companion_path(m.mask, path, udim)
+        _exists("mask", inputs["mask"], problems)
+    digest = params_digest(_material_fields(m) | {"kind": "invert", "udim": udim})
+    job = PlannedJob("invert", m.name, path, udim, out, inputs, params_digest=digest)
+    if problems:
+        job.problem = "; ".join(problems)
+        problems_all += problems
+        return job
+    if not force and is_up_to_date(out, inputs, digest):
+        job.up_to_date = True
+        job.left_out.append("everything: up to date (inputs, parameters and version unchanged)")
+        return job
+    names, alpha, other, rd_range, masked = _albedo_stats(path, m.mask, inputs.get("mask"),
+                                                         m.colorspace)
+    etas = m.eta if len(m.eta) > 1 else m.eta * len(names)
+    if len(set(etas)) == 1:
+        etas = etas[:1]
+    config = resolve_method(m.method, double=m.double, tol=m.tol)
+    if m.method == "auto" and not m.double and rd_range is not None:
+        size, err = table_for_range(etas, rd_range, m.tol, m.model, m.exact, device)
+        config = MethodConfig("table", table_size=size)
+        job.computes.append(f"table of {size} intervals: the smallest monotone one meeting tol "
+                            f"{m.tol:g} on the albedos present [{rd_range[0]:.4g}, "
+                            f"{rd_range[1]:.4g}] (measured {err:.2e})")
+    job.config = config
+    left = [o for o in ("alpha", "rho", "sigma_a", "sigma_s", "sigma_t") if o not in m.outputs]
+    job.computes.append(f"{', '.join(m.outputs)} of {len(names)} channel(s) "
+                        f"({', '.join(names)}) with {config.describe(m.double)}")
+    job.left_out.append(f"outputs {', '.join(left)}: not asked for")
+    if alpha:
+        job.left_out.append(f"channel {alpha}: alpha, carried to the output, not inverted")
+    if other:
+        job.left_out.append(f"channels {', '.join(other)}: not colour")
+    baked = ["eta's Fresnel terms", f"the model ({m.model})", "the outputs"]
+    if not isinstance(m.mfp, str):
+        baked.append(f"the mfp {', '.join(f'{v:g}' for v in m.mfp)} {m.unit}")
+    job.left_out.append(f"per-texel constant reads: {', '.join(baked)} compiled into the "
+                        f"kernel, which reads only the albedo"
+                        + (" and the mfp texture" if isinstance(m.mfp, str) else ""))
+    if m.mask:
+        job.left_out.append(f"{masked:.0%} of texels, masked by "
+                            f"{'the albedo alpha' if m.mask == 'alpha' else inputs['mask']}: "
+                            f"not inverted nor validated, written as 0")
+    return job
+
+
+def _plan_blur(b, path, udim, force, problems_all):
+    m = b.material
+    out = companion_path(b.output, path, udim)
+    inputs = {"irradiance": path, "albedo": companion_path(m.albedo, path, udim)}
+    problems = []
+    _exists("irradiance", path, problems)
+    _exists("albedo", inputs["albedo"], problems)
+    if isinstance(m.mfp, str):
+        inputs["mfp"] = companion_path(m.mfp, path, udim)
+        _exists("mfp texture", inputs["mfp"], problems)
+    if b.mask and b.mask != "alpha":
+        inputs["mask"] = companion_path(b.mask, path, udim)
+        _exists("mask", inputs["mask"], problems)
+    fields = {k: v for k, v in asdict(b).items() if k not in ("name", "irradiance", "output")}
+    digest = params_digest(fields | {"kind": "blur", "udim": udim})
+    job = PlannedJob("blur", b.name, path, udim, out, inputs, params_digest=digest)
+    if problems:
+        job.problem = "; ".join(problems)
+        problems_all += problems
+        return job
+    if not force and is_up_to_date(out, inputs, digest):
+        job.up_to_date = True
+        job.left_out.append("everything: up to date (inputs, parameters and version unchanged)")
+        return job
+    job.computes.append(f"exitance with the exit texel's profile from {m.name}'s albedo "
+                        f"and mfp, texel {b.texel_size:g} {m.unit}, tol {b.tol:g} "
+                        f"({b.method}, border {b.border})")
+    if b.mask:
+        job.left_out.append("masked texels: no light from them, no exitance for them (0); "
+                            "bands without light are not blurred")
+    return job
+
+
+def plan(scene: Scene, *, force=False, device=None) -> Plan:
+    """Every job of the scene, checked and described; missing inputs make jobs that cannot
+    run (all are listed before any work)."""
+    rt = get_runtime(device)
+    jobs, problems = [], []
+    for m in scene.materials:
+        files = expand_inputs([m.albedo])
+        for path, udim in files:
+            jobs.append(_plan_invert(m, path, udim, force, rt, problems))
+    for b in scene.blurs:
+        for path, udim in expand_inputs([b.irradiance]):
+            jobs.append(_plan_blur(b, path, udim, force, problems))
+    clashes = output_collisions([Job(j.source, j.udim, j.output, None) for j in jobs])
+    for j in jobs:
+        if j.output in clashes and not j.problem:
+            j.problem = clashes[j.output]
+    return Plan(scene, jobs)
+
+# }}}
+
+
+# {{{ the bake
+
+def _settings(m, config, runtime, cancel, header):
+    return BatchSettings(
+        eta=m.eta, mfp=None if isinstance(m.mfp, str) else m.mfp, mfp_scale=1.0, config=config,
+        model=m.model, exact=m.exact, half=m.half, colorspace=m.colorspace, alpha="keep",
+        on_invalid=m.on_invalid, max_memory=256 << 20, outputs=m.outputs, unit=m.unit,
+        runtime=runtime, double=m.double, cancel=cancel,
+        mask=None if not m.mask else "alpha" if m.mask == "alpha" else "texture",
+        bake=SPECIALISE, header=header)
+
+
+def _run_invert(job, scene, runtime, cancel, lock):
+    m = next(x for x in scene.materials if x.name == job.name)
+    header = header_fields(job.inputs, job.params_digest)
+    settings = _settings(m, job.config, runtime, cancel, header)
+    return process_file(Job(job.source, job.udim, job.output, job.inputs.get("mfp"),
+                            job.inputs.get("mask")), settings, lock, None)
+
+
+def _masked_parameter(values, keep):
+    """Parameter maps with masked texels set to a valid value of the unmasked ones (their own
+    parameters are never used: their exitance is 0), so they neither fail the checks nor widen
+    the plan's range."""
+    if keep is None or not keep.any():
+        return values
+    fill = np.nanmin(np.where(keep[..., None], values, np.nan), axis=(0, 1))
+    return np.where(keep[..., None], values, fill)
+
+
+def _run_blur(job, scene, runtime, cancel):
+    b = next(x for x in scene.blurs if x.name == job.name)
+    m = b.material
+    result = FileResult(job.source, job.output)
+    t0 = time.perf_counter()
+    try:
+        albedo = read_parameter_texture(job.inputs["albedo"], "albedo", colour=True,
+                                        colorspace=m.colorspace)
+        keep = None
+        if b.mask == "alpha":
+            r = Reader(job.inputs["albedo"], "albedo")
+            try:
+                a = r.spec.alpha_channel
+                if a < 0:
+                    raise TextureError(f"{job.inputs['albedo']}: mask = 'alpha' but the albedo "
+                                       f"has no alpha channel")
+                keep = r.read_band(0, r.spec.height)[..., a] > 0
+            finally:
+                r.close()
+        elif b.mask:
+            keep = read_parameter_texture(job.inputs["mask"], "mask")[..., 0] > 0
+        mfp = (read_parameter_texture(job.inputs["mfp"], "mfp") if "mfp" in job.inputs
+               else m.mfp)
+        albedo = _masked_parameter(albedo, keep)
+        if np.ndim(mfp) >= 2:
+            mfp = _masked_parameter(mfp, keep)
+        header = header_fields(job.inputs, job.params_digest)
+        sources = {k: v for k, v in job.inputs.items() if k in ("albedo", "mfp")}
+        blur_file(job.source, job.output, half=b.half, sources=sources, cancel=cancel,
+                  mask=keep, header=header, colorspace=b.colorspace, albedo=albedo, mfp=mfp,
+                  eta=m.eta, texel_size=b.texel_size, tol=b.tol, method=b.method,
+                  border=b.border, on_invalid=b.on_invalid, exact=m.exact, device=runtime)
+        result.status = "ok"
+    except (TextureError, OSError, ValueError) as exc:
+        result.error = str(exc)
+    result.seconds = time.perf_counter() - t0
+    return result
+
+
+def bake(plan: Plan, *, cancel=None, device=None, progress=None) -> BatchReport:
+    runtime = get_runtime(device)
+    lock = threading.Lock()
+    results = []
+    for job in plan.jobs:
+        if job.problem:
+            results.append(FileResult(job.source, job.output, error=job.problem))
+        elif job.up_to_date:
+            results.append(FileResult(job.source, job.output, status="skipped"))
+        elif cancel is not None and cancel.is_set():
+            results.append(FileResult(job.source, job.output, status="cancelled",
+                                      error="interrupted before it started"))
+        elif job.kind == "invert":
+            results.append(_run_invert(job, plan.scene, runtime, cancel, lock))
+        else:
+            results.append(_run_blur(job, plan.scene, runtime, cancel))
+        if progress is not None:
+            progress(job, results[-1])
+    return BatchReport(results)
+
+
+def load(path) -> Scene:
+    """Read and check a scene file (``SceneError``: one line with the file, line and key)."""
+    data = load_scene_file(path)
+    return Scene(data.path, data.materials, data.blurs)
+
+
+__all__ = ["Plan", "PlannedJob", "Scene", "SceneError", "bake", "load", "plan"]
+
+# }}}

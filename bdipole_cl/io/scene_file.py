@@ -1,0 +1,256 @@
+"""Scene files (TOML): parsed, checked and resolved into typed materials and blurs (I/O).
+
+    [defaults]                        # any material or blur key
+    eta = 1.4
+    unit = "mm"
+    tol = 1e-4
+    model = "better-dipole"           # or "dipole"
+
+    [[material]]
+    name = "skin"
+    albedo = "tex/skin_albedo.<UDIM>.exr"
+    mfp = [1.2, 0.6, 0.3]             # a number, one per channel, or a texture path
+    outputs = ["sigma_a", "sigma_s"]
+    output = "out/skin_sss.<UDIM>.exr"
+    mask = "alpha"                    # optional: the albedo's alpha, or a texture path
+    half = true
+
+    [[blur]]
+    name = "skin_tsd"
+    material = "skin"
+    irradiance = "light/skin_irr.<UDIM>.exr"
+    texel_size = 0.05
+    output = "out/skin_exitance.<UDIM>.exr"
+
+Paths are relative to the scene file. Every error is one line naming the file, the line, the
+key and what is allowed (``SceneError``); unknown keys are errors.
+"""
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+from pathlib import Path
+
+try:
+    import tomllib
+except ImportError:  # pragma: no cover - Python 3.10
+    import tomli as tomllib
+
+from ..methods.registry import BLUR_METHODS, BORDERS, METHODS
+from ..ops.invert import OUTPUTS
+
+MODELS = {"better-dipole": "better", "dipole": "dipole"}
+
+
+class SceneError(ValueError):
+    """A scene file that cannot be used: one line with the file, line, key and what is allowed."""
+
+
+#: each key: (kinds it belongs to, check, what is allowed)
+def _number(v):
+    return isinstance(v, (int, float)) and not isinstance(v, bool)
+
+
+def _numbers_or_number(v):
+    return _number(v) or (isinstance(v, list) and v and all(_number(x) for x in v))
+
+
+def _positive(v):
+    return _number(v) and v > 0
+
+
+KEYS = {
+    "name": ({"material", "blur"}, lambda v: isinstance(v, str) and v, "a non-empty string"),
+    "albedo": ({"material"}, lambda v: isinstance(v, str) and v, "a texture path or pattern"),
+    "mfp": ({"material"}, lambda v: _numbers_or_number(v) or isinstance(v, str),
+            "a number, a list of one per channel, or a texture path"),
+    "eta": ({"material"}, lambda v: _numbers_or_number(v), "a number or one per channel"),
+    "outputs": ({"material"}, lambda v: isinstance(v, list) and v and set(v) <= set(OUTPUTS),
+                f"a list from {', '.join(OUTPUTS)}"),
+    "output": ({"material", "blur"}, lambda v: isinstance(v, str) and v.endswith(".exr"),
+               "an .exr path or pattern"),
+    "mask": ({"material", "blur"}, lambda v: isinstance(v, str) and v,
+             "\"alpha\" or a texture path"),
+    "half": ({"material", "blur"}, lambda v: isinstance(v, bool), "true or false"),
+    "unit": ({"material", "blur"}, lambda v: isinstance(v, str) and v, "a unit name"),
+    "tol": ({"material", "blur"}, lambda v: _number(v) and 0 < v < 1, "a number in (0, 1)"),
+    "model": ({"material"}, lambda v: v in MODELS, " or ".join(f'"{m}"' for m in MODELS)),
+    "method": ({"material"}, lambda v: v in METHODS + ("auto",),
+               f"one of auto, {', '.join(METHODS)}"),
+    "blur_method": ({"blur"}, lambda v: v in BLUR_METHODS, f"one of {', '.join(BLUR_METHODS)}"),
+    "border": ({"blur"}, lambda v: v in BORDERS, f"one of {', '.join(BORDERS)}"),
+    "exact": ({"material"}, lambda v: isinstance(v, bool), "true or false"),
+    "double": ({"material"}, lambda v: isinstance(v, bool), "true or false"),
+    "on_invalid": ({"material", "blur"}, lambda v: v in ("raise", "clamp"), "raise or clamp"),
+    "colorspace": ({"material", "blur"}, lambda v: isinstance(v, str), "a colour space name"),
+    "material": ({"blur"}, lambda v: isinstance(v, str) and v, "a material's name"),
+    "irradiance": ({"blur"}, lambda v: isinstance(v, str) and v, "a texture path or pattern"),
+    "texel_size": ({"blur"}, _positive, "a number > 0 (in the unit of mfp)"),
+}
+REQUIRED = {"material": ("name", "albedo", "output"),
+            "blur": ("name", "material", "irradiance", "texel_size", "output")}
+DEFAULTS = {"eta": 1.4, "unit": "mm", "model": "better-dipole", "mfp": 1.0, "half": False,
+            "outputs": ["sigma_a", "sigma_s"], "method": "auto", "blur_method": "auto",
+            "border": "clamp", "exact": False, "double": False, "on_invalid": "raise",
+            "colorspace": "auto"}
+#: tol when neither the entry nor [defaults] gives one: the inversion's accuracy contract, the
+#: blur's usual truncation
+DEFAULT_TOL = {"material": 1e-4, "blur": 1e-3}
+
+
+@dataclass(frozen=True)
+class Material:
+    name: str
+    albedo: str                      # absolute pattern
+    mfp: tuple | str                 # constants per channel, or an absolute texture pattern
+    eta: tuple
+    outputs: tuple
+    output: str
+    mask: str | None                 # None, "alpha" or an absolute texture pattern
+    half: bool
+    unit: str
+    tol: float
+    model: str                       # "better" or "dipole"
+    method: str
+    exact: bool
+    double: bool
+    on_invalid: str
+    colorspace: str
+
+
+@dataclass(frozen=True)
+class Blur:
+    name: str
+    material: Material
+    irradiance: str
+    texel_size: float
+    output: str
+    mask: str | None
+    half: bool
+    tol: float
+    method: str
+    border: str
+    on_invalid: str
+    colorspace: str
+
+
+@dataclass(frozen=True)
+class SceneData:
+    """A checked scene file: its path, materials and blurs (``bdipole_cl.io.scene.Scene``
+    adds planning)."""
+
+    path: Path
+    materials: tuple
+    blurs: tuple
+
+
+def line_of(text: str, section: str | None, index: int, key: str | None) -> int:
+    """The line of ``key`` in the ``index``-th ``[[section]]`` (or ``[section]``), else of the
+    section's header, else 1: for error messages (TOML parsers keep no positions)."""
+    lines = text.splitlines()
+    count, start = -1, None
+    header = re.compile(r"^\s*\[\[?\s*" + re.escape(section or "") + r"\s*\]\]?\s*(#.*)?$")
+    for n, line in enumerate(lines):
+        if section is not None and header.match(line):
+            count += 1
+            if count == index:
+                start = n
+                break
+    if section is not None and start is None:
+        return 1
+    begin = 0 if start is None else start + 1
+    for n in range(begin, len(lines)):
+        if n > begin - 1 and re.match(r"^\s*\[", lines[n]) and n != start:
+            break
+        if key is not None and re.match(r"^\s*" + re.escape(key) + r"\s*=", lines[n]):
+            return n + 1
+    return (start or 0) + 1
+
+
+def load(path) -> SceneData:
+    """Read, check and resolve a scene file (``SceneError`` on any problem, one line)."""
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except OSError as exc:
+        raise SceneError(f"{path}: cannot read the scene: {exc.strerror or exc}") from None
+    try:
+        raw = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise SceneError(f"{path}: not valid TOML: {exc}") from None
+
+    def fail(section, index, key, message):
+        line = line_of(text, section, index, key)
+        raise SceneError(f"{path}:{line}: {message}")
+
+    unknown_top = set(raw) - {"defaults", "material", "blur"}
+    if unknown_top:
+        key = sorted(unknown_top)[0]
+        fail(None, 0, key, f"unknown table or key '{key}': expected [defaults], [[material]] "
+                           f"or [[blur]]")
+    defaults = raw.get("defaults", {})
+    for key, value in defaults.items():
+        _check(fail, "defaults", 0, key, value, {"material", "blur"})
+    base = path.parent
+
+    def resolve(rel):
+        return str((base / rel).resolve()) if rel and rel != "alpha" else rel
+
+    materials = {}
+    for i, entry in enumerate(raw.get("material", [])):
+        m = _entry(fail, "material", i, entry, defaults)
+        if m["name"] in materials:
+            fail("material", i, "name", f"material name '{m['name']}' is used twice")
+        mfp = m["mfp"]
+        materials[m["name"]] = Material(
+            m["name"], resolve(m["albedo"]),
+            resolve(mfp) if isinstance(mfp, str) else tuple(map(float, _as_list(mfp))),
+            tuple(map(float, _as_list(m["eta"]))), tuple(m["outputs"]), resolve(m["output"]),
+            resolve(m.get("mask")), m["half"], m["unit"], float(m["tol"]), MODELS[m["model"]],
+            m["method"], m["exact"], m["double"], m["on_invalid"], m["colorspace"])
+    blurs, names = [], set()
+    for i, entry in enumerate(raw.get("blur", [])):
+        b = _entry(fail, "blur", i, entry, defaults)
+        if b["name"] in names:
+            fail("blur", i, "name", f"blur name '{b['name']}' is used twice")
+        names.add(b["name"])
+        if b["material"] not in materials:
+            fail("blur", i, "material", f"material '{b['material']}' is not in the scene "
+                                        f"(materials: {', '.join(materials) or 'none'})")
+        mat = materials[b["material"]]
+        mask = resolve(b["mask"]) if "mask" in entry else mat.mask
+        blurs.append(Blur(b["name"], mat, resolve(b["irradiance"]), float(b["texel_size"]),
+                          resolve(b["output"]), mask, b["half"], float(b["tol"]),
+                          b["blur_method"], b["border"], b["on_invalid"], b["colorspace"]))
+    if not materials and not blurs:
+        fail(None, 0, None, "the scene has no [[material]] and no [[blur]]")
+    return SceneData(path.resolve(), tuple(materials.values()), tuple(blurs))
+
+
+def _as_list(v):
+    return v if isinstance(v, list) else [v]
+
+
+def _check(fail, section, index, key, value, kinds):
+    spec = KEYS.get(key)
+    if spec is None or not (spec[0] & kinds):
+        allowed = sorted(k for k, s in KEYS.items() if s[0] & kinds)
+        fail(section, index, key, f"unknown key '{key}' in [{section}]: allowed keys are "
+                                  f"{', '.join(allowed)}")
+    if not spec[1](value):
+        fail(section, index, key, f"{key} = {value!r}: expected {spec[2]}")
+
+
+def _entry(fail, kind, index, entry, defaults):
+    """One [[material]] or [[blur]] checked, with [defaults] and the built-in defaults."""
+    for key, value in entry.items():
+        _check(fail, kind, index, key, value, {kind})
+    merged = {k: v for k, v in DEFAULTS.items() if kind in KEYS[k][0]}
+    merged["tol"] = DEFAULT_TOL[kind]
+    merged.update({k: v for k, v in defaults.items() if kind in KEYS[k][0]})
+    merged.update(entry)
+    for key in REQUIRED[kind]:
+        if key not in merged:
+            fail(kind, index, None, f"[[{kind}]] #{index + 1} needs '{key}' "
+                                    f"({KEYS[key][2]})")
+    return merged

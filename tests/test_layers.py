@@ -18,6 +18,7 @@ LAYERS = {
     "ops": 4,
     "io": 5,
     "apps": 6, "__main__": 6, "scene": 6,     # bdipole_cl/scene.py: the scene API facade
+    "dask": 6,                                # bdipole_cl/dask.py: clusters
     "": 7,                 # bdipole_cl/__init__.py: the public facade re-exports every layer
 }
 #: a module this long is a sign of two concerns in one file

@@ -47,34 +47,22 @@ def _floats(text):
     return values
 
 
-def _positive_int(text):
-    try:
-        value = int(text)
-    except ValueError:
-        value = 0
-    if value <= 0:
-        raise argparse.ArgumentTypeError(f"{text!r}: expected a whole number >= 1")
-    return value
+def _number(convert, valid, expected):
+    """An argparse type: ``convert(text)`` that ``valid`` accepts, else one-line usage error."""
+    def parse(text):
+        try:
+            value = convert(text)
+        except ValueError:
+            value = None
+        if value is None or not valid(value):
+            raise argparse.ArgumentTypeError(f"{text!r}: expected {expected}")
+        return value
+    return parse
 
 
-def _positive_float(text):
-    try:
-        value = float(text)
-    except ValueError:
-        value = float("nan")
-    if not (value > 0 and value != float("inf")):
-        raise argparse.ArgumentTypeError(f"{text!r}: expected a number > 0")
-    return value
-
-
-def _fraction(text):
-    try:
-        value = float(text)
-    except ValueError:
-        value = float("nan")
-    if not 0 < value < 1:
-        raise argparse.ArgumentTypeError(f"{text!r}: expected a number in (0, 1), e.g. 1e-3")
-    return value
+_positive_int = _number(int, lambda v: v >= 1, "a whole number >= 1")
+_positive_float = _number(float, lambda v: 0 < v < float("inf"), "a number > 0")
+_fraction = _number(float, lambda v: 0 < v < 1, "a number in (0, 1), e.g. 1e-3")
 
 
 class _Parser(argparse.ArgumentParser):
@@ -138,6 +126,16 @@ def _method_knobs(args):
 
 
 def _cmd_invert(args) -> int:
+    if args.scheduler:
+        from ..dask import connect, file_runner
+        with connect(args.scheduler, memory_limit=args.worker_memory) as client:
+            print(f"dask dashboard: {client.dashboard_link}", flush=True)
+            return _invert(args, file_runner(client, device=args.device,
+                                             progress=not args.no_progress))
+    return _invert(args, None)
+
+
+def _invert(args, run_files) -> int:
     from ..io.batch import process_textures
     stop = _Stop().install()
     report = process_textures(
@@ -146,7 +144,8 @@ def _cmd_invert(args) -> int:
         model=args.model, exact=args.exact, half=args.half, colorspace=args.colorspace,
         alpha=args.alpha, on_invalid=args.on_invalid, max_memory=args.max_memory,
         jobs=args.jobs, skip_existing=args.skip_existing, unit=args.unit, double=args.double,
-        mfp_scale=args.mfp_scale, progress=not args.no_progress, **_method_knobs(args))
+        mfp_scale=args.mfp_scale, progress=not args.no_progress and run_files is None,
+        run_files=run_files, **_method_knobs(args))
     print(report.summary())
     if stop.exit_code:
         print(f"interrupted by signal {stop.signum}: finished files kept, unfinished ones not "
@@ -196,6 +195,14 @@ def _cmd_blur(args) -> int:
         else:
             kw.update(albedo=_param(args.albedo, "albedo", colour=True),
                       mfp=_param(args.mfp, "mfp"))
+        if args.scheduler:
+            from ..dask import blur_file_on_cluster, connect
+            with connect(args.scheduler, memory_limit=args.worker_memory) as client:
+                print(f"dask dashboard: {client.dashboard_link}", flush=True)
+                n = blur_file_on_cluster(args.input, args.output, client, half=args.half,
+                                         max_memory=args.max_memory, device=args.device, **kw)
+            print(f"{n} bands blurred on the cluster; wrote {args.output}")
+            return 0
         info = blur_file(args.input, args.output, half=args.half, sources=sources,
                          max_memory=args.max_memory, cancel=stop.event, **kw)
     except Cancelled as exc:
@@ -259,7 +266,14 @@ def _cmd_bake(args) -> int:
             print(f"{result.status:9s} {job.kind} {job.name}"
                   + (f" [{job.udim}]" if job.udim else "") + f" -> {job.output}", flush=True)
 
-    report = plan.run(cancel=stop.event, progress=progress)
+    if args.scheduler:
+        from ..dask import bake_on_cluster, connect
+        with connect(args.scheduler, memory_limit=args.worker_memory) as client:
+            print(f"dask dashboard: {client.dashboard_link}", flush=True)
+            report = bake_on_cluster(plan, client, device=args.device,
+                                     progress=not args.no_progress)
+    else:
+        report = plan.run(cancel=stop.event, progress=progress)
     print(report.summary())
     if stop.exit_code:
         print(f"interrupted by signal {stop.signum}: finished files kept, unfinished ones not "
@@ -303,6 +317,14 @@ def _cmd_devices(args) -> int:
     if not any(s.works for s in states):
         print(REMEDIES)
     return 0
+
+
+def _add_scheduler_args(p):
+    p.add_argument("--scheduler", metavar="ADDRESS",
+                   help="run on a Dask cluster: tcp://host:8786 joins a running scheduler, "
+                        "local:N starts N worker processes here (needs bdipole-cl[dask])")
+    p.add_argument("--worker-memory", type=_size, metavar="SIZE",
+                   help="with --scheduler local:N, each worker's memory limit (e.g. 1G)")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -352,6 +374,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("scene", help="scene file (TOML)")
     p.add_argument("--force", action="store_true", help="rebuild every output")
     p.add_argument("--no-progress", action="store_true", help="no line per job")
+    _add_scheduler_args(p)
     p.set_defaults(func=_cmd_bake)
 
     p = sub.add_parser("report", help="error against run time for every method (md, csv, png)")
@@ -388,6 +411,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--half", action="store_true")
     p.add_argument("--max-memory", type=_size, default="256M",
                    help="host memory for bands of rows (each with a halo of the radius)")
+    _add_scheduler_args(p)
     p.set_defaults(func=_cmd_blur)
 
     p = sub.add_parser(
@@ -423,6 +447,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--double", action="store_true",
                    help="compute in float64 (devices with cl_khr_fp64); written as float/half")
     _add_method_args(p)
+    _add_scheduler_args(p)
     p.set_defaults(func=_cmd_invert)
     return parser
 

@@ -369,7 +369,7 @@ def process_textures(inputs, *, mfp=1.0, eta=1.4, output=DEFAULT_OUTPUT,
                      exact=False, half=False, colorspace="auto", alpha="keep",
                      on_invalid="raise", max_memory=256 << 20, jobs=1, skip_existing=False,
                      unit="mm", mfp_scale=1.0, progress=False, device=None, cancel=None,
-                     double=False, **knobs) -> BatchReport:
+                     double=False, run_files=None, **knobs) -> BatchReport:
     """Invert albedo textures into scattering-coefficient EXRs (the ``bdipole-cl invert`` job).
 
     Parameters
@@ -411,6 +411,9 @@ def process_textures(inputs, *, mfp=1.0, eta=1.4, output=DEFAULT_OUTPUT,
         Show a tqdm progress bar (texels).
     device : None, str, pyopencl.Device or Runtime
         Where to run (``bdipole_cl.device``); every file of the batch uses this one device.
+    run_files : callable or None
+        ``run_files(jobs, settings) -> [FileResult]`` runs the files elsewhere (a cluster:
+        ``bdipole_cl.dask.file_runner``); by default they run here, ``jobs`` at a time.
     cancel : threading.Event or None
         When set (the CLI sets it on SIGINT/SIGTERM), files stop at their next band: their
         temporary files are removed, finished files stay, and they are reported "cancelled".
@@ -469,8 +472,12 @@ def process_textures(inputs, *, mfp=1.0, eta=1.4, output=DEFAULT_OUTPUT,
         bar = tqdm(total=total, unit="texel", unit_scale=True, desc="invert")
     lock = threading.Lock()
     try:
-        with ThreadPoolExecutor(max(1, int(jobs))) as pool:
-            results += list(pool.map(lambda j: process_file(j, settings, lock, bar), jobs_list))
+        if run_files is not None:
+            results += run_files(jobs_list, settings)
+        else:
+            with ThreadPoolExecutor(max(1, int(jobs))) as pool:
+                results += list(pool.map(lambda j: process_file(j, settings, lock, bar),
+                                         jobs_list))
     finally:
         if bar is not None:
             bar.close()

@@ -145,6 +145,25 @@ def output_spec(in_spec, channel_names, alpha_index, half, params):
     return spec
 
 
+def partial_files(path) -> list:
+    """Temporary files a Writer of ``path`` leaves only if its process is killed mid-write."""
+    path = Path(path)
+    return sorted(path.parent.glob(f".{path.stem}.partial-*{path.suffix}"))
+
+
+def remove_partial_files(path) -> int:
+    """Remove what killed writers of ``path`` left (the one process that writes ``path`` calls
+    this before it starts: outputs never collide, so no live writer owns them)."""
+    n = 0
+    for p in partial_files(path):
+        try:
+            p.unlink()
+            n += 1
+        except FileNotFoundError:
+            pass
+    return n
+
+
 class Writer:
     """An EXR written band by band into a temporary file, renamed by ``commit``."""
 

@@ -184,6 +184,28 @@ def _exists(role, path, problems):
         problems.append(f"{role} {path} is missing")
 
 
+def _textures(inputs, material, mask, path, udim, problems):
+    """Add the job's mfp and mask textures (companions of ``path`` by UDIM) to ``inputs``."""
+    if isinstance(material.mfp, str):
+        inputs["mfp"] = companion_path(material.mfp, path, udim)
+        _exists("mfp texture", inputs["mfp"], problems)
+    if mask and mask != "alpha":
+        inputs["mask"] = companion_path(mask, path, udim)
+        _exists("mask", inputs["mask"], problems)
+
+
+def _new_job(kind, name, path, udim, out, inputs, digest, problems, force, problems_all):
+    """The job, and whether it still needs planning (not broken, not up to date)."""
+    job = PlannedJob(kind, name, path, udim, out, inputs, params_digest=digest)
+    if problems:
+        job.problem = "; ".join(problems)
+        problems_all += problems
+    elif not force and is_up_to_date(out, inputs, digest):
+        job.up_to_date = True
+        job.left_out.append("everything: up to date (inputs, parameters and version unchanged)")
+    return job, not (job.problem or job.up_to_date)
+
+
 def _albedo_stats(path, mask_mode, mask_path, colorspace):
     """(colour channel names, alpha name, other names, Rd range of unmasked texels, masked
     fraction) of an albedo file: the statistics pass."""
@@ -253,21 +275,11 @@ def _plan_invert(m, path, udim, force, device, problems_all):
     inputs = {"albedo": path}
     problems = []
     _exists("albedo", path, problems)
-    if isinstance(m.mfp, str):
-        inputs["mfp"] = companion_path(m.mfp, path, udim)
-        _exists("mfp texture", inputs["mfp"], problems)
-    if m.mask and m.mask != "alpha":
-        inputs["mask"] = companion_path(m.mask, path, udim)
-        _exists("mask", inputs["mask"], problems)
+    _textures(inputs, m, m.mask, path, udim, problems)
     digest = params_digest(_material_fields(m) | {"kind": "invert", "udim": udim})
-    job = PlannedJob("invert", m.name, path, udim, out, inputs, params_digest=digest)
-    if problems:
-        job.problem = "; ".join(problems)
-        problems_all += problems
-        return job
-    if not force and is_up_to_date(out, inputs, digest):
-        job.up_to_date = True
-        job.left_out.append("everything: up to date (inputs, parameters and version unchanged)")
+    job, todo = _new_job("invert", m.name, path, udim, out, inputs, digest, problems, force,
+                         problems_all)
+    if not todo:
         return job
     names, alpha, other, rd_range, masked = _albedo_stats(path, m.mask, inputs.get("mask"),
                                                          m.colorspace)
@@ -310,22 +322,12 @@ def _plan_blur(b, path, udim, force, problems_all):
     problems = []
     _exists("irradiance", path, problems)
     _exists("albedo", inputs["albedo"], problems)
-    if isinstance(m.mfp, str):
-        inputs["mfp"] = companion_path(m.mfp, path, udim)
-        _exists("mfp texture", inputs["mfp"], problems)
-    if b.mask and b.mask != "alpha":
-        inputs["mask"] = companion_path(b.mask, path, udim)
-        _exists("mask", inputs["mask"], problems)
+    _textures(inputs, m, b.mask, path, udim, problems)
     fields = {k: v for k, v in asdict(b).items() if k not in ("name", "irradiance", "output")}
     digest = params_digest(fields | {"kind": "blur", "udim": udim})
-    job = PlannedJob("blur", b.name, path, udim, out, inputs, params_digest=digest)
-    if problems:
-        job.problem = "; ".join(problems)
-        problems_all += problems
-        return job
-    if not force and is_up_to_date(out, inputs, digest):
-        job.up_to_date = True
-        job.left_out.append("everything: up to date (inputs, parameters and version unchanged)")
+    job, todo = _new_job("blur", b.name, path, udim, out, inputs, digest, problems, force,
+                         problems_all)
+    if not todo:
         return job
     job.computes.append(f"exitance with the exit texel's profile from {m.name}'s albedo "
                         f"and mfp, texel {b.texel_size:g} {m.unit}, tol {b.tol:g} "
@@ -369,7 +371,7 @@ def _settings(m, config, runtime, cancel, header):
         bake=SPECIALISE, header=header)
 
 
-def _run_invert(job, scene, runtime, cancel, lock):
+def run_invert_job(job, scene, runtime, cancel, lock):
     m = next(x for x in scene.materials if x.name == job.name)
     header = header_fields(job.inputs, job.params_digest)
     settings = _settings(m, job.config, runtime, cancel, header)
@@ -387,7 +389,7 @@ def _masked_parameter(values, keep):
     return np.where(keep[..., None], values, fill)
 
 
-def _run_blur(job, scene, runtime, cancel):
+def run_blur_job(job, scene, runtime, cancel):
     b = next(x for x in scene.blurs if x.name == job.name)
     m = b.material
     result = FileResult(job.source, job.output)
@@ -439,9 +441,9 @@ def bake(plan: Plan, *, cancel=None, device=None, progress=None) -> BatchReport:
             results.append(FileResult(job.source, job.output, status="cancelled",
                                       error="interrupted before it started"))
         elif job.kind == "invert":
-            results.append(_run_invert(job, plan.scene, runtime, cancel, lock))
+            results.append(run_invert_job(job, plan.scene, runtime, cancel, lock))
         else:
-            results.append(_run_blur(job, plan.scene, runtime, cancel))
+            results.append(run_blur_job(job, plan.scene, runtime, cancel))
         if progress is not None:
             progress(job, results[-1])
     return BatchReport(results)

@@ -1,0 +1,324 @@
+"""Beyond one machine: scene bakes, texture batches and huge blurs on a Dask cluster.
+
+``connect("local:N")`` starts a LocalCluster of N worker processes (one thread each);
+``connect("tcp://host:8786")`` joins a running scheduler. Jobs are plain functions of picklable
+data (file paths, dataclasses): each worker process opens its own OpenCL device once
+(``device``: a spec string such as ``"intel"``, or None for the automatic choice, which
+honours ``PYOPENCL_CTX``) and builds its kernels once; nothing OpenCL crosses processes.
+Workers read inputs and write outputs themselves, so storage must be shared; writes stay
+atomic (temporary file + rename), and a job that Dask reruns after a worker died first removes
+what the dead writer left.
+
+Lazy arrays: ``invert_albedo`` and ``albedo_to_coefficients`` map a dask array's blocks;
+``blur`` uses ``map_overlap`` with a depth of the truncation radius the plan picks and the
+boundary of ``border`` (clamp: nearest, zero: 0, wrap: periodic), so that it equals ``blur``
+on the whole array.
+"""
+from __future__ import annotations
+
+import shutil
+import tempfile
+import threading
+from contextlib import contextmanager
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import OpenImageIO as oiio
+
+from .device import get_runtime
+from .io.batch import BatchReport, FileResult, process_file
+from .io.blur_file import FILE_ROW_FLOATS
+from .io.images import (Reader, TextureError, Writer, output_spec, read_rows,
+                        remove_partial_files, source_colorspace, to_linear)
+from .io.scene import Plan, run_blur_job, run_invert_job
+from .ops import invert as ops_invert
+from .ops.bands import band_rows, bands, halo_rows
+from .ops.blur import PARAM_KEYS, blur as blur_array
+from .ops.blur import is_textured
+from .ops.blur.planning import channel_plans, halo_of
+
+#: a task that raised is tried again this many times (a worker that died is always replaced)
+RETRIES = 2
+_worker_lock = threading.Lock()
+
+
+@contextmanager
+def connect(scheduler: str, *, memory_limit=None):
+    """A ``distributed.Client``: ``local:N`` starts N worker processes on this machine (each
+    limited to ``memory_limit`` bytes if given), anything else is a scheduler address."""
+    from distributed import Client, LocalCluster
+    if scheduler.startswith("local:"):
+        try:
+            n = int(scheduler.split(":", 1)[1])
+        except ValueError:
+            n = 0
+        if n < 1:
+            raise ValueError(f"--scheduler {scheduler!r}: expected local:N with N >= 1 workers, "
+                             f"or a scheduler address such as tcp://host:8786")
+        cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
+                               memory_limit=memory_limit or "auto", dashboard_address=":0")
+        try:
+            with Client(cluster) as client:
+                yield client
+        finally:
+            cluster.close()
+    else:
+        with Client(scheduler) as client:
+            yield client
+
+
+def _progress(total, desc, enabled):
+    if not enabled:
+        return None
+    from tqdm import tqdm
+    return tqdm(total=total, desc=desc, unit="job")
+
+
+def _gather(client, futures, describe, progress=None):
+    """Results of ``futures`` ({future: index}) as they complete; a task that still fails after
+    its retries becomes a failed FileResult described by ``describe(index, exc)``."""
+    from distributed import as_completed
+    results = {}
+    for fut in as_completed(list(futures)):
+        i = futures[fut]
+        try:
+            results[i] = fut.result()
+        except Exception as exc:  # the worker's exception, after RETRIES
+            results[i] = describe(i, exc)
+        if progress is not None:
+            progress.update(1)
+    return results
+
+
+# {{{ scenes
+
+def run_scene_job(job, scene, device=None):
+    """One scene job on a worker (its own device, opened once per process)."""
+    remove_partial_files(job.output)
+    runtime = get_runtime(device)
+    if job.kind == "invert":
+        return run_invert_job(job, scene, runtime, None, _worker_lock)
+    return run_blur_job(job, scene, runtime, None)
+
+
+def bake_on_cluster(plan: Plan, client, *, device=None, progress=True,
+                    run=run_scene_job) -> BatchReport:
+    """``Plan.run`` with the jobs on the cluster (up-to-date checks already done by the plan,
+    in this process, before anything is sent)."""
+    results, futures = {}, {}
+    for i, job in enumerate(plan.jobs):
+        if job.problem:
+            results[i] = FileResult(job.source, job.output, error=job.problem)
+        elif job.up_to_date:
+            results[i] = FileResult(job.source, job.output, status="skipped")
+        else:
+            fut = client.submit(run, job, plan.scene, device, pure=False, retries=RETRIES,
+                                key=f"bake-{i}-{job.kind}-{job.name}-{job.udim}")
+            futures[fut] = i
+    bar = _progress(len(futures), "bake", progress)
+    try:
+        results.update(_gather(client, futures, lambda i, exc: FileResult(
+            plan.jobs[i].source, plan.jobs[i].output, error=f"{plan.jobs[i].source}: {exc}"),
+            bar))
+    finally:
+        if bar is not None:
+            bar.close()
+    for job in plan.jobs:
+        remove_partial_files(job.output)
+    return BatchReport([results[i] for i in range(len(plan.jobs))])
+
+# }}}
+
+
+# {{{ texture batches (bdipole-cl invert)
+
+def _batch_file(job, settings, device=None):
+    remove_partial_files(job.output)
+    return process_file(job, replace(settings, runtime=get_runtime(device)), _worker_lock, None)
+
+
+def file_runner(client, *, device=None, progress=True):
+    """A ``run_files`` for ``process_textures``: each file a task on the cluster."""
+    def run(jobs, settings):
+        portable = replace(settings, runtime=None, cancel=None)
+        futures = {client.submit(_batch_file, job, portable, device, pure=False,
+                                 retries=RETRIES, key=f"invert-{i}-{Path(job.path).name}"): i
+                   for i, job in enumerate(jobs)}
+        bar = _progress(len(futures), "invert", progress)
+        try:
+            results = _gather(client, futures, lambda i, exc: FileResult(
+                jobs[i].path, jobs[i].output, error=f"{jobs[i].path}: {exc}"), bar)
+        finally:
+            if bar is not None:
+                bar.close()
+        for job in jobs:
+            remove_partial_files(job.output)
+        return [results[i] for i in range(len(jobs))]
+    return run
+
+# }}}
+
+
+# {{{ huge file-to-file blurs
+
+def _blur_band(path, band_path, y0, y1, halo, colorspace, kwargs, device=None):
+    """Rows [y0, y1) of the blurred image, written to ``band_path`` (an EXR of those rows)."""
+    remove_partial_files(band_path)
+    reader = Reader(path, "irradiance")
+    try:
+        spec = reader.spec
+        colour, alpha = reader.channels()
+        idx = halo_rows(y0, y1, halo, spec.height, kwargs.get("border", "clamp"))
+        px = read_rows(reader, idx)
+    finally:
+        reader.close()
+    e = px[..., colour]
+    space = source_colorspace(spec, colorspace)
+    if space is not None:
+        e = to_linear(e, space)
+    out = blur_array(e, device=get_runtime(device), **kwargs)[halo:halo + y1 - y0]
+    if alpha >= 0:
+        out = np.concatenate([out, px[halo:halo + y1 - y0, :, alpha:alpha + 1]], axis=-1)
+    band = oiio.ImageSpec(spec.width, y1 - y0, out.shape[-1], "float")
+    writer = Writer(band_path, band)
+    try:
+        writer.write_band(0, y1 - y0, out)
+        writer.commit()
+    except Exception:
+        writer.abort()
+        raise
+    return band_path
+
+
+def blur_file_on_cluster(path, output, client, *, colorspace="auto", half=False,
+                         max_memory=256 << 20, device=None, progress=True, **kwargs):
+    """``blur_file`` with its bands as tasks: each worker reads its rows and the halo of the
+    truncation radius from ``path``, blurs them within ``max_memory`` bytes, and writes them
+    to a band file; this process then streams the bands into ``output`` (one band in memory
+    at a time) and removes them. Constant parameters only (a texture-varying plan is global).
+    Returns the number of bands."""
+    from .io.images import check_output_format
+    check_output_format(output)
+    physical = {k: kwargs[k] for k in PARAM_KEYS if k in kwargs}
+    if is_textured(**physical):
+        raise ValueError("a blur on a cluster takes constant parameters (one value or one per "
+                         "channel); with parameter textures, blur in one process")
+    reader = Reader(path, "irradiance")
+    try:
+        spec = reader.spec
+        colour, alpha = reader.channels()
+    finally:
+        reader.close()
+    _, plans = channel_plans(len(colour), method=kwargs.get("method", "auto"),
+                             tol=kwargs.get("tol", 1e-3), exact=kwargs.get("exact", False),
+                             **physical)
+    halo = halo_of(plans)
+    rows = band_rows(spec.height, spec.width * spec.nchannels * 4 * FILE_ROW_FLOATS,
+                     max_memory, halo=halo)
+    work = Path(tempfile.mkdtemp(prefix=f".{Path(output).stem}.bands-",
+                                 dir=Path(output).parent))
+    try:
+        futures = {}
+        for k, (y0, y1, _) in enumerate(bands(spec.height, rows)):
+            fut = client.submit(_blur_band, str(path), str(work / f"band{k:05d}.exr"), y0, y1,
+                                halo, colorspace, kwargs, device, pure=False, retries=RETRIES,
+                                key=f"blur-band-{k}-{Path(path).name}")
+            futures[fut] = (k, y0, y1)
+        bar = _progress(len(futures), "blur bands", progress)
+        done = _gather(client, {f: i for f, i in futures.items()},
+                       lambda i, exc: exc, bar)
+        if bar is not None:
+            bar.close()
+        failed = [v for v in done.values() if isinstance(v, Exception)]
+        if failed:
+            raise TextureError(f"{path}: {len(failed)} band(s) failed: {failed[0]}")
+        names = [spec.channelnames[c] for c in colour] + (
+            [spec.channelnames[alpha]] if alpha >= 0 else [])
+        meta = {k: v for k, v in kwargs.items() if k in PARAM_KEYS + ("tol", "border")}
+        meta["source"] = str(path)
+        writer = Writer(output, output_spec(spec, names, len(names) - 1 if alpha >= 0 else -1,
+                                            half, meta))
+        try:
+            for (k, y0, y1) in sorted(done):       # one band in memory at a time
+                r = Reader(done[(k, y0, y1)], "band")
+                try:
+                    writer.write_band(y0, y1, r.read_band(0, y1 - y0))
+                finally:
+                    r.close()
+            writer.commit()
+        except Exception:
+            writer.abort()
+            raise
+        return len(futures)
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+
+# }}}
+
+
+# {{{ lazy arrays
+
+def _stacked(fn):
+    """A block function returning its outputs stacked on a new last axis."""
+    def block(*arrays):
+        outs = fn(*arrays)
+        outs = outs if isinstance(outs, tuple) else (outs,)
+        return np.stack([np.asarray(o, np.float32) for o in outs], axis=-1)
+    return block
+
+
+def invert_albedo(rd, eta, method="table", *, return_rho=False, device=None, **kw):
+    """``bdipole_cl.invert_albedo`` over a dask array's blocks (lazy)."""
+    def fn(block):
+        return ops_invert.invert_albedo(block, eta, method, return_rho=return_rho,
+                                        device=device, **kw)
+    out = rd.map_blocks(_stacked(fn), dtype=np.float32, new_axis=rd.ndim,
+                        chunks=rd.chunks + ((2 if return_rho else 1,),))
+    return (out[..., 0], out[..., 1]) if return_rho else out[..., 0]
+
+
+def albedo_to_coefficients(rd, mfp, eta, method="table", *, outputs=("sigma_a", "sigma_s"),
+                           device=None, **kw):
+    """``bdipole_cl.albedo_to_coefficients`` over dask arrays' blocks (lazy); ``mfp`` a
+    constant, per-channel tuple or a dask array of rd's chunks."""
+    import dask.array as da
+
+    def fn(block, mfp_block):
+        return ops_invert.albedo_to_coefficients(block, mfp_block, eta, method,
+                                                 outputs=outputs, device=device, **kw)
+    mfp_arr = mfp if isinstance(mfp, da.Array) else da.broadcast_to(
+        np.asarray(mfp, np.float32), rd.shape, chunks=rd.chunks)
+    out = da.map_blocks(_stacked(fn), rd, mfp_arr, dtype=np.float32,
+                        new_axis=rd.ndim, chunks=rd.chunks + ((len(outputs),),))
+    result = tuple(out[..., i] for i in range(len(outputs)))
+    return result if len(result) > 1 else result[0]
+
+
+BOUNDARIES = {"clamp": "nearest", "zero": 0, "wrap": "periodic"}
+
+
+def blur(irradiance, *, border="clamp", device=None, **kwargs):
+    """``bdipole_cl.blur`` of an HxW or HxWxC dask array (lazy), constant parameters: each
+    block with an overlap of the plan's truncation radius, the image's edges by ``border``."""
+    physical = {k: kwargs[k] for k in PARAM_KEYS if k in kwargs}
+    if is_textured(**physical):
+        raise ValueError("bdipole_cl.dask.blur takes constant parameters (one value or one "
+                         "per channel)")
+    arr = irradiance if irradiance.ndim == 3 else irradiance[..., None]
+    arr = arr.rechunk({2: -1})
+    _, plans = channel_plans(arr.shape[2], method=kwargs.get("method", "auto"),
+                             tol=kwargs.get("tol", 1e-3), exact=kwargs.get("exact", False),
+                             **physical)
+    k = halo_of(plans)
+
+    def fn(block):
+        return blur_array(block, border=border, device=device, **kwargs)
+    # chunks thinner than the radius are merged by dask (allow_rechunk) so that every block's
+    # overlap holds all the texels its kernels reach
+    out = arr.map_overlap(fn, depth={0: k, 1: k, 2: 0}, boundary=BOUNDARIES[border],
+                          dtype=np.float32, allow_rechunk=True)
+    return out if irradiance.ndim == 3 else out[..., 0]
+
+# }}}
+

@@ -1,0 +1,150 @@
+"""Dask clusters (bdipole_cl/dask.py): a LocalCluster of 2 worker processes."""
+import os
+import shutil
+
+import numpy as np
+import OpenImageIO as oiio
+import pytest
+
+pytest.importorskip("distributed")        # a dependency of the test extra: present in CI
+
+import dask.array as da  # noqa: E402
+from distributed import Client, LocalCluster  # noqa: E402
+from test_scene import SCENE, make_files  # noqa: E402
+
+import bdipole_cl  # noqa: E402
+from bdipole_cl import dask as bdask  # noqa: E402
+from bdipole_cl import scene as scenes  # noqa: E402
+from bdipole_cl.apps.cli import main as cli_main  # noqa: E402
+from bdipole_cl.apps.demo import write_exr  # noqa: E402
+from bdipole_cl.io.images import partial_files  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def client():
+    cluster = LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                           dashboard_address=":0")
+    with Client(cluster) as c:
+        yield c
+    cluster.close()
+
+
+def read(path):
+    inp = oiio.ImageInput.open(str(path))
+    px = np.asarray(inp.read_image(oiio.FLOAT))
+    inp.close()
+    return px
+
+
+def scene_copy(root, name):
+    d = root / name
+    shutil.copytree(root / "src", d)
+    return d / "scene.toml"
+
+
+@pytest.fixture
+def two_scenes(tmp_path):
+    src = tmp_path / "src"
+    make_files(src, tiles=("1001", "1002", "1003"))
+    (src / "scene.toml").write_text(SCENE.replace("METHOD", ""))
+    return scene_copy(tmp_path, "local"), scene_copy(tmp_path, "cluster")
+
+
+def outputs(scene_path):
+    return {p.name: read(p) for p in sorted((scene_path.parent / "out").iterdir())}
+
+
+def test_a_cluster_bake_equals_the_in_process_bake(client, two_scenes):
+    local, cluster = two_scenes
+    assert scenes.load(local).plan().run().exit_code == 0
+    report = bdask.bake_on_cluster(scenes.load(cluster).plan(), client, progress=False)
+    assert report.exit_code == 0, report.summary()
+    a, b = outputs(local), outputs(cluster)
+    assert a.keys() == b.keys() and len(a) == 7          # skin x3, grey x1, exitance x3
+    for name in a:
+        if name.startswith("exitance"):            # the blur: within float round-off
+            np.testing.assert_allclose(b[name], a[name], rtol=1e-6, atol=1e-8)
+        else:                                      # the inversion: bit for bit
+            np.testing.assert_array_equal(b[name], a[name])
+    # up-to-date checks run in this process before anything is sent: a second bake sends none
+    again = bdask.bake_on_cluster(scenes.load(cluster).plan(), client, progress=False)
+    assert {r.status for r in again.results} == {"skipped"}
+
+
+def test_a_worker_killed_mid_job_and_a_job_failing_once_still_complete(client, two_scenes,
+                                                                       tmp_path):
+    _, cluster = two_scenes
+    marker_kill, marker_fail = tmp_path / "killed", tmp_path / "failed"
+
+    def flaky(job, scene, device=None):
+        # the first skin job kills its worker, leaving a writer's temporary file behind; the
+        # first grey job raises; both are run again by Dask
+        if job.name == "skin" and not marker_kill.exists():
+            marker_kill.write_text("x")
+            os.makedirs(os.path.dirname(job.output), exist_ok=True)
+            stem = os.path.splitext(os.path.basename(job.output))[0]
+            open(os.path.join(os.path.dirname(job.output), f".{stem}.partial-1-2.exr"),
+                 "wb").close()
+            os._exit(1)
+        if job.name == "grey" and not marker_fail.exists():
+            marker_fail.write_text("x")
+            raise RuntimeError("a passing fault")
+        return bdask.run_scene_job(job, scene, device)
+
+    report = bdask.bake_on_cluster(scenes.load(cluster).plan(), client, progress=False,
+                                   run=flaky)
+    assert marker_kill.exists() and marker_fail.exists()
+    assert report.exit_code == 0, report.summary()
+    out = cluster.parent / "out"
+    assert not [p for p in out.iterdir() if ".partial-" in p.name]
+    assert all(not partial_files(out / n) for n in os.listdir(out))
+
+
+def test_lazy_blur_equals_the_in_memory_blur(client):
+    e = np.random.default_rng(3).uniform(0, 1, (96, 80, 3)).astype(np.float32)
+    e[40:44, 30:34] = 20.0
+    for border in ("clamp", "zero", "wrap"):
+        kw = dict(albedo=(0.8, 0.6, 0.4), mfp=(3.0, 2.0, 1.0), eta=1.4, border=border)
+        want = bdipole_cl.blur(e, **kw)
+        lazy = bdask.blur(da.from_array(e, chunks=(40, 35, 3)), **kw)
+        got = lazy.compute()
+        # fft per block against fft of the whole image: float64 round-off of the transforms
+        np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-6 * e.max())
+
+
+def test_lazy_inversion_equals_the_in_memory_one(client):
+    rd = np.random.default_rng(4).uniform(1e-4, 0.999, (64, 48, 3)).astype(np.float32)
+    arr = da.from_array(rd, chunks=(20, 20, 3))
+    alpha, rho = bdask.invert_albedo(arr, 1.4, return_rho=True)
+    want_a, want_rho = bdipole_cl.invert_albedo(rd, 1.4, return_rho=True)
+    np.testing.assert_array_equal(alpha.compute(), want_a)
+    np.testing.assert_array_equal(rho.compute(), want_rho)
+    sa, ss = bdask.albedo_to_coefficients(arr, (1.0, 0.5, 0.25), 1.4)
+    want = bdipole_cl.albedo_to_coefficients(rd, (1.0, 0.5, 0.25), 1.4)
+    np.testing.assert_array_equal(sa.compute(), want[0])
+    np.testing.assert_array_equal(ss.compute(), want[1])
+
+
+def test_file_blur_on_the_cluster_equals_the_local_file_blur(client, tmp_path):
+    from bdipole_cl.io.blur_file import blur_file
+    e = np.random.default_rng(5).uniform(0, 1, (70, 40, 3)).astype(np.float32)
+    write_exr(tmp_path / "e.exr", e, ("R", "G", "B"))
+    kw = dict(albedo=(0.8, 0.6, 0.4), mfp=(2.0, 1.0, 0.5), eta=1.4)
+    blur_file(tmp_path / "e.exr", tmp_path / "local.exr", **kw)
+    n = bdask.blur_file_on_cluster(tmp_path / "e.exr", tmp_path / "cluster.exr", client,
+                                   max_memory=40 * 3 * 4 * 10 * 30, progress=False, **kw)
+    assert n > 2                                   # in bands, with halos
+    np.testing.assert_allclose(read(tmp_path / "cluster.exr"), read(tmp_path / "local.exr"),
+                               rtol=1e-6, atol=1e-7)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["cluster.exr", "e.exr", "local.exr"]
+
+
+def test_cli_bake_on_a_local_cluster(tmp_path, capsys):
+    make_files(tmp_path)
+    (tmp_path / "scene.toml").write_text(SCENE.replace("METHOD", ""))
+    assert cli_main(["bake", str(tmp_path / "scene.toml"), "--scheduler", "local:2",
+                     "--no-progress"]) == 0
+    out = capsys.readouterr().out
+    assert "dask dashboard: http" in out and "5 done, 0 failed, 0 skipped" in out
+    assert cli_main(["bake", str(tmp_path / "scene.toml"), "--scheduler", "local:0"]) == 2
+    assert "expected local:N with N >= 1" in capsys.readouterr().err

@@ -206,10 +206,10 @@ def _cmd_blur(args) -> int:
         info = blur_file(args.input, args.output, half=args.half, sources=sources,
                          max_memory=args.max_memory, cancel=stop.event, **kw)
     except Cancelled as exc:
-        print(f"error: {exc}", file=sys.stderr)
+        print(f"bdipole-cl {args.command}: error: {exc}", file=sys.stderr)
         return stop.exit_code or 1
     except TextureError as exc:
-        print(f"error: {exc}", file=sys.stderr)
+        print(f"bdipole-cl {args.command}: error: {exc}", file=sys.stderr)
         return 1
     for c in info.channels:
         rd = f"Rd {c.rd:.4f}" if c.rd is not None else "Rd per texel"
@@ -311,7 +311,7 @@ def _cmd_devices(args) -> int:
         print(f"  environment runtime: {r.name} at {r.library} ({how}"
               + (f"; {r.note}" if r.note else "") + ")")
     if chosen is None:
-        print(f"error: {problem}", file=sys.stderr)
+        print(f"bdipole-cl devices: error: {problem}", file=sys.stderr)
         return 1
     print("* = the device bdipole-cl uses (--device or PYOPENCL_CTX choose another)")
     if not any(s.works for s in states):

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import signal
 import sys
 import threading
@@ -104,6 +105,25 @@ class _Stop:
         return 128 + self.signum if self.signum else None
 
 
+def _finish(report, stop) -> int:
+    """Print a batch's summary; its exit code (128 + the signal if one stopped it)."""
+    print(report.summary())
+    if stop.exit_code:
+        print(f"interrupted by signal {stop.signum}: finished files kept, unfinished ones not "
+              f"written", file=sys.stderr)
+        return stop.exit_code
+    return report.exit_code
+
+
+@contextlib.contextmanager
+def _cluster(args):
+    """The Dask client of ``--scheduler`` (its dashboard link printed)."""
+    from ..dask import connect
+    with connect(args.scheduler, memory_limit=args.worker_memory) as client:
+        print(f"dask dashboard: {client.dashboard_link}", flush=True)
+        yield client
+
+
 def _add_method_args(p):
     from ..methods.registry import METHODS
     p.add_argument("--method", default="table", choices=METHODS + ("auto",),
@@ -127,9 +147,8 @@ def _method_knobs(args):
 
 def _cmd_invert(args) -> int:
     if args.scheduler:
-        from ..dask import connect, file_runner
-        with connect(args.scheduler, memory_limit=args.worker_memory) as client:
-            print(f"dask dashboard: {client.dashboard_link}", flush=True)
+        from ..dask import file_runner
+        with _cluster(args) as client:
             return _invert(args, file_runner(client, device=args.device,
                                              progress=not args.no_progress))
     return _invert(args, None)
@@ -146,12 +165,7 @@ def _invert(args, run_files) -> int:
         jobs=args.jobs, skip_existing=args.skip_existing, unit=args.unit, double=args.double,
         mfp_scale=args.mfp_scale, progress=not args.no_progress and run_files is None,
         run_files=run_files, **_method_knobs(args))
-    print(report.summary())
-    if stop.exit_code:
-        print(f"interrupted by signal {stop.signum}: finished files kept, unfinished ones not "
-              f"written", file=sys.stderr)
-        return stop.exit_code
-    return report.exit_code
+    return _finish(report, stop)
 
 
 def _is_number_list(text):
@@ -196,9 +210,8 @@ def _cmd_blur(args) -> int:
             kw.update(albedo=_param(args.albedo, "albedo", colour=True),
                       mfp=_param(args.mfp, "mfp"))
         if args.scheduler:
-            from ..dask import blur_file_on_cluster, connect
-            with connect(args.scheduler, memory_limit=args.worker_memory) as client:
-                print(f"dask dashboard: {client.dashboard_link}", flush=True)
+            from ..dask import blur_file_on_cluster
+            with _cluster(args) as client:
                 n = blur_file_on_cluster(args.input, args.output, client, half=args.half,
                                          max_memory=args.max_memory, device=args.device, **kw)
             print(f"{n} bands blurred on the cluster; wrote {args.output}")
@@ -267,19 +280,13 @@ def _cmd_bake(args) -> int:
                   + (f" [{job.udim}]" if job.udim else "") + f" -> {job.output}", flush=True)
 
     if args.scheduler:
-        from ..dask import bake_on_cluster, connect
-        with connect(args.scheduler, memory_limit=args.worker_memory) as client:
-            print(f"dask dashboard: {client.dashboard_link}", flush=True)
+        from ..dask import bake_on_cluster
+        with _cluster(args) as client:
             report = bake_on_cluster(plan, client, device=args.device,
                                      progress=not args.no_progress)
     else:
         report = plan.run(cancel=stop.event, progress=progress)
-    print(report.summary())
-    if stop.exit_code:
-        print(f"interrupted by signal {stop.signum}: finished files kept, unfinished ones not "
-              f"written", file=sys.stderr)
-        return stop.exit_code
-    return report.exit_code
+    return _finish(report, stop)
 
 
 def _cmd_report(args) -> int:

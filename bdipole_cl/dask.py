@@ -226,8 +226,7 @@ def blur_file_on_cluster(path, output, client, *, colorspace="auto", half=False,
                                 key=f"blur-band-{k}-{Path(path).name}")
             futures[fut] = (k, y0, y1)
         bar = _progress(len(futures), "blur bands", progress)
-        done = _gather(client, {f: i for f, i in futures.items()},
-                       lambda i, exc: exc, bar)
+        done = _gather(client, futures, lambda i, exc: exc, bar)
         if bar is not None:
             bar.close()
         failed = [v for v in done.values() if isinstance(v, Exception)]

@@ -46,7 +46,8 @@ from ..version import __version__
 from .batch import (BatchReport, BatchSettings, FileResult, Job, companion_path, expand_inputs,
                     output_collisions, process_file)
 from .blur_file import blur_file
-from .images import Reader, TextureError, classify_channels, read_parameter_texture
+from .images import (Reader, TextureError, classify_channels, read_parameter_texture,
+                     source_colorspace, to_linear)
 from .scene_file import SceneData, SceneError
 from .scene_file import load as load_scene_file
 
@@ -206,35 +207,43 @@ def _new_job(kind, name, path, udim, out, inputs, digest, problems, force, probl
     return job, not (job.problem or job.up_to_date)
 
 
-def _albedo_stats(path, mask_mode, mask_path, colorspace):
-    """(colour channel names, alpha name, other names, Rd range of unmasked texels, masked
-    fraction) of an albedo file: the statistics pass."""
+def read_albedo(path, mask_mode, mask_path, colorspace):
+    """One read of an albedo file: (linear colour texels HxWxC, the mask as booleans or None,
+    colour channel names, alpha name or None, other channel names). ``mask_mode``: None,
+    "alpha" (the file's alpha) or a texture (``mask_path``, its first channel)."""
     r = Reader(path, "albedo")
     try:
         spec = r.spec
         colour, alpha = r.channels()
-        _, _, other = classify_channels(spec.channelnames, spec.alpha_channel)
-        names = [spec.channelnames[c] for c in colour]
+        px = r.read_band(0, spec.height)
     finally:
         r.close()
-    px = read_parameter_texture(path, "albedo", colour=True, colorspace=colorspace)
-    mask = None
+    _, _, other = classify_channels(spec.channelnames, spec.alpha_channel)
+    keep = None
     if mask_mode == "alpha":
-        raw = Reader(path, "albedo")
-        try:
-            if alpha < 0:
-                raise TextureError(f"{path}: mask = 'alpha' but the albedo has no alpha channel")
-            mask = raw.read_band(0, raw.spec.height)[..., alpha] > 0
-        finally:
-            raw.close()
+        if alpha < 0:
+            raise TextureError(f"{path}: mask = 'alpha' but the albedo has no alpha channel")
+        keep = px[..., alpha] > 0
     elif mask_mode:
-        mask = read_parameter_texture(mask_path, "mask")[..., 0] > 0
+        keep = read_parameter_texture(mask_path, "mask")[..., 0] > 0
+    space = source_colorspace(spec, colorspace)
+    albedo = px[..., colour]
+    if space is not None:
+        albedo = to_linear(albedo, space)
+    return (albedo, keep, [spec.channelnames[c] for c in colour],
+            spec.channelnames[alpha] if alpha >= 0 else None,
+            [spec.channelnames[c] for c in other])
+
+
+def _albedo_stats(path, mask_mode, mask_path, colorspace):
+    """(colour channel names, alpha name, other names, Rd range of unmasked texels, masked
+    fraction) of an albedo file: the statistics pass."""
+    px, mask, names, alpha, other = read_albedo(path, mask_mode, mask_path, colorspace)
     keep = np.ones(px.shape[:2], bool) if mask is None else mask
     vals = px[keep]
     vals = vals[np.isfinite(vals)]
     rd_range = (float(vals.min()), float(vals.max())) if vals.size else None
-    return (names, spec.channelnames[alpha] if alpha >= 0 else None,
-            [spec.channelnames[c] for c in other], rd_range, 1.0 - keep.mean())
+    return names, alpha, other, rd_range, 1.0 - keep.mean()
 
 
 _size_cache: dict = {}
@@ -395,21 +404,8 @@ def run_blur_job(job, scene, runtime, cancel):
     result = FileResult(job.source, job.output)
     t0 = time.perf_counter()
     try:
-        albedo = read_parameter_texture(job.inputs["albedo"], "albedo", colour=True,
-                                        colorspace=m.colorspace)
-        keep = None
-        if b.mask == "alpha":
-            r = Reader(job.inputs["albedo"], "albedo")
-            try:
-                a = r.spec.alpha_channel
-                if a < 0:
-                    raise TextureError(f"{job.inputs['albedo']}: mask = 'alpha' but the albedo "
-                                       f"has no alpha channel")
-                keep = r.read_band(0, r.spec.height)[..., a] > 0
-            finally:
-                r.close()
-        elif b.mask:
-            keep = read_parameter_texture(job.inputs["mask"], "mask")[..., 0] > 0
+        albedo, keep, *_ = read_albedo(job.inputs["albedo"], b.mask, job.inputs.get("mask"),
+                                       m.colorspace)
         mfp = (read_parameter_texture(job.inputs["mfp"], "mfp") if "mfp" in job.inputs
                else m.mfp)
         albedo = _masked_parameter(albedo, keep)

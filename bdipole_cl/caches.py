@@ -2,8 +2,8 @@
 
 Every cache of the package is a ``ByteCache``: least recently used out once its entries' bytes
 pass ``max_bytes`` (arrays count their ``nbytes``; tuples, lists, dicts and dataclasses the sum of
-their parts). ``clear_caches()`` empties every one, and calls the clearers other layers register
-(the device layer's compiled programs)."""
+their parts). ``clear_caches()`` empties every one (the device layer's compiled programs among
+them)."""
 from __future__ import annotations
 
 import dataclasses
@@ -14,7 +14,6 @@ from collections import OrderedDict
 import numpy as np
 
 _caches: list = []
-_clearers: list = []
 
 
 def nbytes_of(value) -> int:
@@ -90,12 +89,6 @@ class ByteCache:
         return wrapper
 
 
-def register_clearer(fn):
-    """Have ``clear_caches`` also call ``fn`` (for caches that are not ByteCaches)."""
-    _clearers.append(fn)
-    return fn
-
-
 def all_caches() -> list:
     return list(_caches)
 
@@ -104,5 +97,3 @@ def clear_caches():
     """Empty every cache of the package (kernels, tables, plans, spectra, programs)."""
     for cache in _caches:
         cache.clear()
-    for fn in _clearers:
-        fn()

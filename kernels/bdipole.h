@@ -32,18 +32,17 @@ typedef float real;
 // {{{ per-channel constants
 
 // One channel's record in the params array: BD_PARAM_STRIDE reals, field BD_P_<NAME> at its
-// index. Both are generated from bdipole_cl/device/layout.py (PARAM_FIELDS) and joined in front
-// of this header by the host, so host and kernels share one definition.
+// index, and the struct's members (BD_PARAM_MEMBERS: each field's name in lower case) and their
+// load (BD_PARAM_LOAD) are all generated from bdipole_cl/device/layout.py (PARAM_FIELDS) and
+// joined in front of this header by the host, so host and kernels share one definition.
 typedef struct {
-    real cphi, ce, a_coef, rd_split, x_split, g_split, scale0, scale1, scale2, slope0;
+    BD_PARAM_MEMBERS
 } bd_params;
 
 inline bd_params bd_load_params(__constant const real *params, int channel)
 {
     __constant const real *p = params + channel * BD_PARAM_STRIDE;
-    bd_params out = {p[BD_P_CPHI], p[BD_P_CE], p[BD_P_A], p[BD_P_RD_SPLIT], p[BD_P_X_SPLIT],
-                     p[BD_P_G_SPLIT], p[BD_P_SCALE0], p[BD_P_SCALE1], p[BD_P_SCALE2],
-                     p[BD_P_SLOPE0]};
+    bd_params out = BD_PARAM_LOAD(p);
     return out;
 }
 
@@ -288,7 +287,7 @@ inline real bd_profile_cdf(real r, bd_geometry g)
 
 // }}}
 
-// {{{ image borders (blur kernels): -DBORDER_ZERO, -DBORDER_WRAP, else clamp to edge
+// {{{ image borders (blur kernels): -DBD_BORDER_ZERO, -DBD_BORDER_WRAP, else clamp to edge
 
 // Index of texel i of a row/column of n for a tap outside [0, n); -1 means "contributes 0".
 inline int bd_border(int i, int n)

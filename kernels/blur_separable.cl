@@ -1,7 +1,7 @@
 // blur_separable.cl -- one separable Gaussian of the sum-of-Gaussians blur
 // (bdipole_cl/ops/blur/fit.py: fit_gaussians): rows then columns with the same texel-integrated 1D
 // weights g[-K..K], the column pass adding weight * result into the output channel.
-// Needs bdipole.h in front; border mode by -DBD_BORDER_{CLAMP,ZERO,WRAP}. -DPER_TEXEL_WEIGHT: the
+// Needs bdipole.h in front; border mode by -DBD_BORDER_{CLAMP,ZERO,WRAP}. -DBD_PER_TEXEL_WEIGHT: the
 // column pass's weight is a per-texel plane (H x W, texture-varying parameters: bdipole_cl/ops/blur/textured.py).
 
 #ifdef BD_PER_TEXEL_WEIGHT

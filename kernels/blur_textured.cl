@@ -5,11 +5,11 @@
 // coordinates (cu, cv) (logit Rd and ln ld, from textured_plan.texel_coords). An axis on which the
 // texture is constant has one node.
 //
-// Specialized by -DNBASIS=G (basis size), -DNU_TAPS, -DNV_TAPS (2, or 1 for a constant axis),
+// Specialized by -DBD_NBASIS=G (basis size), -DBD_NU_TAPS, -DBD_NV_TAPS (2, or 1 for a constant axis),
 // so the loops unroll.
 
 #ifndef BD_NBASIS
-#error "build with -DNBASIS=<basis size>"
+#error "build with -DBD_NBASIS=<basis size>"
 #endif
 #ifndef BD_NU_TAPS
 #define BD_NU_TAPS 2

@@ -7,10 +7,12 @@ import pytest
 import bdipole_cl
 from bdipole_cl.caches import all_caches
 from bdipole_cl.device import programs
-from bdipole_cl.device.layout import P, PARAM_FIELDS, PARAM_STRIDE, channel_params, header
+from bdipole_cl.device.layout import (P, PARAM_FIELDS, PARAM_STRIDE, channel_params, header,
+                                      struct_members)
 
-#: bdipole.h's bd_params members, by layout field
-STRUCT_MEMBERS = {"CPHI": "cphi", "CE": "ce", "A": "a_coef", "RD_SPLIT": "rd_split",
+#: bdipole.h's bd_params members, by layout field, written out here so that a generated name
+#: that drifts from what the kernels use fails the read-back below
+STRUCT_MEMBERS = {"CPHI": "cphi", "CE": "ce", "A_COEF": "a_coef", "RD_SPLIT": "rd_split",
                   "X_SPLIT": "x_split", "G_SPLIT": "g_split", "SCALE0": "scale0",
                   "SCALE1": "scale1", "SCALE2": "scale2", "SLOPE0": "slope0"}
 
@@ -26,6 +28,15 @@ def test_every_field_is_a_struct_member_and_the_header_matches():
     for i, name in enumerate(PARAM_FIELDS):
         assert f"#define BD_P_{name} {i}\n" in text
     assert f"#define BD_PARAM_STRIDE {PARAM_STRIDE}\n" in text
+    assert struct_members() == tuple(STRUCT_MEMBERS[f] for f in PARAM_FIELDS)
+    assert f"#define BD_PARAM_MEMBERS real {', '.join(struct_members())};\n" in text
+
+
+def test_bdipole_h_writes_no_member_list_by_hand():
+    """The struct and its load come from the generated macros, not a hand-kept copy."""
+    source = (programs.kernel_dir() / programs.HEADER).read_text()
+    assert "BD_PARAM_MEMBERS" in source and "BD_PARAM_LOAD(p)" in source
+    assert "real cphi" not in source
 
 
 @pytest.mark.parametrize("double", [False, True], ids=["f32", "f64"])
@@ -78,3 +89,16 @@ def test_byte_cache_keeps_to_its_budget():
     assert cache.get(0) is None and cache.get(4) is not None
     cache.put("huge", np.zeros(1000))             # larger than the budget: not kept
     assert cache.get("huge") is None and len(cache) == 3
+
+
+def test_the_program_cache_is_bounded_in_bytes(runtime, monkeypatch):
+    """Built programs count their binaries' bytes; past the budget the least recent goes."""
+    bdipole_cl.clear_caches()
+    first = programs.get_program(runtime, "copy", ())
+    size = programs.program_bytes(first)
+    assert 0 < size < programs.PROGRAM_CACHE_BYTES
+    monkeypatch.setattr(programs.PROGRAM_CACHE, "max_bytes", size + size // 2)
+    programs.get_program(runtime, "copy", programs.build_options(double=False,
+                                                                 defines={"BD_UNUSED": 1}))
+    assert programs.program_count() == 1, programs.program_count()
+    assert programs.PROGRAM_CACHE.nbytes <= programs.PROGRAM_CACHE.max_bytes

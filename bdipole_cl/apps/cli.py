@@ -234,7 +234,7 @@ def _cmd_blur(args) -> int:
 
 def _cmd_crosscheck(args) -> int:
     from .crosscheck import format_rows, run_all_devices, run_crosscheck
-    from .user_kernel import UserKernelError, check_user_kernel
+    from .user_kernel import UserKernelError, UserKernelRunError, check_user_kernel
     if args.user_kernel:
         if not (args.function and args.against):
             print("bdipole-cl crosscheck: error: --user-kernel needs --function and --against",
@@ -248,7 +248,7 @@ def _cmd_crosscheck(args) -> int:
                                           timeout=args.timeout)
         except UserKernelError as exc:
             print(f"bdipole-cl crosscheck: error: {exc}", file=sys.stderr)
-            return 1 if "did not finish" in str(exc) or "died" in str(exc) else 2
+            return 1 if isinstance(exc, UserKernelRunError) else 2
     elif args.all_devices:
         rows = run_all_devices(args.eta, n=args.n)
     else:

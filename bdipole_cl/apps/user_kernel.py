@@ -65,7 +65,11 @@ DEFAULT_TIMEOUT = 120.0
 
 
 class UserKernelError(ValueError):
-    """The user's file cannot be built, lacks the function, or its run did not finish."""
+    """The user's file cannot be built or lacks the function (a usage error: exit 2)."""
+
+
+class UserKernelRunError(UserKernelError):
+    """The user's kernel was built but its run did not finish or died (a failure: exit 1)."""
 
 
 def signature(kind: str, name: str) -> str:
@@ -150,12 +154,12 @@ def evaluate_isolated(path, name, kind, eta, inputs, device_index, timeout):
     child.close()
     try:
         if not parent.poll(timeout):
-            raise UserKernelError(f"{path}: {name} did not finish within {timeout:g} s (an "
+            raise UserKernelRunError(f"{path}: {name} did not finish within {timeout:g} s (an "
                                   f"endless loop?); its run was stopped (--timeout sets the "
                                   f"limit)")
         status, payload = parent.recv()
     except EOFError:
-        raise UserKernelError(f"{path}: the run of {name} died (exit code "
+        raise UserKernelRunError(f"{path}: the run of {name} died (exit code "
                               f"{proc.exitcode})") from None
     finally:
         if proc.is_alive():

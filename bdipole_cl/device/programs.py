@@ -5,17 +5,17 @@ header kernels/bdipole.h, then ``kernels/<name>.cl``, joined as text (no ``#incl
 compiles from a temporary file, so relative include paths break), with ``#line`` markers so
 that compiler messages point at the right file. Build options specialize it; every option is
 ``-DBD_<NAME>`` (kernels/bdipole.h lists them). Programs are built once per context, source
-name and options, and dropped by ``bdipole_cl.clear_caches()``.
+name and options, in a cache bounded by the programs' binary sizes (``PROGRAM_CACHE_BYTES``), and
+dropped by ``bdipole_cl.clear_caches()``.
 """
 from __future__ import annotations
 
-import threading
 from pathlib import Path
 
 import numpy as np
 import pyopencl as cl
 
-from ..caches import register_clearer
+from ..caches import ByteCache
 from ..physics import reference
 from . import layout
 from .runtime import DeviceError, Runtime, build_quietly
@@ -23,8 +23,19 @@ from .runtime import DeviceError, Runtime, build_quietly
 #: The header every kernel source is joined behind.
 HEADER = "bdipole.h"
 
-_lock = threading.Lock()
-_programs: dict = {}
+#: the built programs' budget: their device binaries' bytes (a program is a few hundred KiB)
+PROGRAM_CACHE_BYTES = 256 << 20
+#: what a program counts for when its runtime does not report its binary's size
+NOMINAL_PROGRAM_BYTES = 1 << 20
+PROGRAM_CACHE = ByteCache("programs", PROGRAM_CACHE_BYTES)
+
+
+def program_bytes(prg: cl.Program) -> int:
+    """The program's device binaries' bytes, as the runtime reports them."""
+    try:
+        return max(1, int(sum(prg.get_info(cl.program_info.BINARY_SIZES))))
+    except cl.Error:
+        return NOMINAL_PROGRAM_BYTES
 
 
 def kernel_dir() -> Path:
@@ -64,8 +75,7 @@ def build_options(defines: dict | None = None, double: bool = False, model: str 
 def get_program(rt: Runtime, name: str, options=()) -> cl.Program:
     """Build (once per runtime, source name and options) the program of ``kernels/<name>.cl``."""
     key = (id(rt.context), name, tuple(options))
-    with _lock:
-        prg = _programs.get(key)
+    prg = PROGRAM_CACHE.get(key)
     if prg is None:
         if any(o == "-DBD_DOUBLE" for o in options) and not rt.has_fp64:
             raise DeviceError(f"{rt.describe()} has no cl_khr_fp64: float64 is not available")
@@ -74,8 +84,7 @@ def get_program(rt: Runtime, name: str, options=()) -> cl.Program:
         except cl.RuntimeError as exc:
             raise DeviceError(f"building kernels/{name}.cl with {' '.join(options)} failed:\n"
                               f"{exc}") from exc
-        with _lock:
-            _programs[key] = prg
+        PROGRAM_CACHE.put(key, prg, program_bytes(prg))
     return prg
 
 
@@ -85,12 +94,4 @@ def real_dtype(double: bool):
 
 def program_count() -> int:
     """Programs built and kept in this process."""
-    with _lock:
-        return len(_programs)
-
-
-@register_clearer
-def clear_programs():
-    """Forget every built program (``bdipole_cl.clear_caches`` calls this)."""
-    with _lock:
-        _programs.clear()
+    return len(PROGRAM_CACHE)

@@ -36,6 +36,7 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 import OpenImageIO as oiio
 
+from ..caches import ByteCache
 from ..device import get_runtime
 from ..methods.choice import resolve_method
 from ..methods.registry import MethodConfig
@@ -246,8 +247,8 @@ def _albedo_stats(path, mask_mode, mask_path, colorspace):
     return names, alpha, other, rd_range, 1.0 - keep.mean()
 
 
-_size_cache: dict = {}
-_size_lock = threading.Lock()
+#: table sizes chosen per (etas, albedo range, tol, model, exact): a few bytes each
+_size_cache = ByteCache("scene table sizes", 1 << 20)
 
 
 def table_for_range(etas, rd_range, tol, model, exact, device):
@@ -255,9 +256,9 @@ def table_for_range(etas, rd_range, tol, model, exact, device):
     ``rd_range`` at every eta; (size, measured error)."""
     lo, hi = max(rd_range[0], 1e-7), min(rd_range[1], float(np.nextafter(np.float32(1), 0)))
     key = (tuple(etas), float(np.float32(lo)), float(np.float32(hi)), tol, model, exact)
-    with _size_lock:
-        if key in _size_cache:
-            return _size_cache[key]
+    hit = _size_cache.get(key)
+    if hit is not None:
+        return hit
     rd = np.unique(np.float32(np.concatenate([np.geomspace(lo, max(hi, lo), RANGE_SWEEP),
                                               np.linspace(lo, hi, RANGE_SWEEP)])))
     wants = {e: ref.invert_rd_rho(rd.astype(np.float64), e, exact, model)[1] for e in etas}
@@ -274,9 +275,7 @@ def table_for_range(etas, rd_range, tol, model, exact, device):
         if err <= tol:
             choice = (n, err)
             break
-    with _size_lock:
-        _size_cache[key] = choice
-    return choice
+    return _size_cache.put(key, choice)
 
 
 def _plan_invert(m, path, udim, force, device, problems_all):

@@ -21,7 +21,9 @@ void blur_direct(__global const float *src, __global float *dst, __global const 
     __local float tile[(BD_TILE + 2 * BD_CHUNK) * (BD_TILE + 2 * BD_CHUNK)];
     const int lx = get_local_id(0), ly = get_local_id(1);
     const int x = get_global_id(0), y = get_global_id(1);
-    const int x0 = get_group_id(0) * BD_TILE, y0 = get_group_id(1) * BD_TILE;
+    // launches may cover a band of rows (a global offset, a multiple of BD_TILE)
+    const int x0 = get_group_id(0) * BD_TILE + (int)get_global_offset(0);
+    const int y0 = get_group_id(1) * BD_TILE + (int)get_global_offset(1);
     const int side = 2 * radius + 1;
     const int span = BD_TILE + 2 * BD_CHUNK;
     float acc = 0.0f;

@@ -3,11 +3,10 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import signal
 import sys
-import threading
 
 from ..errors import POLICIES
+from ..signals import SignalStop
 
 EPILOG = """examples:
   bdipole-cl demo                                   # built-in example, writes ./bdipole_demo
@@ -83,28 +82,6 @@ def _output_list(text):
     return names
 
 
-class _Stop:
-    """SIGINT/SIGTERM during a batch: set ``event`` so that files stop at their next band
-    (temporaries removed, finished files kept), remember the signal for the exit code."""
-
-    def __init__(self):
-        self.event = threading.Event()
-        self.signum = None
-
-    def install(self):
-        for sig in (signal.SIGINT, signal.SIGTERM):
-            signal.signal(sig, self._handle)
-        return self
-
-    def _handle(self, signum, frame):
-        self.signum = signum
-        self.event.set()
-
-    @property
-    def exit_code(self):
-        return 128 + self.signum if self.signum else None
-
-
 def _finish(report, stop) -> int:
     """Print a batch's summary; its exit code (128 + the signal if one stopped it)."""
     print(report.summary())
@@ -156,7 +133,7 @@ def _cmd_invert(args) -> int:
 
 def _invert(args, run_files) -> int:
     from ..io.batch import process_textures
-    stop = _Stop().install()
+    stop = SignalStop().install()
     report = process_textures(
         args.inputs, mfp=args.mfp, eta=args.eta, output=args.output, cancel=stop.event,
         outputs=args.outputs, method=args.method,
@@ -198,7 +175,7 @@ def _cmd_blur(args) -> int:
     sources = {name: v for name, v in (("albedo", args.albedo), ("mfp", args.mfp),
                                        ("alpha", args.alpha_prime), ("sigma_t", args.sigma_t))
                if v is not None and not _is_number_list(v)}
-    stop = _Stop().install()
+    stop = SignalStop().install()
     kw = dict(eta=args.eta, texel_size=args.texel_size, tol=args.tol,
               method=args.method, border=args.border, on_invalid=args.on_invalid,
               exact=args.exact)
@@ -272,7 +249,7 @@ def _cmd_bake(args) -> int:
     plan = load(args.scene).plan(force=args.force)
     for problem in plan.missing:            # every missing input, before any work starts
         print(f"cannot run: {problem}", file=sys.stderr)
-    stop = _Stop().install()
+    stop = SignalStop().install()
 
     def progress(job, result):
         if not args.no_progress:

@@ -34,9 +34,12 @@ from ..methods.registry import MethodConfig
 from ..ops.bands import band_rows
 from ..ops.invert import CoefficientMapper
 from ..version import __version__
+from .collisions import Claim, collisions
 from .images import (Cancelled, Reader, TextureError, Writer, check_colorspace,
-                     check_output_format, classify_channels, fit_half, output_spec,
+                     check_output_format, check_same_window, classify_channels, invalid_texels,
+                     output_spec,
                      source_colorspace, to_linear)
+from .verify import is_complete
 
 
 UDIM_TOKEN = "<UDIM>"
@@ -76,26 +79,10 @@ def stem(path):
     return name.rsplit(".", 1)[0] if "." in name else name
 
 
-def output_collisions(jobs):
-    """{output: reason} for outputs that two jobs share or that are some job's input: each
-    such job would overwrite another's result or a user's file."""
-    def key(p):
-        return os.path.realpath(p)
-    inputs = {key(p) for j in jobs for p in (j.path, j.mfp_path) if p}
-    writers = {}
-    for j in jobs:
-        writers.setdefault(key(j.output), []).append(j.path)
-    bad = {}
-    for j in jobs:
-        k = key(j.output)
-        if k in inputs:
-            bad[j.output] = f"{j.path}: output {j.output} would overwrite an input"
-        elif len(writers[k]) > 1:
-            others = ", ".join(p for p in writers[k] if p != j.path)
-            bad[j.output] = (f"{j.path}: output {j.output} is also the output of {others}: "
-                             f"put <UDIM>, {{udim}}, {{stem}} or {{name}} in -o so each input "
-                             f"has its own")
-    return bad
+def job_claims(jobs):
+    """The ``collisions.Claim`` of each job: its output and its albedo, mfp and mask."""
+    return [Claim(j.path, j.output, {"albedo": j.path, "mfp": j.mfp_path, "mask": j.mask_path})
+            for j in jobs]
 
 
 def companion_path(pattern, path, udim):
@@ -190,6 +177,7 @@ class Job:
     output: str
     mfp_path: str | None
     mask_path: str | None = None          # settings.mask == "texture": this file's mask
+    skip: bool = False                    # up to date (--skip-existing): not run
 
 
 @dataclass(frozen=True)
@@ -237,11 +225,7 @@ def process_file(job, settings, device_lock, progress):
         if job.mfp_path is not None:
             mfp_reader = Reader(job.mfp_path, "mfp texture")
             readers.append(mfp_reader)
-            ms = mfp_reader.spec
-            if (ms.width, ms.height) != (spec.width, spec.height):
-                raise TextureError(f"{job.path}: mfp texture {job.mfp_path} is "
-                                   f"{ms.width}x{ms.height}, the albedo {spec.width}x"
-                                   f"{spec.height}: resolutions must match")
+            check_same_window(spec, mfp_reader.spec, job.path, "mfp texture", job.mfp_path)
             mfp_colour, _ = mfp_reader.channels()
             if len(mfp_colour) not in (1, ncolor):
                 raise TextureError(f"{job.path}: mfp texture {job.mfp_path} has "
@@ -270,14 +254,11 @@ def process_file(job, settings, device_lock, progress):
         if settings.mask == "texture":
             mask_reader = Reader(job.mask_path, "mask texture")
             readers.append(mask_reader)
-            if (mask_reader.spec.width, mask_reader.spec.height) != (spec.width, spec.height):
-                raise TextureError(f"{job.path}: mask {job.mask_path} is "
-                                   f"{mask_reader.spec.width}x{mask_reader.spec.height}, the "
-                                   f"albedo {spec.width}x{spec.height}: resolutions must match")
+            check_same_window(spec, mask_reader.spec, job.path, "mask", job.mask_path)
         out_spec = output_spec(spec, out_names, len(out_names) - 1 if keep_alpha else -1,
                                 settings.half, params)
         Path(job.output).parent.mkdir(parents=True, exist_ok=True)
-        writer = Writer(job.output, out_spec)
+        writer = Writer(job.output, out_spec, settings.on_invalid)
         with device_lock:
             mapper = CoefficientMapper(tuple(etas), settings.config, outputs=outputs,
                                        model=settings.model, exact=settings.exact,
@@ -314,28 +295,22 @@ def process_file(job, settings, device_lock, progress):
                         outs, counts = mapper(albedo, mfp, mask)
                 except InvalidInputError as exc:
                     yy, xx, cc = exc.first_index
-                    raise TextureError(
-                        f"{job.path}: {exc.count} invalid {exc.name} texel(s) ({exc.why}) in "
-                        f"rows {y0}..{y1 - 1}; first at x={spec.x + xx}, y={spec.y + y0 + yy}, "
-                        f"channel {names[cc]}: {float(exc.first_value):g} "
-                        f"(--on-invalid clamp / on_invalid='clamp' clamps them)") from None
+                    raise invalid_texels(exc, job.path, spec.x + xx, spec.y + y0 + yy,
+                                         names[cc], f" in rows {y0}..{y1 - 1}") from None
                 for key, n in counts.items():
                     result.invalid[key] = result.invalid.get(key, 0) + n
                 parts = [outs[o] for o in outputs]
                 if keep_alpha:
                     parts.append(a[..., alpha_ch:alpha_ch + 1])
                 block = np.concatenate(parts, axis=-1)
-                if settings.half:
-                    block, n = fit_half(block, settings.on_invalid, job.path, out_names,
-                                        spec.x, spec.y + y0)
-                    if n:
-                        result.invalid["half range"] = result.invalid.get("half range", 0) + n
                 cancel = settings.cancel
                 if cancel is not None and cancel.is_set():
                     raise Cancelled(f"{job.path}: interrupted; nothing written")
                 writer.write_band(y0, y1, block)
                 if progress is not None:
                     progress.update((y1 - y0) * spec.width)
+        if writer.invalid:
+            result.invalid["half range" if settings.half else "not finite"] = writer.invalid
         writer.commit()
         writer = None
         result.status = "ok"
@@ -357,11 +332,18 @@ def process_file(job, settings, device_lock, progress):
 
 
 def newer_than_inputs(output, inputs):
+    """``--skip-existing``: the output is complete (every pixel reads) and newer than every
+    input's last change, content (mtime) or inode (ctime: which ``touch -r`` cannot restore)."""
     try:
-        t = os.path.getmtime(output)
+        t = os.stat(output).st_mtime_ns
     except OSError:
         return False
-    return all(os.path.getmtime(p) <= t for p in inputs if p and os.path.exists(p))
+    for p in inputs:
+        if p and os.path.exists(p):
+            st = os.stat(p)
+            if max(st.st_mtime_ns, st.st_ctime_ns) > t:
+                return False
+    return is_complete(output)
 
 
 def process_textures(inputs, *, mfp=1.0, eta=1.4, output=DEFAULT_OUTPUT,
@@ -452,14 +434,17 @@ def process_textures(inputs, *, mfp=1.0, eta=1.4, output=DEFAULT_OUTPUT,
         except TextureError as exc:
             results.append(FileResult(path, error=str(exc)))
             continue
-        if skip_existing and os.path.exists(path) and newer_than_inputs(out, [path, mfp_path]):
-            results.append(FileResult(path, out, status="skipped"))
-            continue
-        jobs_list.append(Job(path, udim, out, mfp_path))
-    clashes = output_collisions(jobs_list)
-    results += [FileResult(j.path, j.output, error=clashes[j.output])
-                for j in jobs_list if j.output in clashes]
-    jobs_list = [j for j in jobs_list if j.output not in clashes]
+        job = Job(path, udim, out, mfp_path)
+        job.skip = skip_existing and os.path.exists(path) and newer_than_inputs(out, [path,
+                                                                                   mfp_path])
+        jobs_list.append(job)
+    clashes = collisions(job_claims(jobs_list))     # skipped jobs' inputs are inputs too
+    for j in jobs_list:
+        if j.output in clashes:
+            results.append(FileResult(j.path, j.output, error=clashes[j.output]))
+        elif j.skip:
+            results.append(FileResult(j.path, j.output, status="skipped"))
+    jobs_list = [j for j in jobs_list if j.output not in clashes and not j.skip]
     bar = None
     if progress:
         from tqdm import tqdm

@@ -2,7 +2,6 @@
 bands of rows with a halo of the truncation radius (I/O layer)."""
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import numpy as np
@@ -11,8 +10,11 @@ from ..device import get_runtime
 from ..ops.bands import band_rows, bands
 from ..ops.blur import PARAM_KEYS, blur, is_textured
 from ..ops.blur.planning import channel_plans, halo_of
-from .images import (Cancelled, Reader, TextureError, Writer, check_output_format, output_spec,
-                     read_rows, source_colorspace, to_linear)
+from ..errors import InvalidInputError
+from ..signals import Stopped
+from .collisions import Claim, check_claim
+from .images import (Cancelled, Reader, TextureError, Writer, check_output_format,
+                     invalid_texels, output_spec, read_rows, source_colorspace, to_linear)
 
 #: working set per row of a streamed band, in floats per texel and channel of the file: the
 #: band as read, the colour planes, the blur's own working set (``constant_row_bytes``) and
@@ -20,8 +22,18 @@ from .images import (Cancelled, Reader, TextureError, Writer, check_output_forma
 FILE_ROW_FLOATS = 10
 
 
+def located(exc, path, sources, spec, idx):
+    """An InvalidInputError of one band as a TextureError naming the file it comes from and
+    the texel in image coordinates: irradiance rows through the band's row indices ``idx``
+    (the halo included), parameter textures (whole images) as they are, data window added."""
+    yy, xx, cc = exc.first_index
+    row = int(idx[yy]) if exc.name == "irradiance" else yy
+    where = sources.get(exc.name, sources.get(exc.name.rstrip("'"), path))
+    return invalid_texels(exc, where, spec.x + xx, spec.y + row, cc)
+
+
 def blur_file(path, output, *, colorspace="auto", half=False, max_memory=256 << 20,
-              sources=None, cancel=None, mask=None, header=None, **kwargs):
+              sources=None, cancel=None, mask=None, header=None, progress=None, **kwargs):
     """Blur an irradiance image file into an EXR, streamed in bands of rows with a halo of the
     truncation radius (memory bounded by ``max_memory``). Integer files are decoded to linear
     as in ``process_textures``; alpha is copied through. ``kwargs`` are ``blur``'s.
@@ -31,13 +43,12 @@ def blur_file(path, output, *, colorspace="auto", half=False, max_memory=256 << 
     (threading.Event): when set, the next band raises Cancelled and the temporary output is
     removed. ``mask`` (HxW, the image's size): texels where it is 0 give no light and get no
     exitance (written as 0); bands whose halo'd irradiance is all 0 are not blurred at all.
-    ``header``: more ``bdipole:*`` attributes for the output. Returns the BlurInfo (None when
+    ``header``: more ``bdipole:*`` attributes for the output. ``progress``: a tqdm bar
+    advanced by texels. Returns the BlurInfo (None when
     every band was skipped)."""
     check_output_format(output)
     sources = dict(sources or {})
-    for src in (path, *sources.values()):
-        if os.path.exists(output) and os.path.exists(src) and os.path.samefile(output, src):
-            raise ValueError(f"{output}: the output would overwrite the input {src}")
+    check_claim(Claim(str(path), str(output), {"irradiance": str(path), **sources}))
     reader = Reader(path, "irradiance")
     writer = None
     try:
@@ -75,7 +86,10 @@ def blur_file(path, output, *, colorspace="auto", half=False, max_memory=256 << 
                 e = e * (np.asarray(mask)[np.maximum(idx, 0)] > 0)[..., None] \
                     * (idx >= 0)[:, None, None]
             if np.any(e):
-                out, info = blur(e, return_info=True, **kwargs)
+                try:
+                    out, info = blur(e, return_info=True, **kwargs)
+                except InvalidInputError as exc:
+                    raise located(exc, path, sources, spec, idx) from None
                 out = out[k:k + y1 - y0]
                 if mask is not None:
                     out = out * (np.asarray(mask)[y0:y1] > 0)[..., None]
@@ -94,11 +108,16 @@ def blur_file(path, output, *, colorspace="auto", half=False, max_memory=256 << 
                 meta["source"] = str(path)
                 Path(output).parent.mkdir(parents=True, exist_ok=True)
                 writer = Writer(output, output_spec(
-                    spec, names, len(names) - 1 if alpha_ch >= 0 else -1, half, meta))
+                    spec, names, len(names) - 1 if alpha_ch >= 0 else -1, half, meta),
+                    kwargs.get("on_invalid", "raise"))
             writer.write_band(y0, y1, np.concatenate(parts, axis=-1))
+            if progress is not None:
+                progress.update((y1 - y0) * spec.width)
         writer.commit()
         writer = None
         return info
+    except Stopped:
+        raise Cancelled(f"{path}: interrupted; nothing written") from None
     except (OSError, ValueError) as exc:
         where = sources.get(getattr(exc, "name", None), path)
         raise TextureError(f"{where}: {exc}") from exc

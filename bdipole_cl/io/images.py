@@ -8,17 +8,23 @@
   Float/half files are taken as linear. Decoded values are clamped to [0, 1] (the conversion's
   own overshoot, e.g. 1.0000241 for sRGB white).
 * Outputs are OpenEXR (``check_output_format``), written band by band into a temporary file
-  beside the target and renamed when complete (``Writer``); half-float outputs are checked for
-  values half cannot hold (``fit_half``).
+  beside the target and renamed when it reads back as written (``Writer``, ``verify``); every
+  value is finite in the output's format or its texel is invalid (``verify.finite_texels``).
+* Inputs: regular files only; colour with alpha is read unassociated (as painted, never
+  premultiplied); tiled and mip-mapped files are read at level 0 in tile-aligned bands;
+  multi-part and deep files, and L/a/b channels, are refused by name.
 """
 from __future__ import annotations
 
 import os
+import stat
 import threading
 from pathlib import Path
 
 import numpy as np
 import OpenImageIO as oiio
+
+from .verify import BandDigests, WriteCheckError, finite_texels, read_back, read_rows_of
 
 
 class TextureError(RuntimeError):
@@ -27,11 +33,6 @@ class TextureError(RuntimeError):
 
 class Cancelled(TextureError):
     """The batch was stopped (SIGINT/SIGTERM) before this file was complete."""
-
-
-#: what half floats hold: larger finite values become inf, smaller nonzero ones become 0
-HALF_MAX = float(np.finfo(np.float16).max)
-HALF_TINY = float(np.finfo(np.float16).smallest_subnormal)
 
 
 def check_output_format(path):
@@ -71,44 +72,95 @@ def classify_channels(names, alpha_channel=-1):
     return colour, alpha, other
 
 
+def open_config():
+    """How every input is opened: colour with alpha as painted (unassociated, never
+    premultiplied on read: no texel changes by its alpha)."""
+    cfg = oiio.ImageSpec()
+    cfg.attribute("oiio:UnassociatedAlpha", 1)
+    return cfg
+
+
+def check_regular_file(path, what):
+    """TextureError unless ``path`` is a regular file (a FIFO or device would block or never
+    end)."""
+    try:
+        st = os.stat(path)
+    except FileNotFoundError:
+        raise TextureError(f"{path}: no such file ({what})") from None
+    except OSError as exc:
+        raise TextureError(f"{path}: cannot read {what}: {exc.strerror}") from None
+    if stat.S_ISDIR(st.st_mode):
+        raise TextureError(f"{path}: is a directory, not an image ({what})")
+    if not stat.S_ISREG(st.st_mode):
+        raise TextureError(f"{path}: is not a regular file (a FIFO, socket or device); "
+                           f"give an image file ({what})")
+
+
+def _part_names(inp):
+    names, n = [], 0
+    while inp.seek_subimage(n, 0):
+        names.append(inp.spec().getattribute("name") or
+                     inp.spec().getattribute("oiio:subimagename") or f"#{n}")
+        n += 1
+    inp.seek_subimage(0, 0)
+    return names
+
+
+#: channel name sets that are colour models other than linear RGB: never read as R, G, B, A
+NOT_RGB = ({"L", "a", "b"},)
+
+
 class Reader:
-    """One image file open for band reads (scanline or tiled), float32 out."""
+    """One image file open for band reads (scanline or tiled), float32 out: the first part,
+    mip level 0; multi-part and deep files are refused by name."""
 
     def __init__(self, path, what):
         self.path = path
         self.inp = None
-        if os.path.isdir(path):
-            raise TextureError(f"{path}: is a directory, not an image ({what})")
-        if not os.path.exists(path):
-            raise TextureError(f"{path}: no such file ({what})")
-        self.inp = oiio.ImageInput.open(str(path))
+        check_regular_file(path, what)
+        self.inp = oiio.ImageInput.open(str(path), open_config())
         if self.inp is None:
             raise TextureError(f"{path}: cannot read {what}: {oiio.geterror() or 'unknown error'}")
         self.spec = self.inp.spec()
         self.lock = threading.Lock()
+        problem = None
+        if self.spec.deep:
+            problem = (f"{path}: a deep image ({what}): deep (per-sample) data is not a "
+                       f"texture; flatten it first (oiiotool {path} --flatten -o flat.exr)")
+        else:
+            parts = _part_names(self.inp)
+            if len(parts) > 1:
+                problem = (f"{path}: {len(parts)} parts ({', '.join(parts)}) ({what}): only "
+                           f"single-part files are read, so no part is dropped silently; "
+                           f"write each part to its own file (oiiotool --subimage)")
+        if problem:
+            self.close()
+            raise TextureError(problem)
 
     def channels(self):
         """Indices of the colour channels and of the alpha channel (or -1), by
         ``classify_channels``; a file with no colour channel is a TextureError."""
-        colour, alpha, _ = classify_channels(self.spec.channelnames, self.spec.alpha_channel)
+        names = self.spec.channelnames
+        short = {str(n).rsplit(".", 1)[-1] for n in names}
+        for model in NOT_RGB:
+            if model <= short:
+                raise TextureError(f"{self.path}: channels {', '.join(names)} are "
+                                   f"{'/'.join(sorted(model))} colour, not linear RGB: "
+                                   f"convert to R, G, B first")
+        colour, alpha, _ = classify_channels(names, self.spec.alpha_channel)
         if not colour:
             raise TextureError(f"{self.path}: no colour channel among "
-                               f"{', '.join(self.spec.channelnames)} (colour is R, G, B or Y, "
+                               f"{', '.join(names)} (colour is R, G, B or Y, "
                                f"or a single channel that is not alpha)")
         return colour, alpha
 
     def read_band(self, y0, y1):
         s = self.spec
         with self.lock:
-            if s.tile_width:
-                px = self.inp.read_tiles(0, 0, s.x, s.x + s.width, s.y + y0, s.y + y1, s.z,
-                                         s.z + max(s.depth, 1), 0, s.nchannels, oiio.FLOAT)
-            else:
-                px = self.inp.read_scanlines(0, 0, s.y + y0, s.y + y1, s.z, 0, s.nchannels,
-                                             oiio.FLOAT)
+            px = read_rows_of(self.inp, s, y0, y1, oiio.FLOAT)
         if px is None:
             raise TextureError(f"{self.path}: read of rows {y0}..{y1} failed: "
-                               f"{self.inp.geterror() or oiio.geterror()}")
+                               f"{self.inp.geterror() or oiio.geterror() or 'missing or corrupt data'}")
         return np.asarray(px, dtype=np.float32).reshape(y1 - y0, s.width, s.nchannels)
 
     def close(self):
@@ -117,8 +169,33 @@ class Reader:
             self.inp = None
 
 
+def invalid_texels(exc, path, x, y, channel, rows=""):
+    """TextureError for an InvalidInputError ``exc`` whose first texel is at image
+    coordinates (x, y) (data window included), channel ``channel``."""
+    return TextureError(f"{path}: {exc.count} invalid {exc.name} texel(s) ({exc.why}){rows}; "
+                        f"first at x={x}, y={y}, channel {channel}: {float(exc.first_value):g} "
+                        f"(--on-invalid clamp / on_invalid='clamp' clamps them)")
+
+
+def check_same_window(spec, other, path, role, other_path):
+    """TextureError unless ``other`` (the ``role`` texture) covers the same pixels as
+    ``spec`` (the albedo or irradiance): texels are combined by pixel coordinates."""
+    a = (spec.x, spec.y, spec.width, spec.height)
+    b = (other.x, other.y, other.width, other.height)
+    if a != b:
+        raise TextureError(f"{path}: {role} {other_path} covers x {b[0]}..{b[0] + b[2] - 1}, "
+                           f"y {b[1]}..{b[1] + b[3] - 1} ({b[2]}x{b[3]}); this file x "
+                           f"{a[0]}..{a[0] + a[2] - 1}, y {a[1]}..{a[1] + a[3] - 1} "
+                           f"({a[2]}x{a[3]}): data windows and resolutions must match")
+
+
+#: input attributes never copied to an output: its own encoding, and what describes the input's
+#: pixels rather than the output's (mip levels, texture wrap and per-image statistics)
 SKIP_ATTRIBS = ("compression", "oiio:ColorSpace", "oiio:BitsPerSample", "oiio:UnassociatedAlpha",
-                 "oiio:Gamma", "openexr:lineOrder", "PixelAspectRatio")
+                 "oiio:Gamma", "openexr:lineOrder", "PixelAspectRatio", "oiio:miplevels",
+                 "oiio:subimages", "oiio:ConstantColor", "oiio:AverageColor", "oiio:SHA-1",
+                 "textureformat", "wrapmodes", "fovcot", "openexr:levelmode",
+                 "openexr:roundingmode", "smcube", "name", "type", "version", "chunkCount")
 
 
 def output_spec(in_spec, channel_names, alpha_index, half, params):
@@ -165,13 +242,19 @@ def remove_partial_files(path) -> int:
 
 
 class Writer:
-    """An EXR written band by band into a temporary file, renamed by ``commit``."""
+    """An EXR written band by band into a temporary file, renamed by ``commit`` once it reads
+    back as written (``verify``). Every band is made storable first (``finite_texels``, by
+    ``on_invalid``); ``invalid`` counts the texels that were not."""
 
-    def __init__(self, path, spec):
+    def __init__(self, path, spec, on_invalid="raise"):
         self.path = Path(path)
         self.tmp = self.path.with_name(f".{self.path.stem}.partial-{os.getpid()}"
                                        f"-{threading.get_ident()}{self.path.suffix}")
         self.spec = spec
+        self.on_invalid = on_invalid
+        self.half = spec.format == oiio.TypeDesc("half")
+        self.digests = BandDigests(self.half)
+        self.invalid = 0
         self.out = oiio.ImageOutput.create(str(self.tmp))
         if self.out is None:
             raise TextureError(f"{path}: cannot create output: {oiio.geterror()}")
@@ -183,6 +266,12 @@ class Writer:
 
     def write_band(self, y0, y1, pixels):
         s = self.spec
+        try:
+            pixels, n = finite_texels(pixels, self.half, self.on_invalid, self.path,
+                                      s.channelnames, s.x, s.y + y0)
+        except WriteCheckError as exc:
+            raise TextureError(str(exc)) from None
+        self.invalid += n
         pixels = np.ascontiguousarray(pixels, dtype=np.float32)
         if s.tile_width:
             ok = self.out.write_tiles(s.x, s.x + s.width, s.y + y0, s.y + y1, s.z,
@@ -192,6 +281,7 @@ class Writer:
         if not ok:
             raise TextureError(f"{self.path}: write of rows {y0}..{y1} failed: "
                                f"{self.out.geterror()}")
+        self.digests.add(y0, y1, pixels)
 
     def commit(self):
         ok = self.out.close()
@@ -199,6 +289,11 @@ class Writer:
         if not ok:
             self._remove_tmp()
             raise TextureError(f"{self.path}: closing the output failed: {oiio.geterror()}")
+        try:
+            read_back(self.tmp, self.digests, str(self.path), list(self.spec.channelnames))
+        except WriteCheckError as exc:
+            self._remove_tmp()
+            raise TextureError(str(exc)) from None
         os.replace(self.tmp, self.path)
 
     def abort(self):
@@ -260,27 +355,6 @@ def to_linear(pixels, colorspace):
     if out.has_error:
         raise TextureError(f"colour conversion from {colorspace!r} failed: {out.geterror()}")
     return np.clip(out.get_pixels(oiio.FLOAT).reshape(rows, width, nch), 0.0, 1.0)
-
-
-def fit_half(block, on_invalid, path, names, x0, y0):
-    """``block`` (rows, width, channels) made safe to store as half floats. A finite value
-    above HALF_MAX would be written as inf, a nonzero one below HALF_TINY/2 as 0: both are
-    invalid, and ``on_invalid`` says what happens ("raise": TextureError naming the first
-    texel; "clamp": clamped into [HALF_TINY, HALF_MAX] with its sign). Returns (block, count)."""
-    with np.errstate(over="ignore"):            # the overflow is what is being detected
-        h = block.astype(np.float16)
-    bad = (np.isfinite(block) & ~np.isfinite(h)) | ((block != 0) & (h == 0))
-    n = int(np.count_nonzero(bad))
-    if n == 0:
-        return block, 0
-    if on_invalid != "clamp":
-        yy, xx, cc = (int(v) for v in np.argwhere(bad)[0])
-        raise TextureError(
-            f"{path}: {n} value(s) outside the half-float range [{HALF_TINY:.3g}, {HALF_MAX:g}]; "
-            f"first at x={x0 + xx}, y={y0 + yy}, channel {names[cc]}: {float(block[yy, xx, cc]):g}"
-            f" (write float instead of half, or clamp with --on-invalid clamp / "
-            f"on_invalid='clamp')")
-    return np.where(bad, np.sign(block) * np.clip(np.abs(block), HALF_TINY, HALF_MAX), block), n
 
 
 def read_rows(reader, idx):

@@ -26,7 +26,6 @@ computed and what is left out, and why:
 """
 from __future__ import annotations
 
-import hashlib
 import json
 import os
 import threading
@@ -43,12 +42,14 @@ from ..methods.registry import MethodConfig
 from ..ops.invert import InversionKernel
 from ..physics import reference as ref
 from ..physics import tables
-from ..version import __version__
+from ..ops.bands import band_rows
 from .batch import (BatchReport, BatchSettings, FileResult, Job, companion_path, expand_inputs,
-                    output_collisions, process_file)
+                    process_file)
+from .collisions import Claim, collisions
 from .blur_file import blur_file
-from .images import (Reader, TextureError, classify_channels, read_parameter_texture,
-                     source_colorspace, to_linear)
+from .images import (Reader, TextureError, check_same_window, classify_channels,
+                     read_parameter_texture, source_colorspace, to_linear)
+from .freshness import header_fields, is_up_to_date, params_digest
 from .scene_file import SceneData, SceneError
 from .scene_file import load as load_scene_file
 
@@ -59,15 +60,17 @@ SPECIALISE = True
 TABLE_SIZES = (8, 16, 32, 64, 128, 256)
 #: albedos checked in the range when choosing a table size
 RANGE_SWEEP = 4000
+#: host bytes one job's bands may take (``bdipole-cl plan/bake --max-memory``)
+DEFAULT_MEMORY = 256 << 20
 
 
 @dataclass(frozen=True)
 class Scene(SceneData):
     """A scene, ready to plan: ``load(path).plan().run()``."""
 
-    def plan(self, force=False, device=None) -> "Plan":
+    def plan(self, force=False, device=None, max_memory=DEFAULT_MEMORY) -> "Plan":
         """What a bake computes and leaves out, per job."""
-        return plan(self, force=force, device=device)
+        return plan(self, force=force, device=device, max_memory=max_memory)
 
 
 @dataclass
@@ -116,63 +119,11 @@ class Plan:
                            | {"config": j.config.describe() if j.config else None}
                            for j in self.jobs], indent=1)
 
-    def run(self, *, cancel=None, device=None, progress=None) -> BatchReport:
+    def run(self, *, cancel=None, device=None, progress=None,
+            max_memory=DEFAULT_MEMORY) -> BatchReport:
         """Bake every job that is not up to date; a failing job does not stop the others."""
-        return bake(self, cancel=cancel, device=device, progress=progress)
-
-
-# {{{ digests: is an output up to date?
-
-def params_digest(fields: dict) -> str:
-    text = json.dumps(fields, sort_keys=True, default=str)
-    return hashlib.sha256(f"{__version__}\n{text}".encode()).hexdigest()[:32]
-
-
-def file_stat(path) -> list:
-    st = os.stat(path)
-    return [st.st_size, st.st_mtime_ns]
-
-
-def content_digest(paths) -> str:
-    h = hashlib.blake2b(digest_size=16)
-    for p in paths:
-        with open(p, "rb") as f:
-            for block in iter(lambda: f.read(1 << 22), b""):
-                h.update(block)
-    return h.hexdigest()
-
-
-def header_fields(inputs: dict, digest: str) -> dict:
-    """The ``bdipole:*`` attributes that make an output checkable later."""
-    files = sorted(inputs.values())
-    return {"version": __version__, "params_digest": digest,
-            "inputs": json.dumps(inputs, sort_keys=True),
-            "inputs_stat": json.dumps([file_stat(p) for p in files]),
-            "inputs_digest": content_digest(files)}
-
-
-def is_up_to_date(output, inputs: dict, digest: str) -> bool:
-    if not os.path.exists(output):
-        return False
-    inp = oiio.ImageInput.open(str(output))
-    if inp is None:
-        return False
-    spec = inp.spec()
-    inp.close()
-    get = spec.getattribute
-    if get("bdipole:params_digest") != digest or get("bdipole:version") != __version__:
-        return False
-    if get("bdipole:inputs") != json.dumps(inputs, sort_keys=True):
-        return False
-    files = sorted(inputs.values())
-    try:
-        if get("bdipole:inputs_stat") == json.dumps([file_stat(p) for p in files]):
-            return True                  # same sizes and times: unchanged without reading them
-        return get("bdipole:inputs_digest") == content_digest(files)
-    except OSError:
-        return False
-
-# }}}
+        return bake(self, cancel=cancel, device=device, progress=progress,
+                    max_memory=max_memory)
 
 
 # {{{ the plan
@@ -236,15 +187,42 @@ def read_albedo(path, mask_mode, mask_path, colorspace):
             [spec.channelnames[c] for c in other])
 
 
-def _albedo_stats(path, mask_mode, mask_path, colorspace):
+def _albedo_stats(path, mask_mode, mask_path, colorspace, max_memory=DEFAULT_MEMORY):
     """(colour channel names, alpha name, other names, Rd range of unmasked texels, masked
-    fraction) of an albedo file: the statistics pass."""
-    px, mask, names, alpha, other = read_albedo(path, mask_mode, mask_path, colorspace)
-    keep = np.ones(px.shape[:2], bool) if mask is None else mask
-    vals = px[keep]
-    vals = vals[np.isfinite(vals)]
-    rd_range = (float(vals.min()), float(vals.max())) if vals.size else None
-    return names, alpha, other, rd_range, 1.0 - keep.mean()
+    fraction) of an albedo file: the statistics pass, streamed in bands of rows."""
+    readers = [Reader(path, "albedo")]
+    try:
+        spec = readers[0].spec
+        colour, alpha = readers[0].channels()
+        if mask_mode == "alpha" and alpha < 0:
+            raise TextureError(f"{path}: mask = 'alpha' but the albedo has no alpha channel")
+        if mask_mode and mask_mode != "alpha":
+            readers.append(Reader(mask_path, "mask"))
+            check_same_window(spec, readers[1].spec, path, "mask", mask_path)
+        space = source_colorspace(spec, colorspace)
+        rows = band_rows(spec.height, spec.width * (spec.nchannels + 2) * 4 * 3, max_memory,
+                         tile_height=spec.tile_height if spec.tile_width else 0)
+        lo, hi, kept = np.inf, -np.inf, 0
+        for y0 in range(0, spec.height, rows):
+            y1 = min(y0 + rows, spec.height)
+            px = readers[0].read_band(y0, y1)
+            keep = (px[..., alpha] > 0 if mask_mode == "alpha" else
+                    readers[1].read_band(y0, y1)[..., 0] > 0 if mask_mode else
+                    np.ones(px.shape[:2], bool))
+            vals = px[..., colour] if space is None else to_linear(px[..., colour], space)
+            vals = vals[keep]
+            vals = vals[np.isfinite(vals)]
+            kept += int(np.count_nonzero(keep))
+            if vals.size:
+                lo, hi = min(lo, float(vals.min())), max(hi, float(vals.max()))
+    finally:
+        for r in readers:
+            r.close()
+    _, _, other = classify_channels(spec.channelnames, spec.alpha_channel)
+    names = spec.channelnames
+    return ([names[c] for c in colour], names[alpha] if alpha >= 0 else None,
+            [names[c] for c in other], (lo, hi) if lo <= hi else None,
+            1.0 - kept / max(spec.width * spec.height, 1))
 
 
 #: table sizes chosen per (etas, albedo range, tol, model, exact): a few bytes each
@@ -278,7 +256,7 @@ def table_for_range(etas, rd_range, tol, model, exact, device):
     return _size_cache.put(key, choice)
 
 
-def _plan_invert(m, path, udim, force, device, problems_all):
+def _plan_invert(m, path, udim, force, device, problems_all, max_memory):
     out = companion_path(m.output, path, udim)
     inputs = {"albedo": path}
     problems = []
@@ -289,8 +267,13 @@ def _plan_invert(m, path, udim, force, device, problems_all):
                          problems_all)
     if not todo:
         return job
-    names, alpha, other, rd_range, masked = _albedo_stats(path, m.mask, inputs.get("mask"),
-                                                         m.colorspace)
+    try:
+        names, alpha, other, rd_range, masked = _albedo_stats(path, m.mask, inputs.get("mask"),
+                                                             m.colorspace, max_memory)
+    except TextureError as exc:          # this job cannot run; the others still do
+        job.problem = str(exc)
+        problems_all.append(job.problem)
+        return job
     etas = m.eta if len(m.eta) > 1 else m.eta * len(names)
     if len(set(etas)) == 1:
         etas = etas[:1]
@@ -346,22 +329,28 @@ def _plan_blur(b, path, udim, force, problems_all):
     return job
 
 
-def plan(scene: Scene, *, force=False, device=None) -> Plan:
-    """Every job of the scene, checked and described; missing inputs make jobs that cannot
-    run (all are listed before any work)."""
+def plan(scene: Scene, *, force=False, device=None, max_memory=DEFAULT_MEMORY) -> Plan:
+    """Every job of the scene, checked and described; missing inputs, unreadable files and
+    collisions make jobs that cannot run (all are listed before any work; the others run).
+    The statistics pass reads albedos in bands within ``max_memory`` bytes."""
     rt = get_runtime(device)
     jobs, problems = [], []
-    for m in scene.materials:
-        files = expand_inputs([m.albedo])
-        for path, udim in files:
-            jobs.append(_plan_invert(m, path, udim, force, rt, problems))
-    for b in scene.blurs:
-        for path, udim in expand_inputs([b.irradiance]):
-            jobs.append(_plan_blur(b, path, udim, force, problems))
-    clashes = output_collisions([Job(j.source, j.udim, j.output, None) for j in jobs])
+    for kind, entries in (("invert", scene.materials), ("blur", scene.blurs)):
+        for e in entries:
+            for path, udim in expand_inputs([e.albedo if kind == "invert" else e.irradiance]):
+                try:
+                    jobs.append(_plan_invert(e, path, udim, force, rt, problems, max_memory)
+                                if kind == "invert" else
+                                _plan_blur(e, path, udim, force, problems))
+                except TextureError as exc:     # e.g. a pattern this file cannot fill
+                    jobs.append(PlannedJob(kind, e.name, path, udim, "", {"source": path},
+                                           problem=str(exc)))
+                    problems.append(str(exc))
+    clashes = collisions(Claim(j.source, j.output, j.inputs) for j in jobs)
     for j in jobs:
-        if j.output in clashes and not j.problem:
+        if j.output in clashes:
             j.problem = clashes[j.output]
+            j.up_to_date = False
     return Plan(scene, jobs)
 
 # }}}
@@ -369,20 +358,20 @@ def plan(scene: Scene, *, force=False, device=None) -> Plan:
 
 # {{{ the bake
 
-def _settings(m, config, runtime, cancel, header):
+def _settings(m, config, runtime, cancel, header, max_memory=DEFAULT_MEMORY):
     return BatchSettings(
         eta=m.eta, mfp=None if isinstance(m.mfp, str) else m.mfp, mfp_scale=1.0, config=config,
         model=m.model, exact=m.exact, half=m.half, colorspace=m.colorspace, alpha="keep",
-        on_invalid=m.on_invalid, max_memory=256 << 20, outputs=m.outputs, unit=m.unit,
+        on_invalid=m.on_invalid, max_memory=max_memory, outputs=m.outputs, unit=m.unit,
         runtime=runtime, double=m.double, cancel=cancel,
         mask=None if not m.mask else "alpha" if m.mask == "alpha" else "texture",
         bake=SPECIALISE, header=header)
 
 
-def run_invert_job(job, scene, runtime, cancel, lock):
+def run_invert_job(job, scene, runtime, cancel, lock, max_memory=DEFAULT_MEMORY):
     m = next(x for x in scene.materials if x.name == job.name)
     header = header_fields(job.inputs, job.params_digest)
-    settings = _settings(m, job.config, runtime, cancel, header)
+    settings = _settings(m, job.config, runtime, cancel, header, max_memory)
     return process_file(Job(job.source, job.udim, job.output, job.inputs.get("mfp"),
                             job.inputs.get("mask")), settings, lock, None)
 
@@ -397,12 +386,29 @@ def _masked_parameter(values, keep):
     return np.where(keep[..., None], values, fill)
 
 
-def run_blur_job(job, scene, runtime, cancel):
+def _check_windows(job):
+    """The blur's parameter textures cover the irradiance's pixels (TextureError if not)."""
+    r = Reader(job.source, "irradiance")
+    try:
+        for role, p in job.inputs.items():
+            if role != "irradiance":
+                other = Reader(p, role)
+                try:
+                    check_same_window(r.spec, other.spec, job.source, role, p)
+                finally:
+                    other.close()
+        return r.spec.width * r.spec.height
+    finally:
+        r.close()
+
+
+def run_blur_job(job, scene, runtime, cancel, max_memory=DEFAULT_MEMORY):
     b = next(x for x in scene.blurs if x.name == job.name)
     m = b.material
     result = FileResult(job.source, job.output)
     t0 = time.perf_counter()
     try:
+        texels = _check_windows(job)
         albedo, keep, *_ = read_albedo(job.inputs["albedo"], b.mask, job.inputs.get("mask"),
                                        m.colorspace)
         mfp = (read_parameter_texture(job.inputs["mfp"], "mfp") if "mfp" in job.inputs
@@ -415,15 +421,17 @@ def run_blur_job(job, scene, runtime, cancel):
         blur_file(job.source, job.output, half=b.half, sources=sources, cancel=cancel,
                   mask=keep, header=header, colorspace=b.colorspace, albedo=albedo, mfp=mfp,
                   eta=m.eta, texel_size=b.texel_size, tol=b.tol, method=b.method,
-                  border=b.border, on_invalid=b.on_invalid, exact=m.exact, device=runtime)
-        result.status = "ok"
+                  border=b.border, on_invalid=b.on_invalid, exact=m.exact, device=runtime,
+                  max_memory=max_memory)
+        result.status, result.texels = "ok", texels
     except (TextureError, OSError, ValueError) as exc:
         result.error = str(exc)
     result.seconds = time.perf_counter() - t0
     return result
 
 
-def bake(plan: Plan, *, cancel=None, device=None, progress=None) -> BatchReport:
+def bake(plan: Plan, *, cancel=None, device=None, progress=None,
+         max_memory=DEFAULT_MEMORY) -> BatchReport:
     runtime = get_runtime(device)
     lock = threading.Lock()
     results = []
@@ -436,9 +444,9 @@ def bake(plan: Plan, *, cancel=None, device=None, progress=None) -> BatchReport:
             results.append(FileResult(job.source, job.output, status="cancelled",
                                       error="interrupted before it started"))
         elif job.kind == "invert":
-            results.append(run_invert_job(job, plan.scene, runtime, cancel, lock))
+            results.append(run_invert_job(job, plan.scene, runtime, cancel, lock, max_memory))
         else:
-            results.append(run_blur_job(job, plan.scene, runtime, cancel))
+            results.append(run_blur_job(job, plan.scene, runtime, cancel, max_memory))
         if progress is not None:
             progress(job, results[-1])
     return BatchReport(results)

@@ -7,11 +7,14 @@ import numpy as np
 import pyopencl as cl
 
 from ...device import build_options, get_program
+from ...signals import check_stop
 from .fit import gaussian_1d
 from .textured_plan import texel_coords
 
 #: work-group side of blur_direct.cl (its local-memory tiles are BD_TILE x BD_TILE outputs)
 TILE = 16
+#: taps one direct launch evaluates at most (~0.1-0.5 s on a CPU device): how soon it stops
+LAUNCH_TAPS = 2e8
 
 
 class DeviceBlur:
@@ -40,16 +43,25 @@ class DeviceBlur:
                          hostbuf=np.ascontiguousarray(array, np.float32))
 
     def run_direct(self, c, ck):
-        """Channel c gathered with the ChannelKernel's exact weights."""
+        """Channel c gathered with the ChannelKernel's exact weights, in launches of about
+        LAUNCH_TAPS taps (bands of rows), a stop request checked between them."""
         gx = -(-self.w // TILE) * TILE
         gy = -(-self.h // TILE) * TILE
-        self.direct(self.rt.queue, (gx, gy), (TILE, TILE), self.src, self.dst,
-                    self._buf(ck.weights), np.int32(self.w), np.int32(self.h),
-                    np.int32(self.c), np.int32(c), np.int32(ck.radius))
+        taps = (2 * ck.radius + 1) ** 2
+        step = TILE * max(1, int(LAUNCH_TAPS // (gx * TILE * taps)))
+        weights = self._buf(ck.weights)
+        for y in range(0, gy, step):
+            check_stop()
+            self.direct(self.rt.queue, (gx, min(step, gy - y)), (TILE, TILE), self.src,
+                        self.dst, weights, np.int32(self.w), np.int32(self.h),
+                        np.int32(self.c), np.int32(c), np.int32(ck.radius),
+                        global_offset=(0, y))
+            self.rt.queue.finish()
 
     def run_gaussians(self, c, fit):
         """Channel c blurred by the GaussianFit's separable Gaussians."""
         for sigma, weight, radius in zip(fit.sigmas, fit.weights, fit.radii):
+            check_stop()
             taps = self._buf(gaussian_1d(sigma, radius))
             args = (np.int32(self.w), np.int32(self.h), np.int32(self.c), np.int32(c),
                     np.int32(radius))
@@ -61,6 +73,8 @@ class DeviceBlur:
         """Texture-varying parameters: each basis Gaussian of the TexturedPlan blurred by the
         separable kernels and added with its per-texel weight plane (w_j(x) * Rd(x))."""
         for taps, plane in zip(plan.kernels, weights):
+            check_stop()
+            self.rt.queue.finish()
             radius = (len(taps) - 1) // 2
             args = (np.int32(self.w), np.int32(self.h), np.int32(self.c), np.int32(c),
                     np.int32(radius))

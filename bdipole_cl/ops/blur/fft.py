@@ -15,6 +15,8 @@ from functools import lru_cache
 import numpy as np
 
 from ...caches import ByteCache
+from ...signals import check_stop
+
 
 
 def fft_shape(shape, k):
@@ -116,6 +118,7 @@ def basis_blurs(e2d, plan, kspec, border, planes):
     pool = _fft_threads()
     edges = np.linspace(0, h, FFT_THREADS + 1).astype(int)
     for plane, ks in zip(planes, kspec):
+        check_stop()
         times_spectrum(ks, spec, prod)
         cols = sfft.ifft(prod, axis=0, workers=-1, overwrite_x=True)
 

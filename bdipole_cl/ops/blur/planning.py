@@ -9,6 +9,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ...methods.choice import AUTO_DIRECT_MAX_RADIUS, auto_blur_config
+from ...signals import check_stop
 from .dispatch import DeviceBlur
 from .fft import fft_blur_channel
 from .fit import fit_gaussians
@@ -110,6 +111,7 @@ def blur_whole(e, params, plans, border, exact, rt):
     fft_out = {}
     info = []
     for c, ((a, st, et), plan) in enumerate(zip(params, plans)):
+        check_stop()
         ck = plan.kernel
         if plan.method in ("direct", "gaussians") and device is None:
             device = DeviceBlur(e, border, rt)

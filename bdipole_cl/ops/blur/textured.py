@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from ...methods.registry import TEXTURED_BLUR_METHODS
+from ...signals import check_stop
 from ..bands import band_rows, bands, gather_rows
 from .dispatch import DeviceBlur, gather_exitance, weight_planes
 from .fft import basis_blurs, cached_spectra, fft_shape
@@ -44,6 +45,7 @@ def blur_band(e, plans, rows, method, border, rt):
     out = np.empty_like(e)
     planes = None          # the basis blurs, (G, H, FFT width), reused across channels
     for c, (plan, rd, ld) in enumerate(plans):
+        check_stop()
         shape = fft_shape((h, w), plan.radius)
         kspec = cached_spectra(plan, shape)
         if planes is None or planes.shape != (len(kspec), h, shape[1]):

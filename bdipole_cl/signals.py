@@ -1,0 +1,50 @@
+"""Stop requests: SIGINT/SIGTERM obeyed within seconds everywhere (the foundation layer).
+
+The command line installs ``install()``; the handler only sets one process-wide event. Long
+work checks it between its pieces (``check_stop``: between kernel launches, chunks of rows of
+one launch, host FFTs, bands, jobs, cluster waits) and raises ``Stopped``; the file layers turn
+that into a cancelled job whose temporary file is removed. Nothing is killed half-way through a
+write.
+"""
+from __future__ import annotations
+
+import signal
+import threading
+
+#: set by SIGINT/SIGTERM (or ``request_stop``); every long loop checks it
+STOP = threading.Event()
+
+
+class Stopped(Exception):
+    """Work abandoned because a stop was requested (a signal)."""
+
+
+def check_stop():
+    """Raise Stopped if a stop was requested."""
+    if STOP.is_set():
+        raise Stopped("interrupted")
+
+
+def request_stop():
+    STOP.set()
+
+
+class SignalStop:
+    """SIGINT/SIGTERM set ``STOP`` (``event``); the signal is kept for the exit code."""
+
+    def __init__(self):
+        self.event = STOP
+        self.signum = None
+
+    def install(self):
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(sig, self._handle)
+        return self
+
+    def _handle(self, signum, frame):
+        self.signum = signum
+        STOP.set()
+
+    @property
+    def exit_code(self):
+        return 128 + self.signum if self.signum else None

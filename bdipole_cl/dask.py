@@ -16,9 +16,11 @@ on the whole array.
 """
 from __future__ import annotations
 
+import logging
 import shutil
 import tempfile
 import threading
+import time
 from contextlib import contextmanager
 from dataclasses import replace
 from pathlib import Path
@@ -27,9 +29,10 @@ import numpy as np
 import OpenImageIO as oiio
 
 from .device import get_runtime
+from .io.collisions import Claim, check_claim
 from .io.batch import BatchReport, FileResult, process_file
 from .io.blur_file import FILE_ROW_FLOATS
-from .io.images import (Reader, TextureError, Writer, output_spec, read_rows,
+from .io.images import (Cancelled, Reader, TextureError, Writer, output_spec, read_rows,
                         remove_partial_files, source_colorspace, to_linear)
 from .io.scene import Plan, run_blur_job, run_invert_job
 from .ops import invert as ops_invert
@@ -37,9 +40,17 @@ from .ops.bands import band_rows, bands, halo_rows
 from .ops.blur import PARAM_KEYS, blur as blur_array
 from .ops.blur import is_textured
 from .ops.blur.planning import channel_plans, halo_of
+from .signals import STOP
 
 #: a task that raised is tried again this many times (a worker that died is always replaced)
 RETRIES = 2
+#: what one worker process takes before any job (Python, numpy, OpenImageIO, the OpenCL
+#: runtime and its compiler): a smaller --worker-memory can never run a job
+MIN_WORKER_MEMORY = 384 << 20
+#: seconds between checks of a stop request while waiting for the cluster
+POLL = 0.25
+#: seconds a run waits for a cluster without workers before failing its unfinished jobs
+NO_WORKER_TIMEOUT = 60.0
 _worker_lock = threading.Lock()
 
 
@@ -56,8 +67,14 @@ def connect(scheduler: str, *, memory_limit=None):
         if n < 1:
             raise ValueError(f"--scheduler {scheduler!r}: expected local:N with N >= 1 workers, "
                              f"or a scheduler address such as tcp://host:8786")
+        if memory_limit is not None and memory_limit < MIN_WORKER_MEMORY:
+            raise ValueError(f"--worker-memory {memory_limit}: a worker needs at least "
+                             f"{MIN_WORKER_MEMORY >> 20}M (its Python, OpenCL runtime and one "
+                             f"band); give more, e.g. 1G")
+        logging.getLogger("distributed").setLevel(logging.CRITICAL)
         cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
-                               memory_limit=memory_limit or "auto", dashboard_address=":0")
+                               memory_limit=memory_limit or "auto", dashboard_address=":0",
+                               silence_logs=logging.CRITICAL)
         try:
             with Client(cluster) as client:
                 yield client
@@ -77,18 +94,43 @@ def _progress(total, desc, enabled):
 
 def _gather(client, futures, describe, progress=None):
     """Results of ``futures`` ({future: index}) as they complete; a task that still fails after
-    its retries becomes a failed FileResult described by ``describe(index, exc)``."""
-    from distributed import as_completed
-    results = {}
-    for fut in as_completed(list(futures)):
-        i = futures[fut]
+    its retries becomes a failed result described by ``describe(index, exc)``. A stop request
+    (SIGINT/SIGTERM) cancels every unfinished task, and a cluster with no worker for
+    NO_WORKER_TIMEOUT seconds fails them: both leave those indices out of the result (the
+    callers report them), within a POLL of the event."""
+    from distributed import wait
+    results, pending = {}, set(futures)
+    idle = time.monotonic()
+    while pending:
+        if STOP.is_set():
+            client.cancel(list(pending))
+            break
         try:
-            results[i] = fut.result()
-        except Exception as exc:  # the worker's exception, after RETRIES
-            results[i] = describe(i, exc)
-        if progress is not None:
-            progress.update(1)
+            done, pending = wait(pending, timeout=POLL, return_when="FIRST_COMPLETED")
+        except TimeoutError:
+            done = set()
+            if client.scheduler_info().get("workers"):
+                idle = time.monotonic()
+            elif time.monotonic() - idle > NO_WORKER_TIMEOUT:
+                for fut in pending:
+                    results[futures[fut]] = describe(futures[fut], RuntimeError(
+                        f"no worker on the cluster for {NO_WORKER_TIMEOUT:g} s; not run"))
+                client.cancel(list(pending))
+                break
+        for fut in done:
+            i = futures[fut]
+            try:
+                results[i] = fut.result()
+            except Exception as exc:  # the worker's exception, after RETRIES
+                results[i] = describe(i, " ".join(str(exc).split()) or type(exc).__name__)
+            if progress is not None:
+                progress.update(1)
     return results
+
+
+def _not_finished(source, output):
+    return FileResult(source, output, status="cancelled",
+                      error="interrupted: cancelled on the cluster, nothing written")
 
 
 # {{{ scenes
@@ -125,8 +167,10 @@ def bake_on_cluster(plan: Plan, client, *, device=None, progress=True,
         if bar is not None:
             bar.close()
     for job in plan.jobs:
-        remove_partial_files(job.output)
-    return BatchReport([results[i] for i in range(len(plan.jobs))])
+        if job.output:
+            remove_partial_files(job.output)
+    return BatchReport([results.get(i) or _not_finished(j.source, j.output)
+                        for i, j in enumerate(plan.jobs)])
 
 # }}}
 
@@ -154,7 +198,7 @@ def file_runner(client, *, device=None, progress=True):
                 bar.close()
         for job in jobs:
             remove_partial_files(job.output)
-        return [results[i] for i in range(len(jobs))]
+        return [results.get(i) or _not_finished(j.path, j.output) for i, j in enumerate(jobs)]
     return run
 
 # }}}
@@ -200,6 +244,7 @@ def blur_file_on_cluster(path, output, client, *, colorspace="auto", half=False,
     Returns the number of bands."""
     from .io.images import check_output_format
     check_output_format(output)
+    check_claim(Claim(str(path), str(output), {"irradiance": str(path)}))
     physical = {k: kwargs[k] for k in PARAM_KEYS if k in kwargs}
     if is_textured(**physical):
         raise ValueError("a blur on a cluster takes constant parameters (one value or one per "
@@ -226,9 +271,11 @@ def blur_file_on_cluster(path, output, client, *, colorspace="auto", half=False,
                                 key=f"blur-band-{k}-{Path(path).name}")
             futures[fut] = (k, y0, y1)
         bar = _progress(len(futures), "blur bands", progress)
-        done = _gather(client, futures, lambda i, exc: exc, bar)
+        done = _gather(client, futures, lambda i, why: RuntimeError(why), bar)
         if bar is not None:
             bar.close()
+        if STOP.is_set() or len(done) < len(futures):
+            raise Cancelled(f"{path}: interrupted; nothing written")
         failed = [v for v in done.values() if isinstance(v, Exception)]
         if failed:
             raise TextureError(f"{path}: {len(failed)} band(s) failed: {failed[0]}")
@@ -237,7 +284,7 @@ def blur_file_on_cluster(path, output, client, *, colorspace="auto", half=False,
         meta = {k: v for k, v in kwargs.items() if k in PARAM_KEYS + ("tol", "border")}
         meta["source"] = str(path)
         writer = Writer(output, output_spec(spec, names, len(names) - 1 if alpha >= 0 else -1,
-                                            half, meta))
+                                            half, meta), kwargs.get("on_invalid", "raise"))
         try:
             for (k, y0, y1) in sorted(done):       # one band in memory at a time
                 r = Reader(done[(k, y0, y1)], "band")

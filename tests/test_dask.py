@@ -93,7 +93,7 @@ def test_a_worker_killed_mid_job_and_a_job_failing_once_still_complete(client, t
 
     report = bdask.bake_on_cluster(scenes.load(cluster).plan(), client, progress=False,
                                    run=flaky)
-    assert marker_kill.exists() and marker_fail.exists()
+    assert marker_kill.exists() and marker_fail.exists(), report.summary()
     assert report.exit_code == 0, report.summary()
     out = cluster.parent / "out"
     assert not [p for p in out.iterdir() if ".partial-" in p.name]

@@ -4,9 +4,18 @@ from __future__ import annotations
 import argparse
 import contextlib
 import sys
+import time
 
 from ..errors import POLICIES
 from ..signals import SignalStop
+from ..version import __version__
+
+DESCRIPTION = """\
+Better Dipole subsurface scattering (d'Eon 2012) with Hery's albedo inversion, on OpenCL:
+invert albedo (+ mean free path) textures into scattering coefficients, blur irradiance maps
+with the diffusion profile, plan and bake whole scenes, and check every kernel against a
+float64 reference. Outputs are OpenEXR, written atomically and verified; inputs are never
+overwritten. Run `bdipole-cl COMMAND --help` for a command's options."""
 
 EPILOG = """examples:
   bdipole-cl demo                                   # built-in example, writes ./bdipole_demo
@@ -65,8 +74,30 @@ _positive_float = _number(float, lambda v: 0 < v < float("inf"), "a number > 0")
 _fraction = _number(float, lambda v: 0 < v < 1, "a number in (0, 1), e.g. 1e-3")
 
 
+def _shown(value):
+    if isinstance(value, (tuple, list)):
+        return ",".join(f"{v:g}" if isinstance(v, float) else str(v) for v in value)
+    return str(value).replace("%", "%%")
+
+
+class _Help(argparse.RawDescriptionHelpFormatter):
+    """Help texts with each option's default shown (``ArgumentDefaultsHelpFormatter``'s rule,
+    less the options that have none) and descriptions and epilogs kept as written."""
+
+    def _get_help_string(self, action):
+        text = action.help or ""
+        if ("%(default)" in text or not action.option_strings
+                or action.default in (None, False, argparse.SUPPRESS)):
+            return text
+        return f"{text} (default: {_shown(action.default)})"
+
+
 class _Parser(argparse.ArgumentParser):
     """argparse with one-line usage errors (``prog: error: ...``, exit 2), no usage block."""
+
+    def __init__(self, *args, **kwargs):
+        kwargs.setdefault("formatter_class", _Help)
+        super().__init__(*args, **kwargs)
 
     def error(self, message):
         self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
@@ -112,9 +143,9 @@ def _add_method_args(p):
     p.add_argument("--iterations", type=int, help="bisection/memo iterations, secant maximum")
     p.add_argument("--tol", type=float,
                    help="secant relative tolerance; with --method auto, the rho accuracy")
-    p.add_argument("--table-size", type=int, help="table intervals per segment (default 256)")
+    p.add_argument("--table-size", type=int, help="table intervals per segment (256 if not given)")
     p.add_argument("--polish", type=int, help="Newton steps after the table lookup")
-    p.add_argument("--seed-size", type=int, help="secant seed table intervals (default 16)")
+    p.add_argument("--seed-size", type=int, help="secant seed table intervals (16 if not given)")
 
 
 def _method_knobs(args):
@@ -193,20 +224,46 @@ def _cmd_blur(args) -> int:
                                          max_memory=args.max_memory, device=args.device, **kw)
             print(f"{n} bands blurred on the cluster; wrote {args.output}")
             return 0
-        info = blur_file(args.input, args.output, half=args.half, sources=sources,
-                         max_memory=args.max_memory, cancel=stop.event, **kw)
+        with _texel_bar(args.input, "blur", not args.no_progress) as bar:
+            t0 = time.perf_counter()
+            info = blur_file(args.input, args.output, half=args.half, sources=sources,
+                             max_memory=args.max_memory, cancel=stop.event, progress=bar, **kw)
+            seconds = time.perf_counter() - t0
     except Cancelled as exc:
         print(f"bdipole-cl {args.command}: error: {exc}", file=sys.stderr)
         return stop.exit_code or 1
     except TextureError as exc:
         print(f"bdipole-cl {args.command}: error: {exc}", file=sys.stderr)
         return 1
-    for c in info.channels:
+    for c in (info.channels if info is not None else ()):
         rd = f"Rd {c.rd:.4f}" if c.rd is not None else "Rd per texel"
         print(f"channel {c.channel}: {c.method}, radius {c.radius} texels, {rd}, "
               f"error <= {c.error_bound:.1e} x max(E) x Rd")
-    print(f"wrote {args.output}")
+    texels = _texels_of(args.input)
+    print(f"wrote {args.output}: {texels} texels in {seconds:.2f} s "
+          f"({texels / max(seconds, 1e-9) / 1e6:.1f} Mtexel/s)")
     return 0
+
+
+def _texels_of(path):
+    from ..io.images import Reader
+    r = Reader(path, "irradiance")
+    try:
+        return r.spec.width * r.spec.height
+    finally:
+        r.close()
+
+
+@contextlib.contextmanager
+def _texel_bar(path, desc, enabled):
+    """A tqdm bar over ``path``'s texels (None when disabled)."""
+    if not enabled:
+        yield None
+        return
+    from tqdm import tqdm
+    with tqdm(total=_texels_of(path), unit="texel", unit_scale=True, desc=desc,
+              disable=None) as bar:                 # None: shown on a terminal only
+        yield bar
 
 
 def _cmd_crosscheck(args) -> int:
@@ -239,22 +296,27 @@ def _cmd_crosscheck(args) -> int:
 
 def _cmd_plan(args) -> int:
     from ..io.scene import load
-    plan = load(args.scene).plan(force=args.force)
+    plan = load(args.scene).plan(force=args.force, max_memory=args.max_memory)
     print(plan.to_json() if args.json else plan.describe())
     return 0
 
 
 def _cmd_bake(args) -> int:
     from ..io.scene import load
-    plan = load(args.scene).plan(force=args.force)
+    stop = SignalStop().install()
+    plan = load(args.scene).plan(force=args.force, max_memory=args.max_memory)
     for problem in plan.missing:            # every missing input, before any work starts
         print(f"cannot run: {problem}", file=sys.stderr)
-    stop = SignalStop().install()
+    bar = None
+    if not args.no_progress and not args.scheduler:
+        from tqdm import tqdm
+        bar = tqdm(total=len(plan.jobs), unit="job", desc="bake", disable=None)
 
     def progress(job, result):
-        if not args.no_progress:
-            print(f"{result.status:9s} {job.kind} {job.name}"
-                  + (f" [{job.udim}]" if job.udim else "") + f" -> {job.output}", flush=True)
+        if bar is not None:
+            bar.write(f"{result.status:9s} {job.kind} {job.name}"
+                      + (f" [{job.udim}]" if job.udim else "") + f" -> {job.output}")
+            bar.update(1)
 
     if args.scheduler:
         from ..dask import bake_on_cluster
@@ -262,7 +324,12 @@ def _cmd_bake(args) -> int:
             report = bake_on_cluster(plan, client, device=args.device,
                                      progress=not args.no_progress)
     else:
-        report = plan.run(cancel=stop.event, progress=progress)
+        try:
+            report = plan.run(cancel=stop.event, progress=progress,
+                              max_memory=args.max_memory)
+        finally:
+            if bar is not None:
+                bar.close()
     return _finish(report, stop)
 
 
@@ -283,7 +350,7 @@ def _cmd_devices(args) -> int:
     from ..device.icd import register_environment_runtimes
     states = survey()
     try:
-        chosen = get_runtime().device.int_ptr
+        chosen = get_runtime(args.device).device.int_ptr
     except DeviceError as exc:
         chosen = None
         problem = str(exc)
@@ -312,9 +379,8 @@ def _add_scheduler_args(p):
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = _Parser(
-        prog="bdipole-cl", description=__doc__.split("\n")[0],
-        epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = _Parser(prog="bdipole-cl", description=DESCRIPTION, epilog=EPILOG)
+    parser.add_argument("--version", action="version", version=f"bdipole-cl {__version__}")
     parser.add_argument("--device", metavar="SPEC",
                         help="OpenCL device: P:D as listed by `devices`, or part of its platform "
                              "or name ('intel', 'pocl'); default: the automatic choice")
@@ -325,7 +391,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("demo", help="make a built-in example and run the main jobs on it")
     p.add_argument("--dir", default="bdipole_demo", help="folder for inputs and results")
-    p.add_argument("--no-progress", action="store_true")
+    p.add_argument("--no-progress", action="store_true", help="no progress bars")
     p.set_defaults(func=_cmd_demo)
 
     p = sub.add_parser("crosscheck",
@@ -352,20 +418,27 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("scene", help="scene file (TOML)")
     p.add_argument("--json", action="store_true", help="the plan as JSON")
     p.add_argument("--force", action="store_true", help="plan every job, up to date or not")
+    p.add_argument("--max-memory", type=_size, default="256M",
+                   help="host memory for the statistics pass's bands of rows")
     p.set_defaults(func=_cmd_plan)
 
     p = sub.add_parser("bake", help="run a scene's plan: only what is needed, only what changed")
     p.add_argument("scene", help="scene file (TOML)")
     p.add_argument("--force", action="store_true", help="rebuild every output")
-    p.add_argument("--no-progress", action="store_true", help="no line per job")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar and job lines")
+    p.add_argument("--max-memory", type=_size, default="256M",
+                   help="host memory per job for bands of rows (e.g. 512M)")
     _add_scheduler_args(p)
     p.set_defaults(func=_cmd_bake)
 
     p = sub.add_parser("report", help="error against run time for every method (md, csv, png)")
     p.add_argument("-o", "--output", default="report_out", help="folder for the report")
-    p.add_argument("--n", type=int, default=1 << 20, help="albedos in the inversion workload")
-    p.add_argument("--blur-size", type=int, default=512, help="side of the blur workload")
-    p.add_argument("--repeats", type=int, default=3)
+    p.add_argument("--n", type=_positive_int, default=1 << 20,
+                   help="albedos in the inversion workload")
+    p.add_argument("--blur-size", type=_positive_int, default=512,
+                   help="side of the blur workload (texels)")
+    p.add_argument("--repeats", type=_positive_int, default=3,
+                   help="timed runs per configuration (the fastest is kept)")
     p.add_argument("--write-choice", metavar="PATH",
                    help="also write every measured configuration as method='auto' choice data "
                         "(JSON; use it with BDIPOLE_CL_CHOICE_DATA=PATH)")
@@ -386,26 +459,28 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--texel-size", type=_positive_float, default=1.0,
                    help="world size of a texel")
     p.add_argument("--tol", type=_fraction, default=1e-3, help="energy left out, relative to Rd")
-    p.add_argument("--method", default="auto", choices=("auto", "direct", "gaussians", "fft"))
-    p.add_argument("--border", default="clamp", choices=("clamp", "zero", "wrap"))
+    p.add_argument("--method", default="auto", choices=("auto", "direct", "gaussians", "fft"),
+                   help="blur method (auto: the cheapest meeting --tol)")
+    p.add_argument("--border", default="clamp", choices=("clamp", "zero", "wrap"),
+                   help="texels beyond the image edge: nearest edge texel, zero, or wrapped")
     p.add_argument("--on-invalid", default="raise", choices=POLICIES,
                    help="NaN/Inf irradiance or parameter texels out of range: fail, or clamp "
                         "(irradiance: unlit, 0; parameters: into their valid range)")
     p.add_argument("--exact", action="store_true", help="exact Fresnel moments")
-    p.add_argument("--half", action="store_true")
+    p.add_argument("--half", action="store_true", help="write half floats")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--max-memory", type=_size, default="256M",
                    help="host memory for bands of rows (each with a halo of the radius)")
     _add_scheduler_args(p)
     p.set_defaults(func=_cmd_blur)
 
     p = sub.add_parser(
-        "invert", help="albedo (+ mfp) textures -> scattering-coefficient EXRs",
-        epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+        "invert", help="albedo (+ mfp) textures -> scattering-coefficient EXRs", epilog=EPILOG)
     p.add_argument("inputs", nargs="+", help="albedo files, globs or <UDIM> patterns")
     p.add_argument("--mfp", default="1",
                    help="mean free path ld = 1/mu_tr: constant(s) 'v' or 'r,g,b', or a texture "
-                        "path/pattern ({stem}, {dir}, <UDIM>) (default 1)")
-    p.add_argument("--unit", default="mm", help="length unit of the mfp (default mm)")
+                        "path/pattern ({stem}, {dir}, <UDIM>)")
+    p.add_argument("--unit", default="mm", help="length unit of the mfp")
     p.add_argument("--mfp-scale", type=float, default=1.0, help="multiplies mfp values")
     p.add_argument("--eta", type=_floats, default=(1.4,),
                    help="relative IOR, one or per channel 'r,g,b'")
@@ -443,7 +518,7 @@ def main(argv=None) -> int:
     from ..device import DeviceError, use_device
     from ..io.images import TextureError
     try:
-        if args.device:
+        if args.device and args.command != "devices":
             use_device(args.device)
         return args.func(args)
     except KeyboardInterrupt:

@@ -43,9 +43,27 @@ def make_inputs(folder):
     return paths
 
 
+#: the file that marks a folder as made by ``demo`` (which may then rewrite it)
+MARKER = ".bdipole_demo"
+
+
+def claim_folder(folder):
+    """Make ``folder`` the demo's: refused (ValueError) if it holds files the demo did not
+    make, so a user's folder is never overwritten."""
+    folder = Path(folder)
+    if folder.exists() and not folder.is_dir():
+        raise ValueError(f"--dir {folder}: exists and is not a folder")
+    if folder.is_dir() and any(folder.iterdir()) and not (folder / MARKER).exists():
+        raise ValueError(f"--dir {folder}: the folder holds files the demo did not make; give "
+                         f"a new or empty folder (nothing was written)")
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / MARKER).write_text("made by bdipole-cl demo: it may rewrite this folder\n")
+
+
 def run_demo(folder="bdipole_demo", progress=True) -> int:
     from ..device import get_runtime
     from ..io.batch import process_textures
+    claim_folder(folder)
     rt = get_runtime()
     print(f"device: {rt.describe()}")
     paths = make_inputs(folder)

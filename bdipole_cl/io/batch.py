@@ -48,19 +48,39 @@ UDIM_TOKEN = "<UDIM>"
 DEFAULT_OUTPUT = "{dir}/{stem}.bdipole.exr"
 
 
+def written_by_us(path) -> bool:
+    """An EXR whose header says bdipole-cl wrote it (``bdipole:version``): one of this tool's
+    own outputs, never picked up again by a glob."""
+    if not str(path).lower().endswith(".exr"):
+        return False
+    inp = oiio.ImageInput.open(str(path))
+    if inp is None:
+        return False
+    try:
+        return bool(inp.spec().getattribute("bdipole:version"))
+    finally:
+        inp.close()
+
+
 def expand_inputs(patterns):
     """Files named by paths, globs (``textures/*.tif``) or UDIM patterns (``a.<UDIM>.exr``),
     as ``(path, udim or None)``, in order, without duplicates. A pattern matching nothing is
-    kept as a path, so that it is reported as missing rather than silently skipped."""
+    kept as a path, so that it is reported as missing rather than silently skipped. A path
+    that exists is taken as it is (``tex[v2]/a.exr`` is a file name, not a glob); the files a
+    pattern matches leave out this tool's own outputs (``written_by_us``)."""
     out, seen = [], set()
     for pattern in patterns:
         pattern = str(pattern)
-        if UDIM_TOKEN in pattern:
+        if os.path.exists(pattern):
+            found = [(pattern, None)]
+        elif UDIM_TOKEN in pattern:
             rx = re.compile(re.escape(pattern).replace(re.escape(UDIM_TOKEN), r"(\d{4})") + "$")
-            hits = sorted(glob.glob(pattern.replace(UDIM_TOKEN, "[1-9][0-9][0-9][0-9]")))
-            found = [(h, rx.search(h).group(1)) for h in hits if rx.search(h)]
+            hits = sorted(glob.glob(glob.escape(pattern).replace(
+                glob.escape(UDIM_TOKEN), "[1-9][0-9][0-9][0-9]")))
+            found = [(h, rx.search(h).group(1)) for h in hits
+                     if rx.search(h) and not written_by_us(h)]
         elif glob.has_magic(pattern):
-            found = [(h, None) for h in sorted(glob.glob(pattern))]
+            found = [(h, None) for h in sorted(glob.glob(pattern)) if not written_by_us(h)]
         else:
             found = [(pattern, None)]
         if not found:
@@ -85,19 +105,23 @@ def job_claims(jobs):
             for j in jobs]
 
 
+#: the fields of an output or companion pattern; any other text in braces is literal
+PATTERN_FIELDS = ("stem", "dir", "name", "udim")
+_FIELD = re.compile(r"\{(" + "|".join(PATTERN_FIELDS) + r")\}")
+
+
 def companion_path(pattern, path, udim):
-    """Fill ``{stem}``, ``{dir}``, ``{name}``, ``{udim}`` and ``<UDIM>`` for one input file."""
+    """Fill ``{stem}``, ``{dir}``, ``{name}``, ``{udim}`` and ``<UDIM>`` for one input file;
+    other braces are part of the name (``proj{v2}/``). A UDIM token with an input that has no
+    UDIM is a TextureError (it would write ``s..exr``)."""
     p = Path(path)
-    fields = {"stem": stem(path), "dir": str(p.parent), "name": p.name, "udim": udim or ""}
+    fields = {"stem": stem(path), "dir": str(p.parent), "name": p.name, "udim": udim}
     text = str(pattern)
-    if UDIM_TOKEN in text:
-        if udim is None:
-            raise TextureError(f"{path}: pattern {pattern!r} needs a UDIM but the input has none")
-        text = text.replace(UDIM_TOKEN, udim)
-    try:
-        return text.format(**fields)
-    except (KeyError, IndexError) as exc:
-        raise TextureError(f"pattern {pattern!r}: unknown field {exc}") from exc
+    if udim is None and (UDIM_TOKEN in text or "{udim}" in text):
+        raise TextureError(f"{path}: pattern {pattern!r} needs a UDIM but the input has none "
+                           f"(a UDIM input is named with <UDIM>, e.g. a.<UDIM>.exr)")
+    text = text.replace(UDIM_TOKEN, udim or "")
+    return _FIELD.sub(lambda m: fields[m.group(1)], text)
 
 
 @dataclass
@@ -209,6 +233,9 @@ def process_file(job, settings, device_lock, progress):
     result = FileResult(job.path, job.output)
     t0 = time.perf_counter()
     readers, writer = [], None
+    if settings.cancel is not None and settings.cancel.is_set():
+        result.status, result.error = "cancelled", "interrupted before it started"
+        return result
     try:
         alb = Reader(job.path, "albedo")
         readers.append(alb)
@@ -421,7 +448,8 @@ def process_textures(inputs, *, mfp=1.0, eta=1.4, output=DEFAULT_OUTPUT,
                       device=settings.runtime)  # fail fast on bad settings
     jobs_list, results = [], []
     files = expand_inputs(inputs)
-    unmatched = {p for p, _ in files if UDIM_TOKEN in p or glob.has_magic(p)}
+    unmatched = {p for p, _ in files
+                 if (UDIM_TOKEN in p or glob.has_magic(p)) and not os.path.exists(p)}
     for path, udim in files:
         if path in unmatched:
             results.append(FileResult(path, error=f"{path}: no file matches this pattern"

@@ -134,7 +134,8 @@ def _material_fields(m) -> dict:
 
 def _exists(role, path, problems):
     if path and not os.path.isfile(path):
-        problems.append(f"{role} {path} is missing")
+        problems.append(f"{role} {path} " + ("is not a regular file" if os.path.exists(path)
+                                             else "is missing"))
 
 
 def _textures(inputs, material, mask, path, udim, problems):

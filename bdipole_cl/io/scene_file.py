@@ -27,6 +27,7 @@ key and what is allowed (``SceneError``); unknown keys are errors.
 """
 from __future__ import annotations
 
+import math
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -48,7 +49,7 @@ class SceneError(ValueError):
 
 #: each key: (kinds it belongs to, check, what is allowed)
 def _number(v):
-    return isinstance(v, (int, float)) and not isinstance(v, bool)
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
 
 
 def _numbers_or_number(v):
@@ -85,7 +86,7 @@ KEYS = {
     "colorspace": ({"material", "blur"}, lambda v: isinstance(v, str), "a colour space name"),
     "material": ({"blur"}, lambda v: isinstance(v, str) and v, "a material's name"),
     "irradiance": ({"blur"}, lambda v: isinstance(v, str) and v, "a texture path or pattern"),
-    "texel_size": ({"blur"}, _positive, "a number > 0 (in the unit of mfp)"),
+    "texel_size": ({"blur"}, _positive, "a finite number > 0 (in the unit of mfp)"),
 }
 REQUIRED = {"material": ("name", "albedo", "output"),
             "blur": ("name", "material", "irradiance", "texel_size", "output")}
@@ -171,9 +172,15 @@ def load(path) -> SceneData:
     """Read, check and resolve a scene file (``SceneError`` on any problem, one line)."""
     path = Path(path)
     try:
-        text = path.read_text()
+        data = path.read_bytes()
     except OSError as exc:
         raise SceneError(f"{path}: cannot read the scene: {exc.strerror or exc}") from None
+    try:
+        text = data.decode("utf-8-sig")            # TOML is UTF-8; a leading BOM is allowed
+    except UnicodeDecodeError as exc:
+        line = data[:exc.start].count(b"\n") + 1
+        raise SceneError(f"{path}:{line}: not UTF-8 text (byte 0x{data[exc.start]:02x} at "
+                         f"offset {exc.start}): save the scene file as UTF-8") from None
     try:
         raw = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:

@@ -72,9 +72,16 @@ def channel_parameters(nchan, *, albedo=None, mfp=None, eta=1.4, texel_size=1.0,
             sa[c], ss[c] = ref.albedo_to_coefficients(rd[c], ld[c], etas[c], exact)
         st = sa + ss
         a = ss / st
-    if not np.all(texel_size > 0):
-        raise ValueError(f"texel_size={texel_size!r} must be > 0")
-    return [(float(a[c]), float(st[c] * texel_size), float(etas[c])) for c in range(nchan)]
+    if not (np.all(texel_size > 0) and np.all(np.isfinite(texel_size))):
+        raise ValueError(f"texel_size={texel_size!r} must be a finite number > 0")
+    with np.errstate(over="ignore"):
+        per_texel = st * texel_size
+    if not np.all(np.isfinite(per_texel)):
+        c = int(np.flatnonzero(~np.isfinite(per_texel))[0])
+        raise ValueError(f"texel_size={texel_size!r}: channel {c}'s sigma_t' {st[c]:g} per unit "
+                         f"times the texel size overflows (the texel is more than 1e308 mean "
+                         f"free paths wide); use a texel size in the mfp's unit")
+    return [(float(a[c]), float(per_texel[c]), float(etas[c])) for c in range(nchan)]
 
 
 def texture_channel(value, shape, c, name):

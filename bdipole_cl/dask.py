@@ -21,6 +21,7 @@ import shutil
 import tempfile
 import threading
 import time
+import uuid
 from contextlib import contextmanager
 from dataclasses import replace
 from pathlib import Path
@@ -149,6 +150,7 @@ def bake_on_cluster(plan: Plan, client, *, device=None, progress=True,
     """``Plan.run`` with the jobs on the cluster (up-to-date checks already done by the plan,
     in this process, before anything is sent)."""
     results, futures = {}, {}
+    run_id = uuid.uuid4().hex[:12]       # a run's own task keys: never an earlier run's results
     for i, job in enumerate(plan.jobs):
         if job.problem:
             results[i] = FileResult(job.source, job.output, error=job.problem)
@@ -156,7 +158,7 @@ def bake_on_cluster(plan: Plan, client, *, device=None, progress=True,
             results[i] = FileResult(job.source, job.output, status="skipped")
         else:
             fut = client.submit(run, job, plan.scene, device, pure=False, retries=RETRIES,
-                                key=f"bake-{i}-{job.kind}-{job.name}-{job.udim}")
+                                key=f"bake-{i}-{job.kind}-{job.name}-{job.udim}-{run_id}")
             futures[fut] = i
     bar = _progress(len(futures), "bake", progress)
     try:
@@ -186,8 +188,9 @@ def file_runner(client, *, device=None, progress=True):
     """A ``run_files`` for ``process_textures``: each file a task on the cluster."""
     def run(jobs, settings):
         portable = replace(settings, runtime=None, cancel=None)
+        run_id = uuid.uuid4().hex[:12]
         futures = {client.submit(_batch_file, job, portable, device, pure=False,
-                                 retries=RETRIES, key=f"invert-{i}-{Path(job.path).name}"): i
+                                 retries=RETRIES, key=f"invert-{i}-{Path(job.path).name}-{run_id}"): i
                    for i, job in enumerate(jobs)}
         bar = _progress(len(futures), "invert", progress)
         try:
@@ -264,11 +267,11 @@ def blur_file_on_cluster(path, output, client, *, colorspace="auto", half=False,
     work = Path(tempfile.mkdtemp(prefix=f".{Path(output).stem}.bands-",
                                  dir=Path(output).parent))
     try:
-        futures = {}
+        futures, run_id = {}, uuid.uuid4().hex[:12]
         for k, (y0, y1, _) in enumerate(bands(spec.height, rows)):
             fut = client.submit(_blur_band, str(path), str(work / f"band{k:05d}.exr"), y0, y1,
                                 halo, colorspace, kwargs, device, pure=False, retries=RETRIES,
-                                key=f"blur-band-{k}-{Path(path).name}")
+                                key=f"blur-band-{k}-{Path(path).name}-{run_id}")
             futures[fut] = (k, y0, y1)
         bar = _progress(len(futures), "blur bands", progress)
         done = _gather(client, futures, lambda i, why: RuntimeError(why), bar)

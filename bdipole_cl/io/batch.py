@@ -37,7 +37,7 @@ from ..version import __version__
 from .collisions import Claim, collisions
 from .images import (Cancelled, Reader, TextureError, Writer, check_colorspace,
                      check_output_format, check_same_window, classify_channels, invalid_texels,
-                     output_spec,
+                     is_regular_file, output_spec,
                      source_colorspace, to_linear)
 from .verify import is_complete
 
@@ -51,7 +51,7 @@ DEFAULT_OUTPUT = "{dir}/{stem}.bdipole.exr"
 def written_by_us(path) -> bool:
     """An EXR whose header says bdipole-cl wrote it (``bdipole:version``): one of this tool's
     own outputs, never picked up again by a glob."""
-    if not str(path).lower().endswith(".exr"):
+    if not str(path).lower().endswith(".exr") or not is_regular_file(path):
         return False
     inp = oiio.ImageInput.open(str(path))
     if inp is None:
@@ -467,18 +467,18 @@ def process_textures(inputs, *, mfp=1.0, eta=1.4, output=DEFAULT_OUTPUT,
                                                                                    mfp_path])
         jobs_list.append(job)
     clashes = collisions(job_claims(jobs_list))     # skipped jobs' inputs are inputs too
-    for j in jobs_list:
-        if j.output in clashes:
-            results.append(FileResult(j.path, j.output, error=clashes[j.output]))
+    for j, clash in zip(jobs_list, clashes):
+        if clash:
+            results.append(FileResult(j.path, j.output, error=clash))
         elif j.skip:
             results.append(FileResult(j.path, j.output, status="skipped"))
-    jobs_list = [j for j in jobs_list if j.output not in clashes and not j.skip]
+    jobs_list = [j for j, clash in zip(jobs_list, clashes) if not clash and not j.skip]
     bar = None
     if progress:
         from tqdm import tqdm
         total = 0
         for j in jobs_list:
-            inp = oiio.ImageInput.open(j.path)
+            inp = oiio.ImageInput.open(j.path) if is_regular_file(j.path) else None
             if inp is not None:
                 total += inp.spec().width * inp.spec().height
                 inp.close()

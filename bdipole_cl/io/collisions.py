@@ -34,9 +34,9 @@ def file_key(path) -> tuple:
         return real, None
 
 
-def collisions(claims) -> dict:
-    """{output: one-line reason} for every output that is an input of some job of the run
-    or that two jobs share; outputs not listed are safe to write."""
+def collisions(claims) -> list:
+    """For each claim, in order: None if its output is safe to write, else the one-line
+    reason (its output is an input of some job of the run, or two jobs share it)."""
     claims = list(claims)
     readers_by_path, readers_by_inode = {}, {}
     for c in claims:
@@ -48,28 +48,29 @@ def collisions(claims) -> dict:
             if inode is not None:
                 readers_by_inode.setdefault(inode, (c.job, role, p))
     writers = {}
-    claims_out = [c for c in claims if c.output]      # a job without an output only reads
-    for c in claims_out:
-        writers.setdefault(file_key(c.output)[0], []).append(c.job)
-    bad = {}
-    for c in claims_out:
+    for c in claims:
+        if c.output:                                   # a job without an output only reads
+            writers.setdefault(file_key(c.output)[0], []).append(c.job)
+    bad = [None] * len(claims)
+    for n, c in enumerate(claims):
+        if not c.output:
+            continue
         real, inode = file_key(c.output)
         hit = readers_by_path.get(real) or (readers_by_inode.get(inode) if inode else None)
         if hit:
             job, role, p = hit
             whose = "its own" if job == c.job else f"{job}'s"
-            bad[c.output] = (f"{c.job}: output {c.output} would overwrite an input ({whose} "
-                             f"{role} {p}); choose another -o / output")
+            bad[n] = (f"{c.job}: output {c.output} would overwrite an input ({whose} {role} "
+                      f"{p}); choose another -o / output")
         elif len(writers[real]) > 1:
             others = ", ".join(j for j in writers[real] if j != c.job)
-            bad[c.output] = (f"{c.job}: output {c.output} is also the output of {others}: "
-                             f"put <UDIM>, {{udim}}, {{stem}} or {{name}} in -o so each input "
-                             f"has its own")
+            bad[n] = (f"{c.job}: output {c.output} is also the output of {others}: put "
+                      f"<UDIM>, {{udim}}, {{stem}} or {{name}} in -o so each input has its own")
     return bad
 
 
 def check_claim(claim: Claim):
     """The single-job run (a file blur): ValueError naming the input it would overwrite."""
-    bad = collisions([claim])
+    bad = collisions([claim])[0]
     if bad:
-        raise ValueError(bad[claim.output])
+        raise ValueError(bad)

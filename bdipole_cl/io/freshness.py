@@ -45,7 +45,7 @@ def header_fields(inputs: dict, digest: str) -> dict:
 
 
 def is_up_to_date(output, inputs: dict, digest: str) -> bool:
-    if not os.path.exists(output):
+    if not os.path.isfile(output):       # missing, or not a regular file (never opened)
         return False
     inp = oiio.ImageInput.open(str(output))
     if inp is None:

@@ -80,6 +80,14 @@ def open_config():
     return cfg
 
 
+def is_regular_file(path) -> bool:
+    """``path`` is a regular file (opening anything else may block: a FIFO waits forever)."""
+    try:
+        return stat.S_ISREG(os.stat(path).st_mode)
+    except OSError:
+        return False
+
+
 def check_regular_file(path, what):
     """TextureError unless ``path`` is a regular file (a FIFO or device would block or never
     end)."""

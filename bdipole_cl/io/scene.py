@@ -347,11 +347,9 @@ def plan(scene: Scene, *, force=False, device=None, max_memory=DEFAULT_MEMORY) -
                     jobs.append(PlannedJob(kind, e.name, path, udim, "", {"source": path},
                                            problem=str(exc)))
                     problems.append(str(exc))
-    clashes = collisions(Claim(j.source, j.output, j.inputs) for j in jobs)
-    for j in jobs:
-        if j.output in clashes:
-            j.problem = clashes[j.output]
-            j.up_to_date = False
+    for j, clash in zip(jobs, collisions(Claim(j.source, j.output, j.inputs) for j in jobs)):
+        if clash:
+            j.problem, j.up_to_date = clash, False
     return Plan(scene, jobs)
 
 # }}}

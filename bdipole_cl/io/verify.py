@@ -17,6 +17,8 @@ the next run's up-to-date check (I/O layer; ``images.Writer`` calls it for every
 from __future__ import annotations
 
 import hashlib
+import os
+import stat
 
 import numpy as np
 import OpenImageIO as oiio
@@ -132,7 +134,13 @@ def read_back(path, digests: BandDigests, what, names):
 
 
 def is_complete(path, rows=64) -> bool:
-    """Every pixel of the image file ``path`` reads (``rows`` rows at a time)."""
+    """Every pixel of the image file ``path`` reads (``rows`` rows at a time); a path that is
+    not a regular file is not (and is never opened: a FIFO would block)."""
+    try:
+        if not stat.S_ISREG(os.stat(path).st_mode):
+            return False
+    except OSError:
+        return False
     inp = oiio.ImageInput.open(str(path))
     if inp is None:
         return False

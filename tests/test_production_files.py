@@ -1,0 +1,505 @@
+"""A production's files, as a hostile new user brings them: every input format, every output
+checked, every signal obeyed (README "Safety"). Each test writes its own real files (tiled
+mip-mapped EXRs by ``make_texture``, RGBA PNGs with unassociated alpha, multi-part and deep
+EXRs, a FIFO, a file size limit for the full disk) and asserts the exit code, the message and
+what happened to the files."""
+import os
+import resource
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import OpenImageIO as oiio
+import pytest
+
+from bdipole_cl.apps.cli import main as cli_main
+from bdipole_cl.io import scene as scenes
+from bdipole_cl.io.batch import process_textures
+
+
+def write(path, pixels, names=None, fmt="float", tile=0, window=(0, 0), extra=None):
+    pixels = np.ascontiguousarray(pixels, np.float32)
+    h, w, c = pixels.shape
+    spec = oiio.ImageSpec(w, h, c, fmt)
+    spec.x, spec.y = window
+    spec.full_x, spec.full_y = window
+    if names:
+        spec.channelnames = tuple(names)
+    if tile:
+        spec.tile_width = spec.tile_height = tile
+    for k, v in (extra or {}).items():
+        spec.attribute(k, v)
+    out = oiio.ImageOutput.create(str(path))
+    assert out.open(str(path), spec), oiio.geterror()
+    assert out.write_image(pixels)
+    out.close()
+    return path
+
+
+def read(path):
+    inp = oiio.ImageInput.open(str(path))
+    assert inp is not None, oiio.geterror()
+    px = np.asarray(inp.read_image(oiio.FLOAT))
+    spec = inp.spec()
+    inp.close()
+    return px, spec
+
+
+def ramp(h=16, w=12, c=3, lo=0.1, hi=0.8):
+    v = np.linspace(lo, hi, h * w * c, dtype=np.float32).reshape(h, w, c)
+    return v
+
+
+def run_cli(*argv, timeout=120, **kw):
+    """The CLI in a subprocess: (returncode, stdout, stderr)."""
+    p = subprocess.run([sys.executable, "-m", "bdipole_cl", *map(str, argv)],
+                       capture_output=True, text=True, timeout=timeout, **kw)
+    return p.returncode, p.stdout, p.stderr
+
+
+def snapshot(folder):
+    return {p.name: p.read_bytes() for p in sorted(folder.iterdir()) if p.is_file()}
+
+
+def scene(tmp_path, text):
+    path = tmp_path / "scene.toml"
+    path.write_text(text)
+    return path
+
+
+# {{{ class 1: an output may never land on any input of the run
+
+def test_scene_output_on_its_mfp_or_another_materials_mask_is_refused(tmp_path, capsys):
+    (tmp_path / "tex").mkdir()
+    write(tmp_path / "tex" / "a.exr", ramp())
+    write(tmp_path / "tex" / "b.exr", ramp())
+    write(tmp_path / "tex" / "mfp.exr", np.ones((16, 12, 1)), ["Y"])
+    write(tmp_path / "tex" / "mask.exr", np.ones((16, 12, 1)), ["Y"])
+    before = snapshot(tmp_path / "tex")
+    path = scene(tmp_path, '[[material]]\nname = "a"\nalbedo = "tex/a.exr"\n'
+                           'mfp = "tex/mfp.exr"\noutput = "tex/mfp.exr"\n'
+                           '[[material]]\nname = "b"\nalbedo = "tex/b.exr"\nmfp = 1.0\n'
+                           'mask = "tex/mask.exr"\noutput = "tex/out_b.exr"\n'
+                           '[[material]]\nname = "c"\nalbedo = "tex/a.exr"\nmfp = 1.0\n'
+                           'output = "tex/mask.exr"\n')
+    rc = cli_main(["bake", str(path), "--no-progress"])
+    err = capsys.readouterr().err
+    assert rc == 1
+    assert "would overwrite an input (its own mfp" in err, err
+    assert "would overwrite an input" in err and "'s mask" in err, err
+    after = snapshot(tmp_path / "tex")
+    assert {k: after[k] for k in before} == before           # no input touched
+    assert "out_b.exr" in after                               # the good job still ran
+
+
+def test_skipped_jobs_inputs_are_still_inputs(tmp_path):
+    tex = tmp_path / "tex"
+    tex.mkdir()
+    write(tex / "a.exr", ramp())
+    time.sleep(0.02)
+    write(tex / "a.tif", ramp(), fmt="uint16")
+    before = (tex / "a.exr").read_bytes()
+    rep = process_textures(str(tex / "*"), output="{dir}/{stem}.exr", skip_existing=True)
+    assert rep.exit_code == 1, rep.summary()
+    assert (tex / "a.exr").read_bytes() == before
+    assert all("would overwrite an input" in r.error for r in rep.results), rep.summary()
+
+
+def test_a_hard_link_to_an_input_is_the_input(tmp_path):
+    write(tmp_path / "a.exr", ramp())
+    os.link(tmp_path / "a.exr", tmp_path / "linked.exr")
+    before = (tmp_path / "a.exr").read_bytes()
+    rep = process_textures(str(tmp_path / "a.exr"), output=str(tmp_path / "linked.exr"))
+    assert rep.exit_code == 1 and "would overwrite an input" in rep.results[0].error
+    assert (tmp_path / "a.exr").read_bytes() == before
+
+
+def test_cluster_blur_onto_its_input_is_refused_before_any_task(tmp_path):
+    from bdipole_cl.dask import blur_file_on_cluster
+    write(tmp_path / "irr.exr", ramp())
+    before = (tmp_path / "irr.exr").read_bytes()
+    with pytest.raises(ValueError, match="would overwrite an input"):
+        blur_file_on_cluster(tmp_path / "irr.exr", tmp_path / "irr.exr", None, albedo=0.5,
+                             mfp=1.0)
+    assert (tmp_path / "irr.exr").read_bytes() == before
+
+
+def test_collision_message_is_on_the_right_files_row(tmp_path):
+    write(tmp_path / "a.exr", ramp())
+    write(tmp_path / "b.exr", ramp())
+    rep = process_textures([str(tmp_path / "a.exr"), str(tmp_path / "b.exr")],
+                           output=str(tmp_path / "same.exr"))
+    for r in rep.results:
+        assert r.error.startswith(r.path + ":"), rep.summary()
+
+# }}}
+
+
+# {{{ class 2: production image formats
+
+def test_mip_mapped_tiled_albedo_gives_a_plain_complete_output(tmp_path):
+    src = oiio.ImageBuf(oiio.ImageSpec(64, 32, 3, "float"))
+    src.set_pixels(oiio.ROI(), np.full((32, 64, 3), 0.5, np.float32))
+    assert oiio.ImageBufAlgo.make_texture(oiio.MakeTxTexture, src, str(tmp_path / "a.tx.exr"),
+                                          oiio.ImageSpec())
+    rep = process_textures(str(tmp_path / "a.tx.exr"), output=str(tmp_path / "out.exr"))
+    assert rep.exit_code == 0, rep.summary()
+    px, spec = read(tmp_path / "out.exr")
+    assert np.all(np.isfinite(px)) and px.shape == (32, 64, 6)
+    for stat in ("oiio:ConstantColor", "oiio:AverageColor", "oiio:miplevels"):
+        assert spec.getattribute(stat) in (None, 1), (stat, spec.getattribute(stat))
+    inp = oiio.ImageInput.open(str(tmp_path / "out.exr"))
+    assert not inp.seek_subimage(0, 1), "a mip level the output does not hold is declared"
+    inp.close()
+
+
+def test_tiled_irradiance_is_read_in_bands(tmp_path):
+    e = np.random.default_rng(0).uniform(0, 1, (100, 40, 3)).astype(np.float32)
+    write(tmp_path / "tiled.exr", e, tile=32)
+    write(tmp_path / "lines.exr", e)
+    for name in ("tiled", "lines"):
+        rc = cli_main(["blur", str(tmp_path / f"{name}.exr"), "--albedo", "0.7", "--mfp", "2",
+                       "--max-memory", "64K",
+                       "-o", str(tmp_path / f"{name}_out.exr")])
+        assert rc == 0, name
+    np.testing.assert_array_equal(read(tmp_path / "tiled_out.exr")[0],
+                                  read(tmp_path / "lines_out.exr")[0])
+
+
+@pytest.mark.parametrize("ext", ["png", "tif"])
+def test_painted_colour_is_not_changed_by_its_alpha(tmp_path, ext):
+    px = np.zeros((4, 8, 4), np.float32)
+    px[..., :3] = 0.6
+    px[:, :4, 3] = 0.25
+    px[:, 4:, 3] = 1.0
+    path = write(tmp_path / f"a.{ext}", px, ["R", "G", "B", "A"], fmt="uint8",
+                 extra={"oiio:UnassociatedAlpha": 1})
+    rep = process_textures(str(path), outputs=("alpha",), output=str(tmp_path / "o.exr"),
+                           colorspace="linear")
+    assert rep.exit_code == 0, rep.summary()
+    out, spec = read(tmp_path / "o.exr")
+    out = out[..., [spec.channelnames.index(f"alpha.{c}") for c in "RGB"]]
+    np.testing.assert_array_equal(out[:, :4], out[:, 4:])           # same colour, same alpha'
+
+
+def test_multi_part_exr_is_refused_naming_its_parts(tmp_path):
+    path = str(tmp_path / "parts.exr")
+    specs = []
+    for name in ("diffuse", "spec"):
+        s = oiio.ImageSpec(8, 8, 3, "float")
+        s.attribute("name", name)
+        specs.append(s)
+    out = oiio.ImageOutput.create(path)
+    assert out.open(path, specs)
+    out.write_image(np.full((8, 8, 3), 0.5, np.float32))
+    assert out.open(path, specs[1], "AppendSubimage")
+    out.write_image(np.full((8, 8, 3), 0.2, np.float32))
+    out.close()
+    rep = process_textures(path, output=str(tmp_path / "o.exr"))
+    assert rep.exit_code == 1 and "2 parts (diffuse, spec)" in rep.results[0].error
+    assert not (tmp_path / "o.exr").exists()
+
+
+def test_deep_exr_is_refused(tmp_path):
+    path = str(tmp_path / "deep.exr")
+    spec = oiio.ImageSpec(4, 4, 4, "float")
+    spec.channelnames = ("R", "G", "B", "A")
+    spec.deep = True
+    buf = oiio.ImageBuf(spec)
+    for y in range(4):
+        for x in range(4):
+            buf.set_deep_samples(x, y, 0, 1)
+            for c in range(4):
+                buf.set_deep_value(x, y, 0, c, 0, 0.5)
+    assert buf.write(path), buf.geterror()
+    rep = process_textures(path, output=str(tmp_path / "o.exr"))
+    assert rep.exit_code == 1 and "deep image" in rep.results[0].error, rep.summary()
+    assert not (tmp_path / "o.exr").exists()
+
+
+def test_lab_channels_are_not_colour_and_alpha(tmp_path):
+    write(tmp_path / "lab.exr", ramp(), ["L", "a", "b"])
+    rep = process_textures(str(tmp_path / "lab.exr"), output=str(tmp_path / "o.exr"))
+    assert rep.exit_code == 1 and "not linear RGB" in rep.results[0].error, rep.summary()
+    assert not (tmp_path / "o.exr").exists()
+
+
+def test_albedo_and_mfp_with_different_data_windows_are_refused(tmp_path):
+    write(tmp_path / "a.exr", ramp(8, 8))
+    write(tmp_path / "a_mfp.exr", np.ones((8, 8, 1)), ["Y"], window=(4, 0))
+    rep = process_textures(str(tmp_path / "a.exr"), mfp=str(tmp_path / "{stem}_mfp.exr"),
+                           output=str(tmp_path / "o.exr"))
+    assert rep.exit_code == 1 and "data windows" in rep.results[0].error, rep.summary()
+
+# }}}
+
+
+# {{{ class 3: a written file is checked, and a re-run proves it complete
+
+def _limit_file_size(limit):
+    def apply():
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)      # a write past it fails (EFBIG)
+        resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))
+    return apply
+
+
+@pytest.mark.parametrize("tile", [0, 32], ids=["scanline", "tiled"])
+def test_full_disk_fails_the_file_and_leaves_nothing(tmp_path, tile):
+    px = np.random.default_rng(1).uniform(0.1, 0.9, (128, 128, 3)).astype(np.float32)
+    write(tmp_path / "a.exr", px, tile=tile)
+    rc, out, err = run_cli("invert", tmp_path / "a.exr", "-o",
+                           tmp_path / "out" / "{stem}.exr")
+    assert rc == 0, out + err
+    full = os.path.getsize(tmp_path / "out" / "a.exr")
+    os.remove(tmp_path / "out" / "a.exr")
+    rc, out, err = run_cli("invert", tmp_path / "a.exr", "--no-progress", "-o",
+                           tmp_path / "out" / "{stem}.exr", preexec_fn=_limit_file_size(full - 10))
+    assert rc == 1 and "failed" in out and " ok " not in out, out + err
+    assert os.listdir(tmp_path / "out") == []
+
+
+SCENE = '[[material]]\nname = "m"\nalbedo = "a.exr"\nmfp = 1.0\noutput = "out/a.exr"\n'
+
+
+def test_truncated_output_with_its_header_is_not_up_to_date(tmp_path):
+    write(tmp_path / "a.exr", np.random.default_rng(2).uniform(0.1, 0.9, (64, 64, 3)))
+    path = scene(tmp_path, SCENE)
+    assert scenes.load(path).plan().run().exit_code == 0
+    out = tmp_path / "out" / "a.exr"
+    data = out.read_bytes()
+    out.write_bytes(data[:len(data) * 2 // 3])
+    job = scenes.load(path).plan().jobs[0]
+    assert not job.up_to_date
+    assert scenes.load(path).plan().run().exit_code == 0
+    assert read(out)[0].shape == (64, 64, 6)
+
+
+def test_content_changed_with_size_and_time_restored_is_rebuilt(tmp_path):
+    px = np.random.default_rng(3).uniform(0.1, 0.9, (16, 16, 3)).astype(np.float32)
+    write(tmp_path / "a.exr", px)
+    path = scene(tmp_path, SCENE)
+    assert scenes.load(path).plan().run().exit_code == 0
+    st = os.stat(tmp_path / "a.exr")
+    px[3, 4] = 0.2                                  # same size: an uncompressed float file
+    write(tmp_path / "b.exr", px)
+    data = (tmp_path / "b.exr").read_bytes()
+    with open(tmp_path / "a.exr", "r+b") as f:      # rewritten in place, as an editor may
+        f.write(data)
+        f.truncate(len(data))
+    os.utime(tmp_path / "a.exr", ns=(st.st_atime_ns, st.st_mtime_ns))     # touch -r
+    assert os.path.getsize(tmp_path / "a.exr") == st.st_size
+    assert not scenes.load(path).plan().jobs[0].up_to_date
+
+# }}}
+
+
+# {{{ class 4: every written value finite, or its texel invalid and counted
+
+@pytest.mark.parametrize("mfp", ["1e-38", "1e-40"])
+def test_tiny_mfp_is_never_written_as_infinite_coefficients(tmp_path, mfp):
+    write(tmp_path / "a.exr", ramp(4, 4))
+    rc = cli_main(["invert", str(tmp_path / "a.exr"), "--mfp", mfp, "--no-progress",
+                   "-o", str(tmp_path / "o.exr")])
+    assert rc == 1 and not (tmp_path / "o.exr").exists()
+    rep = process_textures(str(tmp_path / "a.exr"), mfp=float(mfp), on_invalid="clamp",
+                           output=str(tmp_path / "o.exr"))
+    assert rep.exit_code == 0 and rep.results[0].invalid["not finite"] > 0, rep.summary()
+    assert np.all(np.isfinite(read(tmp_path / "o.exr")[0]))
+
+
+def test_half_blur_of_a_highlight_is_never_inf(tmp_path, capsys):
+    e = np.zeros((16, 16, 3), np.float32)
+    e[8, 8] = 1e6
+    write(tmp_path / "irr.exr", e)
+    rc = cli_main(["blur", str(tmp_path / "irr.exr"), "--albedo", "0.8", "--mfp", "0.5",
+                   "--half", "-o", str(tmp_path / "o.exr")])
+    err = capsys.readouterr().err
+    assert rc == 1 and "half-float range" in err and "x=8, y=8" in err, err
+    assert not (tmp_path / "o.exr").exists()
+    rc = cli_main(["blur", str(tmp_path / "irr.exr"), "--albedo", "0.8", "--mfp", "0.5",
+                   "--half", "--on-invalid", "clamp",
+                   "-o", str(tmp_path / "o.exr")])
+    px = read(tmp_path / "o.exr")[0]
+    assert rc == 0 and np.all(np.isfinite(px))
+    assert px[0, 0, 0] == px[0, 0, 0] and px[0, 0, 0] < 1e4     # far texels: as computed
+
+# }}}
+
+
+# {{{ class 5: signals and hangs
+
+def test_one_band_blur_obeys_sigint_within_seconds(tmp_path):
+    e = np.random.default_rng(0).uniform(0, 1, (384, 384, 3)).astype(np.float32)
+    write(tmp_path / "irr.exr", e)
+    proc = subprocess.Popen([sys.executable, "-m", "bdipole_cl", "--device", "intel", "blur",
+                             str(tmp_path / "irr.exr"), "--albedo", "0.8", "--mfp", "12",
+                             "--method", "direct",
+                             "-o", str(tmp_path / "o.exr")],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    time.sleep(4)
+    assert proc.poll() is None, "the blur ended before the signal"
+    proc.send_signal(signal.SIGINT)
+    t0 = time.monotonic()
+    out, err = proc.communicate(timeout=120)
+    waited = time.monotonic() - t0
+    assert proc.returncode == 130 and waited < 8, (proc.returncode, waited, out, err)
+    assert "interrupted" in err and "Traceback" not in err
+    assert sorted(os.listdir(tmp_path)) == ["irr.exr"]
+
+
+def test_a_fifo_is_refused_not_waited_on(tmp_path):
+    os.mkfifo(tmp_path / "pipe.exr")
+    rc, out, err = run_cli("invert", tmp_path / "pipe.exr", "-o",
+                           tmp_path / "o.exr", timeout=60)
+    assert rc == 1 and "not a regular file" in out, out + err
+
+
+def test_a_worker_memory_no_worker_can_run_in_is_one_line(capsys):
+    rc = cli_main(["blur", "x.exr", "--albedo", "0.5", "--mfp", "1", "--scheduler", "local:2",
+                   "--worker-memory", "10M", "-o", "o.exr"])
+    err = capsys.readouterr().err
+    assert rc == 2 and len(err.strip().splitlines()) == 1 and "at least" in err, err
+
+# }}}
+
+
+# {{{ class 6: one bad input never stops the others
+
+def test_a_truncated_tile_and_a_missing_alpha_fail_only_their_jobs(tmp_path, capsys):
+    (tmp_path / "tex").mkdir()
+    for t in ("1001", "1002"):
+        write(tmp_path / "tex" / f"a.{t}.exr", ramp())
+    data = (tmp_path / "tex" / "a.1002.exr").read_bytes()
+    (tmp_path / "tex" / "a.1002.exr").write_bytes(data[:len(data) // 2])
+    path = scene(tmp_path, '[[material]]\nname = "m"\nalbedo = "tex/a.<UDIM>.exr"\n'
+                           'mfp = 1.0\nmethod = "auto"\noutput = "out/a.<UDIM>.exr"\n'
+                           '[[material]]\nname = "masked"\nalbedo = "tex/a.1001.exr"\n'
+                           'mfp = 1.0\nmask = "alpha"\noutput = "out/masked.exr"\n')
+    assert cli_main(["plan", str(path)]) == 0
+    capsys.readouterr()
+    rc = cli_main(["bake", str(path), "--no-progress", "--max-memory", "1M"])
+    captured = capsys.readouterr()
+    assert rc == 1 and "1 done, 2 failed" in captured.out, captured
+    assert os.listdir(tmp_path / "out") == ["a.1001.exr"]
+
+# }}}
+
+
+# {{{ class 7: one-line messages that name the right file, texel and value
+
+def test_nan_is_reported_at_its_image_coordinates(tmp_path, capsys):
+    e = np.ones((96, 20, 3), np.float32)
+    e[77, 13, 1] = np.nan
+    write(tmp_path / "irr.exr", e, window=(100, 200))
+    rc = cli_main(["blur", str(tmp_path / "irr.exr"), "--albedo", "0.5", "--mfp", "1",
+                   "--max-memory", "16K", "-o", str(tmp_path / "o.exr")])
+    err = capsys.readouterr().err
+    assert rc == 1 and "x=113, y=277" in err, err
+
+
+@pytest.mark.parametrize("argv", [
+    ["report", "--n", "0"], ["report", "--repeats", "0"], ["report", "--blur-size", "0"],
+    ["blur", "x.exr", "--albedo", "0.5", "--mfp", "1", "--texel-size", "inf", "-o", "o.exr"],
+], ids=["n", "repeats", "blur-size", "texel-size-inf"])
+def test_bad_numbers_are_usage_errors(argv, capsys):
+    with pytest.raises(SystemExit) as stop:            # argparse's exit, as in a shell
+        cli_main(argv)
+    assert stop.value.code == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and "unexpected" not in err, err
+
+
+def test_texel_size_that_overflows_is_one_line(tmp_path, capsys):
+    write(tmp_path / "irr.exr", ramp())
+    rc = cli_main(["blur", str(tmp_path / "irr.exr"), "--albedo", "0.5", "--mfp", "1e-30",
+                   "--texel-size", "1e300", "-o", str(tmp_path / "o.exr")])
+    err = capsys.readouterr().err
+    assert rc in (1, 2) and "overflows" in err and "unexpected" not in err, err
+    path = scene(tmp_path, '[[material]]\nname = "m"\nalbedo = "irr.exr"\nmfp = 1.0\n'
+                           'output = "o.exr"\n[[blur]]\nname = "b"\nmaterial = "m"\n'
+                           'irradiance = "irr.exr"\ntexel_size = inf\noutput = "e.exr"\n')
+    assert cli_main(["plan", str(path)]) == 2
+    err = capsys.readouterr().err
+    assert "texel_size" in err and "unexpected" not in err, err
+
+
+def test_scene_files_in_other_encodings(tmp_path, capsys):
+    write(tmp_path / "a.exr", ramp())
+    (tmp_path / "bom.toml").write_bytes(b"\xef\xbb\xbf" + SCENE.encode())
+    assert cli_main(["plan", str(tmp_path / "bom.toml")]) == 0
+    capsys.readouterr()
+    (tmp_path / "latin.toml").write_bytes(SCENE.replace('"m"', '"caf\xe9"').encode("latin-1"))
+    assert cli_main(["plan", str(tmp_path / "latin.toml")]) == 2
+    err = capsys.readouterr().err
+    assert "latin.toml:2: not UTF-8" in err, err
+
+# }}}
+
+
+# {{{ class 8: paths and re-runs
+
+def test_brackets_and_braces_in_real_names_are_literal(tmp_path):
+    d = tmp_path / "tex[v2]"
+    d.mkdir()
+    write(d / "a.exr", ramp())
+    out = tmp_path / "proj{v2}" / "{stem}.exr"
+    rep = process_textures(str(d / "a.exr"), output=str(out))
+    assert rep.exit_code == 0, rep.summary()
+    assert (tmp_path / "proj{v2}" / "a.exr").exists()
+
+
+def test_a_glob_twice_never_inverts_its_own_outputs(tmp_path):
+    write(tmp_path / "a.exr", ramp())
+    for _ in range(2):
+        rc = cli_main(["invert", str(tmp_path / "*.exr"), "--no-progress"])
+        assert rc == 0
+    assert sorted(os.listdir(tmp_path)) == ["a.bdipole.exr", "a.exr"]
+
+
+def test_demo_never_writes_into_a_users_folder(tmp_path):
+    (tmp_path / "mine").mkdir()
+    (tmp_path / "mine" / "albedo.exr").write_bytes(b"my work")
+    assert cli_main(["demo", "--dir", str(tmp_path / "mine"), "--no-progress"]) == 2
+    assert (tmp_path / "mine" / "albedo.exr").read_bytes() == b"my work"
+
+
+def test_udim_field_without_a_udim_input_writes_nothing(tmp_path):
+    write(tmp_path / "a.exr", ramp())
+    rep = process_textures(str(tmp_path / "a.exr"), output=str(tmp_path / "s.{udim}.exr"))
+    assert rep.exit_code == 1 and "needs a UDIM" in rep.results[0].error
+    assert sorted(os.listdir(tmp_path)) == ["a.exr"]
+
+# }}}
+
+
+# {{{ class 9: the CLI as a newcomer meets it
+
+def test_version_help_and_defaults(capsys):
+    from bdipole_cl.version import __version__
+    with pytest.raises(SystemExit) as stop:
+        cli_main(["--version"])
+    assert stop.value.code == 0 and __version__ in capsys.readouterr().out
+    with pytest.raises(SystemExit):
+        cli_main(["--help"])
+    text = capsys.readouterr().out
+    assert "``" not in text and "Better Dipole" in text
+    with pytest.raises(SystemExit):
+        cli_main(["invert", "--help"])
+    assert "(default: 256M)" in capsys.readouterr().out
+
+
+def test_blur_reports_its_texels(tmp_path, capsys):
+    write(tmp_path / "irr.exr", ramp())
+    assert cli_main(["blur", str(tmp_path / "irr.exr"), "--albedo", "0.5", "--mfp", "1",
+                     "-o", str(tmp_path / "o.exr")]) == 0
+    assert "192 texels" in capsys.readouterr().out
+
+
+def test_an_unknown_device_still_lists_the_devices(capsys):
+    assert cli_main(["--device", "nonsense", "devices"]) == 1
+    captured = capsys.readouterr()
+    assert "works" in captured.out and "nonsense" in captured.err
+
+# }}}

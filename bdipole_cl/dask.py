@@ -190,7 +190,8 @@ def file_runner(client, *, device=None, progress=True):
         portable = replace(settings, runtime=None, cancel=None)
         run_id = uuid.uuid4().hex[:12]
         futures = {client.submit(_batch_file, job, portable, device, pure=False,
-                                 retries=RETRIES, key=f"invert-{i}-{Path(job.path).name}-{run_id}"): i
+                                 retries=RETRIES,
+                                 key=f"invert-{i}-{Path(job.path).name}-{run_id}"): i
                    for i, job in enumerate(jobs)}
         bar = _progress(len(futures), "invert", progress)
         try:

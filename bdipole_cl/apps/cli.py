@@ -9,6 +9,8 @@ import time
 from ..errors import POLICIES
 from ..signals import SignalStop
 from ..version import __version__
+from .cli_types import (Parser, floats, fraction, output_list, positive_float, positive_int,
+                        size)
 
 DESCRIPTION = """\
 Better Dipole subsurface scattering (d'Eon 2012) with Hery's albedo inversion, on OpenCL:
@@ -28,89 +30,6 @@ EPILOG = """examples:
   bdipole-cl crosscheck --user-kernel mine.cl --function computeRd --against rd
   bdipole-cl blur irradiance.exr --albedo 0.8,0.6,0.4 --mfp 1.2,0.6,0.3 --texel-size 0.1 -o sss.exr
 """
-
-
-def _size(text):
-    """'512M', '2G', '1048576' -> bytes (an argparse type: bad values are usage errors)."""
-    raw = str(text).strip().upper()
-    mult = {"K": 1 << 10, "M": 1 << 20, "G": 1 << 30}.get(raw[-1:], 1)
-    try:
-        value = int(float(raw[:-1] if raw[-1:] in "KMG" else raw) * mult)
-    except ValueError:
-        value = 0
-    if value <= 0:
-        raise argparse.ArgumentTypeError(f"{text!r}: expected a size such as 512M, 2G or "
-                                         f"1048576 (bytes)")
-    return value
-
-
-def _floats(text):
-    """'1.4' or '1.3,1.4,1.5' -> a tuple of finite floats (an argparse type)."""
-    try:
-        values = tuple(float(v) for v in str(text).split(","))
-    except ValueError:
-        values = ()
-    if not values or not all(v == v and abs(v) != float("inf") for v in values):
-        raise argparse.ArgumentTypeError(f"{text!r}: expected a number or a comma list such as "
-                                         f"1.3,1.4,1.5")
-    return values
-
-
-def _number(convert, valid, expected):
-    """An argparse type: ``convert(text)`` that ``valid`` accepts, else one-line usage error."""
-    def parse(text):
-        try:
-            value = convert(text)
-        except ValueError:
-            value = None
-        if value is None or not valid(value):
-            raise argparse.ArgumentTypeError(f"{text!r}: expected {expected}")
-        return value
-    return parse
-
-
-_positive_int = _number(int, lambda v: v >= 1, "a whole number >= 1")
-_positive_float = _number(float, lambda v: 0 < v < float("inf"), "a number > 0")
-_fraction = _number(float, lambda v: 0 < v < 1, "a number in (0, 1), e.g. 1e-3")
-
-
-def _shown(value):
-    if isinstance(value, (tuple, list)):
-        return ",".join(f"{v:g}" if isinstance(v, float) else str(v) for v in value)
-    return str(value).replace("%", "%%")
-
-
-class _Help(argparse.RawDescriptionHelpFormatter):
-    """Help texts with each option's default shown (``ArgumentDefaultsHelpFormatter``'s rule,
-    less the options that have none) and descriptions and epilogs kept as written."""
-
-    def _get_help_string(self, action):
-        text = action.help or ""
-        if ("%(default)" in text or not action.option_strings
-                or action.default in (None, False, argparse.SUPPRESS)):
-            return text
-        return f"{text} (default: {_shown(action.default)})"
-
-
-class _Parser(argparse.ArgumentParser):
-    """argparse with one-line usage errors (``prog: error: ...``, exit 2), no usage block."""
-
-    def __init__(self, *args, **kwargs):
-        kwargs.setdefault("formatter_class", _Help)
-        super().__init__(*args, **kwargs)
-
-    def error(self, message):
-        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
-
-
-def _output_list(text):
-    from ..ops.invert import OUTPUTS
-    names = tuple(o.strip() for o in str(text).split(",") if o.strip())
-    unknown = [o for o in names if o not in OUTPUTS]
-    if not names or unknown:
-        raise argparse.ArgumentTypeError(f"{text!r}: {', '.join(unknown) or 'empty'} not "
-                                         f"allowed; choose from {', '.join(OUTPUTS)}")
-    return names
 
 
 def _finish(report, stop) -> int:
@@ -178,7 +97,7 @@ def _invert(args, run_files) -> int:
 
 def _is_number_list(text):
     try:
-        _floats(text)
+        floats(text)
         return True
     except argparse.ArgumentTypeError:
         return False
@@ -187,7 +106,7 @@ def _is_number_list(text):
 def _param(text, what, colour=False):
     """A blur parameter: numbers ('0.8' or 'r,g,b'), else the path of a texture."""
     if _is_number_list(text):
-        return _floats(text)
+        return floats(text)
     else:
         from ..io.images import read_parameter_texture
         return read_parameter_texture(text, what, colour=colour)
@@ -374,12 +293,12 @@ def _add_scheduler_args(p):
     p.add_argument("--scheduler", metavar="ADDRESS",
                    help="run on a Dask cluster: tcp://host:8786 joins a running scheduler, "
                         "local:N starts N worker processes here (needs bdipole-cl[dask])")
-    p.add_argument("--worker-memory", type=_size, metavar="SIZE",
+    p.add_argument("--worker-memory", type=size, metavar="SIZE",
                    help="with --scheduler local:N, each worker's memory limit (e.g. 1G)")
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = _Parser(prog="bdipole-cl", description=DESCRIPTION, epilog=EPILOG)
+    parser = Parser(prog="bdipole-cl", description=DESCRIPTION, epilog=EPILOG)
     parser.add_argument("--version", action="version", version=f"bdipole-cl {__version__}")
     parser.add_argument("--device", metavar="SPEC",
                         help="OpenCL device: P:D as listed by `devices`, or part of its platform "
@@ -396,9 +315,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("crosscheck",
                        help="every kernel (or your own OpenCL function) vs the float64 reference")
-    p.add_argument("--eta", type=_floats, default=(1.0, 1.4, 2.5),
+    p.add_argument("--eta", type=floats, default=(1.0, 1.4, 2.5),
                    help="etas to sweep (comma list)")
-    p.add_argument("--n", type=_positive_int, default=500,
+    p.add_argument("--n", type=positive_int, default=500,
                    help="points per sweep segment (user kernels: per Rd range)")
     p.add_argument("--user-kernel", help="an OpenCL C file with your function")
     p.add_argument("--function",
@@ -410,7 +329,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="what it computes: rd(alpha', 2C1, 3C2), profile(r, alpha', sigma_t', "
                         "2C1, 3C2), invert(Rd, 2C1, 3C2) -> alpha', invert-rho -> rho, or "
                         "invert-both(Rd, 2C1, 3C2, float *alpha', float *rho)")
-    p.add_argument("--timeout", type=_positive_float, default=120.0,
+    p.add_argument("--timeout", type=positive_float, default=120.0,
                    help="seconds a user kernel's run may take before it is stopped")
     p.set_defaults(func=_cmd_crosscheck)
 
@@ -418,7 +337,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("scene", help="scene file (TOML)")
     p.add_argument("--json", action="store_true", help="the plan as JSON")
     p.add_argument("--force", action="store_true", help="plan every job, up to date or not")
-    p.add_argument("--max-memory", type=_size, default="256M",
+    p.add_argument("--max-memory", type=size, default="256M",
                    help="host memory for the statistics pass's bands of rows")
     p.set_defaults(func=_cmd_plan)
 
@@ -426,18 +345,18 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("scene", help="scene file (TOML)")
     p.add_argument("--force", action="store_true", help="rebuild every output")
     p.add_argument("--no-progress", action="store_true", help="no progress bar and job lines")
-    p.add_argument("--max-memory", type=_size, default="256M",
+    p.add_argument("--max-memory", type=size, default="256M",
                    help="host memory per job for bands of rows (e.g. 512M)")
     _add_scheduler_args(p)
     p.set_defaults(func=_cmd_bake)
 
     p = sub.add_parser("report", help="error against run time for every method (md, csv, png)")
     p.add_argument("-o", "--output", default="report_out", help="folder for the report")
-    p.add_argument("--n", type=_positive_int, default=1 << 20,
+    p.add_argument("--n", type=positive_int, default=1 << 20,
                    help="albedos in the inversion workload")
-    p.add_argument("--blur-size", type=_positive_int, default=512,
+    p.add_argument("--blur-size", type=positive_int, default=512,
                    help="side of the blur workload (texels)")
-    p.add_argument("--repeats", type=_positive_int, default=3,
+    p.add_argument("--repeats", type=positive_int, default=3,
                    help="timed runs per configuration (the fastest is kept)")
     p.add_argument("--write-choice", metavar="PATH",
                    help="also write every measured configuration as method='auto' choice data "
@@ -455,10 +374,10 @@ def build_parser() -> argparse.ArgumentParser:
                                          "--albedo/--mfp)")
     p.add_argument("--sigma-t", help="sigma_t', 1/unit: value(s) or a texture (with "
                                      "--alpha-prime)")
-    p.add_argument("--eta", type=_floats, default=(1.4,), help="one or per channel 'r,g,b'")
-    p.add_argument("--texel-size", type=_positive_float, default=1.0,
+    p.add_argument("--eta", type=floats, default=(1.4,), help="one or per channel 'r,g,b'")
+    p.add_argument("--texel-size", type=positive_float, default=1.0,
                    help="world size of a texel")
-    p.add_argument("--tol", type=_fraction, default=1e-3, help="energy left out, relative to Rd")
+    p.add_argument("--tol", type=fraction, default=1e-3, help="energy left out, relative to Rd")
     p.add_argument("--method", default="auto", choices=("auto", "direct", "gaussians", "fft"),
                    help="blur method (auto: the cheapest meeting --tol)")
     p.add_argument("--border", default="clamp", choices=("clamp", "zero", "wrap"),
@@ -469,7 +388,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--exact", action="store_true", help="exact Fresnel moments")
     p.add_argument("--half", action="store_true", help="write half floats")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
-    p.add_argument("--max-memory", type=_size, default="256M",
+    p.add_argument("--max-memory", type=size, default="256M",
                    help="host memory for bands of rows (each with a halo of the radius)")
     _add_scheduler_args(p)
     p.set_defaults(func=_cmd_blur)
@@ -482,9 +401,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "path/pattern ({stem}, {dir}, <UDIM>)")
     p.add_argument("--unit", default="mm", help="length unit of the mfp")
     p.add_argument("--mfp-scale", type=float, default=1.0, help="multiplies mfp values")
-    p.add_argument("--eta", type=_floats, default=(1.4,),
+    p.add_argument("--eta", type=floats, default=(1.4,),
                    help="relative IOR, one or per channel 'r,g,b'")
-    p.add_argument("--outputs", type=_output_list, default="sigma_a,sigma_s",
+    p.add_argument("--outputs", type=output_list, default="sigma_a,sigma_s",
                    help="comma list from alpha, rho, sigma_a, sigma_s, sigma_t")
     p.add_argument("-o", "--output", default="{dir}/{stem}.bdipole.exr",
                    help="output path pattern: {dir} {stem} {name} {udim} <UDIM>")
@@ -496,9 +415,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="alpha channel: copied through or dropped (never inverted)")
     p.add_argument("--on-invalid", default="raise", choices=POLICIES,
                    help="NaN/Inf/>=1 albedo or bad mfp texels: fail the file, or clamp")
-    p.add_argument("--max-memory", type=_size, default="256M",
+    p.add_argument("--max-memory", type=size, default="256M",
                    help="host memory per file (e.g. 512M)")
-    p.add_argument("-j", "--jobs", type=_positive_int, default=1,
+    p.add_argument("-j", "--jobs", type=positive_int, default=1,
                    help="files processed at once")
     p.add_argument("--skip-existing", action="store_true",
                    help="skip files whose output is newer than their inputs")

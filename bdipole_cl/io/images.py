@@ -167,8 +167,8 @@ class Reader:
         with self.lock:
             px = read_rows_of(self.inp, s, y0, y1, oiio.FLOAT)
         if px is None:
-            raise TextureError(f"{self.path}: read of rows {y0}..{y1} failed: "
-                               f"{self.inp.geterror() or oiio.geterror() or 'missing or corrupt data'}")
+            why = self.inp.geterror() or oiio.geterror() or "missing or corrupt data"
+            raise TextureError(f"{self.path}: read of rows {y0}..{y1} failed: {why}")
         return np.asarray(px, dtype=np.float32).reshape(y1 - y0, s.width, s.nchannels)
 
     def close(self):

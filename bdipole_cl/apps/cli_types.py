@@ -1,0 +1,88 @@
+"""The command line's argument types and help: one-line usage errors, defaults shown
+(applications layer; ``cli`` builds its parser from these)."""
+from __future__ import annotations
+
+import argparse
+
+
+def size(text):
+    """'512M', '2G', '1048576' -> bytes (an argparse type: bad values are usage errors)."""
+    raw = str(text).strip().upper()
+    mult = {"K": 1 << 10, "M": 1 << 20, "G": 1 << 30}.get(raw[-1:], 1)
+    try:
+        value = int(float(raw[:-1] if raw[-1:] in "KMG" else raw) * mult)
+    except ValueError:
+        value = 0
+    if value <= 0:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected a size such as 512M, 2G or "
+                                         f"1048576 (bytes)")
+    return value
+
+
+def floats(text):
+    """'1.4' or '1.3,1.4,1.5' -> a tuple of finite floats (an argparse type)."""
+    try:
+        values = tuple(float(v) for v in str(text).split(","))
+    except ValueError:
+        values = ()
+    if not values or not all(v == v and abs(v) != float("inf") for v in values):
+        raise argparse.ArgumentTypeError(f"{text!r}: expected a number or a comma list such as "
+                                         f"1.3,1.4,1.5")
+    return values
+
+
+def number(convert, valid, expected):
+    """An argparse type: ``convert(text)`` that ``valid`` accepts, else one-line usage error."""
+    def parse(text):
+        try:
+            value = convert(text)
+        except ValueError:
+            value = None
+        if value is None or not valid(value):
+            raise argparse.ArgumentTypeError(f"{text!r}: expected {expected}")
+        return value
+    return parse
+
+
+positive_int = number(int, lambda v: v >= 1, "a whole number >= 1")
+positive_float = number(float, lambda v: 0 < v < float("inf"), "a number > 0")
+fraction = number(float, lambda v: 0 < v < 1, "a number in (0, 1), e.g. 1e-3")
+
+
+def shown(value):
+    if isinstance(value, (tuple, list)):
+        return ",".join(f"{v:g}" if isinstance(v, float) else str(v) for v in value)
+    return str(value).replace("%", "%%")
+
+
+class HelpFormatter(argparse.RawDescriptionHelpFormatter):
+    """Help texts with each option's default shown (``ArgumentDefaultsHelpFormatter``'s rule,
+    less the options that have none) and descriptions and epilogs kept as written."""
+
+    def _get_help_string(self, action):
+        text = action.help or ""
+        if ("%(default)" in text or not action.option_strings
+                or action.default in (None, False, argparse.SUPPRESS)):
+            return text
+        return f"{text} (default: {shown(action.default)})"
+
+
+class Parser(argparse.ArgumentParser):
+    """argparse with one-line usage errors (``prog: error: ...``, exit 2), no usage block."""
+
+    def __init__(self, *args, **kwargs):
+        kwargs.setdefault("formatter_class", HelpFormatter)
+        super().__init__(*args, **kwargs)
+
+    def error(self, message):
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
+def output_list(text):
+    from ..ops.invert import OUTPUTS
+    names = tuple(o.strip() for o in str(text).split(",") if o.strip())
+    unknown = [o for o in names if o not in OUTPUTS]
+    if not names or unknown:
+        raise argparse.ArgumentTypeError(f"{text!r}: {', '.join(unknown) or 'empty'} not "
+                                         f"allowed; choose from {', '.join(OUTPUTS)}")
+    return names

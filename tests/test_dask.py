@@ -1,6 +1,8 @@
 """Dask clusters (bdipole_cl/dask.py): a LocalCluster of 2 worker processes."""
 import os
 import shutil
+import threading
+import time
 
 import numpy as np
 import OpenImageIO as oiio
@@ -148,3 +150,27 @@ def test_cli_bake_on_a_local_cluster(tmp_path, capsys):
     assert "dask dashboard: http" in out and "5 done, 0 failed, 0 skipped" in out
     assert cli_main(["bake", str(tmp_path / "scene.toml"), "--scheduler", "local:0"]) == 2
     assert "expected local:N with N >= 1" in capsys.readouterr().err
+
+
+def test_a_stop_request_cancels_the_unfinished_cluster_jobs(client, two_scenes):
+    """SIGINT/SIGTERM during a cluster bake: what has not finished is cancelled within a
+    poll, reported "cancelled", and no job runs to its end after the request."""
+    from bdipole_cl.signals import STOP
+    _, cluster = two_scenes
+
+    def slow(job, scene, device=None):
+        time.sleep(4)                  # a running task is not interrupted; it is abandoned
+        raise RuntimeError("should have been cancelled")
+
+    timer = threading.Timer(1.0, STOP.set)
+    timer.start()
+    t0 = time.monotonic()
+    try:
+        report = bdask.bake_on_cluster(scenes.load(cluster).plan(), client, progress=False,
+                                       run=slow)
+    finally:
+        timer.cancel()
+        STOP.clear()
+    assert time.monotonic() - t0 < 10, "the bake waited for its jobs after the stop request"
+    assert {r.status for r in report.results} == {"cancelled"}, report.summary()
+    assert not (cluster.parent / "out").exists() or not os.listdir(cluster.parent / "out")

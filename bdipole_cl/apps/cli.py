@@ -160,7 +160,7 @@ def _cmd_blur(args) -> int:
               f"error <= {c.error_bound:.1e} x max(E) x Rd")
     texels = _texels_of(args.input)
     print(f"wrote {args.output}: {texels} texels in {seconds:.2f} s "
-          f"({texels / max(seconds, 1e-9) / 1e6:.1f} Mtexel/s)")
+          f"({texels / max(seconds, 1e-9) / 1e6:.3g} Mtexel/s)")
     return 0
 
 

@@ -503,3 +503,23 @@ def test_an_unknown_device_still_lists_the_devices(capsys):
     assert "works" in captured.out and "nonsense" in captured.err
 
 # }}}
+
+
+# {{{ class 4 (continued): a clamp changes only its own texel
+
+@pytest.mark.parametrize("bad", [np.nan, np.inf, -1.0], ids=["nan", "inf", "negative"])
+@pytest.mark.parametrize("what", ["mfp", "albedo"])
+def test_a_clamped_parameter_texel_changes_no_other_texel(what, bad):
+    from bdipole_cl import blur
+    rng = np.random.default_rng(1)
+    e = rng.uniform(0, 1, (24, 24, 3)).astype(np.float32)
+    maps = {"albedo": rng.uniform(0.3, 0.7, (24, 24, 3)).astype(np.float32),
+            "mfp": rng.uniform(0.5, 2.0, (24, 24, 3)).astype(np.float32)}
+    want = blur(e, texel_size=0.3, on_invalid="clamp", **maps)
+    maps[what] = maps[what].copy()
+    maps[what][5, 5, 1] = bad
+    got = blur(e, texel_size=0.3, on_invalid="clamp", **maps)
+    got[5, 5], want[5, 5] = 0, 0         # the gather uses the exit texel's own profile
+    np.testing.assert_array_equal(got, want)
+
+# }}}

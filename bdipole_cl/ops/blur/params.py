@@ -107,13 +107,18 @@ def texture_channel(value, shape, c, name):
 def checked_parameter(value, shape, c, name, on_invalid="raise"):
     """Channel c of a parameter as HxW, every texel within ``RULES[name]``: else an
     InvalidInputError naming the count and the first bad texel, or, with
-    ``on_invalid="clamp"``, the texels clamped into the rule's range (NaN to its bottom)."""
+    ``on_invalid="clamp"``, the bad texels (only they) clamped into the range of the channel's
+    valid texels (NaN to its bottom; the rule's range if no texel is valid). So a bad texel
+    never widens the range the texture-varying plan is built for, and the valid texels'
+    exitance is what it would be without it."""
     rule, ok, (lo, hi) = RULES[name]
     v = texture_channel(value, shape, c, name)
     bad = ~ok(v)
     if find_invalid(name, v, bad, f"outside {rule}", check_policy(on_invalid), texels=True,
                     channel=c):
-        v = np.clip(np.nan_to_num(v, nan=lo, posinf=hi, neginf=lo), lo, hi)
+        good = v[~bad]
+        lo, hi = (good.min(), good.max()) if good.size else (lo, hi)
+        v = np.where(bad, np.clip(np.nan_to_num(v, nan=lo, posinf=hi, neginf=lo), lo, hi), v)
     return v
 
 

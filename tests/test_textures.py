@@ -90,8 +90,8 @@ def test_formats_values_and_headers(tmp_path, ext, fmt, channels, decode):
     assert sorted(spec.channelnames) == sorted(want_names)  # EXR stores channels by name
     assert (spec.width, spec.height) == (W, H) and spec.format == oiio.FLOAT
     assert spec.getattribute("bdipole:eta").startswith("1.4")
-    assert spec.getattribute("bdipole:albedo_colorspace") == ("linear" if decode == "linear"
-                                                              else "srgb_rec709_scene")
+    assert spec.getattribute("bdipole:albedo_colorspace") == (
+        "Linear Rec.709 (sRGB)" if decode == "linear" else "sRGB Encoded Rec.709 (sRGB)")
     # expected linear albedo, decoded independently of OpenImageIO
     _, stored = read(path)
     for c in colour:

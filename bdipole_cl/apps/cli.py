@@ -16,6 +16,7 @@ EPILOG = """examples:
   bdipole-cl devices
   bdipole-cl invert diffuse.<UDIM>.exr --mfp mfp.<UDIM>.exr --eta 1.4 -o out/{stem}_coeffs.exr
   bdipole-cl invert 'textures/*.tif' --mfp 1.2,0.6,0.3 --unit mm --half --jobs 2
+  bdipole-cl --working-space ACEScg invert albedo.png --mfp 1.2,0.6,0.3   # README: Colour
   bdipole-cl crosscheck                             # every kernel vs the float64 reference
   bdipole-cl crosscheck --user-kernel mine.cl --function computeRd --against rd
   bdipole-cl blur irradiance.exr --albedo 0.8,0.6,0.4 --mfp 1.2,0.6,0.3 --texel-size 0.1 -o sss.exr
@@ -64,6 +65,16 @@ def _number(convert, valid, expected):
 _positive_int = _number(int, lambda v: v >= 1, "a whole number >= 1")
 _positive_float = _number(float, lambda v: 0 < v < float("inf"), "a number > 0")
 _fraction = _number(float, lambda v: 0 < v < 1, "a number in (0, 1), e.g. 1e-3")
+
+
+def _working_space(text):
+    """A working space of the active OCIO config (an argparse type: unknown names are usage
+    errors listing the known ones)."""
+    from ..io.colour import resolve_working_space
+    try:
+        return resolve_working_space(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
 
 
 class _Parser(argparse.ArgumentParser):
@@ -161,6 +172,7 @@ def _invert(args, run_files) -> int:
         args.inputs, mfp=args.mfp, eta=args.eta, output=args.output, cancel=stop.event,
         outputs=args.outputs, method=args.method,
         model=args.model, exact=args.exact, half=args.half, colorspace=args.colorspace,
+        working_space=args.working_space,
         alpha=args.alpha, on_invalid=args.on_invalid, max_memory=args.max_memory,
         jobs=args.jobs, skip_existing=args.skip_existing, unit=args.unit, double=args.double,
         mfp_scale=args.mfp_scale, progress=not args.no_progress and run_files is None,
@@ -176,13 +188,16 @@ def _is_number_list(text):
         return False
 
 
-def _param(text, what, colour=False):
-    """A blur parameter: numbers ('0.8' or 'r,g,b'), else the path of a texture."""
+def _param(text, what, colour=None):
+    """A blur parameter: numbers ('0.8' or 'r,g,b', in the working space), else the path of
+    a texture; ``colour``: (colorspace, working space) of an albedo texture, converted."""
     if _is_number_list(text):
         return _floats(text)
     else:
         from ..io.images import read_parameter_texture
-        return read_parameter_texture(text, what, colour=colour)
+        return read_parameter_texture(text, what, colour=colour is not None,
+                                      colorspace=colour[0] if colour else "auto",
+                                      working=colour[1] if colour else None)
 
 
 def _cmd_blur(args) -> int:
@@ -201,13 +216,14 @@ def _cmd_blur(args) -> int:
     stop = _Stop().install()
     kw = dict(eta=args.eta, texel_size=args.texel_size, tol=args.tol,
               method=args.method, border=args.border, on_invalid=args.on_invalid,
-              exact=args.exact)
+              exact=args.exact, colorspace=args.colorspace, working_space=args.working_space)
     try:
         if args.alpha_prime is not None:
             kw.update(alpha=_param(args.alpha_prime, "alpha'"),
                       sigma_t=_param(args.sigma_t, "sigma_t'"))
         else:
-            kw.update(albedo=_param(args.albedo, "albedo", colour=True),
+            kw.update(albedo=_param(args.albedo, "albedo",
+                                    colour=(args.colorspace, args.working_space)),
                       mfp=_param(args.mfp, "mfp"))
         if args.scheduler:
             from ..dask import blur_file_on_cluster
@@ -262,14 +278,14 @@ def _cmd_crosscheck(args) -> int:
 
 def _cmd_plan(args) -> int:
     from ..io.scene import load
-    plan = load(args.scene).plan(force=args.force)
+    plan = load(args.scene, args.working_space).plan(force=args.force)
     print(plan.to_json() if args.json else plan.describe())
     return 0
 
 
 def _cmd_bake(args) -> int:
     from ..io.scene import load
-    plan = load(args.scene).plan(force=args.force)
+    plan = load(args.scene, args.working_space).plan(force=args.force)
     for problem in plan.missing:            # every missing input, before any work starts
         print(f"cannot run: {problem}", file=sys.stderr)
     stop = _Stop().install()
@@ -334,24 +350,41 @@ def _add_scheduler_args(p):
                    help="with --scheduler local:N, each worker's memory limit (e.g. 1G)")
 
 
+def _add_global_args(p, default):
+    """The options of every command, before or after it (``default``: None on the main
+    parser; SUPPRESS on the commands, so that one given before is kept)."""
+    p.add_argument("--device", metavar="SPEC", default=default,
+                   help="OpenCL device: P:D as listed by `devices`, or part of its platform "
+                        "or name ('intel', 'pocl'); default: the automatic choice")
+    p.add_argument("--working-space", metavar="NAME", type=_working_space, default=default,
+                   help="the colour space albedo and irradiance are converted into and every "
+                        "output is in: a scene-linear space of the OCIO config ($OCIO, else "
+                        "ocio://default), e.g. ACEScg; default: $OCIO's scene_linear role, else "
+                        "lin_rec709_scene (scenes: entries without working_space)")
+    p.add_argument("--debug", action="store_true",
+                   default=False if default is None else default, help="show tracebacks")
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(
         prog="bdipole-cl", description=__doc__.split("\n")[0],
         epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--device", metavar="SPEC",
-                        help="OpenCL device: P:D as listed by `devices`, or part of its platform "
-                             "or name ('intel', 'pocl'); default: the automatic choice")
-    parser.add_argument("--debug", action="store_true", help="show tracebacks")
+    _add_global_args(parser, None)
+    common = argparse.ArgumentParser(add_help=False)
+    _add_global_args(common, argparse.SUPPRESS)   # after the command too, not overriding
     sub = parser.add_subparsers(dest="command", required=True)
-    p = sub.add_parser("devices", help="list OpenCL devices and the one in use")
+
+    def command(name, **kw):
+        return sub.add_parser(name, parents=[common], **kw)
+    p = command("devices", help="list OpenCL devices and the one in use")
     p.set_defaults(func=_cmd_devices)
 
-    p = sub.add_parser("demo", help="make a built-in example and run the main jobs on it")
+    p = command("demo", help="make a built-in example and run the main jobs on it")
     p.add_argument("--dir", default="bdipole_demo", help="folder for inputs and results")
     p.add_argument("--no-progress", action="store_true")
     p.set_defaults(func=_cmd_demo)
 
-    p = sub.add_parser("crosscheck",
+    p = command("crosscheck",
                        help="every kernel (or your own OpenCL function) vs the float64 reference")
     p.add_argument("--eta", type=_floats, default=(1.0, 1.4, 2.5),
                    help="etas to sweep (comma list)")
@@ -371,20 +404,20 @@ def build_parser() -> argparse.ArgumentParser:
                    help="seconds a user kernel's run may take before it is stopped")
     p.set_defaults(func=_cmd_crosscheck)
 
-    p = sub.add_parser("plan", help="what a scene's bake computes and leaves out, per job")
+    p = command("plan", help="what a scene's bake computes and leaves out, per job")
     p.add_argument("scene", help="scene file (TOML)")
     p.add_argument("--json", action="store_true", help="the plan as JSON")
     p.add_argument("--force", action="store_true", help="plan every job, up to date or not")
     p.set_defaults(func=_cmd_plan)
 
-    p = sub.add_parser("bake", help="run a scene's plan: only what is needed, only what changed")
+    p = command("bake", help="run a scene's plan: only what is needed, only what changed")
     p.add_argument("scene", help="scene file (TOML)")
     p.add_argument("--force", action="store_true", help="rebuild every output")
     p.add_argument("--no-progress", action="store_true", help="no line per job")
     _add_scheduler_args(p)
     p.set_defaults(func=_cmd_bake)
 
-    p = sub.add_parser("report", help="error against run time for every method (md, csv, png)")
+    p = command("report", help="error against run time for every method (md, csv, png)")
     p.add_argument("-o", "--output", default="report_out", help="folder for the report")
     p.add_argument("--n", type=int, default=1 << 20, help="albedos in the inversion workload")
     p.add_argument("--blur-size", type=int, default=512, help="side of the blur workload")
@@ -394,7 +427,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "(JSON; use it with BDIPOLE_CL_CHOICE_DATA=PATH)")
     p.set_defaults(func=_cmd_report)
 
-    p = sub.add_parser("blur", help="blur an irradiance map with the Better Dipole profile R(r)")
+    p = command("blur", help="blur an irradiance map with the Better Dipole profile R(r)")
     p.add_argument("input", help="irradiance image (EXR/TIFF/PNG...)")
     p.add_argument("-o", "--output", required=True, help="output EXR")
     p.add_argument("--albedo",
@@ -415,13 +448,17 @@ def build_parser() -> argparse.ArgumentParser:
                    help="NaN/Inf irradiance or parameter texels out of range: fail, or clamp "
                         "(irradiance: unlit, 0; parameters: into their valid range)")
     p.add_argument("--exact", action="store_true", help="exact Fresnel moments")
+    p.add_argument("--colorspace", default="auto",
+                   help="colour space of the irradiance and of an albedo texture (auto: as "
+                        "declared, else sRGB for 8-bit, the working space for 16-bit/float); "
+                        "mfp is never converted")
     p.add_argument("--half", action="store_true")
     p.add_argument("--max-memory", type=_size, default="256M",
                    help="host memory for bands of rows (each with a halo of the radius)")
     _add_scheduler_args(p)
     p.set_defaults(func=_cmd_blur)
 
-    p = sub.add_parser(
+    p = command(
         "invert", help="albedo (+ mfp) textures -> scattering-coefficient EXRs",
         epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("inputs", nargs="+", help="albedo files, globs or <UDIM> patterns")
@@ -438,8 +475,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="output path pattern: {dir} {stem} {name} {udim} <UDIM>")
     p.add_argument("--half", action="store_true", help="write half floats")
     p.add_argument("--colorspace", default="auto",
-                   help="colour space of 8/16-bit albedo (auto: as declared, else sRGB for "
-                        "8-bit, linear for 16-bit)")
+                   help="colour space of the albedo files, a name of the OCIO config (auto: "
+                        "as each declares, else sRGB for 8-bit, the working space for 16-bit "
+                        "and float); mfp is never converted")
     p.add_argument("--alpha", default="keep", choices=("keep", "drop"),
                    help="alpha channel: copied through or dropped (never inverted)")
     p.add_argument("--on-invalid", default="raise", choices=POLICIES,

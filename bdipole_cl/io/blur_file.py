@@ -11,8 +11,9 @@ from ..device import get_runtime
 from ..ops.bands import band_rows, bands
 from ..ops.blur import PARAM_KEYS, blur, is_textured
 from ..ops.blur.planning import channel_plans, halo_of
+from .colour import resolve_working_space
 from .images import (Cancelled, Reader, TextureError, Writer, check_output_format, output_spec,
-                     read_rows, source_colorspace, to_linear)
+                     read_rows)
 
 #: working set per row of a streamed band, in floats per texel and channel of the file: the
 #: band as read, the colour planes, the blur's own working set (``constant_row_bytes``) and
@@ -20,11 +21,16 @@ from .images import (Cancelled, Reader, TextureError, Writer, check_output_forma
 FILE_ROW_FLOATS = 10
 
 
-def blur_file(path, output, *, colorspace="auto", half=False, max_memory=256 << 20,
-              sources=None, cancel=None, mask=None, header=None, **kwargs):
+def blur_file(path, output, *, colorspace="auto", working_space=None, half=False,
+              max_memory=256 << 20, sources=None, cancel=None, mask=None, header=None,
+              **kwargs):
     """Blur an irradiance image file into an EXR, streamed in bands of rows with a halo of the
-    truncation radius (memory bounded by ``max_memory``). Integer files are decoded to linear
-    as in ``process_textures``; alpha is copied through. ``kwargs`` are ``blur``'s.
+    truncation radius (memory bounded by ``max_memory``). The irradiance is converted from
+    ``colorspace`` (else as the file declares, as in ``process_textures``) into
+    ``working_space``, the space the albedo/mfp parameters are in (arrays and constants are
+    taken as being in it; ``read_parameter_texture(..., colour=True)`` converts an albedo
+    file), and the output is tagged with it. Alpha is copied through. ``kwargs`` are
+    ``blur``'s.
 
     ``sources``: {parameter name: file} of parameter textures given as arrays, so that errors
     name the file they come from and ``output`` never overwrites one of them. ``cancel``
@@ -43,7 +49,7 @@ def blur_file(path, output, *, colorspace="auto", half=False, max_memory=256 << 
     try:
         spec = reader.spec
         colour, alpha_ch = reader.channels()
-        space = source_colorspace(spec, colorspace)
+        route = reader.colour(colorspace, resolve_working_space(working_space))
         border = kwargs.get("border", "clamp")
         kwargs["device"] = get_runtime(kwargs.get("device"))   # resolved once for all bands
         physical = {key: kwargs[key] for key in PARAM_KEYS if key in kwargs}
@@ -69,8 +75,7 @@ def blur_file(path, output, *, colorspace="auto", half=False, max_memory=256 << 
                 raise Cancelled(f"{path}: interrupted; nothing written")
             px = read_rows(reader, idx)
             e = px[..., colour]
-            if space is not None:
-                e = to_linear(e, space)
+            e = route.convert(e, names[:len(colour)])
             if mask is not None:
                 e = e * (np.asarray(mask)[np.maximum(idx, 0)] > 0)[..., None] \
                     * (idx >= 0)[:, None, None]
@@ -92,9 +97,11 @@ def blur_file(path, output, *, colorspace="auto", half=False, max_memory=256 << 
                                                for c in info.channels)
                 meta.update(header or {})
                 meta["source"] = str(path)
+                meta.update(route.header("irradiance"))
                 Path(output).parent.mkdir(parents=True, exist_ok=True)
                 writer = Writer(output, output_spec(
-                    spec, names, len(names) - 1 if alpha_ch >= 0 else -1, half, meta))
+                    spec, names, len(names) - 1 if alpha_ch >= 0 else -1, half, meta,
+                    working=route.working))
             writer.write_band(y0, y1, np.concatenate(parts, axis=-1))
         writer.commit()
         writer = None

@@ -20,9 +20,11 @@ computed and what is left out, and why:
   is invented at their edges), and texels of another island within the kernel's radius in
   texture space do exchange light, as in any texture-space diffusion (keep islands a kernel
   radius apart, or accept the bleed);
-- **up to date**: an output whose ``bdipole:*`` header records the same parameters digest,
-  library version and input files (size and modification time, else their content digest)
-  is not rebuilt.
+- **colour**: each colour input's path into the job's working space (``colour``), mfp and
+  masks as they are;
+- **up to date**: an output whose ``bdipole:*`` header records the same parameters digest
+  (which includes the working space and the OCIO config), library version and input files
+  (size and modification time, else their content digest) is not rebuilt.
 """
 from __future__ import annotations
 
@@ -47,8 +49,8 @@ from ..version import __version__
 from .batch import (BatchReport, BatchSettings, FileResult, Job, companion_path, expand_inputs,
                     output_collisions, process_file)
 from .blur_file import blur_file
-from .images import (Reader, TextureError, classify_channels, read_parameter_texture,
-                     source_colorspace, to_linear)
+from .colour import WorkingSpace, resolve_working_space
+from .images import Reader, TextureError, classify_channels, read_parameter_texture
 from .scene_file import SceneData, SceneError
 from .scene_file import load as load_scene_file
 
@@ -84,6 +86,7 @@ class PlannedJob:
     problem: str | None = None       # a missing input or a collision: the job cannot run
     params_digest: str = ""
     config: MethodConfig | None = None
+    working: WorkingSpace | None = None   # the space its colours are converted into
 
     def describe(self) -> str:
         head = f"{self.kind} {self.name}" + (f" [{self.udim}]" if self.udim else "")
@@ -112,8 +115,9 @@ class Plan:
                             f"{len(self.missing)} that cannot run"])
 
     def to_json(self) -> str:
-        return json.dumps([{k: v for k, v in asdict(j).items() if k != "config"}
-                           | {"config": j.config.describe() if j.config else None}
+        return json.dumps([{k: v for k, v in asdict(j).items() if k not in ("config", "working")}
+                           | {"config": j.config.describe() if j.config else None,
+                              "working_space": j.working.describe() if j.working else None}
                            for j in self.jobs], indent=1)
 
     def run(self, *, cancel=None, device=None, progress=None) -> BatchReport:
@@ -208,14 +212,16 @@ def _new_job(kind, name, path, udim, out, inputs, digest, problems, force, probl
     return job, not (job.problem or job.up_to_date)
 
 
-def read_albedo(path, mask_mode, mask_path, colorspace):
-    """One read of an albedo file: (linear colour texels HxWxC, the mask as booleans or None,
-    colour channel names, alpha name or None, other channel names). ``mask_mode``: None,
-    "alpha" (the file's alpha) or a texture (``mask_path``, its first channel)."""
+def read_albedo(path, mask_mode, mask_path, colorspace, working):
+    """One read of an albedo file: (colour texels HxWxC in the working space ``working``, the
+    mask as booleans or None, colour channel names, alpha name or None, other channel names,
+    its ColourPath). ``mask_mode``: None, "alpha" (the file's alpha) or a texture
+    (``mask_path``, its first channel; masks are data, never converted)."""
     r = Reader(path, "albedo")
     try:
         spec = r.spec
         colour, alpha = r.channels()
+        route = r.colour(colorspace, working)
         px = r.read_band(0, spec.height)
     finally:
         r.close()
@@ -227,24 +233,22 @@ def read_albedo(path, mask_mode, mask_path, colorspace):
         keep = px[..., alpha] > 0
     elif mask_mode:
         keep = read_parameter_texture(mask_path, "mask")[..., 0] > 0
-    space = source_colorspace(spec, colorspace)
-    albedo = px[..., colour]
-    if space is not None:
-        albedo = to_linear(albedo, space)
-    return (albedo, keep, [spec.channelnames[c] for c in colour],
+    names = [spec.channelnames[c] for c in colour]
+    return (route.convert(px[..., colour], names), keep, names,
             spec.channelnames[alpha] if alpha >= 0 else None,
-            [spec.channelnames[c] for c in other])
+            [spec.channelnames[c] for c in other], route)
 
 
-def _albedo_stats(path, mask_mode, mask_path, colorspace):
+def _albedo_stats(path, mask_mode, mask_path, colorspace, working):
     """(colour channel names, alpha name, other names, Rd range of unmasked texels, masked
-    fraction) of an albedo file: the statistics pass."""
-    px, mask, names, alpha, other = read_albedo(path, mask_mode, mask_path, colorspace)
+    fraction, ColourPath) of an albedo file: the statistics pass (in the working space)."""
+    px, mask, names, alpha, other, route = read_albedo(path, mask_mode, mask_path, colorspace,
+                                                       working)
     keep = np.ones(px.shape[:2], bool) if mask is None else mask
     vals = px[keep]
     vals = vals[np.isfinite(vals)]
     rd_range = (float(vals.min()), float(vals.max())) if vals.size else None
-    return names, alpha, other, rd_range, 1.0 - keep.mean()
+    return names, alpha, other, rd_range, 1.0 - keep.mean(), route
 
 
 #: table sizes chosen per (etas, albedo range, tol, model, exact): a few bytes each
@@ -284,13 +288,16 @@ def _plan_invert(m, path, udim, force, device, problems_all):
     problems = []
     _exists("albedo", path, problems)
     _textures(inputs, m, m.mask, path, udim, problems)
-    digest = params_digest(_material_fields(m) | {"kind": "invert", "udim": udim})
+    working = resolve_working_space(m.working_space)
+    digest = params_digest(_material_fields(m) | working.key | {"kind": "invert", "udim": udim})
     job, todo = _new_job("invert", m.name, path, udim, out, inputs, digest, problems, force,
                          problems_all)
+    job.working = working
     if not todo:
         return job
-    names, alpha, other, rd_range, masked = _albedo_stats(path, m.mask, inputs.get("mask"),
-                                                         m.colorspace)
+    names, alpha, other, rd_range, masked, route = _albedo_stats(
+        path, m.mask, inputs.get("mask"), m.colorspace, working)
+    job.computes.append(f"colour: albedo {route.describe()}")
     etas = m.eta if len(m.eta) > 1 else m.eta * len(names)
     if len(set(etas)) == 1:
         etas = etas[:1]
@@ -332,11 +339,21 @@ def _plan_blur(b, path, udim, force, problems_all):
     _exists("albedo", inputs["albedo"], problems)
     _textures(inputs, m, b.mask, path, udim, problems)
     fields = {k: v for k, v in asdict(b).items() if k not in ("name", "irradiance", "output")}
-    digest = params_digest(fields | {"kind": "blur", "udim": udim})
+    working = resolve_working_space(b.working_space)
+    digest = params_digest(fields | working.key | {"kind": "blur", "udim": udim})
     job, todo = _new_job("blur", b.name, path, udim, out, inputs, digest, problems, force,
                          problems_all)
+    job.working = working
     if not todo:
         return job
+    for role, file, space in (("irradiance", path, b.colorspace),
+                              ("albedo", inputs["albedo"], m.colorspace)):
+        r = Reader(file, role)
+        try:
+            job.computes.append(f"colour: {role} {r.colour(space, working).describe()}")
+        finally:
+            r.close()
+    job.computes.append("colour: mfp and mask as they are (a length per channel and data)")
     job.computes.append(f"exitance with the exit texel's profile from {m.name}'s albedo "
                         f"and mfp, texel {b.texel_size:g} {m.unit}, tol {b.tol:g} "
                         f"({b.method}, border {b.border})")
@@ -369,20 +386,20 @@ def plan(scene: Scene, *, force=False, device=None) -> Plan:
 
 # {{{ the bake
 
-def _settings(m, config, runtime, cancel, header):
+def _settings(m, config, runtime, cancel, header, working):
     return BatchSettings(
         eta=m.eta, mfp=None if isinstance(m.mfp, str) else m.mfp, mfp_scale=1.0, config=config,
         model=m.model, exact=m.exact, half=m.half, colorspace=m.colorspace, alpha="keep",
         on_invalid=m.on_invalid, max_memory=256 << 20, outputs=m.outputs, unit=m.unit,
         runtime=runtime, double=m.double, cancel=cancel,
         mask=None if not m.mask else "alpha" if m.mask == "alpha" else "texture",
-        bake=SPECIALISE, header=header)
+        bake=SPECIALISE, header=header, working=working)
 
 
 def run_invert_job(job, scene, runtime, cancel, lock):
     m = next(x for x in scene.materials if x.name == job.name)
     header = header_fields(job.inputs, job.params_digest)
-    settings = _settings(m, job.config, runtime, cancel, header)
+    settings = _settings(m, job.config, runtime, cancel, header, job.working)
     return process_file(Job(job.source, job.udim, job.output, job.inputs.get("mfp"),
                             job.inputs.get("mask")), settings, lock, None)
 
@@ -403,8 +420,9 @@ def run_blur_job(job, scene, runtime, cancel):
     result = FileResult(job.source, job.output)
     t0 = time.perf_counter()
     try:
+        working = job.working
         albedo, keep, *_ = read_albedo(job.inputs["albedo"], b.mask, job.inputs.get("mask"),
-                                       m.colorspace)
+                                       m.colorspace, working)
         mfp = (read_parameter_texture(job.inputs["mfp"], "mfp") if "mfp" in job.inputs
                else m.mfp)
         albedo = _masked_parameter(albedo, keep)
@@ -413,7 +431,8 @@ def run_blur_job(job, scene, runtime, cancel):
         header = header_fields(job.inputs, job.params_digest)
         sources = {k: v for k, v in job.inputs.items() if k in ("albedo", "mfp")}
         blur_file(job.source, job.output, half=b.half, sources=sources, cancel=cancel,
-                  mask=keep, header=header, colorspace=b.colorspace, albedo=albedo, mfp=mfp,
+                  mask=keep, header=header, colorspace=b.colorspace, working_space=working,
+                  albedo=albedo, mfp=mfp,
                   eta=m.eta, texel_size=b.texel_size, tol=b.tol, method=b.method,
                   border=b.border, on_invalid=b.on_invalid, exact=m.exact, device=runtime)
         result.status = "ok"
@@ -444,9 +463,10 @@ def bake(plan: Plan, *, cancel=None, device=None, progress=None) -> BatchReport:
     return BatchReport(results)
 
 
-def load(path) -> Scene:
-    """Read and check a scene file (``SceneError``: one line with the file, line and key)."""
-    data = load_scene_file(path)
+def load(path, working_space=None) -> Scene:
+    """Read and check a scene file (``SceneError``: one line with the file, line and key);
+    ``working_space``: that of the entries that give none (None: the default)."""
+    data = load_scene_file(path, working_space)
     return Scene(data.path, data.materials, data.blurs)
 
 

@@ -265,14 +265,18 @@ colorspaces:
     name: srgb_texture
     aliases: [srgb_rec709_scene]
     isdata: false
-    from_scene_reference: !<ExponentWithLinearTransform> {{gamma: 2.4, offset: 0.055, direction: inverse}}
+    from_scene_reference: !<ExponentWithLinearTransform>
+      gamma: 2.4
+      offset: 0.055
+      direction: inverse
 
   - !<ColorSpace>
     name: raw
     isdata: true
 """
-#: the custom config's studio_wide -> lin_rec709 matrix (rows sum to 1: white stays white)
-WIDE_TO_709 = np.array([[0.8, 0.15, 0.05], [0.1, 0.85, 0.05], [0.02, 0.08, 0.9]])
+#: the custom config's studio_wide -> lin_rec709 matrix (rows sum to 1: white stays white);
+#: its inverse's rows have absolute sums <= 1.2, so the sRGB curves' 7.5e-7 stays within TOL
+WIDE_TO_709 = np.array([[0.9, 0.07, 0.03], [0.05, 0.9, 0.05], [0.02, 0.05, 0.93]])
 
 
 def write_config(folder):

@@ -372,8 +372,7 @@ def newer_than_inputs(output, inputs):
 
 def process_textures(inputs, *, mfp=1.0, eta=1.4, output=DEFAULT_OUTPUT,
                      outputs=("sigma_a", "sigma_s"), method="table", model="better",
-                     exact=False, half=False, colorspace="auto", working_space=None,
-                     alpha="keep",
+                     exact=False, half=False, colorspace="auto", working_space=None, alpha="keep",
                      on_invalid="raise", max_memory=256 << 20, jobs=1, skip_existing=False,
                      unit="mm", mfp_scale=1.0, progress=False, device=None, cancel=None,
                      double=False, run_files=None, **knobs) -> BatchReport:
@@ -397,14 +396,10 @@ def process_textures(inputs, *, mfp=1.0, eta=1.4, output=DEFAULT_OUTPUT,
         As for ``invert_albedo`` (``double``: computed in float64; written as float or half).
     half : bool
         Write half floats instead of float.
-    colorspace : str
-        Colour space of every albedo file: a name or alias of the OCIO config, or "auto": as
-        each file declares, else 8-bit sRGB and 16-bit/float already in the working space
-        (README: Colour).
-    working_space : str or None
-        The space albedos are converted into and inverted in, and outputs are tagged with
-        (a scene-linear space of the config); None: the default (``$OCIO``'s scene_linear
-        role, else lin_rec709_scene). mfp values are never converted.
+    colorspace, working_space : str
+        The albedo files' colour space ("auto": as each declares, else 8-bit sRGB, 16-bit and
+        float in the working space) and the space they are inverted in and outputs are
+        tagged with (None: ``$OCIO``'s scene_linear, else lin_rec709_scene); README: Colour.
     alpha : {"keep", "drop"}
         What to do with an alpha channel (never inverted).
     on_invalid : {"raise", "clamp"}

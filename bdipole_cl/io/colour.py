@@ -317,12 +317,13 @@ COLOUR_ATTRIBS = ("oiio:ColorSpace", "colorInteropID", "chromaticities", "ICCPro
 
 
 def tag_output(spec, working) -> None:
-    """Tag an output ImageSpec as being in ``working``: ``oiio:ColorSpace`` (written to EXR as
-    its ``colorInteropID``; a space without a standard ID is written by its name) and the
-    ``chromaticities`` of its primaries and white point when the config knows them."""
+    """Tag an output ImageSpec as being in ``working``: ``oiio:ColorSpace`` and the EXR
+    ``colorInteropID`` (its interop ID in the config, e.g. lin_ap1_scene for ACEScg, else its
+    name; set here, not left to OpenImageIO's writer, which looks names up in its own default
+    config), and the ``chromaticities`` of its primaries and white point when the config
+    knows them."""
     spec.attribute("oiio:ColorSpace", working.name)
-    if not working.config.interop_id(working.name):
-        spec.attribute("colorInteropID", working.name)
+    spec.attribute("colorInteropID", working.config.interop_id(working.name) or working.name)
     xy = working.config.chromaticities(working.name)
     if xy:
         spec.attribute("chromaticities", oiio.TypeDesc("float[8]"), xy)

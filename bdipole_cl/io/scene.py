@@ -298,6 +298,7 @@ def _plan_invert(m, path, udim, force, device, problems_all):
     names, alpha, other, rd_range, masked, route = _albedo_stats(
         path, m.mask, inputs.get("mask"), m.colorspace, working)
     job.computes.append(f"colour: albedo {route.describe()}")
+    job.left_out.append(_not_converted(m.mask))
     etas = m.eta if len(m.eta) > 1 else m.eta * len(names)
     if len(set(etas)) == 1:
         etas = etas[:1]
@@ -330,6 +331,20 @@ def _plan_invert(m, path, udim, force, device, problems_all):
     return job
 
 
+def _not_converted(mask) -> str:
+    return ("colour conversion of the mfp (lengths per channel of the working space)"
+            + (", the mask" if mask else "") + " and alpha (data)")
+
+
+def colour_of(path, role, colorspace, working) -> str:
+    """The colour path of one file into ``working``, described (``ColourPath.describe``)."""
+    r = Reader(path, role)
+    try:
+        return r.colour(colorspace, working).describe()
+    finally:
+        r.close()
+
+
 def _plan_blur(b, path, udim, force, problems_all):
     m = b.material
     out = companion_path(b.output, path, udim)
@@ -348,12 +363,8 @@ def _plan_blur(b, path, udim, force, problems_all):
         return job
     for role, file, space in (("irradiance", path, b.colorspace),
                               ("albedo", inputs["albedo"], m.colorspace)):
-        r = Reader(file, role)
-        try:
-            job.computes.append(f"colour: {role} {r.colour(space, working).describe()}")
-        finally:
-            r.close()
-    job.computes.append("colour: mfp and mask as they are (a length per channel and data)")
+        job.computes.append(f"colour: {role} {colour_of(file, role, space, working)}")
+    job.left_out.append(_not_converted(b.mask))
     job.computes.append(f"exitance with the exit texel's profile from {m.name}'s albedo "
                         f"and mfp, texel {b.texel_size:g} {m.unit}, tol {b.tol:g} "
                         f"({b.method}, border {b.border})")
@@ -421,6 +432,8 @@ def run_blur_job(job, scene, runtime, cancel):
     t0 = time.perf_counter()
     try:
         working = job.working
+        result.colour = "irradiance " + colour_of(job.source, "irradiance", b.colorspace,
+                                                  working)
         albedo, keep, *_ = read_albedo(job.inputs["albedo"], b.mask, job.inputs.get("mask"),
                                        m.colorspace, working)
         mfp = (read_parameter_texture(job.inputs["mfp"], "mfp") if "mfp" in job.inputs

@@ -421,6 +421,13 @@ albedo = "albedo.png"
 mfp = [1.0, 0.5, 0.25]
 outputs = ["sigma_a", "sigma_s"]
 output = "out/skin.exr"
+
+[[blur]]
+name = "skin_light"
+material = "skin"
+irradiance = "irr.exr"
+texel_size = 0.5
+output = "out/exitance.exr"
 """
 
 
@@ -428,6 +435,8 @@ output = "out/skin.exr"
 def test_scene_rebaked_when_the_working_space_or_config_changes(tmp_path, monkeypatch):
     write(tmp_path / "albedo.png", colour_science.cctf_encoding(albedo_in(5), function="sRGB"),
           "uint8")
+    write(tmp_path / "irr.exr", np.full((H, W, 3), 2.0), "float",
+          attrs=by_name("lin_rec709_scene"))          # a name both configs know
     scene_file = tmp_path / "scene.toml"
 
     def bake(ws, want):
@@ -435,7 +444,7 @@ def test_scene_rebaked_when_the_working_space_or_config_changes(tmp_path, monkey
                               SCENE.replace('working_space = "{ws}"', ""))
         plan = scenes.load(scene_file).plan()
         statuses = [r.status for r in plan.run().results]
-        assert statuses == [want], (ws, statuses, plan.describe())
+        assert statuses == [want, want], (ws, statuses, plan.describe())
         return plan
 
     plan = bake("ACEScg", "ok")
@@ -443,8 +452,11 @@ def test_scene_rebaked_when_the_working_space_or_config_changes(tmp_path, monkey
             "ocio://default") in plan.describe()
     bake("lin_ap1_scene", "skipped")            # another name of the same space
     bake("lin_rec2020_scene", "ok")
-    spec, _ = read(tmp_path / "out" / "skin.exr")
-    check_tags(spec, "lin_rec2020_scene")
+    for out in ("skin", "exitance"):
+        spec, _ = read(tmp_path / "out" / f"{out}.exr")
+        check_tags(spec, "lin_rec2020_scene")
+    assert spec.getattribute("bdipole:irradiance_colorspace") == CANONICAL["lin_rec709_scene"]
+    assert spec.getattribute("bdipole:albedo_colorspace") == CANONICAL["srgb"]
     bake("lin_rec2020_scene", "skipped")
     bake(None, "ok")                            # the default: lin_rec709_scene
     bake(None, "skipped")
@@ -457,8 +469,9 @@ def test_scene_rebaked_when_the_working_space_or_config_changes(tmp_path, monkey
 
 def test_scene_colour_names_are_checked_on_their_line(tmp_path):
     scene_file = tmp_path / "scene.toml"
-    scene_file.write_text(SCENE.format(ws="ACEScg") + 'colorspace = "nope"\n')
-    with pytest.raises(scenes.SceneError, match=r"scene.toml:11: colorspace = 'nope': "
+    scene_file.write_text(SCENE.format(ws="ACEScg").replace(
+        'albedo = "albedo.png"', 'albedo = "albedo.png"\ncolorspace = "nope"'))
+    with pytest.raises(scenes.SceneError, match=r"scene.toml:8: colorspace = 'nope': "
                                                 r"colorspace 'nope' is unknown to OCIO"):
         scenes.load(scene_file)
     scene_file.write_text(SCENE.format(ws="sRGB"))

@@ -20,8 +20,7 @@ computed and what is left out, and why:
   is invented at their edges), and texels of another island within the kernel's radius in
   texture space do exchange light, as in any texture-space diffusion (keep islands a kernel
   radius apart, or accept the bleed);
-- **colour**: each colour input's path into the job's working space (``colour``), mfp and
-  masks as they are;
+- **colour**: each colour input's path into the job's working space; mfp and masks as is;
 - **up to date**: an output whose ``bdipole:*`` header records the same parameters digest
   (which includes the working space and the OCIO config), library version and input files
   (size and modification time, else their content digest) is not rebuilt.
@@ -212,6 +211,12 @@ def _new_job(kind, name, path, udim, out, inputs, digest, problems, force, probl
     return job, not (job.problem or job.up_to_date)
 
 
+def _cannot_run(job, problem, problems_all):
+    job.problem = problem
+    problems_all.append(problem)
+    return job
+
+
 def read_albedo(path, mask_mode, mask_path, colorspace, working):
     """One read of an albedo file: (colour texels HxWxC in the working space ``working``, the
     mask as booleans or None, colour channel names, alpha name or None, other channel names,
@@ -295,8 +300,11 @@ def _plan_invert(m, path, udim, force, device, problems_all):
     job.working = working
     if not todo:
         return job
-    names, alpha, other, rd_range, masked, route = _albedo_stats(
-        path, m.mask, inputs.get("mask"), m.colorspace, working)
+    try:
+        names, alpha, other, rd_range, masked, route = _albedo_stats(
+            path, m.mask, inputs.get("mask"), m.colorspace, working)
+    except TextureError as exc:                # unreadable, or a space the config does not know
+        return _cannot_run(job, str(exc), problems_all)
     job.computes.append(f"colour: albedo {route.describe()}")
     job.left_out.append(_not_converted(m.mask))
     etas = m.eta if len(m.eta) > 1 else m.eta * len(names)
@@ -361,9 +369,12 @@ def _plan_blur(b, path, udim, force, problems_all):
     job.working = working
     if not todo:
         return job
-    for role, file, space in (("irradiance", path, b.colorspace),
-                              ("albedo", inputs["albedo"], m.colorspace)):
-        job.computes.append(f"colour: {role} {colour_of(file, role, space, working)}")
+    try:
+        for role, file, space in (("irradiance", path, b.colorspace),
+                                  ("albedo", inputs["albedo"], m.colorspace)):
+            job.computes.append(f"colour: {role} {colour_of(file, role, space, working)}")
+    except TextureError as exc:                # e.g. a space the config does not know
+        return _cannot_run(job, str(exc), problems_all)
     job.left_out.append(_not_converted(b.mask))
     job.computes.append(f"exitance with the exit texel's profile from {m.name}'s albedo "
                         f"and mfp, texel {b.texel_size:g} {m.unit}, tol {b.tol:g} "
@@ -434,14 +445,14 @@ def run_blur_job(job, scene, runtime, cancel):
         working = job.working
         result.colour = "irradiance " + colour_of(job.source, "irradiance", b.colorspace,
                                                   working)
-        albedo, keep, *_ = read_albedo(job.inputs["albedo"], b.mask, job.inputs.get("mask"),
-                                       m.colorspace, working)
+        albedo, keep, *_, route = read_albedo(job.inputs["albedo"], b.mask,
+                                              job.inputs.get("mask"), m.colorspace, working)
         mfp = (read_parameter_texture(job.inputs["mfp"], "mfp") if "mfp" in job.inputs
                else m.mfp)
         albedo = _masked_parameter(albedo, keep)
         if np.ndim(mfp) >= 2:
             mfp = _masked_parameter(mfp, keep)
-        header = header_fields(job.inputs, job.params_digest)
+        header = header_fields(job.inputs, job.params_digest) | route.header("albedo")
         sources = {k: v for k, v in job.inputs.items() if k in ("albedo", "mfp")}
         blur_file(job.source, job.output, half=b.half, sources=sources, cancel=cancel,
                   mask=keep, header=header, colorspace=b.colorspace, working_space=working,

@@ -230,7 +230,11 @@ def test_default_working_space_and_config():
                                              "is not scene-linear"),
     (["invert", "x.exr", "--colorspace", "bogus"], "colorspace 'bogus' is unknown to OCIO "
                                                   "config ocio://default; known: auto, "),
-], ids=["unknown-working-space", "non-linear-working-space", "unknown-colorspace"])
+    (["blur", "x.exr", "-o", "y.exr", "--colorspace", "nope"], "colorspace 'nope' is unknown "
+                                                               "to OCIO config ocio://default"),
+    (["plan", "scene.toml", "--working-space", "nope"], "working space 'nope' is unknown"),
+], ids=["unknown-working-space", "non-linear-working-space", "unknown-colorspace",
+        "blur-unknown-colorspace", "plan-unknown-working-space"])
 def test_unknown_names_are_one_line_usage_errors(capsys, argv, message):
     try:
         code = cli_main(argv)
@@ -310,9 +314,18 @@ def test_custom_config_from_env(tmp_path, monkeypatch):
     assert report.ok, report.summary()
     spec, px = read(tmp_path / "albedo_out.exr")
     want = to_wide(colour_science.cctf_decoding(stored, function="sRGB"))
-    err = float(np.max(np.abs(ref.rd_of_rho(rho_channels(spec, px), ETA) - want)))
-    print(f"custom config (monkeypatched $OCIO) 8-bit sRGB -> studio_wide: {err:.2e}")
-    assert err <= TOL, err
+    inverted = ref.rd_of_rho(rho_channels(spec, px), ETA)
+    err = float(np.max(np.abs(inverted - want)))
+    # and the opencolorio package's own processor of the same file, without optimisation
+    import PyOpenColorIO as ocio
+    cpu = ocio.Config.CreateFromFile(os.environ["OCIO"]).getProcessor(
+        "srgb_texture", "studio_wide").getOptimizedCPUProcessor(ocio.OPTIMIZATION_NONE)
+    by_ocio = np.ascontiguousarray(stored, np.float32)
+    cpu.applyRGB(by_ocio)
+    err_ocio = float(np.max(np.abs(inverted - by_ocio)))
+    print(f"custom config (monkeypatched $OCIO) 8-bit sRGB -> studio_wide: {err:.2e} "
+          f"(colour-science), {err_ocio:.2e} (opencolorio)")
+    assert err <= TOL and err_ocio <= TOL, (err, err_ocio)
     check_tags(spec, None)
     assert spec.getattribute("chromaticities") is None
     assert report.results[0].colour == (f"srgb_texture (8-bit, declared) -> studio_wide, "

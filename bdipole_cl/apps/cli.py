@@ -77,6 +77,16 @@ def _working_space(text):
         raise argparse.ArgumentTypeError(str(exc)) from None
 
 
+def _colorspace(text):
+    """"auto" or a colour space of the active OCIO config (an argparse type)."""
+    from ..io.colour import check_colorspace
+    try:
+        check_colorspace(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+    return text
+
+
 class _Parser(argparse.ArgumentParser):
     """argparse with one-line usage errors (``prog: error: ...``, exit 2), no usage block."""
 
@@ -448,7 +458,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="NaN/Inf irradiance or parameter texels out of range: fail, or clamp "
                         "(irradiance: unlit, 0; parameters: into their valid range)")
     p.add_argument("--exact", action="store_true", help="exact Fresnel moments")
-    p.add_argument("--colorspace", default="auto",
+    p.add_argument("--colorspace", default="auto", type=_colorspace,
                    help="colour space of the irradiance and of an albedo texture (auto: as "
                         "declared, else sRGB for 8-bit, the working space for 16-bit/float); "
                         "mfp is never converted")
@@ -474,7 +484,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", default="{dir}/{stem}.bdipole.exr",
                    help="output path pattern: {dir} {stem} {name} {udim} <UDIM>")
     p.add_argument("--half", action="store_true", help="write half floats")
-    p.add_argument("--colorspace", default="auto",
+    p.add_argument("--colorspace", default="auto", type=_colorspace,
                    help="colour space of the albedo files, a name of the OCIO config (auto: "
                         "as each declares, else sRGB for 8-bit, the working space for 16-bit "
                         "and float); mfp is never converted")

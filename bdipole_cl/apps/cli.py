@@ -3,11 +3,13 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import functools
 import signal
 import sys
 import threading
 
 from ..errors import POLICIES
+from .cli_globals import add_global_args, colorspace_arg
 
 EPILOG = """examples:
   bdipole-cl demo                                   # built-in example, writes ./bdipole_demo
@@ -65,26 +67,6 @@ def _number(convert, valid, expected):
 _positive_int = _number(int, lambda v: v >= 1, "a whole number >= 1")
 _positive_float = _number(float, lambda v: 0 < v < float("inf"), "a number > 0")
 _fraction = _number(float, lambda v: 0 < v < 1, "a number in (0, 1), e.g. 1e-3")
-
-
-def _working_space(text):
-    """A working space of the active OCIO config (an argparse type: unknown names are usage
-    errors listing the known ones)."""
-    from ..io.colour import resolve_working_space
-    try:
-        return resolve_working_space(text)
-    except ValueError as exc:
-        raise argparse.ArgumentTypeError(str(exc)) from None
-
-
-def _colorspace(text):
-    """"auto" or a colour space of the active OCIO config (an argparse type)."""
-    from ..io.colour import check_colorspace
-    try:
-        check_colorspace(text)
-    except ValueError as exc:
-        raise argparse.ArgumentTypeError(str(exc)) from None
-    return text
 
 
 class _Parser(argparse.ArgumentParser):
@@ -198,16 +180,14 @@ def _is_number_list(text):
         return False
 
 
-def _param(text, what, colour=None):
+def _param(text, what, **colour):
     """A blur parameter: numbers ('0.8' or 'r,g,b', in the working space), else the path of
-    a texture; ``colour``: (colorspace, working space) of an albedo texture, converted."""
+    a texture (``colour``: colorspace= and working= of an albedo texture, converted)."""
     if _is_number_list(text):
         return _floats(text)
     else:
         from ..io.images import read_parameter_texture
-        return read_parameter_texture(text, what, colour=colour is not None,
-                                      colorspace=colour[0] if colour else "auto",
-                                      working=colour[1] if colour else None)
+        return read_parameter_texture(text, what, colour=bool(colour), **colour)
 
 
 def _cmd_blur(args) -> int:
@@ -232,8 +212,8 @@ def _cmd_blur(args) -> int:
             kw.update(alpha=_param(args.alpha_prime, "alpha'"),
                       sigma_t=_param(args.sigma_t, "sigma_t'"))
         else:
-            kw.update(albedo=_param(args.albedo, "albedo",
-                                    colour=(args.colorspace, args.working_space)),
+            kw.update(albedo=_param(args.albedo, "albedo", colorspace=args.colorspace,
+                                    working=args.working_space),
                       mfp=_param(args.mfp, "mfp"))
         if args.scheduler:
             from ..dask import blur_file_on_cluster
@@ -360,32 +340,15 @@ def _add_scheduler_args(p):
                    help="with --scheduler local:N, each worker's memory limit (e.g. 1G)")
 
 
-def _add_global_args(p, default):
-    """The options of every command, before or after it (``default``: None on the main
-    parser; SUPPRESS on the commands, so that one given before is kept)."""
-    p.add_argument("--device", metavar="SPEC", default=default,
-                   help="OpenCL device: P:D as listed by `devices`, or part of its platform "
-                        "or name ('intel', 'pocl'); default: the automatic choice")
-    p.add_argument("--working-space", metavar="NAME", type=_working_space, default=default,
-                   help="the colour space albedo and irradiance are converted into and every "
-                        "output is in: a scene-linear space of the OCIO config ($OCIO, else "
-                        "ocio://default), e.g. ACEScg; default: $OCIO's scene_linear role, else "
-                        "lin_rec709_scene (scenes: entries without working_space)")
-    p.add_argument("--debug", action="store_true",
-                   default=False if default is None else default, help="show tracebacks")
-
-
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(
         prog="bdipole-cl", description=__doc__.split("\n")[0],
         epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
-    _add_global_args(parser, None)
+    add_global_args(parser, None)
     common = argparse.ArgumentParser(add_help=False)
-    _add_global_args(common, argparse.SUPPRESS)   # after the command too, not overriding
+    add_global_args(common, argparse.SUPPRESS)   # after the command too, not overriding
     sub = parser.add_subparsers(dest="command", required=True)
-
-    def command(name, **kw):
-        return sub.add_parser(name, parents=[common], **kw)
+    command = functools.partial(sub.add_parser, parents=[common])
     p = command("devices", help="list OpenCL devices and the one in use")
     p.set_defaults(func=_cmd_devices)
 
@@ -458,10 +421,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="NaN/Inf irradiance or parameter texels out of range: fail, or clamp "
                         "(irradiance: unlit, 0; parameters: into their valid range)")
     p.add_argument("--exact", action="store_true", help="exact Fresnel moments")
-    p.add_argument("--colorspace", default="auto", type=_colorspace,
-                   help="colour space of the irradiance and of an albedo texture (auto: as "
-                        "declared, else sRGB for 8-bit, the working space for 16-bit/float); "
-                        "mfp is never converted")
+    p.add_argument("--colorspace", default="auto", type=colorspace_arg,
+                   help="colour space of the irradiance and an albedo texture (auto: as "
+                        "declared, else as for invert); mfp is never converted")
     p.add_argument("--half", action="store_true")
     p.add_argument("--max-memory", type=_size, default="256M",
                    help="host memory for bands of rows (each with a halo of the radius)")
@@ -484,10 +446,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", default="{dir}/{stem}.bdipole.exr",
                    help="output path pattern: {dir} {stem} {name} {udim} <UDIM>")
     p.add_argument("--half", action="store_true", help="write half floats")
-    p.add_argument("--colorspace", default="auto", type=_colorspace,
-                   help="colour space of the albedo files, a name of the OCIO config (auto: "
-                        "as each declares, else sRGB for 8-bit, the working space for 16-bit "
-                        "and float); mfp is never converted")
+    p.add_argument("--colorspace", default="auto", type=colorspace_arg,
+                   help="colour space of the albedo files (auto: as each declares, else sRGB "
+                        "for 8-bit, the working space for 16-bit/float); mfp never converted")
     p.add_argument("--alpha", default="keep", choices=("keep", "drop"),
                    help="alpha channel: copied through or dropped (never inverted)")
     p.add_argument("--on-invalid", default="raise", choices=POLICIES,

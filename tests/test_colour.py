@@ -491,3 +491,28 @@ def test_scene_colour_names_are_checked_on_their_line(tmp_path):
     with pytest.raises(scenes.SceneError, match=r"scene.toml:3: working_space = 'sRGB'.*not "
                                                 r"scene-linear"):
         scenes.load(scene_file)
+
+
+@pytest.mark.usefixtures("on_device")
+def test_grey_converted_as_neutral_and_two_channels_refused(tmp_path):
+    """A grey 8-bit PNG into ACEScg is the grey (y, y, y) converted (white stays white under
+    chromatic adaptation, so the three agree); two colour channels cannot be converted."""
+    y = albedo_in(6)[..., :1]
+    write(tmp_path / "grey.png", colour_science.cctf_encoding(y, function="sRGB"), "uint8",
+          ("Y",))
+    _, stored = read(tmp_path / "grey.png")
+    report = process_textures(tmp_path / "grey.png", outputs=("rho",), double=True,
+                              working_space="ACEScg", output=str(tmp_path / "grey_out.exr"))
+    assert report.ok, report.summary()
+    spec, px = read(tmp_path / "grey_out.exr")
+    rgb = independent(np.repeat(colour_science.cctf_decoding(stored, function="sRGB"), 3, -1),
+                      "lin_rec709_scene", "ACEScg")
+    assert np.max(np.ptp(rgb, axis=-1)) < 1e-6           # neutral stays neutral
+    inverted = ref.rd_of_rho(px[..., list(spec.channelnames).index("rho.Y")], ETA)
+    err = float(np.max(np.abs(inverted - rgb.mean(axis=-1))))
+    assert err <= TOL, err
+    write(tmp_path / "rg.tif", albedo_in(6)[..., :2], "uint8", ("R", "G"))
+    report = process_textures(tmp_path / "rg.tif", working_space="ACEScg",
+                              output=str(tmp_path / "rg_out.exr"))
+    assert "channels R, G: a colour conversion from sRGB Encoded Rec.709 (sRGB) needs R, G " \
+           "and B" in report.results[0].error, report.summary()

@@ -212,7 +212,7 @@ def resolve_working_space(name=None, config=None) -> WorkingSpace:
 def encoding(spec) -> str:
     """How a file stores its texels: 8-bit, 16-bit, 32-bit (integers), half or float."""
     base = spec.format.basetype
-    if base in (oiio.HALF,):
+    if base == oiio.HALF:
         return "half"
     if base in (oiio.FLOAT, oiio.DOUBLE):
         return "float"
@@ -254,25 +254,41 @@ class ColourPath:
         (the three agree: chromatic adaptation maps white to white)."""
         if self.identity:
             return pixels
-        nch = pixels.shape[-1]
-        order = [_RGB.get(_short(n), -1) for n in names]
-        if nch == 1:
+        if pixels.shape[-1] == 1:
             return self.working.config.convert(np.repeat(pixels, 3, axis=-1), self.source,
                                                self.working.name).mean(axis=-1, keepdims=True)
-        if sorted(order) != [0, 1, 2]:
-            raise ValueError(f"channels {', '.join(names)}: a colour conversion from "
-                             f"{self.source} needs R, G and B or one grey channel (give the "
-                             f"working space as colorspace to take them as they are)")
+        order = _rgb_order(names)
+        if order is None:
+            raise ValueError(_layout_error(names, self.source))
         rgb = self.working.config.convert(pixels[..., np.argsort(order)], self.source,
                                           self.working.name)
         return rgb[..., order]
 
 
-def colour_path(spec, path, colorspace="auto", working=None) -> ColourPath:
-    """The colour path of a file (``spec`` as read) into ``working`` (see the module
-    docstring for the order of the rules). ValueError naming the file when its declaration
-    is unknown to the config or contradicts its chromaticities."""
-    working = resolve_working_space(working)
+def _rgb_order(names):
+    """Each channel's index in R, G, B, when ``names`` are those three in any order."""
+    order = [_RGB.get(_short(n), -1) for n in names]
+    return order if sorted(order) == [0, 1, 2] else None
+
+
+def _layout_error(names, source) -> str:
+    return (f"channels {', '.join(names)}: a colour conversion from {source} needs R, G and "
+            f"B or one grey channel (give the working space as colorspace to take them as "
+            f"they are)")
+
+
+def colour_path(spec, path, colorspace="auto", working=None, names=None) -> ColourPath:
+    """The colour path of a file (``spec`` as read; ``names``: its colour channels) into
+    ``working`` (see the module docstring for the order of the rules). ValueError naming the
+    file when its declaration is unknown to the config or contradicts its chromaticities, or
+    when its channels cannot be converted."""
+    route = _colour_path(spec, path, colorspace, resolve_working_space(working))
+    if names and len(names) != 1 and not route.identity and _rgb_order(names) is None:
+        raise ValueError(f"{path}: {_layout_error(names, route.source)}")
+    return route
+
+
+def _colour_path(spec, path, colorspace, working) -> ColourPath:
     config = working.config
     enc = encoding(spec)
     if colorspace not in (None, "", "auto"):

@@ -100,8 +100,10 @@ class Reader:
     def colour(self, colorspace="auto", working=None):
         """The file's ColourPath into the working space ``working`` (``colour.colour_path``);
         a declaration the config cannot follow is a TextureError."""
+        colour, _ = self.channels()
         try:
-            return colour_path(self.spec, self.path, colorspace, working)
+            return colour_path(self.spec, self.path, colorspace, working,
+                               [self.spec.channelnames[c] for c in colour])
         except ValueError as exc:
             raise TextureError(str(exc)) from None
 

@@ -221,6 +221,15 @@ def test_default_working_space_and_config():
         assert cm.resolve_working_space(alias) == ws, alias
     assert cm.resolve_working_space("lin_ap1_scene").name == "ACEScg"
     assert cm.resolve_working_space("scene_linear").name == "ACEScg"   # the config's role
+    # README's example: one sRGB texel in two working spaces (and colour-science agrees)
+    texel = np.array([[[0.8, 0.2, 0.1]]], np.float32)
+    spec = oiio.ImageSpec(1, 1, 3, "uint8")
+    for space, want in (("lin_rec709_scene", (0.604, 0.033, 0.010)),
+                        ("ACEScg", (0.382, 0.073, 0.025))):
+        got = cm.colour_path(spec, "texel.png", working=space).convert(texel, ("R", "G", "B"))
+        lin = colour_science.cctf_decoding(texel.astype(np.float64), function="sRGB")
+        assert np.max(np.abs(got - independent(lin, "lin_rec709_scene", space))) < 1e-6
+        np.testing.assert_allclose(got.ravel(), want, atol=5e-4)
 
 
 @pytest.mark.parametrize("argv,message", [
@@ -478,6 +487,25 @@ def test_scene_rebaked_when_the_working_space_or_config_changes(tmp_path, monkey
     bake(None, "ok")
     spec, _ = read(tmp_path / "out" / "skin.exr")
     assert spec.getattribute("bdipole:working_space") == "studio_wide"
+
+
+def test_scene_colour_keys(tmp_path):
+    """working_space: [defaults], else the CLI's/load()'s, else the default; a blur takes its
+    material's unless it gives its own. Names are stored as the config names them."""
+    scene_file = tmp_path / "scene.toml"
+    body = SCENE.replace('working_space = "{ws}"', "")
+    scene_file.write_text(body)
+    s = scenes.load(scene_file)
+    assert (s.materials[0].working_space, s.blurs[0].working_space) == (None, None)
+    s = scenes.load(scene_file, "lin_ap1_scene")
+    assert (s.materials[0].working_space, s.blurs[0].working_space) == ("ACEScg", "ACEScg")
+    scene_file.write_text(body.replace('texel_size = 0.5', 'texel_size = 0.5\n'
+                                       'working_space = "lin_rec2020_scene"\n'
+                                       'colorspace = "srgb_tx"'))
+    s = scenes.load(scene_file, "ACEScg")
+    assert (s.materials[0].working_space, s.blurs[0].working_space) == ("ACEScg",
+                                                                        "Linear Rec.2020")
+    assert (s.materials[0].colorspace, s.blurs[0].colorspace) == ("auto", CANONICAL["srgb"])
 
 
 def test_scene_colour_names_are_checked_on_their_line(tmp_path):

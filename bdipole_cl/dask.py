@@ -33,8 +33,9 @@ from .device import get_runtime
 from .io.collisions import Claim, check_claim
 from .io.batch import BatchReport, FileResult, process_file
 from .io.blur_file import FILE_ROW_FLOATS
+from .io.colour import resolve_working_space
 from .io.images import (Cancelled, Reader, TextureError, Writer, output_spec, read_rows,
-                        remove_partial_files, source_colorspace, to_linear)
+                        remove_partial_files)
 from .io.scene import Plan, run_blur_job, run_invert_job
 from .ops import invert as ops_invert
 from .ops.bands import band_rows, bands, halo_rows
@@ -210,21 +211,19 @@ def file_runner(client, *, device=None, progress=True):
 
 # {{{ huge file-to-file blurs
 
-def _blur_band(path, band_path, y0, y1, halo, colorspace, kwargs, device=None):
+def _blur_band(path, band_path, y0, y1, halo, colorspace, working, kwargs, device=None):
     """Rows [y0, y1) of the blurred image, written to ``band_path`` (an EXR of those rows)."""
     remove_partial_files(band_path)
     reader = Reader(path, "irradiance")
     try:
         spec = reader.spec
         colour, alpha = reader.channels()
+        route = reader.colour(colorspace, working)
         idx = halo_rows(y0, y1, halo, spec.height, kwargs.get("border", "clamp"))
         px = read_rows(reader, idx)
     finally:
         reader.close()
-    e = px[..., colour]
-    space = source_colorspace(spec, colorspace)
-    if space is not None:
-        e = to_linear(e, space)
+    e = route.convert(px[..., colour], [spec.channelnames[c] for c in colour])
     out = blur_array(e, device=get_runtime(device), **kwargs)[halo:halo + y1 - y0]
     if alpha >= 0:
         out = np.concatenate([out, px[halo:halo + y1 - y0, :, alpha:alpha + 1]], axis=-1)
@@ -239,8 +238,9 @@ def _blur_band(path, band_path, y0, y1, halo, colorspace, kwargs, device=None):
     return band_path
 
 
-def blur_file_on_cluster(path, output, client, *, colorspace="auto", half=False,
-                         max_memory=256 << 20, device=None, progress=True, **kwargs):
+def blur_file_on_cluster(path, output, client, *, colorspace="auto", working_space=None,
+                         half=False, max_memory=256 << 20, device=None, progress=True,
+                         **kwargs):
     """``blur_file`` with its bands as tasks: each worker reads its rows and the halo of the
     truncation radius from ``path``, blurs them within ``max_memory`` bytes, and writes them
     to a band file; this process then streams the bands into ``output`` (one band in memory
@@ -257,6 +257,7 @@ def blur_file_on_cluster(path, output, client, *, colorspace="auto", half=False,
     try:
         spec = reader.spec
         colour, alpha = reader.channels()
+        route = reader.colour(colorspace, resolve_working_space(working_space))
     finally:
         reader.close()
     _, plans = channel_plans(len(colour), method=kwargs.get("method", "auto"),
@@ -271,7 +272,8 @@ def blur_file_on_cluster(path, output, client, *, colorspace="auto", half=False,
         futures, run_id = {}, uuid.uuid4().hex[:12]
         for k, (y0, y1, _) in enumerate(bands(spec.height, rows)):
             fut = client.submit(_blur_band, str(path), str(work / f"band{k:05d}.exr"), y0, y1,
-                                halo, colorspace, kwargs, device, pure=False, retries=RETRIES,
+                                halo, colorspace, route.working, kwargs, device, pure=False,
+                                retries=RETRIES,
                                 key=f"blur-band-{k}-{Path(path).name}-{run_id}")
             futures[fut] = (k, y0, y1)
         bar = _progress(len(futures), "blur bands", progress)
@@ -287,8 +289,10 @@ def blur_file_on_cluster(path, output, client, *, colorspace="auto", half=False,
             [spec.channelnames[alpha]] if alpha >= 0 else [])
         meta = {k: v for k, v in kwargs.items() if k in PARAM_KEYS + ("tol", "border")}
         meta["source"] = str(path)
+        meta.update(route.header("irradiance"))
         writer = Writer(output, output_spec(spec, names, len(names) - 1 if alpha >= 0 else -1,
-                                            half, meta), kwargs.get("on_invalid", "raise"))
+                                            half, meta, working=route.working),
+                                     kwargs.get("on_invalid", "raise"))
         try:
             for (k, y0, y1) in sorted(done):       # one band in memory at a time
                 r = Reader(done[(k, y0, y1)], "band")

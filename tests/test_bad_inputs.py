@@ -159,7 +159,7 @@ def test_half_in_range_is_unchanged(tmp_path):
 
 USAGE = [
     (["invert", "X", "--eta", "abc"], "argument --eta: 'abc': expected a number"),
-    (["invert", "X", "--colorspace", "bogus"], "colorspace 'bogus' is unknown to OpenImageIO"),
+    (["invert", "X", "--colorspace", "bogus"], "colorspace 'bogus' is unknown to OCIO config"),
     (["blur", "X", "--albedo", "0.5", "--mfp", "1", "--tol", "2", "-o", "y.exr"],
      "argument --tol: '2': expected a number in (0, 1)"),
     (["blur", "X", "--albedo", "0.5", "--mfp", "1", "--texel-size", "-1", "-o", "y.exr"],

@@ -90,17 +90,18 @@ def test_formats_values_and_headers(tmp_path, ext, fmt, channels, decode):
     assert sorted(spec.channelnames) == sorted(want_names)  # EXR stores channels by name
     assert (spec.width, spec.height) == (W, H) and spec.format == oiio.FLOAT
     assert spec.getattribute("bdipole:eta").startswith("1.4")
-    assert spec.getattribute("bdipole:albedo_colorspace") == ("linear" if decode == "linear"
-                                                              else "srgb_rec709_scene")
+    assert spec.getattribute("bdipole:albedo_colorspace") == (
+        "Linear Rec.709 (sRGB)" if decode == "linear" else "sRGB Encoded Rec.709 (sRGB)")
     # expected linear albedo, decoded independently of OpenImageIO
     _, stored = read(path)
     for c in colour:
         enc = stored[..., channels.index(c)].astype(np.float64)
         albedo = srgb_to_linear(enc) if decode == "srgb" else enc
         rho = channel(spec, px, f"rho.{c}").astype(np.float64)
-        # forward model of the written rho gives back the albedo: 2e-5 absolute covers
-        # OpenColorIO's sRGB curve (it gives 1.0000241 for white) and float32 rounding
-        np.testing.assert_allclose(ref.rd_of_rho(rho, 1.4), albedo, atol=2e-5, rtol=0)
+        # forward model of the written rho gives back the albedo: 2e-6 absolute covers the
+        # table inversion's rho error seen through Rd(rho) and float32 rounding (OpenColorIO
+        # decodes sRGB without its fast-pow approximation: io/colour.py)
+        np.testing.assert_allclose(ref.rd_of_rho(rho, 1.4), albedo, atol=2e-6, rtol=0)
         want_sa, want_ss = ref.albedo_to_coefficients(ref.rd_of_rho(rho, 1.4), 2.0, 1.4)
         np.testing.assert_allclose(channel(spec, px, f"sigma_a.{c}"), want_sa, rtol=2e-5)
         np.testing.assert_allclose(channel(spec, px, f"sigma_s.{c}"), want_ss, rtol=2e-5)

@@ -3,12 +3,14 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import functools
 import sys
 import time
 
 from ..errors import POLICIES
 from ..signals import SignalStop
 from ..version import __version__
+from .cli_globals import add_global_args, colorspace_arg
 from .cli_types import (Parser, floats, fraction, output_list, positive_float, positive_int,
                         size)
 
@@ -26,6 +28,7 @@ EPILOG = """examples:
   bdipole-cl devices
   bdipole-cl invert diffuse.<UDIM>.exr --mfp mfp.<UDIM>.exr --eta 1.4 -o out/{stem}_coeffs.exr
   bdipole-cl invert 'textures/*.tif' --mfp 1.2,0.6,0.3 --unit mm --half --jobs 2
+  bdipole-cl --working-space ACEScg invert albedo.png --mfp 1.2,0.6,0.3   # README: Colour
   bdipole-cl crosscheck                             # every kernel vs the float64 reference
   bdipole-cl crosscheck --user-kernel mine.cl --function computeRd --against rd
   bdipole-cl blur irradiance.exr --albedo 0.8,0.6,0.4 --mfp 1.2,0.6,0.3 --texel-size 0.1 -o sss.exr
@@ -88,6 +91,7 @@ def _invert(args, run_files) -> int:
         args.inputs, mfp=args.mfp, eta=args.eta, output=args.output, cancel=stop.event,
         outputs=args.outputs, method=args.method,
         model=args.model, exact=args.exact, half=args.half, colorspace=args.colorspace,
+        working_space=args.working_space,
         alpha=args.alpha, on_invalid=args.on_invalid, max_memory=args.max_memory,
         jobs=args.jobs, skip_existing=args.skip_existing, unit=args.unit, double=args.double,
         mfp_scale=args.mfp_scale, progress=not args.no_progress and run_files is None,
@@ -103,13 +107,14 @@ def _is_number_list(text):
         return False
 
 
-def _param(text, what, colour=False):
-    """A blur parameter: numbers ('0.8' or 'r,g,b'), else the path of a texture."""
+def _param(text, what, **colour):
+    """A blur parameter: numbers ('0.8' or 'r,g,b', in the working space), else the path of
+    a texture (``colour``: colorspace= and working= of an albedo texture, converted)."""
     if _is_number_list(text):
         return floats(text)
     else:
         from ..io.images import read_parameter_texture
-        return read_parameter_texture(text, what, colour=colour)
+        return read_parameter_texture(text, what, colour=bool(colour), **colour)
 
 
 def _cmd_blur(args) -> int:
@@ -128,13 +133,14 @@ def _cmd_blur(args) -> int:
     stop = SignalStop().install()
     kw = dict(eta=args.eta, texel_size=args.texel_size, tol=args.tol,
               method=args.method, border=args.border, on_invalid=args.on_invalid,
-              exact=args.exact)
+              exact=args.exact, colorspace=args.colorspace, working_space=args.working_space)
     try:
         if args.alpha_prime is not None:
             kw.update(alpha=_param(args.alpha_prime, "alpha'"),
                       sigma_t=_param(args.sigma_t, "sigma_t'"))
         else:
-            kw.update(albedo=_param(args.albedo, "albedo", colour=True),
+            kw.update(albedo=_param(args.albedo, "albedo", colorspace=args.colorspace,
+                                    working=args.working_space),
                       mfp=_param(args.mfp, "mfp"))
         if args.scheduler:
             from ..dask import blur_file_on_cluster
@@ -215,7 +221,8 @@ def _cmd_crosscheck(args) -> int:
 
 def _cmd_plan(args) -> int:
     from ..io.scene import load
-    plan = load(args.scene).plan(force=args.force, max_memory=args.max_memory)
+    plan = load(args.scene, args.working_space).plan(force=args.force,
+                                                    max_memory=args.max_memory)
     print(plan.to_json() if args.json else plan.describe())
     return 0
 
@@ -223,7 +230,8 @@ def _cmd_plan(args) -> int:
 def _cmd_bake(args) -> int:
     from ..io.scene import load
     stop = SignalStop().install()
-    plan = load(args.scene).plan(force=args.force, max_memory=args.max_memory)
+    plan = load(args.scene, args.working_space).plan(force=args.force,
+                                                    max_memory=args.max_memory)
     for problem in plan.missing:            # every missing input, before any work starts
         print(f"cannot run: {problem}", file=sys.stderr)
     bar = None
@@ -300,20 +308,20 @@ def _add_scheduler_args(p):
 def build_parser() -> argparse.ArgumentParser:
     parser = Parser(prog="bdipole-cl", description=DESCRIPTION, epilog=EPILOG)
     parser.add_argument("--version", action="version", version=f"bdipole-cl {__version__}")
-    parser.add_argument("--device", metavar="SPEC",
-                        help="OpenCL device: P:D as listed by `devices`, or part of its platform "
-                             "or name ('intel', 'pocl'); default: the automatic choice")
-    parser.add_argument("--debug", action="store_true", help="show tracebacks")
+    add_global_args(parser, None)
+    common = argparse.ArgumentParser(add_help=False)
+    add_global_args(common, argparse.SUPPRESS)   # after the command too, not overriding
     sub = parser.add_subparsers(dest="command", required=True)
-    p = sub.add_parser("devices", help="list OpenCL devices and the one in use")
+    command = functools.partial(sub.add_parser, parents=[common])
+    p = command("devices", help="list OpenCL devices and the one in use")
     p.set_defaults(func=_cmd_devices)
 
-    p = sub.add_parser("demo", help="make a built-in example and run the main jobs on it")
+    p = command("demo", help="make a built-in example and run the main jobs on it")
     p.add_argument("--dir", default="bdipole_demo", help="folder for inputs and results")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
     p.set_defaults(func=_cmd_demo)
 
-    p = sub.add_parser("crosscheck",
+    p = command("crosscheck",
                        help="every kernel (or your own OpenCL function) vs the float64 reference")
     p.add_argument("--eta", type=floats, default=(1.0, 1.4, 2.5),
                    help="etas to sweep (comma list)")
@@ -333,7 +341,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="seconds a user kernel's run may take before it is stopped")
     p.set_defaults(func=_cmd_crosscheck)
 
-    p = sub.add_parser("plan", help="what a scene's bake computes and leaves out, per job")
+    p = command("plan", help="what a scene's bake computes and leaves out, per job")
     p.add_argument("scene", help="scene file (TOML)")
     p.add_argument("--json", action="store_true", help="the plan as JSON")
     p.add_argument("--force", action="store_true", help="plan every job, up to date or not")
@@ -341,7 +349,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="host memory for the statistics pass's bands of rows")
     p.set_defaults(func=_cmd_plan)
 
-    p = sub.add_parser("bake", help="run a scene's plan: only what is needed, only what changed")
+    p = command("bake", help="run a scene's plan: only what is needed, only what changed")
     p.add_argument("scene", help="scene file (TOML)")
     p.add_argument("--force", action="store_true", help="rebuild every output")
     p.add_argument("--no-progress", action="store_true", help="no progress bar and job lines")
@@ -350,7 +358,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_scheduler_args(p)
     p.set_defaults(func=_cmd_bake)
 
-    p = sub.add_parser("report", help="error against run time for every method (md, csv, png)")
+    p = command("report", help="error against run time for every method (md, csv, png)")
     p.add_argument("-o", "--output", default="report_out", help="folder for the report")
     p.add_argument("--n", type=positive_int, default=1 << 20,
                    help="albedos in the inversion workload")
@@ -363,7 +371,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "(JSON; use it with BDIPOLE_CL_CHOICE_DATA=PATH)")
     p.set_defaults(func=_cmd_report)
 
-    p = sub.add_parser("blur", help="blur an irradiance map with the Better Dipole profile R(r)")
+    p = command("blur", help="blur an irradiance map with the Better Dipole profile R(r)")
     p.add_argument("input", help="irradiance image (EXR/TIFF/PNG...)")
     p.add_argument("-o", "--output", required=True, help="output EXR")
     p.add_argument("--albedo",
@@ -386,6 +394,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="NaN/Inf irradiance or parameter texels out of range: fail, or clamp "
                         "(irradiance: unlit, 0; parameters: into their valid range)")
     p.add_argument("--exact", action="store_true", help="exact Fresnel moments")
+    p.add_argument("--colorspace", default="auto", type=colorspace_arg,
+                   help="colour space of the irradiance and an albedo texture (auto: as "
+                        "declared, else as for invert); mfp is never converted")
     p.add_argument("--half", action="store_true", help="write half floats")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--max-memory", type=size, default="256M",
@@ -393,7 +404,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_scheduler_args(p)
     p.set_defaults(func=_cmd_blur)
 
-    p = sub.add_parser(
+    p = command(
         "invert", help="albedo (+ mfp) textures -> scattering-coefficient EXRs", epilog=EPILOG)
     p.add_argument("inputs", nargs="+", help="albedo files, globs or <UDIM> patterns")
     p.add_argument("--mfp", default="1",
@@ -408,9 +419,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", default="{dir}/{stem}.bdipole.exr",
                    help="output path pattern: {dir} {stem} {name} {udim} <UDIM>")
     p.add_argument("--half", action="store_true", help="write half floats")
-    p.add_argument("--colorspace", default="auto",
-                   help="colour space of 8/16-bit albedo (auto: as declared, else sRGB for "
-                        "8-bit, linear for 16-bit)")
+    p.add_argument("--colorspace", default="auto", type=colorspace_arg,
+                   help="colour space of the albedo files (auto: as each declares, else sRGB "
+                        "for 8-bit, the working space for 16-bit/float); mfp never converted")
     p.add_argument("--alpha", default="keep", choices=("keep", "drop"),
                    help="alpha channel: copied through or dropped (never inverted)")
     p.add_argument("--on-invalid", default="raise", choices=POLICIES,

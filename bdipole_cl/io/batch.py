@@ -35,10 +35,10 @@ from ..ops.bands import band_rows
 from ..ops.invert import CoefficientMapper
 from ..version import __version__
 from .collisions import Claim, collisions
-from .images import (Cancelled, Reader, TextureError, Writer, check_colorspace,
-                     check_output_format, check_same_window, classify_channels, invalid_texels,
-                     is_regular_file, output_spec,
-                     source_colorspace, to_linear)
+from .colour import WorkingSpace, check_colorspace, resolve_working_space
+from .images import (Cancelled, Reader, TextureError, Writer, check_output_format,
+                     check_same_window, classify_channels, invalid_texels, is_regular_file,
+                     output_spec)
 from .verify import is_complete
 
 
@@ -134,6 +134,7 @@ class FileResult:
     seconds: float = 0.0
     invalid: dict = field(default_factory=dict)
     notes: list = field(default_factory=list)       # e.g. channels left out
+    colour: str | None = None                       # its colour path (ColourPath.describe)
 
     @property
     def mtexel_per_s(self):
@@ -160,8 +161,11 @@ class BatchReport:
                          r.error if r.status in ("failed", "cancelled") else
                          (r.output or "") + "".join(f" ({n})" for n in r.notes)))
         widths = [max(len(row[i]) for row in rows) for i in range(5)]
-        lines = ["  ".join(c.ljust(w) for c, w in zip(row[:5], widths)) + "  " + row[5]
-                 for row in rows]
+        lines = []
+        for row, r in zip(rows, [None] + self.results):
+            lines.append("  ".join(c.ljust(w) for c, w in zip(row[:5], widths)) + "  " + row[5])
+            if r is not None and r.colour:
+                lines.append(f"  colour: {r.colour}")
         done = sum(r.status == "ok" for r in self.results)
         failed = sum(r.status == "failed" for r in self.results)
         skipped = sum(r.status == "skipped" for r in self.results)
@@ -227,6 +231,7 @@ class BatchSettings:
     mask: str | None = None      # None, "alpha" (the albedo's alpha) or "texture" (Job.mask_path)
     bake: bool = False           # a kernel specialised for the batch (constants compiled in)
     header: dict = field(default_factory=dict)   # more bdipole:* attributes for the outputs
+    working: WorkingSpace | None = None          # None: the default working space
 
 
 def process_file(job, settings, device_lock, progress):
@@ -261,7 +266,8 @@ def process_file(job, settings, device_lock, progress):
         else:
             mfp_const = np.array(per_channel(settings.mfp, ncolor, "mfp", job.path),
                                  np.float32) * settings.mfp_scale
-        from_space = source_colorspace(spec, settings.colorspace)
+        route = alb.colour(settings.colorspace, settings.working)
+        result.colour = route.describe()
         keep_alpha = alpha_ch >= 0 and settings.alpha == "keep"
         outputs = settings.outputs
         out_names = [f"{o}.{n}" for o in outputs for n in names]
@@ -272,7 +278,7 @@ def process_file(job, settings, device_lock, progress):
                   "mfp": job.mfp_path or ",".join(f"{m:g}" for m in mfp_const),
                   "mfp_scale": settings.mfp_scale, "unit": settings.unit,
                   "coefficient_unit": f"1/{settings.unit}",
-                  "albedo": job.path, "albedo_colorspace": from_space or "linear",
+                  "albedo": job.path, **route.header("albedo"),
                   "mfp_convention": "ld = 1/mu_tr (Jensen/Hery)", **settings.header}
         mask_reader = None
         if settings.mask == "alpha" and alpha_ch < 0:
@@ -283,7 +289,7 @@ def process_file(job, settings, device_lock, progress):
             readers.append(mask_reader)
             check_same_window(spec, mask_reader.spec, job.path, "mask", job.mask_path)
         out_spec = output_spec(spec, out_names, len(out_names) - 1 if keep_alpha else -1,
-                                settings.half, params)
+                                settings.half, params, working=route.working)
         Path(job.output).parent.mkdir(parents=True, exist_ok=True)
         writer = Writer(job.output, out_spec, settings.on_invalid)
         with device_lock:
@@ -312,7 +318,7 @@ def process_file(job, settings, device_lock, progress):
                 a, m, mask = pending.result()
                 if k + 1 < len(bands):
                     pending = prefetch.submit(read, bands[k + 1])
-                albedo = to_linear(a[..., colour], from_space)
+                albedo = route.convert(a[..., colour], names)
                 if m is None:
                     mfp = mfp_const
                 else:
@@ -375,7 +381,7 @@ def newer_than_inputs(output, inputs):
 
 def process_textures(inputs, *, mfp=1.0, eta=1.4, output=DEFAULT_OUTPUT,
                      outputs=("sigma_a", "sigma_s"), method="table", model="better",
-                     exact=False, half=False, colorspace="auto", alpha="keep",
+                     exact=False, half=False, colorspace="auto", working_space=None, alpha="keep",
                      on_invalid="raise", max_memory=256 << 20, jobs=1, skip_existing=False,
                      unit="mm", mfp_scale=1.0, progress=False, device=None, cancel=None,
                      double=False, run_files=None, **knobs) -> BatchReport:
@@ -399,8 +405,10 @@ def process_textures(inputs, *, mfp=1.0, eta=1.4, output=DEFAULT_OUTPUT,
         As for ``invert_albedo`` (``double``: computed in float64; written as float or half).
     half : bool
         Write half floats instead of float.
-    colorspace : str
-        Colour space of integer-encoded albedo ("auto": see the module docstring).
+    colorspace, working_space : str
+        The albedo files' colour space ("auto": as each declares, else 8-bit sRGB, 16-bit and
+        float in the working space) and the space they are inverted in and outputs are
+        tagged with (None: ``$OCIO``'s scene_linear, else lin_rec709_scene); README: Colour.
     alpha : {"keep", "drop"}
         What to do with an alpha channel (never inverted).
     on_invalid : {"raise", "clamp"}
@@ -428,7 +436,8 @@ def process_textures(inputs, *, mfp=1.0, eta=1.4, output=DEFAULT_OUTPUT,
         temporary files are removed, finished files stay, and they are reported "cancelled".
     """
     check_output_format(output)
-    check_colorspace(colorspace)
+    working = resolve_working_space(working_space)
+    check_colorspace(colorspace, working.config)
     if isinstance(inputs, (str, os.PathLike)):
         inputs = [inputs]
     if alpha not in ("keep", "drop"):
@@ -439,8 +448,8 @@ def process_textures(inputs, *, mfp=1.0, eta=1.4, output=DEFAULT_OUTPUT,
     settings = BatchSettings(
         eta=tuple(np.atleast_1d(np.asarray(eta, np.float64)).tolist()),
         mfp=parse_constant(mfp, "mfp"), mfp_scale=float(mfp_scale), config=config,
-        model=model, exact=exact, half=half, colorspace=colorspace, alpha=alpha,
-        on_invalid=check_policy(on_invalid), max_memory=int(max_memory),
+        model=model, exact=exact, half=half, colorspace=colorspace, working=working,
+        alpha=alpha, on_invalid=check_policy(on_invalid), max_memory=int(max_memory),
         outputs=tuple(outputs), unit=unit, runtime=get_runtime(device), double=bool(double),
         cancel=cancel)
     CoefficientMapper((settings.eta[0],), config, outputs=settings.outputs, model=model,

@@ -13,8 +13,9 @@ from ..ops.blur.planning import channel_plans, halo_of
 from ..errors import InvalidInputError
 from ..signals import Stopped
 from .collisions import Claim, check_claim
+from .colour import resolve_working_space
 from .images import (Cancelled, Reader, TextureError, Writer, check_output_format,
-                     invalid_texels, output_spec, read_rows, source_colorspace, to_linear)
+                     invalid_texels, output_spec, read_rows)
 
 #: working set per row of a streamed band, in floats per texel and channel of the file: the
 #: band as read, the colour planes, the blur's own working set (``constant_row_bytes``) and
@@ -32,11 +33,16 @@ def located(exc, path, sources, spec, idx):
     return invalid_texels(exc, where, spec.x + xx, spec.y + row, cc)
 
 
-def blur_file(path, output, *, colorspace="auto", half=False, max_memory=256 << 20,
-              sources=None, cancel=None, mask=None, header=None, progress=None, **kwargs):
+def blur_file(path, output, *, colorspace="auto", working_space=None, half=False,
+              max_memory=256 << 20, sources=None, cancel=None, mask=None, header=None,
+              progress=None, **kwargs):
     """Blur an irradiance image file into an EXR, streamed in bands of rows with a halo of the
-    truncation radius (memory bounded by ``max_memory``). Integer files are decoded to linear
-    as in ``process_textures``; alpha is copied through. ``kwargs`` are ``blur``'s.
+    truncation radius (memory bounded by ``max_memory``). The irradiance is converted from
+    ``colorspace`` (else as the file declares, as in ``process_textures``) into
+    ``working_space``, the space the albedo/mfp parameters are in (arrays and constants are
+    taken as being in it; ``read_parameter_texture(..., colour=True)`` converts an albedo
+    file), and the output is tagged with it. Alpha is copied through. ``kwargs`` are
+    ``blur``'s.
 
     ``sources``: {parameter name: file} of parameter textures given as arrays, so that errors
     name the file they come from and ``output`` never overwrites one of them. ``cancel``
@@ -54,7 +60,7 @@ def blur_file(path, output, *, colorspace="auto", half=False, max_memory=256 << 
     try:
         spec = reader.spec
         colour, alpha_ch = reader.channels()
-        space = source_colorspace(spec, colorspace)
+        route = reader.colour(colorspace, resolve_working_space(working_space))
         border = kwargs.get("border", "clamp")
         kwargs["device"] = get_runtime(kwargs.get("device"))   # resolved once for all bands
         physical = {key: kwargs[key] for key in PARAM_KEYS if key in kwargs}
@@ -80,8 +86,7 @@ def blur_file(path, output, *, colorspace="auto", half=False, max_memory=256 << 
                 raise Cancelled(f"{path}: interrupted; nothing written")
             px = read_rows(reader, idx)
             e = px[..., colour]
-            if space is not None:
-                e = to_linear(e, space)
+            e = route.convert(e, names[:len(colour)])
             if mask is not None:
                 e = e * (np.asarray(mask)[np.maximum(idx, 0)] > 0)[..., None] \
                     * (idx >= 0)[:, None, None]
@@ -106,10 +111,11 @@ def blur_file(path, output, *, colorspace="auto", half=False, max_memory=256 << 
                                                for c in info.channels)
                 meta.update(header or {})
                 meta["source"] = str(path)
+                meta.update(route.header("irradiance"))
                 Path(output).parent.mkdir(parents=True, exist_ok=True)
                 writer = Writer(output, output_spec(
-                    spec, names, len(names) - 1 if alpha_ch >= 0 else -1, half, meta),
-                    kwargs.get("on_invalid", "raise"))
+                    spec, names, len(names) - 1 if alpha_ch >= 0 else -1, half, meta,
+                    working=route.working), kwargs.get("on_invalid", "raise"))
             writer.write_band(y0, y1, np.concatenate(parts, axis=-1))
             if progress is not None:
                 progress.update((y1 - y0) * spec.width)

@@ -2,11 +2,9 @@
 
 * Pixels are read as float32 (``Reader``), respecting the data window, scanline or tiled.
 * Channels are classified by name (``classify_channels``): only colour is ever inverted.
-* Integer-encoded (8/16-bit) colour is decoded to linear through OpenImageIO's colour
-  conversion: ``colorspace="auto"`` takes the space the file declares (``oiio:ColorSpace``),
-  else sRGB for 8-bit and linear for 16-bit; a named space overrides it for integer files.
-  Float/half files are taken as linear. Decoded values are clamped to [0, 1] (the conversion's
-  own overshoot, e.g. 1.0000241 for sRGB white).
+* Colour (albedo, irradiance) is converted into the working space by ``colour`` (OpenColorIO
+  through OpenImageIO); parameter textures that are not colour (mfp, masks) are read as data.
+  Outputs are tagged as being in the working space (``output_spec``).
 * Outputs are OpenEXR (``check_output_format``), written band by band into a temporary file
   beside the target and renamed when it reads back as written (``Writer``, ``verify``); every
   value is finite in the output's format or its texel is invalid (``verify.finite_texels``).
@@ -25,6 +23,7 @@ import numpy as np
 import OpenImageIO as oiio
 
 from .verify import BandDigests, WriteCheckError, finite_texels, read_back, read_rows_of
+from .colour import COLOUR_ATTRIBS, colour_path, tag_output
 
 
 class TextureError(RuntimeError):
@@ -162,6 +161,16 @@ class Reader:
                                f"or a single channel that is not alpha)")
         return colour, alpha
 
+    def colour(self, colorspace="auto", working=None):
+        """The file's ColourPath into the working space ``working`` (``colour.colour_path``);
+        a declaration the config cannot follow is a TextureError."""
+        colour, _ = self.channels()
+        try:
+            return colour_path(self.spec, self.path, colorspace, working,
+                               [self.spec.channelnames[c] for c in colour])
+        except ValueError as exc:
+            raise TextureError(str(exc)) from None
+
     def read_band(self, y0, y1):
         s = self.spec
         with self.lock:
@@ -197,16 +206,21 @@ def check_same_window(spec, other, path, role, other_path):
                            f"({a[2]}x{a[3]}): data windows and resolutions must match")
 
 
-#: input attributes never copied to an output: its own encoding, and what describes the input's
-#: pixels rather than the output's (mip levels, texture wrap and per-image statistics)
-SKIP_ATTRIBS = ("compression", "oiio:ColorSpace", "oiio:BitsPerSample", "oiio:UnassociatedAlpha",
-                 "oiio:Gamma", "openexr:lineOrder", "PixelAspectRatio", "oiio:miplevels",
-                 "oiio:subimages", "oiio:ConstantColor", "oiio:AverageColor", "oiio:SHA-1",
-                 "textureformat", "wrapmodes", "fovcot", "openexr:levelmode",
-                 "openexr:roundingmode", "smcube", "name", "type", "version", "chunkCount")
+#: input attributes never copied to an output: its own encoding, its colour tags (the output
+#: is tagged with the working space), and what describes the input's pixels rather than the
+#: output's (mip levels, texture wrap and per-image statistics)
+SKIP_ATTRIBS = ("compression", "oiio:BitsPerSample", "oiio:UnassociatedAlpha",
+                "openexr:lineOrder", "PixelAspectRatio", "oiio:miplevels",
+                "oiio:subimages", "oiio:ConstantColor", "oiio:AverageColor", "oiio:SHA-1",
+                "textureformat", "wrapmodes", "fovcot", "openexr:levelmode",
+                "openexr:roundingmode", "smcube", "name", "type", "version",
+                "chunkCount") + COLOUR_ATTRIBS
 
 
-def output_spec(in_spec, channel_names, alpha_index, half, params):
+def output_spec(in_spec, channel_names, alpha_index, half, params, *, working):
+    """The ImageSpec of an output of ``in_spec``'s size and window: ``channel_names``, float or
+    half, the input's metadata but not its colour tags, tagged as in the WorkingSpace
+    ``working``, and ``params`` as ``bdipole:*`` attributes."""
     spec = oiio.ImageSpec(in_spec.width, in_spec.height, len(channel_names),
                           "half" if half else "float")
     spec.x, spec.y, spec.z = in_spec.x, in_spec.y, in_spec.z
@@ -224,7 +238,7 @@ def output_spec(in_spec, channel_names, alpha_index, half, params):
         except Exception:  # an attribute type the Python binding cannot copy: leave it out
             pass
     spec.attribute("compression", "zip")
-    spec.attribute("oiio:ColorSpace", "lin_rec709_scene")
+    tag_output(spec, working)
     for key, value in params.items():
         spec.attribute(f"bdipole:{key}", str(value))
     return spec
@@ -317,52 +331,6 @@ class Writer:
             pass
 
 
-def is_integer(spec):
-    return spec.format.basetype in (oiio.UINT8, oiio.INT8, oiio.UINT16, oiio.INT16, oiio.UINT32,
-                                    oiio.INT32)
-
-
-LINEAR_NAMES = {"linear", "lin_rec709_scene", "lin_rec709", "scene_linear", "raw",
-                 "linear rec.709 (srgb)"}
-
-
-def source_colorspace(spec, colorspace="auto"):
-    """The colour space integer-encoded albedo is decoded from, or None for linear data."""
-    if not is_integer(spec):
-        return None
-    if colorspace == "auto":
-        declared = spec.getattribute("oiio:ColorSpace")
-        if declared:
-            colorspace = declared
-        else:
-            colorspace = "sRGB" if spec.format.size() == 1 else "linear"
-    return None if str(colorspace).lower() in LINEAR_NAMES else colorspace
-
-
-def check_colorspace(colorspace):
-    """A ``colorspace`` option OpenImageIO can decode from (a 1-texel conversion), else
-    ValueError naming the known spaces."""
-    if colorspace == "auto" or str(colorspace).lower() in LINEAR_NAMES:
-        return
-    try:
-        to_linear(np.full((1, 1, 3), 0.5, np.float32), colorspace)
-    except TextureError:
-        names = ", ".join(oiio.ColorConfig().getColorSpaceNames())
-        raise ValueError(f"colorspace {colorspace!r} is unknown to OpenImageIO; use auto, "
-                         f"linear, sRGB or one of: {names}") from None
-
-
-def to_linear(pixels, colorspace):
-    """Decode (rows, width, channels) colour pixels from ``colorspace`` to linear with OIIO."""
-    if colorspace is None:
-        return pixels
-    rows, width, nch = pixels.shape
-    buf = oiio.ImageBuf(oiio.ImageSpec(width, rows, nch, "float"))
-    buf.set_pixels(oiio.ROI(), np.ascontiguousarray(pixels))
-    out = oiio.ImageBufAlgo.colorconvert(buf, colorspace, "linear")
-    if out.has_error:
-        raise TextureError(f"colour conversion from {colorspace!r} failed: {out.geterror()}")
-    return np.clip(out.get_pixels(oiio.FLOAT).reshape(rows, width, nch), 0.0, 1.0)
 
 
 def read_rows(reader, idx):
@@ -381,14 +349,17 @@ def read_rows(reader, idx):
     return out
 
 
-def read_parameter_texture(path, what, colour=False, colorspace="auto"):
+def read_parameter_texture(path, what, colour=False, colorspace="auto", working=None):
     """A parameter texture (albedo, mfp, alpha', sigma_t') as HxWxC float32, alpha dropped;
-    ``colour``: integer-encoded files are decoded to linear (albedo), else read as data."""
+    ``colour`` (albedo): converted from its space (``colorspace``, else as the file declares)
+    into the working space ``working``; else read as data, as it is."""
     reader = Reader(path, what)
     try:
         cols, _ = reader.channels()
         px = reader.read_band(0, reader.spec.height)[..., cols]
-        space = source_colorspace(reader.spec, colorspace) if colour else None
-        return to_linear(px, space) if space is not None else px
+        if not colour:
+            return px
+        route = reader.colour(colorspace, working)
+        return route.convert(px, [reader.spec.channelnames[c] for c in cols])
     finally:
         reader.close()

@@ -20,9 +20,10 @@ computed and what is left out, and why:
   is invented at their edges), and texels of another island within the kernel's radius in
   texture space do exchange light, as in any texture-space diffusion (keep islands a kernel
   radius apart, or accept the bleed);
-- **up to date**: an output whose ``bdipole:*`` header records the same parameters digest,
-  library version and input files (size and modification time, else their content digest)
-  is not rebuilt.
+- **colour**: each colour input's path into the job's working space; mfp and masks as is;
+- **up to date**: an output whose ``bdipole:*`` header records the same parameters digest
+  (which includes the working space and the OCIO config), library version and input files
+  (size and modification time, else their content digest) is not rebuilt.
 """
 from __future__ import annotations
 
@@ -47,9 +48,10 @@ from .batch import (BatchReport, BatchSettings, FileResult, Job, companion_path,
                     process_file)
 from .collisions import Claim, collisions
 from .blur_file import blur_file
-from .images import (Reader, TextureError, check_same_window, classify_channels,
-                     read_parameter_texture, source_colorspace, to_linear)
+from .colour import WorkingSpace, resolve_working_space
 from .freshness import header_fields, is_up_to_date, params_digest
+from .images import (Reader, TextureError, check_same_window, classify_channels,
+                     read_parameter_texture)
 from .scene_file import SceneData, SceneError
 from .scene_file import load as load_scene_file
 
@@ -87,6 +89,7 @@ class PlannedJob:
     problem: str | None = None       # a missing input or a collision: the job cannot run
     params_digest: str = ""
     config: MethodConfig | None = None
+    working: WorkingSpace | None = None   # the space its colours are converted into
 
     def describe(self) -> str:
         head = f"{self.kind} {self.name}" + (f" [{self.udim}]" if self.udim else "")
@@ -115,8 +118,9 @@ class Plan:
                             f"{len(self.missing)} that cannot run"])
 
     def to_json(self) -> str:
-        return json.dumps([{k: v for k, v in asdict(j).items() if k != "config"}
-                           | {"config": j.config.describe() if j.config else None}
+        return json.dumps([{k: v for k, v in asdict(j).items() if k not in ("config", "working")}
+                           | {"config": j.config.describe() if j.config else None,
+                              "working_space": j.working.describe() if j.working else None}
                            for j in self.jobs], indent=1)
 
     def run(self, *, cancel=None, device=None, progress=None,
@@ -160,14 +164,22 @@ def _new_job(kind, name, path, udim, out, inputs, digest, problems, force, probl
     return job, not (job.problem or job.up_to_date)
 
 
-def read_albedo(path, mask_mode, mask_path, colorspace):
-    """One read of an albedo file: (linear colour texels HxWxC, the mask as booleans or None,
-    colour channel names, alpha name or None, other channel names). ``mask_mode``: None,
-    "alpha" (the file's alpha) or a texture (``mask_path``, its first channel)."""
+def _cannot_run(job, problem, problems_all):
+    job.problem = problem
+    problems_all.append(problem)
+    return job
+
+
+def read_albedo(path, mask_mode, mask_path, colorspace, working):
+    """One read of an albedo file: (colour texels HxWxC in the working space ``working``, the
+    mask as booleans or None, colour channel names, alpha name or None, other channel names,
+    its ColourPath). ``mask_mode``: None, "alpha" (the file's alpha) or a texture
+    (``mask_path``, its first channel; masks are data, never converted)."""
     r = Reader(path, "albedo")
     try:
         spec = r.spec
         colour, alpha = r.channels()
+        route = r.colour(colorspace, working)
         px = r.read_band(0, spec.height)
     finally:
         r.close()
@@ -179,28 +191,27 @@ def read_albedo(path, mask_mode, mask_path, colorspace):
         keep = px[..., alpha] > 0
     elif mask_mode:
         keep = read_parameter_texture(mask_path, "mask")[..., 0] > 0
-    space = source_colorspace(spec, colorspace)
-    albedo = px[..., colour]
-    if space is not None:
-        albedo = to_linear(albedo, space)
-    return (albedo, keep, [spec.channelnames[c] for c in colour],
+    names = [spec.channelnames[c] for c in colour]
+    return (route.convert(px[..., colour], names), keep, names,
             spec.channelnames[alpha] if alpha >= 0 else None,
-            [spec.channelnames[c] for c in other])
+            [spec.channelnames[c] for c in other], route)
 
 
-def _albedo_stats(path, mask_mode, mask_path, colorspace, max_memory=DEFAULT_MEMORY):
+def _albedo_stats(path, mask_mode, mask_path, colorspace, working, max_memory=DEFAULT_MEMORY):
     """(colour channel names, alpha name, other names, Rd range of unmasked texels, masked
-    fraction) of an albedo file: the statistics pass, streamed in bands of rows."""
+    fraction, ColourPath) of an albedo file: the statistics pass, in the working space,
+    streamed in bands of rows."""
     readers = [Reader(path, "albedo")]
     try:
         spec = readers[0].spec
         colour, alpha = readers[0].channels()
+        route = readers[0].colour(colorspace, working)
         if mask_mode == "alpha" and alpha < 0:
             raise TextureError(f"{path}: mask = 'alpha' but the albedo has no alpha channel")
         if mask_mode and mask_mode != "alpha":
             readers.append(Reader(mask_path, "mask"))
             check_same_window(spec, readers[1].spec, path, "mask", mask_path)
-        space = source_colorspace(spec, colorspace)
+        colour_names = [spec.channelnames[c] for c in colour]
         rows = band_rows(spec.height, spec.width * (spec.nchannels + 2) * 4 * 3, max_memory,
                          tile_height=spec.tile_height if spec.tile_width else 0)
         lo, hi, kept = np.inf, -np.inf, 0
@@ -210,8 +221,7 @@ def _albedo_stats(path, mask_mode, mask_path, colorspace, max_memory=DEFAULT_MEM
             keep = (px[..., alpha] > 0 if mask_mode == "alpha" else
                     readers[1].read_band(y0, y1)[..., 0] > 0 if mask_mode else
                     np.ones(px.shape[:2], bool))
-            vals = px[..., colour] if space is None else to_linear(px[..., colour], space)
-            vals = vals[keep]
+            vals = route.convert(px[..., colour], colour_names)[keep]
             vals = vals[np.isfinite(vals)]
             kept += int(np.count_nonzero(keep))
             if vals.size:
@@ -221,9 +231,9 @@ def _albedo_stats(path, mask_mode, mask_path, colorspace, max_memory=DEFAULT_MEM
             r.close()
     _, _, other = classify_channels(spec.channelnames, spec.alpha_channel)
     names = spec.channelnames
-    return ([names[c] for c in colour], names[alpha] if alpha >= 0 else None,
+    return (colour_names, names[alpha] if alpha >= 0 else None,
             [names[c] for c in other], (lo, hi) if lo <= hi else None,
-            1.0 - kept / max(spec.width * spec.height, 1))
+            1.0 - kept / max(spec.width * spec.height, 1), route)
 
 
 #: table sizes chosen per (etas, albedo range, tol, model, exact): a few bytes each
@@ -263,18 +273,20 @@ def _plan_invert(m, path, udim, force, device, problems_all, max_memory):
     problems = []
     _exists("albedo", path, problems)
     _textures(inputs, m, m.mask, path, udim, problems)
-    digest = params_digest(_material_fields(m) | {"kind": "invert", "udim": udim})
+    working = resolve_working_space(m.working_space)
+    digest = params_digest(_material_fields(m) | working.key | {"kind": "invert", "udim": udim})
     job, todo = _new_job("invert", m.name, path, udim, out, inputs, digest, problems, force,
                          problems_all)
+    job.working = working
     if not todo:
         return job
     try:
-        names, alpha, other, rd_range, masked = _albedo_stats(path, m.mask, inputs.get("mask"),
-                                                             m.colorspace, max_memory)
-    except TextureError as exc:          # this job cannot run; the others still do
-        job.problem = str(exc)
-        problems_all.append(job.problem)
-        return job
+        names, alpha, other, rd_range, masked, route = _albedo_stats(
+            path, m.mask, inputs.get("mask"), m.colorspace, working, max_memory)
+    except TextureError as exc:          # this job cannot run (unreadable, or a colour space
+        return _cannot_run(job, str(exc), problems_all)   # the config cannot follow); others do
+    job.computes.append(f"colour: albedo {route.describe()}")
+    job.left_out.append(_not_converted(m.mask))
     etas = m.eta if len(m.eta) > 1 else m.eta * len(names)
     if len(set(etas)) == 1:
         etas = etas[:1]
@@ -307,6 +319,20 @@ def _plan_invert(m, path, udim, force, device, problems_all, max_memory):
     return job
 
 
+def _not_converted(mask) -> str:
+    return ("colour conversion of the mfp (lengths per channel of the working space)"
+            + (", the mask" if mask else "") + " and alpha (data)")
+
+
+def colour_of(path, role, colorspace, working) -> str:
+    """The colour path of one file into ``working``, described (``ColourPath.describe``)."""
+    r = Reader(path, role)
+    try:
+        return r.colour(colorspace, working).describe()
+    finally:
+        r.close()
+
+
 def _plan_blur(b, path, udim, force, problems_all):
     m = b.material
     out = companion_path(b.output, path, udim)
@@ -316,11 +342,20 @@ def _plan_blur(b, path, udim, force, problems_all):
     _exists("albedo", inputs["albedo"], problems)
     _textures(inputs, m, b.mask, path, udim, problems)
     fields = {k: v for k, v in asdict(b).items() if k not in ("name", "irradiance", "output")}
-    digest = params_digest(fields | {"kind": "blur", "udim": udim})
+    working = resolve_working_space(b.working_space)
+    digest = params_digest(fields | working.key | {"kind": "blur", "udim": udim})
     job, todo = _new_job("blur", b.name, path, udim, out, inputs, digest, problems, force,
                          problems_all)
+    job.working = working
     if not todo:
         return job
+    try:
+        for role, file, space in (("irradiance", path, b.colorspace),
+                                  ("albedo", inputs["albedo"], m.colorspace)):
+            job.computes.append(f"colour: {role} {colour_of(file, role, space, working)}")
+    except TextureError as exc:                # e.g. a space the config does not know
+        return _cannot_run(job, str(exc), problems_all)
+    job.left_out.append(_not_converted(b.mask))
     job.computes.append(f"exitance with the exit texel's profile from {m.name}'s albedo "
                         f"and mfp, texel {b.texel_size:g} {m.unit}, tol {b.tol:g} "
                         f"({b.method}, border {b.border})")
@@ -357,20 +392,20 @@ def plan(scene: Scene, *, force=False, device=None, max_memory=DEFAULT_MEMORY) -
 
 # {{{ the bake
 
-def _settings(m, config, runtime, cancel, header, max_memory=DEFAULT_MEMORY):
+def _settings(m, config, runtime, cancel, header, working, max_memory=DEFAULT_MEMORY):
     return BatchSettings(
         eta=m.eta, mfp=None if isinstance(m.mfp, str) else m.mfp, mfp_scale=1.0, config=config,
         model=m.model, exact=m.exact, half=m.half, colorspace=m.colorspace, alpha="keep",
         on_invalid=m.on_invalid, max_memory=max_memory, outputs=m.outputs, unit=m.unit,
         runtime=runtime, double=m.double, cancel=cancel,
         mask=None if not m.mask else "alpha" if m.mask == "alpha" else "texture",
-        bake=SPECIALISE, header=header)
+        bake=SPECIALISE, header=header, working=working)
 
 
 def run_invert_job(job, scene, runtime, cancel, lock, max_memory=DEFAULT_MEMORY):
     m = next(x for x in scene.materials if x.name == job.name)
     header = header_fields(job.inputs, job.params_digest)
-    settings = _settings(m, job.config, runtime, cancel, header, max_memory)
+    settings = _settings(m, job.config, runtime, cancel, header, job.working, max_memory)
     return process_file(Job(job.source, job.udim, job.output, job.inputs.get("mfp"),
                             job.inputs.get("mask")), settings, lock, None)
 
@@ -408,17 +443,21 @@ def run_blur_job(job, scene, runtime, cancel, max_memory=DEFAULT_MEMORY):
     t0 = time.perf_counter()
     try:
         texels = _check_windows(job)
-        albedo, keep, *_ = read_albedo(job.inputs["albedo"], b.mask, job.inputs.get("mask"),
-                                       m.colorspace)
+        working = job.working
+        result.colour = "irradiance " + colour_of(job.source, "irradiance", b.colorspace,
+                                                  working)
+        albedo, keep, *_, route = read_albedo(job.inputs["albedo"], b.mask,
+                                              job.inputs.get("mask"), m.colorspace, working)
         mfp = (read_parameter_texture(job.inputs["mfp"], "mfp") if "mfp" in job.inputs
                else m.mfp)
         albedo = _masked_parameter(albedo, keep)
         if np.ndim(mfp) >= 2:
             mfp = _masked_parameter(mfp, keep)
-        header = header_fields(job.inputs, job.params_digest)
+        header = header_fields(job.inputs, job.params_digest) | route.header("albedo")
         sources = {k: v for k, v in job.inputs.items() if k in ("albedo", "mfp")}
         blur_file(job.source, job.output, half=b.half, sources=sources, cancel=cancel,
-                  mask=keep, header=header, colorspace=b.colorspace, albedo=albedo, mfp=mfp,
+                  mask=keep, header=header, colorspace=b.colorspace, working_space=working,
+                  albedo=albedo, mfp=mfp,
                   eta=m.eta, texel_size=b.texel_size, tol=b.tol, method=b.method,
                   border=b.border, on_invalid=b.on_invalid, exact=m.exact, device=runtime,
                   max_memory=max_memory)
@@ -451,9 +490,10 @@ def bake(plan: Plan, *, cancel=None, device=None, progress=None,
     return BatchReport(results)
 
 
-def load(path) -> Scene:
-    """Read and check a scene file (``SceneError``: one line with the file, line and key)."""
-    data = load_scene_file(path)
+def load(path, working_space=None) -> Scene:
+    """Read and check a scene file (``SceneError``: one line with the file, line and key);
+    ``working_space``: that of the entries that give none (None: the default)."""
+    data = load_scene_file(path, working_space)
     return Scene(data.path, data.materials, data.blurs)
 
 

@@ -5,6 +5,7 @@
     unit = "mm"
     tol = 1e-4
     model = "better-dipole"           # or "dipole"
+    working_space = "ACEScg"          # the renderer's rendering space (README: Colour)
 
     [[material]]
     name = "skin"
@@ -14,6 +15,7 @@
     output = "out/skin_sss.<UDIM>.exr"
     mask = "alpha"                    # optional: the albedo's alpha, or a texture path
     half = true
+    colorspace = "auto"               # the albedo's: as the file declares, or a name
 
     [[blur]]
     name = "skin_tsd"
@@ -39,6 +41,7 @@ except ImportError:  # pragma: no cover - Python 3.10
 
 from ..methods.registry import BLUR_METHODS, BORDERS, METHODS
 from ..ops.invert import OUTPUTS
+from .colour import resolve_colorspace, resolve_working_space
 
 MODELS = {"better-dipole": "better", "dipole": "dipole"}
 
@@ -83,7 +86,10 @@ KEYS = {
     "exact": ({"material"}, lambda v: isinstance(v, bool), "true or false"),
     "double": ({"material"}, lambda v: isinstance(v, bool), "true or false"),
     "on_invalid": ({"material", "blur"}, lambda v: v in ("raise", "clamp"), "raise or clamp"),
-    "colorspace": ({"material", "blur"}, lambda v: isinstance(v, str), "a colour space name"),
+    "colorspace": ({"material", "blur"}, lambda v: isinstance(v, str) and v,
+                   "auto or a colour space of the OCIO config"),
+    "working_space": ({"material", "blur"}, lambda v: isinstance(v, str) and v,
+                      "a scene-linear colour space of the OCIO config"),
     "material": ({"blur"}, lambda v: isinstance(v, str) and v, "a material's name"),
     "irradiance": ({"blur"}, lambda v: isinstance(v, str) and v, "a texture path or pattern"),
     "texel_size": ({"blur"}, _positive, "a finite number > 0 (in the unit of mfp)"),
@@ -116,7 +122,8 @@ class Material:
     exact: bool
     double: bool
     on_invalid: str
-    colorspace: str
+    colorspace: str                  # the albedo's: "auto" or the config's name of a space
+    working_space: str | None = None  # the config's name; None: the default working space
 
 
 @dataclass(frozen=True)
@@ -132,7 +139,8 @@ class Blur:
     method: str
     border: str
     on_invalid: str
-    colorspace: str
+    colorspace: str                  # the irradiance's
+    working_space: str | None = None  # irradiance, albedo and mfp: the material's unless given
 
 
 @dataclass(frozen=True)
@@ -168,9 +176,13 @@ def line_of(text: str, section: str | None, index: int, key: str | None) -> int:
     return (start or 0) + 1
 
 
-def load(path) -> SceneData:
-    """Read, check and resolve a scene file (``SceneError`` on any problem, one line)."""
+def load(path, working_space=None) -> SceneData:
+    """Read, check and resolve a scene file (``SceneError`` on any problem, one line).
+    ``working_space``: the one of entries that give none (in them or in [defaults]); None:
+    the default working space."""
     path = Path(path)
+    if working_space:
+        working_space = resolve_working_space(working_space).name
     try:
         data = path.read_bytes()
     except OSError as exc:
@@ -214,7 +226,9 @@ def load(path) -> SceneData:
             resolve(mfp) if isinstance(mfp, str) else tuple(map(float, _as_list(mfp))),
             tuple(map(float, _as_list(m["eta"]))), tuple(m["outputs"]), resolve(m["output"]),
             resolve(m.get("mask")), m["half"], m["unit"], float(m["tol"]), MODELS[m["model"]],
-            m["method"], m["exact"], m["double"], m["on_invalid"], m["colorspace"])
+            m["method"], m["exact"], m["double"], m["on_invalid"],
+            _colour(fail, "material", i, entry, m, "colorspace"),
+            _colour(fail, "material", i, entry, m, "working_space") or working_space)
     blurs, names = [], set()
     for i, entry in enumerate(raw.get("blur", [])):
         b = _entry(fail, "blur", i, entry, defaults)
@@ -228,10 +242,29 @@ def load(path) -> SceneData:
         mask = resolve(b["mask"]) if "mask" in entry else mat.mask
         blurs.append(Blur(b["name"], mat, resolve(b["irradiance"]), float(b["texel_size"]),
                           resolve(b["output"]), mask, b["half"], float(b["tol"]),
-                          b["blur_method"], b["border"], b["on_invalid"], b["colorspace"]))
+                          b["blur_method"], b["border"], b["on_invalid"],
+                          _colour(fail, "blur", i, entry, b, "colorspace"),
+                          _colour(fail, "blur", i, entry, b, "working_space")
+                          if "working_space" in entry else mat.working_space))
     if not materials and not blurs:
         fail(None, 0, None, "the scene has no [[material]] and no [[blur]]")
     return SceneData(path.resolve(), tuple(materials.values()), tuple(blurs))
+
+
+def _colour(fail, kind, index, entry, merged, key):
+    """A colour key of an entry (or of [defaults]) as the OCIO config names it: colorspace
+    "auto" or a space, working_space a scene-linear space or None (the default); an unknown
+    name fails on the line that gives it, listing the known ones."""
+    value = merged.get(key)
+    if value is None or (key == "colorspace" and value == "auto"):
+        return value
+    try:
+        if key == "colorspace":
+            return resolve_colorspace(value)
+        return resolve_working_space(value).name
+    except ValueError as exc:
+        where = (kind, index) if key in entry else ("defaults", 0)
+        fail(*where, key, f"{key} = {value!r}: {exc}")
 
 
 def _as_list(v):

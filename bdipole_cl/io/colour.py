@@ -1,0 +1,352 @@
+"""Colour management (I/O layer): every albedo and irradiance texel is converted into one
+working space through OpenColorIO before any computation; what is not a colour is never
+converted (docs/model.md "Colour").
+
+* **The config** (``active_config``): the one named by ``$OCIO`` when it is set, else the
+  built-in ``ocio://default`` that OpenImageIO carries. Conversions are OpenImageIO's
+  ``colorconvert`` with that config; no colour matrix is written here.
+* **The working space** (``resolve_working_space``): any scene-linear colour space of the config, by
+  name or alias. Default: the config's ``scene_linear`` role under ``$OCIO`` (a studio's
+  pipeline), else ``lin_rec709_scene``.
+* **An input's space** (``colour_path``): the one given (``colorspace``), else what the file
+  declares (``oiio:ColorSpace`` as OpenImageIO reports it: an EXR's ``colorInteropID``, a PNG's
+  sRGB/gAMA/ICC information), else its EXR ``chromaticities`` matched to a linear space of the
+  config, else: 8-bit is sRGB, 16-bit and float are already in the working space.
+* **Never converted**: mfp textures and constants (lengths per channel of the working space),
+  masks and alpha (data).
+* **Outputs** (``tag_output``): ``oiio:ColorSpace`` is the working space (its interop ID when
+  the config has one), the EXR ``chromaticities`` are its primaries and white point.
+
+OpenColorIO's default CPU processors evaluate powers with a fast approximation (2.4e-5 off at
+sRGB white); ``OCIO_OPTIMIZATION_FLAGS`` is set to its lossless level unless the user set it,
+so the decoding is exact to float32 (README: Colour).
+"""
+from __future__ import annotations
+
+import os
+import threading
+from dataclasses import dataclass
+
+import numpy as np
+import OpenImageIO as oiio
+
+#: OpenColorIO's OPTIMIZATION_LOSSLESS (OpenColorTypes.h): no fast pow/log/exp approximations
+os.environ.setdefault("OCIO_OPTIMIZATION_FLAGS", "0x89c3fc3")
+
+#: the config when $OCIO is not set: OpenImageIO's built-in (OpenColorIO's CG config)
+BUILTIN_CONFIG = "ocio://default"
+#: the working space when $OCIO is not set (linear Rec.709, sRGB primaries, D65)
+DEFAULT_WORKING_SPACE = "lin_rec709_scene"
+#: what an undeclared 8-bit file is encoded in (the first name the config knows)
+SRGB_NAMES = ("srgb_rec709_scene", "sRGB", "srgb_tx", "srgb_texture")
+#: primaries and white point xy (x, y of R, G, B, W) match a space within this: writers round
+#: them to 4-5 digits (D65 is 0.3127, 0.3290 or 0.31271, 0.32902); the nearest distinct common
+#: spaces differ by more than 0.005 (D60 vs D65 white, P3 vs Rec.709 green)
+CHROMATICITY_TOL = 1e-3
+
+
+def _short(name) -> str:
+    return str(name).rsplit(".", 1)[-1].strip().lower()
+
+
+_RGB = {"r": 0, "red": 0, "g": 1, "green": 1, "b": 2, "blue": 2}
+
+
+# {{{ the config
+
+_configs: dict = {}
+_configs_lock = threading.Lock()
+
+
+def _ocio(name) -> "oiio.ColorConfig":
+    """OpenImageIO's ColorConfig of ``name``, loaded once (ValueError if it cannot be)."""
+    with _configs_lock:
+        cfg = _configs.get(name)
+        if cfg is None:
+            cfg = oiio.ColorConfig(name)
+            err = cfg.geterror()
+            if err or cfg.configname() != name:
+                raise ValueError(f"OCIO config {name!r} cannot be used: "
+                                 f"{' '.join((err or 'not found').split())}")
+            _configs[name] = cfg
+        return cfg
+
+
+def reset_config_cache() -> None:
+    """Forget loaded configs (a config file edited in place is read again)."""
+    with _configs_lock:
+        _configs.clear()
+
+
+@dataclass(frozen=True)
+class ColourConfig:
+    """An OpenColorIO config by name (picklable: the loaded config is cached per process)."""
+
+    name: str          # "ocio://default", a built-in URI or a file path
+    source: str        # "$OCIO" or "built-in"
+
+    @property
+    def _cfg(self):
+        return _ocio(self.name)
+
+    def space(self, name) -> str | None:
+        """The config's own name for the colour space, role or alias ``name``, or None."""
+        resolved = self._cfg.resolve(str(name))
+        return resolved if self._cfg.getColorSpaceIndex(resolved) >= 0 else None
+
+    def names(self) -> tuple:
+        return tuple(self._cfg.getColorSpaceNames())
+
+    def is_data(self, space) -> bool:
+        return bool(self._cfg.isData(space))
+
+    def is_scene_linear(self, space) -> bool:
+        return bool(self._cfg.isColorSpaceLinear(space)) and not self.is_data(space)
+
+    def working_names(self) -> tuple:
+        return tuple(n for n in self.names() if self.is_scene_linear(n))
+
+    def chromaticities(self, space) -> tuple | None:
+        """Primaries and white point (xR, yR, xG, yG, xB, yB, xW, yW), when the config knows."""
+        xy = self._cfg.get_chromaticities(space)
+        return tuple(float(v) for v in xy) if xy else None
+
+    def interop_id(self, space) -> str:
+        return self._cfg.get_color_interop_id(space) or ""
+
+    def match_chromaticities(self, xy) -> str | None:
+        """The first scene-linear space whose primaries and white are ``xy`` (CHROMATICITY_TOL)."""
+        for n in self.working_names():
+            ch = self.chromaticities(n)
+            if ch and max(abs(a - b) for a, b in zip(ch, xy)) <= CHROMATICITY_TOL:
+                return n
+        return None
+
+    def convert(self, rgb, source, target):
+        """(rows, width, 3) float32 texels from ``source`` to ``target`` by OpenImageIO's
+        colorconvert with this config (unpremultiplied: only colour channels are passed)."""
+        rows, width, nch = rgb.shape
+        buf = oiio.ImageBuf(oiio.ImageSpec(width, rows, nch, "float"))
+        buf.set_pixels(oiio.ROI(), np.ascontiguousarray(rgb, np.float32))
+        if self.name == oiio.ColorConfig.default_colorconfig().configname():
+            out = oiio.ImageBufAlgo.colorconvert(buf, source, target, False)  # processor cached
+        else:                                   # a config by name: loaded by each call
+            out = oiio.ImageBufAlgo.colorconvert(buf, source, target, False, "", "", self.name)
+        if out.has_error:
+            raise ValueError(f"colour conversion {source} -> {target} (OCIO config "
+                             f"{self.name}) failed: {out.geterror()}")
+        return out.get_pixels(oiio.FLOAT).reshape(rows, width, nch)
+
+
+def active_config() -> ColourConfig:
+    """The config named by ``$OCIO`` when set, else the built-in one (ValueError if unusable)."""
+    env = os.environ.get("OCIO", "").strip()
+    config = ColourConfig(env, "$OCIO") if env else ColourConfig(BUILTIN_CONFIG, "built-in")
+    _ocio(config.name)
+    return config
+
+
+def _unknown(what, name, config, known) -> ValueError:
+    return ValueError(f"{what} {name!r} is unknown to OCIO config {config.name}; known: "
+                      f"{', '.join(known)} (or an alias or role of one)")
+
+
+def resolve_colorspace(name, config=None) -> str:
+    """The config's name for an input colour space ``name`` (ValueError listing the known)."""
+    config = config or active_config()
+    space = config.space(name)
+    if space is None:
+        raise _unknown("colorspace", name, config, ("auto",) + config.names())
+    return space
+
+
+def check_colorspace(colorspace, config=None) -> None:
+    """A ``colorspace`` option: "auto" or a space of the config, else ValueError."""
+    if colorspace not in (None, "", "auto"):
+        resolve_colorspace(colorspace, config)
+
+# }}}
+
+
+# {{{ the working space
+
+@dataclass(frozen=True)
+class WorkingSpace:
+    """The space every colour is inverted and blurred in (the renderer's rendering space)."""
+
+    name: str                      # the config's name for it
+    config: ColourConfig
+
+    def describe(self) -> str:
+        return f"{self.name}, config {self.config.name}"
+
+    @property
+    def key(self) -> dict:
+        """What an output's up-to-date check compares."""
+        return {"working_space": self.name, "ocio_config": self.config.name}
+
+
+def resolve_working_space(name=None, config=None) -> WorkingSpace:
+    """The working space ``name`` (a space, alias or role of the config), or the default: the
+    ``scene_linear`` role under ``$OCIO``, else lin_rec709_scene. It must be scene-linear: an
+    albedo is a reflectance, inverted per channel (ValueError listing the ones there are)."""
+    if isinstance(name, WorkingSpace):
+        return name
+    config = config or active_config()
+    if not name:
+        name = "scene_linear" if config.source == "$OCIO" else DEFAULT_WORKING_SPACE
+    space = config.space(name)
+    if space is None:
+        raise _unknown("working space", name, config, config.working_names())
+    if not config.is_scene_linear(space):
+        raise ValueError(f"working space {name!r} ({space}) is not scene-linear: an albedo is "
+                         f"inverted as a linear reflectance; choose one of "
+                         f"{', '.join(config.working_names())}")
+    return WorkingSpace(space, config)
+
+# }}}
+
+
+# {{{ an input's colour path
+
+def encoding(spec) -> str:
+    """How a file stores its texels: 8-bit, 16-bit, 32-bit (integers), half or float."""
+    base = spec.format.basetype
+    if base == oiio.HALF:
+        return "half"
+    if base in (oiio.FLOAT, oiio.DOUBLE):
+        return "float"
+    return f"{8 * spec.format.size()}-bit"
+
+
+def _declared_chromaticities(spec):
+    attr = next((a for a in spec.extra_attribs if a.name == "chromaticities"), None)
+    if attr is None:
+        return None
+    values = np.ravel(attr.value)
+    return tuple(float(v) for v in values) if values.size == 8 else None
+
+
+@dataclass(frozen=True)
+class ColourPath:
+    """Where one file's colour texels come from and go: ``source`` -> the working space."""
+
+    source: str                # the config's name of the space the file's texels are in
+    how: str                   # given | declared | chromaticities | default
+    encoding: str              # 8-bit | 16-bit | half | float ...
+    working: WorkingSpace
+
+    @property
+    def identity(self) -> bool:
+        return self.source == self.working.name or self.working.config.is_data(self.source)
+
+    def describe(self) -> str:
+        return f"{self.source} ({self.encoding}, {self.how}) -> {self.working.describe()}"
+
+    def header(self, role) -> dict:
+        """``bdipole:*`` attributes recording this input's path (``role``: albedo, ...)."""
+        return {f"{role}_colorspace": self.source, f"{role}_colour": self.describe(),
+                **self.working.key}
+
+    def convert(self, pixels, names):
+        """(rows, width, C) colour texels, channels ``names``, into the working space: RGB by
+        name in any order, or one grey channel as (y, y, y), kept as the mean of the result
+        (the three agree: chromatic adaptation maps white to white)."""
+        if self.identity:
+            return pixels
+        if pixels.shape[-1] == 1:
+            return self.working.config.convert(np.repeat(pixels, 3, axis=-1), self.source,
+                                               self.working.name).mean(axis=-1, keepdims=True)
+        order = _rgb_order(names)
+        if order is None:
+            raise ValueError(_layout_error(names, self.source))
+        rgb = self.working.config.convert(pixels[..., np.argsort(order)], self.source,
+                                          self.working.name)
+        return rgb[..., order]
+
+
+def _rgb_order(names):
+    """Each channel's index in R, G, B, when ``names`` are those three in any order."""
+    order = [_RGB.get(_short(n), -1) for n in names]
+    return order if sorted(order) == [0, 1, 2] else None
+
+
+def _layout_error(names, source) -> str:
+    return (f"channels {', '.join(names)}: a colour conversion from {source} needs R, G and "
+            f"B or one grey channel (give the working space as colorspace to take them as "
+            f"they are)")
+
+
+def colour_path(spec, path, colorspace="auto", working=None, names=None) -> ColourPath:
+    """The colour path of a file (``spec`` as read; ``names``: its colour channels) into
+    ``working`` (see the module docstring for the order of the rules). ValueError naming the
+    file when its declaration is unknown to the config or contradicts its chromaticities, or
+    when its channels cannot be converted."""
+    route = _colour_path(spec, path, colorspace, resolve_working_space(working))
+    if names and len(names) != 1 and not route.identity and _rgb_order(names) is None:
+        raise ValueError(f"{path}: {_layout_error(names, route.source)}")
+    return route
+
+
+def _colour_path(spec, path, colorspace, working) -> ColourPath:
+    config = working.config
+    enc = encoding(spec)
+    if colorspace not in (None, "", "auto"):
+        return ColourPath(resolve_colorspace(colorspace, config), "given", enc, working)
+    xy = _declared_chromaticities(spec)
+    declared = spec.getattribute("oiio:ColorSpace")
+    if declared:
+        space = config.space(declared)
+        if space is None:
+            raise ValueError(f"{path}: declares colour space {declared!r}, unknown to OCIO "
+                             f"config {config.name}: give its space (--colorspace / "
+                             f"colorspace =)")
+        own = config.chromaticities(space)
+        if xy and own and max(abs(a - b) for a, b in zip(own, xy)) > CHROMATICITY_TOL:
+            raise ValueError(f"{path}: declares {declared!r} but its chromaticities "
+                             f"{', '.join(f'{v:.4f}' for v in xy)} are not that space's: give "
+                             f"its space (--colorspace / colorspace =)")
+        return ColourPath(space, "declared", enc, working)
+    if xy and enc in ("half", "float"):
+        space = config.match_chromaticities(xy)
+        if space is None:
+            raise ValueError(f"{path}: its chromaticities {', '.join(f'{v:.4f}' for v in xy)} "
+                             f"match no linear colour space of OCIO config {config.name}: "
+                             f"give its space (--colorspace / colorspace =)")
+        return ColourPath(space, "chromaticities", enc, working)
+    if enc == "8-bit":
+        srgb = next((s for s in map(config.space, SRGB_NAMES) if s), None)
+        if srgb is None:
+            raise ValueError(f"{path}: an 8-bit file is taken as sRGB, which OCIO config "
+                             f"{config.name} has not: give its space (--colorspace)")
+        return ColourPath(srgb, "default", enc, working)
+    return ColourPath(working.name, "default", enc, working)
+
+# }}}
+
+
+# {{{ outputs
+
+#: input attributes that describe the input's colour, never copied to an output
+COLOUR_ATTRIBS = ("oiio:ColorSpace", "colorInteropID", "chromaticities", "ICCProfile",
+                  "adoptedNeutral", "oiio:Gamma")
+
+
+def tag_output(spec, working) -> None:
+    """Tag an output ImageSpec as being in ``working``: ``oiio:ColorSpace`` and the EXR
+    ``colorInteropID`` (its interop ID in the config, e.g. lin_ap1_scene for ACEScg, else its
+    name; set here, not left to OpenImageIO's writer, which looks names up in its own default
+    config), and the ``chromaticities`` of its primaries and white point when the config
+    knows them."""
+    spec.attribute("oiio:ColorSpace", working.name)
+    spec.attribute("colorInteropID", working.config.interop_id(working.name) or working.name)
+    xy = working.config.chromaticities(working.name)
+    if xy:
+        spec.attribute("chromaticities", oiio.TypeDesc("float[8]"), xy)
+
+# }}}
+
+
+__all__ = ["BUILTIN_CONFIG", "DEFAULT_WORKING_SPACE", "ColourConfig", "ColourPath",
+           "WorkingSpace", "active_config", "check_colorspace", "colour_path", "encoding",
+           "reset_config_cache", "resolve_colorspace", "resolve_working_space", "tag_output"]

@@ -37,6 +37,7 @@ from .io.colour import resolve_working_space
 from .io.images import (Cancelled, Reader, TextureError, Writer, output_spec, read_rows,
                         remove_partial_files)
 from .io.scene import Plan, run_blur_job, run_invert_job
+from .io.scene_records import finish_bake, run_constant_job
 from .ops import invert as ops_invert
 from .ops.bands import band_rows, bands, halo_rows
 from .ops.blur import PARAM_KEYS, blur as blur_array
@@ -139,10 +140,13 @@ def _not_finished(source, output):
 
 def run_scene_job(job, scene, device=None):
     """One scene job on a worker (its own device, opened once per process)."""
-    remove_partial_files(job.output)
+    if job.kind != "constant":
+        remove_partial_files(job.output)
     runtime = get_runtime(device)
     if job.kind == "invert":
         return run_invert_job(job, scene, runtime, None, _worker_lock)
+    if job.kind == "constant":
+        return run_constant_job(job, scene, runtime)
     return run_blur_job(job, scene, runtime, None)
 
 
@@ -170,10 +174,10 @@ def bake_on_cluster(plan: Plan, client, *, device=None, progress=True,
         if bar is not None:
             bar.close()
     for job in plan.jobs:
-        if job.output:
+        if job.output and job.kind != "constant":
             remove_partial_files(job.output)
-    return BatchReport([results.get(i) or _not_finished(j.source, j.output)
-                        for i, j in enumerate(plan.jobs)])
+    return finish_bake(plan, [results.get(i) or _not_finished(j.source, j.output)
+                              for i, j in enumerate(plan.jobs)])
 
 # }}}
 

@@ -174,3 +174,21 @@ def test_a_stop_request_cancels_the_unfinished_cluster_jobs(client, two_scenes):
     assert time.monotonic() - t0 < 10, "the bake waited for its jobs after the stop request"
     assert {r.status for r in report.results} == {"cancelled"}, report.summary()
     assert not (cluster.parent / "out").exists() or not os.listdir(cluster.parent / "out")
+
+
+def test_a_usd_stage_bakes_on_the_cluster_with_the_same_records(client, tmp_path):
+    pytest.importorskip("pxr")
+    from test_usd_scene import write_stage
+    local, cluster = write_stage(tmp_path / "local"), write_stage(tmp_path / "cluster")
+    assert scenes.load(local).plan().run().exit_code == 0
+    report = bdask.bake_on_cluster(scenes.load(cluster).plan(), client, progress=False)
+    assert report.exit_code == 0, report.summary()
+    for name in ("skin.1001.exr", "skin.1002.exr", "marble.exr"):     # bit for bit
+        np.testing.assert_array_equal(read(cluster.parent / "bdipole" / name),
+                                      read(local.parent / "bdipole" / name))
+    # the constant material's coefficients and the layer: the same (paths are relative)
+    for name in ("bdipole.usda",):
+        assert (cluster.parent / "bdipole" / name).read_text() == \
+            (local.parent / "bdipole" / name).read_text()
+    again = bdask.bake_on_cluster(scenes.load(cluster).plan(), client, progress=False)
+    assert {r.status for r in again.results} == {"skipped"}

@@ -233,3 +233,33 @@ def test_plan_json_lists_every_job(scene_dir, capsys):
         ("invert", "skin", "1001"), ("invert", "skin", "1002"), ("invert", "grey", "1001"),
         ("blur", "tsd", "1001"), ("blur", "tsd", "1002")}
     assert all(j["computes"] and j["left_out"] for j in jobs)
+
+
+def test_a_constant_material_gets_its_coefficients_in_the_summary_and_the_manifest(tmp_path):
+    (tmp_path / "scene.toml").write_text(
+        '[[material]]\nname = "jade"\nalbedo = [0.7, 0.5, 0.3]\nmfp = [1.0, 0.6, 0.3]\n'
+        'output = "out/jade.exr"\noutputs = ["sigma_a", "sigma_s"]\n')
+    plan = scenes.load(tmp_path / "scene.toml").plan()
+    assert [j.kind for j in plan.jobs] == ["constant"]
+    report = plan.run()
+    assert report.exit_code == 0, report.summary()
+    want = bd_coefficients((0.7, 0.5, 0.3), (1.0, 0.6, 0.3), 1.4)
+    records = json.loads((tmp_path / "out" / "bdipole_materials.json").read_text())
+    got = records["materials"][0]["coefficients"]
+    np.testing.assert_allclose(got["sigma_a"], want[0], rtol=1e-4)
+    np.testing.assert_allclose(got["sigma_s"], want[1], rtol=1e-4)
+    assert f"sigma_a {want[0][0]:.6g}"[:12] in report.summary()
+    assert not (tmp_path / "out" / "jade.exr").exists()             # no image
+    assert not (tmp_path / "out" / "bdipole.usda").exists()         # no stage to layer over
+    again = scenes.load(tmp_path / "scene.toml").plan()
+    assert again.jobs[0].up_to_date and again.run().results[0].status == "skipped"
+    (tmp_path / "scene.toml").write_text(
+        '[[material]]\nname = "jade"\nalbedo = 0.7\nmfp = "mfp.exr"\noutput = "o.exr"\n')
+    with pytest.raises(scenes.SceneError, match=r":3: albedo = 0.7 is constant and mfp a "
+                                                r"texture"):
+        scenes.load(tmp_path / "scene.toml")
+
+
+def bd_coefficients(rd, mfp, eta):
+    from bdipole_cl import albedo_to_coefficients
+    return albedo_to_coefficients(np.asarray(rd), np.asarray(mfp), eta)

@@ -94,7 +94,8 @@ def _invert(args, run_files) -> int:
         working_space=args.working_space,
         alpha=args.alpha, on_invalid=args.on_invalid, max_memory=args.max_memory,
         jobs=args.jobs, skip_existing=args.skip_existing, unit=args.unit, double=args.double,
-        mfp_scale=args.mfp_scale, progress=not args.no_progress and run_files is None,
+        mfp_scale=args.mfp_scale, mfp_kind=args.mfp_kind,
+        progress=not args.no_progress and run_files is None,
         run_files=run_files, **_method_knobs(args))
     return _finish(report, stop)
 
@@ -342,7 +343,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=_cmd_crosscheck)
 
     p = command("plan", help="what a scene's bake computes and leaves out, per job")
-    p.add_argument("scene", help="scene file (TOML)")
+    p.add_argument("scene", help="scene file (TOML), USD stage (.usda, .usd, .usdc, .usdz) or "
+                                      "MaterialX document (.mtlx)")
     p.add_argument("--json", action="store_true", help="the plan as JSON")
     p.add_argument("--force", action="store_true", help="plan every job, up to date or not")
     p.add_argument("--max-memory", type=size, default="256M",
@@ -350,7 +352,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=_cmd_plan)
 
     p = command("bake", help="run a scene's plan: only what is needed, only what changed")
-    p.add_argument("scene", help="scene file (TOML)")
+    p.add_argument("scene", help="scene file (TOML), USD stage (.usda, .usd, .usdc, .usdz) or "
+                                      "MaterialX document (.mtlx)")
     p.add_argument("--force", action="store_true", help="rebuild every output")
     p.add_argument("--no-progress", action="store_true", help="no progress bar and job lines")
     p.add_argument("--max-memory", type=size, default="256M",
@@ -412,6 +415,10 @@ def build_parser() -> argparse.ArgumentParser:
                         "path/pattern ({stem}, {dir}, <UDIM>)")
     p.add_argument("--unit", default="mm", help="length unit of the mfp")
     p.add_argument("--mfp-scale", type=float, default=1.0, help="multiplies mfp values")
+    from ..methods.registry import MFP_KINDS
+    p.add_argument("--mfp-kind", default="diffuse", choices=MFP_KINDS,
+                   help="what --mfp is: diffuse, ld = 1/mu_tr (Jensen/Hery); extinction, the "
+                        "medium's mean free path 1/sigma_t' (OpenPBR, Standard Surface)")
     p.add_argument("--eta", type=floats, default=(1.4,),
                    help="relative IOR, one or per channel 'r,g,b'")
     p.add_argument("--outputs", type=output_list, default="sigma_a,sigma_s",

@@ -32,7 +32,7 @@ from ..errors import InvalidInputError, check_policy
 from ..methods.choice import resolve_method
 from ..methods.registry import MethodConfig
 from ..ops.bands import band_rows
-from ..ops.invert import CoefficientMapper
+from ..ops.invert import CoefficientMapper, check_mfp_kind
 from ..version import __version__
 from .collisions import Claim, collisions
 from .colour import WorkingSpace, check_colorspace, resolve_working_space
@@ -135,6 +135,7 @@ class FileResult:
     invalid: dict = field(default_factory=dict)
     notes: list = field(default_factory=list)       # e.g. channels left out
     colour: str | None = None                       # its colour path (ColourPath.describe)
+    values: dict = field(default_factory=dict)      # a constant material's coefficients
 
     @property
     def mtexel_per_s(self):
@@ -214,7 +215,7 @@ class BatchSettings:
 
     eta: tuple
     mfp: tuple | None            # constants per channel, or None: a texture per file
-    mfp_scale: float
+    mfp_scale: float | tuple     # one factor, or one per channel
     config: MethodConfig
     model: str
     exact: bool
@@ -232,6 +233,12 @@ class BatchSettings:
     bake: bool = False           # a kernel specialised for the batch (constants compiled in)
     header: dict = field(default_factory=dict)   # more bdipole:* attributes for the outputs
     working: WorkingSpace | None = None          # None: the default working space
+    mfp_kind: str = "diffuse"    # ops.invert.MFP_KINDS: ld = 1/mu_tr, or 1/sigma_t'
+
+
+#: the mfp convention each kind writes to an output's header
+MFP_CONVENTIONS = {"diffuse": "ld = 1/mu_tr (Jensen/Hery)",
+                   "extinction": "1/sigma_t' (medium mean free path)"}
 
 
 def process_file(job, settings, device_lock, progress):
@@ -265,7 +272,7 @@ def process_file(job, settings, device_lock, progress):
             mfp_const = None
         else:
             mfp_const = np.array(per_channel(settings.mfp, ncolor, "mfp", job.path),
-                                 np.float32) * settings.mfp_scale
+                                 np.float32) * np.asarray(settings.mfp_scale, np.float32)
         route = alb.colour(settings.colorspace, settings.working)
         result.colour = route.describe()
         keep_alpha = alpha_ch >= 0 and settings.alpha == "keep"
@@ -276,10 +283,11 @@ def process_file(job, settings, device_lock, progress):
         params = {"version": __version__, "method": settings.config.describe(),
                   "model": settings.model, "eta": ",".join(f"{e:g}" for e in etas),
                   "mfp": job.mfp_path or ",".join(f"{m:g}" for m in mfp_const),
-                  "mfp_scale": settings.mfp_scale, "unit": settings.unit,
+                  "mfp_scale": ",".join(f"{v:g}" for v in np.atleast_1d(settings.mfp_scale)),
+                  "unit": settings.unit,
                   "coefficient_unit": f"1/{settings.unit}",
                   "albedo": job.path, **route.header("albedo"),
-                  "mfp_convention": "ld = 1/mu_tr (Jensen/Hery)", **settings.header}
+                  "mfp_convention": MFP_CONVENTIONS[settings.mfp_kind], **settings.header}
         mask_reader = None
         if settings.mask == "alpha" and alpha_ch < 0:
             raise TextureError(f"{job.path}: mask = 'alpha' but the albedo has no alpha "
@@ -297,7 +305,7 @@ def process_file(job, settings, device_lock, progress):
                                        model=settings.model, exact=settings.exact,
                                        on_invalid=settings.on_invalid,
                                        device=settings.runtime, double=settings.double,
-                                       bake=settings.bake,
+                                       bake=settings.bake, mfp_kind=settings.mfp_kind,
                                        mfp_const=mfp_const if settings.bake else None)
         per_texel = 4 * 3 * (spec.nchannels + ncolor * (1 + len(outputs)) + len(out_names))
         rows = band_rows(spec.height, spec.width * per_texel, settings.max_memory,
@@ -322,7 +330,7 @@ def process_file(job, settings, device_lock, progress):
                 if m is None:
                     mfp = mfp_const
                 else:
-                    mfp = m[..., mfp_colour] * np.float32(settings.mfp_scale)
+                    mfp = m[..., mfp_colour] * np.asarray(settings.mfp_scale, np.float32)
                 try:
                     with device_lock:
                         outs, counts = mapper(albedo, mfp, mask)
@@ -384,7 +392,7 @@ def process_textures(inputs, *, mfp=1.0, eta=1.4, output=DEFAULT_OUTPUT,
                      exact=False, half=False, colorspace="auto", working_space=None, alpha="keep",
                      on_invalid="raise", max_memory=256 << 20, jobs=1, skip_existing=False,
                      unit="mm", mfp_scale=1.0, progress=False, device=None, cancel=None,
-                     double=False, run_files=None, **knobs) -> BatchReport:
+                     double=False, run_files=None, mfp_kind="diffuse", **knobs) -> BatchReport:
     """Invert albedo textures into scattering-coefficient EXRs (the ``bdipole-cl invert`` job).
 
     Parameters
@@ -395,6 +403,9 @@ def process_textures(inputs, *, mfp=1.0, eta=1.4, output=DEFAULT_OUTPUT,
         Mean free path ld = 1/mu_tr (docs/model.md "Mean free path"): a constant (one or per
         channel, also as
         ``"1,0.5,0.25"``) or a texture path/pattern (``{stem}``, ``{dir}``, ``<UDIM>``).
+    mfp_kind : {"diffuse", "extinction"}
+        What the mfp is: ld = 1/mu_tr (default), or the medium's mean free path 1/sigma_t'
+        (``albedo_to_coefficients``).
     eta : float or sequence of float
         Relative index of refraction, one or per colour channel.
     output : str
@@ -451,7 +462,7 @@ def process_textures(inputs, *, mfp=1.0, eta=1.4, output=DEFAULT_OUTPUT,
         model=model, exact=exact, half=half, colorspace=colorspace, working=working,
         alpha=alpha, on_invalid=check_policy(on_invalid), max_memory=int(max_memory),
         outputs=tuple(outputs), unit=unit, runtime=get_runtime(device), double=bool(double),
-        cancel=cancel)
+        cancel=cancel, mfp_kind=check_mfp_kind(mfp_kind))
     CoefficientMapper((settings.eta[0],), config, outputs=settings.outputs, model=model,
                       exact=exact, on_invalid=on_invalid,
                       device=settings.runtime)  # fail fast on bad settings

@@ -40,7 +40,7 @@ from ..caches import ByteCache
 from ..device import get_runtime
 from ..methods.choice import resolve_method
 from ..methods.registry import MethodConfig
-from ..ops.invert import InversionKernel
+from ..ops.invert import InversionKernel, invert_albedo
 from ..physics import reference as ref
 from ..physics import tables
 from ..ops.bands import band_rows
@@ -52,8 +52,12 @@ from .colour import WorkingSpace, resolve_working_space
 from .freshness import header_fields, is_up_to_date, params_digest
 from .images import (Reader, TextureError, check_same_window, classify_channels,
                      read_parameter_texture)
-from .scene_file import SceneData, SceneError
+from .scene_file import SceneData, SceneError, load_imported
 from .scene_file import load as load_scene_file
+from .scene_import import import_materials, is_imported
+from .scene_records import (LAYER, MANIFEST, constant_config, constant_text, finish_bake,
+                            imported_lines, mfp_text, read_manifest, records_dir,
+                            run_constant_job)
 
 #: compile each job's constants into its kernel (tools/bench_scene.py turns it off to measure
 #: what it saves)
@@ -77,7 +81,7 @@ class Scene(SceneData):
 
 @dataclass
 class PlannedJob:
-    kind: str                        # "invert" or "blur"
+    kind: str                        # "invert", "blur" or "constant" (no texture)
     name: str                        # the material's or blur's name
     source: str                      # the albedo (invert) or irradiance (blur) file
     udim: str | None
@@ -112,7 +116,7 @@ class Plan:
 
     def describe(self) -> str:
         todo = sum(not j.up_to_date and not j.problem for j in self.jobs)
-        return "\n".join([j.describe() for j in self.jobs]
+        return "\n".join(imported_lines(self.scene) + [j.describe() for j in self.jobs]
                          + [f"{len(self.jobs)} jobs: {todo} to run, "
                             f"{sum(j.up_to_date for j in self.jobs)} up to date, "
                             f"{len(self.missing)} that cannot run"])
@@ -306,9 +310,11 @@ def _plan_invert(m, path, udim, force, device, problems_all, max_memory):
         job.left_out.append(f"channel {alpha}: alpha, carried to the output, not inverted")
     if other:
         job.left_out.append(f"channels {', '.join(other)}: not colour")
+    job.computes.append(mfp_text(m))
     baked = ["eta's Fresnel terms", f"the model ({m.model})", "the outputs"]
-    if not isinstance(m.mfp, str):
-        baked.append(f"the mfp {', '.join(f'{v:g}' for v in m.mfp)} {m.unit}")
+    if not isinstance(m.mfp, str) and m.mfp_kind == "diffuse":
+        mfp = np.asarray(m.mfp) * np.asarray(m.mfp_scale)
+        baked.append(f"the mfp {', '.join(f'{v:g}' for v in mfp)} {m.unit}")
     job.left_out.append(f"per-texel constant reads: {', '.join(baked)} compiled into the "
                         f"kernel, which reads only the albedo"
                         + (" and the mfp texture" if isinstance(m.mfp, str) else ""))
@@ -365,13 +371,33 @@ def _plan_blur(b, path, udim, force, problems_all):
     return job
 
 
+def _plan_constant(m, folder, old, force, scene_source):
+    """A material without textures: its coefficients are computed, not written as an image
+    (up to date when the manifest holds them for the same parameters)."""
+    digest = params_digest(_material_fields(m) | {"kind": "constant", "albedo": m.albedo})
+    job = PlannedJob("constant", m.name, "constants", None, os.path.join(folder, MANIFEST),
+                     {}, params_digest=digest)
+    if not force and old.get(m.name, {}).get("params_digest") == digest and \
+            old[m.name].get("coefficients"):
+        job.up_to_date = True
+        job.left_out.append("everything: up to date (parameters and version unchanged)")
+        return job
+    job.config = constant_config(m)
+    job.computes.append(constant_text(m, job.config))
+    job.left_out.append(f"an image: no texture; the coefficients go to the bake summary, "
+                        f"{MANIFEST}" + (f" and {LAYER}" if scene_source else ""))
+    return job
+
+
 def plan(scene: Scene, *, force=False, device=None, max_memory=DEFAULT_MEMORY) -> Plan:
     """Every job of the scene, checked and described; missing inputs, unreadable files and
     collisions make jobs that cannot run (all are listed before any work; the others run).
-    The statistics pass reads albedos in bands within ``max_memory`` bytes."""
+    The statistics pass reads albedos in bands within ``max_memory`` bytes. A material
+    without textures is one "constant" job (its coefficients, no image)."""
     rt = get_runtime(device)
     jobs, problems = [], []
-    for kind, entries in (("invert", scene.materials), ("blur", scene.blurs)):
+    textured = [m for m in scene.materials if not m.constant]
+    for kind, entries in (("invert", textured), ("blur", scene.blurs)):
         for e in entries:
             for path, udim in expand_inputs([e.albedo if kind == "invert" else e.irradiance]):
                 try:
@@ -385,6 +411,10 @@ def plan(scene: Scene, *, force=False, device=None, max_memory=DEFAULT_MEMORY) -
     for j, clash in zip(jobs, collisions(Claim(j.source, j.output, j.inputs) for j in jobs)):
         if clash:
             j.problem, j.up_to_date = clash, False
+    folder = records_dir(scene)
+    old = read_manifest(folder) if folder else {}
+    jobs += [_plan_constant(m, folder, old, force, scene.source) for m in scene.materials
+             if m.constant]
     return Plan(scene, jobs)
 
 # }}}
@@ -394,7 +424,8 @@ def plan(scene: Scene, *, force=False, device=None, max_memory=DEFAULT_MEMORY) -
 
 def _settings(m, config, runtime, cancel, header, working, max_memory=DEFAULT_MEMORY):
     return BatchSettings(
-        eta=m.eta, mfp=None if isinstance(m.mfp, str) else m.mfp, mfp_scale=1.0, config=config,
+        eta=m.eta, mfp=None if isinstance(m.mfp, str) else m.mfp, mfp_scale=m.mfp_scale,
+        config=config, mfp_kind=m.mfp_kind,
         model=m.model, exact=m.exact, half=m.half, colorspace=m.colorspace, alpha="keep",
         on_invalid=m.on_invalid, max_memory=max_memory, outputs=m.outputs, unit=m.unit,
         runtime=runtime, double=m.double, cancel=cancel,
@@ -449,16 +480,18 @@ def run_blur_job(job, scene, runtime, cancel, max_memory=DEFAULT_MEMORY):
         albedo, keep, *_, route = read_albedo(job.inputs["albedo"], b.mask,
                                               job.inputs.get("mask"), m.colorspace, working)
         mfp = (read_parameter_texture(job.inputs["mfp"], "mfp") if "mfp" in job.inputs
-               else m.mfp)
+               else np.asarray(m.mfp)) * np.asarray(m.mfp_scale, np.float32)
         albedo = _masked_parameter(albedo, keep)
         if np.ndim(mfp) >= 2:
             mfp = _masked_parameter(mfp, keep)
+        params = dict(albedo=albedo, mfp=mfp) if m.mfp_kind == "diffuse" else dict(
+            alpha=invert_albedo(albedo, m.eta if len(m.eta) > 1 else m.eta[0], exact=m.exact,
+                                model=m.model, device=runtime), sigma_t=1.0 / mfp)  # 1/mfp
         header = header_fields(job.inputs, job.params_digest) | route.header("albedo")
         sources = {k: v for k, v in job.inputs.items() if k in ("albedo", "mfp")}
         blur_file(job.source, job.output, half=b.half, sources=sources, cancel=cancel,
                   mask=keep, header=header, colorspace=b.colorspace, working_space=working,
-                  albedo=albedo, mfp=mfp,
-                  eta=m.eta, texel_size=b.texel_size, tol=b.tol, method=b.method,
+                  **params, eta=m.eta, texel_size=b.texel_size, tol=b.tol, method=b.method,
                   border=b.border, on_invalid=b.on_invalid, exact=m.exact, device=runtime,
                   max_memory=max_memory)
         result.status, result.texels = "ok", texels
@@ -483,18 +516,24 @@ def bake(plan: Plan, *, cancel=None, device=None, progress=None,
                                       error="interrupted before it started"))
         elif job.kind == "invert":
             results.append(run_invert_job(job, plan.scene, runtime, cancel, lock, max_memory))
+        elif job.kind == "constant":
+            results.append(run_constant_job(job, plan.scene, runtime))
         else:
             results.append(run_blur_job(job, plan.scene, runtime, cancel, max_memory))
         if progress is not None:
             progress(job, results[-1])
-    return BatchReport(results)
+    return finish_bake(plan, results)
 
 
 def load(path, working_space=None) -> Scene:
-    """Read and check a scene file (``SceneError``: one line with the file, line and key);
-    ``working_space``: that of the entries that give none (None: the default)."""
-    data = load_scene_file(path, working_space)
-    return Scene(data.path, data.materials, data.blurs)
+    """Read and check a scene file, USD stage or MaterialX document (``SceneError``: one
+    line with the file, line and key); ``working_space``: that of the entries that give none
+    (None: the default)."""
+    if is_imported(path):
+        data = load_imported(path, import_materials, working_space)
+    else:
+        data = load_scene_file(path, import_materials, working_space)
+    return Scene(data.path, data.materials, data.blurs, data.source, data.imports)
 
 
 __all__ = ["Plan", "PlannedJob", "Scene", "SceneError", "bake", "load", "plan"]

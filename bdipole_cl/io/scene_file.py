@@ -24,8 +24,14 @@
     texel_size = 0.05
     output = "out/skin_exitance.<UDIM>.exr"
 
-Paths are relative to the scene file. Every error is one line naming the file, the line, the
-key and what is allowed (``SceneError``); unknown keys are errors.
+    materials_from = "asset.usda"     # optional: a USD stage or MaterialX document's
+                                      # subsurface materials; a [[material]] of the same
+                                      # name overrides their keys
+
+Paths are relative to the scene file; ``{material}`` in an output is the material's name.
+Every error is one line naming the file, the line, the key and what is allowed
+(``SceneError``); unknown keys are errors. A stage or document itself is a scene too
+(``load_imported``): its materials with the built-in defaults.
 """
 from __future__ import annotations
 
@@ -39,7 +45,7 @@ try:
 except ImportError:  # pragma: no cover - Python 3.10
     import tomli as tomllib
 
-from ..methods.registry import BLUR_METHODS, BORDERS, METHODS
+from ..methods.registry import BLUR_METHODS, BORDERS, METHODS, MFP_KINDS
 from ..ops.invert import OUTPUTS
 from .colour import resolve_colorspace, resolve_working_space
 
@@ -65,9 +71,13 @@ def _positive(v):
 
 KEYS = {
     "name": ({"material", "blur"}, lambda v: isinstance(v, str) and v, "a non-empty string"),
-    "albedo": ({"material"}, lambda v: isinstance(v, str) and v, "a texture path or pattern"),
+    "albedo": ({"material"}, lambda v: (isinstance(v, str) and v) or _numbers_or_number(v),
+               "a texture path or pattern, or constants (a number or one per channel)"),
     "mfp": ({"material"}, lambda v: _numbers_or_number(v) or isinstance(v, str),
             "a number, a list of one per channel, or a texture path"),
+    "mfp_kind": ({"material"}, lambda v: v in MFP_KINDS, " or ".join(f'"{k}"' for k in MFP_KINDS)),
+    "mfp_scale": ({"material"}, lambda v: _numbers_or_number(v) and min(_as_list(v)) > 0,
+                  "a number > 0 or one per channel"),
     "eta": ({"material"}, lambda v: _numbers_or_number(v), "a number or one per channel"),
     "outputs": ({"material"}, lambda v: isinstance(v, list) and v and set(v) <= set(OUTPUTS),
                 f"a list from {', '.join(OUTPUTS)}"),
@@ -99,7 +109,7 @@ REQUIRED = {"material": ("name", "albedo", "output"),
 DEFAULTS = {"eta": 1.4, "unit": "mm", "model": "better-dipole", "mfp": 1.0, "half": False,
             "outputs": ["sigma_a", "sigma_s"], "method": "auto", "blur_method": "auto",
             "border": "clamp", "exact": False, "double": False, "on_invalid": "raise",
-            "colorspace": "auto"}
+            "colorspace": "auto", "mfp_kind": "diffuse", "mfp_scale": 1.0}
 #: tol when neither the entry nor [defaults] gives one: the inversion's accuracy contract, the
 #: blur's usual truncation
 DEFAULT_TOL = {"material": 1e-4, "blur": 1e-3}
@@ -108,7 +118,7 @@ DEFAULT_TOL = {"material": 1e-4, "blur": 1e-3}
 @dataclass(frozen=True)
 class Material:
     name: str
-    albedo: str                      # absolute pattern
+    albedo: str | tuple              # absolute pattern, or constants (imported materials)
     mfp: tuple | str                 # constants per channel, or an absolute texture pattern
     eta: tuple
     outputs: tuple
@@ -124,6 +134,32 @@ class Material:
     on_invalid: str
     colorspace: str                  # the albedo's: "auto" or the config's name of a space
     working_space: str | None = None  # the config's name; None: the default working space
+    mfp_kind: str = "diffuse"        # MFP_KINDS
+    mfp_scale: tuple = (1.0,)        # multiplies the mfp (one or per channel)
+
+    @property
+    def constant(self) -> bool:
+        """No texture: the coefficients are numbers (no image is written)."""
+        return not isinstance(self.albedo, str) and not isinstance(self.mfp, str)
+
+
+@dataclass(frozen=True)
+class ImportedMaterial:
+    """A material as read from a USD stage or MaterialX document (``shaders``): where it is,
+    which shader, the scene keys it gives (``facts``; ``suggestions`` yield to [defaults]),
+    each mapped input described, and why it is left out (None: it is baked)."""
+
+    name: str
+    path: str                        # the prim path (MaterialX: UsdMtlx's path for it)
+    shader: str
+    mfp_kind: str | None
+    facts: dict
+    suggestions: dict
+    inputs: dict                     # input name -> description
+    unit_m: float                    # metres per scene unit
+    left_out: str | None = None
+    notes: tuple = ()
+    bound: bool | None = None        # bound to geometry (None: the source cannot say)
 
 
 @dataclass(frozen=True)
@@ -151,6 +187,8 @@ class SceneData:
     path: Path
     materials: tuple
     blurs: tuple
+    source: str | None = None        # the stage or document materials come from
+    imports: tuple = ()              # ImportedMaterial, baked or left out
 
 
 def line_of(text: str, section: str | None, index: int, key: str | None) -> int:
@@ -176,13 +214,21 @@ def line_of(text: str, section: str | None, index: int, key: str | None) -> int:
     return (start or 0) + 1
 
 
-def load(path, working_space=None) -> SceneData:
+#: metres per unit (MaterialX ``distance`` unit names and their short forms)
+UNIT_METERS = {"m": 1.0, "cm": 0.01, "mm": 1e-3, "um": 1e-6, "nm": 1e-9, "km": 1e3,
+               "in": 0.0254, "ft": 0.3048, "yd": 0.9144, "mi": 1609.344,
+               "meter": 1.0, "centimeter": 0.01, "millimeter": 1e-3, "micron": 1e-6,
+               "nanometer": 1e-9, "kilometer": 1e3, "inch": 0.0254, "foot": 0.3048,
+               "yard": 0.9144, "mile": 1609.344}
+
+
+def load(path, importer=None, working_space=None) -> SceneData:
     """Read, check and resolve a scene file (``SceneError`` on any problem, one line).
-    ``working_space``: the one of entries that give none (in them or in [defaults]); None:
-    the default working space."""
+    ``importer(path) -> [ImportedMaterial]`` reads the stage or document ``materials_from``
+    names; ``working_space``: the one of entries that give none (in them or in [defaults]);
+    None: the default working space."""
     path = Path(path)
-    if working_space:
-        working_space = resolve_working_space(working_space).name
+    working_space = _working_space(working_space)
     try:
         data = path.read_bytes()
     except OSError as exc:
@@ -202,11 +248,11 @@ def load(path, working_space=None) -> SceneData:
         line = line_of(text, section, index, key)
         raise SceneError(f"{path}:{line}: {message}")
 
-    unknown_top = set(raw) - {"defaults", "material", "blur"}
+    unknown_top = set(raw) - {"defaults", "material", "blur", "materials_from"}
     if unknown_top:
         key = sorted(unknown_top)[0]
-        fail(None, 0, key, f"unknown table or key '{key}': expected [defaults], [[material]] "
-                           f"or [[blur]]")
+        fail(None, 0, key, f"unknown table or key '{key}': expected [defaults], [[material]], "
+                           f"[[blur]] or materials_from")
     defaults = raw.get("defaults", {})
     for key, value in defaults.items():
         _check(fail, "defaults", 0, key, value, {"material", "blur"})
@@ -215,20 +261,43 @@ def load(path, working_space=None) -> SceneData:
     def resolve(rel):
         return str((base / rel).resolve()) if rel and rel != "alpha" else rel
 
+    source, imports = None, ()
+    if "materials_from" in raw:
+        if not (isinstance(raw["materials_from"], str) and raw["materials_from"]):
+            fail(None, 0, "materials_from", "materials_from: expected the path of a USD stage "
+                                            "or MaterialX document")
+        source = resolve(raw["materials_from"])
+        if importer is None:
+            fail(None, 0, "materials_from", "materials_from needs an importer "
+                                            "(bdipole_cl.scene.load reads it)")
+        try:
+            imports = tuple(importer(source))
+        except SceneError as exc:
+            fail(None, 0, "materials_from", str(exc))
+    entries = raw.get("material", [])
+    overrides = {e.get("name"): i for i, e in enumerate(entries)}
     materials = {}
-    for i, entry in enumerate(raw.get("material", [])):
+    for imp in imports:
+        i = overrides.get(imp.name)
+        if imp.left_out:
+            if i is not None:
+                fail("material", i, "name", f"material '{imp.name}' of {source} is left out "
+                                            f"({imp.left_out}); an override cannot bake it")
+            continue
+        materials[imp.name] = _imported(fail, i, entries[i] if i is not None else {}, imp,
+                                        defaults, resolve, working_space)
+    for i, entry in enumerate(entries):
+        if any(imp.name == entry.get("name") for imp in imports):
+            continue
         m = _entry(fail, "material", i, entry, defaults)
+        if not isinstance(m["albedo"], str) and isinstance(m["mfp"], str):
+            fail("material", i, "albedo", f"albedo = {m['albedo']!r} is constant and mfp a "
+                                          f"texture: a bake is driven by an albedo texture")
         if m["name"] in materials:
             fail("material", i, "name", f"material name '{m['name']}' is used twice")
-        mfp = m["mfp"]
-        materials[m["name"]] = Material(
-            m["name"], resolve(m["albedo"]),
-            resolve(mfp) if isinstance(mfp, str) else tuple(map(float, _as_list(mfp))),
-            tuple(map(float, _as_list(m["eta"]))), tuple(m["outputs"]), resolve(m["output"]),
-            resolve(m.get("mask")), m["half"], m["unit"], float(m["tol"]), MODELS[m["model"]],
-            m["method"], m["exact"], m["double"], m["on_invalid"],
+        materials[m["name"]] = _material(m, resolve, (
             _colour(fail, "material", i, entry, m, "colorspace"),
-            _colour(fail, "material", i, entry, m, "working_space") or working_space)
+            _colour(fail, "material", i, entry, m, "working_space") or working_space))
     blurs, names = [], set()
     for i, entry in enumerate(raw.get("blur", [])):
         b = _entry(fail, "blur", i, entry, defaults)
@@ -239,6 +308,9 @@ def load(path, working_space=None) -> SceneData:
             fail("blur", i, "material", f"material '{b['material']}' is not in the scene "
                                         f"(materials: {', '.join(materials) or 'none'})")
         mat = materials[b["material"]]
+        if not isinstance(mat.albedo, str):
+            fail("blur", i, "material", f"material '{mat.name}' has a constant albedo: a blur "
+                                        f"needs an albedo texture")
         mask = resolve(b["mask"]) if "mask" in entry else mat.mask
         blurs.append(Blur(b["name"], mat, resolve(b["irradiance"]), float(b["texel_size"]),
                           resolve(b["output"]), mask, b["half"], float(b["tol"]),
@@ -246,9 +318,75 @@ def load(path, working_space=None) -> SceneData:
                           _colour(fail, "blur", i, entry, b, "colorspace"),
                           _colour(fail, "blur", i, entry, b, "working_space")
                           if "working_space" in entry else mat.working_space))
-    if not materials and not blurs:
+    if not materials and not blurs and not imports:
         fail(None, 0, None, "the scene has no [[material]] and no [[blur]]")
-    return SceneData(path.resolve(), tuple(materials.values()), tuple(blurs))
+    return SceneData(path.resolve(), tuple(materials.values()), tuple(blurs), source, imports)
+
+
+def load_imported(path, importer, working_space=None) -> SceneData:
+    """A USD stage or MaterialX document as a scene: its materials (``importer(path)``), the
+    built-in defaults, outputs beside it."""
+    path = Path(path).resolve()
+    working_space = _working_space(working_space)
+    imports = tuple(importer(str(path)))
+
+    def fail(section, index, key, message):
+        raise SceneError(f"{path}: {message}")
+
+    materials = tuple(_imported(fail, None, {}, imp, {}, lambda p: p, working_space)
+                      for imp in imports
+                      if not imp.left_out)
+    return SceneData(path, materials, (), str(path), imports)
+
+
+def _material(m, resolve, colour) -> Material:
+    """The record of a checked, merged material entry; ``colour``: its (colorspace,
+    working_space) as the OCIO config names them."""
+    mfp, albedo = m["mfp"], m["albedo"]
+    return Material(
+        m["name"], resolve(albedo) if isinstance(albedo, str) else _floats(albedo),
+        resolve(mfp) if isinstance(mfp, str) else _floats(mfp), _floats(m["eta"]),
+        tuple(m["outputs"]), resolve(m["output"].replace("{material}", m["name"])),
+        resolve(m.get("mask")), m["half"], m["unit"], float(m["tol"]), MODELS[m["model"]],
+        m["method"], m["exact"], m["double"], m["on_invalid"], *colour, m["mfp_kind"],
+        _floats(m["mfp_scale"]))
+
+
+def _imported(fail, index, entry, imp, defaults, resolve, working_space) -> Material:
+    """An imported material: the built-in defaults, then its suggestions (output), [defaults],
+    its facts (the stage's values), then its [[material]] override. A unit the user names
+    converts the stage's distances (in its scene unit) into it."""
+    for key, value in imp.facts.items():
+        if not KEYS[key][1](value):
+            raise SceneError(f"{imp.path}: {key} = {value!r}: expected {KEYS[key][2]}")
+    m = _entry(fail, "material", index or 0, {"name": imp.name, **entry}, defaults,
+               below=imp.suggestions, above=imp.facts)
+    named = entry.get("unit", defaults.get("unit"))
+    if "mfp" in entry:
+        m["mfp_scale"] = entry.get("mfp_scale", 1.0)
+    elif named is not None:
+        meters = UNIT_METERS.get(named)
+        if meters is None:
+            where = ("material", index) if "unit" in entry else ("defaults", 0)
+            fail(*where, "unit", f"unit = {named!r}: converting {imp.name}'s distances from "
+                                 f"the stage's unit needs one of {', '.join(UNIT_METERS)}")
+        factor = imp.unit_m / meters
+        m["mfp_scale"] = [v * factor for v in _as_list(m["mfp_scale"])]
+        m["unit"] = named
+    try:                                 # a texture's colour space as the stage names it
+        space = _colour(fail, "material", index or 0, entry, m, "colorspace")
+    except SceneError:
+        if "colorspace" in entry or "colorspace" not in imp.facts:
+            raise
+        raise SceneError(f"{imp.path}: its albedo texture's colour space "
+                         f"{imp.facts['colorspace']!r} is unknown to the OCIO config; name "
+                         f"one with colorspace in a [[material]] override") from None
+    ws = _colour(fail, "material", index or 0, entry, m, "working_space") or working_space
+    return _material(m, resolve, (space, ws))
+
+
+def _working_space(name):
+    return resolve_working_space(name).name if name else None
 
 
 def _colour(fail, kind, index, entry, merged, key):
@@ -267,12 +405,19 @@ def _colour(fail, kind, index, entry, merged, key):
         fail(*where, key, f"{key} = {value!r}: {exc}")
 
 
+def _floats(v) -> tuple:
+    return tuple(map(float, _as_list(v)))
+
+
 def _as_list(v):
     return v if isinstance(v, list) else [v]
 
 
 def _check(fail, section, index, key, value, kinds):
     spec = KEYS.get(key)
+    if key == "materials_from":
+        fail(section, index, key, f"materials_from is in [{section}]: it is a top-level key, "
+                                  f"so it goes before the first table")
     if spec is None or not (spec[0] & kinds):
         allowed = sorted(k for k, s in KEYS.items() if s[0] & kinds)
         fail(section, index, key, f"unknown key '{key}' in [{section}]: allowed keys are "
@@ -281,13 +426,16 @@ def _check(fail, section, index, key, value, kinds):
         fail(section, index, key, f"{key} = {value!r}: expected {spec[2]}")
 
 
-def _entry(fail, kind, index, entry, defaults):
-    """One [[material]] or [[blur]] checked, with [defaults] and the built-in defaults."""
+def _entry(fail, kind, index, entry, defaults, below=None, above=None):
+    """One [[material]] or [[blur]] checked, with [defaults] and the built-in defaults
+    (``below`` and ``above`` [defaults]: an imported material's keys)."""
     for key, value in entry.items():
         _check(fail, kind, index, key, value, {kind})
     merged = {k: v for k, v in DEFAULTS.items() if kind in KEYS[k][0]}
     merged["tol"] = DEFAULT_TOL[kind]
+    merged.update(below or {})
     merged.update({k: v for k, v in defaults.items() if kind in KEYS[k][0]})
+    merged.update(above or {})
     merged.update(entry)
     for key in REQUIRED[kind]:
         if key not in merged:

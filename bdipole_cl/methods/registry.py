@@ -26,6 +26,10 @@ METHODS = ("table", "secant", "bisection", "memo")
 BLUR_METHODS = ("auto", "direct", "gaussians", "fft")
 TEXTURED_BLUR_METHODS = ("auto", "fft", "gaussians")
 BORDERS = ("clamp", "zero", "wrap")
+#: what a mean free path is (docs/model.md "Mean free path"): "diffuse", ld = 1/mu_tr
+#: (Jensen/Hery, the default), or "extinction", the medium's 1/sigma_t' (OpenPBR, Standard
+#: Surface)
+MFP_KINDS = ("diffuse", "extinction")
 
 #: knob defaults (None: the method's own default, below). Bisection runs over the unknown's bit
 #: patterns and stops when they are adjacent: 31 steps suffice in float32, 63 in float64

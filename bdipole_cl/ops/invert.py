@@ -11,7 +11,7 @@ from ..device import build_options, get_program, get_runtime, real_dtype
 from ..device.layout import channel_params
 from ..errors import check_policy, find_invalid
 from ..methods.choice import resolve_method
-from ..methods.registry import MethodConfig
+from ..methods.registry import MFP_KINDS, MethodConfig
 from ..physics import reference as ref
 from ..physics import tables
 
@@ -188,6 +188,34 @@ def invert_albedo(rd, eta, method="table", *, return_rho=False, model="better", 
 OUTPUTS = ("alpha", "rho", "sigma_a", "sigma_s", "sigma_t")
 
 
+def check_mfp_kind(mfp_kind):
+    if mfp_kind not in MFP_KINDS:
+        raise ValueError(f"mfp_kind={mfp_kind!r}: expected one of {', '.join(MFP_KINDS)}")
+    return mfp_kind
+
+
+def kernel_outputs(outputs, mfp_kind):
+    """What the kernel computes for ``outputs``: with an extinction mfp the coefficients are
+    alpha' and rho over the mfp (the host divides), so the kernel gives alpha' and rho."""
+    wanted = set(outputs)
+    if "sigma_t" in wanted:
+        wanted |= {"sigma_a", "sigma_s"}
+    if mfp_kind == "extinction":
+        wanted |= {"rho"} if "sigma_a" in wanted else set()
+        wanted |= {"alpha"} if "sigma_s" in wanted else set()
+        wanted -= {"sigma_a", "sigma_s"}
+    return tuple(k for k in ("alpha", "rho", "sigma_a", "sigma_s") if k in wanted)
+
+
+def extinction_coefficients(outs, mfp, outputs):
+    """sigma_a = rho / mfp and sigma_s' = alpha' / mfp (sigma_t' = 1/mfp, docs/model.md
+    "Mean free path"), added to ``outs`` in its precision."""
+    wanted = set(outputs) | ({"sigma_a", "sigma_s"} if "sigma_t" in outputs else set())
+    for sigma, base in (("sigma_a", "rho"), ("sigma_s", "alpha")):
+        if sigma in wanted:
+            outs[sigma] = outs[base] / mfp.astype(outs[base].dtype, copy=False)
+
+
 def _sanitize_albedo_for_coefficients(rd, on_invalid):
     n = find_invalid("albedo", rd, ~(rd < 1.0) | np.isneginf(rd), "NaN, infinite or >= 1",
                      on_invalid)
@@ -210,24 +238,24 @@ class CoefficientMapper:
     ``albedo_to_coefficients`` and of the texture pipeline (called once per band).
 
     ``bake``: a kernel specialised for this job (``InversionKernel``), with ``mfp_const`` (a
-    constant mfp per channel, valid) compiled in when given."""
+    constant mfp per channel, valid) compiled in when given. ``mfp_kind``: what the mfp is
+    (``MFP_KINDS``)."""
 
     def __init__(self, etas, config: MethodConfig, *, outputs=("sigma_a", "sigma_s"),
                  model="better", exact=False, double=False, on_invalid="raise", device=None,
-                 bake=False, mfp_const=None):
+                 bake=False, mfp_const=None, mfp_kind="diffuse"):
         unknown = set(outputs) - set(OUTPUTS)
         if unknown:
             raise ValueError(f"unknown outputs {sorted(unknown)}: expected some of {OUTPUTS}")
         self.outputs = tuple(outputs)
         self.on_invalid = check_policy(on_invalid)
-        wanted = set(outputs)
-        self.kernel_wants = tuple(
-            k for k in ("alpha", "rho", "sigma_a", "sigma_s")
-            if k in wanted or (k in ("sigma_a", "sigma_s") and "sigma_t" in wanted))
+        self.extinction = check_mfp_kind(mfp_kind) == "extinction"
+        self.kernel_wants = kernel_outputs(outputs, mfp_kind)
         if mfp_const is not None:
             _sanitize_mfp(np.asarray(mfp_const, np.float64), "raise")   # baked: must be valid
         self.kernel = InversionKernel(etas, config, exact=exact, model=model, double=double,
-                                      runtime=device, bake=bake, mfp_const=mfp_const,
+                                      runtime=device, bake=bake,
+                                      mfp_const=None if self.extinction else mfp_const,
                                       outputs=self.kernel_wants)
 
     def __call__(self, rd, mfp, mask=None):
@@ -245,7 +273,10 @@ class CoefficientMapper:
             mfp = np.where(keep, mfp, 1.0).astype(mfp.dtype, copy=False)
         rd, n_rd = _sanitize_albedo_for_coefficients(rd, self.on_invalid)
         mfp, n_mfp = _sanitize_mfp(mfp, self.on_invalid)
-        outs = self.kernel.run(rd, None if self.kernel.mfp_baked else mfp, self.kernel_wants)
+        reads_mfp = not (self.kernel.mfp_baked or self.extinction)
+        outs = self.kernel.run(rd, mfp if reads_mfp else None, self.kernel_wants)
+        if self.extinction:
+            extinction_coefficients(outs, mfp.reshape(-1), self.outputs)
         if keep is not None:
             flat = keep.reshape(-1)
             for k in outs:
@@ -258,13 +289,16 @@ class CoefficientMapper:
 
 def albedo_to_coefficients(rd, mfp, eta, method="table", *, model="better", exact=False,
                            double=False, on_invalid="raise", outputs=("sigma_a", "sigma_s"),
-                           device=None, **knobs):
+                           mfp_kind="diffuse", device=None, **knobs):
     """The memo's drop-in mapping: (albedo Rd, mean free path ld, eta) -> (sigma_a, sigma_s').
 
-    ``ld = 1/mu_tr`` (Jensen/Hery skin convention, docs/model.md "Mean free path"):
+    ``mfp_kind="diffuse"`` (default): ``mfp = ld = 1/mu_tr`` (Jensen/Hery skin convention,
+    docs/model.md "Mean free path"):
     ``sigma_t' = 1/(ld * mu_tr/sigma_t')`` with ``mu_tr/sigma_t' = sqrt(3 rho/(1 + rho))``
     (``sqrt(3 rho)`` for ``model="dipole"``),
     ``sigma_a = sigma_t' rho``, ``sigma_s' = sigma_t' alpha'``, in 1/(unit of mfp).
+    ``mfp_kind="extinction"``: mfp is the medium's mean free path, ``sigma_t' = 1/mfp`` (OpenPBR,
+    Standard Surface; exact for isotropic scattering, docs/model.md says what anisotropy means).
 
     ``rd`` and ``mfp`` are scalars, per-channel tuples or arrays, broadcast against each other;
     ``eta`` a scalar or one per channel. Rd -> 1 drives sigma_t' -> infinity for a fixed ld, so
@@ -281,7 +315,8 @@ def albedo_to_coefficients(rd, mfp, eta, method="table", *, model="better", exac
     mfp = mfp.astype(np.float64) if mfp.dtype.kind != "f" else mfp
     etas = channel_etas(eta, rd.shape)
     mapper = CoefficientMapper(etas, config, outputs=outputs, model=model, exact=exact,
-                               double=double, on_invalid=on_invalid, device=device)
+                               double=double, on_invalid=on_invalid, device=device,
+                               mfp_kind=mfp_kind)
     outs, _ = mapper(rd, mfp)
     result = tuple(outs[k] for k in outputs)
     return result if len(result) > 1 else result[0]

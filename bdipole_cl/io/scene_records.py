@@ -1,0 +1,267 @@
+"""What a bake of an imported scene writes beside its outputs (I/O): constant materials'
+coefficients, ``bdipole_materials.json`` (every material: its mapped inputs, convention, eta,
+unit, output files, and a constant one's coefficients) and ``bdipole.usda`` (an ``over`` on
+each baked material prim with ``bdipole:`` attributes: the output files as asset paths with
+``<UDIM>``, a constant material's coefficients), so that a pipeline finds them by sublayering
+it. Both are rewritten only when their content changes (temporary file + rename).
+"""
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+import time
+
+import numpy as np
+
+from ..methods.choice import resolve_method
+from ..methods.registry import MethodConfig
+from ..ops.invert import albedo_to_coefficients
+from .batch import BatchReport, FileResult
+from .shaders import SHADERS
+
+#: where each shader's distance convention is defined
+SOURCES = {s.name: s.source for s in SHADERS}
+
+MANIFEST = "bdipole_materials.json"
+LAYER = "bdipole.usda"
+#: what a scene's mfp_kind means, for the plan
+MFP_MEANING = {"diffuse": "mfp = ld = 1/mu_tr", "extinction": "sigma_t' = 1/mfp"}
+
+
+def records_dir(scene) -> str | None:
+    """The folder of the records: beside the first material's outputs (None: a scene with
+    neither imported nor constant materials writes none)."""
+    if scene.source is None and not any(m.constant for m in scene.materials):
+        return None
+    if scene.materials:
+        return os.path.dirname(scene.materials[0].output)
+    return os.path.join(os.path.dirname(str(scene.path)), "bdipole")
+
+
+def constant_coefficients(m, config: MethodConfig, runtime) -> dict:
+    """{output: per-channel floats} of a material whose albedo and mfp are constants."""
+    n = max(len(m.albedo), len(m.mfp), len(m.mfp_scale), len(m.eta))
+    rd = np.broadcast_to(np.asarray(m.albedo, np.float64), (n,))
+    mfp = np.broadcast_to(np.asarray(m.mfp, np.float64) * np.asarray(m.mfp_scale), (n,))
+    eta = m.eta if len(m.eta) > 1 else m.eta[0]
+    outs = albedo_to_coefficients(rd, mfp, eta, config, model=m.model, exact=m.exact,
+                                  double=m.double, on_invalid=m.on_invalid, outputs=m.outputs,
+                                  mfp_kind=m.mfp_kind, device=runtime)
+    outs = outs if len(m.outputs) > 1 else (outs,)
+    return {o: [float(v) for v in vals] for o, vals in zip(m.outputs, outs)}
+
+
+def mfp_text(m) -> str:
+    """What a job's mfp is, for the plan."""
+    scale = m.mfp_scale != (1.0,)
+    return (f"mfp as {m.mfp_kind} ({MFP_MEANING[m.mfp_kind]})"
+            + (f", scaled by {', '.join(f'{v:g}' for v in m.mfp_scale)}" if scale else ""))
+
+
+def constant_text(m, config) -> str:
+    """What a constant material's job computes, for the plan."""
+    mfp = np.asarray(m.mfp) * np.asarray(m.mfp_scale)
+    return (f"{', '.join(m.outputs)} of albedo {', '.join(f'{v:g}' for v in m.albedo)}, mfp "
+            f"{', '.join(f'{v:g}' for v in mfp)} {m.unit} as {m.mfp_kind} "
+            f"({MFP_MEANING[m.mfp_kind]}) with {config.describe(m.double)}")
+
+
+def constant_config(m) -> MethodConfig:
+    return resolve_method(m.method, double=m.double, tol=m.tol)
+
+
+def read_manifest(folder) -> dict:
+    """{material name: its entry} of an existing manifest ({} when none or unreadable)."""
+    try:
+        with open(os.path.join(folder, MANIFEST)) as f:
+            return {e["name"]: e for e in json.load(f).get("materials", [])}
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
+        return {}
+
+
+def _relative(path, folder):
+    return "./" + os.path.relpath(path, folder).replace(os.sep, "/")
+
+
+def manifest(scene, jobs, coefficients, folder) -> dict:
+    """The manifest's content: every material of the scene (imported ones first, left-out
+    ones with their reason)."""
+    by_name = {m.name: m for m in scene.materials}
+    entries, seen = [], set()
+    for imp in scene.imports:
+        seen.add(imp.name)
+        entry = {"name": imp.name, "prim": imp.path, "shader": imp.shader,
+                 "inputs": imp.inputs, "baked": imp.name in by_name}
+        if imp.shader in SOURCES:
+            entry["convention"] = f"{imp.mfp_kind}: {SOURCES[imp.shader]}"
+        if imp.left_out:
+            entry["left_out"] = imp.left_out
+        if imp.notes:
+            entry["notes"] = list(imp.notes)
+        if imp.name in by_name:
+            entry.update(_baked(by_name[imp.name], jobs, coefficients, folder))
+        entries.append(entry)
+    for m in scene.materials:
+        if m.name not in seen:
+            entries.append({"name": m.name, "baked": True}
+                           | _baked(m, jobs, coefficients, folder))
+    return {"source": scene.source, "scene": str(scene.path), "materials": entries}
+
+
+def _baked(m, jobs, coefficients, folder) -> dict:
+    files = sorted(os.path.relpath(j.output, folder) for j in jobs
+                   if j.kind == "invert" and j.name == m.name)
+    entry = {"mfp_kind": m.mfp_kind, "eta": list(m.eta), "unit": m.unit,
+             "coefficient_unit": f"1/{m.unit}", "outputs": list(m.outputs),
+             "albedo": m.albedo if isinstance(m.albedo, str) else list(m.albedo),
+             "mfp": m.mfp if isinstance(m.mfp, str) else list(m.mfp),
+             "mfp_scale": list(m.mfp_scale), "colorspace": m.colorspace}
+    if m.constant:
+        entry["coefficients"] = coefficients.get(m.name)
+        entry["params_digest"] = next((j.params_digest for j in jobs if j.name == m.name
+                                       and j.kind == "constant"), "")
+    else:
+        entry["output"] = _relative(m.output, folder)
+        entry["files"] = files
+    return entry
+
+
+def usd_layer_text(scene, records: dict, folder) -> str:
+    """bdipole.usda: an ``over`` on each baked imported material prim."""
+    from pxr import Sdf, Vt
+    layer = Sdf.Layer.CreateAnonymous(".usda")
+    layer.comment = (f"bdipole-cl bake of {os.path.basename(str(scene.source))}: sublayer it "
+                     f"to find each material's coefficients (bdipole: attributes)")
+    by_name = {e["name"]: e for e in records["materials"]}
+    for imp in scene.imports:
+        entry = by_name.get(imp.name)
+        if not entry or not entry.get("baked"):
+            continue
+        spec = Sdf.CreatePrimInLayer(layer, Sdf.Path(imp.path))
+        spec.specifier = Sdf.SpecifierOver
+        parent = spec.nameParent
+        while parent and parent.path != Sdf.Path.absoluteRootPath:
+            parent.specifier = Sdf.SpecifierOver
+            parent = parent.nameParent
+
+        def attr(name, type_name, value):
+            a = Sdf.AttributeSpec(spec, f"bdipole:{name}", type_name)
+            a.default = value
+
+        attr("mfp_kind", Sdf.ValueTypeNames.Token, entry["mfp_kind"])
+        attr("unit", Sdf.ValueTypeNames.String, entry["coefficient_unit"])
+        attr("eta", Sdf.ValueTypeNames.FloatArray, Vt.FloatArray(entry["eta"]))
+        for output in entry["outputs"]:
+            if "coefficients" in entry:
+                values = (entry["coefficients"] or {}).get(output, [])
+                attr(output, Sdf.ValueTypeNames.FloatArray, Vt.FloatArray(values))
+            else:
+                attr(output, Sdf.ValueTypeNames.Asset, Sdf.AssetPath(entry["output"]))
+    return layer.ExportToString()
+
+
+def write_if_changed(path, text: str) -> bool:
+    """Write ``text`` to ``path`` (temporary file + rename) unless it already holds it."""
+    try:
+        with open(path) as f:
+            if f.read() == text:
+                return False
+    except OSError:
+        pass
+    folder = os.path.dirname(path)
+    os.makedirs(folder, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=os.path.basename(path), dir=folder)
+    try:
+        with os.fdopen(fd, "w") as f:
+            f.write(text)
+        with open(tmp) as f:
+            if f.read() != text:
+                raise OSError(f"{tmp}: written content differs from what was written")
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.remove(tmp)
+        raise
+    return True
+
+
+def write_records(plan, results) -> list:
+    """Write the manifest (and, for an imported scene, the USD layer) of a bake, never over
+    an input; [(path, None) written or (path, why not)] ([] when nothing changed)."""
+    scene = plan.scene
+    folder = records_dir(scene)
+    if folder is None:
+        return []
+    old = read_manifest(folder)
+    coefficients = {}
+    for job, result in zip(plan.jobs, results):
+        if job.kind != "constant":
+            continue
+        if result.values:
+            coefficients[job.name] = result.values
+        elif job.up_to_date and old.get(job.name, {}).get("coefficients"):
+            coefficients[job.name] = old[job.name]["coefficients"]
+    records = manifest(scene, plan.jobs, coefficients, folder)
+    texts = {os.path.join(folder, MANIFEST): json.dumps(records, indent=1, sort_keys=True)
+             + "\n"}
+    if scene.source is not None:
+        texts[os.path.join(folder, LAYER)] = usd_layer_text(scene, records, folder)
+    inputs = {os.path.realpath(p) for p in (str(scene.path), scene.source) if p}
+    inputs |= {os.path.realpath(p) for j in plan.jobs for p in (j.source, *j.inputs.values())}
+    written = []
+    for path, text in texts.items():
+        if os.path.realpath(path) in inputs:
+            written.append((path, f"{path}: the bake's record would overwrite an input; "
+                                  f"put the outputs in another folder"))
+        elif write_if_changed(path, text):
+            written.append((path, None))
+    return written
+
+
+def imported_lines(scene) -> list:
+    """What the plan says about each material of a stage or document: its shader, the
+    mapped inputs and convention, or why it is left out."""
+    if scene.source is None:
+        return []
+    lines = [f"materials from {scene.source}:"]
+    baked = {m.name: m for m in scene.materials}
+    for imp in scene.imports:
+        head = f"material {imp.name} ({imp.path}, {imp.shader})"
+        if imp.bound is False:
+            head += ", bound to no geometry"
+        if imp.left_out:
+            lines.append(f"{head}: {imp.left_out}")
+            lines += [f"  input {d}" for d in imp.inputs.values()] if "bakeable" in \
+                imp.left_out else []
+            continue
+        m = baked[imp.name]
+        lines.append(f"{head}: mfp_kind {m.mfp_kind} ({MFP_MEANING[m.mfp_kind]}), eta "
+                     f"{', '.join(f'{e:g}' for e in m.eta)}, coefficients in 1/{m.unit}")
+        lines += [f"  input {d}" for d in imp.inputs.values()]
+        lines += [f"  note: {n}" for n in imp.notes]
+    return lines
+
+
+
+def run_constant_job(job, scene, runtime):
+    """A constant material's coefficients (in the result's ``values`` and notes)."""
+    m = next(x for x in scene.materials if x.name == job.name)
+    result = FileResult(f"{m.name} (constants)", job.output)
+    t0 = time.perf_counter()
+    try:
+        result.values = constant_coefficients(m, job.config, runtime)
+        result.notes = [f"{o} {' '.join(f'{v:.6g}' for v in vals)} 1/{m.unit}"
+                        for o, vals in result.values.items()]
+        result.status = "ok"
+    except ValueError as exc:
+        result.error = f"{m.name}: {exc}"
+    result.seconds = time.perf_counter() - t0
+    return result
+
+
+def finish_bake(plan: Plan, results: list) -> BatchReport:
+    """The records of a bake (``scene_records``), each file written added to the report."""
+    records = [FileResult(p, p, status="ok", notes=["records"]) if why is None else
+               FileResult(p, p, error=why) for p, why in write_records(plan, results)]
+    return BatchReport(results + records)

@@ -1,0 +1,169 @@
+"""USD stages (``.usda``, ``.usd``, ``.usdc``, ``.usdz``) as scenes: every UsdShade Material's
+surface shader read through ``shaders`` (I/O; needs ``pxr``, the ``usd`` extra).
+
+A material's surface is looked for in the ``mtlx``, ``ri`` and universal render contexts, in
+that order; the first shader with a subsurface mapping is used. An input's value comes from
+``UsdShadeInput.GetValueProducingAttributes`` (so through node graphs and interface inputs):
+an authored value, or the output of a texture node (``UsdUVTexture``, MaterialX ``image`` /
+``tiledimage``) whose ``inputs:file`` is the texture (``<UDIM>`` kept). Its colour space is
+the file attribute's ``colorSpace`` metadata, else ``inputs:sourceColorSpace`` (``raw`` is
+linear, ``sRGB``; ``auto`` leaves it to the file). Any other node feeding an input is a
+procedural network: the material is named as not bakeable. Distances are in the stage's
+unit (``metersPerUnit``).
+"""
+from __future__ import annotations
+
+import os
+
+import numpy as np
+from pxr import Usd, UsdGeom, UsdShade
+
+from .scene_file import SceneError
+from .shaders import BY_ID, TEXTURE_NODES, Input, Texture, imported_material, unique_names
+
+#: render contexts searched for a material's surface, in order
+CONTEXTS = ("mtlx", "ri", "")
+
+
+def _node_kind(shader_id: str) -> str:
+    """'UsdUVTexture', 'image' or 'tiledimage' for texture nodes (MaterialX ids are
+    ND_<node>_<type>), else the id."""
+    if shader_id and shader_id.startswith("ND_"):
+        for kind in ("tiledimage", "image"):
+            if shader_id.startswith(f"ND_{kind}_"):
+                return kind
+    return shader_id
+
+
+def _decimal(v) -> float:
+    """A float32 value (USD's float, color3f) as the decimal it was authored as: 1.4f is
+    1.4, not 1.399999976; other values as they are."""
+    v = float(v)
+    return float(str(np.float32(v))) if float(np.float32(v)) == v else v
+
+
+def _values(value) -> tuple:
+    try:
+        return tuple(_decimal(v) for v in value)
+    except TypeError:
+        return (_decimal(value),)
+
+
+def _asset_file(attr) -> str:
+    """The absolute path (or <UDIM> pattern) of an asset-valued attribute, relative to the
+    layer that authored it."""
+    asset = attr.Get()
+    if asset is None:
+        return ""
+    if asset.resolvedPath:
+        return asset.resolvedPath
+    path = asset.path
+    for spec in attr.GetPropertyStack(Usd.TimeCode.Default()):
+        if spec.HasDefaultValue():
+            layer_path = spec.layer.realPath
+            if layer_path and not os.path.isabs(path):
+                return os.path.normpath(os.path.join(os.path.dirname(layer_path), path))
+            break
+    return path
+
+
+def _texture(shader, node_kind: str) -> Texture | str:
+    """The texture a texture node reads, or why it cannot be baked."""
+    file_input = shader.GetInput("file")
+    if not file_input or file_input.Get() is None:
+        return f"{node_kind} {shader.GetPath()} has no file"
+    attr = file_input.GetAttr()
+    path = _asset_file(attr)
+    if ".usdz[" in path:
+        return (f"{node_kind} {shader.GetPath()} reads {path}, inside a .usdz package: a bake "
+                f"reads files; unpack the package (it is a zip) and bake the unpacked stage")
+    space = attr.GetColorSpace() if attr.HasColorSpace() else ""
+    if not space:
+        source = shader.GetInput("sourceColorSpace")
+        token = str(source.Get()) if source and source.Get() else "auto"
+        space = {"raw": "raw", "sRGB": "sRGB"}.get(token, "auto")
+    return Texture(path, space, str(shader.GetPath()))
+
+
+def read_input(shader, name: str) -> Input | None:
+    """One input of ``shader`` (None: not authored anywhere)."""
+    inp = shader.GetInput(name)
+    if not inp:
+        return None
+    attrs = inp.GetValueProducingAttributes()
+    if not attrs:
+        return None if not inp.HasConnectedSource() else \
+            Input(name, refused=f"{name} is connected to nothing that gives a value")
+    attr = attrs[0]
+    if UsdShade.Input.IsInput(attr):
+        value = attr.Get()
+        return None if value is None else Input(name, value=_values(value))
+    source = UsdShade.Shader(attr.GetPrim())
+    shader_id = source.GetShaderId() or ""
+    kind = _node_kind(shader_id)
+    if kind in TEXTURE_NODES:
+        texture = _texture(source, kind)
+        if isinstance(texture, str):
+            return Input(name, refused=f"{name}: {texture}")
+        return Input(name, texture=texture)
+    return Input(name, refused=f"{name} comes from {shader_id or 'a node'} "
+                               f"({source.GetPath()}), a procedural network")
+
+
+def surface_shader(material):
+    """(shader, id) of the material's surface: the first render context with a subsurface
+    mapping, else the first surface found, else (None, None)."""
+    found = []
+    for context in CONTEXTS:
+        output = material.GetSurfaceOutput(context)
+        if not output or not output.HasConnectedSource():
+            continue
+        for attr in output.GetValueProducingAttributes():
+            if UsdShade.Output.IsOutput(attr):
+                shader = UsdShade.Shader(attr.GetPrim())
+                found.append((shader, shader.GetShaderId() or ""))
+    for shader, shader_id in found:
+        if shader_id in BY_ID:
+            return shader, shader_id
+    return found[0] if found else (None, None)
+
+
+def bound_materials(stage) -> set:
+    """Paths of the materials some prim binds directly (any purpose)."""
+    bound = set()
+    for prim in stage.Traverse():
+        if not prim.HasAPI(UsdShade.MaterialBindingAPI):
+            continue
+        api = UsdShade.MaterialBindingAPI(prim)
+        for purpose in (UsdShade.Tokens.allPurpose, UsdShade.Tokens.full,
+                        UsdShade.Tokens.preview):
+            path = api.GetDirectBinding(purpose).GetMaterialPath()
+            if not path.isEmpty:
+                bound.add(str(path))
+    return bound
+
+
+def read_stage(path):
+    """[ImportedMaterial] of every Material prim of the stage at ``path``."""
+    try:
+        stage = Usd.Stage.Open(str(path), Usd.Stage.LoadAll)
+    except Exception as exc:            # pxr raises Tf.ErrorException
+        text = " ".join(str(exc).split())
+        raise SceneError(f"{path}: cannot open the USD stage: {text}") from None
+    if stage is None:
+        raise SceneError(f"{path}: cannot open the USD stage")
+    unit_m = UsdGeom.GetStageMetersPerUnit(stage)
+    out_dir = os.path.join(os.path.dirname(os.path.abspath(path)), "bdipole")
+    materials = [UsdShade.Material(p) for p in stage.Traverse() if p.IsA(UsdShade.Material)]
+    names = unique_names([str(m.GetPath()) for m in materials])
+    bound = bound_materials(stage)
+    result = []
+    for material in materials:
+        prim_path = str(material.GetPath())
+        shader, shader_id = surface_shader(material)
+        result.append(imported_material(
+            names[prim_path], prim_path, shader_id,
+            (lambda n, s=shader: read_input(s, n)) if shader else (lambda n: None),
+            unit_m=unit_m, out_dir=out_dir, bound=prim_path in bound))
+    return result
+

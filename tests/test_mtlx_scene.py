@@ -1,0 +1,166 @@
+"""Scenes from MaterialX documents (bdipole_cl/io/mtlx_scene.py): documents written here, in
+the 1.38+ syntax (shader nodes, surfacematerial) and the 1.37 one (shaderref, bindinput)."""
+import json
+
+import numpy as np
+import pytest
+
+pytest.importorskip("MaterialX")
+
+from bdipole_cl import scene as scenes  # noqa: E402
+from bdipole_cl.io.scene_import import import_materials  # noqa: E402
+
+from test_usd_scene import TOL, albedo_texture, check_texture_bake  # noqa: E402
+
+pytestmark = pytest.mark.usefixtures("on_device")
+
+#: 1.39: an OpenPBR skin whose colour comes from a tiled <UDIM> image through a node graph
+#: (the graph's colour space from the document default), radius in millimetres; a Standard
+#: Surface with constants; a noise-fed one; a UsdPreviewSurface
+DOC_139 = """<?xml version="1.0"?>
+<materialx version="1.39" colorspace="srgb_texture" fileprefix="tex/">
+  <nodegraph name="skin_graph">
+    <tiledimage name="albedo" type="color3">
+      <input name="file" type="filename" value="skin.<UDIM>.exr" colorspace="lin_rec709" />
+    </tiledimage>
+    <output name="out" type="color3" nodename="albedo" />
+  </nodegraph>
+  <open_pbr_surface name="skin_pbr" type="surfaceshader">
+    <input name="subsurface_weight" type="float" value="1" />
+    <input name="subsurface_color" type="color3" nodegraph="skin_graph" output="out" />
+    <input name="subsurface_radius" type="float" value="RADIUS" unittype="distance"
+           unit="millimeter" />
+    <input name="subsurface_radius_scale" type="color3" value="1, 0.5, 0.25" />
+    <input name="specular_ior" type="float" value="1.4" />
+  </open_pbr_surface>
+  <surfacematerial name="skin" type="material">
+    <input name="surfaceshader" type="surfaceshader" nodename="skin_pbr" />
+  </surfacematerial>
+  <standard_surface name="jade_std" type="surfaceshader">
+    <input name="subsurface" type="float" value="1" />
+    <input name="subsurface_color" type="color3" value="0.7, 0.5, 0.3" />
+    <input name="subsurface_radius" type="color3" value="1, 0.6, 0.3" />
+    <input name="subsurface_scale" type="float" value="0.5" />
+  </standard_surface>
+  <surfacematerial name="jade" type="material">
+    <input name="surfaceshader" type="surfaceshader" nodename="jade_std" />
+  </surfacematerial>
+  <fractal3d name="fbm" type="color3" />
+  <open_pbr_surface name="noisy_pbr" type="surfaceshader">
+    <input name="subsurface_weight" type="float" value="1" />
+    <input name="subsurface_color" type="color3" nodename="fbm" />
+  </open_pbr_surface>
+  <surfacematerial name="noisy" type="material">
+    <input name="surfaceshader" type="surfaceshader" nodename="noisy_pbr" />
+  </surfacematerial>
+  <UsdPreviewSurface name="plastic_preview" type="surfaceshader" />
+  <surfacematerial name="plastic" type="material">
+    <input name="surfaceshader" type="surfaceshader" nodename="plastic_preview" />
+  </surfacematerial>
+</materialx>
+"""
+
+#: 1.37: material / shaderref / bindinput, the image's file a parameter; no colorspace on
+#: the image, so the document's (srgb_texture) is the texture's
+DOC_137 = """<?xml version="1.0"?>
+<materialx version="1.37" colorspace="srgb_texture">
+  <nodegraph name="wax_graph">
+    <image name="albedo" type="color3">
+      <parameter name="file" type="filename" value="tex/wax.exr" />
+    </image>
+    <output name="out" type="color3" nodename="albedo" />
+  </nodegraph>
+  <material name="wax">
+    <shaderref name="wax_std" node="standard_surface">
+      <bindinput name="subsurface" type="float" value="0.8" />
+      <bindinput name="subsurface_color" type="color3" nodegraph="wax_graph" output="out" />
+      <bindinput name="subsurface_radius" type="color3" value="2, 1, 0.5" />
+      <bindinput name="subsurface_scale" type="float" value="0.1" />
+      <bindinput name="specular_IOR" type="float" value="1.45" />
+    </shaderref>
+  </material>
+  <material name="glass">
+    <shaderref name="glass_std" node="standard_surface">
+      <bindinput name="subsurface" type="float" value="0" />
+    </shaderref>
+  </material>
+</materialx>
+"""
+
+
+def write_doc(root, text, name="look.mtlx", radius="0.5"):
+    for k, tile in enumerate(("1001", "1002")):
+        albedo_texture(root / "tex" / f"skin.{tile}.exr", k)
+    albedo_texture(root / "tex" / "wax.exr", 4)
+    path = root / name
+    path.write_text(text.replace("RADIUS", radius))
+    return path
+
+
+def test_materialx_139_shaders_textures_units_and_refusals(tmp_path):
+    path = write_doc(tmp_path, DOC_139)
+    imports = {m.name: m for m in import_materials(path)}
+    skin = imports["skin"]
+    assert skin.shader == "OpenPBR Surface" and skin.path == "/MaterialX/Materials/skin"
+    assert skin.facts["albedo"] == str(tmp_path / "tex" / "skin.<UDIM>.exr")   # fileprefix
+    assert skin.facts["colorspace"] == "lin_rec709"
+    # 0.5 mm in the document's unit (m): the radius x radius_scale product in metres
+    np.testing.assert_allclose(skin.facts["mfp"], [5e-4, 2.5e-4, 1.25e-4])
+    assert skin.facts["unit"] == "m"
+    assert imports["jade"].shader == "Standard Surface"
+    assert imports["jade"].facts["eta"] == [1.5]                  # specular_IOR's default
+    assert imports["noisy"].left_out == ("not bakeable: subsurface_color comes from fractal3d "
+                                         "(fbm), a procedural network")
+    assert imports["plastic"].left_out == "no subsurface (UsdPreviewSurface shader): left out"
+
+
+def test_materialx_bake_in_millimetres_equals_albedo_to_coefficients(tmp_path):
+    write_doc(tmp_path, DOC_139)
+    scene = tmp_path / "scene.toml"
+    scene.write_text('materials_from = "look.mtlx"\n[defaults]\nunit = "mm"\n')
+    report = scenes.load(scene).plan().run()
+    assert report.exit_code == 0, report.summary()
+    for k, tile in enumerate(("1001", "1002")):
+        albedo = albedo_texture(tmp_path / "probe" / "a.exr", k)
+        check_texture_bake(tmp_path / "bdipole" / f"skin.{tile}.exr", albedo,
+                           0.5 * np.array([1, 0.5, 0.25]), 1.4, "extinction")
+    records = json.loads((tmp_path / "bdipole" / "bdipole_materials.json").read_text())
+    entries = {e["name"]: e for e in records["materials"]}
+    assert entries["skin"]["unit"] == "mm" and entries["jade"]["mfp_kind"] == "extinction"
+    assert entries["noisy"]["baked"] is False
+    from pxr import Sdf
+    layer = Sdf.Layer.FindOrOpen(str(tmp_path / "bdipole" / "bdipole.usda"))
+    prim = layer.GetPrimAtPath("/MaterialX/Materials/skin")
+    assert prim.attributes["bdipole:sigma_s"].default.path == "./skin.<UDIM>.exr"
+
+
+def test_materialx_137_is_upgraded_and_read(tmp_path):
+    path = write_doc(tmp_path, DOC_137)
+    imports = {m.name: m for m in import_materials(path)}
+    wax = imports["wax"]
+    assert wax.shader == "Standard Surface" and wax.left_out is None
+    assert wax.facts["albedo"] == str(tmp_path / "tex" / "wax.exr")
+    assert wax.facts["colorspace"] == "srgb_texture"        # the document's default
+    np.testing.assert_allclose(wax.facts["mfp"], [0.2, 0.1, 0.05])
+    assert wax.facts["eta"] == [1.45]
+    assert imports["glass"].left_out == "no subsurface (subsurface = 0): left out"
+    report = scenes.load(path).plan().run()
+    assert report.exit_code == 0, report.summary()
+    # the document's colour space reaches colour management: the texels are decoded from
+    # sRGB into the working space before the inversion
+    from bdipole_cl.io.colour import active_config, resolve_working_space
+    texels = albedo_texture(tmp_path / "probe" / "w.exr", 4).astype(np.float32)
+    decoded = active_config().convert(texels, "srgb_texture", resolve_working_space().name)
+    check_texture_bake(tmp_path / "bdipole" / "wax.exr", decoded,
+                       np.array([0.2, 0.1, 0.05]), 1.45, "extinction")
+
+
+def test_a_changed_value_in_the_document_rebakes_that_material_only(tmp_path):
+    path = write_doc(tmp_path, DOC_139)
+    assert scenes.load(path).plan().run().exit_code == 0
+    again = scenes.load(path).plan().run()
+    assert [r.status for r in again.results] == ["skipped"] * len(again.results)
+    path.write_text(DOC_139.replace("RADIUS", "0.6"))
+    todo = sorted((j.name, j.udim) for j in scenes.load(path).plan().jobs if not j.up_to_date)
+    assert todo == [("skin", "1001"), ("skin", "1002")]
+    assert TOL == 1e-4

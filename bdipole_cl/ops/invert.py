@@ -1,19 +1,17 @@
 """Albedo inversion on an OpenCL device: Rd -> alpha', rho and (with a mean free path)
-sigma_a, sigma_s' (kernels/invert.cl). The methods and their knobs are in
-``bdipole_cl.methods.registry``; ``method="auto"`` is resolved by ``bdipole_cl.methods.choice``.
+sigma_a, sigma_s' (the kernels: ``bdipole_cl.ops.inversion_kernel``). The methods and their
+knobs are in ``bdipole_cl.methods.registry``; ``method="auto"`` is resolved by
+``bdipole_cl.methods.choice``.
 """
 from __future__ import annotations
 
 import numpy as np
-import pyopencl as cl
 
-from ..device import build_options, get_program, get_runtime, real_dtype
-from ..device.layout import channel_params
 from ..errors import check_policy, find_invalid
 from ..methods.choice import resolve_method
 from ..methods.registry import MFP_KINDS, MethodConfig
-from ..physics import reference as ref
-from ..physics import tables
+from .inversion_kernel import (CHECK_ALBEDO, CHECK_COEFFICIENTS, InversionKernel,
+                               inversion_kernel, output_array)
 
 
 #: largest float32 below 1: where ``on_invalid="clamp"`` puts Rd >= 1 for coefficients.
@@ -22,10 +20,6 @@ RD_CLAMP_MAX = float(np.nextafter(np.float32(1.0), np.float32(0.0)))
 
 #: where ``on_invalid="clamp"`` puts mfp values that are NaN, <= 0 or infinite.
 MFP_CLAMP_RANGE = (1e-20, 1e20)
-
-
-#: elements per kernel launch (bounds device memory for huge arrays).
-CHUNK = 1 << 22
 
 
 def channel_etas(eta, shape):
@@ -42,102 +36,18 @@ def channel_etas(eta, shape):
     return tuple(float(e) for e in etas)
 
 
-#: kernels/invert.cl's output bits (BD_OUTPUTS)
-OUTPUT_BITS = {"alpha": 1, "rho": 2, "sigma_a": 4, "sigma_s": 8}
-
-
-def _literals(values, double):
-    """C literals of the kernel's precision, comma-separated (a -D initializer list)."""
-    return ",".join(repr(float(v)) + ("" if double else "f") for v in values)
-
-
-class InversionKernel:
-    """kernels/invert.cl built for one configuration, precision, model and tuple of etas, with
-    its constant buffers on the device; call it on device buffers (benchmarks do).
-
-    ``bake``: specialise the build for one job (a scene's): the channels' constant records are
-    compiled in, and so are ``mfp_const`` (a constant mfp per channel: no mfp buffer is read)
-    and ``outputs`` (only those are computed). Each distinct specialisation is built once."""
-
-    def __init__(self, etas, config: MethodConfig, *, exact=False, model="better",
-                 double=False, runtime=None, bake=False, mfp_const=None, outputs=None):
-        self.rt = get_runtime(runtime)
-        config = config.resolved(double)
-        self.config, self.etas, self.exact, self.model = config, tuple(etas), exact, model
-        self.dtype = real_dtype(double)
-        self.nchan = len(etas)
-        for e in etas:
-            ref.check_eta(e, exact, model)
-        self.table_n = config.table_n
-        params = channel_params(etas, exact=exact, model=model, table_n=self.table_n,
-                                dtype=self.dtype)
-        defines = config.defines(double)
-        self.mfp_baked = bake and mfp_const is not None
-        if bake:
-            defines["BD_BAKED_PARAMS"] = _literals(params, double)
-            if mfp_const is not None:
-                mfp_const = np.broadcast_to(np.asarray(mfp_const, np.float64), (self.nchan,))
-                defines["BD_MFP_CONST"] = _literals(mfp_const, double)
-            if outputs is not None:
-                defines["BD_OUTPUTS"] = sum(OUTPUT_BITS[k] for k in outputs)
-        opts = build_options(defines, double=double, model=model)
-        self.kernel = cl.Kernel(get_program(self.rt, "invert", opts), "invert_albedo")
-        tab = (tables.channel_tables(etas, self.table_n, exact=exact, model=model)
-               if self.table_n else np.zeros((1, 4), np.float32))
-        mf = cl.mem_flags
-        self.params = cl.Buffer(self.rt.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=params)
-        self.tables = cl.Buffer(self.rt.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=tab)
-
-    @property
-    def monotone(self) -> bool:
-        """Whether alpha' is non-decreasing in Rd over every float32 Rd by construction
-        (docs/model.md "Monotone inverse"): bisection always; the table without polish when
-        every interval of every channel's table meets the margin; secant, memo and Newton
-        polish are not (their last steps round in either direction)."""
-        c = self.config
-        if c.method == "bisection":
-            return True
-        if c.method != "table" or c.polish:
-            return False
-        return all(tables.table_is_monotone(e, c.table_size, self.exact, self.model)
-                   for e in self.etas)
-
-    def __call__(self, n, rd, mfp=None, *, alpha=None, rho=None, sigma_a=None, sigma_s=None,
-                 wait_for=None):
-        """Enqueue over ``n`` elements (a multiple of nchan); returns the kernel's event."""
-        return self.kernel(self.rt.queue, (n,), None, rd, mfp, alpha, rho, sigma_a, sigma_s,
-                           self.params, self.tables, np.int32(self.nchan),
-                           np.int32(tables.entries_per_channel(self.table_n)), np.uint32(n),
-                           wait_for=wait_for)
-
-    def run(self, rd, mfp=None, want=("alpha",)):
-        """Host arrays in, host arrays out, in chunks of at most CHUNK elements."""
-        rt, dtype = self.rt, self.dtype
-        rd = np.ascontiguousarray(rd, dtype=dtype).reshape(-1)
-        mfp = None if mfp is None else np.ascontiguousarray(mfp, dtype=dtype).reshape(-1)
-        n = rd.size
-        outs = {k: np.empty(n, dtype) for k in want}
-        chunk = CHUNK - CHUNK % self.nchan
-        nbytes = min(chunk, max(n, 1)) * dtype.itemsize
-        mf = cl.mem_flags
-        bufs = {k: cl.Buffer(rt.context, mf.WRITE_ONLY, nbytes) for k in want}
-        rd_buf = cl.Buffer(rt.context, mf.READ_ONLY, nbytes)
-        mfp_buf = None if mfp is None else cl.Buffer(rt.context, mf.READ_ONLY, nbytes)
-        for start in range(0, n, chunk):
-            stop = min(start + chunk, n)
-            cl.enqueue_copy(rt.queue, rd_buf, rd[start:stop])
-            if mfp is not None:
-                cl.enqueue_copy(rt.queue, mfp_buf, mfp[start:stop])
-            self(stop - start, rd_buf, mfp_buf, **bufs)
-            for k, b in bufs.items():
-                cl.enqueue_copy(rt.queue, outs[k][start:stop], b)
-        rt.queue.finish()
-        return outs
+def _checked_albedo(rd, on_invalid):
+    """``rd`` with invert_albedo's rule applied: NaN, infinite or > 1 raise (count, first
+    index) or, with "clamp", NaN and -inf become 0 and > 1 becomes 1."""
+    bad = ~(rd <= 1.0) | np.isinf(rd)
+    if find_invalid("albedo", rd, bad, "NaN, infinite or > 1", on_invalid):
+        rd = np.where(np.isnan(rd) | np.isneginf(rd), 0.0, np.minimum(rd, 1.0))
+    return rd
 
 
 def invert_albedo(rd, eta, method="table", *, return_rho=False, model="better", exact=False,
                   double=False, on_invalid="raise", iterations=None, tol=None, table_size=None,
-                  polish=None, seed_size=None, device=None):
+                  polish=None, seed_size=None, device=None, out=None):
     """Invert memo eq. 3 on the device: reduced albedo alpha' (and rho = 1 - alpha') of ``rd``.
 
     Parameters
@@ -164,10 +74,20 @@ def invert_albedo(rd, eta, method="table", *, return_rho=False, model="better", 
         (NaN and -inf -> 0, > 1 -> 1).
     device : None, str, pyopencl.Device or Runtime
         Where to run (``bdipole_cl.device``): None is the automatic choice.
+    out : ndarray or (ndarray, ndarray), optional
+        Where to write alpha' (with ``return_rho``: alpha' and rho): C-contiguous, writeable,
+        ``rd``'s size, float32 (float64 with ``double``); returned, reshaped to ``rd``'s shape.
+        On a CPU device the kernel writes into them directly (no copies, no allocations).
 
     Returns
     -------
     alpha or (alpha, rho) : ndarray, shape of ``rd``, float32 (float64 with ``double``)
+
+    Notes
+    -----
+    Host arrays are handed to the device without copies where it shares host memory
+    (``bdipole_cl.device.transfer``). float32 input is tested for invalid values by the kernel
+    itself as it reads them; the host looks for the first invalid value only when one was seen.
     """
     config = resolve_method(method, double=double, iterations=iterations, tol=tol,
                             table_size=table_size, polish=polish, seed_size=seed_size)
@@ -175,12 +95,21 @@ def invert_albedo(rd, eta, method="table", *, return_rho=False, model="better", 
     if rd.dtype.kind != "f":
         rd = rd.astype(np.float64)
     etas = channel_etas(eta, rd.shape)
-    bad = ~(rd <= 1.0) | np.isinf(rd)
-    if find_invalid("albedo", rd, bad, "NaN, infinite or > 1", on_invalid):
-        rd = np.where(np.isnan(rd) | np.isneginf(rd), 0.0, np.minimum(rd, 1.0))
-    kernel = InversionKernel(etas, config, exact=exact, model=model, double=double,
-                             runtime=device)
-    outs = kernel.run(rd, None, ("alpha", "rho") if return_rho else ("alpha",))
+    check_policy(on_invalid)
+    kernel = inversion_kernel(etas, config, exact=exact, model=model, double=double,
+                              runtime=device)
+    in_kernel = kernel.checks_inputs(rd)
+    if not in_kernel:
+        rd = _checked_albedo(rd, on_invalid)
+    want = ("alpha", "rho") if return_rho else ("alpha",)
+    if out is not None:
+        out = dict(zip(want, (out,) if isinstance(out, np.ndarray) else tuple(out)))
+    outs, flagged = kernel.run_checked(rd, None, want, out=out,
+                                       check=CHECK_ALBEDO if in_kernel else 0)
+    if flagged:
+        # the first invalid value named (raise); with "clamp" the kernel's results already are
+        # those of the clamped input: NaN, -inf -> (0, 1) as Rd = 0, > 1 -> (1, 0) as Rd = 1
+        _checked_albedo(rd, on_invalid)
     alpha = outs["alpha"].reshape(rd.shape)
     return (alpha, outs["rho"].reshape(rd.shape)) if return_rho else alpha
 
@@ -207,13 +136,15 @@ def kernel_outputs(outputs, mfp_kind):
     return tuple(k for k in ("alpha", "rho", "sigma_a", "sigma_s") if k in wanted)
 
 
-def extinction_coefficients(outs, mfp, outputs):
+def extinction_coefficients(outs, mfp, outputs, out=None):
     """sigma_a = rho / mfp and sigma_s' = alpha' / mfp (sigma_t' = 1/mfp, docs/model.md
-    "Mean free path"), added to ``outs`` in its precision."""
+    "Mean free path"), added to ``outs`` in its precision (into ``out``'s arrays if given)."""
     wanted = set(outputs) | ({"sigma_a", "sigma_s"} if "sigma_t" in outputs else set())
     for sigma, base in (("sigma_a", "rho"), ("sigma_s", "alpha")):
         if sigma in wanted:
-            outs[sigma] = outs[base] / mfp.astype(outs[base].dtype, copy=False)
+            dtype = outs[base].dtype
+            outs[sigma] = np.divide(outs[base], mfp.astype(dtype, copy=False),
+                                    out=output_array(out, sigma, mfp.size, dtype))
 
 
 def _sanitize_albedo_for_coefficients(rd, on_invalid):
@@ -253,16 +184,19 @@ class CoefficientMapper:
         self.kernel_wants = kernel_outputs(outputs, mfp_kind)
         if mfp_const is not None:
             _sanitize_mfp(np.asarray(mfp_const, np.float64), "raise")   # baked: must be valid
-        self.kernel = InversionKernel(etas, config, exact=exact, model=model, double=double,
-                                      runtime=device, bake=bake,
-                                      mfp_const=None if self.extinction else mfp_const,
-                                      outputs=self.kernel_wants)
+        mfp_const = None if self.extinction else mfp_const
+        self.kernel = (InversionKernel(etas, config, exact=exact, model=model, double=double,
+                                       runtime=device, bake=True, mfp_const=mfp_const,
+                                       outputs=self.kernel_wants) if bake else
+                       inversion_kernel(etas, config, exact=exact, model=model, double=double,
+                                        runtime=device))
 
-    def __call__(self, rd, mfp, mask=None):
+    def __call__(self, rd, mfp, mask=None, out=None):
         """Returns ({output: array of rd's broadcast shape}, {"albedo": n, "mfp": n} invalid).
 
         ``mask`` (broadcast against ``rd``): texels where it is 0 are left out, neither
-        validated nor inverted, and come out as 0."""
+        validated nor inverted, and come out as 0. ``out``: {output: array} to write into (as
+        ``InversionKernel.run``)."""
         rd, mfp = np.broadcast_arrays(np.asarray(rd), np.asarray(mfp))
         keep = None if mask is None else np.broadcast_to(np.asarray(mask) > 0, rd.shape)
         if keep is not None:
@@ -271,25 +205,67 @@ class CoefficientMapper:
                 return {k: zeros for k in self.outputs}, {"albedo": 0, "mfp": 0}
             rd = np.where(keep, rd, 0.0).astype(rd.dtype, copy=False)
             mfp = np.where(keep, mfp, 1.0).astype(mfp.dtype, copy=False)
-        rd, n_rd = _sanitize_albedo_for_coefficients(rd, self.on_invalid)
-        mfp, n_mfp = _sanitize_mfp(mfp, self.on_invalid)
-        reads_mfp = not (self.kernel.mfp_baked or self.extinction)
-        outs = self.kernel.run(rd, mfp if reads_mfp else None, self.kernel_wants)
+        out = {} if out is None else dict(out)
+        outs, n_rd, n_mfp, mfp = self._coefficients(rd, mfp, out)
         if self.extinction:
-            extinction_coefficients(outs, mfp.reshape(-1), self.outputs)
+            extinction_coefficients(outs, mfp.reshape(-1), self.outputs, out)
         if keep is not None:
             flat = keep.reshape(-1)
             for k in outs:
                 outs[k][~flat] = 0
         if "sigma_t" in self.outputs:
-            outs["sigma_t"] = outs["sigma_a"] + outs["sigma_s"]
+            outs["sigma_t"] = np.add(outs["sigma_a"], outs["sigma_s"],
+                                     out=output_array(out, "sigma_t", rd.size, self.kernel.dtype))
         return ({k: outs[k].reshape(rd.shape) for k in self.outputs},
                 {"albedo": n_rd, "mfp": n_mfp})
 
 
+    def _coefficients(self, rd, mfp, out):
+        """The kernel's outputs (1-D), the invalid albedo and mfp counts, and the mfp (checked,
+        for the host's share of the work: an extinction mfp's division). An mfp constant
+        per channel goes to the kernel as one value per channel (no per-texel mfp array), and
+        float32 inputs are tested by the kernel as it reads them: the host looks at them again
+        only when it saw an invalid one."""
+        k = self.kernel
+        reads_mfp = not (k.mfp_baked or self.extinction)
+        per_channel = channel_values(mfp, k.nchan) if reads_mfp and k.width else None
+        if per_channel is not None and not np.all((per_channel > 0) & np.isfinite(per_channel)):
+            per_channel = None            # the texels named (or clamped) one by one, below
+        n_mfp, host_mfp = 0, mfp
+        if not reads_mfp:                 # compiled in, or divided by on the host: checked here
+            host_mfp, n_mfp = _sanitize_mfp(mfp, self.on_invalid)
+        if per_channel is not None or not reads_mfp:
+            mfp = None
+        in_kernel = k.checks_inputs(rd, *([] if mfp is None else [mfp]))
+        n_rd = 0
+        if not in_kernel:
+            rd, n_rd = _sanitize_albedo_for_coefficients(rd, self.on_invalid)
+            if mfp is not None:
+                mfp, n_mfp = _sanitize_mfp(mfp, self.on_invalid)
+        outs, flagged = k.run_checked(rd, mfp, self.kernel_wants, mfp_channels=per_channel,
+                                      check=CHECK_COEFFICIENTS if in_kernel else 0, out=out)
+        if flagged:     # name the first (raise), or clamp and map again (rare)
+            rd, n_rd = _sanitize_albedo_for_coefficients(rd, self.on_invalid)
+            if mfp is not None:
+                mfp, n_mfp = _sanitize_mfp(mfp, self.on_invalid)
+            outs = k.run(rd, mfp, self.kernel_wants, mfp_channels=per_channel, out=out)
+        return outs, n_rd, n_mfp, host_mfp if mfp is None else mfp
+
+
+def channel_values(values, nchan):
+    """``values`` (broadcast to the input's shape) as one float per channel when it holds no
+    more than that (a scalar or a per-channel tuple broadcast: zero strides), else None."""
+    v = np.asarray(values)
+    if v.ndim == 0 or all(st == 0 for st in v.strides):
+        return np.full(nchan, v.reshape(-1)[0] if v.size else 0.0, np.float64)
+    if any(st != 0 for st in v.strides[:-1]) or v.shape[-1] != nchan:
+        return None
+    return np.array(v[(0,) * (v.ndim - 1)], np.float64)
+
+
 def albedo_to_coefficients(rd, mfp, eta, method="table", *, model="better", exact=False,
                            double=False, on_invalid="raise", outputs=("sigma_a", "sigma_s"),
-                           mfp_kind="diffuse", device=None, **knobs):
+                           mfp_kind="diffuse", device=None, out=None, **knobs):
     """The memo's drop-in mapping: (albedo Rd, mean free path ld, eta) -> (sigma_a, sigma_s').
 
     ``mfp_kind="diffuse"`` (default): ``mfp = ld = 1/mu_tr`` (Jensen/Hery skin convention,
@@ -307,7 +283,8 @@ def albedo_to_coefficients(rd, mfp, eta, method="table", *, model="better", exac
     sigma_t'), NaN albedo to 0, and mfp into ``MFP_CLAMP_RANGE`` (NaN -> its top).
 
     ``outputs`` picks what is returned, in order, from alpha, rho, sigma_a, sigma_s, sigma_t.
-    ``device``: where to run, as for ``invert_albedo``.
+    ``device``: where to run, as for ``invert_albedo``. ``out``: arrays to write the outputs
+    into, one per output in order (as ``invert_albedo``'s ``out``); returned.
     """
     config = resolve_method(method, double=double, **knobs)
     rd, mfp = np.broadcast_arrays(np.asarray(rd), np.asarray(mfp))
@@ -317,6 +294,8 @@ def albedo_to_coefficients(rd, mfp, eta, method="table", *, model="better", exac
     mapper = CoefficientMapper(etas, config, outputs=outputs, model=model, exact=exact,
                                double=double, on_invalid=on_invalid, device=device,
                                mfp_kind=mfp_kind)
-    outs, _ = mapper(rd, mfp)
+    if out is not None:
+        out = dict(zip(outputs, (out,) if isinstance(out, np.ndarray) else tuple(out)))
+    outs, _ = mapper(rd, mfp, out=out)
     result = tuple(outs[k] for k in outputs)
     return result if len(result) > 1 else result[0]

@@ -1,0 +1,235 @@
+"""The inversion kernels prepared on a device: kernels/invert.cl for every method, and
+kernels/invert_table.cl, the default (the float32 table without polish) on several elements a
+work-item; host arrays in and out through ``bdipole_cl.device.transfer``.
+"""
+from __future__ import annotations
+
+import os
+import threading
+
+import numpy as np
+import pyopencl as cl
+
+from ..caches import ByteCache
+from ..device import build_options, get_program, get_runtime, real_dtype
+from ..device.layout import channel_params
+from ..device.runtime import device_kind
+from ..device.transfer import aligned_empty, run_elementwise
+from ..methods.registry import MethodConfig
+from ..physics import reference as ref
+from ..physics import tables
+
+
+#: kernels/invert_table.cl's validity tests (BD_CHECK): invert_albedo's rule (Rd NaN, infinite
+#: or > 1) and the coefficients' (Rd NaN, infinite or >= 1; mfp NaN, <= 0 or infinite)
+CHECK_ALBEDO, CHECK_COEFFICIENTS = 1, 2
+
+#: kernels/invert.cl's output bits (BD_OUTPUTS)
+OUTPUT_BITS = {"alpha": 1, "rho": 2, "sigma_a": 4, "sigma_s": 8}
+
+
+def vectorised(config: MethodConfig, double: bool) -> bool:
+    """Whether ``config`` runs as kernels/invert_table.cl (the float32 table without polish:
+    the default), BD_WIDTH elements a work-item, rather than kernels/invert.cl."""
+    c = config.resolved(double)
+    return c.method == "table" and not c.polish and not double
+
+
+#: elements per work-item of kernels/invert_table.cl by OpenCL platform (a case-insensitive
+#: part of its name), measured at 32M texels (tools/bench_invert.py --widths): Intel's CPU
+#: runtime is fastest at 16, PoCL at 8; devices not listed (GPUs) get one element per item
+TABLE_WIDTHS = {"intel(r) opencl": 16, "portable computing language": 8}
+#: ``BDIPOLE_CL_TABLE_WIDTH`` overrides the width (1, 2, 4, 8 or 16), for measuring
+TABLE_WIDTH_VARIABLE = "BDIPOLE_CL_TABLE_WIDTH"
+
+
+def table_width(rt) -> int:
+    """Elements per work-item of kernels/invert_table.cl on ``rt``'s device."""
+    forced = os.environ.get(TABLE_WIDTH_VARIABLE)
+    if forced:
+        if forced not in ("1", "2", "4", "8", "16"):
+            raise ValueError(f"{TABLE_WIDTH_VARIABLE}={forced!r}: expected 1, 2, 4, 8 or 16")
+        return int(forced)
+    if device_kind(rt.device) != "cpu":
+        return 1
+    platform = rt.device.platform.name.strip().lower()
+    return next((w for name, w in TABLE_WIDTHS.items() if name in platform), 8)
+
+
+def _literals(values, double):
+    """C literals of the kernel's precision, comma-separated (a -D initializer list)."""
+    return ",".join(repr(float(v)) + ("" if double else "f") for v in values)
+
+
+class InversionKernel:
+    """kernels/invert.cl built for one configuration, precision, model and tuple of etas, with
+    its constant buffers on the device; call it on device buffers (benchmarks do).
+
+    ``bake``: specialise the build for one job (a scene's): the channels' constant records are
+    compiled in, and so are ``mfp_const`` (a constant mfp per channel: no mfp buffer is read)
+    and ``outputs`` (only those are computed). Each distinct specialisation is built once."""
+
+    def __init__(self, etas, config: MethodConfig, *, exact=False, model="better",
+                 double=False, runtime=None, bake=False, mfp_const=None, outputs=None):
+        self.rt = get_runtime(runtime)
+        config = config.resolved(double)
+        self.config, self.etas, self.exact, self.model = config, tuple(etas), exact, model
+        self.dtype = real_dtype(double)
+        self.nchan = len(etas)
+        for e in etas:
+            ref.check_eta(e, exact, model)
+        self.table_n = config.table_n
+        params = channel_params(etas, exact=exact, model=model, table_n=self.table_n,
+                                dtype=self.dtype)
+        defines = config.defines(double)
+        self.mfp_baked = bake and mfp_const is not None
+        if bake:
+            defines["BD_BAKED_PARAMS"] = _literals(params, double)
+            if mfp_const is not None:
+                mfp_const = np.broadcast_to(np.asarray(mfp_const, np.float64), (self.nchan,))
+                defines["BD_MFP_CONST"] = _literals(mfp_const, double)
+            if outputs is not None:
+                defines["BD_OUTPUTS"] = sum(OUTPUT_BITS[k] for k in outputs)
+        self.width = table_width(self.rt) if vectorised(config, double) else 0
+        self._table_kernels = {}
+        if self.width:
+            # kernels/invert_table.cl: built per set of outputs (on the first call)
+            self._table_defines = {"BD_TABLE_N": config.table_size, "BD_WIDTH": self.width,
+                                   "BD_NCHAN": self.nchan}
+            if self.mfp_baked:
+                self._table_defines["BD_MFP_CONST"] = defines["BD_MFP_CONST"]
+            self.kernel = None
+        else:
+            opts = build_options(defines, double=double, model=model)
+            self.kernel = cl.Kernel(get_program(self.rt, "invert", opts), "invert_albedo")
+        tab = (tables.channel_tables(etas, self.table_n, exact=exact, model=model)
+               if self.table_n else np.zeros((1, 4), np.float32))
+        mf = cl.mem_flags
+        self.params = cl.Buffer(self.rt.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=params)
+        self.tables = cl.Buffer(self.rt.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=tab)
+
+    def _table_kernel(self, bits: int, check: int = 0, mfp_channels: bool = False):
+        """kernels/invert_table.cl for the outputs ``bits`` (OUTPUT_BITS), the validity test
+        ``check`` (0, CHECK_ALBEDO, CHECK_COEFFICIENTS) and the mfp layout, built once each."""
+        key = (bits, check, mfp_channels)
+        knl = self._table_kernels.get(key)
+        if knl is None:
+            defines = {**self._table_defines, "BD_OUTPUTS": bits, "BD_CHECK": check}
+            if mfp_channels:
+                defines["BD_MFP_CHANNELS"] = None
+            opts = build_options(defines, model=self.model)
+            knl = self._table_kernels[key] = cl.Kernel(
+                get_program(self.rt, "invert_table", opts), "invert_table")
+        return knl
+
+    @property
+    def monotone(self) -> bool:
+        """Whether alpha' is non-decreasing in Rd over every float32 Rd by construction
+        (docs/model.md "Monotone inverse"): bisection always; the table without polish when
+        every interval of every channel's table meets the margin; secant, memo and Newton
+        polish are not (their last steps round in either direction)."""
+        c = self.config
+        if c.method == "bisection":
+            return True
+        if c.method != "table" or c.polish:
+            return False
+        return all(tables.table_is_monotone(e, c.table_size, self.exact, self.model)
+                   for e in self.etas)
+
+    def __call__(self, n, rd, mfp=None, *, alpha=None, rho=None, sigma_a=None, sigma_s=None,
+                 wait_for=None, invalid=None, check=0, mfp_channels=False):
+        """Enqueue over ``n`` elements (a multiple of nchan); returns the kernel's event.
+        With the vectorised kernel (``width``): ``check`` and the 1-int buffer ``invalid``
+        (set when some input breaks the rule), ``mfp_channels`` (``mfp`` holds one value per
+        channel)."""
+        if self.width:
+            given = {"alpha": alpha, "rho": rho, "sigma_a": sigma_a, "sigma_s": sigma_s}
+            bits = sum(OUTPUT_BITS[k] for k, b in given.items() if b is not None)
+            return self._table_kernel(bits, check, mfp_channels)(
+                self.rt.queue, (-(-n // self.width),), None, rd, mfp, alpha, rho, sigma_a,
+                sigma_s, self.params, self.tables,
+                np.int32(tables.entries_per_channel(self.table_n)), np.uint32(n), invalid,
+                wait_for=wait_for)
+        return self.kernel(self.rt.queue, (n,), None, rd, mfp, alpha, rho, sigma_a, sigma_s,
+                           self.params, self.tables, np.int32(self.nchan),
+                           np.int32(tables.entries_per_channel(self.table_n)), np.uint32(n),
+                           wait_for=wait_for)
+
+    def checks_inputs(self, *arrays) -> bool:
+        """Whether the kernel itself can test these inputs (the vectorised kernel on float32
+        arrays; a float64 value may round to a valid float32 one, so those are tested on the
+        host)."""
+        return bool(self.width) and all(np.asarray(a).dtype == np.float32 for a in arrays)
+
+    def run(self, rd, mfp=None, want=("alpha",), *, out=None, mfp_channels=None):
+        """``run_checked`` without a test: {output: 1-D array}."""
+        return self.run_checked(rd, mfp, want, out=out, mfp_channels=mfp_channels)[0]
+
+    def run_checked(self, rd, mfp=None, want=("alpha",), *, out=None, check=0,
+                    mfp_channels=None):
+        """Host arrays in, host arrays out (``bdipole_cl.device.transfer``: host memory used
+        directly where the device shares it, else pinned staging), into ``out`` ({name:
+        array}, contiguous, rd's size and the kernel's dtype) where given, else into new
+        arrays. ``mfp_channels``: one mfp per channel instead of ``mfp`` per element.
+
+        Returns ({output: 1-D array}, flagged): with ``check`` (the vectorised kernel only),
+        whether some input broke the rule (None: not tested)."""
+        rt, dtype = self.rt, self.dtype
+        rd = np.ascontiguousarray(rd, dtype=dtype).reshape(-1)
+        n = rd.size
+        outs = {k: output_array(out, k, n, dtype) for k in want}
+        inputs = {"rd": rd}
+        if mfp is not None:
+            inputs["mfp"] = np.ascontiguousarray(mfp, dtype=dtype).reshape(-1)
+        mf = cl.mem_flags
+        const_mfp = None
+        if mfp_channels is not None:
+            const_mfp = cl.Buffer(rt.context, mf.READ_ONLY | mf.COPY_HOST_PTR,
+                                  hostbuf=np.ascontiguousarray(mfp_channels, dtype))
+        flag = np.zeros(1, np.int32)
+        flag_buf = (cl.Buffer(rt.context, mf.READ_WRITE | mf.COPY_HOST_PTR, hostbuf=flag)
+                    if check else None)
+
+        def launch(count, bufs):
+            return self(count, bufs["rd"], bufs.get("mfp", const_mfp),
+                        **{k: bufs[k] for k in want}, invalid=flag_buf, check=check,
+                        mfp_channels=const_mfp is not None)
+
+        run_elementwise(rt, launch, inputs, outs, multiple=self.nchan * max(self.width, 1))
+        if check:
+            cl.enqueue_copy(rt.queue, flag, flag_buf)
+        return outs, (bool(flag[0]) if check else None)
+
+
+def output_array(out, name, n, dtype):
+    """``out[name]`` checked (1-D view of n elements of dtype, contiguous), or a new aligned
+    array."""
+    if out is None or name not in out:
+        return aligned_empty(n, dtype)
+    a = out[name]
+    if not (isinstance(a, np.ndarray) and a.dtype == dtype and a.size == n
+            and a.flags.c_contiguous and a.flags.writeable):
+        raise ValueError(f"out[{name!r}]: expected a writeable C-contiguous {dtype} array of "
+                         f"{n} elements, got {getattr(a, 'dtype', type(a))} "
+                         f"shape {np.shape(a)}")
+    return a.reshape(-1)
+
+
+#: prepared kernels kept across calls (each holds its small constant buffers), per thread
+#: (a pyopencl Kernel's arguments are set per call)
+KERNEL_CACHE = ByteCache("inversion kernels", 16 << 20)
+
+
+def inversion_kernel(etas, config, *, exact=False, model="better", double=False,
+                     runtime=None) -> InversionKernel:
+    """The InversionKernel for these arguments, from KERNEL_CACHE when it has it."""
+    rt = get_runtime(runtime)
+    key = (id(rt.context), threading.get_ident(), tuple(etas), config.resolved(double), exact,
+           model, double)
+    hit = KERNEL_CACHE.get(key)
+    if hit is None or hit[0] is not rt.context:    # the entry holds its context: ids are its own
+        kernel = InversionKernel(etas, config, exact=exact, model=model, double=double,
+                                 runtime=rt)
+        hit = KERNEL_CACHE.put(key, (rt.context, kernel),
+                               4096 + len(etas) * 48 * (config.table_n + 1))
+    return hit[1]

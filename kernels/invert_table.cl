@@ -1,0 +1,201 @@
+// invert_table.cl -- the default inversion (cubic table, no polish) on BD_WIDTH elements per
+// work-item: the same lookup as kernels/invert.cl's BD_METHOD_TABLE with BD_POLISH 0, the same
+// operations on the same values (so the same results and the same monotone contract,
+// docs/model.md "Monotone inverse"), written for the memory floor:
+//   - explicit vectors of BD_WIDTH lanes (1, 2, 4, 8 or 16): CPU runtimes compile them to SIMD
+//     directly rather than vectorising a scalar kernel across work-items (which Intel's and
+//     PoCL's runtimes do poorly for this kernel: its gathers and selects stay scalar);
+//   - no branches: the segment, its variable and scale are chosen by selects, one interval is
+//     gathered per lane, both halves' results are formed and one selected, and Rd <= 0 / >= 1
+//     (NaN is reported or clamped on the host first) are selects at the end;
+//   - the outputs written fixed at build time (BD_OUTPUTS: 1 alpha', 2 rho, 4 sigma_a,
+//     8 sigma_s'), the channel count too (BD_NCHAN), so no NULL or channel tests per element.
+// Needs bdipole.h in front, and -DBD_TABLE_N, -DBD_WIDTH, -DBD_NCHAN, -DBD_OUTPUTS
+// (and -DBD_MFP_CONST, below).
+// Element e is texel e / BD_NCHAN, channel e % BD_NCHAN (interleaved, as the host holds it).
+// Float32 only (the float64 default polishes: kernels/invert.cl).
+
+#define BD_SEGMENT_STRIDE (BD_TABLE_N + 1)
+
+// {{{ lane types: vec (float lanes), ivec (int lanes), VLOAD/VSTORE, TO_INT/TO_FLOAT
+
+#if BD_WIDTH == 1
+typedef float vec;
+typedef int ivec;
+#define VLOAD(i, p) ((p)[i])
+#define VSTORE(v, i, p) ((p)[i] = (v))
+#define TO_INT(v) ((int)(v))
+#define TO_FLOAT(v) ((float)(v))
+#define ANY_LANE(test) (test)
+#else
+#define BD_CAT_(a, b) a##b
+#define BD_CAT(a, b) BD_CAT_(a, b)
+typedef BD_CAT(float, BD_WIDTH) vec;
+typedef BD_CAT(int, BD_WIDTH) ivec;
+#define VLOAD(i, p) BD_CAT(vload, BD_WIDTH)(i, p)
+#define VSTORE(v, i, p) BD_CAT(vstore, BD_WIDTH)(v, i, p)
+#define TO_INT(v) BD_CAT(convert_int, BD_WIDTH)(v)
+#define TO_FLOAT(v) BD_CAT(convert_float, BD_WIDTH)(v)
+#define ANY_LANE(test) any(test)
+#endif
+// lane numbers 0 .. BD_WIDTH - 1
+#if BD_WIDTH == 2
+#define BD_LANES (ivec)(0, 1)
+#elif BD_WIDTH == 4
+#define BD_LANES (ivec)(0, 1, 2, 3)
+#elif BD_WIDTH == 8
+#define BD_LANES (ivec)(0, 1, 2, 3, 4, 5, 6, 7)
+#elif BD_WIDTH == 16
+#define BD_LANES (ivec)(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15)
+#endif
+// 1 where a lane's test holds, else 0 (vector comparisons give -1, scalar ones 1)
+#define ONE_IF(test) select((ivec)0, (ivec)1, test)
+
+// }}}
+
+// {{{ per-lane channel parameters
+
+// Each lane's value of its channel ch from per-channel records of `stride` floats (BD_NCHAN - 1
+// selects; none for one channel).
+inline vec lane_value(__constant const float *values, int stride, ivec ch)
+{
+    vec v = (vec)values[0];
+    for (int c = 1; c < BD_NCHAN; ++c)
+        v = select(v, (vec)values[c * stride], ch == c);
+    return v;
+}
+#define lane_param(params, ch, field) lane_value((params) + (field), BD_PARAM_STRIDE, ch)
+
+// The mfp: -DBD_MFP_CONST=v,... one per channel compiled in (the mfp argument is not read);
+// -DBD_MFP_CHANNELS: the mfp argument holds one value per channel (__constant); else one per
+// element.
+#ifdef BD_MFP_CONST
+__constant float bd_mfp_const[] = {BD_MFP_CONST};
+#endif
+#ifdef BD_MFP_CHANNELS
+#define BD_MFP_SPACE __constant
+#else
+#define BD_MFP_SPACE __global
+#endif
+
+// -DBD_CHECK=1: set *invalid when an Rd is NaN, infinite or > 1 (invert_albedo's rule); 2: when
+// an Rd is NaN, infinite or >= 1, or an mfp read is NaN, <= 0 or infinite (the coefficients'
+// rule). The host finds and reports (or clamps) them only then; 0 (default): no test.
+#ifndef BD_CHECK
+#define BD_CHECK 0
+#endif
+
+// }}}
+
+// The table's unknown for each lane (clamped between its interval's nodes, as table_value),
+// and whether the lane is in the upper half (segments 1 and 2: the unknown is q).
+inline vec table_lookup(vec rd, ivec ch, __constant const float *params,
+                        __global const float4 *tables, const int table_stride, ivec *upper)
+{
+    vec x = BD_POWER == 2 ? sqrt(rd) : rd;
+    ivec up = rd >= lane_param(params, ch, BD_P_RD_SPLIT), top = rd >= 0.5f;
+    vec t = select(select(x * lane_param(params, ch, BD_P_SCALE0),
+                          (x - lane_param(params, ch, BD_P_X_SPLIT))
+                              * lane_param(params, ch, BD_P_SCALE1), up),
+                   (1.0f - rd) * lane_param(params, ch, BD_P_SCALE2), top);
+    ivec i = clamp(TO_INT(t), 0, BD_TABLE_N - 1);
+    vec u = t - TO_FLOAT(i);
+    ivec k = ch * table_stride + (ONE_IF(up) + ONE_IF(top)) * BD_SEGMENT_STRIDE + i;
+    float c0[BD_WIDTH], c1[BD_WIDTH], c2[BD_WIDTH], c3[BD_WIDTH], c4[BD_WIDTH];
+    int ks[BD_WIDTH];
+    VSTORE(k, 0, ks);
+    for (int j = 0; j < BD_WIDTH; ++j) {        // the gather: interval and its end node
+        float4 c = tables[ks[j]];
+        c0[j] = c.x; c1[j] = c.y; c2[j] = c.z; c3[j] = c.w;
+        c4[j] = tables[ks[j] + 1].x;
+    }
+    vec a = VLOAD(0, c0), b = VLOAD(0, c1), cc = VLOAD(0, c2), d = VLOAD(0, c3),
+        end = VLOAD(0, c4);
+    // c0 + fma(u, c1, u^2 (c2 + c3 u)): monotone in u (kernels/invert.cl: table_value)
+    vec small = u * u * (cc + u * d);
+    *upper = up;
+    return clamp(a + fma(u, b, small), fmin(a, end), fmax(a, end));
+}
+
+// Work-item g's lanes to out[g * BD_WIDTH ...], only those below n when it is not whole.
+inline void store_lanes(vec v, uint g, int whole, uint n, __global float *out)
+{
+    if (whole) {
+        VSTORE(v, g, out);
+        return;
+    }
+    float lanes[BD_WIDTH];
+    VSTORE(v, 0, lanes);
+    for (uint j = 0; j < BD_WIDTH && g * BD_WIDTH + j < n; ++j) out[g * BD_WIDTH + j] = lanes[j];
+}
+
+__kernel void invert_table(__global const float *rd, BD_MFP_SPACE const float *mfp,
+                           __global float *alpha_out, __global float *rho_out,
+                           __global float *sigma_a_out, __global float *sigma_s_out,
+                           __constant const float *params, __global const float4 *tables,
+                           const int table_stride, const uint n, __global int *invalid)
+{
+    const uint g = get_global_id(0), first = g * BD_WIDTH;
+    if (first >= n) return;
+    const int whole = first + BD_WIDTH <= n;   // the last work-item may hold fewer elements
+    float lanes[BD_WIDTH];
+    vec r;
+    if (whole) {
+        r = VLOAD(g, rd);
+    } else {
+        for (int j = 0; j < BD_WIDTH; ++j) lanes[j] = first + j < n ? rd[first + j] : 0.5f;
+        r = VLOAD(0, lanes);
+    }
+#if BD_NCHAN == 1
+    ivec ch = (ivec)0;
+#elif BD_WIDTH == 1
+    ivec ch = (int)(first % BD_NCHAN);
+#else
+    ivec ch = ((ivec)(int)(first % BD_NCHAN) + BD_LANES) % BD_NCHAN;
+#endif
+#if BD_CHECK == 1
+    if (ANY_LANE(!(r <= 1.0f) | (r == -INFINITY))) *invalid = 1;
+#elif BD_CHECK == 2
+    if (ANY_LANE(!(r < 1.0f) | (r == -INFINITY))) *invalid = 1;
+#endif
+    ivec upper;
+    vec v = table_lookup(r, ch, params, tables, table_stride, &upper);
+    // the two halves kept on their sides of the split (kernels/invert.cl: lower_result,
+    // upper_result), then Rd <= 0 -> (0, 1) and Rd >= 1 -> (1, 0)
+    vec a_lower = fmin(v, BD_ALPHA_SPLIT), rho_upper = fmin(v * v, BD_RHO_SPLIT);
+    vec alpha = select(a_lower, 1.0f - rho_upper, upper);
+    vec rho = select(1.0f - a_lower, rho_upper, upper);
+    ivec pos = r > 0.0f, one = r >= 1.0f;
+    alpha = select((vec)0.0f, select(alpha, (vec)1.0f, one), pos);
+    rho = select((vec)1.0f, select(rho, (vec)0.0f, one), pos);
+    if (BD_OUTPUTS & 1) store_lanes(alpha, g, whole, n, alpha_out);
+    if (BD_OUTPUTS & 2) store_lanes(rho, g, whole, n, rho_out);
+#if BD_OUTPUTS & 12
+    // with mfp (ld = 1/mu_tr, docs/model.md): sigma_t' = 1/(ld mu_tr/sigma_t'),
+    // sigma_a = sigma_t' rho, sigma_s' = sigma_t' alpha' (bdipole.h: bd_mu_over_sigma_t)
+#if defined(BD_MFP_CONST)
+    vec ld = lane_value(bd_mfp_const, 1, ch);
+#elif defined(BD_MFP_CHANNELS)
+    vec ld = lane_value(mfp, 1, ch);
+#else
+    vec ld;
+    if (whole) {
+        ld = VLOAD(g, mfp);
+    } else {
+        for (int j = 0; j < BD_WIDTH; ++j) lanes[j] = first + j < n ? mfp[first + j] : 1.0f;
+        ld = VLOAD(0, lanes);
+    }
+#if BD_CHECK == 2
+    if (ANY_LANE(!(ld > 0.0f) | (ld == INFINITY))) *invalid = 1;
+#endif
+#endif
+#ifdef BD_MODEL_DIPOLE
+    vec mu_over_sigma_t = sqrt(3.0f * rho);
+#else
+    vec mu_over_sigma_t = sqrt(3.0f * rho / (1.0f + rho));
+#endif
+    vec sigma_t = 1.0f / (ld * mu_over_sigma_t);
+    if (BD_OUTPUTS & 4) store_lanes(sigma_t * rho, g, whole, n, sigma_a_out);
+    if (BD_OUTPUTS & 8) store_lanes(sigma_t * alpha, g, whole, n, sigma_s_out);
+#endif
+}

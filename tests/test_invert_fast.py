@@ -1,0 +1,157 @@
+"""The default inversion at the memory floor: kernels/invert_table.cl against kernels/invert.cl's
+table path, and host arrays through ``bdipole_cl.device.transfer`` (zero copy, ``out=``, pinned
+staging, cached kernels), once per working OpenCL device.
+
+The vectorised kernel does the same operations on the same float32 values as the scalar one, so
+the two must agree bit for bit (no tolerance): that is what keeps the accuracy bounds of
+tests/test_invert.py and the monotone sweep's result (bdipole_cl/apps/monotone.py) its own.
+"""
+import numpy as np
+import pyopencl as cl
+import pytest
+
+from bdipole_cl import InvalidInputError, albedo_to_coefficients, invert_albedo
+from bdipole_cl.device import build_options, get_program, transfer
+from bdipole_cl.methods.registry import MethodConfig
+from bdipole_cl.ops import inversion_kernel as ik
+from bdipole_cl.ops.inversion_kernel import InversionKernel, TABLE_WIDTH_VARIABLE
+
+WANT = ("alpha", "rho", "sigma_a", "sigma_s")
+
+
+def albedos(n):
+    """Uniform and stiff-end albedos plus the kernel's special values, in float32."""
+    rng = np.random.default_rng(3)
+    special = [0.0, -1.0, 1.0, 1e-30, 1e-45, 0.5, np.nextafter(np.float32(0.5), 0),
+               np.nextafter(np.float32(1), 0)]
+    return np.float32(np.concatenate([rng.uniform(1e-6, 0.999, n), np.geomspace(1e-7, 0.5, 500),
+                                      1 - np.geomspace(6e-8, 0.5, 500), special]))
+
+
+def scalar_table_kernel(etas, model, runtime):
+    """kernels/invert.cl's BD_METHOD_TABLE path for the default config (the reference here)."""
+    k = InversionKernel(etas, MethodConfig(), model=model, runtime=runtime)
+    k.width = 0
+    k.kernel = cl.Kernel(get_program(runtime, "invert", build_options(
+        k.config.defines(False), model=model)), "invert_albedo")
+    return k
+
+
+@pytest.mark.parametrize("width", ["1", "4", "8", "16"])
+@pytest.mark.parametrize("etas", [(1.4,), (1.3, 1.4, 2.0)], ids=["1ch", "3ch"])
+@pytest.mark.parametrize("model", ["better", "dipole"])
+def test_vector_kernel_is_bitwise_the_scalar_one(runtime, monkeypatch, width, etas, model):
+    """Every width, channel count and model, a length that leaves a partial last work-item,
+    mfp per element and per channel: the same bits as kernels/invert.cl."""
+    monkeypatch.setenv(TABLE_WIDTH_VARIABLE, width)
+    rd = albedos(20011)
+    rd = rd[:rd.size - rd.size % len(etas)]
+    mfp = np.random.default_rng(4).uniform(0.1, 10.0, rd.size).astype(np.float32)
+    want = scalar_table_kernel(etas, model, runtime).run(rd, mfp, WANT)
+    fast = InversionKernel(etas, MethodConfig(), model=model, runtime=runtime)
+    assert fast.width == int(width)
+    got = fast.run(rd, mfp, WANT)
+    for k in WANT:
+        np.testing.assert_array_equal(got[k], want[k], err_msg=f"{k}, width {width}")
+    per_channel = np.float32([2.0, 0.5, 7.0][:len(etas)])
+    want_c = scalar_table_kernel(etas, model, runtime).run(
+        rd, np.tile(per_channel, rd.size // len(etas)), WANT)
+    got_c = fast.run(rd, None, WANT, mfp_channels=per_channel)
+    for k in WANT:
+        np.testing.assert_array_equal(got_c[k], want_c[k], err_msg=f"{k} per channel")
+
+
+def test_default_is_vectorised_on_cpus(runtime):
+    """The default configuration runs kernels/invert_table.cl (several elements a work-item on
+    CPU devices); float64 and polished or other methods keep kernels/invert.cl."""
+    k = InversionKernel((1.4,), MethodConfig(), runtime=runtime)
+    assert k.width == ik.table_width(runtime) > 1
+    assert not InversionKernel((1.4,), MethodConfig("table", polish=1), runtime=runtime).width
+    assert not InversionKernel((1.4,), MethodConfig("bisection"), runtime=runtime).width
+
+
+@pytest.mark.parametrize("n", [1, 15, 16, 17, 4099])
+@pytest.mark.parametrize("where", [0, -1])
+def test_kernel_finds_invalid_albedo(on_device, n, where):
+    """float32 input is tested by the kernel: an invalid value anywhere, the partial last
+    work-item included, is named with its index, as the host test names it."""
+    rd = np.full(n, 0.3, np.float32)
+    rd[where] = np.nan
+    with pytest.raises(InvalidInputError, match=rf"first at index \({n - 1 if where else 0},\)"):
+        invert_albedo(rd, 1.4)
+    got = invert_albedo(rd, 1.4, on_invalid="clamp", return_rho=True)
+    want = invert_albedo(np.where(np.isnan(rd), 0, rd), 1.4, return_rho=True)
+    np.testing.assert_array_equal(got, want)
+    mfp = np.ones(n, np.float32)
+    mfp[where] = -1.0
+    with pytest.raises(InvalidInputError, match="mfp"):
+        albedo_to_coefficients(np.full(n, 0.3, np.float32), mfp, 1.4)
+
+
+def test_out_arrays_are_written_in_place(on_device):
+    """``out=``: the results are the given arrays (reshaped views of them), bit for bit those
+    of a call without ``out``."""
+    rd = albedos(3000).reshape(-1, 2)[:1500]
+    alpha, rho = np.empty(rd.shape, np.float32), np.empty(rd.shape, np.float32)
+    got = invert_albedo(rd, 1.4, return_rho=True, out=(alpha, rho))
+    assert got[0].ctypes.data == alpha.ctypes.data and got[1].ctypes.data == rho.ctypes.data
+    want = invert_albedo(rd, 1.4, return_rho=True)
+    np.testing.assert_array_equal(alpha, want[0])
+    np.testing.assert_array_equal(rho, want[1])
+    sa, st = np.empty(rd.shape, np.float32), np.empty(rd.shape, np.float32)
+    res = albedo_to_coefficients(rd, 2.0, 1.4, outputs=("sigma_a", "sigma_t"), out=(sa, st))
+    assert res[0].ctypes.data == sa.ctypes.data and res[1].ctypes.data == st.ctypes.data
+    with pytest.raises(ValueError, match="out"):
+        invert_albedo(rd, 1.4, out=np.empty(rd.shape, np.float64))
+
+
+def test_host_memory_is_used_without_copies(runtime):
+    """On a CPU device the kernel's buffers are the host arrays themselves: mapping an output
+    buffer gives back the array's own memory."""
+    assert transfer.shares_host_memory(runtime)
+    k = InversionKernel((1.4,), MethodConfig(), runtime=runtime)
+    out = transfer.aligned_empty(4096, np.float32)
+    rd = albedos(4000)[:4096]
+    pointers = []
+
+    def launch(n, bufs):
+        event = k(n, bufs["rd"], alpha=bufs["alpha"])
+        mapped, _ = cl.enqueue_map_buffer(runtime.queue, bufs["alpha"], cl.map_flags.READ, 0,
+                                          (n,), np.float32, wait_for=[event], is_blocking=True)
+        pointers.append(mapped.ctypes.data)
+        mapped.base.release(runtime.queue)
+        return event
+
+    transfer.run_elementwise(runtime, launch, {"rd": rd}, {"alpha": out})
+    assert pointers == [out.ctypes.data]
+    np.testing.assert_array_equal(out, k.run(rd)["alpha"])
+
+
+def test_staged_path_reuses_its_buffers(runtime, monkeypatch):
+    """The discrete-device path (pinned staging into device buffers, forced here on a CPU
+    device) gives the same bits, over several chunks, and allocates nothing on a second call."""
+    monkeypatch.setattr(transfer, "shares_host_memory", lambda rt: False)
+    monkeypatch.setattr(transfer, "DEVICE_CHUNK", 1 << 12)
+    transfer.DEVICE_BUFFERS.clear()
+    rd = albedos(10000)
+    k = InversionKernel((1.4,), MethodConfig(), runtime=runtime)
+    got = k.run(rd, None, ("alpha", "rho"))
+    held = len(transfer.DEVICE_BUFFERS)
+    again = k.run(rd, None, ("alpha", "rho"))
+    assert held == 6 and len(transfer.DEVICE_BUFFERS) == held     # rd, alpha, rho: 2 each
+    monkeypatch.undo()
+    want = k.run(rd, None, ("alpha", "rho"))
+    for key in ("alpha", "rho"):
+        np.testing.assert_array_equal(got[key], want[key])
+        np.testing.assert_array_equal(again[key], want[key])
+
+
+def test_kernels_are_kept_across_calls(on_device):
+    """A second call with the same arguments builds nothing and makes no new kernel."""
+    ik.KERNEL_CACHE.clear()
+    rd = albedos(100)
+    invert_albedo(rd, 1.7, return_rho=True)
+    first = dict(ik.KERNEL_CACHE._data)
+    invert_albedo(rd, 1.7, return_rho=True)
+    assert len(first) == 1 and dict(ik.KERNEL_CACHE._data).keys() == first.keys()
+    assert next(iter(ik.KERNEL_CACHE._data.values()))[0][1] is next(iter(first.values()))[0][1]

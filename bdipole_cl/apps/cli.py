@@ -262,7 +262,10 @@ def _cmd_bake(args) -> int:
 
 
 def _cmd_report(args) -> int:
-    from .report import run_report
+    from .report import calibrate, run_report
+    if args.calibrate:
+        calibrate()
+        return 0
     run_report(args.output, n=args.n, blur_size=args.blur_size, repeats=args.repeats,
                write_choice_to=args.write_choice)
     return 0
@@ -372,6 +375,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--write-choice", metavar="PATH",
                    help="also write every measured configuration as method='auto' choice data "
                         "(JSON; use it with BDIPOLE_CL_CHOICE_DATA=PATH)")
+    p.add_argument("--calibrate", action="store_true",
+                   help="measure this device (a minute or two) and store the data in the user's "
+                        "cache ($XDG_CACHE_HOME/bdipole_cl), where method='auto' on this device "
+                        "then decides from it")
     p.set_defaults(func=_cmd_report)
 
     p = command("blur", help="blur an irradiance map with the Better Dipole profile R(r)")

@@ -7,6 +7,9 @@ method, Pareto front circled). With ``--write-choice PATH`` it also writes every
 configuration, as structured fields, to the JSON file ``method="auto"`` picks from
 (``bdipole_cl.methods.choice``: the package's ``bdipole_cl/data/choice.json`` is written this
 way from a source checkout; ``BDIPOLE_CL_CHOICE_DATA`` makes an installed package use another).
+``--calibrate`` (``calibrate``) measures the same configurations on smaller workloads (a minute
+or two) and stores them, keyed by the device, in the user's cache, where ``auto`` finds them on
+that device (``bdipole_cl.methods.choice.calibration_path``).
 
 Inversion error: max relative error of rho (= sigma_a/sigma_t', the stiff quantity; alpha'
 errors are smaller for every method but the memo's, whose rho is reported as it is).
@@ -22,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from ..device import get_runtime
-from ..methods.choice import ChoiceData, write_choice_data
+from ..methods.choice import ChoiceData, DeviceKey, calibration_path, write_choice_data
 from ..methods.registry import BlurChoice, InversionChoice, MethodConfig
 from ..ops.invert import InversionKernel
 from .benchmark import inversion_workload, reference_inverse, stiff_workload, time_inversion
@@ -61,6 +64,10 @@ class Point:
     choice: InversionChoice | BlurChoice | None = None    # the measurement as choice data
 
 
+#: the calibration's (smaller) workloads: albedos, blur map size, repeats
+CALIBRATION = {"n": 1 << 18, "blur_size": 256, "repeats": 3}
+
+
 def error_over_eta(cfg, double, stiff, references, etas=ERROR_ETAS):
     """(max relative rho error on the stiff workload over ``etas``, monotone at every eta)."""
     worst, monotone = 0.0, True
@@ -72,17 +79,19 @@ def error_over_eta(cfg, double, stiff, references, etas=ERROR_ETAS):
     return worst, monotone
 
 
-def inversion_points(n=1 << 20, eta=1.4, repeats=3, progress=print, etas=ERROR_ETAS):
-    """Every configuration: run time on ``n`` uniform albedos at ``eta``; max rho error on
+def inversion_points(n=1 << 20, eta=1.4, repeats=3, progress=print, etas=ERROR_ETAS,
+                     sweep=None, sweep_f64=None):
+    """Every configuration (of ``sweep`` and ``sweep_f64``, default INVERSION_SWEEP and
+    INVERSION_SWEEP_F64): run time on ``n`` uniform albedos at ``eta``; max rho error on
     those and on a stiff sweep at every eta of ``etas``; monotone or not."""
     rt = get_runtime()
     rd = inversion_workload(n)
     want_a, want_rho = reference_inverse(rd, eta)
     stiff = stiff_workload()
     references = {e: reference_inverse(stiff, e)[1] for e in etas}
-    runs = [(c, False) for c in INVERSION_SWEEP]
+    runs = [(c, False) for c in (INVERSION_SWEEP if sweep is None else sweep)]
     if rt.has_fp64:
-        runs += [(c, True) for c in INVERSION_SWEEP_F64]
+        runs += [(c, True) for c in (INVERSION_SWEEP_F64 if sweep_f64 is None else sweep_f64)]
     points = []
     for cfg, double in runs:
         r = time_inversion(cfg, rd, eta, want_a, want_rho, double=double, repeats=repeats)
@@ -99,8 +108,9 @@ def inversion_points(n=1 << 20, eta=1.4, repeats=3, progress=print, etas=ERROR_E
     return points
 
 
-def blur_points(size=512, mfps=BLUR_WORKLOADS, repeats=3, progress=print):
-    """Every blur method and truncation tol on one workload per mfp (kind "blur mfp <m>")."""
+def blur_points(size=512, mfps=BLUR_WORKLOADS, repeats=3, progress=print, sweep=BLUR_SWEEP):
+    """Every blur method and truncation tol of ``sweep`` on one workload per mfp (kind
+    "blur mfp <m>")."""
     import statistics
     import time
 
@@ -115,7 +125,7 @@ def blur_points(size=512, mfps=BLUR_WORKLOADS, repeats=3, progress=print):
         exact = fft_blur_channel(e[..., 0], exact_k.weights, "clamp")
         norm = e.max() * exact_k.rd
         radius = channel_kernel(*params, 1e-3).radius
-        for method, tol in BLUR_SWEEP:
+        for method, tol in sweep:
             blur(e[:32, :32], albedo=0.8, mfp=mfp, tol=tol, method=method)      # build, fit
             times = []
             for _ in range(repeats):
@@ -215,7 +225,26 @@ def write_choice(points, path):
     inv = sorted((p.choice for p in points if p.kind == "inversion"), key=lambda c: c.median_s)
     blur = sorted((p.choice for p in points if p.kind.startswith("blur")),
                   key=lambda c: (c.radius, c.median_s))
-    return write_choice_data(ChoiceData(get_runtime().describe(), tuple(inv), tuple(blur)), path)
+    rt = get_runtime()
+    return write_choice_data(ChoiceData(rt.describe(), tuple(inv), tuple(blur),
+                                        DeviceKey.of(rt.device)), path)
+
+
+def calibrate(*, n=CALIBRATION["n"], blur_size=CALIBRATION["blur_size"],
+              repeats=CALIBRATION["repeats"], progress=print, **sweeps):
+    """``bdipole-cl report --calibrate``: measure the inversion and blur configurations on the
+    current device (smaller workloads than the report) and store them in the user's cache for
+    this device; returns the file. ``sweeps``: ``sweep``, ``sweep_f64`` (inversion) and
+    ``blur_sweep`` in place of the report's (a short calibration)."""
+    rt = get_runtime()
+    progress(f"calibrating {rt.describe()}")
+    points = inversion_points(n, repeats=repeats, progress=progress,
+                              sweep=sweeps.get("sweep"), sweep_f64=sweeps.get("sweep_f64"))
+    points += blur_points(blur_size, repeats=repeats, progress=progress,
+                          sweep=sweeps.get("blur_sweep", BLUR_SWEEP))
+    path = write_choice(points, calibration_path(DeviceKey.of(rt.device)))
+    progress(f"wrote {path}: method='auto' on this device now decides from it")
+    return path
 
 
 def run_report(folder="report_out", *, n=1 << 20, blur_size=512, repeats=3, write_choice_to=None,

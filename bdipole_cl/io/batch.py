@@ -29,7 +29,7 @@ import OpenImageIO as oiio
 
 from ..device import Runtime, get_runtime
 from ..errors import InvalidInputError, check_policy
-from ..methods.choice import resolve_method
+from ..methods.choice import DeviceKey, device_auto_note, resolve_method
 from ..methods.registry import MethodConfig
 from ..ops.bands import band_rows
 from ..ops.invert import CoefficientMapper, check_mfp_kind
@@ -453,9 +453,10 @@ def process_textures(inputs, *, mfp=1.0, eta=1.4, output=DEFAULT_OUTPUT,
         inputs = [inputs]
     if alpha not in ("keep", "drop"):
         raise ValueError(f"alpha={alpha!r}: expected 'keep' or 'drop'")
-    config = resolve_method(method, double=double, **knobs)
+    key = DeviceKey.of(get_runtime(device).device) if method == "auto" else None
+    config = resolve_method(method, double=double, device_key=key, **knobs)
     if method == "auto" and progress:
-        print(f"method='auto': using {config.describe()}")
+        print(f"method='auto': using {config.describe()} ({device_auto_note(key)})")
     settings = BatchSettings(
         eta=tuple(np.atleast_1d(np.asarray(eta, np.float64)).tolist()),
         mfp=parse_constant(mfp, "mfp"), mfp_scale=float(mfp_scale), config=config,

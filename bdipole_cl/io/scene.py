@@ -38,7 +38,7 @@ import OpenImageIO as oiio
 
 from ..caches import ByteCache
 from ..device import get_runtime
-from ..methods.choice import resolve_method
+from ..methods.choice import DeviceKey, device_auto_note, resolve_method
 from ..methods.registry import MethodConfig
 from ..ops.invert import InversionKernel, invert_albedo
 from ..physics import reference as ref
@@ -294,7 +294,10 @@ def _plan_invert(m, path, udim, force, device, problems_all, max_memory):
     etas = m.eta if len(m.eta) > 1 else m.eta * len(names)
     if len(set(etas)) == 1:
         etas = etas[:1]
-    config = resolve_method(m.method, double=m.double, tol=m.tol)
+    key = DeviceKey.of(get_runtime(device).device)
+    config = resolve_method(m.method, double=m.double, tol=m.tol, device_key=key)
+    if m.method == "auto" and (m.double or rd_range is None):
+        job.computes.append(f"method auto from {device_auto_note(key)}")
     if m.method == "auto" and not m.double and rd_range is not None:
         size, err = table_for_range(etas, rd_range, m.tol, m.model, m.exact, device)
         config = MethodConfig("table", table_size=size)

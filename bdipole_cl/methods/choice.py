@@ -1,15 +1,24 @@
 """The measured choice data and ``method="auto"`` (pure data: no device, no operation).
 
-``bdipole-cl report --write-choice PATH`` measures every configuration on the current device
-and writes them, with structured fields, to a JSON file; the package ships one
-(``bdipole_cl/data/choice.json``), and ``BDIPOLE_CL_CHOICE_DATA`` names another to use instead.
-``auto`` picks the cheapest measured configuration whose measured error meets ``tol``.
+Choice data are measured on one device and keyed by it (``DeviceKey``: vendor, name, driver).
+``bdipole-cl report --calibrate`` measures the current device and stores its data in the
+user's cache (``calibration_path``: ``$BDIPOLE_CL_CACHE_DIR``, else
+``$XDG_CACHE_HOME/bdipole_cl``, else ``~/.cache/bdipole_cl``); ``bdipole-cl report
+--write-choice PATH`` writes them to any file. Which data decide (``choice_for``):
+``BDIPOLE_CL_CHOICE_DATA`` (a file named by the user) if set; else the calibration of the device
+in use if there is one; else the data shipped with the package (``bdipole_cl/data/choice.json``),
+with a one-line note (logger "bdipole_cl") when they were measured on another device.
+``ChoiceSource`` says which, for ``BlurInfo`` and scene plans. ``auto`` picks the cheapest
+measured configuration whose measured error meets ``tol``.
 """
 from __future__ import annotations
 
+import hashlib
 import json
 import logging
 import os
+import re
+import threading
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -19,6 +28,8 @@ from .registry import BlurChoice, InversionChoice, MethodConfig
 #: the data shipped with the package
 PACKAGED_CHOICE_DATA = Path(__file__).resolve().parent.parent / "data" / "choice.json"
 CHOICE_DATA_VARIABLE = "BDIPOLE_CL_CHOICE_DATA"
+#: the folder of this user's calibrations (overrides the XDG cache folder; tests set it)
+CACHE_DIR_VARIABLE = "BDIPOLE_CL_CACHE_DIR"
 #: rho accuracy that ``method="auto"`` aims for when no ``tol`` is given (the inversion's
 #: accuracy contract, docs/model.md "Accuracy")
 AUTO_DEFAULT_TOL = 1e-4
@@ -29,14 +40,111 @@ _DATA_CACHE = ByteCache("choice data", 1 << 20)
 
 
 @dataclass(frozen=True)
+class DeviceKey:
+    """The device choice data were measured on: OpenCL's vendor, device name and driver
+    version (a new driver is a new device here: its compiler decides the timings)."""
+
+    vendor: str
+    name: str
+    driver: str
+
+    @classmethod
+    def of(cls, device) -> "DeviceKey":
+        """The key of a pyopencl Device (or anything with vendor, name, driver_version)."""
+        return cls(device.vendor.strip(), device.name.strip(), device.driver_version.strip())
+
+    def describe(self) -> str:
+        return f"{self.name} ({self.vendor}, driver {self.driver})"
+
+    def slug(self) -> str:
+        """A file-name part: readable, and unique by a hash of the whole key."""
+        text = re.sub(r"[^a-z0-9]+", "-", f"{self.vendor} {self.name}".lower()).strip("-")
+        digest = hashlib.sha256("\0".join((self.vendor, self.name, self.driver)).encode())
+        return f"{text[:48]}-{digest.hexdigest()[:12]}"
+
+
+@dataclass(frozen=True)
 class ChoiceData:
     device: str
     inversion: tuple          # InversionChoice, in the file's order
     blur: tuple               # BlurChoice
+    device_key: DeviceKey | None = None     # None: not recorded (older files)
+
+
+@dataclass(frozen=True)
+class ChoiceSource:
+    """Which choice data decided, and why those."""
+
+    path: Path
+    kind: str                 # "calibrated" (this device), "named" (BDIPOLE_CL_CHOICE_DATA),
+    #                           "shipped" (the package's)
+    measured_on: str          # the data's device, as described when measured
+    this_device: bool         # measured on the device in use
+
+    def describe(self) -> str:
+        if self.kind == "calibrated":
+            return f"choice data calibrated on this device ({self.path})"
+        if self.kind == "named":
+            return f"choice data from {CHOICE_DATA_VARIABLE}={self.path} ({self.measured_on})"
+        where = "this device" if self.this_device else "another device"
+        return f"shipped choice data, measured on {where}: {self.measured_on}"
+
+
+def device_auto_note(device_key: DeviceKey | None) -> str:
+    """One line for plans: which choice data ``auto`` decides from on the device."""
+    return choice_for(device_key)[1].describe()
 
 
 def choice_data_path() -> Path:
     return Path(os.environ.get(CHOICE_DATA_VARIABLE) or PACKAGED_CHOICE_DATA)
+
+
+def calibration_dir() -> Path:
+    """This user's calibration folder: $BDIPOLE_CL_CACHE_DIR, $XDG_CACHE_HOME/bdipole_cl or
+    ~/.cache/bdipole_cl."""
+    named = os.environ.get(CACHE_DIR_VARIABLE)
+    if named:
+        return Path(named)
+    base = os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
+    return Path(base) / "bdipole_cl"
+
+
+def calibration_path(key: DeviceKey) -> Path:
+    """Where ``bdipole-cl report --calibrate`` stores the data of the device ``key``."""
+    return calibration_dir() / f"choice-{key.slug()}.json"
+
+
+_noted: set = set()
+_noted_lock = threading.Lock()
+
+
+def choice_for(key: DeviceKey | None = None) -> tuple:
+    """(ChoiceData, ChoiceSource) for the device ``key`` (None: unknown): the named file, else
+    this device's calibration (only if it is keyed by this very device), else the shipped
+    data, noted once per process and device when they were measured elsewhere."""
+    named = os.environ.get(CHOICE_DATA_VARIABLE)
+    if named:
+        data = load_choice_data(named)
+        return data, ChoiceSource(Path(named), "named", data.device,
+                                  key is not None and data.device_key == key)
+    if key is not None:
+        path = calibration_path(key)
+        if path.is_file():
+            data = load_choice_data(path)
+            if data.device_key == key:
+                return data, ChoiceSource(path, "calibrated", data.device, True)
+    data = load_choice_data(PACKAGED_CHOICE_DATA)
+    source = ChoiceSource(PACKAGED_CHOICE_DATA, "shipped", data.device,
+                          key is not None and data.device_key == key)
+    if key is not None and not source.this_device:
+        with _noted_lock:
+            first = key not in _noted
+            _noted.add(key)
+        if first:
+            logging.getLogger("bdipole_cl").warning(
+                "method='auto' on %s: choosing from data measured on %s; `bdipole-cl report "
+                "--calibrate` measures this device", key.describe(), data.device)
+    return data, source
 
 
 @_DATA_CACHE.memoize
@@ -49,7 +157,9 @@ def _load(path: str) -> ChoiceData:
                       for e in raw["inversion"])
     blur = tuple(BlurChoice(e["method"], float(e["tol"]), int(e["radius"]), float(e["mfp"]),
                             float(e["max_error"]), float(e["median_s"])) for e in raw["blur"])
-    return ChoiceData(raw.get("device", ""), inversion, blur)
+    key = raw.get("device_key")
+    return ChoiceData(raw.get("device", ""), inversion, blur,
+                      DeviceKey(**key) if key else None)
 
 
 def load_choice_data(path=None) -> ChoiceData:
@@ -59,7 +169,10 @@ def load_choice_data(path=None) -> ChoiceData:
 
 def write_choice_data(data: ChoiceData, path) -> Path:
     """Write ``data`` as JSON with structured fields (what ``load_choice_data`` reads)."""
+    key = data.device_key
     raw = {"device": data.device,
+           "device_key": None if key is None else {"vendor": key.vendor, "name": key.name,
+                                                   "driver": key.driver},
            "inversion": [{"config": c.config.fields(), "precision": c.precision,
                           "max_rho_error": c.max_rho_error, "median_s": c.median_s,
                           "monotone": c.monotone, "etas": list(c.etas)}
@@ -75,11 +188,12 @@ def write_choice_data(data: ChoiceData, path) -> Path:
     return path
 
 
-def auto_inversion_config(tol: float, double: bool = False,
-                          data: ChoiceData | None = None) -> InversionChoice:
+def auto_inversion_config(tol: float, double: bool = False, data: ChoiceData | None = None,
+                          device_key: DeviceKey | None = None) -> InversionChoice:
     """The cheapest measured monotone configuration of the precision whose max relative rho
-    error, over every eta the report measured (the valid range, end to end), is <= tol."""
-    data = data or load_choice_data()
+    error, over every eta the report measured (the valid range, end to end), is <= tol; from
+    ``data``, else the data ``choice_for(device_key)`` gives."""
+    data = data or choice_for(device_key)[0]
     precision = "f64" if double else "f32"
     pool = sorted((c for c in data.inversion if c.precision == precision and c.monotone),
                   key=lambda c: c.median_s)
@@ -96,34 +210,39 @@ def auto_inversion_config(tol: float, double: bool = False,
                      f"{best.max_rho_error:.2e}){hint}")
 
 
-def resolve_method(method="table", double=False, **knobs) -> MethodConfig:
+def resolve_method(method="table", double=False, device_key=None, **knobs) -> MethodConfig:
     """A MethodConfig from a method name and knobs (None knobs keep the defaults).
 
     ``method="auto"``: the cheapest monotone configuration of the precision (``double``) whose
-    measured max relative error of rho over eta is <= ``tol`` (default AUTO_DEFAULT_TOL); the
-    choice is logged (logger "bdipole_cl")."""
+    measured max relative error of rho over eta is <= ``tol`` (default AUTO_DEFAULT_TOL), in
+    the choice data of the device ``device_key`` (``choice_for``); the choice and the data
+    that decided are logged (logger "bdipole_cl")."""
     if isinstance(method, MethodConfig):
         return method
     if method == "auto":
         tol = knobs.get("tol") or AUTO_DEFAULT_TOL
-        choice = auto_inversion_config(tol, double)
+        data, source = choice_for(device_key)
+        choice = auto_inversion_config(tol, double, data)
         logging.getLogger("bdipole_cl").info(
-            "method='auto', tol=%g: picked %s (measured max rho error %.2e, %.2f ms in the "
-            "report run)", tol, choice.config.describe(double), choice.max_rho_error,
-            choice.median_s * 1e3)
+            "method='auto', tol=%g: picked %s (measured max rho error %.2e, %.2f ms; %s)",
+            tol, choice.config.describe(double), choice.max_rho_error, choice.median_s * 1e3,
+            source.describe())
         return choice.config
     return MethodConfig(method, **{k: v for k, v in knobs.items() if v is not None})
 
 
-def auto_blur_config(radius: int, tol: float, data: ChoiceData | None = None):
+def auto_blur_config(radius: int, tol: float, data: ChoiceData | None = None,
+                     methods=None):
     """The BlurChoice for ``blur(method="auto", tol=tol)`` on a kernel of ``radius`` texels:
-    the cheapest measured configuration, on the measured workload of the nearest radius (in
-    log(radius + 1)), whose measured max error is <= tol; None if none qualifies."""
+    the cheapest measured configuration (of ``methods``, default all), on the measured
+    workload of the nearest radius (in log(radius + 1)), whose measured max error is <= tol;
+    None if none qualifies."""
     import math
     data = data or load_choice_data()
-    if not data.blur:
+    blurs = [b for b in data.blur if methods is None or b.method in methods]
+    if not blurs:
         return None
-    radii = sorted({b.radius for b in data.blur})
+    radii = sorted({b.radius for b in blurs})
     near = min(radii, key=lambda r: abs(math.log((r + 1.0) / (radius + 1.0))))
-    ok = [b for b in data.blur if b.radius == near and b.max_error <= tol]
+    ok = [b for b in blurs if b.radius == near and b.max_error <= tol]
     return min(ok, key=lambda b: b.median_s) if ok else None

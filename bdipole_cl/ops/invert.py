@@ -7,8 +7,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..device import get_runtime
 from ..errors import check_policy, find_invalid
-from ..methods.choice import resolve_method
+from ..methods.choice import DeviceKey, resolve_method
 from ..methods.registry import MFP_KINDS, MethodConfig
 from .inversion_kernel import (CHECK_ALBEDO, CHECK_COEFFICIENTS, InversionKernel,
                                inversion_kernel, output_array)
@@ -89,15 +90,17 @@ def invert_albedo(rd, eta, method="table", *, return_rho=False, model="better", 
     (``bdipole_cl.device.transfer``). float32 input is tested for invalid values by the kernel
     itself as it reads them; the host looks for the first invalid value only when one was seen.
     """
-    config = resolve_method(method, double=double, iterations=iterations, tol=tol,
-                            table_size=table_size, polish=polish, seed_size=seed_size)
+    rt = get_runtime(device)
+    config = resolve_method(method, double=double, device_key=DeviceKey.of(rt.device),
+                            iterations=iterations, tol=tol, table_size=table_size,
+                            polish=polish, seed_size=seed_size)
     rd = np.asarray(rd)
     if rd.dtype.kind != "f":
         rd = rd.astype(np.float64)
     etas = channel_etas(eta, rd.shape)
     check_policy(on_invalid)
     kernel = inversion_kernel(etas, config, exact=exact, model=model, double=double,
-                              runtime=device)
+                              runtime=rt)
     in_kernel = kernel.checks_inputs(rd)
     if not in_kernel:
         rd = _checked_albedo(rd, on_invalid)
@@ -286,13 +289,14 @@ def albedo_to_coefficients(rd, mfp, eta, method="table", *, model="better", exac
     ``device``: where to run, as for ``invert_albedo``. ``out``: arrays to write the outputs
     into, one per output in order (as ``invert_albedo``'s ``out``); returned.
     """
-    config = resolve_method(method, double=double, **knobs)
+    rt = get_runtime(device)
+    config = resolve_method(method, double=double, device_key=DeviceKey.of(rt.device), **knobs)
     rd, mfp = np.broadcast_arrays(np.asarray(rd), np.asarray(mfp))
     rd = rd.astype(np.float64) if rd.dtype.kind != "f" else rd
     mfp = mfp.astype(np.float64) if mfp.dtype.kind != "f" else mfp
     etas = channel_etas(eta, rd.shape)
     mapper = CoefficientMapper(etas, config, outputs=outputs, model=model, exact=exact,
-                               double=double, on_invalid=on_invalid, device=device,
+                               double=double, on_invalid=on_invalid, device=rt,
                                mfp_kind=mfp_kind)
     if out is not None:
         out = dict(zip(outputs, (out,) if isinstance(out, np.ndarray) else tuple(out)))

@@ -86,7 +86,8 @@ def blur(irradiance, *, albedo=None, mfp=None, eta=1.4, texel_size=1.0, alpha=No
                                   max_memory=max_memory, rt=rt, on_invalid=on_invalid,
                                   **physical)
         return (out, info) if return_info else out
-    params, plans = channel_plans(e.shape[2], method=method, tol=tol, exact=exact, **physical)
+    params, plans = channel_plans(e.shape[2], method=method, tol=tol, exact=exact, device=rt,
+                                  **physical)
     h, w, nch = e.shape
     k = halo_of(plans)
     rows = band_rows(h, constant_row_bytes(w, nch), max_memory, halo=k)

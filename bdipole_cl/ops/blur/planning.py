@@ -8,7 +8,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ...methods.choice import AUTO_DIRECT_MAX_RADIUS, auto_blur_config
+from ...device import get_runtime
+from ...device.runtime import device_kind
+from ...methods.choice import (AUTO_DIRECT_MAX_RADIUS, ChoiceData, DeviceKey, auto_blur_config,
+                               choice_for)
 from ...signals import check_stop
 from .dispatch import DeviceBlur
 from .fft import fft_blur_channel
@@ -31,6 +34,26 @@ class AutoPick:
     measured_error: float | None = None
     measured_ms: float | None = None
     workload_radius: int | None = None
+    data: str = ""                     # which choice data decided (ChoiceSource.describe)
+
+
+@dataclass(frozen=True)
+class AutoData:
+    """The choice data ``auto`` decides from on one device, and the methods it may pick: on
+    a device that is not a CPU, data measured elsewhere (a CPU's) say nothing of its speed,
+    so ``auto`` keeps to the methods that run on it (not the host FFT)."""
+
+    data: ChoiceData
+    source: str
+    methods: tuple | None              # None: every measured method
+
+
+def auto_data(rt=None) -> AutoData:
+    """The AutoData of ``rt``'s device (None: the default device)."""
+    rt = get_runtime(rt)
+    data, source = choice_for(DeviceKey.of(rt.device))
+    foreign = not source.this_device and device_kind(rt.device) != "cpu"
+    return AutoData(data, source.describe(), ("direct", "gaussians") if foreign else None)
 
 
 @dataclass(frozen=True)
@@ -72,32 +95,37 @@ def constant_row_bytes(width: int, nchan: int) -> int:
     return width * nchan * 4 * 8
 
 
-def auto_choice(ck, alpha, sigma_t, eta, tol, exact) -> ChannelPlan:
+def auto_choice(ck, alpha, sigma_t, eta, tol, exact, auto: AutoData) -> ChannelPlan:
     """``method="auto"``: the cheapest configuration measured by ``bdipole-cl report`` whose
-    max error (relative to max(E) * Rd) is <= tol, on the workload of the nearest radius; without
-    data, ``direct`` up to AUTO_DIRECT_MAX_RADIUS and ``fft`` above, at truncation tol."""
-    choice = auto_blur_config(ck.radius, tol)
+    max error (relative to max(E) * Rd) is <= tol, on the workload of the nearest radius, in
+    ``auto``'s data and methods; without data, ``direct`` up to AUTO_DIRECT_MAX_RADIUS (or
+    always, where the host FFT is not allowed) and ``fft`` above, at truncation tol."""
+    choice = auto_blur_config(ck.radius, tol, auto.data, auto.methods)
     if choice is None:
-        method = "direct" if ck.radius <= AUTO_DIRECT_MAX_RADIUS else "fft"
-        return ChannelPlan(method, ck, AutoPick("radius", tol))
+        host_fft = auto.methods is None or "fft" in auto.methods
+        method = "direct" if ck.radius <= AUTO_DIRECT_MAX_RADIUS or not host_fft else "fft"
+        return ChannelPlan(method, ck, AutoPick("radius", tol, data=auto.source))
     if choice.tol != tol:
         ck = channel_kernel(alpha, sigma_t, eta, choice.tol, exact)
     return ChannelPlan(choice.method, ck, AutoPick("measured", choice.tol, choice.max_error,
-                                                   choice.median_s * 1e3, choice.radius))
+                                                   choice.median_s * 1e3, choice.radius,
+                                                   auto.source))
 
 
-def plan_channel(method, alpha, sigma_t, eta, tol, exact) -> ChannelPlan:
+def plan_channel(method, alpha, sigma_t, eta, tol, exact, auto: AutoData | None = None):
+    """One channel's ChannelPlan; ``auto`` (for method "auto"; None: the default device's)."""
     ck = channel_kernel(alpha, sigma_t, eta, tol, exact)
     if method == "auto":
-        return auto_choice(ck, alpha, sigma_t, eta, tol, exact)
+        return auto_choice(ck, alpha, sigma_t, eta, tol, exact, auto or auto_data())
     return ChannelPlan(method, ck)
 
 
-def channel_plans(nchan, *, method, tol, exact, **physical):
+def channel_plans(nchan, *, method, tol, exact, device=None, **physical):
     """Per-channel parameters and ChannelPlans: the one place that decides each channel's
-    kernel, and so the halo of banded blurs."""
+    kernel, and so the halo of banded blurs. ``device``: the one ``auto`` decides for."""
     params = channel_parameters(nchan, exact=exact, **physical)
-    return params, [plan_channel(method, a, st, et, tol, exact) for a, st, et in params]
+    auto = auto_data(device) if method == "auto" else None
+    return params, [plan_channel(method, a, st, et, tol, exact, auto) for a, st, et in params]
 
 
 def halo_of(plans) -> int:

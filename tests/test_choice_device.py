@@ -1,0 +1,98 @@
+"""``auto`` decides from the choice data of the device in use (bdipole_cl/methods/choice.py):
+a calibration of this device when there is one, never another device's, else the shipped
+data with a note; ``bdipole-cl report --calibrate`` writes what ``auto`` then reads."""
+import logging
+from types import SimpleNamespace
+
+import numpy as np
+import pyopencl as cl
+import pytest
+
+from bdipole_cl import blur, invert_albedo
+from bdipole_cl.apps.report import calibrate
+from bdipole_cl.device import Runtime
+from bdipole_cl.methods import choice
+from bdipole_cl.methods.choice import ChoiceData, DeviceKey, calibration_path, write_choice_data
+from bdipole_cl.methods.registry import BlurChoice, InversionChoice, MethodConfig
+from bdipole_cl.ops.blur.planning import auto_data
+
+
+@pytest.fixture
+def cache_dir(tmp_path, monkeypatch):
+    """An empty calibration folder of this test's own, and no named choice data."""
+    monkeypatch.setenv(choice.CACHE_DIR_VARIABLE, str(tmp_path / "cache"))
+    monkeypatch.delenv(choice.CHOICE_DATA_VARIABLE, raising=False)
+    monkeypatch.setattr(choice, "_noted", set())
+    return tmp_path / "cache"
+
+
+def foreign_data(key):
+    """Data that, if used, would make auto pick table(size=8) and blur with gaussians."""
+    inv = (InversionChoice(MethodConfig("table", table_size=8, polish=0), "f32", 1e-9, 1e-9,
+                           True, (1.4,)),)
+    return ChoiceData("some GPU", inv, (BlurChoice("gaussians", 1e-3, 4, 1.0, 1e-9, 1e-9),), key)
+
+
+def test_calibration_path_follows_xdg(monkeypatch, tmp_path):
+    monkeypatch.delenv(choice.CACHE_DIR_VARIABLE, raising=False)
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
+    key = DeviceKey("Vendor", "Dev 1", "3.0")
+    path = calibration_path(key)
+    assert path.parent == tmp_path / "bdipole_cl" and path.name.startswith("choice-vendor-dev-1")
+    assert calibration_path(DeviceKey("Vendor", "Dev 1", "3.1")) != path    # a new driver
+
+
+def test_data_for_another_device_are_not_used(on_device, cache_dir, caplog):
+    """Another device's calibration, even stored under this device's file name, is not used
+    here: auto falls back to the shipped data and says so, once."""
+    here = DeviceKey.of(on_device.device)
+    other = DeviceKey("Other Vendor", "Some GPU", "1.0")
+    write_choice_data(foreign_data(other), calibration_path(other))
+    write_choice_data(foreign_data(other), calibration_path(here))     # wrong key inside
+    with caplog.at_level(logging.INFO, logger="bdipole_cl"):
+        data, source = choice.choice_for(here)
+        choice.choice_for(here)
+        invert_albedo(np.float32([0.5]), 1.4, "auto")
+    assert source.kind == "shipped" and not source.this_device, source
+    assert data.device != "some GPU"
+    notes = [r for r in caplog.records if "measured on" in r.getMessage()
+             and r.levelno == logging.WARNING]
+    assert len(notes) == 1 and "--calibrate" in notes[0].getMessage()
+    assert "table(size=8" not in caplog.text
+    _, info = blur(np.ones((8, 8, 1), np.float32), albedo=0.8, mfp=1.0, return_info=True)
+    assert info.channels[0].auto.data.startswith("shipped choice data"), info
+    assert info.channels[0].method != "gaussians"
+
+
+def test_short_calibration_is_what_auto_then_reads(on_device, cache_dir, caplog):
+    """A (short) calibration writes this device's data to the cache; invert_albedo's and
+    blur's auto then decide from it and say so."""
+    path = calibrate(n=4096, blur_size=24, repeats=1, progress=lambda *a: None,
+                     sweep=[MethodConfig("table", table_size=64)], sweep_f64=[],
+                     blur_sweep=[("direct", 1e-4)])
+    here = DeviceKey.of(on_device.device)
+    assert path == calibration_path(here) and path.is_file()
+    data, source = choice.choice_for(here)
+    assert source.kind == "calibrated" and data.device_key == here
+    assert [c.config.table_size for c in data.inversion] == [64]
+    with caplog.at_level(logging.INFO, logger="bdipole_cl"):
+        invert_albedo(np.float32([0.5]), 1.4, "auto")
+    assert "table(size=64" in caplog.text and "calibrated on this device" in caplog.text
+    _, info = blur(np.ones((8, 8, 1), np.float32), albedo=0.8, mfp=0.5, return_info=True)
+    pick = info.channels[0]
+    assert pick.method == "direct" and pick.auto.truncation_tol == 1e-4, pick
+    assert pick.auto.data.startswith("choice data calibrated on this device"), pick
+
+
+def test_auto_blurs_on_a_gpu_without_its_own_data(cache_dir):
+    """On a device that is not a CPU, the shipped (CPU) data's timings say nothing: auto keeps
+    to the methods that run on the device, never the host FFT."""
+    gpu = SimpleNamespace(vendor="Vendor", name="GPU", driver_version="1", type=cl.device_type.GPU)
+    rt = Runtime(context=None, queue=SimpleNamespace(device=gpu))
+    auto = auto_data(rt)
+    assert auto.methods == ("direct", "gaussians") and "fft" not in auto.methods
+    assert auto.source.startswith("shipped choice data, measured on another device")
+    from bdipole_cl.ops.blur.planning import plan_channel
+    from bdipole_cl.ops.blur.params import channel_parameters
+    (a, st, eta), = channel_parameters(1, albedo=0.8, mfp=16.0, eta=1.4)
+    assert plan_channel("auto", a, st, eta, 1e-3, False, auto).method != "fft"

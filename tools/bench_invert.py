@@ -8,8 +8,9 @@ inverse of the float32 input (its first --check values), the speed ratio against
 copy kernel's throughput (the memory-bound floor; the inversion moves 3 arrays per texel, the
 copy 2, so a 1-read-2-write kernel's own floor is 2/3 of a copy).
 
-Then, on the same host arrays: ``invert_albedo(rd, eta, return_rho=True)`` host to host (NumPy
-in, NumPy out: what a user holding the arrays in memory sees), and NumPy's own
+Then, on the same host arrays: ``invert_albedo(rd, eta, return_rho=True)`` and
+``albedo_to_coefficients(rd, 2.0, eta)`` (sigma_a, sigma_s') host to host (NumPy in, NumPy
+out: what a user holding the arrays in memory sees), and NumPy's own
 1-read-2-write pass over them (``alpha = np.sqrt(rd); rho = 1 - alpha``, fresh outputs as
 ``invert_albedo`` returns), the peer every host path is compared with.
 
@@ -23,7 +24,7 @@ import time
 
 import numpy as np
 
-from bdipole_cl import get_runtime, invert_albedo, use_device
+from bdipole_cl import albedo_to_coefficients, get_runtime, invert_albedo, use_device
 from bdipole_cl.apps.benchmark import (inversion_workload, reference_inverse, time_copy,
                                        time_inversion)
 from bdipole_cl.methods.registry import MethodConfig
@@ -103,10 +104,14 @@ def main(argv=None):
           f"{copy_s * 1e3:9.2f}")
     host_s = best_time(lambda: invert_albedo(rd, args.eta, return_rho=True, device=rt),
                        args.repeats)
+    coeff_s = best_time(lambda: albedo_to_coefficients(rd, 2.0, args.eta, device=rt),
+                        args.repeats)
     numpy_s = best_time(lambda: numpy_pass(rd), args.repeats)
     print(f"\nhost to host, same {args.n} float32 albedos:")
     print(f"{'invert_albedo(return_rho=True)':34s} {'f32':5s} {args.n / host_s / 1e6:9.2f} "
           f"{host_s * 1e3:9.2f}   {100 * numpy_s / host_s:.0f}% of NumPy's pass")
+    print(f"{'albedo_to_coefficients(mfp=2)':34s} {'f32':5s} {args.n / coeff_s / 1e6:9.2f} "
+          f"{coeff_s * 1e3:9.2f}   {100 * numpy_s / coeff_s:.0f}% of NumPy's pass")
     print(f"{'NumPy 1-read-2-write pass':34s} {'f32':5s} {args.n / numpy_s / 1e6:9.2f} "
           f"{numpy_s * 1e3:9.2f}")
     return 0

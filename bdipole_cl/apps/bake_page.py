@@ -19,6 +19,10 @@ class BakePreview:
     page: str                        # the bake's page (PNG)
     materials: tuple                 # the materials on it, in order
 
+    def describe(self) -> str:
+        return (f"previews: {len(self.sheets)} contact sheet(s) beside the outputs "
+                f"(*.preview.png); the bake's page: {self.page}")
+
 
 def sheet_path(output) -> Path:
     """Where a job's contact sheet goes: beside its output, ``out.1001.exr`` ->

@@ -11,8 +11,8 @@ from ..errors import POLICIES
 from ..signals import SignalStop
 from ..version import __version__
 from .cli_globals import add_global_args, colorspace_arg
-from .cli_types import (Parser, floats, fraction, output_list, positive_float, positive_int,
-                        size)
+from .cli_types import (Parser, add_texture_arg, floats, fraction, output_list, positive_float,
+                        positive_int, size)
 
 DESCRIPTION = """\
 Better Dipole subsurface scattering (d'Eon 2012) with Hery's albedo inversion, on OpenCL:
@@ -264,9 +264,7 @@ def _cmd_bake(args) -> int:
     code = _finish(report, stop)
     if args.preview and not stop.exit_code:
         from .bake_page import bake_preview
-        pictures = bake_preview(plan, report)
-        print(f"previews: {len(pictures.sheets)} contact sheet(s) beside the outputs "
-              f"(*.preview.png); the bake's page: {pictures.page}")
+        print(bake_preview(plan, report).describe())
     return code
 
 
@@ -313,12 +311,6 @@ def _add_scheduler_args(p):
                         "local:N starts N worker processes here (needs bdipole-cl[dask])")
     p.add_argument("--worker-memory", type=size, metavar="SIZE",
                    help="with --scheduler local:N, each worker's memory limit (e.g. 1G)")
-
-
-def _add_texture_arg(p):
-    p.add_argument("--texture", action="store_true",
-                   help="write renderer-ready textures: tiled 64x64, mip-mapped EXRs (as maketx "
-                        "makes; a .tx/TIFF output is refused: it drops channel names)")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -423,7 +415,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="colour space of the irradiance and an albedo texture (auto: as "
                         "declared, else as for invert); mfp is never converted")
     p.add_argument("--half", action="store_true", help="write half floats")
-    _add_texture_arg(p)
+    add_texture_arg(p)
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--max-memory", type=size, default="256M",
                    help="host memory for bands of rows (each with a halo of the radius)")
@@ -452,7 +444,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="output path pattern: {dir} {stem} {name} {udim} and a tile token "
                         "(may differ from the input's: tiles are converted)")
     p.add_argument("--half", action="store_true", help="write half floats")
-    _add_texture_arg(p)
+    add_texture_arg(p)
     p.add_argument("--colorspace", default="auto", type=colorspace_arg,
                    help="colour space of the albedo files (auto: as each declares, else sRGB "
                         "for 8-bit, the working space for 16-bit/float); mfp never converted")

@@ -16,7 +16,11 @@ from bdipole_cl.io import images  # noqa: F401  (patched below)
 from bdipole_cl.io.batch import process_textures
 from bdipole_cl.io.images import TextureError, Writer, output_spec
 from bdipole_cl.io.mipmaps import TEXTURE_REWRITES, mip_levels
+from bdipole_cl.io.colour import resolve_working_space
 from bdipole_cl.io.scene import load
+
+#: the default working space (the outputs' colour tags)
+WORKING = resolve_working_space()
 
 #: every test here runs once per working OpenCL device (tests/conftest.py)
 pytestmark = pytest.mark.usefixtures("on_device")
@@ -75,7 +79,7 @@ def test_a_data_window_is_filled_to_the_display_window_exactly(tmp_path):
     spec.x, spec.y, spec.full_width, spec.full_height = 5, 7, 50, 40
     spec.channelnames = ("sigma_a.R", "sigma_a.G", "sigma_a.B")
     px = np.random.default_rng(1).uniform(0.1, 9.0, (30, 40, 3)).astype(np.float32)
-    w = Writer(tmp_path / "win.exr", output_spec(spec, spec.channelnames, -1, False, {}),
+    w = Writer(tmp_path / "win.exr", output_spec(spec, spec.channelnames, -1, False, {}, working=WORKING),
                texture=True)
     w.write_band(0, 30, px)
     w.commit()
@@ -101,7 +105,7 @@ def test_a_texture_that_does_not_verify_is_not_written(tmp_path, monkeypatch):
     monkeypatch.setattr(images.oiio.ImageBufAlgo, "make_texture", corrupt)
     spec = oiio.ImageSpec(20, 10, 3, "float")
     spec.channelnames = ("R", "G", "B")
-    w = Writer(tmp_path / "bad.exr", output_spec(spec, spec.channelnames, -1, False, {}),
+    w = Writer(tmp_path / "bad.exr", output_spec(spec, spec.channelnames, -1, False, {}, working=WORKING),
                texture=True)
     w.write_band(0, 10, np.full((10, 20, 3), 0.5, np.float32))
     with pytest.raises(TextureError, match="level 0 differs"):

@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from ..io.batch import companion_path, expand_inputs
+from ..io.colour import resolve_working_space
 from ..io.images import read_parameter_texture
 from ..io.scene import load, read_albedo
 from ..ops.blur.weights import truncation_radius
@@ -215,7 +216,8 @@ def material_specs(scene, name):
         if not Path(path).is_file():
             continue
         mask_path = companion_path(m.mask, path, tile) if m.mask not in (None, "alpha") else None
-        px, keep, names, *_ = read_albedo(path, m.mask, mask_path, m.colorspace)
+        px, keep, names, *_ = read_albedo(path, m.mask, mask_path, m.colorspace,
+                                          resolve_working_space(m.working_space))
         keep = np.ones(px.shape[:2], bool) if keep is None else keep
         albedos.append(px[keep])
         if isinstance(m.mfp, str):

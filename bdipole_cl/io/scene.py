@@ -47,6 +47,7 @@ from ..ops.bands import band_rows
 from .batch import (BatchReport, BatchSettings, FileResult, Job, companion_path, expand_inputs,
                     process_file)
 from .blur_file import blur_file
+from .collisions import Claim, collisions
 from .colour import WorkingSpace, resolve_working_space
 from .freshness import header_fields, is_up_to_date, params_digest
 from .images import (Reader, TextureError, check_same_window, classify_channels,

@@ -244,6 +244,7 @@ def _blur_band(path, band_path, y0, y1, halo, colorspace, working, kwargs, devic
 
 def blur_file_on_cluster(path, output, client, *, colorspace="auto", working_space=None,
                          half=False, max_memory=256 << 20, device=None, progress=True,
+                         texture=False,
                          **kwargs):
     """``blur_file`` with its bands as tasks: each worker reads its rows and the halo of the
     truncation radius from ``path``, blurs them within ``max_memory`` bytes, and writes them
@@ -296,7 +297,7 @@ def blur_file_on_cluster(path, output, client, *, colorspace="auto", working_spa
         meta.update(route.header("irradiance"))
         writer = Writer(output, output_spec(spec, names, len(names) - 1 if alpha >= 0 else -1,
                                             half, meta, working=route.working),
-                                     kwargs.get("on_invalid", "raise"))
+                                     kwargs.get("on_invalid", "raise"), texture=texture)
         try:
             for (k, y0, y1) in sorted(done):       # one band in memory at a time
                 r = Reader(done[(k, y0, y1)], "band")

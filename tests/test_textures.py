@@ -114,7 +114,7 @@ def test_udim_set_with_mfp_textures_tiling_and_half(tmp_path):
         write_image(tmp_path / f"diffuse.{udim}.exr", albedo_image(3, seed=k), "float",
                     ("R", "G", "B"), tile=8)
         write_exr(tmp_path / f"mfp.{udim}.exr", np.full((H, W, 1), 0.5 + k, np.float32), ("Y",))
-    assert [u for _, u in expand_inputs([str(tmp_path / "diffuse.<UDIM>.exr")])] == ["1001", "1002"]
+    assert [t.label for _, t in expand_inputs([str(tmp_path / "diffuse.<UDIM>.exr")])] == ["1001", "1002"]
     rc = cli_main(["invert", str(tmp_path / "diffuse.<UDIM>.exr"),
                    "--mfp", str(tmp_path / "mfp.<UDIM>.exr"),
                    "-o", str(tmp_path / "out" / "coeffs.<UDIM>.exr"),

@@ -11,8 +11,8 @@ from ..errors import POLICIES
 from ..signals import SignalStop
 from ..version import __version__
 from .cli_globals import add_global_args, colorspace_arg
-from .cli_types import (Parser, floats, fraction, output_list, positive_float, positive_int,
-                        size)
+from .cli_types import (Parser, add_texture_arg, floats, fraction, output_list, positive_float,
+                        positive_int, size)
 
 DESCRIPTION = """\
 Better Dipole subsurface scattering (d'Eon 2012) with Hery's albedo inversion, on OpenCL:
@@ -27,6 +27,7 @@ EPILOG = """examples:
   bdipole-cl bake scene.toml                        # run it (only what changed)
   bdipole-cl devices
   bdipole-cl invert diffuse.<UDIM>.exr --mfp mfp.<UDIM>.exr --eta 1.4 -o out/{stem}_coeffs.exr
+  bdipole-cl invert skin_<UVTILE>.exr --mfp 1.2,0.6,0.3 --texture -o out/skin.<UDIM>.exr
   bdipole-cl invert 'textures/*.tif' --mfp 1.2,0.6,0.3 --unit mm --half --jobs 2
   bdipole-cl --working-space ACEScg invert albedo.png --mfp 1.2,0.6,0.3   # README: Colour
   bdipole-cl crosscheck                             # every kernel vs the float64 reference
@@ -96,7 +97,7 @@ def _invert(args, run_files) -> int:
         jobs=args.jobs, skip_existing=args.skip_existing, unit=args.unit, double=args.double,
         mfp_scale=args.mfp_scale, mfp_kind=args.mfp_kind,
         progress=not args.no_progress and run_files is None,
-        run_files=run_files, **_method_knobs(args))
+        run_files=run_files, texture=args.texture, **_method_knobs(args))
     return _finish(report, stop)
 
 
@@ -147,13 +148,15 @@ def _cmd_blur(args) -> int:
             from ..dask import blur_file_on_cluster
             with _cluster(args) as client:
                 n = blur_file_on_cluster(args.input, args.output, client, half=args.half,
-                                         max_memory=args.max_memory, device=args.device, **kw)
+                                         max_memory=args.max_memory, device=args.device,
+                                         texture=args.texture, **kw)
             print(f"{n} bands blurred on the cluster; wrote {args.output}")
             return 0
         with _texel_bar(args.input, "blur", not args.no_progress) as bar:
             t0 = time.perf_counter()
             info = blur_file(args.input, args.output, half=args.half, sources=sources,
-                             max_memory=args.max_memory, cancel=stop.event, progress=bar, **kw)
+                             max_memory=args.max_memory, cancel=stop.event, progress=bar,
+                             texture=args.texture, **kw)
             seconds = time.perf_counter() - t0
     except Cancelled as exc:
         print(f"bdipole-cl {args.command}: error: {exc}", file=sys.stderr)
@@ -258,7 +261,11 @@ def _cmd_bake(args) -> int:
         finally:
             if bar is not None:
                 bar.close()
-    return _finish(report, stop)
+    code = _finish(report, stop)
+    if args.preview and not stop.exit_code:
+        from .bake_page import bake_preview
+        print(bake_preview(plan, report).describe())
+    return code
 
 
 def _cmd_report(args) -> int:
@@ -359,10 +366,17 @@ def build_parser() -> argparse.ArgumentParser:
                                       "MaterialX document (.mtlx)")
     p.add_argument("--force", action="store_true", help="rebuild every output")
     p.add_argument("--no-progress", action="store_true", help="no progress bar and job lines")
+    p.add_argument("--preview", action="store_true",
+                   help="a contact sheet beside each output (.preview.png) and one page for the "
+                        "bake (scene.preview.png): every material's thumbnails and profile")
     p.add_argument("--max-memory", type=size, default="256M",
                    help="host memory per job for bands of rows (e.g. 512M)")
     _add_scheduler_args(p)
     p.set_defaults(func=_cmd_bake)
+
+    from . import preview, profile
+    preview.add_command(command)
+    profile.add_command(command)
 
     p = command("report", help="error against run time for every method (md, csv, png)")
     p.add_argument("-o", "--output", default="report_out", help="folder for the report")
@@ -408,6 +422,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="colour space of the irradiance and an albedo texture (auto: as "
                         "declared, else as for invert); mfp is never converted")
     p.add_argument("--half", action="store_true", help="write half floats")
+    add_texture_arg(p)
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--max-memory", type=size, default="256M",
                    help="host memory for bands of rows (each with a halo of the radius)")
@@ -416,7 +431,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = command(
         "invert", help="albedo (+ mfp) textures -> scattering-coefficient EXRs", epilog=EPILOG)
-    p.add_argument("inputs", nargs="+", help="albedo files, globs or <UDIM> patterns")
+    p.add_argument("inputs", nargs="+",
+                   help="albedo files, globs or tile patterns: <UDIM>, %%(UDIM)d (1001...), "
+                        "<UVTILE>, %%(UVTILE)d (u1_v1, 1-based), <UVTILE0> (u0_v0, 0-based)")
     p.add_argument("--mfp", default="1",
                    help="mean free path ld = 1/mu_tr: constant(s) 'v' or 'r,g,b', or a texture "
                         "path/pattern ({stem}, {dir}, <UDIM>)")
@@ -431,8 +448,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--outputs", type=output_list, default="sigma_a,sigma_s",
                    help="comma list from alpha, rho, sigma_a, sigma_s, sigma_t")
     p.add_argument("-o", "--output", default="{dir}/{stem}.bdipole.exr",
-                   help="output path pattern: {dir} {stem} {name} {udim} <UDIM>")
+                   help="output path pattern: {dir} {stem} {name} {udim} and a tile token "
+                        "(may differ from the input's: tiles are converted)")
     p.add_argument("--half", action="store_true", help="write half floats")
+    add_texture_arg(p)
     p.add_argument("--colorspace", default="auto", type=colorspace_arg,
                    help="colour space of the albedo files (auto: as each declares, else sRGB "
                         "for 8-bit, the working space for 16-bit/float); mfp never converted")
@@ -474,7 +493,8 @@ def main(argv=None) -> int:
         if args.debug:
             raise
         usage = isinstance(exc, ValueError) and not isinstance(exc, TextureError)
-        expected = isinstance(exc, (ValueError, DeviceError, TextureError, OSError))
+        expected = isinstance(exc, (ValueError, DeviceError, TextureError, OSError,
+                                    ImportError))
         kind = "" if expected else f"{type(exc).__name__}: "
         hint = "" if expected else " (an unexpected error: rerun with --debug for the traceback)"
         text = " ".join(str(exc).split()) if not isinstance(exc, DeviceError) else str(exc)

@@ -86,3 +86,10 @@ def output_list(text):
         raise argparse.ArgumentTypeError(f"{text!r}: {', '.join(unknown) or 'empty'} not "
                                          f"allowed; choose from {', '.join(OUTPUTS)}")
     return names
+
+
+def add_texture_arg(p):
+    """``--texture`` of the commands that write images (invert, blur)."""
+    p.add_argument("--texture", action="store_true",
+                   help="write renderer-ready textures: tiled 64x64, mip-mapped EXRs (as maketx "
+                        "makes; a .tx/TIFF output is refused: it drops channel names)")

@@ -15,9 +15,7 @@ attributes.
 """
 from __future__ import annotations
 
-import glob
 import os
-import re
 import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
@@ -34,94 +32,24 @@ from ..methods.registry import MethodConfig
 from ..ops.bands import band_rows
 from ..ops.invert import CoefficientMapper, check_mfp_kind
 from ..version import __version__
+from . import tiles
 from .collisions import Claim, collisions
 from .colour import WorkingSpace, check_colorspace, resolve_working_space
 from .images import (Cancelled, Reader, TextureError, Writer, check_output_format,
                      check_same_window, classify_channels, invalid_texels, is_regular_file,
                      output_spec)
+from .mipmaps import TextureOptions, texture_options
+from .patterns import companion_path, expand_inputs, stem, written_by_us  # noqa: F401
 from .verify import is_complete
 
 
-UDIM_TOKEN = "<UDIM>"
-
-
 DEFAULT_OUTPUT = "{dir}/{stem}.bdipole.exr"
-
-
-def written_by_us(path) -> bool:
-    """An EXR whose header says bdipole-cl wrote it (``bdipole:version``): one of this tool's
-    own outputs, never picked up again by a glob."""
-    if not str(path).lower().endswith(".exr") or not is_regular_file(path):
-        return False
-    inp = oiio.ImageInput.open(str(path))
-    if inp is None:
-        return False
-    try:
-        return bool(inp.spec().getattribute("bdipole:version"))
-    finally:
-        inp.close()
-
-
-def expand_inputs(patterns):
-    """Files named by paths, globs (``textures/*.tif``) or UDIM patterns (``a.<UDIM>.exr``),
-    as ``(path, udim or None)``, in order, without duplicates. A pattern matching nothing is
-    kept as a path, so that it is reported as missing rather than silently skipped. A path
-    that exists is taken as it is (``tex[v2]/a.exr`` is a file name, not a glob); the files a
-    pattern matches leave out this tool's own outputs (``written_by_us``)."""
-    out, seen = [], set()
-    for pattern in patterns:
-        pattern = str(pattern)
-        if os.path.exists(pattern):
-            found = [(pattern, None)]
-        elif UDIM_TOKEN in pattern:
-            rx = re.compile(re.escape(pattern).replace(re.escape(UDIM_TOKEN), r"(\d{4})") + "$")
-            hits = sorted(glob.glob(glob.escape(pattern).replace(
-                glob.escape(UDIM_TOKEN), "[1-9][0-9][0-9][0-9]")))
-            found = [(h, rx.search(h).group(1)) for h in hits
-                     if rx.search(h) and not written_by_us(h)]
-        elif glob.has_magic(pattern):
-            found = [(h, None) for h in sorted(glob.glob(pattern)) if not written_by_us(h)]
-        else:
-            found = [(pattern, None)]
-        if not found:
-            found = [(pattern, None)]
-        for path, udim in found:
-            if path not in seen:
-                seen.add(path)
-                out.append((path, udim))
-    return out
-
-
-def stem(path):
-    """The file name without its extension: ``diffuse.1001.exr`` -> ``diffuse.1001``, so that
-    the tiles of a UDIM set keep distinct names."""
-    name = Path(path).name
-    return name.rsplit(".", 1)[0] if "." in name else name
 
 
 def job_claims(jobs):
     """The ``collisions.Claim`` of each job: its output and its albedo, mfp and mask."""
     return [Claim(j.path, j.output, {"albedo": j.path, "mfp": j.mfp_path, "mask": j.mask_path})
             for j in jobs]
-
-
-#: the fields of an output or companion pattern; any other text in braces is literal
-PATTERN_FIELDS = ("stem", "dir", "name", "udim")
-_FIELD = re.compile(r"\{(" + "|".join(PATTERN_FIELDS) + r")\}")
-
-
-def companion_path(pattern, path, udim):
-    """Fill ``{stem}``, ``{dir}``, ``{name}``, ``{udim}`` and ``<UDIM>`` for one input file;
-    other braces are part of the name (``proj{v2}/``). A UDIM token with an input that has no
-    UDIM is a TextureError (it would write ``s..exr``)."""
-    p = Path(path)
-    fields = {"stem": stem(path), "dir": str(p.parent), "name": p.name, "udim": udim}
-    text = str(pattern)
-    if udim is None and (UDIM_TOKEN in text or "{udim}" in text):
-        raise TextureError(f"{path}: pattern {pattern!r} needs a UDIM but the input has none "
-                           f"(a UDIM input is named with <UDIM>, e.g. a.<UDIM>.exr)")
-    text = text.replace(UDIM_TOKEN, udim or "")
-    return _FIELD.sub(lambda m: fields[m.group(1)], text)
 
 
 @dataclass
@@ -202,7 +130,7 @@ def per_channel(values, ncolor, what, path):
 @dataclass
 class Job:
     path: str
-    udim: str | None
+    udim: str | None                      # the tile's label (tiles.Tile.label), or None
     output: str
     mfp_path: str | None
     mask_path: str | None = None          # settings.mask == "texture": this file's mask
@@ -234,6 +162,7 @@ class BatchSettings:
     header: dict = field(default_factory=dict)   # more bdipole:* attributes for the outputs
     working: WorkingSpace | None = None          # None: the default working space
     mfp_kind: str = "diffuse"    # ops.invert.MFP_KINDS: ld = 1/mu_tr, or 1/sigma_t'
+    texture: TextureOptions | None = None        # tiled, mip-mapped outputs (images.Writer)
 
 
 #: the mfp convention each kind writes to an output's header
@@ -299,7 +228,8 @@ def process_file(job, settings, device_lock, progress):
         out_spec = output_spec(spec, out_names, len(out_names) - 1 if keep_alpha else -1,
                                 settings.half, params, working=route.working)
         Path(job.output).parent.mkdir(parents=True, exist_ok=True)
-        writer = Writer(job.output, out_spec, settings.on_invalid)
+        writer = Writer(job.output, out_spec, settings.on_invalid, texture=settings.texture,
+                        cancel=settings.cancel)
         with device_lock:
             mapper = CoefficientMapper(tuple(etas), settings.config, outputs=outputs,
                                        model=settings.model, exact=settings.exact,
@@ -392,13 +322,15 @@ def process_textures(inputs, *, mfp=1.0, eta=1.4, output=DEFAULT_OUTPUT,
                      exact=False, half=False, colorspace="auto", working_space=None, alpha="keep",
                      on_invalid="raise", max_memory=256 << 20, jobs=1, skip_existing=False,
                      unit="mm", mfp_scale=1.0, progress=False, device=None, cancel=None,
-                     double=False, run_files=None, mfp_kind="diffuse", **knobs) -> BatchReport:
+                     double=False, run_files=None, mfp_kind="diffuse", texture=False,
+                     **knobs) -> BatchReport:
     """Invert albedo textures into scattering-coefficient EXRs (the ``bdipole-cl invert`` job).
 
     Parameters
     ----------
     inputs : str or sequence of str
-        Albedo files, globs or UDIM patterns (``diffuse.<UDIM>.exr``).
+        Albedo files, globs or tile patterns (``diffuse.<UDIM>.exr``, ``diffuse_<UVTILE>.exr``:
+        ``bdipole_cl.io.tiles``).
     mfp : float, sequence of float, or str
         Mean free path ld = 1/mu_tr (docs/model.md "Mean free path"): a constant (one or per
         channel, also as
@@ -409,13 +341,16 @@ def process_textures(inputs, *, mfp=1.0, eta=1.4, output=DEFAULT_OUTPUT,
     eta : float or sequence of float
         Relative index of refraction, one or per colour channel.
     output : str
-        Output path pattern (``{dir}``, ``{stem}``, ``{name}``, ``{udim}``, ``<UDIM>``).
+        Output path pattern (``{dir}``, ``{stem}``, ``{name}``, ``{udim}``, a tile token; the
+        output's token may differ from the input's: tiles are converted).
     outputs : sequence of str
         Channel groups to write, from alpha, rho, sigma_a, sigma_s, sigma_t.
     method, model, exact, double, **knobs
         As for ``invert_albedo`` (``double``: computed in float64; written as float or half).
     half : bool
         Write half floats instead of float.
+    texture : bool or TextureOptions
+        Tiled (64x64), mip-mapped EXRs (``mipmaps``; the image is held whole for the mips).
     colorspace, working_space : str
         The albedo files' colour space ("auto": as each declares, else 8-bit sRGB, 16-bit and
         float in the working space) and the space they are inverted in and outputs are
@@ -463,27 +398,26 @@ def process_textures(inputs, *, mfp=1.0, eta=1.4, output=DEFAULT_OUTPUT,
         model=model, exact=exact, half=half, colorspace=colorspace, working=working,
         alpha=alpha, on_invalid=check_policy(on_invalid), max_memory=int(max_memory),
         outputs=tuple(outputs), unit=unit, runtime=get_runtime(device), double=bool(double),
-        cancel=cancel, mfp_kind=check_mfp_kind(mfp_kind))
+        cancel=cancel, mfp_kind=check_mfp_kind(mfp_kind), texture=texture_options(texture))
     CoefficientMapper((settings.eta[0],), config, outputs=settings.outputs, model=model,
                       exact=exact, on_invalid=on_invalid,
                       device=settings.runtime)  # fail fast on bad settings
     jobs_list, results = [], []
     files = expand_inputs(inputs)
-    unmatched = {p for p, _ in files
-                 if (UDIM_TOKEN in p or glob.has_magic(p)) and not os.path.exists(p)}
-    for path, udim in files:
-        if path in unmatched:
+    for path, tile in files:
+        if tiles.is_pattern(path) and not os.path.exists(path):
+            conv = tiles.token_of(path)
             results.append(FileResult(path, error=f"{path}: no file matches this pattern"
-                                      + (" (a UDIM is a 4-digit tile number, 1001-9999)"
-                                         if UDIM_TOKEN in path else "")))
+                                      + (f" ({conv.token} names tiles as {conv.convention})"
+                                         if conv else "")))
             continue
         try:
-            out = companion_path(output, path, udim)
-            mfp_path = None if settings.mfp is not None else companion_path(mfp, path, udim)
-        except TextureError as exc:
+            out = companion_path(output, path, tile)
+            mfp_path = None if settings.mfp is not None else companion_path(mfp, path, tile)
+        except (TextureError, tiles.TileError) as exc:
             results.append(FileResult(path, error=str(exc)))
             continue
-        job = Job(path, udim, out, mfp_path)
+        job = Job(path, tile.label if tile else None, out, mfp_path)
         job.skip = skip_existing and os.path.exists(path) and newer_than_inputs(out, [path,
                                                                                    mfp_path])
         jobs_list.append(job)

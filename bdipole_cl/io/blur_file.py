@@ -35,7 +35,7 @@ def located(exc, path, sources, spec, idx):
 
 def blur_file(path, output, *, colorspace="auto", working_space=None, half=False,
               max_memory=256 << 20, sources=None, cancel=None, mask=None, header=None,
-              progress=None, **kwargs):
+              progress=None, texture=False, **kwargs):
     """Blur an irradiance image file into an EXR, streamed in bands of rows with a halo of the
     truncation radius (memory bounded by ``max_memory``). The irradiance is converted from
     ``colorspace`` (else as the file declares, as in ``process_textures``) into
@@ -50,8 +50,8 @@ def blur_file(path, output, *, colorspace="auto", working_space=None, half=False
     removed. ``mask`` (HxW, the image's size): texels where it is 0 give no light and get no
     exitance (written as 0); bands whose halo'd irradiance is all 0 are not blurred at all.
     ``header``: more ``bdipole:*`` attributes for the output. ``progress``: a tqdm bar
-    advanced by texels. Returns the BlurInfo (None when
-    every band was skipped)."""
+    advanced by texels. ``texture`` (True or a TextureOptions): a tiled, mip-mapped EXR
+    (``images.Writer``). Returns the BlurInfo (None when every band was skipped)."""
     check_output_format(output)
     sources = dict(sources or {})
     check_claim(Claim(str(path), str(output), {"irradiance": str(path), **sources}))
@@ -115,7 +115,8 @@ def blur_file(path, output, *, colorspace="auto", working_space=None, half=False
                 Path(output).parent.mkdir(parents=True, exist_ok=True)
                 writer = Writer(output, output_spec(
                     spec, names, len(names) - 1 if alpha_ch >= 0 else -1, half, meta,
-                    working=route.working), kwargs.get("on_invalid", "raise"))
+                    working=route.working), kwargs.get("on_invalid", "raise"),
+                    texture=texture, cancel=cancel)
             writer.write_band(y0, y1, np.concatenate(parts, axis=-1))
             if progress is not None:
                 progress.update((y1 - y0) * spec.width)

@@ -11,6 +11,9 @@
 * Inputs: regular files only; colour with alpha is read unassociated (as painted, never
   premultiplied); tiled and mip-mapped files are read at level 0 in tile-aligned bands;
   multi-part and deep files, and L/a/b channels, are refused by name.
+* Texture outputs (``mipmaps.TextureOptions``): the verified EXR made tiled and mip-mapped by
+  OpenImageIO's ``make_texture``, channels, header and pixel type kept, level 0 verified equal
+  to it (``Writer``).
 """
 from __future__ import annotations
 
@@ -22,6 +25,7 @@ from pathlib import Path
 import numpy as np
 import OpenImageIO as oiio
 
+from .mipmaps import TextureBuildError, build_texture, texture_options
 from .verify import BandDigests, WriteCheckError, finite_texels, read_back, read_rows_of
 from .colour import COLOUR_ATTRIBS, colour_path, tag_output
 
@@ -34,10 +38,19 @@ class Cancelled(TextureError):
     """The batch was stopped (SIGINT/SIGTERM) before this file was complete."""
 
 
+#: texture extensions that are TIFF underneath (maketx's .tx): refused, with the reason
+TIFF_TEXTURES = (".tx", ".tif", ".tiff")
+
+
 def check_output_format(path):
     """Outputs are OpenEXR: only EXR holds float/half values in any number of named channels
-    (``sigma_a.R``, ...). Any other extension would drop channels or quantise: refused."""
+    (``sigma_a.R``, ...). Any other extension would drop channels or quantise: refused, and a
+    ``.tx``/TIFF texture with its own reason (texture outputs are tiled, mip-mapped EXRs)."""
     suffix = Path(path).suffix.lower()
+    if suffix in TIFF_TEXTURES:
+        raise ValueError(f"{path}: output must be an OpenEXR file (.exr): a {suffix} (TIFF) "
+                         f"texture drops the channel names (sigma_a.R, ...); an .exr output "
+                         f"with --texture / texture = true is a tiled, mip-mapped texture")
     if suffix != ".exr":
         raise ValueError(f"{path}: output must be an OpenEXR file (.exr), got "
                            f"'{suffix or 'no extension'}': other formats would drop channels or "
@@ -266,9 +279,14 @@ def remove_partial_files(path) -> int:
 class Writer:
     """An EXR written band by band into a temporary file, renamed by ``commit`` once it reads
     back as written (``verify``). Every band is made storable first (``finite_texels``, by
-    ``on_invalid``); ``invalid`` counts the texels that were not."""
+    ``on_invalid``); ``invalid`` counts the texels that were not.
 
-    def __init__(self, path, spec, on_invalid="raise"):
+    ``texture`` (True or a TextureOptions): the verified temporary file is made into a tiled,
+    mip-mapped texture beside it (``mipmaps.build_texture``), verified against it, and that is
+    renamed; ``cancel`` (threading.Event) set by then discards both (a texture build is one
+    uninterruptible OpenImageIO call: a signal during it is acted on when it returns)."""
+
+    def __init__(self, path, spec, on_invalid="raise", texture=None, cancel=None):
         self.path = Path(path)
         self.tmp = self.path.with_name(f".{self.path.stem}.partial-{os.getpid()}"
                                        f"-{threading.get_ident()}{self.path.suffix}")
@@ -277,6 +295,8 @@ class Writer:
         self.half = spec.format == oiio.TypeDesc("half")
         self.digests = BandDigests(self.half)
         self.invalid = 0
+        self.texture = texture_options(texture)
+        self.cancel = cancel
         self.out = oiio.ImageOutput.create(str(self.tmp))
         if self.out is None:
             raise TextureError(f"{path}: cannot create output: {oiio.geterror()}")
@@ -316,7 +336,28 @@ class Writer:
         except WriteCheckError as exc:
             self._remove_tmp()
             raise TextureError(str(exc)) from None
+        if self.texture is not None:
+            self._commit_texture()
+            return
         os.replace(self.tmp, self.path)
+
+    def _commit_texture(self):
+        tex = self.tmp.with_name(f"{self.tmp.stem}.tx{self.tmp.suffix}")
+        try:
+            spec, px = read_whole(self.tmp, "plain output")
+            try:
+                build_texture(spec, px, tex, self.texture)
+            except TextureBuildError as exc:
+                raise TextureError(f"{self.path}: {exc}") from None
+            if self.cancel is not None and self.cancel.is_set():
+                raise Cancelled(f"{self.path}: interrupted; nothing written")
+            os.replace(tex, self.path)
+        finally:
+            for p in (tex, self.tmp):
+                try:
+                    p.unlink()
+                except FileNotFoundError:
+                    pass
 
     def abort(self):
         if self.out is not None:
@@ -361,5 +402,15 @@ def read_parameter_texture(path, what, colour=False, colorspace="auto", working=
             return px
         route = reader.colour(colorspace, working)
         return route.convert(px, [reader.spec.channelnames[c] for c in cols])
+    finally:
+        reader.close()
+
+
+def read_whole(path, what):
+    """(spec, pixels HxWxC float32) of an image through ``Reader``: no image cache, so a file
+    rewritten under the same name is read afresh."""
+    reader = Reader(path, what)
+    try:
+        return reader.spec, reader.read_band(0, reader.spec.height)
     finally:
         reader.close()

@@ -46,18 +46,20 @@ from ..physics import tables
 from ..ops.bands import band_rows
 from .batch import (BatchReport, BatchSettings, FileResult, Job, companion_path, expand_inputs,
                     process_file)
-from .collisions import Claim, collisions
 from .blur_file import blur_file
+from .collisions import Claim, collisions
 from .colour import WorkingSpace, resolve_working_space
 from .freshness import header_fields, is_up_to_date, params_digest
 from .images import (Reader, TextureError, check_same_window, classify_channels,
                      read_parameter_texture)
+from .mipmaps import texture_options
 from .scene_file import SceneData, SceneError, load_imported
 from .scene_file import load as load_scene_file
 from .scene_import import import_materials, is_imported
 from .scene_records import (LAYER, MANIFEST, constant_config, constant_text, finish_bake,
                             imported_lines, mfp_text, read_manifest, records_dir,
                             run_constant_job)
+from .tiles import TileError, is_pattern
 
 #: compile each job's constants into its kernel (tools/bench_scene.py turns it off to measure
 #: what it saves)
@@ -146,13 +148,13 @@ def _exists(role, path, problems):
                                              else "is missing"))
 
 
-def _textures(inputs, material, mask, path, udim, problems):
-    """Add the job's mfp and mask textures (companions of ``path`` by UDIM) to ``inputs``."""
+def _textures(inputs, material, mask, path, tile, problems):
+    """Add the job's mfp and mask textures (companions of ``path`` by tile) to ``inputs``."""
     if isinstance(material.mfp, str):
-        inputs["mfp"] = companion_path(material.mfp, path, udim)
+        inputs["mfp"] = companion_path(material.mfp, path, tile)
         _exists("mfp texture", inputs["mfp"], problems)
     if mask and mask != "alpha":
-        inputs["mask"] = companion_path(mask, path, udim)
+        inputs["mask"] = companion_path(mask, path, tile)
         _exists("mask", inputs["mask"], problems)
 
 
@@ -271,12 +273,13 @@ def table_for_range(etas, rd_range, tol, model, exact, device):
     return _size_cache.put(key, choice)
 
 
-def _plan_invert(m, path, udim, force, device, problems_all, max_memory):
-    out = companion_path(m.output, path, udim)
+def _plan_invert(m, path, tile, force, device, problems_all, max_memory):
+    udim = tile.label if tile else None
+    out = companion_path(m.output, path, tile)
     inputs = {"albedo": path}
     problems = []
     _exists("albedo", path, problems)
-    _textures(inputs, m, m.mask, path, udim, problems)
+    _textures(inputs, m, m.mask, path, tile, problems)
     working = resolve_working_space(m.working_space)
     digest = params_digest(_material_fields(m) | working.key | {"kind": "invert", "udim": udim})
     job, todo = _new_job("invert", m.name, path, udim, out, inputs, digest, problems, force,
@@ -342,14 +345,15 @@ def colour_of(path, role, colorspace, working) -> str:
         r.close()
 
 
-def _plan_blur(b, path, udim, force, problems_all):
+def _plan_blur(b, path, tile, force, problems_all):
     m = b.material
-    out = companion_path(b.output, path, udim)
-    inputs = {"irradiance": path, "albedo": companion_path(m.albedo, path, udim)}
+    udim = tile.label if tile else None
+    out = companion_path(b.output, path, tile)
+    inputs = {"irradiance": path, "albedo": companion_path(m.albedo, path, tile)}
     problems = []
     _exists("irradiance", path, problems)
     _exists("albedo", inputs["albedo"], problems)
-    _textures(inputs, m, b.mask, path, udim, problems)
+    _textures(inputs, m, b.mask, path, tile, problems)
     fields = {k: v for k, v in asdict(b).items() if k not in ("name", "irradiance", "output")}
     working = resolve_working_space(b.working_space)
     digest = params_digest(fields | working.key | {"kind": "blur", "udim": udim})
@@ -393,24 +397,28 @@ def _plan_constant(m, folder, old, force, scene_source):
 
 
 def plan(scene: Scene, *, force=False, device=None, max_memory=DEFAULT_MEMORY) -> Plan:
-    """Every job of the scene, checked and described; missing inputs, unreadable files and
-    collisions make jobs that cannot run (all are listed before any work; the others run).
-    The statistics pass reads albedos in bands within ``max_memory`` bytes. A material
-    without textures is one "constant" job (its coefficients, no image)."""
+    """Every job of the scene, checked and described; missing inputs, unreadable files,
+    patterns that cannot name a job's tile and collisions make jobs that cannot run (all are
+    listed before any work; the others run). The statistics pass reads albedos in bands
+    within ``max_memory`` bytes. A material without textures is one "constant" job (its
+    coefficients, no image)."""
     rt = get_runtime(device)
     jobs, problems = [], []
     textured = [m for m in scene.materials if not m.constant]
     for kind, entries in (("invert", textured), ("blur", scene.blurs)):
         for e in entries:
-            for path, udim in expand_inputs([e.albedo if kind == "invert" else e.irradiance]):
+            for path, tile in expand_inputs([e.albedo if kind == "invert" else e.irradiance]):
                 try:
-                    jobs.append(_plan_invert(e, path, udim, force, rt, problems, max_memory)
+                    jobs.append(_plan_invert(e, path, tile, force, rt, problems, max_memory)
                                 if kind == "invert" else
-                                _plan_blur(e, path, udim, force, problems))
-                except TextureError as exc:     # e.g. a pattern this file cannot fill
-                    jobs.append(PlannedJob(kind, e.name, path, udim, "", {"source": path},
-                                           problem=str(exc)))
-                    problems.append(str(exc))
+                                _plan_blur(e, path, tile, force, problems))
+                except (TextureError, TileError) as exc:   # a pattern this file cannot fill
+                    role = "albedo" if kind == "invert" else "irradiance"
+                    problem = (f"{role} {path} is missing (no file matches this pattern)"
+                               if is_pattern(path) and not os.path.exists(path) else str(exc))
+                    jobs.append(PlannedJob(kind, e.name, path, tile.label if tile else None, "",
+                                           {"source": path}, problem=problem))
+                    problems.append(problem)
     for j, clash in zip(jobs, collisions(Claim(j.source, j.output, j.inputs) for j in jobs)):
         if clash:
             j.problem, j.up_to_date = clash, False
@@ -433,12 +441,12 @@ def _settings(m, config, runtime, cancel, header, working, max_memory=DEFAULT_ME
         on_invalid=m.on_invalid, max_memory=max_memory, outputs=m.outputs, unit=m.unit,
         runtime=runtime, double=m.double, cancel=cancel,
         mask=None if not m.mask else "alpha" if m.mask == "alpha" else "texture",
-        bake=SPECIALISE, header=header, working=working)
+        bake=SPECIALISE, header=header, working=working, texture=texture_options(m.texture))
 
 
 def run_invert_job(job, scene, runtime, cancel, lock, max_memory=DEFAULT_MEMORY):
     m = next(x for x in scene.materials if x.name == job.name)
-    header = header_fields(job.inputs, job.params_digest)
+    header = header_fields(job.inputs, job.params_digest) | {"tol": m.tol}
     settings = _settings(m, job.config, runtime, cancel, header, job.working, max_memory)
     return process_file(Job(job.source, job.udim, job.output, job.inputs.get("mfp"),
                             job.inputs.get("mask")), settings, lock, None)
@@ -496,7 +504,7 @@ def run_blur_job(job, scene, runtime, cancel, max_memory=DEFAULT_MEMORY):
                   mask=keep, header=header, colorspace=b.colorspace, working_space=working,
                   **params, eta=m.eta, texel_size=b.texel_size, tol=b.tol, method=b.method,
                   border=b.border, on_invalid=b.on_invalid, exact=m.exact, device=runtime,
-                  max_memory=max_memory)
+                  max_memory=max_memory, texture=b.texture)
         result.status, result.texels = "ok", texels
     except (TextureError, OSError, ValueError) as exc:
         result.error = str(exc)

@@ -16,6 +16,7 @@
     mask = "alpha"                    # optional: the albedo's alpha, or a texture path
     half = true
     colorspace = "auto"               # the albedo's: as the file declares, or a name
+    texture = true                    # optional: tiled, mip-mapped EXR textures
 
     [[blur]]
     name = "skin_tsd"
@@ -82,10 +83,13 @@ KEYS = {
     "outputs": ({"material"}, lambda v: isinstance(v, list) and v and set(v) <= set(OUTPUTS),
                 f"a list from {', '.join(OUTPUTS)}"),
     "output": ({"material", "blur"}, lambda v: isinstance(v, str) and v.endswith(".exr"),
-               "an .exr path or pattern"),
+               "an .exr path or pattern (a .tx/TIFF texture drops the channel names: "
+               "texture = true writes tiled, mip-mapped EXRs)"),
     "mask": ({"material", "blur"}, lambda v: isinstance(v, str) and v,
              "\"alpha\" or a texture path"),
     "half": ({"material", "blur"}, lambda v: isinstance(v, bool), "true or false"),
+    "texture": ({"material", "blur"}, lambda v: isinstance(v, bool),
+                "true (tiled, mip-mapped EXR textures) or false"),
     "unit": ({"material", "blur"}, lambda v: isinstance(v, str) and v, "a unit name"),
     "tol": ({"material", "blur"}, lambda v: _number(v) and 0 < v < 1, "a number in (0, 1)"),
     "model": ({"material"}, lambda v: v in MODELS, " or ".join(f'"{m}"' for m in MODELS)),
@@ -107,6 +111,7 @@ KEYS = {
 REQUIRED = {"material": ("name", "albedo", "output"),
             "blur": ("name", "material", "irradiance", "texel_size", "output")}
 DEFAULTS = {"eta": 1.4, "unit": "mm", "model": "better-dipole", "mfp": 1.0, "half": False,
+            "texture": False,
             "outputs": ["sigma_a", "sigma_s"], "method": "auto", "blur_method": "auto",
             "border": "clamp", "exact": False, "double": False, "on_invalid": "raise",
             "colorspace": "auto", "mfp_kind": "diffuse", "mfp_scale": 1.0}
@@ -136,6 +141,7 @@ class Material:
     working_space: str | None = None  # the config's name; None: the default working space
     mfp_kind: str = "diffuse"        # MFP_KINDS
     mfp_scale: tuple = (1.0,)        # multiplies the mfp (one or per channel)
+    texture: bool = False            # tiled, mip-mapped EXR outputs
 
     @property
     def constant(self) -> bool:
@@ -177,6 +183,7 @@ class Blur:
     on_invalid: str
     colorspace: str                  # the irradiance's
     working_space: str | None = None  # irradiance, albedo and mfp: the material's unless given
+    texture: bool = False
 
 
 @dataclass(frozen=True)
@@ -317,7 +324,7 @@ def load(path, importer=None, working_space=None) -> SceneData:
                           b["blur_method"], b["border"], b["on_invalid"],
                           _colour(fail, "blur", i, entry, b, "colorspace"),
                           _colour(fail, "blur", i, entry, b, "working_space")
-                          if "working_space" in entry else mat.working_space))
+                          if "working_space" in entry else mat.working_space, b["texture"]))
     if not materials and not blurs and not imports:
         fail(None, 0, None, "the scene has no [[material]] and no [[blur]]")
     return SceneData(path.resolve(), tuple(materials.values()), tuple(blurs), source, imports)
@@ -349,7 +356,7 @@ def _material(m, resolve, colour) -> Material:
         tuple(m["outputs"]), resolve(m["output"].replace("{material}", m["name"])),
         resolve(m.get("mask")), m["half"], m["unit"], float(m["tol"]), MODELS[m["model"]],
         m["method"], m["exact"], m["double"], m["on_invalid"], *colour, m["mfp_kind"],
-        _floats(m["mfp_scale"]))
+        _floats(m["mfp_scale"]), m["texture"])
 
 
 def _imported(fail, index, entry, imp, defaults, resolve, working_space) -> Material:

@@ -30,7 +30,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .batch import UDIM_TOKEN
+from . import tiles
 from .scene_file import UNIT_METERS, ImportedMaterial, SceneError
 
 
@@ -226,8 +226,8 @@ def imported_material(name, path, shader_id, read, *, unit_m, out_dir, bound) ->
              "mfp_kind": mapping.mfp_kind, "unit": unit_name(unit_m)}
     if albedo.texture is not None:
         facts["colorspace"] = albedo.texture.colorspace
-    udim = albedo.texture is not None and UDIM_TOKEN in albedo.texture.file
-    output = f"{out_dir}/{name}.{UDIM_TOKEN}.exr" if udim else f"{out_dir}/{name}.exr"
+    tile = tiles.token_of(albedo.texture.file) if albedo.texture is not None else None
+    output = f"{out_dir}/{name}.{tile.token}.exr" if tile else f"{out_dir}/{name}.exr"
     return ImportedMaterial(name, path, mapping.name, mapping.mfp_kind, facts,
                             {"output": output}, described, unit_m, None,
                             _notes(mapping, inputs), bound=bound)

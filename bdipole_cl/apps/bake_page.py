@@ -1,0 +1,118 @@
+"""``bdipole-cl bake --preview``: a contact sheet per job beside its output, and one page for
+the bake with every material's thumbnails and profile (``preview`` and ``profile`` draw)."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+from .preview import (ContactSheet, contact_sheet, draw_group, read_image, require_matplotlib,
+                      save_figure)
+from .profile import draw_profiles, material_specs
+
+#: inches per thumbnail on the bake page, and for the profile panel
+THUMB_IN, PROFILE_IN, ROW_IN = 2.4, 4.6, 2.9
+
+
+@dataclass(frozen=True)
+class BakePreview:
+    sheets: tuple                    # ContactSheet per job output
+    page: str                        # the bake's page (PNG)
+    materials: tuple                 # the materials on it, in order
+
+    def describe(self) -> str:
+        return (f"previews: {len(self.sheets)} contact sheet(s) beside the outputs "
+                f"(*.preview.png); the bake's page: {self.page}")
+
+
+def sheet_path(output) -> Path:
+    """Where a job's contact sheet goes: beside its output, ``out.1001.exr`` ->
+    ``out.1001.preview.png``."""
+    return Path(output).with_suffix(".preview.png")
+
+
+def bake_preview(plan, report, page=None) -> BakePreview:
+    """Contact sheets of every output the bake left (made now or up to date), and the page
+    (default: beside the scene file, ``scene.preview.png``)."""
+    done = {r.output for r in report.results if r.status in ("ok", "skipped")}
+    sheets = [contact_sheet(j.output, sheet_path(j.output), title=_job_title(j))
+              for j in plan.jobs if j.output in done and Path(j.output).is_file()]
+    scene = plan.scene
+    page = Path(page) if page is not None else Path(scene.path).with_suffix(".preview.png")
+    materials = tuple(m.name for m in scene.materials)
+    _bake_page(scene, plan, sheets, page)
+    return BakePreview(tuple(sheets), str(page), materials)
+
+
+def _job_title(job):
+    return f"{job.kind} {job.name}" + (f" [{job.udim}]" if job.udim else "")
+
+
+def _material_of(scene, job):
+    if job.kind == "invert":
+        return job.name
+    return next(b.material.name for b in scene.blurs if b.name == job.name)
+
+
+def _page_rows(scene, plan, sheets: list):
+    """Per material: (name, [(job title, file, group)] of its first tile's outputs)."""
+    by_output = {s.source: s for s in sheets}
+    rows = []
+    for m in scene.materials:
+        groups, tiles_seen = [], set()
+        for j in plan.jobs:
+            sheet: ContactSheet | None = by_output.get(j.output)
+            if sheet is None or _material_of(scene, j) != m.name:
+                continue
+            if (j.kind, j.name) in tiles_seen:        # the first tile of each job stands in
+                continue
+            tiles_seen.add((j.kind, j.name))
+            groups += [(_job_title(j), j.output, t.group) for t in sheet.tiles]
+        rows.append((m.name, groups))
+    return rows
+
+
+def _bake_page(scene, plan, sheets, page):
+    require_matplotlib()
+    from matplotlib.figure import Figure
+    rows = _page_rows(scene, plan, sheets)
+    cols = max([len(g) for _, g in rows] + [1])
+    width = cols * THUMB_IN + PROFILE_IN + 0.4
+    fig = Figure(figsize=(width, ROW_IN * len(rows) + 0.5), dpi=100)
+    height = fig.get_figheight()
+    fig.text(0.5, 1 - 0.25 / height, f"bake of {Path(scene.path).name}: every material's "
+             f"outputs (first tile) and profile", ha="center", va="center", fontsize=11,
+             weight="bold")
+    cache = {}
+    for k, (name, groups) in enumerate(rows):
+        y0 = 1 - (0.5 + ROW_IN * (k + 1)) / height
+        cell_h = ROW_IN / height
+        for c, (title, path, group) in enumerate(groups):
+            if path not in cache:
+                cache[path] = read_image(path)
+            px, _, _, header = cache[path]
+            x0 = (0.2 + c * THUMB_IN) / width
+            ax = fig.add_axes((x0 + 0.05 * THUMB_IN / width, y0 + 0.36 * cell_h,
+                               0.9 * THUMB_IN / width, 0.5 * cell_h))
+            cax = fig.add_axes((x0 + 0.12 * THUMB_IN / width, y0 + 0.15 * cell_h,
+                                0.76 * THUMB_IN / width, 0.035 * cell_h))
+            draw_group(fig, ax, cax, px, group, header)
+            ax.set_title(f"{title}\n{ax.get_title()}", fontsize=8)
+        pax = fig.add_axes(((0.2 + cols * THUMB_IN + 0.75) / width, y0 + 0.16 * cell_h,
+                            (PROFILE_IN - 0.95) / width, 0.7 * cell_h))
+        try:
+            specs, unit, tol = material_specs(scene, name)
+            draw_profiles(pax, specs, unit, tol)
+            pax.set_title(f"{name}: R(r) at the mean albedo, its range shaded\n"
+                          f"o truncation radius (tol {tol:g}), dashed: mfp", fontsize=8)
+            pax.legend().set_visible(False)
+            pax.tick_params(labelsize=7)
+            pax.xaxis.label.set_fontsize(8)
+            pax.yaxis.label.set_fontsize(8)
+        except ValueError as exc:              # a material without albedo files: say so
+            pax.set_axis_off()
+            pax.text(0.5, 0.5, str(exc), ha="center", va="center", fontsize=7, wrap=True)
+        if not groups:
+            fig.text((0.2 + 0.5 * cols * THUMB_IN) / width, y0 + 0.5 * cell_h,
+                     f"{name}: no output", ha="center", fontsize=9)
+    save_figure(fig, page)
+

@@ -1,0 +1,350 @@
+"""``bdipole-cl preview FILE.exr``: a contact sheet of an EXR, one thumbnail per channel group.
+
+A bdipole output's groups are its outputs (alpha', rho, sigma_a, sigma_s', sigma_t', the
+blur's exitance) and the alpha it carries; any other EXR's are the prefixes of its channel names
+(``diffuse.R`` -> ``diffuse``), its unprefixed colour channels and its alpha. Each group is
+drawn as a thumbnail of its (up to three) channels as R, G, B (one channel: grey), on a scale
+shared by its channels: logarithmic when the middle 90% of its positive values spans more
+than ``LOG_DECADES`` decades (coefficients often do), else linear and sRGB-encoded for
+display. Each has a colour bar of
+that scale and its range in the caption; texels at 0 (masked) or below the log range are
+black. The header's parameters (model, eta, mfp, working space, method, tol) are the sheet's
+caption. Everything drawn is returned (``ContactSheet``), so tests read the picture back.
+
+matplotlib draws (the ``report`` and ``test`` extras install it); OpenImageIO reads.
+"""
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..io.images import classify_channels, read_whole
+
+#: positive values spanning more than this many decades are shown on a log scale
+LOG_DECADES = 2.0
+#: longest side of a thumbnail, texels (larger images are averaged down in blocks)
+THUMB = 192
+#: inches per tile of the sheet and its resolution
+TILE_IN, DPI = (3.0, 3.1), 100
+
+#: display names of bdipole's outputs (mathtext) and what their values are
+GROUP_LABELS = {"alpha": r"$\alpha'$ (reduced albedo)", "rho": r"$\rho$ (single-scattering)",
+                "sigma_a": r"$\sigma_a$ (absorption)", "sigma_s": r"$\sigma_s'$ (scattering)",
+                "sigma_t": r"$\sigma_t'$ (extinction)", "exitance": "exitance M",
+                "alpha channel": "alpha channel"}
+#: the order of a group's channels on the thumbnail's R, G, B
+RGB_ORDER = {"r": 0, "red": 0, "g": 1, "green": 1, "b": 2, "blue": 2}
+#: groups with a unit of 1/length
+COEFFICIENTS = ("sigma_a", "sigma_s", "sigma_t")
+#: caption entries: (label, header keys tried in order)
+CAPTION_KEYS = (("model", ("bdipole:model",)), ("eta", ("bdipole:eta",)),
+                ("mfp", ("bdipole:mfp",)),
+                ("working space", ("bdipole:working_space", "oiio:ColorSpace")),
+                ("method", ("bdipole:method", "bdipole:methods")),
+                ("tol", ("bdipole:tol",)), ("texel", ("bdipole:texel_size",)))
+
+
+@dataclass(frozen=True)
+class ChannelGroup:
+    """Channels shown together: ``name`` (``sigma_a``) and indices into the file's channels."""
+
+    name: str
+    channels: tuple
+    names: tuple
+
+
+@dataclass(frozen=True)
+class GroupTile:
+    """One drawn thumbnail: its group, scale and range, the pixels shown, where it lies in the
+    saved PNG (x0, y0, x1, y1 from the top left) and the colour bar as drawn."""
+
+    group: ChannelGroup
+    log: bool
+    vmin: float
+    vmax: float
+    varies: bool                     # whether any of its channels is not constant
+    image: np.ndarray                # the thumbnail as shown, HxWx3 in [0, 1]
+    bbox: tuple
+    bar_scale: str                   # "log" or "linear", read from the drawn bar
+    bar_limits: tuple
+
+
+@dataclass(frozen=True)
+class ContactSheet:
+    source: str
+    tiles: tuple
+    caption: str
+    size: tuple                      # PNG (width, height), pixels
+    path: str | None = None
+
+
+def require_matplotlib():
+    """matplotlib, or an ImportError saying which install brings it."""
+    try:
+        import matplotlib
+    except ImportError:
+        raise ImportError("the pictures need matplotlib: pip install 'bdipole-cl[report]'") \
+            from None
+    return matplotlib
+
+
+def channel_groups(names, alpha_channel=-1, header=None) -> list:
+    """The groups of an image's channels, in file order of first appearance: prefixes before
+    the last '.', the unprefixed colour channels (``exitance`` in a bdipole blur output, else
+    ``colour``), the alpha channel, then any other unprefixed channel on its own."""
+    colour, alpha, _ = classify_channels(names, alpha_channel)
+    blur = header is not None and header.get("bdipole:source") is not None
+    groups = {}
+    for i, n in enumerate(names):
+        if i == alpha:
+            key = "alpha channel"
+        elif "." in n:
+            key = n.rsplit(".", 1)[0]
+        elif i in colour:
+            key = "exitance" if blur else "colour"
+        else:
+            key = n
+        groups.setdefault(key, []).append(i)
+    out = []
+    for k, v in groups.items():                 # R, G, B in that order (EXR sorts by name)
+        v = sorted(v, key=lambda i: (RGB_ORDER.get(names[i].rsplit(".", 1)[-1].lower(), 3), i))
+        out.append(ChannelGroup(k, tuple(v), tuple(names[i] for i in v)))
+    return out
+
+
+def read_image(path):
+    """(pixels HxWxC float32, channel names, alpha index, header dict) of an image file (level
+    0 of a texture), read afresh (no image cache)."""
+    spec, px = read_whole(path, "preview")
+    header = {a.name: a.value for a in spec.extra_attribs}
+    return px, tuple(spec.channelnames), spec.alpha_channel, header
+
+
+def shrink(px, longest=THUMB):
+    """Average ``px`` down in square blocks so its longest side is at most ``longest``."""
+    k = int(np.ceil(max(px.shape[:2]) / longest))
+    if k <= 1:
+        return px
+    h, w = (px.shape[0] // k) * k, (px.shape[1] // k) * k
+    return px[:h, :w].reshape(h // k, k, w // k, k, -1).mean(axis=(1, 3))
+
+
+def srgb_encode(x):
+    """Linear [0, 1] -> sRGB-encoded [0, 1] (IEC 61966-2-1), for display."""
+    x = np.clip(x, 0.0, 1.0)
+    return np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4) - 0.055)
+
+
+def group_scale(values, may_log=True):
+    """(log?, vmin, vmax) of a group's finite values: log when the middle 90% of its positive
+    values spans more than LOG_DECADES decades (a few outliers do not make a scale log),
+    between the smallest positive value and the largest."""
+    finite = values[np.isfinite(values)]
+    if finite.size == 0:
+        return False, 0.0, 1.0
+    pos = finite[finite > 0]
+    spread = np.log10(np.percentile(pos, 95) / np.percentile(pos, 5)) if pos.size else 0.0
+    if may_log and finite.min() >= 0 and spread > LOG_DECADES:
+        return True, float(pos.min()), float(pos.max())
+    return False, float(finite.min()), float(finite.max())
+
+
+def normalise(values, log, vmin, vmax):
+    """Values -> [0, 1] on the group's scale (0 for texels at or below the log range)."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        if log:
+            t = (np.log10(np.maximum(values, vmin)) - np.log10(vmin)) / np.log10(vmax / vmin)
+            t = np.where(values > 0, t, 0.0)
+        else:
+            # a constant group is shown mid-grey (its caption says it is constant)
+            t = (values - vmin) / (vmax - vmin) if vmax > vmin else np.full_like(values, 0.5)
+    return np.clip(np.nan_to_num(t, nan=0.0), 0.0, 1.0)
+
+
+def thumbnail(px, group):
+    """(image HxWx3 in [0, 1] as displayed, log?, vmin, vmax, varies) of one group."""
+    values = shrink(px[..., list(group.channels)].astype(np.float64))
+    log, vmin, vmax = group_scale(px[..., list(group.channels)],
+                                  may_log=group.name != "alpha channel")
+    t = normalise(values, log, vmin, vmax)
+    if not log:
+        t = srgb_encode(t)
+    rgb = np.repeat(t[..., :1], 3, axis=-1) if t.shape[-1] == 1 else np.concatenate(
+        [t, np.zeros(t.shape[:2] + (3 - t.shape[-1],))], -1)[..., :3]
+    sel = px[..., list(group.channels)]
+    varies = bool(np.any(np.nanmax(sel, axis=(0, 1)) != np.nanmin(sel, axis=(0, 1))))
+    return rgb, log, vmin, vmax, varies
+
+
+def group_unit(name, header):
+    if name in COEFFICIENTS:
+        return header.get("bdipole:coefficient_unit", "")
+    return ""
+
+
+def caption_text(header) -> str:
+    parts = []
+    for label, keys in CAPTION_KEYS:
+        value = next((header[k] for k in keys if header.get(k) not in (None, "")), None)
+        if value is not None:
+            unit = header.get("bdipole:unit", "") if label in ("mfp", "texel") else ""
+            numeric = all(_is_float(v) for v in str(value).split(","))
+            parts.append(f"{label} {value}" + (f" {unit}" if unit and numeric else
+                                                f" ({unit})" if unit else ""))
+    return "   ".join(parts) if parts else "(no bdipole parameters in the header)"
+
+
+def _is_float(text):
+    try:
+        float(text)
+        return True
+    except ValueError:
+        return False
+
+
+def draw_group(fig, ax, cax, px, group, header):
+    """Draw one group's thumbnail in ``ax`` and its colour bar in ``cax``; returns the
+    pieces of a GroupTile (all but bbox)."""
+    from matplotlib import cm, colors
+    image, log, vmin, vmax, varies = thumbnail(px, group)
+    ax.imshow(image, interpolation="nearest")
+    ax.set_xticks([])
+    ax.set_yticks([])
+    unit = group_unit(group.name, header)
+    ax.set_title(GROUP_LABELS.get(group.name, group.name), fontsize=10)
+    span = (f"{vmin:.3g} .. {vmax:.3g}" if vmax > vmin else f"constant {vmin:.4g}") + (
+        f" {unit}" if unit else "")
+    ax.set_xlabel(f"{', '.join(n.rsplit('.', 1)[-1] for n in group.names)}: {span}"
+                  + (" (log)" if log else ""), fontsize=8)
+    if log:
+        norm, cmap = colors.LogNorm(vmin, vmax), "gray"
+    else:
+        norm = colors.Normalize(vmin, vmax if vmax > vmin else vmin + 1.0)
+        cmap = colors.ListedColormap(np.repeat(srgb_encode(np.linspace(0, 1, 256))[:, None],
+                                               3, 1))
+    bar = fig.colorbar(cm.ScalarMappable(norm=norm, cmap=cmap), cax=cax,
+                       orientation="horizontal")
+    bar.ax.tick_params(labelsize=7)
+    if unit:
+        bar.set_label(unit, fontsize=7, labelpad=1)
+    return (group, log, vmin, vmax, varies, image, bar.ax.get_xscale(),
+            tuple(float(v) for v in bar.ax.get_xlim()))
+
+
+def hug_colour_bar(fig, ax, cax, cell_w):
+    """Move a colour bar to just below its image as laid out (its aspect kept), under the
+    image's label: at least 55% of the cell wide."""
+    pos = ax.get_position()
+    height = fig.get_figheight()
+    width = max(0.9 * pos.width, 0.55 * cell_w)
+    bar_h = 0.11 / height
+    cax.set_position((pos.x0 + 0.5 * pos.width - 0.5 * width, pos.y0 - 0.42 / height - bar_h,
+                      width, bar_h))
+
+
+def pixel_bbox(fig, ax):
+    """Where ``ax`` lies in the saved PNG: (x0, y0, x1, y1) in pixels from the top left."""
+    x0, y0, x1, y1 = ax.get_window_extent().extents
+    height = fig.get_figheight() * fig.dpi
+    return (int(np.ceil(x0)), int(np.ceil(height - y1)), int(np.floor(x1)),
+            int(np.floor(height - y0)))
+
+
+def save_figure(fig, path):
+    """Save a figure (format by extension) through a temporary file beside it, renamed."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.stem}.partial-{os.getpid()}{path.suffix}")
+    try:
+        fig.savefig(tmp, dpi=fig.dpi, format=path.suffix.lstrip(".").lower() or "png")
+        os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+
+
+def sheet_axes(fig, rows, cols, top, bottom):
+    """Per tile, (image axes, colour bar axes) on a rows x cols grid between ``bottom`` and
+    ``top`` (figure fractions)."""
+    cell_w, cell_h = 1.0 / cols, (top - bottom) / rows
+    out = []
+    for k in range(rows * cols):
+        r, c = divmod(k, cols)
+        x0 = c * cell_w + 0.06 * cell_w
+        y0 = top - (r + 1) * cell_h
+        ax = fig.add_axes((x0, y0 + 0.30 * cell_h, 0.88 * cell_w, 0.60 * cell_h))
+        cax = fig.add_axes((x0 + 0.08 * cell_w, y0 + 0.11 * cell_h, 0.72 * cell_w,
+                            0.035 * cell_h))
+        out.append((ax, cax))
+    return out
+
+
+def contact_sheet(path, output=None, *, title=None) -> ContactSheet:
+    """The contact sheet of ``path`` (an EXR, or any image OpenImageIO reads), saved to
+    ``output`` (PNG or SVG by extension; default: beside the file, ``.preview.png``)."""
+    require_matplotlib()
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+    px, names, alpha, header = read_image(path)
+    groups = channel_groups(names, alpha, header)
+    cols = min(len(groups), 3)
+    rows = -(-len(groups) // cols)
+    fig = Figure(figsize=(TILE_IN[0] * cols, TILE_IN[1] * rows + 0.9), dpi=DPI)
+    top = 1.0 - 0.45 / fig.get_figheight()
+    bottom = 0.45 / fig.get_figheight()
+    fig.text(0.5, 1.0 - 0.22 / fig.get_figheight(), title or Path(path).name, ha="center",
+             va="center", fontsize=11, weight="bold")
+    caption = caption_text(header)
+    fig.text(0.5, 0.22 / fig.get_figheight(), _wrap(caption, 40 * cols), ha="center",
+             va="center", fontsize=8)
+    drawn = []
+    cells = sheet_axes(fig, rows, cols, top, bottom)
+    for (ax, cax), group in zip(cells, groups):
+        drawn.append((ax, draw_group(fig, ax, cax, px, group, header)))
+    for ax, cax in cells[len(groups):]:
+        fig.delaxes(ax)
+        fig.delaxes(cax)
+    output = Path(output) if output is not None else Path(path).with_suffix(".preview.png")
+    canvas = FigureCanvasAgg(fig)
+    canvas.draw()                              # lays out (image aspect) as the PNG will be
+    for (ax, cax), _ in zip(cells, groups):
+        hug_colour_bar(fig, ax, cax, 1.0 / cols)
+    canvas.draw()
+    tiles = tuple(GroupTile(g, log, lo, hi, var, im, pixel_bbox(fig, ax), scale, lim)
+                  for ax, (g, log, lo, hi, var, im, scale, lim) in drawn)
+    size = (int(round(fig.get_figwidth() * DPI)), int(round(fig.get_figheight() * DPI)))
+    save_figure(fig, output)
+    return ContactSheet(str(path), tiles, caption, size, str(output))
+
+
+def _wrap(text, width):
+    """Break a caption of '   '-separated entries into lines of about ``width`` characters."""
+    lines, line = [], ""
+    for part in text.split("   "):
+        if line and len(line) + len(part) + 3 > width:
+            lines.append(line)
+            line = part
+        else:
+            line = f"{line}   {part}" if line else part
+    return "\n".join(lines + [line])
+
+
+def add_command(command):
+    """Add the command to the CLI (``command``: the subparsers' add_parser)."""
+    p = command("preview", help="contact sheet of an EXR: a thumbnail per channel group")
+    p.add_argument("input", help="an EXR (a bdipole output, or any)")
+    p.add_argument("-o", "--output", help="PNG or SVG (default: FILE.preview.png beside it)")
+    p.set_defaults(func=_cmd_preview)
+
+
+def _cmd_preview(args) -> int:
+    sheet = contact_sheet(args.input, args.output)
+    for t in sheet.tiles:
+        scale = "log" if t.log else "linear"
+        print(f"{t.group.name}: {', '.join(t.group.names)}  {t.vmin:.4g} .. {t.vmax:.4g} "
+              f"({scale})")
+    print(f"wrote {sheet.path} ({sheet.size[0]}x{sheet.size[1]})")
+    return 0

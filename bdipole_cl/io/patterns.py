@@ -1,0 +1,80 @@
+"""Input patterns and output paths of texture batches and scenes (I/O layer): which files a
+path, glob or tile pattern names (``expand_inputs``; tile conventions: ``tiles``), and the
+output or companion (mfp, mask) path of each (``companion_path``)."""
+from __future__ import annotations
+
+import os
+import re
+from pathlib import Path
+
+import OpenImageIO as oiio
+
+from . import tiles
+from .images import TextureError, is_regular_file
+
+
+def written_by_us(path) -> bool:
+    """An EXR whose header says bdipole-cl wrote it (``bdipole:version``): one of this tool's
+    own outputs, never picked up again by a glob."""
+    if not str(path).lower().endswith(".exr") or not is_regular_file(path):
+        return False
+    inp = oiio.ImageInput.open(str(path))
+    if inp is None:
+        return False
+    try:
+        return bool(inp.spec().getattribute("bdipole:version"))
+    finally:
+        inp.close()
+
+
+def expand_inputs(patterns):
+    """Files named by paths, globs (``textures/*.tif``) or tile patterns (``a.<UDIM>.exr``,
+    ``a_<UVTILE>.exr``, ...: ``tiles``), as ``(path, Tile or None)``, in order, without
+    duplicates. A pattern matching nothing is kept as a path, so that it is reported as missing
+    rather than silently skipped. A path that exists is taken as it is (``tex[v2]/a.exr`` is a
+    file name, not a glob); the files a pattern matches leave out this tool's own outputs
+    (``written_by_us``)."""
+    out, seen = [], set()
+    for pattern in patterns:
+        pattern = str(pattern)
+        if os.path.exists(pattern):
+            found = [(pattern, None)]
+        elif tiles.is_pattern(pattern):
+            found = [(h, t) for h, t in tiles.expand(pattern) if not written_by_us(h)]
+        else:
+            found = [(pattern, None)]
+        if not found:
+            found = [(pattern, None)]
+        for path, tile in found:
+            if path not in seen:
+                seen.add(path)
+                out.append((path, tile))
+    return out
+
+
+def stem(path):
+    """The file name without its extension: ``diffuse.1001.exr`` -> ``diffuse.1001``, so that
+    the tiles of a UDIM set keep distinct names."""
+    name = Path(path).name
+    return name.rsplit(".", 1)[0] if "." in name else name
+
+
+#: the fields of an output or companion pattern; any other text in braces is literal
+PATTERN_FIELDS = ("stem", "dir", "name", "udim")
+_FIELD = re.compile(r"\{(" + "|".join(PATTERN_FIELDS) + r")\}")
+
+
+def companion_path(pattern, path, tile):
+    """Fill ``{stem}``, ``{dir}``, ``{name}``, ``{udim}`` (the tile's label) and the tile
+    token (``tiles``, written in the pattern's own convention) for one input file; other braces
+    are part of the name (``proj{v2}/``). A tile token or ``{udim}`` with an input that has no
+    tile is an error (it would write ``s..exr``)."""
+    p = Path(path)
+    text = str(pattern)
+    if tile is None and "{udim}" in text:
+        raise TextureError(f"{path}: pattern {pattern!r} needs a UDIM but the input has none "
+                           f"(a tiled input is named with a tile token, e.g. a.<UDIM>.exr)")
+    text = tiles.fill(text, tile, path)
+    fields = {"stem": stem(path), "dir": str(p.parent), "name": p.name,
+              "udim": tile.label if tile is not None else ""}
+    return _FIELD.sub(lambda m: fields[m.group(1)], text)

@@ -1,0 +1,191 @@
+"""Pictures: ``bdipole-cl preview`` (contact sheets), ``bdipole-cl profile`` and ``bake
+--preview``, checked against the files and the physics they were drawn from."""
+import numpy as np
+import OpenImageIO as oiio
+import pytest
+
+from bdipole_cl import reference as ref
+from bdipole_cl.apps.cli import main as cli_main
+from bdipole_cl.apps.demo import make_scene
+from bdipole_cl.apps.preview import DPI, TILE_IN, contact_sheet
+from bdipole_cl.apps.profile import constant_specs, profile_plot
+
+matplotlib = pytest.importorskip("matplotlib")
+from matplotlib import image as mpimg  # noqa: E402
+
+
+def write_with_header(path, px, names, header):
+    spec = oiio.ImageSpec(px.shape[1], px.shape[0], px.shape[2], "float")
+    spec.channelnames = tuple(names)
+    if "A" in names:
+        spec.alpha_channel = names.index("A")
+    for k, v in header.items():
+        spec.attribute(k, v)
+    out = oiio.ImageOutput.create(str(path))
+    assert out.open(str(path), spec) and out.write_image(np.ascontiguousarray(px, np.float32))
+    out.close()
+
+
+def bdipole_like(path):
+    """A bdipole-like output: sigma_a over four decades, rho varying, a constant alpha'
+    group and an alpha channel; (channel names, pixels)."""
+    h, w = 48, 80
+    x = np.linspace(0.0, 1.0, w)[None, :].repeat(h, 0)
+    y = np.linspace(0.0, 1.0, h)[:, None].repeat(w, 1)
+    sigma_a = np.stack([1e-3 * 10 ** (4 * x), 1e-2 * 10 ** (2 * y), 0.05 + 0 * x], -1)
+    rho = (0.2 + 0.5 * x * y)[..., None]
+    alpha = np.full((h, w, 1), 0.75)
+    a = (x < 0.8)[..., None].astype(float)
+    names = ["sigma_a.R", "sigma_a.G", "sigma_a.B", "rho.Y", "alpha.Y", "A"]
+    px = np.concatenate([sigma_a, rho, alpha, a], -1)
+    write_with_header(path, px, names, {
+        "bdipole:model": "better", "bdipole:eta": "1.4", "bdipole:mfp": "1.2,0.6,0.3",
+        "bdipole:unit": "mm", "bdipole:coefficient_unit": "1/mm",
+        "bdipole:method": "table(size=8, polish=0)", "bdipole:tol": "0.0001",
+        "oiio:ColorSpace": "lin_rec709_scene"})
+    return names, px.astype(np.float32)
+
+
+def read_exr(path):
+    buf = oiio.ImageBuf(str(path))
+    return list(buf.spec().channelnames), buf.get_pixels(oiio.FLOAT)
+
+
+def read_png(path):
+    img = mpimg.imread(str(path))
+    return img[..., :3]
+
+
+def test_contact_sheet_size_tiles_and_scales(tmp_path):
+    bdipole_like(tmp_path / "out.exr")
+    names, px = read_exr(tmp_path / "out.exr")        # in the file's (sorted) order
+    sheet = contact_sheet(tmp_path / "out.exr", tmp_path / "sheet.png")
+    img = read_png(tmp_path / "sheet.png")
+    # four groups on a 3-column grid: 2 rows; each tile TILE_IN inches at DPI, + 0.9 in of
+    # title and caption
+    want = (round(3 * TILE_IN[0] * DPI), round((2 * TILE_IN[1] + 0.9) * DPI))
+    assert sheet.size == want and img.shape[:2] == (want[1], want[0]), (sheet.size, img.shape)
+    by_name = {t.group.name: t for t in sheet.tiles}
+    assert set(by_name) == {"sigma_a", "rho", "alpha", "alpha channel"}
+    for t in sheet.tiles:
+        x0, y0, x1, y1 = t.bbox
+        inner = img[y0 + 3:y1 - 3, x0 + 3:x1 - 3]          # inside the frame
+        data = px[..., list(t.group.channels)]
+        varies = bool(np.ptp(data) > 0)
+        assert t.varies == varies, t.group.name
+        if varies:
+            assert inner.std() > 0.05, (t.group.name, inner.std())
+        else:
+            assert np.ptp(inner) == 0, (t.group.name, np.ptp(inner))
+    sa = by_name["sigma_a"]
+    assert sa.group.names == ("sigma_a.R", "sigma_a.G", "sigma_a.B")   # shown as R, G, B
+    values = px[..., [names.index(n) for n in sa.group.names]]
+    assert sa.log and sa.bar_scale == "log"
+    assert sa.bar_limits == pytest.approx((values.min(), values.max()), rel=1e-6)
+    assert by_name["rho"].bar_scale == "linear" and not by_name["rho"].log
+    rho = px[..., names.index("rho.Y")]
+    assert by_name["rho"].bar_limits == pytest.approx((rho.min(), rho.max()), rel=1e-6)
+    for text in ("model better", "eta 1.4", "mfp 1.2,0.6,0.3 mm",
+                 "working space lin_rec709_scene", "method table(size=8, polish=0)",
+                 "tol 0.0001"):
+        assert text in sheet.caption, (text, sheet.caption)
+
+
+def test_any_exr_is_grouped_by_its_channel_names(tmp_path, capsys):
+    px = np.random.default_rng(0).uniform(0.0, 1.0, (20, 30, 5))
+    write_with_header(tmp_path / "any.exr", px, ["diffuse.R", "diffuse.G", "diffuse.B", "Z",
+                                                 "A"], {})
+    assert cli_main(["preview", str(tmp_path / "any.exr")]) == 0
+    out = capsys.readouterr().out
+    assert (tmp_path / "any.preview.png").is_file()
+    sheet = contact_sheet(tmp_path / "any.exr", tmp_path / "any.png")
+    assert sorted(t.group.name for t in sheet.tiles) == ["Z", "alpha channel", "diffuse"], out
+    assert not any(t.log for t in sheet.tiles), out       # values in [0, 1]: linear
+    assert sheet.caption == "(no bdipole parameters in the header)"
+
+
+def test_preview_of_a_missing_file_is_one_line(tmp_path, capsys):
+    assert cli_main(["preview", str(tmp_path / "none.exr")]) == 1
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "none.exr" in err and "no such file" in err
+
+
+@pytest.mark.parametrize("tol", [1e-3, 1e-5])
+def test_profile_curve_passes_through_R_at_the_marked_radius(tmp_path, tol):
+    specs = constant_specs((0.8, 0.5, 0.2), (1.2, 0.6, 0.3), (1.4,))
+    plot = profile_plot(specs, tmp_path / "p.png", tol=tol)
+    assert read_png(tmp_path / "p.png").shape[:2] == (plot.size[1], plot.size[0]) == (460, 1100)
+    for c, (rd, mfp) in zip(plot.channels, ((0.8, 1.2), (0.5, 0.6), (0.2, 0.3))):
+        # independently of the plot: the coefficients the inversion gives this albedo and mfp
+        sa, ss = ref.albedo_to_coefficients(rd, mfp, 1.4)
+        alpha, sigma_t = ss / (sa + ss), sa + ss
+        r_mark, R_mark = c.mark
+        want = float(ref.profile(r_mark, alpha, sigma_t, 1.4))
+        # the drawn curve, read at the marked radius (log-log interpolation of its points)
+        on_curve = np.exp(np.interp(np.log(r_mark), np.log(c.r), np.log(c.R)))
+        assert on_curve == pytest.approx(want, rel=1e-9), (c.spec.name, on_curve, want)
+        assert R_mark == pytest.approx(want, rel=1e-12)
+        # the mark is the truncation radius: the energy beyond it is tol of Rd (bisection
+        # to 60 halvings: the tail lands on tol within 1e-6 relative)
+        tail = ref.profile_tail(r_mark, alpha, sigma_t, 1.4) / ref.profile_tail(0.0, alpha,
+                                                                               sigma_t, 1.4)
+        assert tol * (1 - 1e-6) <= tail <= tol, (c.spec.name, tail)
+        assert r_mark > mfp                                # R(r) is drawn past the mfp
+        assert c.r.min() < mfp < c.r.max()
+    assert plot.shaded == pytest.approx((0.2, 0.8))
+    assert plot.rd[1.4] == pytest.approx(ref.rd(plot.alpha, 1.4))
+
+
+def test_profile_of_a_scene_material_and_svg(tmp_path, capsys, on_device):
+    scene = make_scene(tmp_path / "scene", size=32)
+    rc = cli_main(["profile", "--scene", str(scene), "--material", "skin",
+                   "-o", str(tmp_path / "skin.svg")])
+    assert rc == 0, capsys.readouterr()
+    text = (tmp_path / "skin.svg").read_text()
+    assert text.lstrip().startswith("<?xml") and "<svg" in text
+    from bdipole_cl.apps.profile import material_specs
+    specs, unit, tol = material_specs(scene, "skin")
+    assert unit == "mm" and tol == 1e-4 and [s.name for s in specs] == ["R", "G", "B"]
+    for s in specs:            # mean inside the range of the unmasked (island) texels
+        lo, hi = s.albedo_range
+        assert 0.2 < lo < s.albedo < hi < 0.9, s
+    rc = cli_main(["profile", "--scene", str(scene), "--material", "nope"])
+    err = capsys.readouterr().err.strip()
+    assert rc == 2 and len(err.splitlines()) == 1 and "skin, marble" in err
+
+
+def test_bake_preview_writes_a_sheet_per_job_and_a_page(tmp_path, capsys, on_device):
+    scene = make_scene(tmp_path / "scene", size=32)
+    assert cli_main(["bake", str(scene), "--preview", "--no-progress"]) == 0
+    out = capsys.readouterr().out
+    sheets = sorted(p.name for p in (tmp_path / "scene" / "out").glob("*.preview.png"))
+    exrs = sorted(p.name for p in (tmp_path / "scene" / "out").glob("*.exr"))
+    assert sheets == [e.replace(".exr", ".preview.png") for e in exrs] and len(exrs) == 5, out
+    page = read_png(tmp_path / "scene" / "scene.preview.png")
+    # two materials (rows); skin's row holds 4 thumbnails: alpha, sigma_a, sigma_s, exitance
+    assert page.shape[:2] == (round((2 * 2.9 + 0.5) * 100), round((4 * 2.4 + 5.0) * 100))
+    assert page.std() > 0.05
+
+
+def test_without_matplotlib_the_pictures_say_which_install(tmp_path, capsys, monkeypatch):
+    import sys
+    write_with_header(tmp_path / "a.exr", np.ones((4, 4, 1)), ["Y"], {})
+    monkeypatch.setitem(sys.modules, "matplotlib", None)     # import matplotlib fails
+    assert cli_main(["preview", str(tmp_path / "a.exr")]) == 1
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "bdipole-cl[report]" in err, err
+
+
+def test_preview_of_a_texture_output_reads_level_0(tmp_path, on_device):
+    from bdipole_cl.io.batch import process_textures
+    write_with_header(tmp_path / "a.exr", np.random.default_rng(2).uniform(
+        0.1, 0.9, (40, 70, 3)), ["R", "G", "B"], {})
+    rep = process_textures(str(tmp_path / "a.exr"), mfp=1.0, output=str(tmp_path / "t.exr"),
+                           outputs=("rho",), texture=True)
+    assert rep.exit_code == 0, rep.summary()
+    sheet = contact_sheet(tmp_path / "t.exr", tmp_path / "t.png")
+    (tile,) = sheet.tiles
+    _, px = read_exr(tmp_path / "a.exr")
+    rho = ref.invert_rd_rho(px.astype(np.float64), 1.4)[1]
+    # the range drawn is level 0's (a coarser mip level's box averages would narrow it)
+    assert (tile.vmin, tile.vmax) == pytest.approx((rho.min(), rho.max()), rel=2e-4)

@@ -1,0 +1,206 @@
+"""Texture outputs (``--texture`` / ``texture = true``): tiled, mip-mapped OpenEXR written by
+the one writer (bdipole_cl/io/images.py ``Writer``, ``write_texture``) for every entry point."""
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import OpenImageIO as oiio
+import pytest
+
+from bdipole_cl.apps.cli import main as cli_main
+from bdipole_cl.apps.demo import write_exr
+from bdipole_cl.io import images  # noqa: F401  (patched below)
+from bdipole_cl.io.batch import process_textures
+from bdipole_cl.io.images import TextureError, Writer, output_spec
+from bdipole_cl.io.mipmaps import TEXTURE_REWRITES, mip_levels
+from bdipole_cl.io.colour import resolve_working_space
+from bdipole_cl.io.scene import load
+
+#: the default working space (the outputs' colour tags)
+WORKING = resolve_working_space()
+
+#: every test here runs once per working OpenCL device (tests/conftest.py)
+pytestmark = pytest.mark.usefixtures("on_device")
+
+W, H = 100, 70          # not powers of two: the mip chain rounds down (100x70 -> ... -> 1x1)
+
+
+def albedo_rgba(seed=0):
+    rng = np.random.default_rng(seed)
+    rgb = rng.uniform(0.05, 0.9, (H, W, 3))
+    alpha = (rng.uniform(size=(H, W, 1)) > 0.3).astype(np.float64)
+    return np.concatenate([rgb, alpha], -1).astype(np.float32)
+
+
+def levels(path):
+    """(the spec of every mip level, level 0's pixels, the header of level 0)."""
+    buf = oiio.ImageBuf(str(path))
+    specs = []
+    for m in range(buf.nmiplevels):
+        b = oiio.ImageBuf(str(path), 0, m)
+        specs.append(b.spec())
+    return specs, buf.get_pixels(oiio.FLOAT), buf.spec()
+
+
+def header(spec):
+    return {a.name: a.value for a in spec.extra_attribs if a.name not in TEXTURE_REWRITES}
+
+
+@pytest.mark.parametrize("half", [False, True], ids=["float", "half"])
+def test_texture_output_is_mipmapped_tiled_and_level0_is_the_plain_output(tmp_path, half):
+    write_exr(tmp_path / "skin.exr", albedo_rgba(), ("R", "G", "B", "A"))
+    common = dict(mfp=(1.2, 0.6, 0.3), eta=1.4, outputs=("sigma_a", "sigma_s"), half=half)
+    plain = process_textures(str(tmp_path / "skin.exr"), output=str(tmp_path / "plain.exr"),
+                             **common)
+    tex = process_textures(str(tmp_path / "skin.exr"), output=str(tmp_path / "tex.exr"),
+                           texture=True, **common)
+    assert plain.exit_code == 0 and tex.exit_code == 0, (plain.summary(), tex.summary())
+    specs, px, spec0 = levels(tmp_path / "tex.exr")
+    _, plain_px, plain_spec = levels(tmp_path / "plain.exr")
+    assert len(specs) == mip_levels(W, H) == 7 > 1, len(specs)
+    assert [(s.width, s.height) for s in specs][-2:] == [(3, 2), (1, 1)]
+    assert all((s.tile_width, s.tile_height) == (64, 64) for s in specs)
+    assert plain_spec.tile_width == 0                       # the plain output is scanline
+    assert tuple(spec0.channelnames) == tuple(plain_spec.channelnames)
+    assert "sigma_a.R" in spec0.channelnames and spec0.format == plain_spec.format
+    assert spec0.format == (oiio.HALF if half else oiio.FLOAT)
+    want = header(plain_spec)
+    assert {k: header(spec0).get(k) for k in want} == want  # bdipole:*, colour, everything
+    assert want["bdipole:eta"] and "bdipole:model" in want
+    assert np.array_equal(px, plain_px), np.max(np.abs(px - plain_px))   # bit for bit
+    assert sorted(os.listdir(tmp_path)) == ["plain.exr", "skin.exr", "tex.exr"]  # no leftovers
+
+
+def test_a_data_window_is_filled_to_the_display_window_exactly(tmp_path):
+    spec = oiio.ImageSpec(40, 30, 3, "float")
+    spec.x, spec.y, spec.full_width, spec.full_height = 5, 7, 50, 40
+    spec.channelnames = ("sigma_a.R", "sigma_a.G", "sigma_a.B")
+    px = np.random.default_rng(1).uniform(0.1, 9.0, (30, 40, 3)).astype(np.float32)
+    w = Writer(tmp_path / "win.exr", output_spec(spec, spec.channelnames, -1, False, {}, working=WORKING),
+               texture=True)
+    w.write_band(0, 30, px)
+    w.commit()
+    _, level0, spec0 = levels(tmp_path / "win.exr")
+    assert (spec0.width, spec0.height) == (50, 40)
+    assert np.array_equal(level0[7:37, 5:45], px)           # no resampling of the data
+    outside = np.ones((40, 50), bool)
+    outside[7:37, 5:45] = False
+    assert np.all(level0[outside] == 0)
+
+
+def test_a_texture_that_does_not_verify_is_not_written(tmp_path, monkeypatch):
+    """The verification can fail: a texture build that changes a texel is refused and the
+    target is not created."""
+    real = oiio.ImageBufAlgo.make_texture
+
+    def corrupt(mode, buf, out, config):
+        bad = oiio.ImageBuf(buf.spec())
+        oiio.ImageBufAlgo.copy(bad, buf)
+        bad.setpixel(3, 2, (123.0, 0.0, 0.0))
+        return real(mode, bad, out, config)
+
+    monkeypatch.setattr(images.oiio.ImageBufAlgo, "make_texture", corrupt)
+    spec = oiio.ImageSpec(20, 10, 3, "float")
+    spec.channelnames = ("R", "G", "B")
+    w = Writer(tmp_path / "bad.exr", output_spec(spec, spec.channelnames, -1, False, {}, working=WORKING),
+               texture=True)
+    w.write_band(0, 10, np.full((10, 20, 3), 0.5, np.float32))
+    with pytest.raises(TextureError, match="level 0 differs"):
+        w.commit()
+    assert os.listdir(tmp_path) == []
+
+
+@pytest.mark.parametrize("suffix", [".tx", ".tif"])
+def test_a_tiff_texture_output_is_refused_with_its_reason(tmp_path, capsys, suffix):
+    write_exr(tmp_path / "a.exr", albedo_rgba()[..., :3], ("R", "G", "B"))
+    rc = cli_main(["invert", str(tmp_path / "a.exr"), "--texture", "--no-progress",
+                   "-o", str(tmp_path / f"a{suffix}")])
+    err = capsys.readouterr().err.strip()
+    assert rc == 2 and len(err.splitlines()) == 1, err
+    assert "TIFF" in err and "channel names" in err and suffix in err
+    assert not (tmp_path / f"a{suffix}").exists()
+
+
+def test_sigterm_during_the_texture_write_leaves_nothing_partial(tmp_path):
+    """A real SIGTERM, sent once the texture build has started (its temporary exists): the
+    process exits 143, and neither the output nor any temporary is left."""
+    write_exr(tmp_path / "big.exr", np.random.default_rng(0).uniform(
+        0.05, 0.9, (1024, 1024, 3)).astype(np.float32), ("R", "G", "B"))
+    out_dir = tmp_path / "out"
+    proc = subprocess.Popen([sys.executable, "-m", "bdipole_cl", "invert",
+                             str(tmp_path / "big.exr"), "--texture", "--no-progress",
+                             "-o", str(out_dir / "{stem}.exr")],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 300
+    while time.monotonic() < deadline and proc.poll() is None:
+        if out_dir.exists() and any(".partial-" in p and ".tx." in p
+                                    for p in os.listdir(out_dir)):
+            break
+        time.sleep(0.002)
+    assert proc.poll() is None, "the batch ended before the texture write began"
+    proc.send_signal(signal.SIGTERM)
+    stdout, stderr = proc.communicate(timeout=300)
+    assert proc.returncode == 143, (stdout, stderr)
+    assert "Traceback" not in stderr and "cancelled" in stdout
+    assert os.listdir(out_dir) == [], os.listdir(out_dir)
+
+
+SCENE = """
+[defaults]
+texture = true
+
+[[material]]
+name = "skin"
+albedo = "tex/skin.<UDIM>.exr"
+mfp = [1.2, 0.6, 0.3]
+output = "out/skin.<UDIM>.exr"
+half = true
+
+[[blur]]
+name = "skin_tsd"
+material = "skin"
+irradiance = "light/irr.<UDIM>.exr"
+texel_size = 0.1
+output = "out/exitance.<UDIM>.exr"
+"""
+
+
+def test_scene_texture_true_bakes_textures_that_stay_up_to_date(tmp_path):
+    (tmp_path / "tex").mkdir()
+    (tmp_path / "light").mkdir()
+    write_exr(tmp_path / "tex" / "skin.1001.exr", albedo_rgba()[:32, :48], ("R", "G", "B", "A"))
+    light = np.zeros((32, 48, 3), np.float32)
+    light[10:13] = 2.0
+    write_exr(tmp_path / "light" / "irr.1001.exr", light, ("R", "G", "B"))
+    path = tmp_path / "scene.toml"
+    path.write_text(SCENE)
+    report = load(path).plan().run()
+    assert report.exit_code == 0, report.summary()
+    for name in ("skin.1001.exr", "exitance.1001.exr"):
+        specs, _, spec0 = levels(tmp_path / "out" / name)
+        assert len(specs) == mip_levels(48, 32) and spec0.tile_width == 64, name
+        assert spec0.getattribute("bdipole:params_digest"), name   # the up-to-date record
+    again = load(path).plan()
+    assert all(j.up_to_date for j in again.jobs), again.describe()
+    path.write_text(SCENE.replace("texture = true", "texture = false"))
+    changed = load(path).plan()
+    assert not any(j.up_to_date for j in changed.jobs), changed.describe()
+
+
+def test_what_a_killed_texture_write_leaves_is_recognised_as_partial(tmp_path):
+    """SIGKILL cannot be caught: the texture's temporaries (the writer's and maketx's own)
+    are what ``partial_files`` finds (the Dask runner removes them before a retry)."""
+    from bdipole_cl.io.images import partial_files, remove_partial_files
+    target = tmp_path / "skin.1001.exr"
+    left = [tmp_path / ".skin.1001.partial-12-34.exr",
+            tmp_path / ".skin.1001.partial-12-34.tx.exr",
+            tmp_path / ".skin.1001.partial-12-34.tx.5e47e508.temp.exr"]
+    for p in left:
+        p.write_bytes(b"")
+    (tmp_path / "skin.1002.exr").write_bytes(b"")
+    assert partial_files(target) == sorted(left)
+    assert remove_partial_files(target) == 3
+    assert os.listdir(tmp_path) == ["skin.1002.exr"]

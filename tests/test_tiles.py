@@ -1,0 +1,165 @@
+"""Tile conventions (bdipole_cl/io/tiles.py): every token reads and writes the right tiles, in
+batches and scenes, and a token that cannot name a tile is a one-line error."""
+import re
+
+import numpy as np
+import OpenImageIO as oiio
+import pytest
+
+from bdipole_cl.apps.cli import main as cli_main
+from bdipole_cl.apps.demo import write_exr
+from bdipole_cl.io import tiles
+from bdipole_cl.io.batch import expand_inputs, process_textures
+from bdipole_cl.io.scene import load
+
+#: (token, how tiles (0, 0), (9, 0), (0, 1), (10, 0) are named: None = cannot be)
+NAMES = {
+    "<UDIM>": ("1001", "1010", "1011", None),
+    "%(UDIM)d": ("1001", "1010", "1011", None),
+    "<UVTILE>": ("u1_v1", "u10_v1", "u1_v2", "u11_v1"),
+    "%(UVTILE)d": ("u1_v1", "u10_v1", "u1_v2", "u11_v1"),
+    "<UVTILE0>": ("u0_v0", "u9_v0", "u0_v1", "u10_v0"),
+}
+TILES = (tiles.Tile(0, 0), tiles.Tile(9, 0), tiles.Tile(0, 1), tiles.Tile(10, 0))
+
+
+def test_the_registry_holds_every_token():
+    assert set(tiles.TOKENS) == set(NAMES)
+
+
+@pytest.mark.parametrize("token", NAMES)
+def test_each_token_names_each_tile(token):
+    for tile, name in zip(TILES, NAMES[token]):
+        pattern = f"skin.{token}.exr"
+        if name is None:
+            with pytest.raises(tiles.TileError, match="cannot name tile u11_v1"):
+                tiles.fill(pattern, tile, "x.exr")
+        else:
+            assert tiles.fill(pattern, tile, "x.exr") == f"skin.{name}.exr"
+
+
+def test_mudbox_names_are_udims_as_the_convention_says():
+    """u1_v1 is UDIM 1001; u10_v1 is 1010; u1_v2 is 1011 (and ZBrush's u0_v0 is 1001)."""
+    conv = {c.token: c for c in tiles.CONVENTIONS}
+    for text, udim in (("u1_v1", 1001), ("u10_v1", 1010), ("u1_v2", 1011)):
+        tile = conv["<UVTILE>"].parse(re.match(conv["<UVTILE>"].regex, text))
+        assert tile.udim == udim, (text, tile)
+    tile = conv["<UVTILE0>"].parse(re.match(conv["<UVTILE0>"].regex, "u0_v0"))
+    assert tile.udim == 1001
+
+
+def _tile_set(folder, token, albedos):
+    """One small RGB albedo file per tile of TILES[:3], named in ``token``'s convention, each
+    of its own constant value; returns the pattern."""
+    for tile, rd in zip(TILES[:3], albedos):
+        name = tiles.fill(f"alb.{token}.exr", tile, "test")
+        write_exr(folder / name, np.full((4, 6, 3), rd, np.float32), ("R", "G", "B"))
+    return str(folder / f"alb.{token}.exr")
+
+
+@pytest.mark.parametrize("token_in", NAMES)
+def test_every_token_reads_and_writes_the_right_tiles(tmp_path, token_in, on_device):
+    albedos = (0.2, 0.5, 0.8)
+    pattern = _tile_set(tmp_path, token_in, albedos)
+    write_exr(tmp_path / "alb.1000.exr", np.full((4, 6, 3), 0.5, np.float32),  # no tile
+              ("R", "G", "B"))
+    found = expand_inputs([pattern])
+    assert [t for _, t in found] == [TILES[0], TILES[1], TILES[2]]    # ordered by v, then u
+    for token_out in NAMES:
+        out = tmp_path / "out" / token_out.strip("<>%()d") / f"sss.{token_out}.exr"
+        rep = process_textures(pattern, mfp=1.0, eta=1.4, output=str(out),
+                               outputs=("alpha",))
+        assert rep.exit_code == 0, (token_in, token_out, rep.summary())
+        for tile, name, rd in zip(TILES, NAMES[token_out], albedos):
+            path = out.parent / f"sss.{name}.exr"
+            buf = oiio.ImageBuf(str(path))
+            assert not buf.has_error, (token_in, token_out, path, buf.geterror())
+            source = buf.spec().getattribute("bdipole:albedo")
+            assert source == tiles.fill(pattern, tile, "test"), (token_in, token_out, source)
+            alpha = buf.get_pixels(oiio.FLOAT)[0, 0, 0]
+            assert alpha == pytest.approx(ref_alpha(rd), rel=1e-4), (token_in, token_out)
+
+
+def ref_alpha(rd):
+    from bdipole_cl import reference as ref
+    return float(ref.invert_rd(rd, 1.4))
+
+
+def test_companion_textures_convert_their_own_token(tmp_path, on_device):
+    """albedo in <UDIM>, mfp in ZBrush's u0_v0 names: each tile takes its own mfp."""
+    _tile_set(tmp_path, "<UDIM>", (0.5, 0.5, 0.5))
+    for tile, mfp in zip(TILES[:3], (1.0, 2.0, 4.0)):
+        write_exr(tmp_path / tiles.fill("mfp.<UVTILE0>.exr", tile, "t"),
+                  np.full((4, 6, 1), mfp, np.float32), ("Y",))
+    rep = process_textures(str(tmp_path / "alb.<UDIM>.exr"),
+                           mfp=str(tmp_path / "mfp.<UVTILE0>.exr"),
+                           output=str(tmp_path / "o.<UVTILE>.exr"), outputs=("sigma_t",))
+    assert rep.exit_code == 0, rep.summary()
+    st = [oiio.ImageBuf(str(tmp_path / f"o.{n}.exr")).get_pixels(oiio.FLOAT)[0, 0, 0]
+          for n in NAMES["<UVTILE>"][:3]]
+    assert st[0] == pytest.approx(2 * st[1], rel=1e-5) == pytest.approx(4 * st[2], rel=1e-5)
+
+
+def test_a_tile_the_output_token_cannot_name_is_a_one_line_error(tmp_path, capsys, on_device):
+    write_exr(tmp_path / "alb.u11_v1.exr", np.full((4, 6, 3), 0.5, np.float32), ("R", "G", "B"))
+    write_exr(tmp_path / "alb.u1_v1.exr", np.full((4, 6, 3), 0.5, np.float32), ("R", "G", "B"))
+    rc = cli_main(["invert", str(tmp_path / "alb.<UVTILE>.exr"), "--no-progress",
+                   "-o", str(tmp_path / "o.<UDIM>.exr")])
+    out = capsys.readouterr().out
+    assert rc == 1
+    line = next(x for x in out.splitlines() if "u11_v1" in x and "failed" in x)
+    assert "<UDIM> cannot name tile u11_v1" in line and "<UVTILE>" in line
+    assert (tmp_path / "o.1001.exr").exists()            # the other tile is done
+
+
+@pytest.mark.parametrize("inputs, output, expected", [
+    ("alb.<UDIM>.<UVTILE>.exr", "o.exr", "one tile token per pattern"),
+    ("alb.exr", "o.<UDIM>.exr", "needs a tile (<UDIM>) but the input has none"),
+], ids=["two-tokens", "output-token-without-input-tile"])
+def test_token_mismatches_are_one_line_errors(tmp_path, capsys, inputs, output, expected,
+                                              on_device):
+    write_exr(tmp_path / "alb.exr", np.full((4, 6, 3), 0.5, np.float32), ("R", "G", "B"))
+    rc = cli_main(["invert", str(tmp_path / inputs), "--no-progress",
+                   "-o", str(tmp_path / output)])
+    cap = capsys.readouterr()
+    text = cap.err if rc == 2 else cap.out
+    lines = [x for x in text.splitlines() if expected in x]
+    assert rc in (1, 2) and len(lines) == 1, (rc, cap)
+
+
+def test_globs_and_literal_brackets_with_tile_tokens(tmp_path):
+    for name in ("a.1001.exr", "b.1002.exr", "b.1000.exr", "b.x001.exr"):
+        write_exr(tmp_path / name, np.full((2, 2, 1), 0.5, np.float32), ("Y",))
+    found = expand_inputs([str(tmp_path / "*.<UDIM>.exr")])
+    assert [(p.rsplit("/", 1)[1], t.label) for p, t in found] == [("a.1001.exr", "1001"),
+                                                                   ("b.1002.exr", "1002")]
+    d = tmp_path / "tex[v2]"                              # brackets in a real folder's name
+    d.mkdir()
+    write_exr(d / "c.u1_v2.exr", np.full((2, 2, 1), 0.5, np.float32), ("Y",))
+    (found,) = expand_inputs([str(d / "c.<UVTILE>.exr")])
+    assert found[1].udim == 1011
+
+
+SCENE = """
+[[material]]
+name = "skin"
+albedo = "tex/alb.<UVTILE>.exr"
+mfp = 1.0
+output = "out/skin.<UDIM>.exr"
+"""
+
+
+def test_scenes_convert_tiles_and_report_what_they_cannot_name(tmp_path, on_device):
+    (tmp_path / "tex").mkdir()
+    for name in ("u1_v1", "u10_v1", "u1_v2", "u11_v1"):
+        write_exr(tmp_path / "tex" / f"alb.{name}.exr", np.full((4, 6, 3), 0.5, np.float32),
+                  ("R", "G", "B"))
+    (tmp_path / "scene.toml").write_text(SCENE)
+    plan = load(tmp_path / "scene.toml").plan()
+    outs = {j.udim: j.output.rsplit("/", 1)[1] for j in plan.jobs if not j.problem}
+    assert outs == {"1001": "skin.1001.exr", "1010": "skin.1010.exr", "1011": "skin.1011.exr"}
+    (bad,) = [j for j in plan.jobs if j.problem]
+    assert bad.udim == "u11_v1" and "cannot name tile u11_v1" in bad.problem
+    assert "\n" not in bad.problem
+    report = plan.run()
+    assert sum(r.status == "ok" for r in report.results) == 3, report.summary()

@@ -19,7 +19,8 @@ import numpy as np
 from ..io.batch import companion_path, expand_inputs
 from ..io.colour import resolve_working_space
 from ..io.images import read_parameter_texture
-from ..io.scene import load, read_albedo
+from ..io.scene import load
+from ..io.scene_stats import read_albedo
 from ..ops.blur.weights import truncation_radius
 from ..physics import reference as ref
 

@@ -34,26 +34,21 @@ import time
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
-import OpenImageIO as oiio
 
-from ..caches import ByteCache
 from ..device import get_runtime
 from ..methods.choice import DeviceKey, device_auto_note, resolve_method
 from ..methods.registry import MethodConfig
-from ..ops.invert import InversionKernel, invert_albedo
-from ..physics import reference as ref
-from ..physics import tables
-from ..ops.bands import band_rows
+from ..ops.invert import invert_albedo
 from .batch import (BatchReport, BatchSettings, FileResult, Job, companion_path, expand_inputs,
                     process_file)
 from .blur_file import blur_file
 from .collisions import Claim, collisions
 from .colour import WorkingSpace, resolve_working_space
 from .freshness import header_fields, is_up_to_date, params_digest
-from .images import (Reader, TextureError, check_same_window, classify_channels,
-                     read_parameter_texture)
+from .images import Reader, TextureError, check_same_window, read_parameter_texture
 from .mipmaps import texture_options
 from .scene_file import SceneData, SceneError, load_imported
+from .scene_stats import DEFAULT_MEMORY, albedo_stats, read_albedo, table_for_range
 from .scene_file import load as load_scene_file
 from .scene_import import import_materials, is_imported
 from .scene_records import (LAYER, MANIFEST, constant_config, constant_text, finish_bake,
@@ -64,12 +59,6 @@ from .tiles import TileError, is_pattern
 #: compile each job's constants into its kernel (tools/bench_scene.py turns it off to measure
 #: what it saves)
 SPECIALISE = True
-#: table sizes tried for a scene's albedo range, smallest first
-TABLE_SIZES = (8, 16, 32, 64, 128, 256)
-#: albedos checked in the range when choosing a table size
-RANGE_SWEEP = 4000
-#: host bytes one job's bands may take (``bdipole-cl plan/bake --max-memory``)
-DEFAULT_MEMORY = 256 << 20
 
 
 @dataclass(frozen=True)
@@ -176,103 +165,6 @@ def _cannot_run(job, problem, problems_all):
     return job
 
 
-def read_albedo(path, mask_mode, mask_path, colorspace, working):
-    """One read of an albedo file: (colour texels HxWxC in the working space ``working``, the
-    mask as booleans or None, colour channel names, alpha name or None, other channel names,
-    its ColourPath). ``mask_mode``: None, "alpha" (the file's alpha) or a texture
-    (``mask_path``, its first channel; masks are data, never converted)."""
-    r = Reader(path, "albedo")
-    try:
-        spec = r.spec
-        colour, alpha = r.channels()
-        route = r.colour(colorspace, working)
-        px = r.read_band(0, spec.height)
-    finally:
-        r.close()
-    _, _, other = classify_channels(spec.channelnames, spec.alpha_channel)
-    keep = None
-    if mask_mode == "alpha":
-        if alpha < 0:
-            raise TextureError(f"{path}: mask = 'alpha' but the albedo has no alpha channel")
-        keep = px[..., alpha] > 0
-    elif mask_mode:
-        keep = read_parameter_texture(mask_path, "mask")[..., 0] > 0
-    names = [spec.channelnames[c] for c in colour]
-    return (route.convert(px[..., colour], names), keep, names,
-            spec.channelnames[alpha] if alpha >= 0 else None,
-            [spec.channelnames[c] for c in other], route)
-
-
-def _albedo_stats(path, mask_mode, mask_path, colorspace, working, max_memory=DEFAULT_MEMORY):
-    """(colour channel names, alpha name, other names, Rd range of unmasked texels, masked
-    fraction, ColourPath) of an albedo file: the statistics pass, in the working space,
-    streamed in bands of rows."""
-    readers = [Reader(path, "albedo")]
-    try:
-        spec = readers[0].spec
-        colour, alpha = readers[0].channels()
-        route = readers[0].colour(colorspace, working)
-        if mask_mode == "alpha" and alpha < 0:
-            raise TextureError(f"{path}: mask = 'alpha' but the albedo has no alpha channel")
-        if mask_mode and mask_mode != "alpha":
-            readers.append(Reader(mask_path, "mask"))
-            check_same_window(spec, readers[1].spec, path, "mask", mask_path)
-        colour_names = [spec.channelnames[c] for c in colour]
-        rows = band_rows(spec.height, spec.width * (spec.nchannels + 2) * 4 * 3, max_memory,
-                         tile_height=spec.tile_height if spec.tile_width else 0)
-        lo, hi, kept = np.inf, -np.inf, 0
-        for y0 in range(0, spec.height, rows):
-            y1 = min(y0 + rows, spec.height)
-            px = readers[0].read_band(y0, y1)
-            keep = (px[..., alpha] > 0 if mask_mode == "alpha" else
-                    readers[1].read_band(y0, y1)[..., 0] > 0 if mask_mode else
-                    np.ones(px.shape[:2], bool))
-            vals = route.convert(px[..., colour], colour_names)[keep]
-            vals = vals[np.isfinite(vals)]
-            kept += int(np.count_nonzero(keep))
-            if vals.size:
-                lo, hi = min(lo, float(vals.min())), max(hi, float(vals.max()))
-    finally:
-        for r in readers:
-            r.close()
-    _, _, other = classify_channels(spec.channelnames, spec.alpha_channel)
-    names = spec.channelnames
-    return (colour_names, names[alpha] if alpha >= 0 else None,
-            [names[c] for c in other], (lo, hi) if lo <= hi else None,
-            1.0 - kept / max(spec.width * spec.height, 1), route)
-
-
-#: table sizes chosen per (etas, albedo range, tol, model, exact): a few bytes each
-_size_cache = ByteCache("scene table sizes", 1 << 20)
-
-
-def table_for_range(etas, rd_range, tol, model, exact, device):
-    """The smallest monotone table meeting tol (max relative rho error) on float32 albedos of
-    ``rd_range`` at every eta; (size, measured error)."""
-    lo, hi = max(rd_range[0], 1e-7), min(rd_range[1], float(np.nextafter(np.float32(1), 0)))
-    key = (tuple(etas), float(np.float32(lo)), float(np.float32(hi)), tol, model, exact)
-    hit = _size_cache.get(key)
-    if hit is not None:
-        return hit
-    rd = np.unique(np.float32(np.concatenate([np.geomspace(lo, max(hi, lo), RANGE_SWEEP),
-                                              np.linspace(lo, hi, RANGE_SWEEP)])))
-    wants = {e: ref.invert_rd_rho(rd.astype(np.float64), e, exact, model)[1] for e in etas}
-    choice = (TABLE_SIZES[-1], None)
-    for n in TABLE_SIZES:
-        if not all(tables.table_is_monotone(e, n, exact, model) for e in etas):
-            continue
-        err = 0.0
-        for e in etas:
-            k = InversionKernel((e,), MethodConfig("table", table_size=n), model=model,
-                                exact=exact, runtime=device)
-            rho = k.run(rd, None, ("rho",))["rho"]
-            err = max(err, float(np.max(np.abs(rho / wants[e] - 1.0))))
-        if err <= tol:
-            choice = (n, err)
-            break
-    return _size_cache.put(key, choice)
-
-
 def _plan_invert(m, path, tile, force, device, problems_all, max_memory):
     udim = tile.label if tile else None
     out = companion_path(m.output, path, tile)
@@ -288,7 +180,7 @@ def _plan_invert(m, path, tile, force, device, problems_all, max_memory):
     if not todo:
         return job
     try:
-        names, alpha, other, rd_range, masked, route = _albedo_stats(
+        names, alpha, other, rd_range, masked, route = albedo_stats(
             path, m.mask, inputs.get("mask"), m.colorspace, working, max_memory)
     except TextureError as exc:          # this job cannot run (unreadable, or a colour space
         return _cannot_run(job, str(exc), problems_all)   # the config cannot follow); others do

@@ -260,8 +260,8 @@ def run_constant_job(job, scene, runtime):
     return result
 
 
-def finish_bake(plan: Plan, results: list) -> BatchReport:
-    """The records of a bake (``scene_records``), each file written added to the report."""
+def finish_bake(plan, results: list) -> BatchReport:
+    """The records of a bake of ``plan`` (a scene Plan), each file written added to the report."""
     records = [FileResult(p, p, status="ok", notes=["records"]) if why is None else
                FileResult(p, p, error=why) for p, why in write_records(plan, results)]
     return BatchReport(results + records)

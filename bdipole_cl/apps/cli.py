@@ -8,11 +8,14 @@ import sys
 import time
 
 from ..errors import POLICIES
+from ..methods.registry import BLUR_METHODS, BORDERS
 from ..signals import SignalStop
 from ..version import __version__
-from .cli_globals import add_global_args, colorspace_arg
+from .cli_options import (add_global_args, add_method_args, add_scheduler_args, colorspace_arg,
+                          method_knobs)
 from .cli_types import (Parser, add_texture_arg, floats, fraction, output_list, positive_float,
                         positive_int, size)
+from .user_kernel import SIGNATURES
 
 DESCRIPTION = """\
 Better Dipole subsurface scattering (d'Eon 2012) with Hery's albedo inversion, on OpenCL:
@@ -55,27 +58,6 @@ def _cluster(args):
         yield client
 
 
-def _add_method_args(p):
-    from ..methods.registry import METHODS
-    p.add_argument("--method", default="table", choices=METHODS + ("auto",),
-                   help="inversion method (auto: the cheapest meeting --tol in rho)")
-    p.add_argument("--model", default="better", choices=("better", "dipole"),
-                   help="Better Dipole (memo) or Jensen's classical dipole")
-    p.add_argument("--exact", action="store_true",
-                   help="exact Fresnel moments (quadrature) instead of d'Eon's fits")
-    p.add_argument("--iterations", type=int, help="bisection/memo iterations, secant maximum")
-    p.add_argument("--tol", type=float,
-                   help="secant relative tolerance; with --method auto, the rho accuracy")
-    p.add_argument("--table-size", type=int, help="table intervals per segment (256 if not given)")
-    p.add_argument("--polish", type=int, help="Newton steps after the table lookup")
-    p.add_argument("--seed-size", type=int, help="secant seed table intervals (16 if not given)")
-
-
-def _method_knobs(args):
-    return {k: getattr(args, k) for k in ("iterations", "tol", "table_size", "polish",
-                                          "seed_size") if getattr(args, k) is not None}
-
-
 def _cmd_invert(args) -> int:
     if args.scheduler:
         from ..dask import file_runner
@@ -97,7 +79,7 @@ def _invert(args, run_files) -> int:
         jobs=args.jobs, skip_existing=args.skip_existing, unit=args.unit, double=args.double,
         mfp_scale=args.mfp_scale, mfp_kind=args.mfp_kind,
         progress=not args.no_progress and run_files is None,
-        run_files=run_files, texture=args.texture, **_method_knobs(args))
+        run_files=run_files, texture=args.texture, **method_knobs(args))
     return _finish(report, stop)
 
 
@@ -308,14 +290,6 @@ def _cmd_devices(args) -> int:
     return 0
 
 
-def _add_scheduler_args(p):
-    p.add_argument("--scheduler", metavar="ADDRESS",
-                   help="run on a Dask cluster: tcp://host:8786 joins a running scheduler, "
-                        "local:N starts N worker processes here (needs bdipole-cl[dask])")
-    p.add_argument("--worker-memory", type=size, metavar="SIZE",
-                   help="with --scheduler local:N, each worker's memory limit (e.g. 1G)")
-
-
 def build_parser() -> argparse.ArgumentParser:
     parser = Parser(prog="bdipole-cl", description=DESCRIPTION, epilog=EPILOG)
     parser.add_argument("--version", action="version", version=f"bdipole-cl {__version__}")
@@ -343,8 +317,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="its name (signatures: bdipole_cl/apps/user_kernel.py, README)")
     p.add_argument("--all-devices", action="store_true",
                    help="run the built-in checks on every working device, in one table")
-    p.add_argument("--against", choices=("rd", "profile", "invert", "invert-rho",
-                                         "invert-both"),
+    p.add_argument("--against", choices=tuple(SIGNATURES),
                    help="what it computes: rd(alpha', 2C1, 3C2), profile(r, alpha', sigma_t', "
                         "2C1, 3C2), invert(Rd, 2C1, 3C2) -> alpha', invert-rho -> rho, or "
                         "invert-both(Rd, 2C1, 3C2, float *alpha', float *rho)")
@@ -371,7 +344,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "bake (scene.preview.png): every material's thumbnails and profile")
     p.add_argument("--max-memory", type=size, default="256M",
                    help="host memory per job for bands of rows (e.g. 512M)")
-    _add_scheduler_args(p)
+    add_scheduler_args(p)
     p.set_defaults(func=_cmd_bake)
 
     from . import preview, profile
@@ -410,9 +383,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--texel-size", type=positive_float, default=1.0,
                    help="world size of a texel")
     p.add_argument("--tol", type=fraction, default=1e-3, help="energy left out, relative to Rd")
-    p.add_argument("--method", default="auto", choices=("auto", "direct", "gaussians", "fft"),
+    p.add_argument("--method", default="auto", choices=BLUR_METHODS,
                    help="blur method (auto: the cheapest meeting --tol)")
-    p.add_argument("--border", default="clamp", choices=("clamp", "zero", "wrap"),
+    p.add_argument("--border", default="clamp", choices=BORDERS,
                    help="texels beyond the image edge: nearest edge texel, zero, or wrapped")
     p.add_argument("--on-invalid", default="raise", choices=POLICIES,
                    help="NaN/Inf irradiance or parameter texels out of range: fail, or clamp "
@@ -426,7 +399,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--max-memory", type=size, default="256M",
                    help="host memory for bands of rows (each with a halo of the radius)")
-    _add_scheduler_args(p)
+    add_scheduler_args(p)
     p.set_defaults(func=_cmd_blur)
 
     p = command(
@@ -468,8 +441,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--double", action="store_true",
                    help="compute in float64 (devices with cl_khr_fp64); written as float/half")
-    _add_method_args(p)
-    _add_scheduler_args(p)
+    add_method_args(p)
+    add_scheduler_args(p)
     p.set_defaults(func=_cmd_invert)
     return parser
 

@@ -26,7 +26,7 @@ void blur_direct(__global const float *src, __global float *dst, __global const 
     const int y0 = get_group_id(1) * BD_TILE + (int)get_global_offset(1);
     const int side = 2 * radius + 1;
     const int span = BD_TILE + 2 * BD_CHUNK;
-    float acc = 0.0f;
+    float acc = 0.0f, comp = 0.0f;          // Neumaier sum: acc + comp is the running total
     // the (2K+1)^2 taps in blocks of (2 BD_CHUNK + 1)^2 centred offsets (cx, cy)
     for (int cy = -radius; cy <= radius; cy += 2 * BD_CHUNK + 1) {
         for (int cx = -radius; cx <= radius; cx += 2 * BD_CHUNK + 1) {
@@ -46,13 +46,17 @@ void blur_direct(__global const float *src, __global float *dst, __global const 
                 if (oy > radius) break;
                 __global const float *wrow = weights + (oy + radius) * side + radius;
                 __local const float *trow = tile + (ly + dy) * span + lx;
+                float part = 0.0f;                   // this row of the block: <= 33 taps
                 for (int dx = 0; dx <= 2 * BD_CHUNK; ++dx) {
                     int ox = cx + dx;
                     if (ox > radius) break;
-                    acc += wrow[ox] * trow[dx];
+                    part += wrow[ox] * trow[dx];
                 }
+                float t = acc + part;
+                comp += (fabs(acc) >= fabs(part)) ? (acc - t) + part : (part - t) + acc;
+                acc = t;
             }
         }
     }
-    if (x < width && y < height) dst[((size_t)y * width + x) * nchan + channel] = acc;
+    if (x < width && y < height) dst[((size_t)y * width + x) * nchan + channel] = acc + comp;
 }

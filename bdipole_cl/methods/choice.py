@@ -232,11 +232,15 @@ def resolve_method(method="table", double=False, device_key=None, **knobs) -> Me
 
 
 def auto_blur_config(radius: int, tol: float, data: ChoiceData | None = None,
-                     methods=None):
+                     methods=None, exclude: tuple = ()):
     """The BlurChoice for ``blur(method="auto", tol=tol)`` on a kernel of ``radius`` texels:
     the cheapest measured configuration (of ``methods``, default all), on the measured
-    workload of the nearest radius (in log(radius + 1)), whose measured max error is <= tol;
-    None if none qualifies."""
+    workload of the nearest radius (in log(radius + 1)), whose truncation tol is <= tol and
+    whose measured max error is <= tol; None if none qualifies. The truncation tol bounds the
+    error for ANY irradiance (relative to max(E) * Rd, docs/model.md "Blur error bound"); the
+    measured error, on one random workload, does not: a hole or a single bright texel can meet
+    the whole bound, so a looser truncation is never picked, however well it did on the
+    workload. ``exclude``: methods not to pick (a gaussians fit that misses its share of tol)."""
     import math
     data = data or load_choice_data()
     blurs = [b for b in data.blur if methods is None or b.method in methods]
@@ -244,5 +248,6 @@ def auto_blur_config(radius: int, tol: float, data: ChoiceData | None = None,
         return None
     radii = sorted({b.radius for b in blurs})
     near = min(radii, key=lambda r: abs(math.log((r + 1.0) / (radius + 1.0))))
-    ok = [b for b in blurs if b.radius == near and b.max_error <= tol]
+    ok = [b for b in blurs if b.radius == near and b.tol <= tol and b.max_error <= tol
+          and b.method not in exclude]
     return min(ok, key=lambda b: b.median_s) if ok else None

@@ -150,20 +150,30 @@ def extinction_coefficients(outs, mfp, outputs, out=None):
                                     out=output_array(out, sigma, mfp.size, dtype))
 
 
-def _sanitize_albedo_for_coefficients(rd, on_invalid):
-    n = find_invalid("albedo", rd, ~(rd < 1.0) | np.isneginf(rd), "NaN, infinite or >= 1",
-                     on_invalid)
+def as_kernel_dtype(values, dtype):
+    """``values`` rounded to the kernel's precision: what it will see, and so what is checked
+    (a float64 Rd = 1 - 1e-8 < 1 is 1.0 in float32; an mfp of 1e-50 is 0)."""
+    with np.errstate(over="ignore", under="ignore"):
+        return np.asarray(values).astype(dtype, copy=False)
+
+
+def _sanitize_albedo_for_coefficients(rd, on_invalid, dtype=np.float32):
+    given, rd = rd, as_kernel_dtype(rd, dtype)
+    n = find_invalid("albedo", given, ~(rd < 1.0) | np.isneginf(rd),
+                     f"NaN, infinite or >= 1 as {np.dtype(dtype).name}", on_invalid)
     if n:
-        rd = np.where(np.isnan(rd) | np.isneginf(rd), 0.0, np.minimum(rd, RD_CLAMP_MAX))
+        rd = np.where(np.isnan(rd) | np.isneginf(rd), 0.0,
+                      np.minimum(rd, RD_CLAMP_MAX)).astype(dtype)
     return rd, n
 
 
-def _sanitize_mfp(mfp, on_invalid):
-    n = find_invalid("mfp", mfp, ~((mfp > 0.0) & np.isfinite(mfp)), "NaN, <= 0 or infinite",
-                     on_invalid)
+def _sanitize_mfp(mfp, on_invalid, dtype=np.float32):
+    given, mfp = mfp, as_kernel_dtype(mfp, dtype)
+    n = find_invalid("mfp", given, ~((mfp > 0.0) & np.isfinite(mfp)),
+                     f"NaN, <= 0 or infinite as {np.dtype(dtype).name}", on_invalid)
     if n:
         lo, hi = MFP_CLAMP_RANGE
-        mfp = np.clip(np.nan_to_num(mfp, nan=hi, posinf=hi, neginf=lo), lo, hi)
+        mfp = np.clip(np.nan_to_num(mfp, nan=hi, posinf=hi, neginf=lo), lo, hi).astype(dtype)
     return mfp, n
 
 
@@ -232,25 +242,26 @@ class CoefficientMapper:
         k = self.kernel
         reads_mfp = not (k.mfp_baked or self.extinction)
         per_channel = channel_values(mfp, k.nchan) if reads_mfp and k.width else None
-        if per_channel is not None and not np.all((per_channel > 0) & np.isfinite(per_channel)):
+        as_kernel = None if per_channel is None else as_kernel_dtype(per_channel, k.dtype)
+        if as_kernel is not None and not np.all((as_kernel > 0) & np.isfinite(as_kernel)):
             per_channel = None            # the texels named (or clamped) one by one, below
         n_mfp, host_mfp = 0, mfp
         if not reads_mfp:                 # compiled in, or divided by on the host: checked here
-            host_mfp, n_mfp = _sanitize_mfp(mfp, self.on_invalid)
+            host_mfp, n_mfp = _sanitize_mfp(mfp, self.on_invalid, k.dtype)
         if per_channel is not None or not reads_mfp:
             mfp = None
         in_kernel = k.checks_inputs(rd, *([] if mfp is None else [mfp]))
         n_rd = 0
         if not in_kernel:
-            rd, n_rd = _sanitize_albedo_for_coefficients(rd, self.on_invalid)
+            rd, n_rd = _sanitize_albedo_for_coefficients(rd, self.on_invalid, k.dtype)
             if mfp is not None:
-                mfp, n_mfp = _sanitize_mfp(mfp, self.on_invalid)
+                mfp, n_mfp = _sanitize_mfp(mfp, self.on_invalid, k.dtype)
         outs, flagged = k.run_checked(rd, mfp, self.kernel_wants, mfp_channels=per_channel,
                                       check=CHECK_COEFFICIENTS if in_kernel else 0, out=out)
         if flagged:     # name the first (raise), or clamp and map again (rare)
-            rd, n_rd = _sanitize_albedo_for_coefficients(rd, self.on_invalid)
+            rd, n_rd = _sanitize_albedo_for_coefficients(rd, self.on_invalid, k.dtype)
             if mfp is not None:
-                mfp, n_mfp = _sanitize_mfp(mfp, self.on_invalid)
+                mfp, n_mfp = _sanitize_mfp(mfp, self.on_invalid, k.dtype)
             outs = k.run(rd, mfp, self.kernel_wants, mfp_channels=per_channel, out=out)
         return outs, n_rd, n_mfp, host_mfp if mfp is None else mfp
 

@@ -36,6 +36,8 @@ from typing import NamedTuple
 
 import numpy as np
 
+from . import fresnel_fit
+
 MODELS = ("better", "dipole")
 
 #: eta interval where the d'Eon fits keep Rd(alpha') monotone (docs/model.md "Fresnel moments":
@@ -64,18 +66,9 @@ def _poly(x, coefs):
 
 
 def fresnel_moments_fit(eta):
-    """d'Eon & Irving 2011 fits of the first two Fresnel moments (pbrt-v3 FresnelMoment1/2)."""
-    e = np.asarray(eta, dtype=np.float64)
-    lo = e < 1.0
-    fm1 = np.where(lo,
-                   _poly(e, [0.45966, -1.73965, 3.37668, -3.904945, 2.49277, -0.68441]),
-                   _poly(e, [-4.61686, 11.1136, -10.4646, 5.11455, -1.27198, 0.12746]))
-    with np.errstate(divide="ignore"):
-        fm2_hi = (-547.033 + 45.3087 / e**3 - 218.725 / e**2 + 458.843 / e
-                  + _poly(e, [0.0, 404.557, -189.519, 54.9327, -9.00603, 0.63942]))
-    fm2 = np.where(lo, _poly(e, [0.27614, -0.87350, 1.12077, -0.65095, 0.07883, 0.04860]),
-                   fm2_hi)
-    return fm1, fm2
+    """d'Eon & Irving 2011 fits of the first two Fresnel moments (pbrt-v3 FresnelMoment1/2),
+    evaluated exactly and rounded once (``fresnel_fit``: the float64 sums cancel)."""
+    return fresnel_fit.fresnel_moments_fit(eta)
 
 
 def fresnel_reflectance(mu, eta):

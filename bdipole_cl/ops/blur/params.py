@@ -16,10 +16,15 @@ from ...physics import reference as ref
 
 #: the physical parameters of ``blur``
 PARAM_KEYS = ("albedo", "mfp", "eta", "texel_size", "alpha", "sigma_t")
-#: each parameter's valid range: (rule text, test, clamp range)
+#: the largest float32 below 1: the top of [0, 1) for the float32 maps the kernels read (the
+#: float64 nextafter(1, 0) rounds to 1.0 in float32)
+BELOW_ONE_32 = float(np.nextafter(np.float32(1), np.float32(0)))
+#: each parameter's valid range: (rule text, test, clamp range). albedo and mfp are checked on
+#: their float32 rounding, the values the kernels see; alpha and sigma_t in float64, which is
+#: what Rd and ld are computed from
 RULES = {
-    "albedo": ("[0, 1)", lambda v: (v >= 0) & (v < 1), (0.0, float(np.nextafter(1, 0)))),
-    "alpha": ("[0, 1)", lambda v: (v >= 0) & (v < 1), (0.0, float(np.nextafter(1, 0)))),
+    "albedo": ("[0, 1)", lambda v: (v >= 0) & (v < 1), (0.0, BELOW_ONE_32)),
+    "alpha": ("[0, 1)", lambda v: (v >= 0) & (v < 1), (0.0, float(np.nextafter(1.0, 0.0)))),
     "mfp": ("(0, inf)", lambda v: (v > 0) & np.isfinite(v), (1e-20, 1e20)),
     "sigma_t": ("(0, inf)", lambda v: (v > 0) & np.isfinite(v), (1e-20, 1e20)),
 }
@@ -104,26 +109,37 @@ def texture_channel(value, shape, c, name):
     return v[..., c if v.shape[2] > 1 else 0]
 
 
-def checked_parameter(value, shape, c, name, on_invalid="raise"):
-    """Channel c of a parameter as HxW, every texel within ``RULES[name]``: else an
-    InvalidInputError naming the count and the first bad texel, or, with
-    ``on_invalid="clamp"``, the bad texels (only they) clamped into the range of the channel's
-    valid texels (NaN to its bottom; the rule's range if no texel is valid). So a bad texel
-    never widens the range the texture-varying plan is built for, and the valid texels'
-    exitance is what it would be without it."""
+def checked_parameter(value, shape, c, name, on_invalid="raise", dtype=None):
+    """Channel c of a parameter as HxW (rounded to ``dtype`` first, if given: the check sees
+    what the kernel will), every texel within ``RULES[name]``: else an InvalidInputError
+    naming the count and the first bad texel, or, with ``on_invalid="clamp"``, the bad texels
+    (only they) clamped into the range of the channel's valid texels (NaN to its bottom; the
+    rule's range if no texel is valid). So a bad texel never widens the range the
+    texture-varying plan is built for, and the valid texels' exitance is what it would be
+    without it."""
     rule, ok, (lo, hi) = RULES[name]
     v = texture_channel(value, shape, c, name)
+    if dtype is not None:
+        with np.errstate(over="ignore"):          # an overflow to inf is caught by the rule
+            v = v.astype(dtype)
     bad = ~ok(v)
     if find_invalid(name, v, bad, f"outside {rule}", check_policy(on_invalid), texels=True,
                     channel=c):
         good = v[~bad]
         lo, hi = (good.min(), good.max()) if good.size else (lo, hi)
-        v = np.where(bad, np.clip(np.nan_to_num(v, nan=lo, posinf=hi, neginf=lo), lo, hi), v)
+        v = np.where(bad, np.clip(np.nan_to_num(v, nan=lo, posinf=hi, neginf=lo), lo, hi),
+                     v).astype(v.dtype)
     return v
 
 
 def float32_map(v):
     return np.ascontiguousarray(v, np.float32)
+
+
+def rd_map(rd):
+    """A float32 Rd map of Rd < 1 in float64: an Rd within 2^-25 of 1 rounds to 1.0 in float32,
+    so it is kept at the largest float32 below 1 (the nearest value the kernels can take)."""
+    return float32_map(np.minimum(float32_map(rd), np.float32(BELOW_ONE_32)))
 
 
 def texel_parameters(shape, c, *, albedo=None, mfp=None, eta=1.4, texel_size=1.0, alpha=None,
@@ -134,10 +150,11 @@ def texel_parameters(shape, c, *, albedo=None, mfp=None, eta=1.4, texel_size=1.0
         a = checked_parameter(alpha, shape, c, "alpha", on_invalid).astype(np.float64)
         st = checked_parameter(sigma_t, shape, c, "sigma_t", on_invalid).astype(np.float64)
         ld = 1.0 / (st * texel_size * ref.mu_tr_over_sigma_t(1.0 - a))
-        return float32_map(ref.rd(a, eta, exact)), float32_map(ld)
-    rd = float32_map(checked_parameter(albedo, shape, c, "albedo", on_invalid))
-    mfp = checked_parameter(mfp, shape, c, "mfp", on_invalid)
-    return rd, float32_map(mfp if texel_size == 1.0 else mfp / texel_size)
+        return rd_map(ref.rd(a, eta, exact)), float32_map(ld)
+    rd = float32_map(checked_parameter(albedo, shape, c, "albedo", on_invalid, np.float32))
+    if texel_size != 1.0:               # ld in texels, checked as the kernel sees it
+        mfp = texture_channel(mfp, shape, c, "mfp") / texel_size
+    return rd, float32_map(checked_parameter(mfp, shape, c, "mfp", on_invalid, np.float32))
 
 
 def checked_irradiance(irradiance, on_invalid="raise"):

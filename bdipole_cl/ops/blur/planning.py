@@ -82,11 +82,13 @@ class BlurInfo:
 
 @dataclass(frozen=True)
 class ChannelPlan:
-    """One channel's blur: the method, its exact kernel, and the auto record (if auto)."""
+    """One channel's blur: the method, its exact kernel, the tol asked for, and the auto record
+    (if auto)."""
 
     method: str
     kernel: ChannelKernel
     auto: AutoPick | None = None
+    tol: float | None = None           # the error bound asked for (None: the kernel's tol)
 
 
 def constant_row_bytes(width: int, nchan: int) -> int:
@@ -95,29 +97,55 @@ def constant_row_bytes(width: int, nchan: int) -> int:
     return width * nchan * 4 * 8
 
 
+#: ``gaussians``: the share of tol its truncation takes; the fit's L1 error gets the rest, so
+#: that truncation + fit (the bound, docs/model.md "Blur error bound") is <= tol
+GAUSSIANS_TRUNCATION_SHARE = 0.5
+
+
+def truncation_tol(method, tol) -> float:
+    """The truncation tolerance of a method asked for error bound ``tol``."""
+    return tol * GAUSSIANS_TRUNCATION_SHARE if method == "gaussians" else tol
+
+
+def method_kernel(method, alpha, sigma_t, eta, tol, exact) -> ChannelKernel:
+    return channel_kernel(alpha, sigma_t, eta, truncation_tol(method, tol), exact)
+
+
+def gaussians_bound(alpha, sigma_t, eta, ck, exact) -> float:
+    """truncation tol + the fit's L1 error: |M - exact| / (max E * Rd) for any irradiance."""
+    return ck.tol + fit_gaussians(alpha, sigma_t, eta, ck.tol, exact).l1_error
+
+
 def auto_choice(ck, alpha, sigma_t, eta, tol, exact, auto: AutoData) -> ChannelPlan:
     """``method="auto"``: the cheapest configuration measured by ``bdipole-cl report`` whose
-    max error (relative to max(E) * Rd) is <= tol, on the workload of the nearest radius, in
-    ``auto``'s data and methods; without data, ``direct`` up to AUTO_DIRECT_MAX_RADIUS (or
-    always, where the host FFT is not allowed) and ``fft`` above, at truncation tol."""
-    choice = auto_blur_config(ck.radius, tol, auto.data, auto.methods)
-    if choice is None:
-        host_fft = auto.methods is None or "fft" in auto.methods
-        method = "direct" if ck.radius <= AUTO_DIRECT_MAX_RADIUS or not host_fft else "fft"
-        return ChannelPlan(method, ck, AutoPick("radius", tol, data=auto.source))
-    if choice.tol != tol:
-        ck = channel_kernel(alpha, sigma_t, eta, choice.tol, exact)
-    return ChannelPlan(choice.method, ck, AutoPick("measured", choice.tol, choice.max_error,
-                                                   choice.median_s * 1e3, choice.radius,
-                                                   auto.source))
+    truncation tol and max error (relative to max(E) * Rd) are <= tol, on the workload of the
+    nearest radius, in ``auto``'s data and methods, and whose bound (a gaussians fit's
+    included) is <= tol; without data, ``direct`` up to AUTO_DIRECT_MAX_RADIUS (or always,
+    where the host FFT is not allowed) and ``fft`` above, at truncation tol."""
+    exclude = ()
+    while True:
+        choice = auto_blur_config(ck.radius, tol, auto.data, auto.methods, exclude)
+        if choice is None:
+            host_fft = auto.methods is None or "fft" in auto.methods
+            method = "direct" if ck.radius <= AUTO_DIRECT_MAX_RADIUS or not host_fft else "fft"
+            return ChannelPlan(method, ck, AutoPick("radius", tol, data=auto.source), tol)
+        used = method_kernel(choice.method, alpha, sigma_t, eta, choice.tol, exact)
+        if choice.method != "gaussians" or gaussians_bound(alpha, sigma_t, eta, used,
+                                                           exact) <= tol:
+            return ChannelPlan(choice.method, used,
+                               AutoPick("measured", used.tol, choice.max_error,
+                                        choice.median_s * 1e3, choice.radius, auto.source),
+                               tol)
+        exclude += ("gaussians",)
 
 
 def plan_channel(method, alpha, sigma_t, eta, tol, exact, auto: AutoData | None = None):
     """One channel's ChannelPlan; ``auto`` (for method "auto"; None: the default device's)."""
-    ck = channel_kernel(alpha, sigma_t, eta, tol, exact)
     if method == "auto":
+        ck = channel_kernel(alpha, sigma_t, eta, tol, exact)
         return auto_choice(ck, alpha, sigma_t, eta, tol, exact, auto or auto_data())
-    return ChannelPlan(method, ck)
+    return ChannelPlan(method, method_kernel(method, alpha, sigma_t, eta, tol, exact), None,
+                       tol)
 
 
 def channel_plans(nchan, *, method, tol, exact, device=None, **physical):
@@ -143,6 +171,7 @@ def blur_whole(e, params, plans, border, exact, rt):
         ck = plan.kernel
         if plan.method in ("direct", "gaussians") and device is None:
             device = DeviceBlur(e, border, rt)
+        tol = plan.tol if plan.tol is not None else ck.tol
         if plan.method == "direct":
             device.run_direct(c, ck)
             bound = ck.tol
@@ -150,17 +179,21 @@ def blur_whole(e, params, plans, border, exact, rt):
             fit = fit_gaussians(a, st, et, ck.tol, exact)
             device.run_gaussians(c, fit)
             bound = ck.tol + fit.l1_error
-            if fit.l1_error > ck.tol:
+            if bound > tol:
                 warnings.warn(BlurAccuracyWarning(
                     f"channel {c}: the gaussians fit of this kernel (radius {ck.radius}, "
-                    f"albedo {ck.rd:.3g}) has L1 error {fit.l1_error:.2e} > tol {ck.tol:g}; "
-                    f"energy is kept, the shape is not: use method='direct' or 'fft' for the "
-                    f"exact kernel"), stacklevel=4)
+                    f"albedo {ck.rd:.3g}) has L1 error {fit.l1_error:.2e}: error bound "
+                    f"{bound:.2e} > tol {tol:g}; energy is kept, the shape is not: use "
+                    f"method='direct' or 'fft' for the exact kernel"), stacklevel=4)
         else:
             fft_out[c] = fft_blur_channel(e[..., c], ck.weights, border)
             bound = ck.tol
         if plan.auto is not None and plan.auto.measured_error is not None:
             bound = max(bound, plan.auto.measured_error)
+        if bound > tol and plan.method != "gaussians":
+            warnings.warn(BlurAccuracyWarning(
+                f"channel {c}: method {plan.method!r}: error bound {bound:.2e} > tol {tol:g}"),
+                stacklevel=4)
         info.append(ChannelInfo(c, plan.method, ck.radius, bound, rd=ck.rd, auto=plan.auto))
     out = device.result() if device is not None else np.empty_like(e)
     for c, v in fft_out.items():

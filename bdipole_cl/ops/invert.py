@@ -196,7 +196,8 @@ class CoefficientMapper:
         self.extinction = check_mfp_kind(mfp_kind) == "extinction"
         self.kernel_wants = kernel_outputs(outputs, mfp_kind)
         if mfp_const is not None:
-            _sanitize_mfp(np.asarray(mfp_const, np.float64), "raise")   # baked: must be valid
+            _sanitize_mfp(np.asarray(mfp_const, np.float64), "raise",   # baked: must be valid
+                          np.float64 if double else np.float32)
         mfp_const = None if self.extinction else mfp_const
         self.kernel = (InversionKernel(etas, config, exact=exact, model=model, double=double,
                                        runtime=device, bake=True, mfp_const=mfp_const,

@@ -13,14 +13,16 @@ Methods (``method=``)
 ``direct``     2D gather of the exact weights (kernels/blur_direct.cl), local-memory tiles.
 ``gaussians``  the weights fitted (non-negative least squares) by a sum of separable
                texel-integrated Gaussians (d'Eon et al. 2007's texture-space diffusion);
-               the fit's L1 error, a bound on the output error relative to max(E) * Rd, is
-               reported and kept <= tol where the basis allows (kernels/blur_separable.cl).
+               truncated at tol/2, the fit's L1 error kept <= tol/2 where the basis allows,
+               so that their sum, the reported bound, is <= tol (kernels/blur_separable.cl).
 ``fft``        the exact weights by FFT convolution on the host (scipy.fft, all cores).
 ``auto``       the cheapest configuration (method, truncation tol) that ``bdipole-cl report``
-               measured to meet ``tol`` on the workload of the nearest kernel radius
-               (``bdipole_cl.methods.choice``); BlurInfo says which and why. With
-               ``auto``, ``tol`` is the error target relative to max(E) * Rd; with an
-               explicit method it is the truncation tolerance (which bounds that error).
+               measured to meet ``tol`` on the workload of the nearest kernel radius, among
+               those whose truncation tol is <= tol (``bdipole_cl.methods.choice``);
+               BlurInfo says which and why.
+
+``tol`` bounds the error relative to max(E) * Rd for any irradiance (docs/model.md "Blur error
+bound"): ``error_bound`` reports the bound, and a bound above tol raises BlurAccuracyWarning.
 
 Parameters are scalars, per-channel tuples or HxW / HxWxC textures. With textures each texel
 uses its own (the exit texel's) profile, through per-texel weights over a shared basis

@@ -3,6 +3,8 @@ blurs (host FFT, or the separable OpenCL kernels for ``gaussians``), and the per
 of their weights on the device (kernels/blur_textured.cl)."""
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 
 from ...methods.registry import TEXTURED_BLUR_METHODS
@@ -11,8 +13,9 @@ from ..bands import band_rows, bands, gather_rows
 from .dispatch import DeviceBlur, gather_exitance, weight_planes
 from .fft import basis_blurs, cached_spectra, fft_shape
 from .params import texel_parameters
-from .planning import BlurInfo, ChannelInfo
-from .textured_plan import parameter_ranges, plan_for_ranges
+from .planning import BlurAccuracyWarning, BlurInfo, ChannelInfo
+from .textured_plan import (RD_MAX, RD_MIN, parameter_ranges, plan_for_ranges,
+                            shape_clamp_error)
 
 
 def textured_plans(shape, *, tol, exact=False, eta=1.4, basis="svd", on_invalid="raise",
@@ -83,7 +86,19 @@ def blur_textured(e, *, method, tol, border, exact, max_memory, rt, on_invalid="
             res = blur_band(gather_rows(e, idx), plans, np.maximum(idx, 0), used, border, rt)
             out[y0:y1] = res[k:k + (y1 - y0)]
     info = tuple(ChannelInfo(c, f"{used} (texture-varying, {len(p.kernels)} {p.basis} basis "
-                                f"kernels)", p.radius, p.error_bound, fit_error=p.fit_error,
-                             interp_error=p.interp_error, nodes=int(np.prod(p.table.shape[:2])))
-                 for c, (p, *_) in enumerate(plans))
+                                f"kernels)", p.radius, p.error_bound + clamp_bound(c, p, rd, ld,
+                                                                                   exact),
+                             fit_error=p.fit_error, interp_error=p.interp_error,
+                             nodes=int(np.prod(p.table.shape[:2])))
+                 for c, (p, rd, ld) in enumerate(plans))
     return out, BlurInfo(info)
+
+
+def clamp_bound(c, plan, rd, ld, exact) -> float:
+    """What the albedo shape clamp adds to channel c's bound; warned of when it is not 0."""
+    err = shape_clamp_error(plan, rd, ld, exact)
+    if err > 0:
+        warnings.warn(BlurAccuracyWarning(
+            f"channel {c}: albedo texels outside [{RD_MIN:g}, 1 - {1 - RD_MAX:.0e}] take the "
+            f"kernel shape of the bound: error bound + {err:.2e}"), stacklevel=5)
+    return err

@@ -48,8 +48,11 @@ NODE_CACHE = ByteCache("node kernels", 256 << 20)
 PLAN_CACHE = ByteCache("texture-varying plans", 256 << 20)
 
 
-#: the kernel's shape is taken at albedo within these bounds (its energy is always Rd(x))
-RD_MIN, RD_MAX = 1e-3, 0.999
+#: the kernel's shape is taken at albedo within these bounds (its energy is always Rd(x)).
+#: At a fixed mfp the shape still changes between Rd = 1e-3 and 1e-5 (and 0.999 and 1 - 1e-5):
+#: 2.7e-3 of L1 for an impulse at mfp 1 texel, more than tol. Beyond these bounds the change is
+#: measured (``shape_clamp_error``), added to the bound and warned of
+RD_MIN, RD_MAX = 1e-5, 1.0 - 1e-5
 
 
 #: lattice steps in logit(Rd) and ln(ld) at tol = 1e-3; halved per factor 16 of tighter tol
@@ -330,3 +333,22 @@ def texel_coords(plan, rd, ld):
     p = np.clip(rd, np.float32(RD_MIN), np.float32(RD_MAX))
     u = np.log(np.divide(p, np.float32(1.0) - p, out=p), out=p)
     return on_axis(plan.axes[0], u), on_axis(plan.axes[1], np.log(ld))
+
+
+def shape_clamp_error(plan, rd, ld, exact=False) -> float:
+    """L1 error (of the normalized kernel) of taking the shape of RD_MIN or RD_MAX for the
+    texels of ``rd`` beyond them (Rd = 0 aside: it gives 0), at the extremes of ``ld``: what
+    the clamp adds to the bound (0 if no texel is beyond). The shape moves away from the
+    bound's monotonically with Rd, so the most extreme texel is the worst."""
+    positive = rd[rd > 0]
+    if positive.size == 0:
+        return 0.0
+    worst = 0.0
+    for far, bound in ((float(positive.min()), RD_MIN), (float(rd.max()), RD_MAX)):
+        if RD_MIN <= far <= RD_MAX:
+            continue
+        for length in {float(ld.min()), float(ld.max())}:
+            diff = (node_kernel(far, length, plan.eta, plan.radius, exact)
+                    - node_kernel(bound, length, plan.eta, plan.radius, exact))
+            worst = max(worst, float(np.abs(unfold_quadrant(diff)).sum()))
+    return worst

@@ -287,3 +287,15 @@ def test_textured_bound_holds_for_albedo_near_zero_and_one(region):
     assert warned == (region < 1e-5), (region, warned)
 
 # }}}
+
+
+def test_auto_blur_rule_never_picks_a_truncation_looser_than_tol():
+    # the rule, on data where the looser truncation is cheapest and did well on its workload
+    from bdipole_cl.methods.choice import ChoiceData, auto_blur_config
+    from bdipole_cl.methods.registry import BlurChoice
+    data = ChoiceData("test", (), (BlurChoice("direct", 1e-2, 2, 0.5, 2.4e-3, 0.010),
+                                   BlurChoice("direct", 1e-3, 2, 0.5, 1.6e-4, 0.012),
+                                   BlurChoice("fft", 1e-4, 2, 0.5, 1.3e-5, 0.015)))
+    assert auto_blur_config(2, 3e-3, data).tol == 1e-3
+    assert auto_blur_config(2, 1e-4, data).method == "fft"
+    assert auto_blur_config(2, 5e-5, data) is None       # none qualifies: the radius rule

@@ -61,10 +61,17 @@ def test_blur_auto_picks_a_measured_config_meeting_tol(tol):
     e = np.random.default_rng(4).uniform(0, 1, (40, 40, 1)).astype(np.float32)
     out, info = blur(e, albedo=0.8, mfp=3.0, tol=tol, method="auto", return_info=True)
     picked = info.channels[0].auto
-    assert picked.measured_error <= tol, picked
     data = load_choice_data().blur
-    same = [d for d in data if d.radius == picked.workload_radius and d.max_error <= tol]
-    assert picked.measured_ms == pytest.approx(min(d.median_s for d in same) * 1e3)
+    # only truncations no looser than tol are candidates (docs/model.md "Blur error bound"):
+    # below every measured truncation, the radius rule at truncation tol
+    assert picked.truncation_tol <= tol and info.channels[0].error_bound <= tol, picked
+    if picked.rule == "radius":
+        assert tol < min(d.tol for d in data) and picked.truncation_tol == tol, picked
+    else:
+        assert picked.measured_error <= tol, picked
+        same = [d for d in data if d.radius == picked.workload_radius and d.tol <= tol
+                and d.max_error <= tol]
+        assert picked.measured_ms == pytest.approx(min(d.median_s for d in same) * 1e3)
     # and it holds here: error vs the exact discrete convolution relative to max(E) * Rd
     p = channel_parameters(1, albedo=0.8, mfp=3.0, eta=1.4)[0]
     exact_k = channel_kernel(*p, 1e-9)

@@ -382,7 +382,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--eta", type=floats, default=(1.4,), help="one or per channel 'r,g,b'")
     p.add_argument("--texel-size", type=positive_float, default=1.0,
                    help="world size of a texel")
-    p.add_argument("--tol", type=fraction, default=1e-3, help="energy left out, relative to Rd")
+    p.add_argument("--tol", type=fraction, default=1e-3,
+                   help="error bound relative to max(E) * Rd, for any irradiance")
     p.add_argument("--method", default="auto", choices=BLUR_METHODS,
                    help="blur method (auto: the cheapest meeting --tol)")
     p.add_argument("--border", default="clamp", choices=BORDERS,

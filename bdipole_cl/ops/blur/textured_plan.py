@@ -184,8 +184,11 @@ def transformed(rd, ld):
 
 def parameter_ranges(rd, ld):
     """((lo, hi) of logit Rd, (lo, hi) of ln ld) over maps rd, ld: the transforms are monotone,
-    so these are the transformed extremes."""
-    t_rd = transformed([rd.min(), rd.max()], [ld.min(), ld.max()])
+    so these are the transformed extremes. Texels of Rd = 0 give 0 whatever their shape, so
+    they do not widen the albedo range (a masked map would pay for nodes down to RD_MIN)."""
+    lit = rd[rd > 0]
+    lo = lit.min() if lit.size else rd.min()
+    t_rd = transformed([lo, rd.max()], [ld.min(), ld.max()])
     return tuple((float(t[0]), float(t[1])) for t in t_rd)
 
 

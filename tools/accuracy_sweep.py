@@ -50,7 +50,8 @@ def main(argv=None):
                                      return_info=True, device=rt)
                 ch = info.channels[0]
                 err = float(np.abs(out.astype(np.float64) / (2.0 * rd) - 1).max())
-                print(f"| {name} | {mfp:g} | {ch.radius} | {ch.method} | {err:.2e} | "
+                label = f"auto: {ch.method}" if method == "auto" else ch.method
+                print(f"| {name} | {mfp:g} | {ch.radius} | {label} | {err:.2e} | "
                       f"{ch.error_bound:.2e} | {err / ch.error_bound:.3f} | "
                       f"{time.perf_counter() - t0:.1f} |", flush=True)
 

@@ -208,7 +208,9 @@ def test_blur_error_never_exceeds_its_bound(mfp, tol):
     # every method and auto, on the irradiances that meet the bound (kernel radius 2 .. 24 and
     # 419); the bound is for any irradiance, so it holds for each, and it exceeds tol only with
     # a BlurAccuracyWarning
-    for method in ("direct", "gaussians", "fft", "auto"):
+    # (at radius 419 the gaussians' NNLS fit alone takes ~30 s: tools/accuracy_sweep.py runs it)
+    methods = ("direct", "fft", "auto") if mfp > 50 else ("direct", "gaussians", "fft", "auto")
+    for method in methods:
         for name, e in adversarial_irradiance().items():
             err, ch, warned = _measured(method, e, 0.8, mfp, tol)
             assert err <= ch.error_bound, (name, method, mfp, tol, err, ch)

@@ -84,15 +84,16 @@ def _relative(path, folder):
     return "./" + os.path.relpath(path, folder).replace(os.sep, "/")
 
 
-def manifest(scene, jobs, coefficients, folder) -> dict:
+def manifest(scene, jobs, coefficients, folder, results=None) -> dict:
     """The manifest's content: every material of the scene (imported ones first, left-out
-    ones with their reason)."""
+    ones with their reason); a material is baked when every one of its jobs wrote its
+    output or found it up to date (``results``, in the order of ``jobs``; None: all did)."""
     by_name = {m.name: m for m in scene.materials}
     entries, seen = [], set()
     for imp in scene.imports:
         seen.add(imp.name)
         entry = {"name": imp.name, "prim": imp.path, "shader": imp.shader,
-                 "inputs": imp.inputs, "baked": imp.name in by_name}
+                 "inputs": imp.inputs, "baked": False}
         if imp.shader in SOURCES:
             entry["convention"] = f"{imp.mfp_kind}: {SOURCES[imp.shader]}"
         if imp.left_out:
@@ -100,19 +101,36 @@ def manifest(scene, jobs, coefficients, folder) -> dict:
         if imp.notes:
             entry["notes"] = list(imp.notes)
         if imp.name in by_name:
-            entry.update(_baked(by_name[imp.name], jobs, coefficients, folder))
+            entry.update(_baked(by_name[imp.name], jobs, results, coefficients, folder))
         entries.append(entry)
     for m in scene.materials:
         if m.name not in seen:
-            entries.append({"name": m.name, "baked": True}
-                           | _baked(m, jobs, coefficients, folder))
+            entries.append({"name": m.name} | _baked(m, jobs, results, coefficients, folder))
     return {"source": scene.source, "scene": str(scene.path), "materials": entries}
 
 
-def _baked(m, jobs, coefficients, folder) -> dict:
-    files = sorted(os.path.relpath(j.output, folder) for j in jobs
-                   if j.kind == "invert" and j.name == m.name)
-    entry = {"mfp_kind": m.mfp_kind, "eta": list(m.eta), "unit": m.unit,
+def _outcome(m, jobs, results) -> tuple:
+    """([output files written or up to date], [why each other job of ``m`` is not])."""
+    files, failed = [], []
+    for j, r in zip(jobs, results if results is not None else [None] * len(jobs)):
+        if j.name != m.name or j.kind not in ("invert", "constant"):
+            continue
+        done = r is None or r.status in ("ok", "skipped")
+        if j.kind == "invert" and done and j.output and os.path.isfile(j.output):
+            files.append(j.output)
+        elif j.kind == "invert" or not done:
+            why = (r.error if r is not None and r.error else
+                   "its output is missing" if done else r.status)
+            failed.append(f"{j.source}" + (f" [{j.udim}]" if j.udim else "") + f": {why}")
+    return files, failed
+
+
+def _baked(m, jobs, results, coefficients, folder) -> dict:
+    written, failed = _outcome(m, jobs, results)
+    if m.constant and not coefficients.get(m.name) and not failed:
+        failed.append("no coefficients computed")
+    files = sorted(os.path.relpath(f, folder) for f in written)
+    entry = {"baked": not failed, **({"not_baked": "; ".join(failed)} if failed else {}),"mfp_kind": m.mfp_kind, "eta": list(m.eta), "unit": m.unit,
              "coefficient_unit": f"1/{m.unit}", "outputs": list(m.outputs),
              "albedo": m.albedo if isinstance(m.albedo, str) else list(m.albedo),
              "mfp": m.mfp if isinstance(m.mfp, str) else list(m.mfp),
@@ -202,7 +220,7 @@ def write_records(plan, results) -> list:
             coefficients[job.name] = result.values
         elif job.up_to_date and old.get(job.name, {}).get("coefficients"):
             coefficients[job.name] = old[job.name]["coefficients"]
-    records = manifest(scene, plan.jobs, coefficients, folder)
+    records = manifest(scene, plan.jobs, coefficients, folder, results)
     texts = {os.path.join(folder, MANIFEST): json.dumps(records, indent=1, sort_keys=True)
              + "\n"}
     if scene.source is not None:

@@ -1,0 +1,106 @@
+"""Faults in a USD stage's materials (bdipole_cl/io/usd_scene.py, shaders.py,
+scene_records.py): each one is that material's job or refusal, named; the rest bake and the
+records name only what was written."""
+import json
+import os
+import stat
+
+import numpy as np
+import pytest
+
+pxr = pytest.importorskip("pxr")
+from pxr import Gf, Sdf, Usd, UsdGeom, UsdShade  # noqa: E402
+
+from bdipole_cl import scene as scenes  # noqa: E402
+from bdipole_cl.apps.demo import write_exr  # noqa: E402
+
+pytestmark = pytest.mark.usefixtures("on_device")
+
+N = 4
+F, C3 = Sdf.ValueTypeNames.Float, Sdf.ValueTypeNames.Color3f
+OPENPBR = "ND_open_pbr_surface_surfaceshader"
+
+
+def texture(path, rgb=(0.5, 0.4, 0.3)):
+    path.parent.mkdir(parents=True, exist_ok=True)
+    write_exr(path, np.broadcast_to(np.float32(rgb), (N, N, 3)).copy(), ("R", "G", "B"))
+
+
+def material(stage, name, file, sid=OPENPBR, weight="subsurface_weight",
+             albedo="subsurface_color"):
+    """A subsurface material whose albedo is a UsdUVTexture of ``file``: (shader, texture)."""
+    m = UsdShade.Material.Define(stage, f"/Mat/{name}")
+    s = UsdShade.Shader.Define(stage, f"/Mat/{name}/s")
+    s.CreateIdAttr(sid)
+    m.CreateSurfaceOutput("ri" if sid == "PxrSurface" else "mtlx").ConnectToSource(
+        s.ConnectableAPI(), "out")
+    s.CreateInput(weight, F).Set(1.0)
+    t = UsdShade.Shader.Define(stage, f"/Mat/{name}/t")
+    t.CreateIdAttr("UsdUVTexture")
+    t.CreateInput("file", Sdf.ValueTypeNames.Asset).Set(file)
+    s.CreateInput(albedo, C3).ConnectToSource(t.CreateOutput("rgb", Sdf.ValueTypeNames.Float3))
+    return s, t
+
+
+def new_stage(root, meters_per_unit=None):
+    stage = Usd.Stage.CreateNew(str(root / "asset.usda"))
+    if meters_per_unit is not None:
+        UsdGeom.SetStageMetersPerUnit(stage, meters_per_unit)
+    return stage
+
+
+def records(folder):
+    with open(folder / "bdipole_materials.json") as f:
+        by_name = {e["name"]: e for e in json.load(f)["materials"]}
+    return by_name, Sdf.Layer.OpenAsAnonymous(str(folder / "bdipole.usda"))
+
+
+def baked_prims(layer):
+    """{prim path: its bdipole: asset attributes' paths} of the records layer."""
+    out = {}
+
+    def visit(path):
+        spec = layer.GetPrimAtPath(path)
+        assets = {a.name: a.default.path for a in spec.attributes
+                  if isinstance(a.default, Sdf.AssetPath)}
+        if spec.attributes:
+            out[str(path)] = assets
+    layer.Traverse(Sdf.Path.absoluteRootPath, lambda p: visit(p) if p.IsPrimPath() else None)
+    return out
+
+
+def test_a_failed_material_is_not_recorded_as_baked(tmp_path):
+    texture(tmp_path / "tex" / "jade.exr")
+    stage = new_stage(tmp_path)
+    material(stage, "jade", "tex/jade.exr")
+    material(stage, "missing", "tex/nothere.exr")
+    stage.GetRootLayer().Save()
+    report = scenes.load(tmp_path / "asset.usda").plan().run()
+    assert report.exit_code != 0
+    by_name, layer = records(tmp_path / "bdipole")
+    assert by_name["jade"]["baked"] and by_name["jade"]["files"] == ["jade.exr"]
+    miss = by_name["missing"]
+    assert miss["baked"] is False and miss["files"] == []
+    assert "nothere.exr is missing" in miss["not_baked"]
+    assert baked_prims(layer) == {"/Mat/jade": {f"bdipole:{o}": "./jade.exr"
+                                                for o in ("sigma_a", "sigma_s")}}
+    assert not (tmp_path / "bdipole" / "missing.exr").exists()
+
+
+def test_a_job_without_an_output_fails_alone_and_the_records_are_written(tmp_path):
+    texture(tmp_path / "tex" / "skin.1001.exr")
+    texture(tmp_path / "tex" / "jade.exr")
+    stage = new_stage(tmp_path)
+    material(stage, "skin", "tex/skin.<UDIM>.exr")
+    material(stage, "jade", "tex/jade.exr")
+    stage.GetRootLayer().Save()
+    (tmp_path / "scene.toml").write_text(
+        'materials_from = "asset.usda"\n[defaults]\noutput = "out/{material}.<UDIM>.exr"\n')
+    report = scenes.load(tmp_path / "scene.toml").plan().run()
+    failed = [r for r in report.results if r.status == "failed"]
+    assert len(failed) == 1 and "jade" in failed[0].path, report.summary()
+    by_name, layer = records(tmp_path / "out")
+    assert by_name["skin"]["baked"] and by_name["skin"]["files"] == ["skin.1001.exr"]
+    assert by_name["jade"]["baked"] is False and by_name["jade"]["files"] == []
+    assert baked_prims(layer) == {"/Mat/skin": {f"bdipole:{o}": "./skin.<UDIM>.exr"
+                                                for o in ("sigma_a", "sigma_s")}}

@@ -104,3 +104,18 @@ def test_a_job_without_an_output_fails_alone_and_the_records_are_written(tmp_pat
     assert by_name["jade"]["baked"] is False and by_name["jade"]["files"] == []
     assert baked_prims(layer) == {"/Mat/skin": {f"bdipole:{o}": "./skin.<UDIM>.exr"
                                                 for o in ("sigma_a", "sigma_s")}}
+
+
+def test_the_records_have_the_umask_mode_of_the_images(tmp_path):
+    texture(tmp_path / "tex" / "jade.exr")
+    stage = new_stage(tmp_path)
+    material(stage, "jade", "tex/jade.exr")
+    stage.GetRootLayer().Save()
+    old = os.umask(0o027)
+    try:
+        scenes.load(tmp_path / "asset.usda").plan().run()
+    finally:
+        os.umask(old)
+    modes = {p.name: stat.S_IMODE(p.stat().st_mode) for p in (tmp_path / "bdipole").iterdir()}
+    assert modes == {"jade.exr": 0o640, "bdipole.usda": 0o640,
+                     "bdipole_materials.json": 0o640}

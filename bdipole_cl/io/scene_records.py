@@ -3,7 +3,8 @@ coefficients, ``bdipole_materials.json`` (every material: its mapped inputs, con
 unit, output files, and a constant one's coefficients) and ``bdipole.usda`` (an ``over`` on
 each baked material prim with ``bdipole:`` attributes: the output files as asset paths with
 ``<UDIM>``, a constant material's coefficients), so that a pipeline finds them by sublayering
-it. Both are rewritten only when their content changes (temporary file + rename).
+it. Both are rewritten only when their content changes (temporary file + rename), with the
+mode any file the process creates gets (0666 less the umask), as the images have.
 """
 from __future__ import annotations
 
@@ -179,6 +180,18 @@ def usd_layer_text(scene, records: dict, folder) -> str:
     return layer.ExportToString()
 
 
+def default_mode() -> int:
+    """The mode a plain ``open(path, "w")`` gives a new file: 0o666 less the process umask
+    (read from /proc where it can be, so the umask is never changed, even for a moment)."""
+    try:
+        with open("/proc/self/status") as f:
+            umask = next(int(line.split()[1], 8) for line in f if line.startswith("Umask:"))
+    except (OSError, StopIteration, ValueError, IndexError):
+        umask = os.umask(0o022)
+        os.umask(umask)
+    return 0o666 & ~umask
+
+
 def write_if_changed(path, text: str) -> bool:
     """Write ``text`` to ``path`` (temporary file + rename) unless it already holds it."""
     try:
@@ -191,6 +204,7 @@ def write_if_changed(path, text: str) -> bool:
     os.makedirs(folder, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=os.path.basename(path), dir=folder)
     try:
+        os.chmod(tmp, default_mode())       # mkstemp's 0600 is for the temporary name only
         with os.fdopen(fd, "w") as f:
             f.write(text)
         with open(tmp) as f:

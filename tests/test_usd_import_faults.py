@@ -119,3 +119,25 @@ def test_the_records_have_the_umask_mode_of_the_images(tmp_path):
     modes = {p.name: stat.S_IMODE(p.stat().st_mode) for p in (tmp_path / "bdipole").iterdir()}
     assert modes == {"jade.exr": 0o640, "bdipole.usda": 0o640,
                      "bdipole_materials.json": 0o640}
+
+
+def test_an_unknown_colour_space_is_that_materials_job_only(tmp_path):
+    texture(tmp_path / "tex" / "a.exr")
+    stage = new_stage(tmp_path)
+    _, t = material(stage, "bad", "tex/a.exr")
+    t.GetInput("file").GetAttr().SetColorSpace("NotASpace")
+    material(stage, "good", "tex/a.exr")
+    stage.GetRootLayer().Save()
+    plan = scenes.load(tmp_path / "asset.usda").plan()
+    jobs = {j.name: j for j in plan.jobs}
+    assert "'NotASpace' is unknown" in jobs["bad"].problem and jobs["good"].problem is None
+    assert "invert bad" in plan.describe()
+    plan.run()
+    by_name, _ = records(tmp_path / "bdipole")
+    assert by_name["good"]["baked"] and (tmp_path / "bdipole" / "good.exr").is_file()
+    assert by_name["bad"]["baked"] is False and "NotASpace" in by_name["bad"]["not_baked"]
+    # a name the user writes in a scene file still fails on its line
+    (tmp_path / "s.toml").write_text('materials_from = "asset.usda"\n[[material]]\n'
+                                     'name = "good"\ncolorspace = "AlsoNot"\n')
+    with pytest.raises(scenes.SceneError, match="s.toml:4: .*'AlsoNot'"):
+        scenes.load(tmp_path / "s.toml")

@@ -141,3 +141,15 @@ def test_an_unknown_colour_space_is_that_materials_job_only(tmp_path):
                                      'name = "good"\ncolorspace = "AlsoNot"\n')
     with pytest.raises(scenes.SceneError, match="s.toml:4: .*'AlsoNot'"):
         scenes.load(tmp_path / "s.toml")
+
+
+def test_rows_of_materials_sharing_one_texture_name_the_material(tmp_path):
+    texture(tmp_path / "tex" / "alb.exr")
+    stage = new_stage(tmp_path)
+    for name in ("a", "b", "c"):
+        material(stage, name, "tex/alb.exr")
+    stage.GetRootLayer().Save()
+    report = scenes.load(tmp_path / "asset.usda").plan().run()
+    alb = str(tmp_path / "tex" / "alb.exr")
+    assert [r.path for r in report.results][:3] == [f"{n}: {alb}" for n in "abc"]
+    assert f"b: {alb}" in report.summary()

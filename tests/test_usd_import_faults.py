@@ -153,3 +153,14 @@ def test_rows_of_materials_sharing_one_texture_name_the_material(tmp_path):
     alb = str(tmp_path / "tex" / "alb.exr")
     assert [r.path for r in report.results][:3] == [f"{n}: {alb}" for n in "abc"]
     assert f"b: {alb}" in report.summary()
+
+
+@pytest.mark.parametrize("meters", [0.0, -1.0, float("inf"), float("nan")])
+def test_a_meters_per_unit_that_is_no_length_is_one_line(tmp_path, meters):
+    texture(tmp_path / "tex" / "a.exr")
+    stage = new_stage(tmp_path, meters_per_unit=meters)
+    material(stage, "a", "tex/a.exr")
+    stage.GetRootLayer().Save()
+    with pytest.raises(scenes.SceneError, match=rf"asset.usda: metersPerUnit = {meters:g}: "
+                                                r"the stage's unit must be a positive"):
+        scenes.load(tmp_path / "asset.usda")

@@ -13,6 +13,7 @@ unit (``metersPerUnit``).
 """
 from __future__ import annotations
 
+import math
 import os
 
 import numpy as np
@@ -153,6 +154,9 @@ def read_stage(path):
     if stage is None:
         raise SceneError(f"{path}: cannot open the USD stage")
     unit_m = UsdGeom.GetStageMetersPerUnit(stage)
+    if not (math.isfinite(unit_m) and unit_m > 0):
+        raise SceneError(f"{path}: metersPerUnit = {unit_m:g}: the stage's unit must be a "
+                         f"positive, finite number of metres")
     out_dir = os.path.join(os.path.dirname(os.path.abspath(path)), "bdipole")
     materials = [UsdShade.Material(p) for p in stage.Traverse() if p.IsA(UsdShade.Material)]
     names = unique_names([str(m.GetPath()) for m in materials])

@@ -164,3 +164,49 @@ def test_a_meters_per_unit_that_is_no_length_is_one_line(tmp_path, meters):
     with pytest.raises(scenes.SceneError, match=rf"asset.usda: metersPerUnit = {meters:g}: "
                                                 r"the stage's unit must be a positive"):
         scenes.load(tmp_path / "asset.usda")
+
+
+def radius_texture(stage, s, name, output="rgb", scale=None, bias=None):
+    """subsurface_radius of shader ``s`` from a UsdUVTexture of tex/rad.exr."""
+    t = UsdShade.Shader.Define(stage, f"/Mat/{name}/r")
+    t.CreateIdAttr("UsdUVTexture")
+    t.CreateInput("file", Sdf.ValueTypeNames.Asset).Set("tex/rad.exr")
+    for key, value in (("scale", scale), ("bias", bias)):
+        if value is not None:
+            t.CreateInput(key, Sdf.ValueTypeNames.Float4).Set(Gf.Vec4f(*value))
+    out = t.CreateOutput(output, F if len(output) == 1 else Sdf.ValueTypeNames.Float3)
+    s.CreateInput("subsurface_radius", F).ConnectToSource(out)
+    return t
+
+
+def test_texture_channels_scale_and_bias_are_honoured_or_refused_by_name(tmp_path):
+    texture(tmp_path / "tex" / "alb.exr")
+    texture(tmp_path / "tex" / "rad.exr", (0.5, 0.9, 0.1))
+    stage = new_stage(tmp_path)
+    radius_texture(stage, material(stage, "red", "tex/alb.exr")[0], "red", output="r")
+    s, t = material(stage, "biased", "tex/alb.exr")
+    t.CreateInput("bias", Sdf.ValueTypeNames.Float4).Set(Gf.Vec4f(0.1, 0, 0, 0))
+    s, t = material(stage, "dimmed", "tex/alb.exr")
+    t.CreateInput("scale", Sdf.ValueTypeNames.Float4).Set(Gf.Vec4f(0.5, 0.5, 0.5, 1))
+    radius_texture(stage, material(stage, "rbias", "tex/alb.exr")[0], "rbias", bias=(0, 0, 1, 0))
+    s, _ = material(stage, "scaled", "tex/alb.exr")
+    scaled = radius_texture(stage, s, "scaled", scale=(2, 4, 8, 1))
+    stage.GetRootLayer().Save()
+    scene = scenes.load(tmp_path / "asset.usda")
+    left = {i.name: i.left_out for i in scene.imports}
+    assert "subsurface_radius reads outputs:r of /Mat/red/r, one channel" in left["red"]
+    assert ("subsurface_color: UsdUVTexture scale/bias not supported (/Mat/biased/t has bias "
+            "0.1, 0, 0)") in left["biased"]
+    assert "(/Mat/dimmed/t has scale 0.5, 0.5, 0.5, on the albedo)" in left["dimmed"]
+    assert "subsurface_radius: UsdUVTexture scale/bias not supported (/Mat/rbias/r has bias " \
+        "0, 0, 1)" in left["rbias"]
+    m = next(m for m in scene.materials if m.name == "scaled")
+    # the radius texture times OpenPBR's default radius_scale (1, 0.5, 0.25) times the scale
+    assert [m.name for m in scene.materials] == ["scaled"] and m.mfp_scale == (2.0, 2.0, 2.0)
+    plan = scene.plan()
+    plan.run()
+    assert all(j.up_to_date for j in scenes.load(tmp_path / "asset.usda").plan().jobs)
+    scaled.GetInput("scale").Set(Gf.Vec4f(2, 4, 4, 1))
+    stage.GetRootLayer().Save()
+    again = scenes.load(tmp_path / "asset.usda").plan().jobs
+    assert [j.up_to_date for j in again if j.name == "scaled"] == [False]

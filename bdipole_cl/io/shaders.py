@@ -105,6 +105,9 @@ class Texture:
     file: str                    # absolute path or <UDIM> pattern
     colorspace: str              # as declared; "auto" when nothing is
     node: str                    # the texture node, for messages
+    scale: tuple | None = None   # per channel, multiplies the texels (UsdUVTexture scale)
+    bias: tuple | None = None    # per channel, added after the scale (UsdUVTexture bias)
+    channel: str | None = None   # the one channel read (UsdUVTexture outputs:r ...); None: rgb
 
 
 @dataclass(frozen=True)
@@ -122,7 +125,8 @@ class Input:
     def describe(self) -> str:
         if self.texture is not None:
             t = self.texture
-            return f"{self.name} <- {t.file} ({t.colorspace})"
+            return f"{self.name} <- {t.file} ({t.colorspace})" + (
+                f" x {', '.join(f'{v:g}' for v in t.scale)}" if t.scale else "")
         if self.refused:
             return self.refused
         text = ", ".join(f"{v:g}" for v in self.value)
@@ -155,7 +159,30 @@ def _distance(mapping, inputs, unit_m, where):
                               f"{len(b.value)}") from None
         return [float(v) for v in mfp], [1.0]
     tex, const = (a, b) if a.texture is not None else (b, a)
-    return tex.texture.file, [float(v) * factor for v in const.value]
+    scale = np.asarray(const.value) * factor
+    if tex.texture.scale is not None:    # the texture node's scale multiplies its texels
+        try:
+            scale = scale * np.asarray(tex.texture.scale)
+        except ValueError:
+            raise NotBakeable(f"{const.name} has {len(const.value)} values and "
+                              f"{tex.texture.node}'s scale {len(tex.texture.scale)}") from None
+    return tex.texture.file, [float(v) for v in scale]
+
+
+def _check_texels(inp, is_albedo):
+    """A texture's texels are baked as its colour channels, the distance's scaled: one
+    channel, a bias, or a scale of the albedo are refused (never ignored)."""
+    t = inp.texture
+    if t is None:
+        return
+    if t.channel is not None:
+        raise NotBakeable(f"{inp.name} reads outputs:{t.channel} of {t.node}, one channel: a "
+                          f"bake reads a texture's colour channels (outputs:rgb)")
+    for what, values in (("bias", t.bias), ("scale", t.scale if is_albedo else None)):
+        if values is not None:
+            raise NotBakeable(f"{inp.name}: UsdUVTexture scale/bias not supported ({t.node} "
+                              f"has {what} {', '.join(f'{v:g}' for v in values)}"
+                              + (", on the albedo)" if what == "scale" else ")"))
 
 
 def _check_bakeable(mapping, inputs):
@@ -167,6 +194,8 @@ def _check_bakeable(mapping, inputs):
     if eta.texture is not None:
         raise NotBakeable(f"{mapping.eta} is a texture ({eta.texture.file}); eta must be "
                           f"constant")
+    for inp in (albedo, *(inputs[n] for n in mapping.distance)):
+        _check_texels(inp, inp is albedo)
     if albedo.texture is None and any(inputs[n].texture for n in mapping.distance):
         raise NotBakeable(f"{mapping.albedo} is constant and the distance a texture: a bake "
                           f"is driven by an albedo texture")

@@ -5,7 +5,9 @@ A material's surface is looked for in the ``mtlx``, ``ri`` and universal render 
 that order; the first shader with a subsurface mapping is used. An input's value comes from
 ``UsdShadeInput.GetValueProducingAttributes`` (so through node graphs and interface inputs):
 an authored value, or the output of a texture node (``UsdUVTexture``, MaterialX ``image`` /
-``tiledimage``) whose ``inputs:file`` is the texture (``<UDIM>`` kept). Its colour space is
+``tiledimage``) whose ``inputs:file`` is the texture (``<UDIM>`` kept; a UsdUVTexture's
+output channel and ``inputs:scale`` / ``inputs:bias`` kept: ``shaders`` applies or refuses
+them). Its colour space is
 the file attribute's ``colorSpace`` metadata, else ``inputs:sourceColorSpace`` (``raw`` is
 linear, ``sRGB``; ``auto`` leaves it to the file). Any other node feeding an input is a
 procedural network: the material is named as not bakeable. Distances are in the stage's
@@ -68,8 +70,20 @@ def _asset_file(attr) -> str:
     return path
 
 
-def _texture(shader, node_kind: str) -> Texture | str:
-    """The texture a texture node reads, or why it cannot be baked."""
+def _scale_bias(shader) -> tuple:
+    """A UsdUVTexture's per-channel (scale, bias) of its rgb (None: the default 1 or 0)."""
+    found = []
+    for key, default in (("scale", 1), ("bias", 0)):
+        inp = shader.GetInput(key)
+        value = _values(inp.Get()) if inp and inp.Get() is not None else None
+        found.append(None if value is None or all(v == default for v in value[:3])
+                     else value[:3])
+    return tuple(found)
+
+
+def _texture(shader, node_kind: str, output: str = "rgb") -> Texture | str:
+    """The texture a texture node reads (through its ``output``), or why it cannot be
+    baked."""
     file_input = shader.GetInput("file")
     if not file_input or file_input.Get() is None:
         return f"{node_kind} {shader.GetPath()} has no file"
@@ -83,7 +97,11 @@ def _texture(shader, node_kind: str) -> Texture | str:
         source = shader.GetInput("sourceColorSpace")
         token = str(source.Get()) if source and source.Get() else "auto"
         space = {"raw": "raw", "sRGB": "sRGB"}.get(token, "auto")
-    return Texture(path, space, str(shader.GetPath()))
+    if node_kind != "UsdUVTexture":
+        return Texture(path, space, str(shader.GetPath()))
+    scale, bias = _scale_bias(shader)
+    return Texture(path, space, str(shader.GetPath()), scale, bias,
+                   None if output == "rgb" else output)
 
 
 def read_input(shader, name: str) -> Input | None:
@@ -103,7 +121,7 @@ def read_input(shader, name: str) -> Input | None:
     shader_id = source.GetShaderId() or ""
     kind = _node_kind(shader_id)
     if kind in TEXTURE_NODES:
-        texture = _texture(source, kind)
+        texture = _texture(source, kind, attr.GetBaseName())
         if isinstance(texture, str):
             return Input(name, refused=f"{name}: {texture}")
         return Input(name, texture=texture)

@@ -210,3 +210,25 @@ def test_texture_channels_scale_and_bias_are_honoured_or_refused_by_name(tmp_pat
     stage.GetRootLayer().Save()
     again = scenes.load(tmp_path / "asset.usda").plan().jobs
     assert [j.up_to_date for j in again if j.name == "scaled"] == [False]
+
+
+def test_pxr_surface_unit_length_multiplies_the_dmfp(tmp_path):
+    texture(tmp_path / "tex" / "a.exr")
+    stage = new_stage(tmp_path)
+    for name, length in (("default", None), ("mm", 1.0), ("zero", 0.0)):
+        s, _ = material(stage, name, "tex/a.exr", "PxrSurface", "subsurfaceGain",
+                        "subsurfaceColor")
+        s.CreateInput("subsurfaceDmfp", F).Set(5.0)
+        s.CreateInput("subsurfaceDmfpColor", C3).Set(Gf.Vec3f(1, 0.5, 0.25))
+        if length is not None:
+            s.CreateInput("unitLength", F).Set(length)
+    stage.GetRootLayer().Save()
+    scene = scenes.load(tmp_path / "asset.usda")
+    scale = {m.name: np.asarray(m.mfp) * m.mfp_scale for m in scene.materials}
+    # RenderMan's default unitLength 0.1 (a dmfp in mm on a stage in cm)
+    np.testing.assert_allclose(scale["default"], [0.5, 0.25, 0.125], rtol=1e-12)
+    np.testing.assert_allclose(scale["mm"], [5.0, 2.5, 1.25], rtol=1e-12)
+    left = {i.name: i.left_out for i in scene.imports}
+    assert "unitLength must be a positive constant" in left["zero"]
+    assert any("unitLength 0.1 (default)" in d for i in scene.imports if i.name == "default"
+               for d in i.inputs.values())

@@ -9,7 +9,8 @@ OpenPBR Surface      subsurface_color    subsurface_radius x             specula
 Standard Surface     subsurface_color    subsurface_radius x             specular_IOR    ext.
                                          subsurface_scale
 PxrSurface           subsurfaceColor     subsurfaceDmfp x                subsurfaceIor   diff.
-                                         subsurfaceDmfpColor
+                                         subsurfaceDmfpColor x
+                                         unitLength
 ===================  ==================  ==============================  ==============  =====
 
 A material counts when its weight (``subsurface_weight``, ``subsurface``, ``subsurfaceGain``)
@@ -17,7 +18,9 @@ is > 0 (or a texture). Every other shader (UsdPreviewSurface, ...) has no subsur
 left out. Inputs not authored take the shader's default (below: the MaterialX 1.39 nodedefs
 and RenderMan's PxrSurface defaults). The distance's convention (docs/model.md "Mean free
 path"): OpenPBR and Standard Surface give the medium's mean free path ("extinction"),
-PxrSurface's dmfp is ld = 1/mu_tr ("diffuse").
+PxrSurface's dmfp is ld = 1/mu_tr ("diffuse"); RenderMan documents PxrSurface's
+``unitLength`` (default 0.1: a dmfp in mm on a stage in cm) as a multiplier on the mean free
+path distance, so it multiplies the distance (a constant; a texture is refused).
 
 A reader hands each input over as an ``Input``: a constant, a ``Texture`` (file, colour
 space, the node it comes from) or a refusal (a procedural network: named, never replaced by a
@@ -46,6 +49,7 @@ class ShaderMapping:
     source: str                  # where the convention is defined
     defaults: dict = field(default_factory=dict)
     anisotropy: str | None = None
+    unit_length: str | None = None   # a third constant factor of the distance (PxrSurface)
 
 
 SHADERS = (
@@ -74,7 +78,7 @@ SHADERS = (
         "RenderMan PxrSurface: dmfp is the diffuse mean free path (Christensen-Burley)",
         {"subsurfaceGain": (0.0,), "subsurfaceColor": (0.830, 0.791, 0.753),
          "subsurfaceDmfp": (10.0,), "subsurfaceDmfpColor": (0.851, 0.557, 0.395),
-         "subsurfaceIor": (1.4,)}),
+         "subsurfaceIor": (1.4,), "unitLength": (0.1,)}, unit_length="unitLength"),
 )
 BY_ID = {i: s for s in SHADERS for i in s.ids}
 
@@ -151,6 +155,13 @@ def _distance(mapping, inputs, unit_m, where):
                           f"bakeable")
     declared = [i.unit for i in (a, b) if i.unit]
     factor = unit_meters(declared[0], where) / unit_m if declared else 1.0
+    if mapping.unit_length:              # RenderMan: a multiplier on the mean free path
+        length = inputs[mapping.unit_length]
+        if length.texture is not None or not length.value[0] > 0:
+            raise NotBakeable(f"{mapping.unit_length} must be a positive constant (a "
+                              f"multiplier on the mean free path), not "
+                              f"{length.texture.file if length.texture else length.value[0]}")
+        factor *= length.value[0]
     if a.texture is None and b.texture is None:
         try:
             mfp = np.asarray(a.value) * np.asarray(b.value) * factor
@@ -187,7 +198,8 @@ def _check_texels(inp, is_albedo):
 
 def _check_bakeable(mapping, inputs):
     weight, eta, albedo = (inputs[n] for n in (mapping.weight, mapping.eta, mapping.albedo))
-    used = [inputs[n] for n in (mapping.weight, mapping.albedo, *mapping.distance, mapping.eta)]
+    used = [inputs[n] for n in (mapping.weight, mapping.albedo, *mapping.distance, mapping.eta,
+                                *((mapping.unit_length,) if mapping.unit_length else ()))]
     refused = [i.refused for i in used if i.refused]
     if refused:
         raise NotBakeable("; ".join(refused))
@@ -233,7 +245,8 @@ def imported_material(name, path, shader_id, read, *, unit_m, out_dir, bound) ->
                                 {}, unit_m, f"no subsurface ({shader_id or 'no surface'}"
                                             f" shader): left out", bound=bound)
     names = (mapping.weight, mapping.albedo, *mapping.distance, mapping.eta,
-             *((mapping.anisotropy,) if mapping.anisotropy else ()))
+             *((mapping.anisotropy,) if mapping.anisotropy else ()),
+             *((mapping.unit_length,) if mapping.unit_length else ()))
     inputs = {n: read(n) or default_input(mapping, n) for n in names}
     described = {n: i.describe() for n, i in inputs.items()}
 

@@ -174,7 +174,7 @@ def radius_texture(stage, s, name, output="rgb", scale=None, bias=None):
     for key, value in (("scale", scale), ("bias", bias)):
         if value is not None:
             t.CreateInput(key, Sdf.ValueTypeNames.Float4).Set(Gf.Vec4f(*value))
-    out = t.CreateOutput(output, F if len(output) == 1 else Sdf.ValueTypeNames.Float3)
+    out = t.CreateOutput(output, Sdf.ValueTypeNames.Float3 if output == "rgb" else F)
     s.CreateInput("subsurface_radius", F).ConnectToSource(out)
     return t
 
@@ -191,10 +191,14 @@ def test_texture_channels_scale_and_bias_are_honoured_or_refused_by_name(tmp_pat
     radius_texture(stage, material(stage, "rbias", "tex/alb.exr")[0], "rbias", bias=(0, 0, 1, 0))
     s, _ = material(stage, "scaled", "tex/alb.exr")
     scaled = radius_texture(stage, s, "scaled", scale=(2, 4, 8, 1))
+    s, _ = material(stage, "mxfloat", "tex/alb.exr")
+    radius_texture(stage, s, "mxfloat", output="out").GetIdAttr().Set("ND_image_float")
     stage.GetRootLayer().Save()
     scene = scenes.load(tmp_path / "asset.usda")
     left = {i.name: i.left_out for i in scene.imports}
     assert "subsurface_radius reads outputs:r of /Mat/red/r, one channel" in left["red"]
+    assert "reads out (a float image: the file's first channel) of /Mat/mxfloat/r" in \
+        left["mxfloat"]
     assert ("subsurface_color: UsdUVTexture scale/bias not supported (/Mat/biased/t has bias "
             "0.1, 0, 0)") in left["biased"]
     assert "(/Mat/dimmed/t has scale 0.5, 0.5, 0.5, on the albedo)" in left["dimmed"]

@@ -142,6 +142,13 @@ def default_input(mapping: ShaderMapping, name: str) -> Input:
     return Input(name, value=mapping.defaults[name], authored=False)
 
 
+def one_channel(node_type: str) -> str | None:
+    """What a MaterialX image node of ``node_type`` reads when that is one channel of its
+    file (a ``float`` image: the first), else None."""
+    return f"out (a {node_type} image: the file's first channel)" if node_type == "float" \
+        else None
+
+
 class NotBakeable(Exception):
     """Why a material with a subsurface shader cannot be baked (one line)."""
 
@@ -187,8 +194,9 @@ def _check_texels(inp, is_albedo):
     if t is None:
         return
     if t.channel is not None:
-        raise NotBakeable(f"{inp.name} reads outputs:{t.channel} of {t.node}, one channel: a "
-                          f"bake reads a texture's colour channels (outputs:rgb)")
+        raise NotBakeable(f"{inp.name} reads {t.channel} of {t.node}, one channel: a bake "
+                          f"reads a texture's colour channels (UsdUVTexture outputs:rgb, a "
+                          f"color3 image)")
     for what, values in (("bias", t.bias), ("scale", t.scale if is_albedo else None)):
         if values is not None:
             raise NotBakeable(f"{inp.name}: UsdUVTexture scale/bias not supported ({t.node} "

@@ -22,7 +22,8 @@ import numpy as np
 from pxr import Usd, UsdGeom, UsdShade
 
 from .scene_file import SceneError
-from .shaders import BY_ID, TEXTURE_NODES, Input, Texture, imported_material, unique_names
+from .shaders import (BY_ID, TEXTURE_NODES, Input, Texture, imported_material, one_channel,
+                      unique_names)
 
 #: render contexts searched for a material's surface, in order
 CONTEXTS = ("mtlx", "ri", "")
@@ -97,11 +98,12 @@ def _texture(shader, node_kind: str, output: str = "rgb") -> Texture | str:
         source = shader.GetInput("sourceColorSpace")
         token = str(source.Get()) if source and source.Get() else "auto"
         space = {"raw": "raw", "sRGB": "sRGB"}.get(token, "auto")
-    if node_kind != "UsdUVTexture":
-        return Texture(path, space, str(shader.GetPath()))
+    if node_kind != "UsdUVTexture":                  # ND_image_<type>
+        return Texture(path, space, str(shader.GetPath()),
+                       channel=one_channel((shader.GetShaderId() or "").split("_")[2]))
     scale, bias = _scale_bias(shader)
     return Texture(path, space, str(shader.GetPath()), scale, bias,
-                   None if output == "rgb" else output)
+                   None if output == "rgb" else f"outputs:{output}")
 
 
 def read_input(shader, name: str) -> Input | None:

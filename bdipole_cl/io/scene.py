@@ -423,8 +423,6 @@ def bake(plan: Plan, *, cancel=None, device=None, progress=None,
             results.append(run_constant_job(job, plan.scene, runtime))
         else:
             results.append(run_blur_job(job, plan.scene, runtime, cancel, max_memory))
-        if job.kind != "constant":       # jobs may share an input: the row names the job
-            results[-1].path = f"{job.name}: {job.source}"
         if progress is not None:
             progress(job, results[-1])
     return finish_bake(plan, results)

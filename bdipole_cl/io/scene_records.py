@@ -293,7 +293,11 @@ def run_constant_job(job, scene, runtime):
 
 
 def finish_bake(plan, results: list) -> BatchReport:
-    """The records of a bake of ``plan`` (a scene Plan), each file written added to the report."""
+    """The records of a bake of ``plan`` (a scene Plan), each file written added to the report;
+    each job's row names its material or blur (jobs may share an input file)."""
+    for job, result in zip(plan.jobs, results):
+        if job.kind != "constant":
+            result.path = f"{job.name}: {job.source}"
     records = [FileResult(p, p, status="ok", notes=["records"]) if why is None else
                FileResult(p, p, error=why) for p, why in write_records(plan, results)]
     return BatchReport(results + records)

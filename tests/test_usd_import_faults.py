@@ -186,6 +186,7 @@ def test_texture_channels_scale_and_bias_are_honoured_or_refused_by_name(tmp_pat
     radius_texture(stage, material(stage, "red", "tex/alb.exr")[0], "red", output="r")
     s, t = material(stage, "biased", "tex/alb.exr")
     t.CreateInput("bias", Sdf.ValueTypeNames.Float4).Set(Gf.Vec4f(0.1, 0, 0, 0))
+    radius_texture(stage, s, "biased", output="g")         # both refusals are named
     s, t = material(stage, "dimmed", "tex/alb.exr")
     t.CreateInput("scale", Sdf.ValueTypeNames.Float4).Set(Gf.Vec4f(0.5, 0.5, 0.5, 1))
     radius_texture(stage, material(stage, "rbias", "tex/alb.exr")[0], "rbias", bias=(0, 0, 1, 0))
@@ -200,7 +201,7 @@ def test_texture_channels_scale_and_bias_are_honoured_or_refused_by_name(tmp_pat
     assert "reads out (a float image: the file's first channel) of /Mat/mxfloat/r" in \
         left["mxfloat"]
     assert ("subsurface_color: UsdUVTexture scale/bias not supported (/Mat/biased/t has bias "
-            "0.1, 0, 0)") in left["biased"]
+            "0.1, 0, 0); subsurface_radius reads outputs:g of /Mat/biased/r") in left["biased"]
     assert "(/Mat/dimmed/t has scale 0.5, 0.5, 0.5, on the albedo)" in left["dimmed"]
     assert "subsurface_radius: UsdUVTexture scale/bias not supported (/Mat/rbias/r has bias " \
         "0, 0, 1)" in left["rbias"]

@@ -187,21 +187,22 @@ def _distance(mapping, inputs, unit_m, where):
     return tex.texture.file, [float(v) for v in scale]
 
 
-def _check_texels(inp, is_albedo):
-    """A texture's texels are baked as its colour channels, the distance's scaled: one
-    channel, a bias, or a scale of the albedo are refused (never ignored)."""
+def _texel_refusals(inp, is_albedo) -> list:
+    """Why a texture's texels cannot be baked as they are (its colour channels, the
+    distance's scaled): one channel, a bias, a scale of the albedo (never ignored)."""
     t = inp.texture
     if t is None:
-        return
+        return []
+    why = []
     if t.channel is not None:
-        raise NotBakeable(f"{inp.name} reads {t.channel} of {t.node}, one channel: a bake "
-                          f"reads a texture's colour channels (UsdUVTexture outputs:rgb, a "
-                          f"color3 image)")
+        why.append(f"{inp.name} reads {t.channel} of {t.node}, one channel: a bake reads a "
+                   f"texture's colour channels (UsdUVTexture outputs:rgb, a color3 image)")
     for what, values in (("bias", t.bias), ("scale", t.scale if is_albedo else None)):
         if values is not None:
-            raise NotBakeable(f"{inp.name}: UsdUVTexture scale/bias not supported ({t.node} "
-                              f"has {what} {', '.join(f'{v:g}' for v in values)}"
-                              + (", on the albedo)" if what == "scale" else ")"))
+            why.append(f"{inp.name}: UsdUVTexture scale/bias not supported ({t.node} has "
+                       f"{what} {', '.join(f'{v:g}' for v in values)}"
+                       + (", on the albedo)" if what == "scale" else ")"))
+    return why
 
 
 def _check_bakeable(mapping, inputs):
@@ -214,8 +215,10 @@ def _check_bakeable(mapping, inputs):
     if eta.texture is not None:
         raise NotBakeable(f"{mapping.eta} is a texture ({eta.texture.file}); eta must be "
                           f"constant")
-    for inp in (albedo, *(inputs[n] for n in mapping.distance)):
-        _check_texels(inp, inp is albedo)
+    texels = [w for i in (albedo, *(inputs[n] for n in mapping.distance))
+              for w in _texel_refusals(i, i is albedo)]
+    if texels:
+        raise NotBakeable("; ".join(texels))
     if albedo.texture is None and any(inputs[n].texture for n in mapping.distance):
         raise NotBakeable(f"{mapping.albedo} is constant and the distance a texture: a bake "
                           f"is driven by an albedo texture")

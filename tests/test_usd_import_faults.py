@@ -87,6 +87,20 @@ def test_a_failed_material_is_not_recorded_as_baked(tmp_path):
     assert not (tmp_path / "bdipole" / "missing.exr").exists()
 
 
+def test_a_udim_material_with_one_failed_tile_names_only_the_tile_written(tmp_path):
+    texture(tmp_path / "tex" / "skin.1001.exr")
+    (tmp_path / "tex" / "skin.1002.exr").write_bytes(b"not an image")
+    stage = new_stage(tmp_path)
+    material(stage, "skin", "tex/skin.<UDIM>.exr")
+    stage.GetRootLayer().Save()
+    scenes.load(tmp_path / "asset.usda").plan().run()
+    by_name, layer = records(tmp_path / "bdipole")
+    skin = by_name["skin"]
+    assert skin["baked"] is False and skin["files"] == ["skin.1001.exr"]
+    assert "skin.1002.exr [1002]" in skin["not_baked"] and "1001" not in skin["not_baked"]
+    assert baked_prims(layer) == {}
+
+
 def test_a_job_without_an_output_fails_alone_and_the_records_are_written(tmp_path):
     texture(tmp_path / "tex" / "skin.1001.exr")
     texture(tmp_path / "tex" / "jade.exr")

@@ -163,3 +163,25 @@ def test_a_changed_value_in_the_document_rebakes_that_material_only(tmp_path):
     path.write_text(DOC_139.replace("RADIUS", "0.6"))
     todo = sorted((j.name, j.udim) for j in scenes.load(path).plan().jobs if not j.up_to_date)
     assert todo == [("skin", "1001"), ("skin", "1002")]
+
+
+def test_a_float_image_of_a_baked_input_is_refused_as_one_channel(tmp_path):
+    doc = """<?xml version="1.0"?>
+<materialx version="1.39">
+  <image name="rad" type="float"><input name="file" type="filename" value="tex/wax.exr" />
+  </image>
+  <image name="alb" type="color3"><input name="file" type="filename" value="tex/wax.exr" />
+  </image>
+  <open_pbr_surface name="s" type="surfaceshader">
+    <input name="subsurface_weight" type="float" value="1" />
+    <input name="subsurface_color" type="color3" nodename="alb" />
+    <input name="subsurface_radius" type="float" nodename="rad" />
+  </open_pbr_surface>
+  <surfacematerial name="m" type="material">
+    <input name="surfaceshader" type="surfaceshader" nodename="s" />
+  </surfacematerial>
+</materialx>
+"""
+    (imp,) = import_materials(write_doc(tmp_path, doc))
+    assert "subsurface_radius reads out (a float image: the file's first channel) of rad, " \
+        "one channel" in imp.left_out

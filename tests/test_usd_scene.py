@@ -163,7 +163,7 @@ def test_baked_values_equal_albedo_to_coefficients_and_the_layer_reads_them_back
         check_texture_bake(root / "bdipole" / f"skin.{tile}.exr", albedo,
                            0.5 * np.array([1, 0.5, 0.25]), 1.4, "extinction")
     check_texture_bake(root / "bdipole" / "marble.exr", albedo_texture(root / "probe" / "m.exr", 3),
-                       2.0 * np.array([1, 0.8, 0.6]), 1.33, "diffuse")
+                       2.0 * np.array([1, 0.8, 0.6]) * 0.1, 1.33, "diffuse")  # unitLength
     want = bd.albedo_to_coefficients((0.7, 0.5, 0.3), 0.5 * np.array([1, 0.6, 0.3]), 1.5,
                                      mfp_kind="extinction")
     records = json.loads((root / "bdipole" / "bdipole_materials.json").read_text())

@@ -7,7 +7,8 @@ input's value is its ``value`` attribute; a connected input (``nodename``, or ``
 ``output``) must come from an ``image`` or ``tiledimage`` node, whose ``file`` (with
 ``fileprefix`` applied, ``<UDIM>`` kept, relative to the document) is the texture and whose
 active colour space (its ``colorspace`` attribute, else the enclosing elements', else the
-document's) goes to colour management. Any other node is a procedural network: the material
+document's) goes to colour management (a ``float`` image, one channel of the file, is
+refused where its texels are baked). Any other node is a procedural network: the material
 is named as not bakeable. A distance input's ``unit`` (``unittype="distance"``) converts it to
 the scene unit: metres, MaterialX's default target distance unit (``GenOptions``), which a
 scene file's ``unit`` may change.
@@ -19,7 +20,7 @@ import os
 import MaterialX as mx
 
 from .scene_file import SceneError
-from .shaders import BY_ID, TEXTURE_NODES, Input, Texture, imported_material
+from .shaders import BY_ID, TEXTURE_NODES, Input, Texture, imported_material, one_channel
 
 #: metres per scene unit of a MaterialX document (MaterialX's default target distance unit)
 DOCUMENT_UNIT_M = 1.0
@@ -44,7 +45,8 @@ def _texture(node, base: str) -> Texture | str:
     path = file_input.getResolvedValueString()
     if not os.path.isabs(path):
         path = os.path.normpath(os.path.join(base, path))
-    return Texture(path, file_input.getActiveColorSpace() or "auto", node.getNamePath())
+    return Texture(path, file_input.getActiveColorSpace() or "auto", node.getNamePath(),
+                   channel=one_channel(node.getType()))
 
 
 def read_input(shader, name: str, base: str) -> Input | None:

@@ -382,12 +382,10 @@ def _imported(fail, index, entry, imp, defaults, resolve, working_space) -> Mate
         m["unit"] = named
     try:                                 # a texture's colour space as the stage names it
         space = _colour(fail, "material", index or 0, entry, m, "colorspace")
-    except SceneError:
-        if "colorspace" in entry or "colorspace" not in imp.facts:
-            raise
-        raise SceneError(f"{imp.path}: its albedo texture's colour space "
-                         f"{imp.facts['colorspace']!r} is unknown to the OCIO config; name "
-                         f"one with colorspace in a [[material]] override") from None
+    except SceneError:                   # the stage's own name: kept, so that the plan
+        if "colorspace" in entry or "colorspace" not in imp.facts:   # makes this material
+            raise                        # a job that cannot run and the others still bake
+        space = imp.facts["colorspace"]
     ws = _colour(fail, "material", index or 0, entry, m, "working_space") or working_space
     return _material(m, resolve, (space, ws))
 

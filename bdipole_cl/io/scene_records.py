@@ -3,7 +3,8 @@ coefficients, ``bdipole_materials.json`` (every material: its mapped inputs, con
 unit, output files, and a constant one's coefficients) and ``bdipole.usda`` (an ``over`` on
 each baked material prim with ``bdipole:`` attributes: the output files as asset paths with
 ``<UDIM>``, a constant material's coefficients), so that a pipeline finds them by sublayering
-it. Both are rewritten only when their content changes (temporary file + rename).
+it. Both are rewritten only when their content changes (temporary file + rename), with the
+mode any file the process creates gets (0666 less the umask), as the images have.
 """
 from __future__ import annotations
 
@@ -84,15 +85,16 @@ def _relative(path, folder):
     return "./" + os.path.relpath(path, folder).replace(os.sep, "/")
 
 
-def manifest(scene, jobs, coefficients, folder) -> dict:
+def manifest(scene, jobs, coefficients, folder, results=None) -> dict:
     """The manifest's content: every material of the scene (imported ones first, left-out
-    ones with their reason)."""
+    ones with their reason); a material is baked when every one of its jobs wrote its
+    output or found it up to date (``results``, in the order of ``jobs``; None: all did)."""
     by_name = {m.name: m for m in scene.materials}
     entries, seen = [], set()
     for imp in scene.imports:
         seen.add(imp.name)
         entry = {"name": imp.name, "prim": imp.path, "shader": imp.shader,
-                 "inputs": imp.inputs, "baked": imp.name in by_name}
+                 "inputs": imp.inputs, "baked": False}
         if imp.shader in SOURCES:
             entry["convention"] = f"{imp.mfp_kind}: {SOURCES[imp.shader]}"
         if imp.left_out:
@@ -100,19 +102,36 @@ def manifest(scene, jobs, coefficients, folder) -> dict:
         if imp.notes:
             entry["notes"] = list(imp.notes)
         if imp.name in by_name:
-            entry.update(_baked(by_name[imp.name], jobs, coefficients, folder))
+            entry.update(_baked(by_name[imp.name], jobs, results, coefficients, folder))
         entries.append(entry)
     for m in scene.materials:
         if m.name not in seen:
-            entries.append({"name": m.name, "baked": True}
-                           | _baked(m, jobs, coefficients, folder))
+            entries.append({"name": m.name} | _baked(m, jobs, results, coefficients, folder))
     return {"source": scene.source, "scene": str(scene.path), "materials": entries}
 
 
-def _baked(m, jobs, coefficients, folder) -> dict:
-    files = sorted(os.path.relpath(j.output, folder) for j in jobs
-                   if j.kind == "invert" and j.name == m.name)
-    entry = {"mfp_kind": m.mfp_kind, "eta": list(m.eta), "unit": m.unit,
+def _outcome(m, jobs, results) -> tuple:
+    """([output files written or up to date], [why each other job of ``m`` is not])."""
+    files, failed = [], []
+    for j, r in zip(jobs, results if results is not None else [None] * len(jobs)):
+        if j.name != m.name or j.kind not in ("invert", "constant"):
+            continue
+        done = r is None or r.status in ("ok", "skipped")
+        if j.kind == "invert" and done and j.output and os.path.isfile(j.output):
+            files.append(j.output)
+        elif j.kind == "invert" or not done:
+            why = (r.error if r is not None and r.error else
+                   "its output is missing" if done else r.status)
+            failed.append(f"{j.source}" + (f" [{j.udim}]" if j.udim else "") + f": {why}")
+    return files, failed
+
+
+def _baked(m, jobs, results, coefficients, folder) -> dict:
+    written, failed = _outcome(m, jobs, results)
+    if m.constant and not coefficients.get(m.name) and not failed:
+        failed.append("no coefficients computed")
+    files = sorted(os.path.relpath(f, folder) for f in written)
+    entry = {"baked": not failed, **({"not_baked": "; ".join(failed)} if failed else {}),"mfp_kind": m.mfp_kind, "eta": list(m.eta), "unit": m.unit,
              "coefficient_unit": f"1/{m.unit}", "outputs": list(m.outputs),
              "albedo": m.albedo if isinstance(m.albedo, str) else list(m.albedo),
              "mfp": m.mfp if isinstance(m.mfp, str) else list(m.mfp),
@@ -161,6 +180,18 @@ def usd_layer_text(scene, records: dict, folder) -> str:
     return layer.ExportToString()
 
 
+def default_mode() -> int:
+    """The mode a plain ``open(path, "w")`` gives a new file: 0o666 less the process umask
+    (read from /proc where it can be, so the umask is never changed, even for a moment)."""
+    try:
+        with open("/proc/self/status") as f:
+            umask = next(int(line.split()[1], 8) for line in f if line.startswith("Umask:"))
+    except (OSError, StopIteration, ValueError, IndexError):
+        umask = os.umask(0o022)
+        os.umask(umask)
+    return 0o666 & ~umask
+
+
 def write_if_changed(path, text: str) -> bool:
     """Write ``text`` to ``path`` (temporary file + rename) unless it already holds it."""
     try:
@@ -173,6 +204,7 @@ def write_if_changed(path, text: str) -> bool:
     os.makedirs(folder, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=os.path.basename(path), dir=folder)
     try:
+        os.chmod(tmp, default_mode())       # mkstemp's 0600 is for the temporary name only
         with os.fdopen(fd, "w") as f:
             f.write(text)
         with open(tmp) as f:
@@ -202,7 +234,7 @@ def write_records(plan, results) -> list:
             coefficients[job.name] = result.values
         elif job.up_to_date and old.get(job.name, {}).get("coefficients"):
             coefficients[job.name] = old[job.name]["coefficients"]
-    records = manifest(scene, plan.jobs, coefficients, folder)
+    records = manifest(scene, plan.jobs, coefficients, folder, results)
     texts = {os.path.join(folder, MANIFEST): json.dumps(records, indent=1, sort_keys=True)
              + "\n"}
     if scene.source is not None:
@@ -261,7 +293,11 @@ def run_constant_job(job, scene, runtime):
 
 
 def finish_bake(plan, results: list) -> BatchReport:
-    """The records of a bake of ``plan`` (a scene Plan), each file written added to the report."""
+    """The records of a bake of ``plan`` (a scene Plan), each file written added to the report;
+    each job's row names its material or blur (jobs may share an input file)."""
+    for job, result in zip(plan.jobs, results):
+        if job.kind != "constant":
+            result.path = f"{job.name}: {job.source}"
     records = [FileResult(p, p, status="ok", notes=["records"]) if why is None else
                FileResult(p, p, error=why) for p, why in write_records(plan, results)]
     return BatchReport(results + records)

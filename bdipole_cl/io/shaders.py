@@ -9,7 +9,8 @@ OpenPBR Surface      subsurface_color    subsurface_radius x             specula
 Standard Surface     subsurface_color    subsurface_radius x             specular_IOR    ext.
                                          subsurface_scale
 PxrSurface           subsurfaceColor     subsurfaceDmfp x                subsurfaceIor   diff.
-                                         subsurfaceDmfpColor
+                                         subsurfaceDmfpColor x
+                                         unitLength
 ===================  ==================  ==============================  ==============  =====
 
 A material counts when its weight (``subsurface_weight``, ``subsurface``, ``subsurfaceGain``)
@@ -17,7 +18,9 @@ is > 0 (or a texture). Every other shader (UsdPreviewSurface, ...) has no subsur
 left out. Inputs not authored take the shader's default (below: the MaterialX 1.39 nodedefs
 and RenderMan's PxrSurface defaults). The distance's convention (docs/model.md "Mean free
 path"): OpenPBR and Standard Surface give the medium's mean free path ("extinction"),
-PxrSurface's dmfp is ld = 1/mu_tr ("diffuse").
+PxrSurface's dmfp is ld = 1/mu_tr ("diffuse"); RenderMan documents PxrSurface's
+``unitLength`` (default 0.1: a dmfp in mm on a stage in cm) as a multiplier on the mean free
+path distance, so it multiplies the distance (a constant; a texture is refused).
 
 A reader hands each input over as an ``Input``: a constant, a ``Texture`` (file, colour
 space, the node it comes from) or a refusal (a procedural network: named, never replaced by a
@@ -46,6 +49,7 @@ class ShaderMapping:
     source: str                  # where the convention is defined
     defaults: dict = field(default_factory=dict)
     anisotropy: str | None = None
+    unit_length: str | None = None   # a third constant factor of the distance (PxrSurface)
 
 
 SHADERS = (
@@ -74,7 +78,7 @@ SHADERS = (
         "RenderMan PxrSurface: dmfp is the diffuse mean free path (Christensen-Burley)",
         {"subsurfaceGain": (0.0,), "subsurfaceColor": (0.830, 0.791, 0.753),
          "subsurfaceDmfp": (10.0,), "subsurfaceDmfpColor": (0.851, 0.557, 0.395),
-         "subsurfaceIor": (1.4,)}),
+         "subsurfaceIor": (1.4,), "unitLength": (0.1,)}, unit_length="unitLength"),
 )
 BY_ID = {i: s for s in SHADERS for i in s.ids}
 
@@ -105,6 +109,9 @@ class Texture:
     file: str                    # absolute path or <UDIM> pattern
     colorspace: str              # as declared; "auto" when nothing is
     node: str                    # the texture node, for messages
+    scale: tuple | None = None   # per channel, multiplies the texels (UsdUVTexture scale)
+    bias: tuple | None = None    # per channel, added after the scale (UsdUVTexture bias)
+    channel: str | None = None   # the one channel read (UsdUVTexture outputs:r ...); None: rgb
 
 
 @dataclass(frozen=True)
@@ -122,7 +129,8 @@ class Input:
     def describe(self) -> str:
         if self.texture is not None:
             t = self.texture
-            return f"{self.name} <- {t.file} ({t.colorspace})"
+            return f"{self.name} <- {t.file} ({t.colorspace})" + (
+                f" x {', '.join(f'{v:g}' for v in t.scale)}" if t.scale else "")
         if self.refused:
             return self.refused
         text = ", ".join(f"{v:g}" for v in self.value)
@@ -132,6 +140,13 @@ class Input:
 
 def default_input(mapping: ShaderMapping, name: str) -> Input:
     return Input(name, value=mapping.defaults[name], authored=False)
+
+
+def one_channel(node_type: str) -> str | None:
+    """What a MaterialX image node of ``node_type`` reads when that is one channel of its
+    file (a ``float`` image: the first), else None."""
+    return f"out (a {node_type} image: the file's first channel)" if node_type == "float" \
+        else None
 
 
 class NotBakeable(Exception):
@@ -147,6 +162,13 @@ def _distance(mapping, inputs, unit_m, where):
                           f"bakeable")
     declared = [i.unit for i in (a, b) if i.unit]
     factor = unit_meters(declared[0], where) / unit_m if declared else 1.0
+    if mapping.unit_length:              # RenderMan: a multiplier on the mean free path
+        length = inputs[mapping.unit_length]
+        if length.texture is not None or not length.value[0] > 0:
+            raise NotBakeable(f"{mapping.unit_length} must be a positive constant (a "
+                              f"multiplier on the mean free path), not "
+                              f"{length.texture.file if length.texture else length.value[0]}")
+        factor *= length.value[0]
     if a.texture is None and b.texture is None:
         try:
             mfp = np.asarray(a.value) * np.asarray(b.value) * factor
@@ -155,18 +177,48 @@ def _distance(mapping, inputs, unit_m, where):
                               f"{len(b.value)}") from None
         return [float(v) for v in mfp], [1.0]
     tex, const = (a, b) if a.texture is not None else (b, a)
-    return tex.texture.file, [float(v) * factor for v in const.value]
+    scale = np.asarray(const.value) * factor
+    if tex.texture.scale is not None:    # the texture node's scale multiplies its texels
+        try:
+            scale = scale * np.asarray(tex.texture.scale)
+        except ValueError:
+            raise NotBakeable(f"{const.name} has {len(const.value)} values and "
+                              f"{tex.texture.node}'s scale {len(tex.texture.scale)}") from None
+    return tex.texture.file, [float(v) for v in scale]
+
+
+def _texel_refusals(inp, is_albedo) -> list:
+    """Why a texture's texels cannot be baked as they are (its colour channels, the
+    distance's scaled): one channel, a bias, a scale of the albedo (never ignored)."""
+    t = inp.texture
+    if t is None:
+        return []
+    why = []
+    if t.channel is not None:
+        why.append(f"{inp.name} reads {t.channel} of {t.node}, one channel: a bake reads a "
+                   f"texture's colour channels (UsdUVTexture outputs:rgb, a color3 image)")
+    for what, values in (("bias", t.bias), ("scale", t.scale if is_albedo else None)):
+        if values is not None:
+            why.append(f"{inp.name}: UsdUVTexture scale/bias not supported ({t.node} has "
+                       f"{what} {', '.join(f'{v:g}' for v in values)}"
+                       + (", on the albedo)" if what == "scale" else ")"))
+    return why
 
 
 def _check_bakeable(mapping, inputs):
     weight, eta, albedo = (inputs[n] for n in (mapping.weight, mapping.eta, mapping.albedo))
-    used = [inputs[n] for n in (mapping.weight, mapping.albedo, *mapping.distance, mapping.eta)]
+    used = [inputs[n] for n in (mapping.weight, mapping.albedo, *mapping.distance, mapping.eta,
+                                *((mapping.unit_length,) if mapping.unit_length else ()))]
     refused = [i.refused for i in used if i.refused]
     if refused:
         raise NotBakeable("; ".join(refused))
     if eta.texture is not None:
         raise NotBakeable(f"{mapping.eta} is a texture ({eta.texture.file}); eta must be "
                           f"constant")
+    texels = [w for i in (albedo, *(inputs[n] for n in mapping.distance))
+              for w in _texel_refusals(i, i is albedo)]
+    if texels:
+        raise NotBakeable("; ".join(texels))
     if albedo.texture is None and any(inputs[n].texture for n in mapping.distance):
         raise NotBakeable(f"{mapping.albedo} is constant and the distance a texture: a bake "
                           f"is driven by an albedo texture")
@@ -204,7 +256,8 @@ def imported_material(name, path, shader_id, read, *, unit_m, out_dir, bound) ->
                                 {}, unit_m, f"no subsurface ({shader_id or 'no surface'}"
                                             f" shader): left out", bound=bound)
     names = (mapping.weight, mapping.albedo, *mapping.distance, mapping.eta,
-             *((mapping.anisotropy,) if mapping.anisotropy else ()))
+             *((mapping.anisotropy,) if mapping.anisotropy else ()),
+             *((mapping.unit_length,) if mapping.unit_length else ()))
     inputs = {n: read(n) or default_input(mapping, n) for n in names}
     described = {n: i.describe() for n, i in inputs.items()}
 

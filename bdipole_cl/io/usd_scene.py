@@ -5,7 +5,9 @@ A material's surface is looked for in the ``mtlx``, ``ri`` and universal render 
 that order; the first shader with a subsurface mapping is used. An input's value comes from
 ``UsdShadeInput.GetValueProducingAttributes`` (so through node graphs and interface inputs):
 an authored value, or the output of a texture node (``UsdUVTexture``, MaterialX ``image`` /
-``tiledimage``) whose ``inputs:file`` is the texture (``<UDIM>`` kept). Its colour space is
+``tiledimage``) whose ``inputs:file`` is the texture (``<UDIM>`` kept; a UsdUVTexture's
+output channel and ``inputs:scale`` / ``inputs:bias`` kept: ``shaders`` applies or refuses
+them). Its colour space is
 the file attribute's ``colorSpace`` metadata, else ``inputs:sourceColorSpace`` (``raw`` is
 linear, ``sRGB``; ``auto`` leaves it to the file). Any other node feeding an input is a
 procedural network: the material is named as not bakeable. Distances are in the stage's
@@ -13,13 +15,15 @@ unit (``metersPerUnit``).
 """
 from __future__ import annotations
 
+import math
 import os
 
 import numpy as np
 from pxr import Usd, UsdGeom, UsdShade
 
 from .scene_file import SceneError
-from .shaders import BY_ID, TEXTURE_NODES, Input, Texture, imported_material, unique_names
+from .shaders import (BY_ID, TEXTURE_NODES, Input, Texture, imported_material, one_channel,
+                      unique_names)
 
 #: render contexts searched for a material's surface, in order
 CONTEXTS = ("mtlx", "ri", "")
@@ -67,8 +71,20 @@ def _asset_file(attr) -> str:
     return path
 
 
-def _texture(shader, node_kind: str) -> Texture | str:
-    """The texture a texture node reads, or why it cannot be baked."""
+def _scale_bias(shader) -> tuple:
+    """A UsdUVTexture's per-channel (scale, bias) of its rgb (None: the default 1 or 0)."""
+    found = []
+    for key, default in (("scale", 1), ("bias", 0)):
+        inp = shader.GetInput(key)
+        value = _values(inp.Get()) if inp and inp.Get() is not None else None
+        found.append(None if value is None or all(v == default for v in value[:3])
+                     else value[:3])
+    return tuple(found)
+
+
+def _texture(shader, node_kind: str, output: str = "rgb") -> Texture | str:
+    """The texture a texture node reads (through its ``output``), or why it cannot be
+    baked."""
     file_input = shader.GetInput("file")
     if not file_input or file_input.Get() is None:
         return f"{node_kind} {shader.GetPath()} has no file"
@@ -82,7 +98,12 @@ def _texture(shader, node_kind: str) -> Texture | str:
         source = shader.GetInput("sourceColorSpace")
         token = str(source.Get()) if source and source.Get() else "auto"
         space = {"raw": "raw", "sRGB": "sRGB"}.get(token, "auto")
-    return Texture(path, space, str(shader.GetPath()))
+    if node_kind != "UsdUVTexture":                  # ND_image_<type>
+        return Texture(path, space, str(shader.GetPath()),
+                       channel=one_channel((shader.GetShaderId() or "").split("_")[2]))
+    scale, bias = _scale_bias(shader)
+    return Texture(path, space, str(shader.GetPath()), scale, bias,
+                   None if output == "rgb" else f"outputs:{output}")
 
 
 def read_input(shader, name: str) -> Input | None:
@@ -102,7 +123,7 @@ def read_input(shader, name: str) -> Input | None:
     shader_id = source.GetShaderId() or ""
     kind = _node_kind(shader_id)
     if kind in TEXTURE_NODES:
-        texture = _texture(source, kind)
+        texture = _texture(source, kind, attr.GetBaseName())
         if isinstance(texture, str):
             return Input(name, refused=f"{name}: {texture}")
         return Input(name, texture=texture)
@@ -153,6 +174,9 @@ def read_stage(path):
     if stage is None:
         raise SceneError(f"{path}: cannot open the USD stage")
     unit_m = UsdGeom.GetStageMetersPerUnit(stage)
+    if not (math.isfinite(unit_m) and unit_m > 0):
+        raise SceneError(f"{path}: metersPerUnit = {unit_m:g}: the stage's unit must be a "
+                         f"positive, finite number of metres")
     out_dir = os.path.join(os.path.dirname(os.path.abspath(path)), "bdipole")
     materials = [UsdShade.Material(p) for p in stage.Traverse() if p.IsA(UsdShade.Material)]
     names = unique_names([str(m.GetPath()) for m in materials])

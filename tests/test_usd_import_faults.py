@@ -1,0 +1,253 @@
+"""Faults in a USD stage's materials (bdipole_cl/io/usd_scene.py, shaders.py,
+scene_records.py): each one is that material's job or refusal, named; the rest bake and the
+records name only what was written."""
+import json
+import os
+import stat
+
+import numpy as np
+import pytest
+
+pxr = pytest.importorskip("pxr")
+from pxr import Gf, Sdf, Usd, UsdGeom, UsdShade  # noqa: E402
+
+from bdipole_cl import scene as scenes  # noqa: E402
+from bdipole_cl.apps.demo import write_exr  # noqa: E402
+
+pytestmark = pytest.mark.usefixtures("on_device")
+
+N = 4
+F, C3 = Sdf.ValueTypeNames.Float, Sdf.ValueTypeNames.Color3f
+OPENPBR = "ND_open_pbr_surface_surfaceshader"
+
+
+def texture(path, rgb=(0.5, 0.4, 0.3)):
+    path.parent.mkdir(parents=True, exist_ok=True)
+    write_exr(path, np.broadcast_to(np.float32(rgb), (N, N, 3)).copy(), ("R", "G", "B"))
+
+
+def material(stage, name, file, sid=OPENPBR, weight="subsurface_weight",
+             albedo="subsurface_color"):
+    """A subsurface material whose albedo is a UsdUVTexture of ``file``: (shader, texture)."""
+    m = UsdShade.Material.Define(stage, f"/Mat/{name}")
+    s = UsdShade.Shader.Define(stage, f"/Mat/{name}/s")
+    s.CreateIdAttr(sid)
+    m.CreateSurfaceOutput("ri" if sid == "PxrSurface" else "mtlx").ConnectToSource(
+        s.ConnectableAPI(), "out")
+    s.CreateInput(weight, F).Set(1.0)
+    t = UsdShade.Shader.Define(stage, f"/Mat/{name}/t")
+    t.CreateIdAttr("UsdUVTexture")
+    t.CreateInput("file", Sdf.ValueTypeNames.Asset).Set(file)
+    s.CreateInput(albedo, C3).ConnectToSource(t.CreateOutput("rgb", Sdf.ValueTypeNames.Float3))
+    return s, t
+
+
+def new_stage(root, meters_per_unit=None):
+    stage = Usd.Stage.CreateNew(str(root / "asset.usda"))
+    if meters_per_unit is not None:
+        UsdGeom.SetStageMetersPerUnit(stage, meters_per_unit)
+    return stage
+
+
+def records(folder):
+    with open(folder / "bdipole_materials.json") as f:
+        by_name = {e["name"]: e for e in json.load(f)["materials"]}
+    return by_name, Sdf.Layer.OpenAsAnonymous(str(folder / "bdipole.usda"))
+
+
+def baked_prims(layer):
+    """{prim path: its bdipole: asset attributes' paths} of the records layer."""
+    out = {}
+
+    def visit(path):
+        spec = layer.GetPrimAtPath(path)
+        assets = {a.name: a.default.path for a in spec.attributes
+                  if isinstance(a.default, Sdf.AssetPath)}
+        if spec.attributes:
+            out[str(path)] = assets
+    layer.Traverse(Sdf.Path.absoluteRootPath, lambda p: visit(p) if p.IsPrimPath() else None)
+    return out
+
+
+def test_a_failed_material_is_not_recorded_as_baked(tmp_path):
+    texture(tmp_path / "tex" / "jade.exr")
+    stage = new_stage(tmp_path)
+    material(stage, "jade", "tex/jade.exr")
+    material(stage, "missing", "tex/nothere.exr")
+    stage.GetRootLayer().Save()
+    report = scenes.load(tmp_path / "asset.usda").plan().run()
+    assert report.exit_code != 0
+    by_name, layer = records(tmp_path / "bdipole")
+    assert by_name["jade"]["baked"] and by_name["jade"]["files"] == ["jade.exr"]
+    miss = by_name["missing"]
+    assert miss["baked"] is False and miss["files"] == []
+    assert "nothere.exr is missing" in miss["not_baked"]
+    assert baked_prims(layer) == {"/Mat/jade": {f"bdipole:{o}": "./jade.exr"
+                                                for o in ("sigma_a", "sigma_s")}}
+    assert not (tmp_path / "bdipole" / "missing.exr").exists()
+
+
+def test_a_udim_material_with_one_failed_tile_names_only_the_tile_written(tmp_path):
+    texture(tmp_path / "tex" / "skin.1001.exr")
+    (tmp_path / "tex" / "skin.1002.exr").write_bytes(b"not an image")
+    stage = new_stage(tmp_path)
+    material(stage, "skin", "tex/skin.<UDIM>.exr")
+    stage.GetRootLayer().Save()
+    scenes.load(tmp_path / "asset.usda").plan().run()
+    by_name, layer = records(tmp_path / "bdipole")
+    skin = by_name["skin"]
+    assert skin["baked"] is False and skin["files"] == ["skin.1001.exr"]
+    assert "skin.1002.exr [1002]" in skin["not_baked"] and "1001" not in skin["not_baked"]
+    assert baked_prims(layer) == {}
+
+
+def test_a_job_without_an_output_fails_alone_and_the_records_are_written(tmp_path):
+    texture(tmp_path / "tex" / "skin.1001.exr")
+    texture(tmp_path / "tex" / "jade.exr")
+    stage = new_stage(tmp_path)
+    material(stage, "skin", "tex/skin.<UDIM>.exr")
+    material(stage, "jade", "tex/jade.exr")
+    stage.GetRootLayer().Save()
+    (tmp_path / "scene.toml").write_text(
+        'materials_from = "asset.usda"\n[defaults]\noutput = "out/{material}.<UDIM>.exr"\n')
+    report = scenes.load(tmp_path / "scene.toml").plan().run()
+    failed = [r for r in report.results if r.status == "failed"]
+    assert len(failed) == 1 and "jade" in failed[0].path, report.summary()
+    by_name, layer = records(tmp_path / "out")
+    assert by_name["skin"]["baked"] and by_name["skin"]["files"] == ["skin.1001.exr"]
+    assert by_name["jade"]["baked"] is False and by_name["jade"]["files"] == []
+    assert baked_prims(layer) == {"/Mat/skin": {f"bdipole:{o}": "./skin.<UDIM>.exr"
+                                                for o in ("sigma_a", "sigma_s")}}
+
+
+def test_the_records_have_the_umask_mode_of_the_images(tmp_path):
+    texture(tmp_path / "tex" / "jade.exr")
+    stage = new_stage(tmp_path)
+    material(stage, "jade", "tex/jade.exr")
+    stage.GetRootLayer().Save()
+    old = os.umask(0o027)
+    try:
+        scenes.load(tmp_path / "asset.usda").plan().run()
+    finally:
+        os.umask(old)
+    modes = {p.name: stat.S_IMODE(p.stat().st_mode) for p in (tmp_path / "bdipole").iterdir()}
+    assert modes == {"jade.exr": 0o640, "bdipole.usda": 0o640,
+                     "bdipole_materials.json": 0o640}
+
+
+def test_an_unknown_colour_space_is_that_materials_job_only(tmp_path):
+    texture(tmp_path / "tex" / "a.exr")
+    stage = new_stage(tmp_path)
+    _, t = material(stage, "bad", "tex/a.exr")
+    t.GetInput("file").GetAttr().SetColorSpace("NotASpace")
+    material(stage, "good", "tex/a.exr")
+    stage.GetRootLayer().Save()
+    plan = scenes.load(tmp_path / "asset.usda").plan()
+    jobs = {j.name: j for j in plan.jobs}
+    assert "'NotASpace' is unknown" in jobs["bad"].problem and jobs["good"].problem is None
+    assert "invert bad" in plan.describe()
+    plan.run()
+    by_name, _ = records(tmp_path / "bdipole")
+    assert by_name["good"]["baked"] and (tmp_path / "bdipole" / "good.exr").is_file()
+    assert by_name["bad"]["baked"] is False and "NotASpace" in by_name["bad"]["not_baked"]
+    # a name the user writes in a scene file still fails on its line
+    (tmp_path / "s.toml").write_text('materials_from = "asset.usda"\n[[material]]\n'
+                                     'name = "good"\ncolorspace = "AlsoNot"\n')
+    with pytest.raises(scenes.SceneError, match="s.toml:4: .*'AlsoNot'"):
+        scenes.load(tmp_path / "s.toml")
+
+
+def test_rows_of_materials_sharing_one_texture_name_the_material(tmp_path):
+    texture(tmp_path / "tex" / "alb.exr")
+    stage = new_stage(tmp_path)
+    for name in ("a", "b", "c"):
+        material(stage, name, "tex/alb.exr")
+    stage.GetRootLayer().Save()
+    report = scenes.load(tmp_path / "asset.usda").plan().run()
+    alb = str(tmp_path / "tex" / "alb.exr")
+    assert [r.path for r in report.results][:3] == [f"{n}: {alb}" for n in "abc"]
+    assert f"b: {alb}" in report.summary()
+
+
+@pytest.mark.parametrize("meters", [0.0, -1.0, float("inf"), float("nan")])
+def test_a_meters_per_unit_that_is_no_length_is_one_line(tmp_path, meters):
+    texture(tmp_path / "tex" / "a.exr")
+    stage = new_stage(tmp_path, meters_per_unit=meters)
+    material(stage, "a", "tex/a.exr")
+    stage.GetRootLayer().Save()
+    with pytest.raises(scenes.SceneError, match=rf"asset.usda: metersPerUnit = {meters:g}: "
+                                                r"the stage's unit must be a positive"):
+        scenes.load(tmp_path / "asset.usda")
+
+
+def radius_texture(stage, s, name, output="rgb", scale=None, bias=None):
+    """subsurface_radius of shader ``s`` from a UsdUVTexture of tex/rad.exr."""
+    t = UsdShade.Shader.Define(stage, f"/Mat/{name}/r")
+    t.CreateIdAttr("UsdUVTexture")
+    t.CreateInput("file", Sdf.ValueTypeNames.Asset).Set("tex/rad.exr")
+    for key, value in (("scale", scale), ("bias", bias)):
+        if value is not None:
+            t.CreateInput(key, Sdf.ValueTypeNames.Float4).Set(Gf.Vec4f(*value))
+    out = t.CreateOutput(output, Sdf.ValueTypeNames.Float3 if output == "rgb" else F)
+    s.CreateInput("subsurface_radius", F).ConnectToSource(out)
+    return t
+
+
+def test_texture_channels_scale_and_bias_are_honoured_or_refused_by_name(tmp_path):
+    texture(tmp_path / "tex" / "alb.exr")
+    texture(tmp_path / "tex" / "rad.exr", (0.5, 0.9, 0.1))
+    stage = new_stage(tmp_path)
+    radius_texture(stage, material(stage, "red", "tex/alb.exr")[0], "red", output="r")
+    s, t = material(stage, "biased", "tex/alb.exr")
+    t.CreateInput("bias", Sdf.ValueTypeNames.Float4).Set(Gf.Vec4f(0.1, 0, 0, 0))
+    radius_texture(stage, s, "biased", output="g")         # both refusals are named
+    s, t = material(stage, "dimmed", "tex/alb.exr")
+    t.CreateInput("scale", Sdf.ValueTypeNames.Float4).Set(Gf.Vec4f(0.5, 0.5, 0.5, 1))
+    radius_texture(stage, material(stage, "rbias", "tex/alb.exr")[0], "rbias", bias=(0, 0, 1, 0))
+    s, _ = material(stage, "scaled", "tex/alb.exr")
+    scaled = radius_texture(stage, s, "scaled", scale=(2, 4, 8, 1))
+    s, _ = material(stage, "mxfloat", "tex/alb.exr")
+    radius_texture(stage, s, "mxfloat", output="out").GetIdAttr().Set("ND_image_float")
+    stage.GetRootLayer().Save()
+    scene = scenes.load(tmp_path / "asset.usda")
+    left = {i.name: i.left_out for i in scene.imports}
+    assert "subsurface_radius reads outputs:r of /Mat/red/r, one channel" in left["red"]
+    assert "reads out (a float image: the file's first channel) of /Mat/mxfloat/r" in \
+        left["mxfloat"]
+    assert ("subsurface_color: UsdUVTexture scale/bias not supported (/Mat/biased/t has bias "
+            "0.1, 0, 0); subsurface_radius reads outputs:g of /Mat/biased/r") in left["biased"]
+    assert "(/Mat/dimmed/t has scale 0.5, 0.5, 0.5, on the albedo)" in left["dimmed"]
+    assert "subsurface_radius: UsdUVTexture scale/bias not supported (/Mat/rbias/r has bias " \
+        "0, 0, 1)" in left["rbias"]
+    m = next(m for m in scene.materials if m.name == "scaled")
+    # the radius texture times OpenPBR's default radius_scale (1, 0.5, 0.25) times the scale
+    assert [m.name for m in scene.materials] == ["scaled"] and m.mfp_scale == (2.0, 2.0, 2.0)
+    plan = scene.plan()
+    plan.run()
+    assert all(j.up_to_date for j in scenes.load(tmp_path / "asset.usda").plan().jobs)
+    scaled.GetInput("scale").Set(Gf.Vec4f(2, 4, 4, 1))
+    stage.GetRootLayer().Save()
+    again = scenes.load(tmp_path / "asset.usda").plan().jobs
+    assert [j.up_to_date for j in again if j.name == "scaled"] == [False]
+
+
+def test_pxr_surface_unit_length_multiplies_the_dmfp(tmp_path):
+    texture(tmp_path / "tex" / "a.exr")
+    stage = new_stage(tmp_path)
+    for name, length in (("default", None), ("mm", 1.0), ("zero", 0.0)):
+        s, _ = material(stage, name, "tex/a.exr", "PxrSurface", "subsurfaceGain",
+                        "subsurfaceColor")
+        s.CreateInput("subsurfaceDmfp", F).Set(5.0)
+        s.CreateInput("subsurfaceDmfpColor", C3).Set(Gf.Vec3f(1, 0.5, 0.25))
+        if length is not None:
+            s.CreateInput("unitLength", F).Set(length)
+    stage.GetRootLayer().Save()
+    scene = scenes.load(tmp_path / "asset.usda")
+    scale = {m.name: np.asarray(m.mfp) * m.mfp_scale for m in scene.materials}
+    # RenderMan's default unitLength 0.1 (a dmfp in mm on a stage in cm)
+    np.testing.assert_allclose(scale["default"], [0.5, 0.25, 0.125], rtol=1e-12)
+    np.testing.assert_allclose(scale["mm"], [5.0, 2.5, 1.25], rtol=1e-12)
+    left = {i.name: i.left_out for i in scene.imports}
+    assert "unitLength must be a positive constant" in left["zero"]
+    assert any("unitLength 0.1 (default)" in d for i in scene.imports if i.name == "default"
+               for d in i.inputs.values())

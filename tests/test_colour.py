@@ -242,8 +242,10 @@ def test_default_working_space_and_config():
     (["blur", "x.exr", "-o", "y.exr", "--colorspace", "nope"], "colorspace 'nope' is unknown "
                                                                "to OCIO config ocio://default"),
     (["plan", "scene.toml", "--working-space", "nope"], "working space 'nope' is unknown"),
+    (["--working-space", "", "devices"], "an empty name; give a colour space of the config, "
+                                         "e.g. ACEScg"),
 ], ids=["unknown-working-space", "non-linear-working-space", "unknown-colorspace",
-        "blur-unknown-colorspace", "plan-unknown-working-space"])
+        "blur-unknown-colorspace", "plan-unknown-working-space", "empty-working-space"])
 def test_unknown_names_are_one_line_usage_errors(capsys, argv, message):
     try:
         code = cli_main(argv)

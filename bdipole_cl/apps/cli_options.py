@@ -15,6 +15,9 @@ def working_space_arg(text):
     """A working space of the active OCIO config (an argparse type: an unknown name is a
     usage error listing the known ones)."""
     from ..io.colour import resolve_working_space
+    if not text.strip():          # an empty name would silently be the default
+        raise argparse.ArgumentTypeError("an empty name; give a colour space of the config, "
+                                         "e.g. ACEScg (leave the option out for the default)")
     try:
         return resolve_working_space(text)
     except ValueError as exc:

@@ -190,7 +190,7 @@ class Reader:
             px = read_rows_of(self.inp, s, y0, y1, oiio.FLOAT)
         if px is None:
             why = self.inp.geterror() or oiio.geterror() or "missing or corrupt data"
-            raise TextureError(f"{self.path}: read of rows {y0}..{y1} failed: {why}")
+            raise TextureError(f"{self.path}: read of rows {y0}..{y1 - 1} failed: {why}")
         return np.asarray(px, dtype=np.float32).reshape(y1 - y0, s.width, s.nchannels)
 
     def close(self):
@@ -321,7 +321,7 @@ class Writer:
         else:
             ok = self.out.write_scanlines(s.y + y0, s.y + y1, s.z, pixels)
         if not ok:
-            raise TextureError(f"{self.path}: write of rows {y0}..{y1} failed: "
+            raise TextureError(f"{self.path}: write of rows {y0}..{y1 - 1} failed: "
                                f"{self.out.geterror()}")
         self.digests.add(y0, y1, pixels)
 

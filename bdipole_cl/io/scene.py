@@ -107,8 +107,9 @@ class Plan:
 
     def describe(self) -> str:
         todo = sum(not j.up_to_date and not j.problem for j in self.jobs)
+        jobs = f"{len(self.jobs)} job" + ("" if len(self.jobs) == 1 else "s")
         return "\n".join(imported_lines(self.scene) + [j.describe() for j in self.jobs]
-                         + [f"{len(self.jobs)} jobs: {todo} to run, "
+                         + [f"{jobs}: {todo} to run, "
                             f"{sum(j.up_to_date for j in self.jobs)} up to date, "
                             f"{len(self.missing)} that cannot run"])
 

@@ -331,11 +331,13 @@ def test_half_blur_of_a_highlight_is_never_inf(tmp_path, capsys):
 # {{{ class 5: signals and hangs
 
 def test_one_band_blur_obeys_sigint_within_seconds(tmp_path):
-    # ~1e10 taps: 10-30 s on 2 cores without the stop checks, a launch ~0.1-0.5 s with them
+    # mfp 20 (radius ~84): ~2.2e10 taps, ~15 s on an idle 2-core machine without the stop
+    # checks (mfp 12 took 5 s, too close to the 3 s before the signal), a launch ~0.1-0.5 s
+    # with them
     e = np.random.default_rng(0).uniform(0, 1, (512, 512, 3)).astype(np.float32)
     write(tmp_path / "irr.exr", e)
     proc = subprocess.Popen([sys.executable, "-m", "bdipole_cl", "--device", "intel", "blur",
-                             str(tmp_path / "irr.exr"), "--albedo", "0.8", "--mfp", "12",
+                             str(tmp_path / "irr.exr"), "--albedo", "0.8", "--mfp", "20",
                              "--method", "direct",
                              "-o", str(tmp_path / "o.exr")],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)

@@ -350,6 +350,34 @@ def test_one_band_blur_obeys_sigint_within_seconds(tmp_path):
     assert sorted(os.listdir(tmp_path)) == ["irr.exr"]
 
 
+@pytest.mark.parametrize("method, sig", [("gaussians", signal.SIGINT), ("fft", signal.SIGTERM)])
+def test_texture_varying_blur_obeys_a_signal_within_seconds(tmp_path, method, sig):
+    # mfp 60 texels at tol 1e-5: the plan's node kernels (radius ~ 500) and fits take minutes
+    # on 2 cores; each is checked for a stop within ~0.1-1 s (rows of a node kernel, one fit)
+    rng = np.random.default_rng(1)
+    write(tmp_path / "irr.exr", rng.uniform(0, 1, (64, 64, 3)))
+    write(tmp_path / "alb.exr", rng.uniform(0.1, 0.9, (64, 64, 3)))
+    proc = subprocess.Popen([sys.executable, "-m", "bdipole_cl", "--device", "intel", "blur",
+                             str(tmp_path / "irr.exr"), "--albedo", str(tmp_path / "alb.exr"),
+                             "--mfp", "30", "--texel-size", "0.5", "--method", method,
+                             "--tol", "1e-5", "-o", str(tmp_path / "o.exr")],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    time.sleep(3)
+    assert proc.poll() is None, "the blur ended before the signal"
+    proc.send_signal(sig)
+    t0 = time.monotonic()
+    try:
+        out, err = proc.communicate(timeout=30)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.communicate()
+        raise AssertionError("the signal was not obeyed within 30 s") from None
+    waited = time.monotonic() - t0
+    assert proc.returncode == 128 + sig and waited < 4, (proc.returncode, waited, out, err)
+    assert "interrupted" in err and "Traceback" not in err
+    assert sorted(os.listdir(tmp_path)) == ["alb.exr", "irr.exr"]
+
+
 def test_a_fifo_is_refused_not_waited_on(tmp_path):
     os.mkfifo(tmp_path / "pipe.exr")
     rc, out, err = run_cli("invert", tmp_path / "pipe.exr", "-o",

@@ -325,6 +325,24 @@ def test_half_blur_of_a_highlight_is_never_inf(tmp_path, capsys):
     assert rc == 0 and np.all(np.isfinite(px))
     assert px[0, 0, 0] == px[0, 0, 0] and px[0, 0, 0] < 1e4     # far texels: as computed
 
+
+
+@pytest.mark.parametrize("albedo", ["0.8", "texture"])
+def test_half_blur_of_one_texel_among_zeros_writes_no_round_off(tmp_path, capsys, albedo):
+    # the FFT's -1e-18 of an unlit texel is not light, nor invalid for half: written as 0
+    e = np.zeros((48, 48, 3), np.float32)
+    e[20, 30] = 1.0
+    write(tmp_path / "irr.exr", e)
+    if albedo == "texture":
+        write(tmp_path / "alb.exr", np.full((48, 48, 3), 0.7, np.float32))
+        albedo = str(tmp_path / "alb.exr")
+    for fmt in ("--half", "--no-progress"):
+        rc = cli_main(["blur", str(tmp_path / "irr.exr"), "--albedo", albedo, "--mfp", "3",
+                       "--method", "fft", fmt, "-o", str(tmp_path / "o.exr")])
+        err = capsys.readouterr().err
+        assert rc == 0, err
+        px = read(tmp_path / "o.exr")[0]
+        assert px.min() >= 0 and px[0, 0, 0] == 0 and px[20, 30, 0] > 0.1, px.min()
 # }}}
 
 

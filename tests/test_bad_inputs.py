@@ -165,6 +165,7 @@ USAGE = [
     (["blur", "X", "--albedo", "0.5", "--mfp", "1", "--texel-size", "-1", "-o", "y.exr"],
      "argument --texel-size: '-1': expected a number > 0"),
     (["invert", "X", "--outputs", "sigma_a,sigmas"], "sigmas not allowed; choose from"),
+    (["invert", "X", "--outputs", "alpha,alpha"], "'alpha,alpha': alpha given more than once"),
     (["invert", "X", "--max-memory", "12Q"], "'12Q': expected a size such as 512M"),
     (["invert", "X", "--jobs", "0"], "'0': expected a whole number >= 1"),
     (["crosscheck", "--n", "0"], "'0': expected a whole number >= 1"),
@@ -184,6 +185,14 @@ def test_usage_errors_are_one_line_with_exit_2(argv, message, capsys, tmp_path):
     line = one_line_error(capsys.readouterr().err)
     assert rc == 2 and message in line, line
     assert files_in(tmp_path) == []
+
+
+def test_an_output_twice_is_refused_by_the_api(tmp_path):
+    write_exr(tmp_path / "a.exr", albedo())
+    with pytest.raises(ValueError, match="sigma_a given more than once"):
+        process_textures(str(tmp_path / "a.exr"), outputs=("sigma_a", "rho", "sigma_a"),
+                         output=str(tmp_path / "o.exr"))
+    assert files_in(tmp_path) == ["a.exr"]
 
 
 def test_eta_out_of_range_is_a_usage_error(tmp_path, capsys):

@@ -85,6 +85,9 @@ def output_list(text):
     if not names or unknown:
         raise argparse.ArgumentTypeError(f"{text!r}: {', '.join(unknown) or 'empty'} not "
                                          f"allowed; choose from {', '.join(OUTPUTS)}")
+    twice = sorted({o for o in names if names.count(o) > 1})
+    if twice:
+        raise argparse.ArgumentTypeError(f"{text!r}: {', '.join(twice)} given more than once")
     return names
 
 

@@ -49,6 +49,31 @@ positive_float = number(float, lambda v: 0 < v < float("inf"), "a number > 0")
 fraction = number(float, lambda v: 0 < v < 1, "a number in (0, 1), e.g. 1e-3")
 
 
+def number_list(text):
+    """The floats of 'v' or 'r,g,b' (nan and inf included), or None if text is not numbers
+    (a texture's path)."""
+    try:
+        return tuple(float(v) for v in str(text).split(","))
+    except ValueError:
+        return None
+
+
+def constant_or_texture(name):
+    """An argparse type for parameter ``name`` given as constant(s) or a texture: a path is
+    kept as given (its texels are checked when it is read); numbers must each meet the
+    parameter's constant rule (``ops.blur.params.CONSTANT_RULES``), else a one-line usage error
+    naming the option and value, not a texel error of the whole map."""
+    def parse(text):
+        from ..ops.blur.params import CONSTANT_RULES
+        rule, valid = CONSTANT_RULES[name]
+        values = number_list(text)
+        if values is not None and not all(bool(valid(v)) for v in values):
+            raise argparse.ArgumentTypeError(f"{text!r}: expected {name} in {rule}, one or per "
+                                             f"channel 'r,g,b' (or a texture)")
+        return text
+    return parse
+
+
 def shown(value):
     if isinstance(value, (tuple, list)):
         return ",".join(f"{v:g}" if isinstance(v, float) else str(v) for v in value)

@@ -3,6 +3,12 @@
 from __future__ import annotations
 
 import argparse
+import re
+
+#: what argparse takes for a negative number (a value, not an option): its own rule (-5,
+#: -.5) widened to exponents and size suffixes, so that ``--max-memory -5M`` or ``--tol -1e-3``
+#: reach the option's type and its one-line error, not "expected one argument"
+NEGATIVE_NUMBER = re.compile(r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?[KMGkmg]?$")
 
 
 def size(text):
@@ -98,6 +104,7 @@ class Parser(argparse.ArgumentParser):
     def __init__(self, *args, **kwargs):
         kwargs.setdefault("formatter_class", HelpFormatter)
         super().__init__(*args, **kwargs)
+        self._negative_number_matcher = NEGATIVE_NUMBER
 
     def error(self, message):
         self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")

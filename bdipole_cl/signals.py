@@ -2,7 +2,8 @@
 
 The command line installs ``install()``; the handler only sets one process-wide event. Long
 work checks it between its pieces (``check_stop``: between kernel launches, chunks of rows of
-one launch, host FFTs, bands, jobs, cluster waits) and raises ``Stopped``; the file layers turn
+one launch, host FFTs, bands, jobs, cluster waits, and in a plan's building: rows of a kernel's
+weights, node fits, SVD ranks, check points) and raises ``Stopped``; the file layers turn
 that into a cancelled job whose temporary file is removed. Nothing is killed half-way through a
 write.
 """

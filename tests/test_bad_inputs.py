@@ -165,7 +165,26 @@ USAGE = [
     (["blur", "X", "--albedo", "0.5", "--mfp", "1", "--texel-size", "-1", "-o", "y.exr"],
      "argument --texel-size: '-1': expected a number > 0"),
     (["invert", "X", "--outputs", "sigma_a,sigmas"], "sigmas not allowed; choose from"),
+    (["invert", "X", "--outputs", "alpha,alpha"], "'alpha,alpha': alpha given more than once"),
     (["invert", "X", "--max-memory", "12Q"], "'12Q': expected a size such as 512M"),
+    (["invert", "X", "--max-memory", "-5M"], "'-5M': expected a size such as 512M"),
+    (["blur", "X", "--albedo", "0.5", "--mfp", "1", "--max-memory", "-1e3", "-o", "y.exr"],
+     "'-1e3': expected a size such as 512M"),
+    (["blur", "X", "--albedo", "0.5", "--mfp", "1", "--tol", "-1e-3", "-o", "y.exr"],
+     "argument --tol: '-1e-3': expected a number in (0, 1)"),
+    (["invert", "X", "--mfp-scale", "0"], "argument --mfp-scale: '0': expected a number > 0"),
+    (["invert", "X", "--mfp-scale", "nan"], "argument --mfp-scale: 'nan': expected a number"),
+    (["invert", "X", "--mfp", "0"], "argument --mfp: '0': expected mfp in (0, inf)"),
+    (["invert", "X", "--mfp", "1,nan,1"], "argument --mfp: '1,nan,1': expected mfp in"),
+    (["invert", "X", "--mfp", "inf"], "argument --mfp: 'inf': expected mfp in (0, inf)"),
+    (["blur", "X", "--albedo", "1.5", "--mfp", "1", "-o", "y.exr"],
+     "argument --albedo: '1.5': expected albedo in (0, 1)"),
+    (["blur", "X", "--albedo", "0.5", "--mfp", "-2", "-o", "y.exr"],
+     "argument --mfp: '-2': expected mfp in (0, inf)"),
+    (["blur", "X", "--alpha-prime", "1", "--sigma-t", "1", "-o", "y.exr"],
+     "argument --alpha-prime: '1': expected alpha in [0, 1)"),
+    (["blur", "X", "--alpha-prime", "0.5", "--sigma-t", "0", "-o", "y.exr"],
+     "argument --sigma-t: '0': expected sigma_t in (0, inf)"),
     (["invert", "X", "--jobs", "0"], "'0': expected a whole number >= 1"),
     (["crosscheck", "--n", "0"], "'0': expected a whole number >= 1"),
     (["invert", "X", "--method", "auto", "--tol", "1e-9"], "--double on the command line"),
@@ -184,6 +203,14 @@ def test_usage_errors_are_one_line_with_exit_2(argv, message, capsys, tmp_path):
     line = one_line_error(capsys.readouterr().err)
     assert rc == 2 and message in line, line
     assert files_in(tmp_path) == []
+
+
+def test_an_output_twice_is_refused_by_the_api(tmp_path):
+    write_exr(tmp_path / "a.exr", albedo())
+    with pytest.raises(ValueError, match="sigma_a given more than once"):
+        process_textures(str(tmp_path / "a.exr"), outputs=("sigma_a", "rho", "sigma_a"),
+                         output=str(tmp_path / "o.exr"))
+    assert files_in(tmp_path) == ["a.exr"]
 
 
 def test_eta_out_of_range_is_a_usage_error(tmp_path, capsys):

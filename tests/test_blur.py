@@ -214,3 +214,26 @@ def test_banded_file_blur_halo_follows_auto_plan(tmp_path, monkeypatch):
     inp.close()
     np.testing.assert_allclose(got.reshape(e.shape), blur(e, albedo=0.8, mfp=1.0),
                                rtol=1e-5, atol=1e-7)
+
+
+@pytest.mark.parametrize("method, albedo", [
+    ("fft", 0.8), ("direct", 0.8), ("gaussians", 0.8), ("auto", 0.8),
+    ("fft", "texture"), ("gaussians", "texture")])
+def test_exitance_of_a_bright_texel_among_zeros_has_no_negative_or_round_off_values(method,
+                                                                                   albedo):
+    # R >= 0: the exitance of E >= 0 is >= 0, and a value below the round-off floor (eps32 x
+    # max E x Rd; 16 eps32 for the float32 texture-varying FFTs) is a zero result's round-off
+    e = impulse(48, 48, 2)
+    if albedo == "texture":
+        albedo = np.full((48, 48), 0.8, np.float32)
+        albedo[0, 0] = 0.5
+    out = blur(e, albedo=albedo, mfp=3.0, method=method)
+    ulps = 16 if method == "fft" and np.ndim(albedo) else 1
+    floor = ulps * np.finfo(np.float32).eps * 1.0 * 0.5
+    assert out.min() >= 0, out.min()
+    tiny = (out != 0) & (out < floor)
+    assert not tiny.any(), out[tiny][:5]
+    assert out.sum() == pytest.approx(2 * 0.8, rel=2e-3)        # the light is all there
+    # a channel with negative irradiance is not clamped: -E gives -M
+    neg = blur(-e, albedo=albedo, mfp=3.0, method=method)
+    np.testing.assert_allclose(neg, -out, atol=floor)

@@ -325,6 +325,24 @@ def test_half_blur_of_a_highlight_is_never_inf(tmp_path, capsys):
     assert rc == 0 and np.all(np.isfinite(px))
     assert px[0, 0, 0] == px[0, 0, 0] and px[0, 0, 0] < 1e4     # far texels: as computed
 
+
+
+@pytest.mark.parametrize("albedo", ["0.8", "texture"])
+def test_half_blur_of_one_texel_among_zeros_writes_no_round_off(tmp_path, capsys, albedo):
+    # the FFT's -1e-18 of an unlit texel is not light, nor invalid for half: written as 0
+    e = np.zeros((48, 48, 3), np.float32)
+    e[20, 30] = 1.0
+    write(tmp_path / "irr.exr", e)
+    if albedo == "texture":
+        write(tmp_path / "alb.exr", np.full((48, 48, 3), 0.7, np.float32))
+        albedo = str(tmp_path / "alb.exr")
+    for fmt in ("--half", "--no-progress"):
+        rc = cli_main(["blur", str(tmp_path / "irr.exr"), "--albedo", albedo, "--mfp", "3",
+                       "--method", "fft", fmt, "-o", str(tmp_path / "o.exr")])
+        err = capsys.readouterr().err
+        assert rc == 0, err
+        px = read(tmp_path / "o.exr")[0]
+        assert px.min() >= 0 and px[0, 0, 0] == 0 and px[20, 30, 0] > 0.1, px.min()
 # }}}
 
 
@@ -350,6 +368,34 @@ def test_one_band_blur_obeys_sigint_within_seconds(tmp_path):
     assert proc.returncode == 130 and waited < 8, (proc.returncode, waited, out, err)
     assert "interrupted" in err and "Traceback" not in err
     assert sorted(os.listdir(tmp_path)) == ["irr.exr"]
+
+
+@pytest.mark.parametrize("method, sig", [("gaussians", signal.SIGINT), ("fft", signal.SIGTERM)])
+def test_texture_varying_blur_obeys_a_signal_within_seconds(tmp_path, method, sig):
+    # mfp 60 texels at tol 1e-5: the plan's node kernels (radius ~ 500) and fits take minutes
+    # on 2 cores; each is checked for a stop within ~0.1-1 s (rows of a node kernel, one fit)
+    rng = np.random.default_rng(1)
+    write(tmp_path / "irr.exr", rng.uniform(0, 1, (64, 64, 3)))
+    write(tmp_path / "alb.exr", rng.uniform(0.1, 0.9, (64, 64, 3)))
+    proc = subprocess.Popen([sys.executable, "-m", "bdipole_cl", "--device", "intel", "blur",
+                             str(tmp_path / "irr.exr"), "--albedo", str(tmp_path / "alb.exr"),
+                             "--mfp", "30", "--texel-size", "0.5", "--method", method,
+                             "--tol", "1e-5", "-o", str(tmp_path / "o.exr")],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    time.sleep(3)
+    assert proc.poll() is None, "the blur ended before the signal"
+    proc.send_signal(sig)
+    t0 = time.monotonic()
+    try:
+        out, err = proc.communicate(timeout=30)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.communicate()
+        raise AssertionError("the signal was not obeyed within 30 s") from None
+    waited = time.monotonic() - t0
+    assert proc.returncode == 128 + sig and waited < 4, (proc.returncode, waited, out, err)
+    assert "interrupted" in err and "Traceback" not in err
+    assert sorted(os.listdir(tmp_path)) == ["alb.exr", "irr.exr"]
 
 
 def test_a_fifo_is_refused_not_waited_on(tmp_path):

@@ -13,8 +13,8 @@ from ..signals import SignalStop
 from ..version import __version__
 from .cli_options import (add_global_args, add_method_args, add_scheduler_args, colorspace_arg,
                           method_knobs)
-from .cli_types import (Parser, add_texture_arg, floats, fraction, output_list, positive_float,
-                        positive_int, size)
+from .cli_types import (Parser, add_texture_arg, constant_or_texture, floats, fraction,
+                        output_list, positive_float, positive_int, size)
 from .user_kernel import SIGNATURES
 
 DESCRIPTION = """\
@@ -371,14 +371,15 @@ def build_parser() -> argparse.ArgumentParser:
     p = command("blur", help="blur an irradiance map with the Better Dipole profile R(r)")
     p.add_argument("input", help="irradiance image (EXR/TIFF/PNG...)")
     p.add_argument("-o", "--output", required=True, help="output EXR")
-    p.add_argument("--albedo",
+    p.add_argument("--albedo", type=constant_or_texture("albedo"),
                    help="Rd: one value, per channel 'r,g,b', or a texture (texture-varying)")
-    p.add_argument("--mfp", help="mean free path ld = 1/mu_tr, same unit as "
-                                 "--texel-size; value(s) or a texture")
-    p.add_argument("--alpha-prime", help="alpha': value(s) or a texture (instead of "
-                                         "--albedo/--mfp)")
-    p.add_argument("--sigma-t", help="sigma_t', 1/unit: value(s) or a texture (with "
-                                     "--alpha-prime)")
+    p.add_argument("--mfp", type=constant_or_texture("mfp"),
+                   help="mean free path ld = 1/mu_tr, same unit as --texel-size; value(s) or "
+                        "a texture")
+    p.add_argument("--alpha-prime", type=constant_or_texture("alpha"),
+                   help="alpha': value(s) or a texture (instead of --albedo/--mfp)")
+    p.add_argument("--sigma-t", type=constant_or_texture("sigma_t"),
+                   help="sigma_t', 1/unit: value(s) or a texture (with --alpha-prime)")
     p.add_argument("--eta", type=floats, default=(1.4,), help="one or per channel 'r,g,b'")
     p.add_argument("--texel-size", type=positive_float, default=1.0,
                    help="world size of a texel")
@@ -408,11 +409,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("inputs", nargs="+",
                    help="albedo files, globs or tile patterns: <UDIM>, %%(UDIM)d (1001...), "
                         "<UVTILE>, %%(UVTILE)d (u1_v1, 1-based), <UVTILE0> (u0_v0, 0-based)")
-    p.add_argument("--mfp", default="1",
+    p.add_argument("--mfp", default="1", type=constant_or_texture("mfp"),
                    help="mean free path ld = 1/mu_tr: constant(s) 'v' or 'r,g,b', or a texture "
                         "path/pattern ({stem}, {dir}, <UDIM>)")
     p.add_argument("--unit", default="mm", help="length unit of the mfp")
-    p.add_argument("--mfp-scale", type=float, default=1.0, help="multiplies mfp values")
+    p.add_argument("--mfp-scale", type=positive_float, default=1.0, help="multiplies mfp values")
     from ..methods.registry import MFP_KINDS
     p.add_argument("--mfp-kind", default="diffuse", choices=MFP_KINDS,
                    help="what --mfp is: diffuse, ld = 1/mu_tr (Jensen/Hery); extinction, the "

@@ -3,6 +3,12 @@
 from __future__ import annotations
 
 import argparse
+import re
+
+#: what argparse takes for a negative number (a value, not an option): its own rule (-5,
+#: -.5) widened to exponents and size suffixes, so that ``--max-memory -5M`` or ``--tol -1e-3``
+#: reach the option's type and its one-line error, not "expected one argument"
+NEGATIVE_NUMBER = re.compile(r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?[KMGkmg]?$")
 
 
 def size(text):
@@ -49,6 +55,31 @@ positive_float = number(float, lambda v: 0 < v < float("inf"), "a number > 0")
 fraction = number(float, lambda v: 0 < v < 1, "a number in (0, 1), e.g. 1e-3")
 
 
+def number_list(text):
+    """The floats of 'v' or 'r,g,b' (nan and inf included), or None if text is not numbers
+    (a texture's path)."""
+    try:
+        return tuple(float(v) for v in str(text).split(","))
+    except ValueError:
+        return None
+
+
+def constant_or_texture(name):
+    """An argparse type for parameter ``name`` given as constant(s) or a texture: a path is
+    kept as given (its texels are checked when it is read); numbers must each meet the
+    parameter's constant rule (``ops.blur.params.CONSTANT_RULES``), else a one-line usage error
+    naming the option and value, not a texel error of the whole map."""
+    def parse(text):
+        from ..ops.blur.params import CONSTANT_RULES
+        rule, valid = CONSTANT_RULES[name]
+        values = number_list(text)
+        if values is not None and not all(bool(valid(v)) for v in values):
+            raise argparse.ArgumentTypeError(f"{text!r}: expected {name} in {rule}, one or per "
+                                             f"channel 'r,g,b' (or a texture)")
+        return text
+    return parse
+
+
 def shown(value):
     if isinstance(value, (tuple, list)):
         return ",".join(f"{v:g}" if isinstance(v, float) else str(v) for v in value)
@@ -73,6 +104,7 @@ class Parser(argparse.ArgumentParser):
     def __init__(self, *args, **kwargs):
         kwargs.setdefault("formatter_class", HelpFormatter)
         super().__init__(*args, **kwargs)
+        self._negative_number_matcher = NEGATIVE_NUMBER
 
     def error(self, message):
         self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
@@ -85,6 +117,9 @@ def output_list(text):
     if not names or unknown:
         raise argparse.ArgumentTypeError(f"{text!r}: {', '.join(unknown) or 'empty'} not "
                                          f"allowed; choose from {', '.join(OUTPUTS)}")
+    twice = sorted({o for o in names if names.count(o) > 1})
+    if twice:
+        raise argparse.ArgumentTypeError(f"{text!r}: {', '.join(twice)} given more than once")
     return names
 
 

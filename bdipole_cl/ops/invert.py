@@ -120,6 +120,20 @@ def invert_albedo(rd, eta, method="table", *, return_rho=False, model="better", 
 OUTPUTS = ("alpha", "rho", "sigma_a", "sigma_s", "sigma_t")
 
 
+def check_outputs(outputs):
+    """``outputs`` as a tuple: some of OUTPUTS, each at most once (a channel is written once),
+    else ValueError."""
+    outputs = tuple(outputs)
+    unknown = [o for o in outputs if o not in OUTPUTS]
+    if not outputs or unknown:
+        raise ValueError(f"unknown outputs {unknown or 'none'}: expected some of {OUTPUTS}")
+    twice = sorted({o for o in outputs if outputs.count(o) > 1})
+    if twice:
+        raise ValueError(f"outputs {', '.join(twice)} given more than once: each output is one "
+                         f"set of channels")
+    return outputs
+
+
 def check_mfp_kind(mfp_kind):
     if mfp_kind not in MFP_KINDS:
         raise ValueError(f"mfp_kind={mfp_kind!r}: expected one of {', '.join(MFP_KINDS)}")
@@ -188,10 +202,7 @@ class CoefficientMapper:
     def __init__(self, etas, config: MethodConfig, *, outputs=("sigma_a", "sigma_s"),
                  model="better", exact=False, double=False, on_invalid="raise", device=None,
                  bake=False, mfp_const=None, mfp_kind="diffuse"):
-        unknown = set(outputs) - set(OUTPUTS)
-        if unknown:
-            raise ValueError(f"unknown outputs {sorted(unknown)}: expected some of {OUTPUTS}")
-        self.outputs = tuple(outputs)
+        self.outputs = check_outputs(outputs)
         self.on_invalid = check_policy(on_invalid)
         self.extinction = check_mfp_kind(mfp_kind) == "extinction"
         self.kernel_wants = kernel_outputs(outputs, mfp_kind)

@@ -50,6 +50,28 @@ def fft_blur_channel(e2d, weights, border):
     return full[2 * k:2 * k + h, 2 * k:2 * k + w]
 
 
+#: the blurs' absolute round-off floor, in float32 eps times max|E| * Rd(x) (``settled``): one
+#: eps (the float32 resolution of the brightest exitance) for the device kernels and the
+#: float64 constant fft (whose round-off far from any light is ~3 eps of float64), and 16 for
+#: the float32 texture-varying FFTs, whose round-off far from any light measured up to 2.1 eps
+#: on half-lit random images of 64^2 to 512^2 (8x margin); docs/model.md "Blur error bound"
+ROUNDOFF_ULPS, FFT32_ROUNDOFF_ULPS = 1, 16
+
+
+def settled(m, e2d, rd, ulps=ROUNDOFF_ULPS):
+    """One channel's exitance m (in place) with the round-off of a zero result removed: values
+    below ulps * eps32 * max|E| * Rd (Rd a scalar or a per-texel map) in magnitude are 0 (a
+    dark texel's -1e-18 is neither light nor a value half floats hold), and where the
+    irradiance is non-negative so is the result (R >= 0 and the truncated kernels are >= 0:
+    clamping at 0 only reduces the error)."""
+    floor = ulps * float(np.finfo(np.float32).eps) * float(np.abs(e2d).max()) * \
+        np.asarray(rd, np.float64)
+    m[np.abs(m) < floor] = 0
+    if e2d.min() >= 0:
+        np.maximum(m, 0, out=m)
+    return m
+
+
 def kernel_spectra(quads, shape):
     """Real DFTs (G, N0 // 2 + 1, N1 // 2 + 1) float32, rows 0..N0/2, of the even kernels of
     quadrants quads (G, K+1, K+1) centred on 0, at the even FFT shape (N0, N1). An even

@@ -12,6 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ...caches import ByteCache
+from ...signals import check_stop
 from .weights import channel_kernel, multiplicity, unfold_quadrant
 
 FIT_CACHE = ByteCache("gaussian fits", 16 << 20)
@@ -97,6 +98,7 @@ def fit_gaussians(alpha, sigma_t_texels, eta, tol, exact=False):
     near = slice(0, min(k, NEAR_CELLS) + 1)
     best, best_key = None, None
     for count in range(2, MAX_GAUSSIANS + 1):
+        check_stop()
         sigmas = basis_sigmas(k, count)
         kernels = basis_kernels(sigmas, k)
         radii = [(len(taps) - 1) // 2 for taps in kernels]
@@ -123,6 +125,7 @@ def fit_node(target, columns):
     """Non-negative weights (summing to 1) of the basis columns for one node's kernel quadrant,
     and the L1 error of the fitted kernel (unfolded)."""
     from scipy.optimize import nnls
+    check_stop()
     rw = row_weights(target)
     coef, _ = nnls(columns * rw[:, None], target.ravel() * rw, maxiter=100 * columns.shape[1])
     coef /= coef.sum()

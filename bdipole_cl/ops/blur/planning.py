@@ -14,7 +14,7 @@ from ...methods.choice import (AUTO_DIRECT_MAX_RADIUS, ChoiceData, DeviceKey, au
                                choice_for)
 from ...signals import check_stop
 from .dispatch import DeviceBlur
-from .fft import fft_blur_channel
+from .fft import fft_blur_channel, settled
 from .fit import fit_gaussians
 from .params import channel_parameters
 from .weights import ChannelKernel, channel_kernel
@@ -198,4 +198,6 @@ def blur_whole(e, params, plans, border, exact, rt):
     out = device.result() if device is not None else np.empty_like(e)
     for c, v in fft_out.items():
         out[..., c] = v
+    for c, plan in enumerate(plans):
+        settled(out[..., c], e[..., c], plan.kernel.rd)
     return out, BlurInfo(tuple(info))

@@ -11,7 +11,7 @@ from ...methods.registry import TEXTURED_BLUR_METHODS
 from ...signals import check_stop
 from ..bands import band_rows, bands, gather_rows
 from .dispatch import DeviceBlur, gather_exitance, weight_planes
-from .fft import basis_blurs, cached_spectra, fft_shape
+from .fft import FFT32_ROUNDOFF_ULPS, basis_blurs, cached_spectra, fft_shape, settled
 from .params import texel_parameters
 from .planning import BlurAccuracyWarning, BlurInfo, ChannelInfo
 from .textured_plan import (RD_MAX, RD_MIN, parameter_ranges, plan_for_ranges,
@@ -44,7 +44,10 @@ def blur_band(e, plans, rows, method, border, rt):
         device = DeviceBlur(e, border, rt)
         for c, (plan, rd, ld) in enumerate(plans):
             device.run_textured(c, plan, weight_planes(plan, rd[rows], ld[rows], rt))
-        return device.result()
+        out = device.result()
+        for c, (_, rd, _) in enumerate(plans):
+            settled(out[..., c], e[..., c], rd[rows])
+        return out
     out = np.empty_like(e)
     planes = None          # the basis blurs, (G, H, FFT width), reused across channels
     for c, (plan, rd, ld) in enumerate(plans):
@@ -55,6 +58,7 @@ def blur_band(e, plans, rows, method, border, rt):
             planes = np.empty((len(kspec), h, shape[1]), np.float32)
         basis_blurs(e[..., c], plan, kspec, border, planes)
         gather_exitance(out, c, plan, rd[rows], ld[rows], planes, plan.radius, rt)
+        settled(out[..., c], e[..., c], rd[rows], FFT32_ROUNDOFF_ULPS)
     return out
 
 

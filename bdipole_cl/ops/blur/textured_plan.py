@@ -38,6 +38,7 @@ import numpy as np
 
 from ...caches import ByteCache
 from ...physics import reference as ref
+from ...signals import check_stop
 from .fit import (BASIS_RATIO, MAX_BASIS, basis_columns, basis_count, basis_kernels,
                   basis_sigmas, fit_node)
 from .weights import (multiplicity, quadrant_sum, quadrant_weights, truncation_radius,
@@ -139,6 +140,7 @@ def svd_basis(targets, tol):
     a_mat = np.stack([t.ravel() * sw for t in targets], axis=1)        # cells x nodes
     u, _, _ = np.linalg.svd(a_mat, full_matrices=False)
     for rank in range(1, u.shape[1] + 1):
+        check_stop()
         phi = u[:, :rank] / sw[:, None]                                 # quadrant values
         coef = (u[:, :rank].T @ a_mat).T                                # nodes x rank
         coef /= (coef @ (phi.T @ mult))[:, None]                        # kernels sum to 1
@@ -313,6 +315,7 @@ def _with_interp_error(plan, rd_range, ld_range, exact):
     worst = 0.0
     for t_rd, t_ld in itertools.product(_check_points(*rd_range, plan.axes[0].step),
                                         _check_points(*ld_range, plan.axes[1].step)):
+        check_stop()
         w = interpolated_weights(plan, _fine_coords(plan.axes[0], t_rd),
                                  _fine_coords(plan.axes[1], t_ld))
         rd_shape = float(np.clip(sigmoid(t_rd), RD_MIN, RD_MAX))
@@ -351,6 +354,7 @@ def shape_clamp_error(plan, rd, ld, exact=False) -> float:
         if RD_MIN <= far <= RD_MAX:
             continue
         for length in {float(ld.min()), float(ld.max())}:
+            check_stop()
             diff = (node_kernel(far, length, plan.eta, plan.radius, exact)
                     - node_kernel(bound, length, plan.eta, plan.radius, exact))
             worst = max(worst, float(np.abs(unfold_quadrant(diff)).sum()))

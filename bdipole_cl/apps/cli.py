@@ -14,7 +14,7 @@ from ..version import __version__
 from .cli_options import (add_global_args, add_method_args, add_scheduler_args, colorspace_arg,
                           method_knobs)
 from .cli_types import (Parser, add_texture_arg, constant_or_texture, floats, fraction,
-                        output_list, positive_float, positive_int, size)
+                        number_list, output_list, positive_float, positive_int, size)
 from .user_kernel import SIGNATURES
 
 DESCRIPTION = """\
@@ -83,19 +83,12 @@ def _invert(args, run_files) -> int:
     return _finish(report, stop)
 
 
-def _is_number_list(text):
-    try:
-        floats(text)
-        return True
-    except argparse.ArgumentTypeError:
-        return False
-
-
 def _param(text, what, **colour):
     """A blur parameter: numbers ('0.8' or 'r,g,b', in the working space), else the path of
     a texture (``colour``: colorspace= and working= of an albedo texture, converted)."""
-    if _is_number_list(text):
-        return floats(text)
+    values = number_list(text)     # constants were checked at parse time (constant_or_texture)
+    if values is not None:
+        return values
     else:
         from ..io.images import read_parameter_texture
         return read_parameter_texture(text, what, colour=bool(colour), **colour)
@@ -113,7 +106,7 @@ def _cmd_blur(args) -> int:
         return 2
     sources = {name: v for name, v in (("albedo", args.albedo), ("mfp", args.mfp),
                                        ("alpha", args.alpha_prime), ("sigma_t", args.sigma_t))
-               if v is not None and not _is_number_list(v)}
+               if v is not None and number_list(v) is None}
     stop = SignalStop().install()
     kw = dict(eta=args.eta, texel_size=args.texel_size, tol=args.tol,
               method=args.method, border=args.border, on_invalid=args.on_invalid,

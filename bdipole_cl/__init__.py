@@ -3,8 +3,9 @@ TM 12-11) as OpenCL batch kernels with a thin NumPy host layer.
 
 Layers, each importing only those below it (README "Layout"):
 
-    applications   apps/      cli, report, crosscheck, demo, benchmark
-    I/O            io/        images, texture batches, file-to-file blur
+    applications   apps/      cli, report, crosscheck, demo, benchmark; dask.py, scene.py
+    jobs           jobs/      job records, the one runner, batches, file blur, scenes
+    I/O            io/        images, colour, tiles, patterns, scene files (read and written)
     operations     ops/       invert, physics_eval, bands, blur/
     method choice  methods/   registry of methods and knobs, measured choice data
     device         device/    runtimes and probing, programs, kernel sources, parameter layout
@@ -13,18 +14,63 @@ Layers, each importing only those below it (README "Layout"):
 
 Float64 reference of every function: ``bdipole_cl.reference``.
 """
-from .caches import clear_caches  # noqa: E402
-from .device import DeviceError, DeviceState, Runtime, get_runtime, survey, use_device  # noqa: E402
-from .errors import POLICIES, InvalidInputError  # noqa: E402
-from .methods.registry import METHODS, MethodConfig  # noqa: E402
-from .ops.blur import BlurInfo, ChannelInfo, blur  # noqa: E402
-from .ops.invert import OUTPUTS, albedo_to_coefficients, invert_albedo  # noqa: E402
-from .physics import reference  # noqa: E402
-from .version import __version__  # noqa: E402
+import importlib
+import importlib.abc
+import importlib.util
+import sys
+
+#: modules that moved to ``jobs/`` (the job layer), importable by their old public paths
+MOVED_MODULES = {f"{__name__}.io.{name}": f"{__name__}.jobs.{name}"
+                 for name in ("batch", "blur_file", "scene", "scene_records", "scene_stats")}
+
+
+class _MovedModuleFinder(importlib.abc.MetaPathFinder, importlib.abc.Loader):
+    """Imports ``bdipole_cl.io.batch`` (say) as the one module ``bdipole_cl.jobs.batch``."""
+
+    def find_spec(self, fullname, path=None, target=None):
+        if fullname in MOVED_MODULES:
+            return importlib.util.spec_from_loader(fullname, self)
+        return None
+
+    def create_module(self, spec):
+        module = importlib.import_module(MOVED_MODULES[spec.name])
+        self.own_spec = module.__spec__
+        return module
+
+    def exec_module(self, module):
+        module.__spec__ = self.own_spec           # the import machinery set the alias's
+
+
+if not any(isinstance(f, _MovedModuleFinder) for f in sys.meta_path):
+    sys.meta_path.insert(0, _MovedModuleFinder())
+
+from .caches import clear_caches
+from .device import DeviceError, DeviceState, Runtime, get_runtime, survey, use_device
+from .errors import POLICIES, InvalidInputError
+from .methods.registry import METHODS, MethodConfig
+from .ops.blur import BlurInfo, ChannelInfo, blur
+from .ops.invert import OUTPUTS, albedo_to_coefficients, invert_albedo
+from .physics import reference
+from .version import __version__
 
 __all__ = [
-    "METHODS", "OUTPUTS", "POLICIES", "BlurInfo", "ChannelInfo", "DeviceError", "DeviceState",
-    "InvalidInputError", "MethodConfig", "Runtime", "albedo_to_coefficients", "blur",
-    "clear_caches", "get_runtime", "invert_albedo", "reference", "survey", "use_device",
+    "METHODS",
+    "OUTPUTS",
+    "POLICIES",
+    "BlurInfo",
+    "ChannelInfo",
+    "DeviceError",
+    "DeviceState",
+    "InvalidInputError",
+    "MethodConfig",
+    "Runtime",
     "__version__",
+    "albedo_to_coefficients",
+    "blur",
+    "clear_caches",
+    "get_runtime",
+    "invert_albedo",
+    "reference",
+    "survey",
+    "use_device",
 ]

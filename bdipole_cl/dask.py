@@ -23,7 +23,6 @@ import threading
 import time
 import uuid
 from contextlib import contextmanager
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -31,18 +30,18 @@ import OpenImageIO as oiio
 
 from .device import get_runtime
 from .io.collisions import Claim, check_claim
-from .io.batch import BatchReport, FileResult, process_file
-from .io.blur_file import FILE_ROW_FLOATS
 from .io.colour import resolve_working_space
-from .io.images import (Cancelled, Reader, TextureError, Writer, output_spec, read_rows,
-                        remove_partial_files)
-from .io.scene import Plan, run_blur_job, run_invert_job
-from .io.scene_records import finish_bake, run_constant_job
+from .io.images import Cancelled, Reader, TextureError, Writer, read_rows, remove_partial_files
+from .jobs import runner
+from .jobs.blur_file import FILE_ROW_FLOATS, blurred_band, exitance_writer, file_plan
+from .jobs.job import Job
+from .jobs.results import BatchReport, FileResult
+from .jobs.scene import Plan, not_run, scene_job
+from .jobs.scene_records import finish_bake
 from .ops import invert as ops_invert
 from .ops.bands import band_rows, bands, halo_rows
-from .ops.blur import PARAM_KEYS, blur as blur_array
-from .ops.blur import is_textured
-from .ops.blur.planning import channel_plans, halo_of
+from .ops.blur import Scattering, plan_blur
+from .ops.blur.params import checked_irradiance
 from .signals import STOP
 
 #: a task that raised is tried again this many times (a worker that died is always replaced)
@@ -138,31 +137,27 @@ def _not_finished(source, output):
 
 # {{{ scenes
 
-def run_scene_job(job, scene, device=None):
-    """One scene job on a worker (its own device, opened once per process)."""
+def run_on_worker(job: Job, device=None) -> FileResult:
+    """One job on a worker: ``runner.run_job`` on the worker's own device (opened once per
+    process), after removing what a writer that died there before left of its output."""
     if job.kind != "constant":
         remove_partial_files(job.output)
-    runtime = get_runtime(device)
-    if job.kind == "invert":
-        return run_invert_job(job, scene, runtime, None, _worker_lock)
-    if job.kind == "constant":
-        return run_constant_job(job, scene, runtime)
-    return run_blur_job(job, scene, runtime, None)
+    return runner.run_job(job, get_runtime(device), lock=_worker_lock)
 
 
 def bake_on_cluster(plan: Plan, client, *, device=None, progress=True,
-                    run=run_scene_job) -> BatchReport:
+                    run=run_on_worker) -> BatchReport:
     """``Plan.run`` with the jobs on the cluster (up-to-date checks already done by the plan,
-    in this process, before anything is sent)."""
+    in this process, before anything is sent): each planned job's ``scene_job`` is mapped
+    over by ``run`` (the runner)."""
     results, futures = {}, {}
     run_id = uuid.uuid4().hex[:12]       # a run's own task keys: never an earlier run's results
     for i, job in enumerate(plan.jobs):
-        if job.problem:
-            results[i] = FileResult(job.source, job.output, error=job.problem)
-        elif job.up_to_date:
-            results[i] = FileResult(job.source, job.output, status="skipped")
-        else:
-            fut = client.submit(run, job, plan.scene, device, pure=False, retries=RETRIES,
+        results[i] = not_run(job)
+        if results[i] is None:
+            del results[i]
+            fut = client.submit(run, scene_job(job, plan.scene), device, pure=False,
+                                retries=RETRIES,
                                 key=f"bake-{i}-{job.kind}-{job.name}-{job.udim}-{run_id}")
             futures[fut] = i
     bar = _progress(len(futures), "bake", progress)
@@ -184,30 +179,24 @@ def bake_on_cluster(plan: Plan, client, *, device=None, progress=True,
 
 # {{{ texture batches (bdipole-cl invert)
 
-def _batch_file(job, settings, device=None):
-    remove_partial_files(job.output)
-    return process_file(job, replace(settings, runtime=get_runtime(device)), _worker_lock, None)
-
-
 def file_runner(client, *, device=None, progress=True):
-    """A ``run_files`` for ``process_textures``: each file a task on the cluster."""
-    def run(jobs, settings):
-        portable = replace(settings, runtime=None, cancel=None)
+    """A ``run_files`` for ``process_textures``: each job a task on the cluster."""
+    def run(jobs):
         run_id = uuid.uuid4().hex[:12]
-        futures = {client.submit(_batch_file, job, portable, device, pure=False,
-                                 retries=RETRIES,
-                                 key=f"invert-{i}-{Path(job.path).name}-{run_id}"): i
+        futures = {client.submit(run_on_worker, job, device, pure=False, retries=RETRIES,
+                                 key=f"invert-{i}-{Path(job.source).name}-{run_id}"): i
                    for i, job in enumerate(jobs)}
         bar = _progress(len(futures), "invert", progress)
         try:
             results = _gather(client, futures, lambda i, exc: FileResult(
-                jobs[i].path, jobs[i].output, error=f"{jobs[i].path}: {exc}"), bar)
+                jobs[i].source, jobs[i].output, error=f"{jobs[i].source}: {exc}"), bar)
         finally:
             if bar is not None:
                 bar.close()
         for job in jobs:
             remove_partial_files(job.output)
-        return [results.get(i) or _not_finished(j.path, j.output) for i, j in enumerate(jobs)]
+        return [results.get(i) or _not_finished(j.source, j.output)
+                for i, j in enumerate(jobs)]
     return run
 
 # }}}
@@ -215,22 +204,25 @@ def file_runner(client, *, device=None, progress=True):
 
 # {{{ huge file-to-file blurs
 
-def _blur_band(path, band_path, y0, y1, halo, colorspace, working, kwargs, device=None):
-    """Rows [y0, y1) of the blurred image, written to ``band_path`` (an EXR of those rows)."""
+def blur_band_task(path, band_path, y0, y1, plan, colorspace, working, device=None):
+    """A cluster task: rows [y0, y1) of the blurred image (``blur_file``'s own band step,
+    ``blurred_band``, with the plan made once by the client), written to ``band_path``."""
     remove_partial_files(band_path)
+    plan = plan.on(get_runtime(device))
     reader = Reader(path, "irradiance")
     try:
         spec = reader.spec
         colour, alpha = reader.channels()
         route = reader.colour(colorspace, working)
-        idx = halo_rows(y0, y1, halo, spec.height, kwargs.get("border", "clamp"))
+        idx = halo_rows(y0, y1, plan.halo, spec.height, plan.border)
         px = read_rows(reader, idx)
     finally:
         reader.close()
-    e = route.convert(px[..., colour], [spec.channelnames[c] for c in colour])
-    out = blur_array(e, device=get_runtime(device), **kwargs)[halo:halo + y1 - y0]
+    out, _ = blurred_band(plan, px, colour, [spec.channelnames[c] for c in colour], route, idx,
+                          None, y0, y1)
     if alpha >= 0:
-        out = np.concatenate([out, px[halo:halo + y1 - y0, :, alpha:alpha + 1]], axis=-1)
+        out = np.concatenate([out, px[plan.halo:plan.halo + y1 - y0, :, alpha:alpha + 1]],
+                             axis=-1)
     band = oiio.ImageSpec(spec.width, y1 - y0, out.shape[-1], "float")
     writer = Writer(band_path, band)
     try:
@@ -254,8 +246,8 @@ def blur_file_on_cluster(path, output, client, *, colorspace="auto", working_spa
     from .io.images import check_output_format
     check_output_format(output)
     check_claim(Claim(str(path), str(output), {"irradiance": str(path)}))
-    physical = {k: kwargs[k] for k in PARAM_KEYS if k in kwargs}
-    if is_textured(**physical):
+    scattering, options = Scattering.split(kwargs)
+    if scattering.textured:
         raise ValueError("a blur on a cluster takes constant parameters (one value or one per "
                          "channel); with parameter textures, blur in one process")
     reader = Reader(path, "irradiance")
@@ -265,10 +257,8 @@ def blur_file_on_cluster(path, output, client, *, colorspace="auto", working_spa
         route = reader.colour(colorspace, resolve_working_space(working_space))
     finally:
         reader.close()
-    _, plans = channel_plans(len(colour), method=kwargs.get("method", "auto"),
-                             tol=kwargs.get("tol", 1e-3), exact=kwargs.get("exact", False),
-                             **physical)
-    halo = halo_of(plans)
+    plan = file_plan(path, spec, len(colour), scattering, dict(options, device=device), {})
+    halo = plan.halo
     rows = band_rows(spec.height, spec.width * spec.nchannels * 4 * FILE_ROW_FLOATS,
                      max_memory, halo=halo)
     work = Path(tempfile.mkdtemp(prefix=f".{Path(output).stem}.bands-",
@@ -276,8 +266,9 @@ def blur_file_on_cluster(path, output, client, *, colorspace="auto", working_spa
     try:
         futures, run_id = {}, uuid.uuid4().hex[:12]
         for k, (y0, y1, _) in enumerate(bands(spec.height, rows)):
-            fut = client.submit(_blur_band, str(path), str(work / f"band{k:05d}.exr"), y0, y1,
-                                halo, colorspace, route.working, kwargs, device, pure=False,
+            fut = client.submit(blur_band_task, str(path), str(work / f"band{k:05d}.exr"), y0,
+                                y1, plan, colorspace, route.working, device,
+                                pure=False,
                                 retries=RETRIES,
                                 key=f"blur-band-{k}-{Path(path).name}-{run_id}")
             futures[fut] = (k, y0, y1)
@@ -290,14 +281,8 @@ def blur_file_on_cluster(path, output, client, *, colorspace="auto", working_spa
         failed = [v for v in done.values() if isinstance(v, Exception)]
         if failed:
             raise TextureError(f"{path}: {len(failed)} band(s) failed: {failed[0]}")
-        names = [spec.channelnames[c] for c in colour] + (
-            [spec.channelnames[alpha]] if alpha >= 0 else [])
-        meta = {k: v for k, v in kwargs.items() if k in PARAM_KEYS + ("tol", "border")}
-        meta["source"] = str(path)
-        meta.update(route.header("irradiance"))
-        writer = Writer(output, output_spec(spec, names, len(names) - 1 if alpha >= 0 else -1,
-                                            half, meta, working=route.working),
-                                     kwargs.get("on_invalid", "raise"), texture=texture)
+        writer = exitance_writer(path, output, spec, colour, alpha, route, plan, half=half,
+                                 texture=texture)
         try:
             for (k, y0, y1) in sorted(done):       # one band in memory at a time
                 r = Reader(done[(k, y0, y1)], "band")
@@ -360,19 +345,17 @@ BOUNDARIES = {"clamp": "nearest", "zero": 0, "wrap": "periodic"}
 def blur(irradiance, *, border="clamp", device=None, **kwargs):
     """``bdipole_cl.blur`` of an HxW or HxWxC dask array (lazy), constant parameters: each
     block with an overlap of the plan's truncation radius, the image's edges by ``border``."""
-    physical = {k: kwargs[k] for k in PARAM_KEYS if k in kwargs}
-    if is_textured(**physical):
+    scattering, options = Scattering.split(kwargs)
+    if scattering.textured:
         raise ValueError("bdipole_cl.dask.blur takes constant parameters (one value or one "
                          "per channel)")
     arr = irradiance if irradiance.ndim == 3 else irradiance[..., None]
     arr = arr.rechunk({2: -1})
-    _, plans = channel_plans(arr.shape[2], method=kwargs.get("method", "auto"),
-                             tol=kwargs.get("tol", 1e-3), exact=kwargs.get("exact", False),
-                             **physical)
-    k = halo_of(plans)
+    plan = plan_blur(arr.shape, scattering, border=border, device=device, **options)
+    k = plan.halo
 
-    def fn(block):
-        return blur_array(block, border=border, device=device, **kwargs)
+    def fn(block):                     # the one plan, its device bound once per process
+        return plan.on(device).apply_band(checked_irradiance(block, plan.on_invalid))[0]
     # chunks thinner than the radius are merged by dask (allow_rechunk) so that every block's
     # overlap holds all the texels its kernels reach
     out = arr.map_overlap(fn, depth={0: k, 1: k, 2: 0}, boundary=BOUNDARIES[border],

@@ -2,11 +2,12 @@
 // (bdipole_cl/ops/blur/fit.py: fit_gaussians): rows then columns with the same texel-integrated 1D
 // weights g[-K..K], the column pass adding weight * result into the output channel.
 // Needs bdipole.h in front; border mode by -DBD_BORDER_{CLAMP,ZERO,WRAP}. -DBD_PER_TEXEL_WEIGHT: the
-// column pass's weight is a per-texel plane (H x W, texture-varying parameters: bdipole_cl/ops/blur/textured.py).
+// column pass's weight is plane `plane` of per-texel planes (G x H x W, texture-varying parameters:
+// bdipole_cl/ops/blur/textured.py), left on the device by the lattice_weights kernel.
 
 #ifdef BD_PER_TEXEL_WEIGHT
-#define WEIGHT_PARAM __global const float *weight
-#define WEIGHT_AT(p) weight[p]
+#define WEIGHT_PARAM __global const float *weight, const int plane
+#define WEIGHT_AT(p) weight[(size_t)plane * width * height + (p)]
 #else
 #define WEIGHT_PARAM const float weight
 #define WEIGHT_AT(p) weight

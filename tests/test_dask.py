@@ -10,16 +10,16 @@ import pytest
 
 pytest.importorskip("distributed")        # a dependency of the test extra: present in CI
 
-import dask.array as da  # noqa: E402
-from distributed import Client, LocalCluster  # noqa: E402
-from test_scene import SCENE, make_files  # noqa: E402
+import dask.array as da
+from distributed import Client, LocalCluster
+from test_scene import SCENE, make_files
 
-import bdipole_cl  # noqa: E402
-from bdipole_cl import dask as bdask  # noqa: E402
-from bdipole_cl import scene as scenes  # noqa: E402
-from bdipole_cl.apps.cli import main as cli_main  # noqa: E402
-from bdipole_cl.apps.demo import write_exr  # noqa: E402
-from bdipole_cl.io.images import partial_files  # noqa: E402
+import bdipole_cl
+from bdipole_cl import dask as bdask
+from bdipole_cl import scene as scenes
+from bdipole_cl.apps.cli import main as cli_main
+from bdipole_cl.apps.demo import write_exr
+from bdipole_cl.io.images import partial_files
 
 
 @pytest.fixture(scope="module")
@@ -78,7 +78,7 @@ def test_a_worker_killed_mid_job_and_a_job_failing_once_still_complete(client, t
     _, cluster = two_scenes
     marker_kill, marker_fail = tmp_path / "killed", tmp_path / "failed"
 
-    def flaky(job, scene, device=None):
+    def flaky(job, device=None):
         # the first skin job kills its worker, leaving a writer's temporary file behind; the
         # first grey job raises; both are run again by Dask
         if job.name == "skin" and not marker_kill.exists():
@@ -91,7 +91,7 @@ def test_a_worker_killed_mid_job_and_a_job_failing_once_still_complete(client, t
         if job.name == "grey" and not marker_fail.exists():
             marker_fail.write_text("x")
             raise RuntimeError("a passing fault")
-        return bdask.run_scene_job(job, scene, device)
+        return bdask.run_on_worker(job, device)
 
     report = bdask.bake_on_cluster(scenes.load(cluster).plan(), client, progress=False,
                                    run=flaky)
@@ -158,7 +158,7 @@ def test_a_stop_request_cancels_the_unfinished_cluster_jobs(client, two_scenes):
     from bdipole_cl.signals import STOP
     _, cluster = two_scenes
 
-    def slow(job, scene, device=None):
+    def slow(job, device=None):
         time.sleep(4)                  # a running task is not interrupted; it is abandoned
         raise RuntimeError("should have been cancelled")
 

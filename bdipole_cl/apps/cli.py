@@ -2,19 +2,18 @@
 from __future__ import annotations
 
 import argparse
-import contextlib
 import functools
 import sys
-import time
 
 from ..errors import POLICIES
 from ..methods.registry import BLUR_METHODS, BORDERS
 from ..signals import SignalStop
 from ..version import __version__
-from .cli_options import (add_global_args, add_method_args, add_scheduler_args, colorspace_arg,
-                          method_knobs)
+from .cli_blur import cmd_blur
+from .cli_options import (add_global_args, add_method_args, add_scheduler_args, cluster_client,
+                          colorspace_arg, method_knobs)
 from .cli_types import (Parser, add_texture_arg, constant_or_texture, floats, fraction,
-                        number_list, output_list, positive_float, positive_int, size)
+                        output_list, positive_float, positive_int, size)
 from .user_kernel import SIGNATURES
 
 DESCRIPTION = """\
@@ -49,26 +48,17 @@ def _finish(report, stop) -> int:
     return report.exit_code
 
 
-@contextlib.contextmanager
-def _cluster(args):
-    """The Dask client of ``--scheduler`` (its dashboard link printed)."""
-    from ..dask import connect
-    with connect(args.scheduler, memory_limit=args.worker_memory) as client:
-        print(f"dask dashboard: {client.dashboard_link}", flush=True)
-        yield client
-
-
 def _cmd_invert(args) -> int:
     if args.scheduler:
         from ..dask import file_runner
-        with _cluster(args) as client:
+        with cluster_client(args) as client:
             return _invert(args, file_runner(client, device=args.device,
                                              progress=not args.no_progress))
     return _invert(args, None)
 
 
 def _invert(args, run_files) -> int:
-    from ..io.batch import process_textures
+    from ..jobs.batch import process_textures
     stop = SignalStop().install()
     report = process_textures(
         args.inputs, mfp=args.mfp, eta=args.eta, output=args.output, cancel=stop.event,
@@ -81,93 +71,6 @@ def _invert(args, run_files) -> int:
         progress=not args.no_progress and run_files is None,
         run_files=run_files, texture=args.texture, **method_knobs(args))
     return _finish(report, stop)
-
-
-def _param(text, what, **colour):
-    """A blur parameter: numbers ('0.8' or 'r,g,b', in the working space), else the path of
-    a texture (``colour``: colorspace= and working= of an albedo texture, converted)."""
-    values = number_list(text)     # constants were checked at parse time (constant_or_texture)
-    if values is not None:
-        return values
-    else:
-        from ..io.images import read_parameter_texture
-        return read_parameter_texture(text, what, colour=bool(colour), **colour)
-
-
-def _cmd_blur(args) -> int:
-    from ..io.blur_file import blur_file
-    from ..io.images import Cancelled, TextureError
-    if args.alpha_prime is None and (args.albedo is None or args.mfp is None):
-        print("bdipole-cl blur: error: give --albedo and --mfp (values or textures), or "
-              "--alpha-prime and --sigma-t", file=sys.stderr)
-        return 2
-    if args.alpha_prime is not None and args.sigma_t is None:
-        print("bdipole-cl blur: error: --alpha-prime needs --sigma-t", file=sys.stderr)
-        return 2
-    sources = {name: v for name, v in (("albedo", args.albedo), ("mfp", args.mfp),
-                                       ("alpha", args.alpha_prime), ("sigma_t", args.sigma_t))
-               if v is not None and number_list(v) is None}
-    stop = SignalStop().install()
-    kw = dict(eta=args.eta, texel_size=args.texel_size, tol=args.tol,
-              method=args.method, border=args.border, on_invalid=args.on_invalid,
-              exact=args.exact, colorspace=args.colorspace, working_space=args.working_space)
-    try:
-        if args.alpha_prime is not None:
-            kw.update(alpha=_param(args.alpha_prime, "alpha'"),
-                      sigma_t=_param(args.sigma_t, "sigma_t'"))
-        else:
-            kw.update(albedo=_param(args.albedo, "albedo", colorspace=args.colorspace,
-                                    working=args.working_space),
-                      mfp=_param(args.mfp, "mfp"))
-        if args.scheduler:
-            from ..dask import blur_file_on_cluster
-            with _cluster(args) as client:
-                n = blur_file_on_cluster(args.input, args.output, client, half=args.half,
-                                         max_memory=args.max_memory, device=args.device,
-                                         texture=args.texture, **kw)
-            print(f"{n} bands blurred on the cluster; wrote {args.output}")
-            return 0
-        with _texel_bar(args.input, "blur", not args.no_progress) as bar:
-            t0 = time.perf_counter()
-            info = blur_file(args.input, args.output, half=args.half, sources=sources,
-                             max_memory=args.max_memory, cancel=stop.event, progress=bar,
-                             texture=args.texture, **kw)
-            seconds = time.perf_counter() - t0
-    except Cancelled as exc:
-        print(f"bdipole-cl {args.command}: error: {exc}", file=sys.stderr)
-        return stop.exit_code or 1
-    except TextureError as exc:
-        print(f"bdipole-cl {args.command}: error: {exc}", file=sys.stderr)
-        return 1
-    for c in (info.channels if info is not None else ()):
-        rd = f"Rd {c.rd:.4f}" if c.rd is not None else "Rd per texel"
-        print(f"channel {c.channel}: {c.method}, radius {c.radius} texels, {rd}, "
-              f"error <= {c.error_bound:.1e} x max(E) x Rd")
-    texels = _texels_of(args.input)
-    print(f"wrote {args.output}: {texels} texels in {seconds:.2f} s "
-          f"({texels / max(seconds, 1e-9) / 1e6:.3g} Mtexel/s)")
-    return 0
-
-
-def _texels_of(path):
-    from ..io.images import Reader
-    r = Reader(path, "irradiance")
-    try:
-        return r.spec.width * r.spec.height
-    finally:
-        r.close()
-
-
-@contextlib.contextmanager
-def _texel_bar(path, desc, enabled):
-    """A tqdm bar over ``path``'s texels (None when disabled)."""
-    if not enabled:
-        yield None
-        return
-    from tqdm import tqdm
-    with tqdm(total=_texels_of(path), unit="texel", unit_scale=True, desc=desc,
-              disable=None) as bar:                 # None: shown on a terminal only
-        yield bar
 
 
 def _cmd_crosscheck(args) -> int:
@@ -199,7 +102,7 @@ def _cmd_crosscheck(args) -> int:
 
 
 def _cmd_plan(args) -> int:
-    from ..io.scene import load
+    from ..jobs.scene import load
     plan = load(args.scene, args.working_space).plan(force=args.force,
                                                     max_memory=args.max_memory)
     print(plan.to_json() if args.json else plan.describe())
@@ -207,7 +110,7 @@ def _cmd_plan(args) -> int:
 
 
 def _cmd_bake(args) -> int:
-    from ..io.scene import load
+    from ..jobs.scene import load
     stop = SignalStop().install()
     plan = load(args.scene, args.working_space).plan(force=args.force,
                                                     max_memory=args.max_memory)
@@ -226,7 +129,7 @@ def _cmd_bake(args) -> int:
 
     if args.scheduler:
         from ..dask import bake_on_cluster
-        with _cluster(args) as client:
+        with cluster_client(args) as client:
             report = bake_on_cluster(plan, client, device=args.device,
                                      progress=not args.no_progress)
     else:
@@ -283,6 +186,16 @@ def _cmd_devices(args) -> int:
     return 0
 
 
+def _scene_command(command, name, text, force_help, memory_help):
+    """A command on a scene: its file, --force and --max-memory."""
+    p = command(name, help=text)
+    p.add_argument("scene", help="scene file (TOML), USD stage (.usda, .usd, .usdc, .usdz) or "
+                                 "MaterialX document (.mtlx)")
+    p.add_argument("--force", action="store_true", help=force_help)
+    p.add_argument("--max-memory", type=size, default="256M", help=memory_help)
+    return p
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = Parser(prog="bdipole-cl", description=DESCRIPTION, epilog=EPILOG)
     parser.add_argument("--version", action="version", version=f"bdipole-cl {__version__}")
@@ -318,25 +231,19 @@ def build_parser() -> argparse.ArgumentParser:
                    help="seconds a user kernel's run may take before it is stopped")
     p.set_defaults(func=_cmd_crosscheck)
 
-    p = command("plan", help="what a scene's bake computes and leaves out, per job")
-    p.add_argument("scene", help="scene file (TOML), USD stage (.usda, .usd, .usdc, .usdz) or "
-                                      "MaterialX document (.mtlx)")
+    p = _scene_command(command, "plan", "what a scene's bake computes and leaves out, per job",
+                       "plan every job, up to date or not",
+                       "host memory for the statistics pass's bands of rows")
     p.add_argument("--json", action="store_true", help="the plan as JSON")
-    p.add_argument("--force", action="store_true", help="plan every job, up to date or not")
-    p.add_argument("--max-memory", type=size, default="256M",
-                   help="host memory for the statistics pass's bands of rows")
     p.set_defaults(func=_cmd_plan)
 
-    p = command("bake", help="run a scene's plan: only what is needed, only what changed")
-    p.add_argument("scene", help="scene file (TOML), USD stage (.usda, .usd, .usdc, .usdz) or "
-                                      "MaterialX document (.mtlx)")
-    p.add_argument("--force", action="store_true", help="rebuild every output")
+    p = _scene_command(command, "bake", "run a scene's plan: only what is needed, only what "
+                       "changed", "rebuild every output",
+                       "host memory per job for bands of rows (e.g. 512M)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar and job lines")
     p.add_argument("--preview", action="store_true",
                    help="a contact sheet beside each output (.preview.png) and one page for the "
                         "bake (scene.preview.png): every material's thumbnails and profile")
-    p.add_argument("--max-memory", type=size, default="256M",
-                   help="host memory per job for bands of rows (e.g. 512M)")
     add_scheduler_args(p)
     p.set_defaults(func=_cmd_bake)
 
@@ -395,7 +302,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--max-memory", type=size, default="256M",
                    help="host memory for bands of rows (each with a halo of the radius)")
     add_scheduler_args(p)
-    p.set_defaults(func=_cmd_blur)
+    p.set_defaults(func=cmd_blur)
 
     p = command(
         "invert", help="albedo (+ mfp) textures -> scattering-coefficient EXRs", epilog=EPILOG)

@@ -5,6 +5,7 @@ cluster). Every choice comes from its registry, never retyped."""
 from __future__ import annotations
 
 import argparse
+import contextlib
 
 from ..methods.registry import METHODS
 from ..physics.reference import MODELS
@@ -78,3 +79,12 @@ def add_scheduler_args(p):
                         "local:N starts N worker processes here (needs bdipole-cl[dask])")
     p.add_argument("--worker-memory", type=size, metavar="SIZE",
                    help="with --scheduler local:N, each worker's memory limit (e.g. 1G)")
+
+
+@contextlib.contextmanager
+def cluster_client(args):
+    """The Dask client of ``--scheduler`` (its dashboard link printed)."""
+    from ..dask import connect
+    with connect(args.scheduler, memory_limit=args.worker_memory) as client:
+        print(f"dask dashboard: {client.dashboard_link}", flush=True)
+        yield client

@@ -62,7 +62,7 @@ def claim_folder(folder):
 
 def run_demo(folder="bdipole_demo", progress=True) -> int:
     from ..device import get_runtime
-    from ..io.batch import process_textures
+    from ..jobs.batch import process_textures
     claim_folder(folder)
     rt = get_runtime()
     print(f"device: {rt.describe()}")
@@ -77,7 +77,7 @@ def run_demo(folder="bdipole_demo", progress=True) -> int:
                               outputs=("alpha", "rho", "sigma_a", "sigma_s"),
                               on_invalid="clamp", progress=progress)
     print(report.summary())
-    from ..io.blur_file import blur_file
+    from ..jobs.blur_file import blur_file
     out = Path(folder) / "exitance.exr"
     print("\n2. irradiance -> exitance: blur with R(r), albedo (0.8, 0.6, 0.4), mfp (4, 2, 1) mm, "
           "texel 0.5 mm, tol 1e-3.")
@@ -146,7 +146,7 @@ def make_scene(folder, size=64):
 
 
 def run_scene(folder) -> int:
-    from ..io.scene import load
+    from ..jobs.scene import load
     path = make_scene(folder)
     plan = load(path).plan()
     print(plan.describe())

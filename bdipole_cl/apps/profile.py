@@ -16,11 +16,11 @@ from pathlib import Path
 
 import numpy as np
 
-from ..io.batch import companion_path, expand_inputs
 from ..io.colour import resolve_working_space
 from ..io.images import read_parameter_texture
-from ..io.scene import load
-from ..io.scene_stats import read_albedo
+from ..io.patterns import companion_path, expand_inputs
+from ..jobs.scene import load
+from ..jobs.scene_stats import read_albedo
 from ..ops.blur.weights import truncation_radius
 from ..physics import reference as ref
 

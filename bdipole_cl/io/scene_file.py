@@ -188,7 +188,7 @@ class Blur:
 
 @dataclass(frozen=True)
 class SceneData:
-    """A checked scene file: its path, materials and blurs (``bdipole_cl.io.scene.Scene``
+    """A checked scene file: its path, materials and blurs (``bdipole_cl.jobs.scene.Scene``
     adds planning)."""
 
     path: Path

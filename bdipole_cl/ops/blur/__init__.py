@@ -36,18 +36,16 @@ from __future__ import annotations
 
 import numpy as np
 
-from ...device import get_runtime
-from ...errors import check_policy
 from ...methods.registry import BLUR_METHODS, BORDERS
-from ..bands import band_rows, bands, gather_rows
 from .fit import fit_gaussians
 from .params import PARAM_KEYS, channel_parameters, checked_irradiance
-from .planning import BlurInfo, ChannelInfo, blur_whole, channel_plans, constant_row_bytes, halo_of
-from .textured import blur_textured
+from .plan import BlurPlan, Scattering, plan_blur
+from .planning import BlurInfo, ChannelInfo
 from .weights import channel_kernel
 
-__all__ = ["BLUR_METHODS", "BORDERS", "PARAM_KEYS", "BlurInfo", "ChannelInfo", "blur",
-           "channel_kernel", "channel_parameters", "fit_gaussians", "is_textured"]
+__all__ = ["BLUR_METHODS", "BORDERS", "PARAM_KEYS", "BlurInfo", "BlurPlan", "ChannelInfo",
+           "Scattering", "blur", "channel_kernel", "channel_parameters", "fit_gaussians",
+           "is_textured", "plan_blur"]
 
 
 def is_textured(**physical) -> bool:
@@ -61,9 +59,11 @@ def blur(irradiance, *, albedo=None, mfp=None, eta=1.4, texel_size=1.0, alpha=No
     """Texture-space subsurface scattering: ``irradiance`` (HxW or HxWxC) blurred by R(r).
 
     ``albedo`` (Rd) and ``mfp`` (ld = 1/mu_tr, same unit as ``texel_size``), or ``alpha``
-    (alpha') and ``sigma_t`` (sigma_t', 1/unit): scalars, per channel, or HxW(xC) textures
-    (texture-varying: the exit texel's profile); ``eta`` per channel. Returns the exitance,
-    HxWxC float32 (and a BlurInfo with ``return_info``). See the package docstring.
+    (alpha', the reduced albedo; ``Scattering.alpha_prime``) and ``sigma_t`` (sigma_t',
+    1/unit): scalars, per channel, or HxW(xC) textures (texture-varying: the exit texel's
+    profile); ``eta`` per channel. Returns the exitance, HxWxC float32 (and a BlurInfo with
+    ``return_info``). See the package docstring. It is ``plan_blur(...).apply(...)``: make
+    the plan yourself to blur many images (or bands) of one shape with the same parameters.
 
     ``max_memory`` (bytes): blur in bands of rows, each with a halo of the truncation radius
     taken by the border rule, so the working set stays bounded; the result is the same as in
@@ -72,33 +72,9 @@ def blur(irradiance, *, albedo=None, mfp=None, eta=1.4, texel_size=1.0, alpha=No
     ``device``: where to run (None, a string such as ``"intel"``, a pyopencl Device or a
     Runtime; see ``bdipole_cl.device``).
     """
-    if method not in BLUR_METHODS:
-        raise ValueError(f"method={method!r}: expected one of {BLUR_METHODS}")
-    if not 0 < tol < 1:
-        raise ValueError(f"tol={tol!r}: expected 0 < tol < 1")
-    if border not in BORDERS:
-        raise ValueError(f"border={border!r}: expected one of {BORDERS}")
-    check_policy(on_invalid)
     e = checked_irradiance(irradiance, on_invalid)
-    rt = get_runtime(device)
-    physical = dict(albedo=albedo, mfp=mfp, eta=eta, texel_size=texel_size, alpha=alpha,
-                    sigma_t=sigma_t)
-    if is_textured(**physical):
-        out, info = blur_textured(e, method=method, tol=tol, border=border, exact=exact,
-                                  max_memory=max_memory, rt=rt, on_invalid=on_invalid,
-                                  **physical)
-        return (out, info) if return_info else out
-    params, plans = channel_plans(e.shape[2], method=method, tol=tol, exact=exact, device=rt,
-                                  **physical)
-    h, w, nch = e.shape
-    k = halo_of(plans)
-    rows = band_rows(h, constant_row_bytes(w, nch), max_memory, halo=k)
-    if rows >= h:
-        out, info = blur_whole(e, params, plans, border, exact, rt)
-        return (out, info) if return_info else out
-    out = np.empty_like(e)
-    info = None
-    for y0, y1, idx in bands(h, rows, k, border):
-        res, info = blur_whole(gather_rows(e, idx), params, plans, border, exact, rt)
-        out[y0:y1] = res[k:k + (y1 - y0)]
+    plan = plan_blur(e.shape, Scattering(albedo, mfp, eta, texel_size, alpha, sigma_t),
+                     tol=tol, method=method, border=border, exact=exact,
+                     on_invalid=on_invalid, device=device)
+    out, info = plan.apply(e, max_memory)
     return (out, info) if return_info else out

@@ -17,30 +17,49 @@ TILE = 16
 LAUNCH_TAPS = 2e8
 
 
-class DeviceBlur:
-    """Device buffers and programs for one image."""
+class BlurKernels:
+    """The blur's programs on one device for one border rule, built on first use and kept for
+    the plan's life (``plan.BlurPlan``), with the tap and weight buffers it uploads, each once
+    (keyed by content: a channel's weights are the same on every band)."""
 
-    def __init__(self, e, border, rt):
+    def __init__(self, rt, border):
         self.rt = rt
+        self.border = border
+        self._kernels = {}
+        self._buffers = {}
+
+    def kernel(self, program, name, **options):
+        """Kernel ``name`` of kernels/<program>.cl, with the border and ``options`` defined."""
+        key = (program, name, tuple(sorted(options.items())))
+        if key not in self._kernels:
+            opts = {f"BD_BORDER_{self.border.upper()}": None, **options}
+            self._kernels[key] = cl.Kernel(get_program(self.rt, program, build_options(opts)),
+                                           name)
+        return self._kernels[key]
+
+    def uploaded(self, array):
+        """A read-only device buffer holding ``array`` (float32), uploaded once."""
+        a = np.ascontiguousarray(array, np.float32)
+        key = (a.shape, a.tobytes())
+        if key not in self._buffers:
+            self._buffers[key] = cl.Buffer(self.rt.context,
+                                           cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR,
+                                           hostbuf=a)
+        return self._buffers[key]
+
+
+class DeviceBlur:
+    """The image buffers of one image (or band) on the plan's device."""
+
+    def __init__(self, e, kernels: BlurKernels):
+        self.kernels = kernels
+        self.rt = rt = kernels.rt
         self.h, self.w, self.c = e.shape
-        border_opt = {f"BD_BORDER_{border.upper()}": None}
-        self.direct = cl.Kernel(get_program(rt, "blur_direct",
-                                            build_options({**border_opt, "BD_TILE": TILE})),
-                                "blur_direct")
-        sep = get_program(rt, "blur_separable", build_options(border_opt))
-        self.rows, self.cols = cl.Kernel(sep, "blur_rows"), cl.Kernel(sep, "blur_cols_add")
-        self.cols_textured = cl.Kernel(get_program(
-            rt, "blur_separable", build_options({**border_opt, "BD_PER_TEXEL_WEIGHT": None})),
-            "blur_cols_add")
         mf = cl.mem_flags
         self.src = cl.Buffer(rt.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=e)
         self.dst = cl.Buffer(rt.context, mf.READ_WRITE, max(e.nbytes, 4))
         self.tmp = cl.Buffer(rt.context, mf.READ_WRITE, max(self.h * self.w * 4, 4))
         cl.enqueue_fill_buffer(rt.queue, self.dst, np.float32(0), 0, max(e.nbytes, 4))
-
-    def _buf(self, array):
-        return cl.Buffer(self.rt.context, cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR,
-                         hostbuf=np.ascontiguousarray(array, np.float32))
 
     def run_direct(self, c, ck):
         """Channel c gathered with the ChannelKernel's exact weights, in launches of about
@@ -49,39 +68,43 @@ class DeviceBlur:
         gy = -(-self.h // TILE) * TILE
         taps = (2 * ck.radius + 1) ** 2
         step = TILE * max(1, int(LAUNCH_TAPS // (gx * TILE * taps)))
-        weights = self._buf(ck.weights)
+        weights = self.kernels.uploaded(ck.weights)
+        direct = self.kernels.kernel("blur_direct", "blur_direct", BD_TILE=TILE)
         for y in range(0, gy, step):
             check_stop()
-            self.direct(self.rt.queue, (gx, min(step, gy - y)), (TILE, TILE), self.src,
-                        self.dst, weights, np.int32(self.w), np.int32(self.h),
-                        np.int32(self.c), np.int32(c), np.int32(ck.radius),
-                        global_offset=(0, y))
+            direct(self.rt.queue, (gx, min(step, gy - y)), (TILE, TILE), self.src,
+                   self.dst, weights, np.int32(self.w), np.int32(self.h),
+                   np.int32(self.c), np.int32(c), np.int32(ck.radius),
+                   global_offset=(0, y))
             self.rt.queue.finish()
+
+    def _separable(self, c, taps, column_pass, *weight_args):
+        """Rows then columns of one separable kernel (1D ``taps``) into channel c."""
+        radius = (len(taps) - 1) // 2
+        g = self.kernels.uploaded(taps)
+        args = (np.int32(self.w), np.int32(self.h), np.int32(self.c), np.int32(c),
+                np.int32(radius))
+        rows = self.kernels.kernel("blur_separable", "blur_rows")
+        rows(self.rt.queue, (self.w, self.h), None, self.src, self.tmp, g, *args)
+        column_pass(self.rt.queue, (self.w, self.h), None, self.tmp, self.dst, g, *args,
+                    *weight_args)
 
     def run_gaussians(self, c, fit):
         """Channel c blurred by the GaussianFit's separable Gaussians."""
+        cols = self.kernels.kernel("blur_separable", "blur_cols_add")
         for sigma, weight, radius in zip(fit.sigmas, fit.weights, fit.radii):
             check_stop()
-            taps = self._buf(gaussian_1d(sigma, radius))
-            args = (np.int32(self.w), np.int32(self.h), np.int32(self.c), np.int32(c),
-                    np.int32(radius))
-            self.rows(self.rt.queue, (self.w, self.h), None, self.src, self.tmp, taps, *args)
-            self.cols(self.rt.queue, (self.w, self.h), None, self.tmp, self.dst, taps, *args,
-                      np.float32(weight))
+            self._separable(c, gaussian_1d(sigma, radius), cols, np.float32(weight))
 
-    def run_textured(self, c, plan, weights):
+    def run_textured(self, c, plan, planes):
         """Texture-varying parameters: each basis Gaussian of the TexturedPlan blurred by the
-        separable kernels and added with its per-texel weight plane (w_j(x) * Rd(x))."""
-        for taps, plane in zip(plan.kernels, weights):
+        separable kernels and added with its per-texel weight plane (w_j(x) * Rd(x)), the
+        planes the device buffer ``weight_planes`` left on the device."""
+        cols = self.kernels.kernel("blur_separable", "blur_cols_add", BD_PER_TEXEL_WEIGHT=None)
+        for j, taps in enumerate(plan.kernels):
             check_stop()
+            self._separable(c, taps, cols, planes, np.int32(j))
             self.rt.queue.finish()
-            radius = (len(taps) - 1) // 2
-            args = (np.int32(self.w), np.int32(self.h), np.int32(self.c), np.int32(c),
-                    np.int32(radius))
-            self.rows(self.rt.queue, (self.w, self.h), None, self.src, self.tmp,
-                      self._buf(taps), *args)
-            self.cols_textured(self.rt.queue, (self.w, self.h), None, self.tmp, self.dst,
-                              self._buf(taps), *args, self._buf(plane))
 
     def result(self):
         out = np.empty((self.h, self.w, self.c), np.float32)
@@ -113,18 +136,26 @@ def lattice_args(plan):
 
 
 def weight_planes(plan, rd, ld, rt):
-    """w_j(x) * Rd(x), (G, H, W) float32, computed on ``rt``'s device (kernels/blur_textured.cl)."""
+    """w_j(x) * Rd(x), (G, H, W) float32 on the host (``device_weight_planes`` read back)."""
+    out = np.empty((plan.fine.shape[2], *rd.shape), np.float32)
+    cl.enqueue_copy(rt.queue, out, device_weight_planes(plan, rd, ld, rt))
+    rt.queue.finish()
+    return out
+
+
+def device_weight_planes(plan, rd, ld, rt):
+    """w_j(x) * Rd(x), (G, H, W) float32, computed on ``rt``'s device and left there (the
+    buffer the separable column pass reads: kernels/blur_textured.cl, blur_separable.cl)."""
     h, w = rd.shape
     mf = cl.mem_flags
     opts, axis_args = lattice_args(plan)
-    out = np.empty((plan.fine.shape[2], h, w), np.float32)
     bufs = [host_buffer(rt, a, mf.READ_ONLY) for a in (rd, *texel_coords(plan, rd, ld),
                                                          plan.fine)]
-    dst = host_buffer(rt, out, mf.WRITE_ONLY)
+    planes = cl.Buffer(rt.context, mf.READ_WRITE, max(plan.fine.shape[2] * h * w * 4, 4))
     cl.Kernel(get_program(rt, "blur_textured", opts), "lattice_weights")(
-        rt.queue, (h * w,), None, *bufs, dst, np.int32(h * w), *axis_args)
-    read_back(rt, dst, out)
-    return out
+        rt.queue, (h * w,), None, *bufs, planes, np.int32(h * w), *axis_args)
+    rt.queue.finish()                  # the host arrays under ``bufs`` are then free to go
+    return planes
 
 
 def gather_exitance(out, c, plan, rd, ld, planes, x0, rt):

@@ -161,8 +161,9 @@ def halo_of(plans) -> int:
     return max(p.kernel.radius for p in plans)
 
 
-def blur_whole(e, params, plans, border, exact, rt):
-    """One in-memory image (or band with its halo), its channel plans resolved: (M, BlurInfo)."""
+def blur_whole(e, params, plans, border, exact, kernels):
+    """One in-memory image (or band with its halo), its channel plans resolved, on the plan's
+    device kernels (``dispatch.BlurKernels``): (M, BlurInfo)."""
     device = None
     fft_out = {}
     info = []
@@ -170,7 +171,7 @@ def blur_whole(e, params, plans, border, exact, rt):
         check_stop()
         ck = plan.kernel
         if plan.method in ("direct", "gaussians") and device is None:
-            device = DeviceBlur(e, border, rt)
+            device = DeviceBlur(e, kernels)
         tol = plan.tol if plan.tol is not None else ck.tol
         if plan.method == "direct":
             device.run_direct(c, ck)

@@ -9,20 +9,29 @@ import numpy as np
 
 from ...methods.registry import TEXTURED_BLUR_METHODS
 from ...signals import check_stop
-from ..bands import band_rows, bands, gather_rows
-from .dispatch import DeviceBlur, gather_exitance, weight_planes
+from .dispatch import DeviceBlur, device_weight_planes, gather_exitance
 from .fft import FFT32_ROUNDOFF_ULPS, basis_blurs, cached_spectra, fft_shape, settled
 from .params import texel_parameters
 from .planning import BlurAccuracyWarning, BlurInfo, ChannelInfo
-from .textured_plan import (RD_MAX, RD_MIN, parameter_ranges, plan_for_ranges,
-                            shape_clamp_error)
+from .textured_plan import RD_MAX, RD_MIN, parameter_ranges, plan_for_ranges, shape_clamp_error
 
 
-def textured_plans(shape, *, tol, exact=False, eta=1.4, basis="svd", on_invalid="raise",
+def textured_method(method) -> str:
+    """The method a texture-varying blur runs for ``method`` (auto: the host FFT of the SVD
+    basis)."""
+    if method not in TEXTURED_BLUR_METHODS:
+        raise ValueError(f"method={method!r} needs constant parameters; with texture-varying "
+                         f"parameters use one of {TEXTURED_BLUR_METHODS}")
+    return "fft" if method == "auto" else method
+
+
+def textured_plans(shape, *, tol, exact=False, eta=1.4, method="auto", on_invalid="raise",
                    **physical):
-    """Per channel: (TexturedPlan, Rd map, ld map) for an HxWxC image. Each channel has the plan
-    of its own ranges (a union over channels would need more basis kernels per channel; the
-    kernels' spectra are cheap, so sharing them saves little)."""
+    """Per channel: (TexturedPlan, Rd map, ld map) for an HxWxC image, for ``method`` (its
+    basis: separable Gaussians for ``gaussians``, else eigen-kernels). Each channel has the
+    plan of its own ranges (a union over channels would need more basis kernels per channel;
+    the kernels' spectra are cheap, so sharing them saves little)."""
+    basis = "gaussians" if textured_method(method) == "gaussians" else "svd"
     etas = np.broadcast_to(np.atleast_1d(np.asarray(eta, np.float64)), (shape[2],)) \
         if np.ndim(eta) <= 1 and np.size(eta) in (1, shape[2]) else None
     if etas is None:
@@ -37,13 +46,15 @@ def textured_plans(shape, *, tol, exact=False, eta=1.4, basis="svd", on_invalid=
     return out
 
 
-def blur_band(e, plans, rows, method, border, rt):
-    """Blur one image or band (rows: the rows of the parameter maps it covers)."""
+def blur_band(e, plans, rows, method, border, kernels):
+    """Blur one image or band (rows: the rows of the parameter maps it covers) with the
+    plan's device kernels (``dispatch.BlurKernels``)."""
     h, w, _ = e.shape
+    rt = kernels.rt
     if method == "gaussians":
-        device = DeviceBlur(e, border, rt)
+        device = DeviceBlur(e, kernels)
         for c, (plan, rd, ld) in enumerate(plans):
-            device.run_textured(c, plan, weight_planes(plan, rd[rows], ld[rows], rt))
+            device.run_textured(c, plan, device_weight_planes(plan, rd[rows], ld[rows], rt))
         out = device.result()
         for c, (_, rd, _) in enumerate(plans):
             settled(out[..., c], e[..., c], rd[rows])
@@ -68,34 +79,14 @@ def textured_row_bytes(width, nchan, radius, nbasis) -> int:
     return (width + 2 * radius) * 4 * (4 * nchan + 4 * nbasis + 6)
 
 
-def blur_textured(e, *, method, tol, border, exact, max_memory, rt, on_invalid="raise",
-                  **physical):
-    """``blur`` with texture-varying parameters (see ``textured_plan``): (M, BlurInfo)."""
-    if method not in TEXTURED_BLUR_METHODS:
-        raise ValueError(f"method={method!r} needs constant parameters; with texture-varying "
-                         f"parameters use one of {TEXTURED_BLUR_METHODS}")
-    used = "fft" if method == "auto" else method
-    plans = textured_plans(e.shape, tol=tol, exact=exact, on_invalid=on_invalid,
-                           basis="gaussians" if used == "gaussians" else "svd", **physical)
-    h, w, nch = e.shape
-    k = max(p[0].radius for p in plans)
-    nbasis = max(len(p[0].kernels) for p in plans)
-    rows = band_rows(h, textured_row_bytes(w, nch, k, nbasis), max_memory, halo=k)
-    if rows >= h:
-        out = blur_band(e, plans, slice(0, h), used, border, rt)
-    else:
-        out = np.empty_like(e)
-        for y0, y1, idx in bands(h, rows, k, border):
-            # the halo rows' own parameters are never used (a gather: exit texel's profile)
-            res = blur_band(gather_rows(e, idx), plans, np.maximum(idx, 0), used, border, rt)
-            out[y0:y1] = res[k:k + (y1 - y0)]
-    info = tuple(ChannelInfo(c, f"{used} (texture-varying, {len(p.kernels)} {p.basis} basis "
-                                f"kernels)", p.radius, p.error_bound + clamp_bound(c, p, rd, ld,
-                                                                                   exact),
-                             fit_error=p.fit_error, interp_error=p.interp_error,
-                             nodes=int(np.prod(p.table.shape[:2])))
-                 for c, (p, rd, ld) in enumerate(plans))
-    return out, BlurInfo(info)
+def textured_info(plans, method, exact) -> BlurInfo:
+    """What a texture-varying blur does per channel, its error bound with the shape clamp's."""
+    return BlurInfo(tuple(
+        ChannelInfo(c, f"{method} (texture-varying, {len(p.kernels)} {p.basis} basis kernels)",
+                    p.radius, p.error_bound + clamp_bound(c, p, rd, ld, exact),
+                    fit_error=p.fit_error, interp_error=p.interp_error,
+                    nodes=int(np.prod(p.table.shape[:2])))
+        for c, (p, rd, ld) in enumerate(plans)))
 
 
 def clamp_bound(c, plan, rd, ld, exact) -> float:

@@ -1,5 +1,5 @@
 """Scenes: ``bdipole-cl plan/bake scene.toml`` compute what a scene needs and leave out the
-rest (I/O layer; the file format is ``scene_file``).
+rest (the jobs layer; the file format is ``io.scene_file``).
 
 Per job (one UDIM tile of a material's inversion, or of a blur), the plan says what is
 computed and what is left out, and why:
@@ -29,32 +29,30 @@ from __future__ import annotations
 
 import json
 import os
-import threading
-import time
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
 from ..device import get_runtime
+from ..io.collisions import Claim, collisions
+from ..io.colour import WorkingSpace, resolve_working_space
+from ..io.freshness import header_fields, is_up_to_date, params_digest
+from ..io.images import TextureError
+from ..io.mipmaps import texture_options
+from ..io.patterns import companion_path, expand_inputs
+from ..io.scene_file import SceneData, SceneError, load_imported
+from ..io.scene_file import load as load_scene_file
+from ..io.scene_import import import_materials, is_imported
+from ..io.tiles import TileError, is_pattern
 from ..methods.choice import DeviceKey, device_auto_note, resolve_method
 from ..methods.registry import MethodConfig
-from ..ops.invert import invert_albedo
-from .batch import (BatchReport, BatchSettings, FileResult, Job, companion_path, expand_inputs,
-                    process_file)
-from .blur_file import blur_file
-from .collisions import Claim, collisions
-from .colour import WorkingSpace, resolve_working_space
-from .freshness import header_fields, is_up_to_date, params_digest
-from .images import Reader, TextureError, check_same_window, read_parameter_texture
-from .mipmaps import texture_options
-from .scene_file import SceneData, SceneError, load_imported
-from .scene_stats import DEFAULT_MEMORY, albedo_stats, read_albedo, table_for_range
-from .scene_file import load as load_scene_file
-from .scene_import import import_materials, is_imported
+from . import runner
+from .blur_file import colour_of
+from .job import BlurWork, ConstantWork, InvertWork, Job
+from .results import BatchReport, FileResult
 from .scene_records import (LAYER, MANIFEST, constant_config, constant_text, finish_bake,
-                            imported_lines, mfp_text, read_manifest, records_dir,
-                            run_constant_job)
-from .tiles import TileError, is_pattern
+                            imported_lines, mfp_text, read_manifest, records_dir)
+from .scene_stats import DEFAULT_MEMORY, albedo_stats, table_for_range
 
 #: compile each job's constants into its kernel (tools/bench_scene.py turns it off to measure
 #: what it saves)
@@ -65,7 +63,7 @@ SPECIALISE = True
 class Scene(SceneData):
     """A scene, ready to plan: ``load(path).plan().run()``."""
 
-    def plan(self, force=False, device=None, max_memory=DEFAULT_MEMORY) -> "Plan":
+    def plan(self, force=False, device=None, max_memory=DEFAULT_MEMORY) -> Plan:
         """What a bake computes and leaves out, per job."""
         return plan(self, force=force, device=device, max_memory=max_memory)
 
@@ -148,9 +146,14 @@ def _textures(inputs, material, mask, path, tile, problems):
         _exists("mask", inputs["mask"], problems)
 
 
-def _new_job(kind, name, path, udim, out, inputs, digest, problems, force, problems_all):
-    """The job, and whether it still needs planning (not broken, not up to date)."""
-    job = PlannedJob(kind, name, path, udim, out, inputs, params_digest=digest)
+def _new_job(kind, name, path, udim, out, inputs, fields, working_space, problems, force,
+             problems_all):
+    """The job, its parameters digest (``fields``, the working space, kind and tile) and
+    working space set, and whether it still needs planning (not broken, not up to date)."""
+    working = resolve_working_space(working_space)
+    digest = params_digest(fields | working.key | {"kind": kind, "udim": udim})
+    job = PlannedJob(kind, name, path, udim, out, inputs, params_digest=digest,
+                     working=working)
     if problems:
         job.problem = "; ".join(problems)
         problems_all += problems
@@ -173,11 +176,9 @@ def _plan_invert(m, path, tile, force, device, problems_all, max_memory):
     problems = []
     _exists("albedo", path, problems)
     _textures(inputs, m, m.mask, path, tile, problems)
-    working = resolve_working_space(m.working_space)
-    digest = params_digest(_material_fields(m) | working.key | {"kind": "invert", "udim": udim})
-    job, todo = _new_job("invert", m.name, path, udim, out, inputs, digest, problems, force,
-                         problems_all)
-    job.working = working
+    job, todo = _new_job("invert", m.name, path, udim, out, inputs, _material_fields(m),
+                         m.working_space, problems, force, problems_all)
+    working = job.working
     if not todo:
         return job
     try:
@@ -229,15 +230,6 @@ def _not_converted(mask) -> str:
             + (", the mask" if mask else "") + " and alpha (data)")
 
 
-def colour_of(path, role, colorspace, working) -> str:
-    """The colour path of one file into ``working``, described (``ColourPath.describe``)."""
-    r = Reader(path, role)
-    try:
-        return r.colour(colorspace, working).describe()
-    finally:
-        r.close()
-
-
 def _plan_blur(b, path, tile, force, problems_all):
     m = b.material
     udim = tile.label if tile else None
@@ -248,11 +240,9 @@ def _plan_blur(b, path, tile, force, problems_all):
     _exists("albedo", inputs["albedo"], problems)
     _textures(inputs, m, b.mask, path, tile, problems)
     fields = {k: v for k, v in asdict(b).items() if k not in ("name", "irradiance", "output")}
-    working = resolve_working_space(b.working_space)
-    digest = params_digest(fields | working.key | {"kind": "blur", "udim": udim})
-    job, todo = _new_job("blur", b.name, path, udim, out, inputs, digest, problems, force,
-                         problems_all)
-    job.working = working
+    job, todo = _new_job("blur", b.name, path, udim, out, inputs, fields, b.working_space,
+                         problems, force, problems_all)
+    working = job.working
     if not todo:
         return job
     try:
@@ -326,106 +316,54 @@ def plan(scene: Scene, *, force=False, device=None, max_memory=DEFAULT_MEMORY) -
 
 # {{{ the bake
 
-def _settings(m, config, runtime, cancel, header, working, max_memory=DEFAULT_MEMORY):
-    return BatchSettings(
-        eta=m.eta, mfp=None if isinstance(m.mfp, str) else m.mfp, mfp_scale=m.mfp_scale,
-        config=config, mfp_kind=m.mfp_kind,
-        model=m.model, exact=m.exact, half=m.half, colorspace=m.colorspace, alpha="keep",
-        on_invalid=m.on_invalid, max_memory=max_memory, outputs=m.outputs, unit=m.unit,
-        runtime=runtime, double=m.double, cancel=cancel,
-        mask=None if not m.mask else "alpha" if m.mask == "alpha" else "texture",
-        bake=SPECIALISE, header=header, working=working, texture=texture_options(m.texture))
+def scene_job(job: PlannedJob, scene: Scene, max_memory=DEFAULT_MEMORY) -> Job:
+    """The runnable ``job.Job`` of a planned job (``runner.run_job`` runs it; so do Dask's
+    workers): the material's or blur's fields as the typed work."""
+    header = header_fields(job.inputs, job.params_digest)
+    if job.kind == "invert":
+        m = next(x for x in scene.materials if x.name == job.name)
+        work = InvertWork(
+            eta=m.eta, mfp=None if isinstance(m.mfp, str) else m.mfp, mfp_scale=m.mfp_scale,
+            config=job.config, mfp_kind=m.mfp_kind, model=m.model, exact=m.exact,
+            half=m.half, colorspace=m.colorspace, alpha_channel="keep",
+            on_invalid=m.on_invalid, max_memory=max_memory, outputs=m.outputs, unit=m.unit,
+            double=m.double, mask=None if not m.mask else "alpha" if m.mask == "alpha"
+            else "texture", specialise=SPECIALISE, header=header | {"tol": m.tol},
+            working=job.working, texture=texture_options(m.texture))
+    elif job.kind == "blur":
+        b = next(x for x in scene.blurs if x.name == job.name)
+        work = BlurWork(tol=b.tol, method=b.method, border=b.border, exact=b.material.exact,
+                        on_invalid=b.on_invalid, half=b.half, texture=b.texture,
+                        colorspace=b.colorspace, working=job.working, max_memory=max_memory,
+                        header=header, material=b.material, texel_size=b.texel_size,
+                        mask=b.mask)
+    else:
+        work = ConstantWork(next(x for x in scene.materials if x.name == job.name), job.config)
+    return Job(job.kind, job.source, job.output, job.inputs, work, job.udim, job.params_digest,
+               job.name)
 
 
-def run_invert_job(job, scene, runtime, cancel, lock, max_memory=DEFAULT_MEMORY):
-    m = next(x for x in scene.materials if x.name == job.name)
-    header = header_fields(job.inputs, job.params_digest) | {"tol": m.tol}
-    settings = _settings(m, job.config, runtime, cancel, header, job.working, max_memory)
-    return process_file(Job(job.source, job.udim, job.output, job.inputs.get("mfp"),
-                            job.inputs.get("mask")), settings, lock, None)
-
-
-def _masked_parameter(values, keep):
-    """Parameter maps with masked texels set to a valid value of the unmasked ones (their own
-    parameters are never used: their exitance is 0), so they neither fail the checks nor widen
-    the plan's range."""
-    if keep is None or not keep.any():
-        return values
-    fill = np.nanmin(np.where(keep[..., None], values, np.nan), axis=(0, 1))
-    return np.where(keep[..., None], values, fill)
-
-
-def _check_windows(job):
-    """The blur's parameter textures cover the irradiance's pixels (TextureError if not)."""
-    r = Reader(job.source, "irradiance")
-    try:
-        for role, p in job.inputs.items():
-            if role != "irradiance":
-                other = Reader(p, role)
-                try:
-                    check_same_window(r.spec, other.spec, job.source, role, p)
-                finally:
-                    other.close()
-        return r.spec.width * r.spec.height
-    finally:
-        r.close()
-
-
-def run_blur_job(job, scene, runtime, cancel, max_memory=DEFAULT_MEMORY):
-    b = next(x for x in scene.blurs if x.name == job.name)
-    m = b.material
-    result = FileResult(job.source, job.output)
-    t0 = time.perf_counter()
-    try:
-        texels = _check_windows(job)
-        working = job.working
-        result.colour = "irradiance " + colour_of(job.source, "irradiance", b.colorspace,
-                                                  working)
-        albedo, keep, *_, route = read_albedo(job.inputs["albedo"], b.mask,
-                                              job.inputs.get("mask"), m.colorspace, working)
-        mfp = (read_parameter_texture(job.inputs["mfp"], "mfp") if "mfp" in job.inputs
-               else np.asarray(m.mfp)) * np.asarray(m.mfp_scale, np.float32)
-        albedo = _masked_parameter(albedo, keep)
-        if np.ndim(mfp) >= 2:
-            mfp = _masked_parameter(mfp, keep)
-        params = dict(albedo=albedo, mfp=mfp) if m.mfp_kind == "diffuse" else dict(
-            alpha=invert_albedo(albedo, m.eta if len(m.eta) > 1 else m.eta[0], exact=m.exact,
-                                model=m.model, device=runtime), sigma_t=1.0 / mfp)  # 1/mfp
-        header = header_fields(job.inputs, job.params_digest) | route.header("albedo")
-        sources = {k: v for k, v in job.inputs.items() if k in ("albedo", "mfp")}
-        blur_file(job.source, job.output, half=b.half, sources=sources, cancel=cancel,
-                  mask=keep, header=header, colorspace=b.colorspace, working_space=working,
-                  **params, eta=m.eta, texel_size=b.texel_size, tol=b.tol, method=b.method,
-                  border=b.border, on_invalid=b.on_invalid, exact=m.exact, device=runtime,
-                  max_memory=max_memory, texture=b.texture)
-        result.status, result.texels = "ok", texels
-    except (TextureError, OSError, ValueError) as exc:
-        result.error = str(exc)
-    result.seconds = time.perf_counter() - t0
-    return result
+def not_run(job: PlannedJob) -> FileResult | None:
+    """The result of a planned job that is not run (it cannot, or it is up to date)."""
+    if job.problem:
+        return FileResult(job.source, job.output, error=job.problem)
+    if job.up_to_date:
+        return FileResult(job.source, job.output, status="skipped")
+    return None
 
 
 def bake(plan: Plan, *, cancel=None, device=None, progress=None,
          max_memory=DEFAULT_MEMORY) -> BatchReport:
     runtime = get_runtime(device)
-    lock = threading.Lock()
     results = []
     for job in plan.jobs:
-        if job.problem:
-            results.append(FileResult(job.source, job.output, error=job.problem))
-        elif job.up_to_date:
-            results.append(FileResult(job.source, job.output, status="skipped"))
-        elif cancel is not None and cancel.is_set():
-            results.append(FileResult(job.source, job.output, status="cancelled",
-                                      error="interrupted before it started"))
-        elif job.kind == "invert":
-            results.append(run_invert_job(job, plan.scene, runtime, cancel, lock, max_memory))
-        elif job.kind == "constant":
-            results.append(run_constant_job(job, plan.scene, runtime))
-        else:
-            results.append(run_blur_job(job, plan.scene, runtime, cancel, max_memory))
+        result = not_run(job)
+        if result is None:
+            result = runner.run_job(scene_job(job, plan.scene, max_memory), runtime,
+                                    cancel=cancel)
+        results.append(result)
         if progress is not None:
-            progress(job, results[-1])
+            progress(job, result)
     return finish_bake(plan, results)
 
 

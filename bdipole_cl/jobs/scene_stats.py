@@ -1,18 +1,18 @@
-"""A scene's statistics pass (the I/O layer): each albedo file read once, in bands of rows,
+"""A scene's statistics pass (the jobs layer): each albedo file read once, in bands of rows,
 into the working space, for its Rd range and masked fraction; and the smallest monotone table
-that meets a material's tol on that range (``bdipole_cl.io.scene`` plans with these)."""
+that meets a material's tol on that range (``bdipole_cl.jobs.scene`` plans with these)."""
 from __future__ import annotations
 
 import numpy as np
 
 from ..caches import ByteCache
+from ..io.images import (Reader, TextureError, check_same_window, classify_channels,
+                         read_parameter_texture)
 from ..methods.registry import MethodConfig
 from ..ops.bands import band_rows
 from ..ops.invert import InversionKernel
 from ..physics import reference as ref
 from ..physics import tables
-from .images import (Reader, TextureError, check_same_window, classify_channels,
-                     read_parameter_texture)
 
 #: table sizes tried for a scene's albedo range, smallest first
 TABLE_SIZES = (8, 16, 32, 64, 128, 256)

@@ -1,4 +1,4 @@
-"""What a bake of an imported scene writes beside its outputs (I/O): constant materials'
+"""What a bake of an imported scene writes beside its outputs (the jobs layer): constant materials'
 coefficients, ``bdipole_materials.json`` (every material: its mapped inputs, convention, eta,
 unit, output files, and a constant one's coefficients) and ``bdipole.usda`` (an ``over`` on
 each baked material prim with ``bdipole:`` attributes: the output files as asset paths with
@@ -15,11 +15,11 @@ import time
 
 import numpy as np
 
+from ..io.shaders import SHADERS
 from ..methods.choice import resolve_method
 from ..methods.registry import MethodConfig
 from ..ops.invert import albedo_to_coefficients
-from .batch import BatchReport, FileResult
-from .shaders import SHADERS
+from .results import BatchReport, FileResult
 
 #: where each shader's distance convention is defined
 SOURCES = {s.name: s.source for s in SHADERS}
@@ -276,13 +276,14 @@ def imported_lines(scene) -> list:
 
 
 
-def run_constant_job(job, scene, runtime):
-    """A constant material's coefficients (in the result's ``values`` and notes)."""
-    m = next(x for x in scene.materials if x.name == job.name)
+def run_constant(job, runtime, *, cancel=None, lock=None, progress=None):
+    """A constant material's coefficients (in the result's ``values`` and notes): the runner
+    of "constant" jobs (``runner.run_job``; ``job.work`` a ConstantWork)."""
+    m = job.work.material
     result = FileResult(f"{m.name} (constants)", job.output)
     t0 = time.perf_counter()
     try:
-        result.values = constant_coefficients(m, job.config, runtime)
+        result.values = constant_coefficients(m, job.work.config, runtime)
         result.notes = [f"{o} {' '.join(f'{v:.6g}' for v in vals)} 1/{m.unit}"
                         for o, vals in result.values.items()]
         result.status = "ok"

@@ -1,0 +1,125 @@
+"""``bdipole-cl blur``: an irradiance file blurred into an exitance EXR, as one blur job run
+by the job runner (``jobs.runner.run_job``), or its bands on a Dask cluster (``--scheduler``).
+Usage errors (exit 2) are found before any work; a failed or stopped blur is one line."""
+from __future__ import annotations
+
+import contextlib
+import sys
+
+from ..signals import SignalStop
+from .cli_options import cluster_client
+from .cli_types import number_list
+
+
+def parameter(text, what, **colour):
+    """A blur parameter: numbers ('0.8' or 'r,g,b', in the working space), else the path of
+    a texture (``colour``: colorspace= and working= of an albedo texture, converted)."""
+    values = number_list(text)     # constants were checked at parse time (constant_or_texture)
+    if values is not None:
+        return values
+    else:
+        from ..io.images import read_parameter_texture
+        return read_parameter_texture(text, what, colour=bool(colour), **colour)
+
+
+def blur_job(args, sources):
+    """The CLI blur's job: its parameters (constants, or textures read here) and options."""
+    from ..jobs.job import BlurWork, Job
+    from ..ops.blur import Scattering
+    if args.alpha_prime is not None:
+        scattering = Scattering(alpha_prime=parameter(args.alpha_prime, "alpha'"),
+                                sigma_t=parameter(args.sigma_t, "sigma_t'"), eta=args.eta,
+                                texel_size=args.texel_size)
+    else:
+        scattering = Scattering(parameter(args.albedo, "albedo", colorspace=args.colorspace,
+                                       working=args.working_space),
+                                parameter(args.mfp, "mfp"), args.eta, args.texel_size)
+    work = BlurWork(scattering, tol=args.tol, method=args.method, border=args.border,
+                    exact=args.exact, on_invalid=args.on_invalid, half=args.half,
+                    texture=args.texture, colorspace=args.colorspace,
+                    working=args.working_space, max_memory=args.max_memory)
+    return Job("blur", args.input, args.output, {"irradiance": args.input, **sources}, work)
+
+
+def cmd_blur(args) -> int:
+    from ..io.collisions import Claim, check_claim
+    from ..io.images import TextureError, check_output_format
+    from ..jobs import runner
+    if args.alpha_prime is None and (args.albedo is None or args.mfp is None):
+        print("bdipole-cl blur: error: give --albedo and --mfp (values or textures), or "
+              "--alpha-prime and --sigma-t", file=sys.stderr)
+        return 2
+    if args.alpha_prime is not None and args.sigma_t is None:
+        print("bdipole-cl blur: error: --alpha-prime needs --sigma-t", file=sys.stderr)
+        return 2
+    sources = {name: v for name, v in (("albedo", args.albedo), ("mfp", args.mfp),
+                                       ("alpha", args.alpha_prime), ("sigma_t", args.sigma_t))
+               if v is not None and number_list(v) is None}
+    check_output_format(args.output)            # usage errors (exit 2) before any work
+    check_claim(Claim(args.input, args.output, {"irradiance": args.input, **sources}))
+    stop = SignalStop().install()
+    if args.scheduler:
+        return blur_on_cluster(args, sources, stop)
+    try:
+        job = blur_job(args, sources)
+    except TextureError as exc:
+        print(f"bdipole-cl {args.command}: error: {exc}", file=sys.stderr)
+        return 1
+    with texel_bar(args.input, "blur", not args.no_progress) as bar:
+        result = runner.run_job(job, cancel=stop.event, progress=bar)
+    if result.status != "ok":
+        print(f"bdipole-cl {args.command}: error: {result.error}", file=sys.stderr)
+        return (stop.exit_code or 1) if result.status == "cancelled" else 1
+    info = result.info
+    for c in (info.channels if info is not None else ()):
+        rd = f"Rd {c.rd:.4f}" if c.rd is not None else "Rd per texel"
+        print(f"channel {c.channel}: {c.method}, radius {c.radius} texels, {rd}, "
+              f"error <= {c.error_bound:.1e} x max(E) x Rd")
+    texels = result.texels
+    print(f"wrote {args.output}: {texels} texels in {result.seconds:.2f} s "
+          f"({texels / max(result.seconds, 1e-9) / 1e6:.3g} Mtexel/s)")
+    return 0
+
+
+def blur_on_cluster(args, sources, stop) -> int:
+    """``bdipole-cl blur --scheduler``: the bands of one blur as cluster tasks."""
+    from ..dask import blur_file_on_cluster
+    from ..io.images import Cancelled, TextureError
+    job = blur_job(args, sources)
+    s = job.work.scattering
+    try:
+        with cluster_client(args) as client:
+            n = blur_file_on_cluster(args.input, args.output, client, half=args.half,
+                                     max_memory=args.max_memory, device=args.device,
+                                     texture=args.texture, colorspace=args.colorspace,
+                                     working_space=args.working_space, albedo=s.albedo,
+                                     mfp=s.mfp, eta=s.eta, texel_size=s.texel_size,
+                                     alpha=s.alpha_prime, sigma_t=s.sigma_t, tol=args.tol,
+                                     method=args.method, border=args.border,
+                                     on_invalid=args.on_invalid, exact=args.exact)
+    except TextureError as exc:
+        print(f"bdipole-cl {args.command}: error: {exc}", file=sys.stderr)
+        return (stop.exit_code or 1) if isinstance(exc, Cancelled) else 1
+    print(f"{n} bands blurred on the cluster; wrote {args.output}")
+    return 0
+
+
+def texels_of(path):
+    from ..io.images import Reader
+    r = Reader(path, "irradiance")
+    try:
+        return r.spec.width * r.spec.height
+    finally:
+        r.close()
+
+
+@contextlib.contextmanager
+def texel_bar(path, desc, enabled):
+    """A tqdm bar over ``path``'s texels (None when disabled)."""
+    if not enabled:
+        yield None
+        return
+    from tqdm import tqdm
+    with tqdm(total=texels_of(path), unit="texel", unit_scale=True, desc=desc,
+              disable=None) as bar:                 # None: shown on a terminal only
+        yield bar

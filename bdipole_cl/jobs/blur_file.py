@@ -1,0 +1,268 @@
+"""Blur jobs: an irradiance image in, an exitance EXR out (``bdipole-cl blur``, a scene's
+blurs), planned once (``ops.blur.plan_blur``) and applied in bands of rows with the plan's
+halo; ``run_blur`` is the runner of blur jobs (``runner.run_job``)."""
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+
+from ..device import get_runtime
+from ..errors import InvalidInputError
+from ..io.collisions import Claim, check_claim
+from ..io.colour import resolve_working_space
+from ..io.images import (Cancelled, Reader, TextureError, Writer, check_output_format,
+                         check_same_window, invalid_texels, output_spec, read_parameter_texture,
+                         read_rows)
+from ..ops.bands import band_rows, bands
+from ..ops.blur import BlurPlan, Scattering, plan_blur
+from ..ops.blur.params import checked_irradiance
+from ..ops.invert import invert_albedo
+from ..signals import Stopped
+from .results import FileResult
+from .scene_stats import read_albedo
+
+#: working set per row of a streamed band, in floats per texel and channel of the file: the
+#: band as read, the colour planes, the blur's own working set (``constant_row_bytes``) and
+#: the output with alpha
+FILE_ROW_FLOATS = 10
+
+
+def located(exc, path, sources, spec, idx):
+    """An InvalidInputError of one band as a TextureError naming the file it comes from and
+    the texel in image coordinates: irradiance rows through the band's row indices ``idx``
+    (the halo included), parameter textures (whole images) as they are, data window added."""
+    yy, xx, cc = exc.first_index
+    row = int(idx[yy]) if exc.name == "irradiance" else yy
+    where = sources.get(exc.name, sources.get(exc.name.rstrip("'"), path))
+    return invalid_texels(exc, where, spec.x + xx, spec.y + row, cc)
+
+
+def file_plan(path, spec, ncolour, scattering, options, sources) -> BlurPlan:
+    """The plan of a file's blur, made once for all its bands (a parameter texture's bad texel
+    named in the file it comes from)."""
+    try:
+        return plan_blur((spec.height, spec.width, ncolour), scattering, **options)
+    except InvalidInputError as exc:
+        raise located(exc, path, sources, spec, np.arange(spec.height)) from None
+
+
+def blurred_band(plan, px, colour, names, route, idx, mask, y0, y1, max_memory=None):
+    """Rows [y0, y1) of the exitance from the band ``px`` read at rows ``idx`` (the halo
+    included): the colour channels converted into the working space, masked texels unlit,
+    blurred by ``plan`` (a texture-varying plan reads its whole image at once: no halo);
+    bands with no light are not blurred (0)."""
+    k = plan.halo if len(idx) > y1 - y0 else 0
+    e = route.convert(px[..., colour], names)
+    if mask is not None:
+        e = e * (np.asarray(mask)[np.maximum(idx, 0)] > 0)[..., None] \
+            * (idx >= 0)[:, None, None]
+    if not np.any(e):                   # no light reaches this band: nothing to blur
+        return np.zeros((y1 - y0, px.shape[1], len(colour)), np.float32), None
+    if plan.textured:
+        out, info = plan.apply(e, max_memory)
+    else:
+        out, info = plan.apply_band(checked_irradiance(e, plan.on_invalid), idx)
+    out = out[k:k + y1 - y0]
+    if mask is not None:
+        out = out * (np.asarray(mask)[y0:y1] > 0)[..., None]
+    return out, info
+
+
+def exitance_writer(path, output, spec, colour, alpha_ch, route, plan, *, half=False,
+                    header=None, info=None, texture=False, cancel=None) -> Writer:
+    """The writer of a blur's output: the irradiance's colour channels (then its alpha), the
+    parameters and the methods used as ``bdipole:*`` attributes, tagged with the working
+    space. The one output layout of the file blur and of its cluster form."""
+    names = [spec.channelnames[c] for c in colour]
+    if alpha_ch >= 0:
+        names.append(spec.channelnames[alpha_ch])
+    meta = plan.scattering.header() | {"tol": plan.tol, "border": plan.border}
+    if info is not None:
+        meta["methods"] = ",".join(f"{c.method}(r={c.radius})" for c in info.channels)
+    meta.update(header or {})
+    meta["source"] = str(path)
+    meta.update(route.header("irradiance"))
+    Path(output).parent.mkdir(parents=True, exist_ok=True)
+    return Writer(output, output_spec(spec, names, len(names) - 1 if alpha_ch >= 0 else -1,
+                                      half, meta, working=route.working),
+                  plan.on_invalid, texture=texture, cancel=cancel)
+
+
+def blur_file(path, output, *, colorspace="auto", working_space=None, half=False,
+              max_memory=256 << 20, sources=None, cancel=None, mask=None, header=None,
+              progress=None, texture=False, albedo=None, mfp=None, eta=1.4, texel_size=1.0,
+              alpha=None, sigma_t=None, device=None, **options):
+    """Blur an irradiance image file into an EXR, streamed in bands of rows with a halo of the
+    truncation radius (memory bounded by ``max_memory``). The irradiance is converted from
+    ``colorspace`` (else as the file declares, as in ``process_textures``) into
+    ``working_space``, the space the albedo/mfp parameters are in (arrays and constants are
+    taken as being in it; ``read_parameter_texture(..., colour=True)`` converts an albedo
+    file), and the output is tagged with it. Alpha is copied through. The parameters
+    (``albedo`` ... ``sigma_t``, ``alpha`` being alpha') and ``options`` (tol, method, border,
+    exact, on_invalid) are ``blur``'s; the plan is made once for every band.
+
+    ``sources``: {parameter name: file} of parameter textures given as arrays, so that errors
+    name the file they come from and ``output`` never overwrites one of them. ``cancel``
+    (threading.Event): when set, the next band raises Cancelled and the temporary output is
+    removed. ``mask`` (HxW, the image's size): texels where it is 0 give no light and get no
+    exitance (written as 0); bands whose halo'd irradiance is all 0 are not blurred at all.
+    ``header``: more ``bdipole:*`` attributes for the output. ``progress``: a tqdm bar
+    advanced by texels. ``texture`` (True or a TextureOptions): a tiled, mip-mapped EXR
+    (``images.Writer``). Returns the BlurInfo (None when every band was skipped)."""
+    check_output_format(output)
+    sources = dict(sources or {})
+    check_claim(Claim(str(path), str(output), {"irradiance": str(path), **sources}))
+    scattering = Scattering(albedo, mfp, eta, texel_size, alpha, sigma_t)
+    reader = Reader(path, "irradiance")
+    writer = None
+    try:
+        spec = reader.spec
+        colour, alpha_ch = reader.channels()
+        route = reader.colour(colorspace, resolve_working_space(working_space))
+        plan = file_plan(path, spec, len(colour), scattering,
+                         dict(options, device=get_runtime(device)), sources)
+        if plan.textured:
+            # parameter textures: one global plan, so the whole image is read and the plan
+            # bands it itself within max_memory (its halo follows that plan)
+            k, rows = 0, spec.height
+        else:
+            k = plan.halo
+            rows = band_rows(spec.height, spec.width * spec.nchannels * 4 * FILE_ROW_FLOATS,
+                             max_memory, halo=k, tile_height=spec.tile_height)
+        names = [spec.channelnames[c] for c in colour]
+        info = None
+        for y0, y1, idx in bands(spec.height, rows, k, plan.border):
+            if cancel is not None and cancel.is_set():
+                raise Cancelled(f"{path}: interrupted; nothing written")
+            px = read_rows(reader, idx)
+            try:
+                out, band_info = blurred_band(plan, px, colour, names, route, idx, mask, y0,
+                                              y1, max_memory)
+            except InvalidInputError as exc:
+                raise located(exc, path, sources, spec, idx) from None
+            info = band_info or info
+            parts = [out]
+            if alpha_ch >= 0:
+                parts.append(px[k:k + y1 - y0, :, alpha_ch:alpha_ch + 1])
+            if writer is None:
+                writer = exitance_writer(path, output, spec, colour, alpha_ch, route, plan,
+                                         half=half, header=header, info=info,
+                                         texture=texture, cancel=cancel)
+            writer.write_band(y0, y1, np.concatenate(parts, axis=-1))
+            if progress is not None:
+                progress.update((y1 - y0) * spec.width)
+        writer.commit()
+        writer = None
+        return info
+    except Stopped:
+        raise Cancelled(f"{path}: interrupted; nothing written") from None
+    except (OSError, ValueError) as exc:
+        where = sources.get(getattr(exc, "name", None), path)
+        raise TextureError(f"{where}: {exc}") from exc
+    finally:
+        if writer is not None:
+            writer.abort()
+        reader.close()
+
+
+def masked_parameter(values, keep):
+    """Parameter maps with masked texels set to a valid value of the unmasked ones (their own
+    parameters are never used: their exitance is 0), so they neither fail the checks nor widen
+    the plan's range."""
+    if keep is None or not keep.any():
+        return values
+    fill = np.nanmin(np.where(keep[..., None], values, np.nan), axis=(0, 1))
+    return np.where(keep[..., None], values, fill)
+
+
+def check_windows(job):
+    """The blur's parameter textures cover the irradiance's pixels (TextureError if not); the
+    irradiance's texel count."""
+    r = Reader(job.source, "irradiance")
+    try:
+        for role, p in job.inputs.items():
+            if role != "irradiance":
+                other = Reader(p, role)
+                try:
+                    check_same_window(r.spec, other.spec, job.source, role, p)
+                finally:
+                    other.close()
+        return r.spec.width * r.spec.height
+    finally:
+        r.close()
+
+
+def material_scattering(job, runtime):
+    """A scene blur's parameters from its material (``BlurWork.material``): the albedo file
+    read into the working space, the mfp texture or constants, masked texels filled; an
+    extinction mfp as alpha' and sigma_t' = 1/mfp. (Scattering, mask or None, header)."""
+    w, m = job.work, job.work.material
+    albedo, keep, *_, route = read_albedo(job.inputs["albedo"], w.mask, job.inputs.get("mask"),
+                                          m.colorspace, w.working)
+    mfp = (read_parameter_texture(job.inputs["mfp"], "mfp") if "mfp" in job.inputs
+           else np.asarray(m.mfp)) * np.asarray(m.mfp_scale, np.float32)
+    albedo = masked_parameter(albedo, keep)
+    if np.ndim(mfp) >= 2:
+        mfp = masked_parameter(mfp, keep)
+    if m.mfp_kind == "diffuse":
+        scattering = Scattering(albedo, mfp, m.eta, w.texel_size)
+    else:
+        alpha_prime = invert_albedo(albedo, m.eta if len(m.eta) > 1 else m.eta[0],
+                                    exact=m.exact, model=m.model, device=runtime)
+        scattering = Scattering(None, None, m.eta, w.texel_size, alpha_prime, 1.0 / mfp)
+    return scattering, keep, route.header("albedo")
+
+
+def run_blur(job, runtime, *, cancel=None, lock=None, progress=None) -> FileResult:
+    """Run one blur job (``runner.run_job``): its FileResult (``info``: the BlurInfo)."""
+    w = job.work
+    result = FileResult(job.source, job.output)
+    t0 = time.perf_counter()
+    try:
+        keep, header = None, dict(w.header)
+        if w.material is not None:
+            texels = check_windows(job)
+            result.colour = "irradiance " + colour_of(job.source, "irradiance", w.colorspace,
+                                                      w.working)
+            scattering, keep, albedo_header = material_scattering(job, runtime)
+            header |= albedo_header
+            exact = w.material.exact
+        else:
+            texels = None
+            scattering, exact = w.scattering, w.exact
+        sources = {k: v for k, v in job.inputs.items() if k != "irradiance" and k != "mask"}
+        result.info = blur_file(
+            job.source, job.output, half=w.half, sources=sources, cancel=cancel, mask=keep,
+            header=header, colorspace=w.colorspace, working_space=w.working,
+            albedo=scattering.albedo, mfp=scattering.mfp, eta=scattering.eta,
+            texel_size=scattering.texel_size, alpha=scattering.alpha_prime,
+            sigma_t=scattering.sigma_t, tol=w.tol, method=w.method, border=w.border,
+            on_invalid=w.on_invalid, exact=exact, device=runtime, max_memory=w.max_memory,
+            texture=w.texture, progress=progress)
+        result.status = "ok"
+        result.texels = texels if texels is not None else irradiance_texels(job.source)
+    except Cancelled as exc:
+        result.status, result.error = "cancelled", str(exc)
+    except (TextureError, OSError, ValueError) as exc:
+        result.error = str(exc)
+    result.seconds = time.perf_counter() - t0
+    return result
+
+
+def irradiance_texels(path) -> int:
+    r = Reader(path, "irradiance")
+    try:
+        return r.spec.width * r.spec.height
+    finally:
+        r.close()
+
+
+def colour_of(path, role, colorspace, working) -> str:
+    """The colour path of one file into ``working``, described (``ColourPath.describe``)."""
+    r = Reader(path, role)
+    try:
+        return r.colour(colorspace, working).describe()
+    finally:
+        r.close()

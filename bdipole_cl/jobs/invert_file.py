@@ -1,0 +1,208 @@
+"""One inversion job: an albedo texture (+ an mfp texture or constants, + a mask) in, a
+scattering-coefficient EXR out, streamed in bands of rows (a multiple of the tile height for
+tiled files) so that memory stays bounded by ``max_memory``; the next band is read in a
+helper thread while the device works on the current one. The output is written to a
+temporary file, verified and renamed when complete (``io.images.Writer``), so an interrupted
+or failed job leaves nothing half-written.
+
+Output channels are named ``<output>.<channel>`` (``sigma_a.R``), float or half, the albedo's
+size, data window and tiling, its metadata kept, and the parameters written as ``bdipole:*``
+attributes; mfp textures are data (no colour conversion), values times ``mfp_scale``.
+"""
+from __future__ import annotations
+
+import time
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InvalidInputError
+from ..io.images import (Cancelled, Reader, TextureError, Writer, check_same_window,
+                         classify_channels, invalid_texels, output_spec)
+from ..ops.bands import band_rows
+from ..ops.invert import CoefficientMapper
+from ..version import __version__
+from .results import FileResult
+
+#: the mfp convention each kind writes to an output's header
+MFP_CONVENTIONS = {"diffuse": "ld = 1/mu_tr (Jensen/Hery)",
+                   "extinction": "1/sigma_t' (medium mean free path)"}
+
+
+def per_channel(values, ncolor, what, path):
+    """One value, or one per colour channel (a TextureError naming the file if neither)."""
+    if len(values) == 1:
+        return tuple(values) * ncolor
+    if len(values) != ncolor:
+        raise TextureError(f"{path}: {what} has {len(values)} values but the albedo has "
+                           f"{ncolor} colour channels")
+    return tuple(values)
+
+
+@dataclass
+class InvertInputs:
+    """The open readers of one inversion job and what they decide: the albedo's colour and
+    alpha channels, the mfp texture's channels (or the constants), the mask's source."""
+
+    albedo: Reader
+    colour: list
+    alpha: int                       # the albedo's alpha channel (-1: none)
+    names: list                      # colour channel names
+    mfp: Reader | None
+    mfp_channels: list | None
+    mfp_const: np.ndarray | None     # per channel, scaled (no mfp texture)
+    mask: Reader | None
+
+    @property
+    def readers(self):
+        return [r for r in (self.albedo, self.mfp, self.mask) if r is not None]
+
+    def read(self, band, work):
+        """Rows [y0, y1) of (albedo, mfp texture or None, mask or None)."""
+        y0, y1 = band
+        a = self.albedo.read_band(y0, y1)
+        m = self.mfp.read_band(y0, y1) if self.mfp is not None else None
+        mask = (a[..., self.alpha:self.alpha + 1] if work.mask == "alpha" else
+                self.mask.read_band(y0, y1)[..., :1] if self.mask is not None else None)
+        return a, m, mask
+
+
+def open_inputs(job, work, readers) -> InvertInputs:
+    """Open the job's albedo, mfp and mask (each appended to ``readers`` as it opens, so the
+    caller closes what opened) and check they fit together."""
+    alb = Reader(job.source, "albedo")
+    readers.append(alb)
+    colour, alpha_ch = alb.channels()
+    spec = alb.spec
+    names = [spec.channelnames[c] for c in colour]
+    mfp_reader = mfp_channels = mfp_const = mask_reader = None
+    mfp_path = job.inputs.get("mfp")
+    if mfp_path is not None:
+        mfp_reader = Reader(mfp_path, "mfp texture")
+        readers.append(mfp_reader)
+        check_same_window(spec, mfp_reader.spec, job.source, "mfp texture", mfp_path)
+        mfp_channels, _ = mfp_reader.channels()
+        if len(mfp_channels) not in (1, len(colour)):
+            raise TextureError(f"{job.source}: mfp texture {mfp_path} has "
+                               f"{len(mfp_channels)} channels; expected 1 or {len(colour)}")
+    else:
+        mfp_const = np.array(per_channel(work.mfp, len(colour), "mfp", job.source),
+                             np.float32) * np.asarray(work.mfp_scale, np.float32)
+    if work.mask == "alpha" and alpha_ch < 0:
+        raise TextureError(f"{job.source}: mask = 'alpha' but the albedo has no alpha "
+                           f"channel (channels {', '.join(spec.channelnames)})")
+    if work.mask == "texture":
+        mask_reader = Reader(job.inputs["mask"], "mask texture")
+        readers.append(mask_reader)
+        check_same_window(spec, mask_reader.spec, job.source, "mask", job.inputs["mask"])
+    return InvertInputs(alb, colour, alpha_ch, names, mfp_reader, mfp_channels, mfp_const,
+                        mask_reader)
+
+
+def output_header(job, work, etas, inp, route) -> dict:
+    """The ``bdipole:*`` attributes of an inversion's output: what it was computed with."""
+    return {"version": __version__, "method": work.config.describe(), "model": work.model,
+            "eta": ",".join(f"{e:g}" for e in etas),
+            "mfp": job.inputs.get("mfp") or ",".join(f"{m:g}" for m in inp.mfp_const),
+            "mfp_scale": ",".join(f"{v:g}" for v in np.atleast_1d(work.mfp_scale)),
+            "unit": work.unit, "coefficient_unit": f"1/{work.unit}", "albedo": job.source,
+            **route.header("albedo"), "mfp_convention": MFP_CONVENTIONS[work.mfp_kind],
+            **work.header}
+
+
+def coefficient_mapper(work, etas, inp, runtime) -> CoefficientMapper:
+    """The job's inversion plan on ``runtime`` (constants compiled in with ``specialise``)."""
+    return CoefficientMapper(tuple(etas), work.config, outputs=work.outputs, model=work.model,
+                             exact=work.exact, on_invalid=work.on_invalid, device=runtime,
+                             double=work.double, bake=work.specialise, mfp_kind=work.mfp_kind,
+                             mfp_const=inp.mfp_const if work.specialise else None)
+
+
+def invert_bands(job, work, inp, route, mapper, writer, result, lock, cancel, progress):
+    """The band loop: read (one band ahead), convert, invert on the device, write."""
+    spec = inp.albedo.spec
+    keep_alpha = inp.alpha >= 0 and work.alpha_channel == "keep"
+    nout = len(work.outputs) * len(inp.names) + keep_alpha
+    per_texel = 4 * 3 * (spec.nchannels + len(inp.names) * (1 + len(work.outputs)) + nout)
+    rows = band_rows(spec.height, spec.width * per_texel, work.max_memory,
+                     tile_height=spec.tile_height if spec.tile_width else 0)
+    bands = [(y, min(y + rows, spec.height)) for y in range(0, spec.height, rows)]
+    scale = np.asarray(work.mfp_scale, np.float32)
+    with ThreadPoolExecutor(1) as prefetch:
+        pending = prefetch.submit(inp.read, bands[0], work) if bands else None
+        for k, (y0, y1) in enumerate(bands):
+            a, m, mask = pending.result()
+            if k + 1 < len(bands):
+                pending = prefetch.submit(inp.read, bands[k + 1], work)
+            albedo = route.convert(a[..., inp.colour], inp.names)
+            mfp = inp.mfp_const if m is None else m[..., inp.mfp_channels] * scale
+            try:
+                with lock:
+                    outs, counts = mapper(albedo, mfp, mask)
+            except InvalidInputError as exc:
+                yy, xx, cc = exc.first_index
+                raise invalid_texels(exc, job.source, spec.x + xx, spec.y + y0 + yy,
+                                     inp.names[cc], f" in rows {y0}..{y1 - 1}") from None
+            for key, n in counts.items():
+                result.invalid[key] = result.invalid.get(key, 0) + n
+            parts = [outs[o] for o in work.outputs]
+            if keep_alpha:
+                parts.append(a[..., inp.alpha:inp.alpha + 1])
+            if cancel is not None and cancel.is_set():
+                raise Cancelled(f"{job.source}: interrupted; nothing written")
+            writer.write_band(y0, y1, np.concatenate(parts, axis=-1))
+            if progress is not None:
+                progress.update((y1 - y0) * spec.width)
+
+
+def run_invert(job, runtime, *, cancel=None, lock, progress=None) -> FileResult:
+    """Run one inversion job (``runner.run_job``): its FileResult."""
+    work = job.work
+    result = FileResult(job.source, job.output)
+    t0 = time.perf_counter()
+    readers, writer = [], None
+    try:
+        inp = open_inputs(job, work, readers)
+        spec = inp.albedo.spec
+        _, _, other = classify_channels(spec.channelnames, spec.alpha_channel)
+        if other:
+            result.notes.append("not colour, left out: "
+                                + ", ".join(spec.channelnames[c] for c in other))
+        etas = per_channel(work.eta, len(inp.names), "eta", job.source)
+        route = inp.albedo.colour(work.colorspace, work.working)
+        result.colour = route.describe()
+        out_names = [f"{o}.{n}" for o in work.outputs for n in inp.names]
+        if inp.alpha >= 0 and work.alpha_channel == "keep":
+            out_names.append(spec.channelnames[inp.alpha])
+        keep_alpha = inp.alpha >= 0 and work.alpha_channel == "keep"
+        out_spec = output_spec(spec, out_names, len(out_names) - 1 if keep_alpha else -1,
+                               work.half, output_header(job, work, etas, inp, route),
+                               working=route.working)
+        Path(job.output).parent.mkdir(parents=True, exist_ok=True)
+        writer = Writer(job.output, out_spec, work.on_invalid, texture=work.texture,
+                        cancel=cancel)
+        with lock:
+            mapper = coefficient_mapper(work, etas, inp, runtime)
+        invert_bands(job, work, inp, route, mapper, writer, result, lock, cancel, progress)
+        if writer.invalid:
+            result.invalid["half range" if work.half else "not finite"] = writer.invalid
+        writer.commit()
+        writer = None
+        result.status = "ok"
+        result.texels = spec.width * spec.height
+    except Cancelled as exc:
+        result.status = "cancelled"
+        result.error = str(exc)
+    except TextureError as exc:
+        result.error = str(exc)
+    except (OSError, ValueError) as exc:
+        result.error = f"{job.source}: {exc}"
+    finally:
+        if writer is not None:
+            writer.abort()
+        for r in readers:
+            r.close()
+        result.seconds = time.perf_counter() - t0
+    return result

@@ -1,0 +1,173 @@
+"""The blur's typed plan: made once from the resolved scattering parameters, applied to an
+image or to bands of rows (``blur`` is ``plan_blur(...).apply(...)``).
+
+A ``BlurPlan`` holds, per channel, what was chosen and why (constant parameters: the method,
+its exact truncated kernel and the ``auto`` record, ``planning.ChannelPlan``; texture-varying
+parameters: the lattice, basis and node weights, ``textured_plan.TexturedPlan``, with the
+channel's Rd and ld maps), the halo a band needs (the largest kernel radius), and the device
+kernels and weight buffers it runs with, built on first use and kept (``dispatch.BlurKernels``).
+The file blur, Dask and scenes make one plan per image and apply it to every band.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from ...device import Runtime, get_runtime
+from ...errors import check_policy
+from ...methods.registry import BLUR_METHODS, BORDERS
+from ..bands import band_rows, bands, gather_rows
+from .dispatch import BlurKernels
+from .params import checked_irradiance
+from .planning import BlurInfo, blur_whole, channel_plans, constant_row_bytes, halo_of
+from .textured import blur_band, textured_info, textured_method, textured_plans, textured_row_bytes
+
+
+@dataclass(frozen=True)
+class Scattering:
+    """The blur's physical parameters: albedo (Rd) and mfp (ld = 1/mu_tr, in the unit of
+    ``texel_size``), or alpha_prime (alpha', the reduced albedo; never the image's alpha
+    channel) and sigma_t (sigma_t', 1/unit); each a scalar, one value per channel, or an
+    HxW(xC) texture; eta per channel (docs/model.md "Mean free path")."""
+
+    albedo: object = None
+    mfp: object = None
+    eta: object = 1.4
+    texel_size: float = 1.0
+    alpha_prime: object = None
+    sigma_t: object = None
+
+    @property
+    def textured(self) -> bool:
+        """Whether a parameter is a texture (2D or more) rather than one value per channel."""
+        return any(np.ndim(v) >= 2 for v in self.keywords().values() if v is not None)
+
+    def keywords(self) -> dict:
+        """The parameters as ``params.channel_parameters`` and ``texel_parameters`` take them."""
+        return dict(albedo=self.albedo, mfp=self.mfp, eta=self.eta,
+                    texel_size=self.texel_size, alpha=self.alpha_prime, sigma_t=self.sigma_t)
+
+    @classmethod
+    def split(cls, keywords: dict):
+        """(Scattering, the other keywords) of ``blur``-style keywords."""
+        rest = dict(keywords)
+        names = dict(albedo="albedo", mfp="mfp", eta="eta", texel_size="texel_size",
+                     alpha="alpha_prime", sigma_t="sigma_t")
+        given = {field_: rest.pop(key) for key, field_ in names.items() if key in rest}
+        return cls(**given), rest
+
+    def header(self) -> dict:
+        """The given parameters for an output's ``bdipole:*`` attributes ("texture" for maps)."""
+        return {key: (v if np.ndim(v) < 2 else "texture") for key, v in self.keywords().items()
+                if v is not None}
+
+
+@dataclass(eq=False)
+class BlurPlan:
+    """One image's blur, decided once (``plan_blur``): apply it to the image or to bands. Its
+    device (runtime, kernels and uploaded weights) is bound on first use and not pickled: a
+    plan sent to another process binds that process's device (``runtime=None``: the default,
+    or ``on(device)``)."""
+
+    scattering: Scattering
+    shape: tuple                       # (H, W, C) of the irradiance it was planned for
+    tol: float
+    method: str
+    border: str
+    exact: bool
+    on_invalid: str
+    halo: int                          # rows a band needs above and below
+    params: tuple = ()                 # constant: (alpha', sigma_t' per texel, eta) per channel
+    channels: tuple = ()               # constant: planning.ChannelPlan per channel
+    textured: tuple = ()               # texture-varying: (TexturedPlan, Rd map, ld map)
+    textured_info: BlurInfo | None = None   # texture-varying: what each channel does
+    runtime: Runtime | None = field(default=None, compare=False, repr=False)
+    kernels: BlurKernels | None = field(default=None, compare=False, repr=False)
+
+    @property
+    def nchan(self) -> int:
+        return self.shape[2]
+
+    def row_bytes(self) -> int:
+        """Working set per image row (``bands.band_rows`` takes it)."""
+        h, w, nch = self.shape
+        if self.textured:
+            nbasis = max(len(p.kernels) for p, _, _ in self.textured)
+            return textured_row_bytes(w, nch, self.halo, nbasis)
+        return constant_row_bytes(w, nch)
+
+    def __getstate__(self):
+        return {**self.__dict__, "runtime": None, "kernels": None}
+
+    def on(self, device=None) -> BlurPlan:
+        """This plan on ``device``'s runtime: itself if it is bound there, else a copy."""
+        rt = get_runtime(device)
+        if self.runtime is rt and self.kernels is not None:
+            return self
+        return replace(self, runtime=rt, kernels=BlurKernels(rt, self.border))
+
+    def bound_kernels(self) -> BlurKernels:
+        """The plan's device kernels, bound on first use (to ``runtime``, None: the default)."""
+        if self.kernels is None:
+            self.runtime = get_runtime(self.runtime)
+            self.kernels = BlurKernels(self.runtime, self.border)
+        return self.kernels
+
+    def apply_band(self, e, rows=None):
+        """One in-memory image or band of rows with its halo (HxWxC float32, checked): (M,
+        BlurInfo) over the whole of it. ``rows``: texture-varying parameters: the rows of the
+        parameter maps the band covers (``bands.halo_rows``; None: all)."""
+        kernels = self.bound_kernels()
+        if self.textured:
+            rows = slice(0, self.shape[0]) if rows is None else np.maximum(rows, 0)
+            return blur_band(e, self.textured, rows, textured_method(self.method),
+                             self.border, kernels), self.textured_info
+        return blur_whole(e, self.params, self.channels, self.border, self.exact, kernels)
+
+    def apply(self, irradiance, max_memory=None):
+        """The whole image (HxW or HxWxC), in bands of rows within ``max_memory`` bytes if
+        given (the same result as in one piece: each band carries the halo): (M, BlurInfo)."""
+        e = checked_irradiance(irradiance, self.on_invalid)
+        if e.shape != tuple(self.shape):
+            raise ValueError(f"irradiance has shape {e.shape}; the plan is for {self.shape}")
+        h = e.shape[0]
+        rows = band_rows(h, self.row_bytes(), max_memory, halo=self.halo)
+        if rows >= h:
+            return self.apply_band(e)
+        out = np.empty_like(e)
+        info = None
+        for y0, y1, idx in bands(h, rows, self.halo, self.border):
+            res, info = self.apply_band(gather_rows(e, idx), idx)
+            out[y0:y1] = res[self.halo:self.halo + (y1 - y0)]
+        return out, info
+
+
+def check_blur_options(method, tol, border, on_invalid):
+    if method not in BLUR_METHODS:
+        raise ValueError(f"method={method!r}: expected one of {BLUR_METHODS}")
+    if not 0 < tol < 1:
+        raise ValueError(f"tol={tol!r}: expected 0 < tol < 1")
+    if border not in BORDERS:
+        raise ValueError(f"border={border!r}: expected one of {BORDERS}")
+    check_policy(on_invalid)
+
+
+def plan_blur(shape, scattering: Scattering, *, tol=1e-3, method="auto", border="clamp",
+              exact=False, on_invalid="raise", device=None) -> BlurPlan:
+    """The BlurPlan of an irradiance of ``shape`` (HxW or HxWxC) under ``scattering``: each
+    channel's method and kernel decided here, once (``auto`` for ``device``'s runtime)."""
+    check_blur_options(method, tol, border, on_invalid)
+    shape = tuple(shape) if len(shape) == 3 else (*shape, 1)
+    rt = get_runtime(device)
+    base = BlurPlan(scattering, shape, tol, method, border, exact, on_invalid, 0)
+    if scattering.textured:
+        chans = textured_plans(shape, tol=tol, exact=exact, on_invalid=on_invalid,
+                               method=method, **scattering.keywords())
+        plan = replace(base, textured=tuple(chans), halo=max(p.radius for p, _, _ in chans),
+                       textured_info=textured_info(chans, textured_method(method), exact))
+    else:
+        params, plans = channel_plans(shape[2], method=method, tol=tol, exact=exact,
+                                      device=rt, **scattering.keywords())
+        plan = replace(base, params=tuple(params), channels=tuple(plans), halo=halo_of(plans))
+    return plan.on(rt)                 # the device ``auto`` decided for

@@ -20,13 +20,15 @@ from ..ops.blur import BlurPlan, Scattering, plan_blur
 from ..ops.blur.params import checked_irradiance
 from ..ops.invert import invert_albedo
 from ..signals import Stopped
+from .pipeline import BANDS_IN_FLIGHT, stream_bands
 from .results import FileResult
 from .scene_stats import read_albedo
 
 #: working set per row of a streamed band, in floats per texel and channel of the file: the
 #: band as read, the colour planes, the blur's own working set (``constant_row_bytes``) and
-#: the output with alpha
-FILE_ROW_FLOATS = 10
+#: the output with alpha (10), and the band read ahead and the one being written
+#: (``pipeline.BANDS_IN_FLIGHT``, 2 floats each)
+FILE_ROW_FLOATS = 10 + 2 * BANDS_IN_FLIGHT
 
 
 def located(exc, path, sources, spec, idx):
@@ -132,27 +134,38 @@ def blur_file(path, output, *, colorspace="auto", working_space=None, half=False
             rows = band_rows(spec.height, spec.width * spec.nchannels * 4 * FILE_ROW_FLOATS,
                              max_memory, halo=k, tile_height=spec.tile_height)
         names = [spec.channelnames[c] for c in colour]
-        info = None
-        for y0, y1, idx in bands(spec.height, rows, k, plan.border):
+        state = {"info": None, "writer": None}
+
+        def compute(band, px):
+            y0, y1, idx = band
             if cancel is not None and cancel.is_set():
                 raise Cancelled(f"{path}: interrupted; nothing written")
-            px = read_rows(reader, idx)
             try:
                 out, band_info = blurred_band(plan, px, colour, names, route, idx, mask, y0,
                                               y1, max_memory)
             except InvalidInputError as exc:
                 raise located(exc, path, sources, spec, idx) from None
-            info = band_info or info
-            parts = [out]
+            state["info"] = band_info or state["info"]
             if alpha_ch >= 0:
-                parts.append(px[k:k + y1 - y0, :, alpha_ch:alpha_ch + 1])
-            if writer is None:
-                writer = exitance_writer(path, output, spec, colour, alpha_ch, route, plan,
-                                         half=half, header=header, info=info,
-                                         texture=texture, cancel=cancel)
-            writer.write_band(y0, y1, np.concatenate(parts, axis=-1))
+                out = np.concatenate([out, px[k:k + y1 - y0, :, alpha_ch:alpha_ch + 1]], -1)
+            if state["writer"] is None:
+                state["writer"] = exitance_writer(path, output, spec, colour, alpha_ch, route,
+                                                  plan, half=half, header=header,
+                                                  info=state["info"], texture=texture,
+                                                  cancel=cancel)
+            return out
+
+        def write(band, block):
+            y0, y1, _ = band
+            state["writer"].write_band(y0, y1, block)
             if progress is not None:
                 progress.update((y1 - y0) * spec.width)
+
+        try:
+            stream_bands(bands(spec.height, rows, k, plan.border),
+                         lambda band: read_rows(reader, band[2]), compute, write)
+        finally:
+            writer, info = state["writer"], state["info"]
         writer.commit()
         writer = None
         return info

@@ -9,8 +9,9 @@ Layers, each importing only those below it (README "Layout"):
     operations     ops/       invert, physics_eval, bands, blur/
     method choice  methods/   registry of methods and knobs, measured choice data
     device         device/    runtimes and probing, programs, kernel sources, parameter layout
-    physics        physics/   reference (float64 truth), tables
-    foundation                errors (invalid input, on_invalid), caches
+    physics        physics/   reference (float64 truth), fresnel, models, tables
+    foundation                errors (invalid input, on_invalid), caches, vocabulary (option
+                              kinds: one registry each, README "Vocabulary")
 
 Float64 reference of every function: ``bdipole_cl.reference``.
 """
@@ -51,10 +52,12 @@ from .methods.registry import METHODS, MethodConfig
 from .ops.blur import BlurInfo, ChannelInfo, blur
 from .ops.invert import OUTPUTS, albedo_to_coefficients, invert_albedo
 from .physics import reference
+from .physics.models import MODELS
 from .version import __version__
 
 __all__ = [
     "METHODS",
+    "MODELS",
     "OUTPUTS",
     "POLICIES",
     "BlurInfo",

@@ -12,14 +12,18 @@ from __future__ import annotations
 
 import numpy as np
 
-#: what ``on_invalid`` takes, everywhere
-POLICIES = ("raise", "clamp")
+from .vocabulary import Option, Registry
+
+#: what ``on_invalid`` takes, everywhere (the CLI's ``--on-invalid``, scene files' on_invalid)
+POLICY = Registry("on_invalid", (
+    Option("raise", "fail, naming the count and the first invalid value (the default)"),
+    Option("clamp", "replace invalid values by the nearest valid ones and count them"),
+))
+POLICIES = POLICY.names
 
 
 def check_policy(on_invalid: str) -> str:
-    if on_invalid not in POLICIES:
-        raise ValueError(f"on_invalid={on_invalid!r}: expected one of {', '.join(POLICIES)}")
-    return on_invalid
+    return POLICY.canonical(on_invalid)
 
 
 class InvalidInputError(ValueError):

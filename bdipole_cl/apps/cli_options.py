@@ -7,9 +7,9 @@ from __future__ import annotations
 import argparse
 import contextlib
 
-from ..methods.registry import METHODS
-from ..physics.reference import MODELS
-from .cli_types import size
+from ..methods.registry import METHOD_OR_AUTO
+from ..physics.models import MODEL
+from .cli_types import size, spelling_of
 
 
 def working_space_arg(text):
@@ -52,10 +52,11 @@ def add_global_args(p, default):
 
 def add_method_args(p):
     """The inversion method and its knobs (``invert``)."""
-    p.add_argument("--method", default="table", choices=METHODS + ("auto",),
+    p.add_argument("--method", default="table", choices=METHOD_OR_AUTO.names,
                    help="inversion method (auto: the cheapest meeting --tol in rho)")
-    p.add_argument("--model", default="better", choices=MODELS,
-                   help="Better Dipole (memo) or Jensen's classical dipole")
+    p.add_argument("--model", default="better", type=spelling_of(MODEL), choices=MODEL.names,
+                   help="Better Dipole (memo; also spelled better-dipole, as in scene files) "
+                        "or Jensen's classical dipole")
     p.add_argument("--exact", action="store_true",
                    help="exact Fresnel moments (quadrature) instead of d'Eon's fits")
     p.add_argument("--iterations", type=int, help="bisection/memo iterations, secant maximum")

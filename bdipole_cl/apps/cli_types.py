@@ -110,8 +110,18 @@ class Parser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
 
 
+def spelling_of(registry):
+    """An argparse type for an option of ``registry`` (``vocabulary.Registry``): an alias is
+    taken as its canonical name; anything else is passed on as given, for the ``choices``
+    check to report (give ``choices=registry.names``)."""
+    def canonical(text):
+        return registry.canonical(text) if text in registry else text
+    canonical.__name__ = registry.kind
+    return canonical
+
+
 def output_list(text):
-    from ..ops.invert import OUTPUTS
+    from ..methods.registry import OUTPUTS
     names = tuple(o.strip() for o in str(text).split(",") if o.strip())
     unknown = [o for o in names if o not in OUTPUTS]
     if not names or unknown:

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..device import get_runtime
+from ..methods.registry import BLUR_KERNELS
 from ..ops import physics_eval as physics
 from ..physics import reference as ref
 
@@ -122,7 +123,7 @@ def _blur_rows(rt):
         p = channel_parameters(1, albedo=0.8, mfp=mfp, eta=1.4)[0]
         ck = channel_kernel(*p, 1e-3)
         k = ck.radius
-        for method in ("direct", "gaussians", "fft"):
+        for method in BLUR_KERNELS:
             out, info = blur(e, albedo=0.8, mfp=mfp, eta=1.4, method=method, border="zero",
                              return_info=True, device=rt)
             got = out[20 - k:21 + k, 20 - k:21 + k, 0]

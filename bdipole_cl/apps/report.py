@@ -26,7 +26,7 @@ import numpy as np
 
 from ..device import get_runtime
 from ..methods.choice import ChoiceData, DeviceKey, calibration_path, write_choice_data
-from ..methods.registry import BlurChoice, InversionChoice, MethodConfig
+from ..methods.registry import BLUR_KERNELS, BlurChoice, InversionChoice, MethodConfig
 from ..ops.invert import InversionKernel
 from .benchmark import inversion_workload, reference_inverse, stiff_workload, time_inversion
 
@@ -46,7 +46,7 @@ INVERSION_SWEEP_F64 = [MethodConfig("secant", tol=1e-12), MethodConfig("secant")
 #: the errors the choice data hold are the max over these etas (the fits' valid range, end to
 #: end): auto's tol then holds at every eta, not only at the timing workload's 1.4
 ERROR_ETAS = (0.5, 0.7, 0.9, 1.0, 1.1, 1.25, 1.4, 1.6, 1.8, 2.0, 2.2, 2.4, 2.5, 2.6, 2.7, 2.79)
-BLUR_SWEEP = [(m, t) for m in ("direct", "gaussians", "fft") for t in (1e-2, 1e-3, 1e-4)]
+BLUR_SWEEP = [(m, t) for m in BLUR_KERNELS for t in (1e-2, 1e-3, 1e-4)]
 #: blur workloads: mfp in texels (a small and a large kernel radius)
 BLUR_WORKLOADS = (0.5, 4.0)
 

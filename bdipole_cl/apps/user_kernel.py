@@ -34,6 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from ..physics import reference as ref
+from ..physics.models import BETTER, DIPOLE
 from .crosscheck import Row
 
 SIGNATURES = {
@@ -221,12 +222,13 @@ def _model_note(label, rd, alpha, eta):
         return []
     errs = {m: float(np.median(_relative(alpha[ok], ref.invert_rd_rho(rd[ok], eta,
                                                                         model=m)[0])))
-            for m in ("better", "dipole")}
-    if errs["dipole"] < 0.1 * errs["better"]:
+            for m in (BETTER.name, DIPOLE.name)}
+    better, dipole = errs[BETTER.name], errs[DIPOLE.name]
+    if dipole < 0.1 * better:
         return [Row(f"{label} follows Jensen's dipole (Rd ~ alpha'), not the Better Dipole "
-                    f"(Rd ~ alpha'^2)", "f32", errs["better"], "rel", None,
-                        f"median alpha' error {errs['dipole']:.2g} vs the dipole, "
-                        f"{errs['better']:.2g} vs the Better Dipole")]
+                    f"(Rd ~ alpha'^2)", "f32", better, "rel", None,
+                        f"median alpha' error {dipole:.2g} vs the dipole, "
+                        f"{better:.2g} vs the Better Dipole")]
     return []
 
 
@@ -278,7 +280,7 @@ def _check_forward(path, function, against, eta, n, device, timeout, label):
         rows = [Row(label, "f32", float(err[i]), "rel", PHYSICS_BOUND,
                         f"alpha'={a[i]:.9g}; NaN {int(np.count_nonzero(~np.isfinite(got)))}")]
         dip = float(np.median(_relative(got[np.isfinite(got)],
-                                        ref.rd(a[np.isfinite(got)], eta, model="dipole"))))
+                                        ref.rd(a[np.isfinite(got)], eta, model=DIPOLE.name))))
         bet = float(np.median(err[np.isfinite(err)]))
         if dip < 0.1 * bet:
             rows.append(Row(f"{label} follows Jensen's dipole (Rd ~ alpha'), not the Better "

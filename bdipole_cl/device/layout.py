@@ -13,6 +13,7 @@ import numpy as np
 
 from ..physics import reference as ref
 from ..physics import tables
+from ..physics.models import MODEL
 
 #: one channel's record, in order; kernels/bdipole.h's ``bd_params`` has one member per field,
 #: named in lower case (generated below as BD_PARAM_MEMBERS and BD_PARAM_LOAD)
@@ -65,7 +66,7 @@ def header() -> str:
 def channel_params(etas, *, exact=False, model="better", table_n=0, dtype=np.float32):
     """The kernels' per-channel constant records for a tuple of etas, flattened."""
     out = np.zeros((len(etas), PARAM_STRIDE), dtype=np.float64)
-    power = 2 if model == "better" else 1
+    power = MODEL[model].power
     for i, eta in enumerate(etas):
         c = ref.dipole_constants(eta, exact, model)
         split = ref.rd_split(c, model)

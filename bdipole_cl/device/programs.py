@@ -16,7 +16,7 @@ import numpy as np
 import pyopencl as cl
 
 from ..caches import ByteCache
-from ..physics import reference
+from ..physics.models import MODEL
 from . import layout
 from .runtime import DeviceError, Runtime, build_quietly
 
@@ -65,10 +65,9 @@ def build_options(defines: dict | None = None, double: bool = False, model: str 
         raise ValueError(f"build options {stray}: every kernel option is named BD_<NAME>")
     if double:
         opts["BD_DOUBLE"] = None
-    if model == "dipole":
-        opts["BD_MODEL_DIPOLE"] = None
-    elif model != "better":
-        raise ValueError(f"model={model!r}: expected one of {reference.MODELS}")
+    define = MODEL[model].define        # ValueError naming the models if unknown
+    if define is not None:
+        opts[define] = None
     return tuple(f"-D{k}" if v is None else f"-D{k}={v}" for k, v in sorted(opts.items()))
 
 

@@ -4,7 +4,7 @@
     eta = 1.4
     unit = "mm"
     tol = 1e-4
-    model = "better-dipole"           # or "dipole"
+    model = "better"                  # or "dipole" (README "Vocabulary")
     working_space = "ACEScg"          # the renderer's rendering space (README: Colour)
 
     [[material]]
@@ -46,11 +46,10 @@ try:
 except ImportError:  # pragma: no cover - Python 3.10
     import tomli as tomllib
 
-from ..methods.registry import BLUR_METHODS, BORDERS, METHODS, MFP_KINDS
-from ..ops.invert import OUTPUTS
+from ..errors import POLICY
+from ..methods.registry import BLUR_METHOD, BORDER, METHOD_OR_AUTO, MFP_KIND, OUTPUTS
+from ..physics.models import MODEL
 from .colour import resolve_colorspace, resolve_working_space
-
-MODELS = {"better-dipole": "better", "dipole": "dipole"}
 
 
 class SceneError(ValueError):
@@ -76,7 +75,7 @@ KEYS = {
                "a texture path or pattern, or constants (a number or one per channel)"),
     "mfp": ({"material"}, lambda v: _numbers_or_number(v) or isinstance(v, str),
             "a number, a list of one per channel, or a texture path"),
-    "mfp_kind": ({"material"}, lambda v: v in MFP_KINDS, " or ".join(f'"{k}"' for k in MFP_KINDS)),
+    "mfp_kind": ({"material"}, lambda v: v in MFP_KIND, MFP_KIND.listing('"')),
     "mfp_scale": ({"material"}, lambda v: _numbers_or_number(v) and min(_as_list(v)) > 0,
                   "a number > 0 or one per channel"),
     "eta": ({"material"}, lambda v: _numbers_or_number(v), "a number or one per channel"),
@@ -92,14 +91,15 @@ KEYS = {
                 "true (tiled, mip-mapped EXR textures) or false"),
     "unit": ({"material", "blur"}, lambda v: isinstance(v, str) and v, "a unit name"),
     "tol": ({"material", "blur"}, lambda v: _number(v) and 0 < v < 1, "a number in (0, 1)"),
-    "model": ({"material"}, lambda v: v in MODELS, " or ".join(f'"{m}"' for m in MODELS)),
-    "method": ({"material"}, lambda v: v in METHODS + ("auto",),
-               f"one of auto, {', '.join(METHODS)}"),
-    "blur_method": ({"blur"}, lambda v: v in BLUR_METHODS, f"one of {', '.join(BLUR_METHODS)}"),
-    "border": ({"blur"}, lambda v: v in BORDERS, f"one of {', '.join(BORDERS)}"),
+    "model": ({"material"}, lambda v: v in MODEL, MODEL.listing('"')),
+    "method": ({"material"}, lambda v: v in METHOD_OR_AUTO,
+               f"one of {', '.join(METHOD_OR_AUTO.names)}"),
+    "blur_method": ({"blur"}, lambda v: v in BLUR_METHOD,
+                    f"one of {', '.join(BLUR_METHOD.names)}"),
+    "border": ({"blur"}, lambda v: v in BORDER, f"one of {', '.join(BORDER.names)}"),
     "exact": ({"material"}, lambda v: isinstance(v, bool), "true or false"),
     "double": ({"material"}, lambda v: isinstance(v, bool), "true or false"),
-    "on_invalid": ({"material", "blur"}, lambda v: v in ("raise", "clamp"), "raise or clamp"),
+    "on_invalid": ({"material", "blur"}, lambda v: v in POLICY, POLICY.listing()),
     "colorspace": ({"material", "blur"}, lambda v: isinstance(v, str) and v,
                    "auto or a colour space of the OCIO config"),
     "working_space": ({"material", "blur"}, lambda v: isinstance(v, str) and v,
@@ -110,7 +110,7 @@ KEYS = {
 }
 REQUIRED = {"material": ("name", "albedo", "output"),
             "blur": ("name", "material", "irradiance", "texel_size", "output")}
-DEFAULTS = {"eta": 1.4, "unit": "mm", "model": "better-dipole", "mfp": 1.0, "half": False,
+DEFAULTS = {"eta": 1.4, "unit": "mm", "model": "better", "mfp": 1.0, "half": False,
             "texture": False,
             "outputs": ["sigma_a", "sigma_s"], "method": "auto", "blur_method": "auto",
             "border": "clamp", "exact": False, "double": False, "on_invalid": "raise",
@@ -132,14 +132,14 @@ class Material:
     half: bool
     unit: str
     tol: float
-    model: str                       # "better" or "dipole"
+    model: str                       # physics.models.MODEL's canonical name
     method: str
     exact: bool
     double: bool
     on_invalid: str
     colorspace: str                  # the albedo's: "auto" or the config's name of a space
     working_space: str | None = None  # the config's name; None: the default working space
-    mfp_kind: str = "diffuse"        # MFP_KINDS
+    mfp_kind: str = "diffuse"        # methods.registry.MFP_KIND
     mfp_scale: tuple = (1.0,)        # multiplies the mfp (one or per channel)
     texture: bool = False            # tiled, mip-mapped EXR outputs
 
@@ -354,7 +354,8 @@ def _material(m, resolve, colour) -> Material:
         m["name"], resolve(albedo) if isinstance(albedo, str) else _floats(albedo),
         resolve(mfp) if isinstance(mfp, str) else _floats(mfp), _floats(m["eta"]),
         tuple(m["outputs"]), resolve(m["output"].replace("{material}", m["name"])),
-        resolve(m.get("mask")), m["half"], m["unit"], float(m["tol"]), MODELS[m["model"]],
+        resolve(m.get("mask")), m["half"], m["unit"], float(m["tol"]),
+        MODEL.canonical(m["model"]),
         m["method"], m["exact"], m["double"], m["on_invalid"], *colour, m["mfp_kind"],
         _floats(m["mfp_scale"]), m["texture"])
 

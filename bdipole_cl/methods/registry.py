@@ -17,36 +17,156 @@ name           what                                                         knob
 
 Blur (bdipole_cl/ops/blur): ``direct``, ``gaussians``, ``fft``, and ``auto``; with
 texture-varying parameters ``fft``, ``gaussians`` and ``auto``. Borders: clamp, zero, wrap.
+
+Each kind is one ``vocabulary.Registry`` of objects (README "Vocabulary"): ``METHOD`` (the
+inversion methods, ``InversionMethod``: knobs, defaults per precision, build options, label),
+``METHOD_OR_AUTO``, ``BLUR_METHOD``, ``BORDER``, ``MFP_KIND`` and ``OUTPUT``; the tuples of
+names (``METHODS``, ``BLUR_METHODS``, ...) are read from them.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
 
-METHODS = ("table", "secant", "bisection", "memo")
-BLUR_METHODS = ("auto", "direct", "gaussians", "fft")
-TEXTURED_BLUR_METHODS = ("auto", "fft", "gaussians")
-BORDERS = ("clamp", "zero", "wrap")
-#: what a mean free path is (docs/model.md "Mean free path"): "diffuse", ld = 1/mu_tr
-#: (Jensen/Hery, the default), or "extinction", the medium's 1/sigma_t' (OpenPBR, Standard
-#: Surface)
-MFP_KINDS = ("diffuse", "extinction")
+from ..vocabulary import Option, Registry
 
-#: knob defaults (None: the method's own default, below). Bisection runs over the unknown's bit
-#: patterns and stops when they are adjacent: 31 steps suffice in float32, 63 in float64
-DEFAULT_ITERATIONS = {"memo": 50, "bisection": 64, "secant": 40}
-#: the secant's relative residual tolerance by precision: a few ulp of the unknown in float32;
-#: in float64 small enough that rho (2x the unknown's relative error) is within 1e-12
-DEFAULT_SECANT_TOL = {False: 2e-7, True: 1e-14}
-#: Newton steps after the table lookup by precision: none in float32 (the table is as accurate
-#: as float32 allows); in float64, 2 take the float32-coefficient table's ~1e-7 to ~1e-15
-DEFAULT_POLISH = {False: 0, True: 2}
+
+@dataclass(frozen=True)
+class InversionMethod(Option):
+    """One inversion method: a specialisation of kernels/invert.cl (``BD_METHOD_<NAME>``).
+
+    ``defaults``: (knob, float32 default, float64 default) of each knob a config may leave
+    None; ``table``: the knob that is the intervals per segment of the table the kernel reads
+    (None: no table); ``defines``: (build option, knob) set beside ``BD_METHOD_<NAME>``, in
+    order; ``label``: ``MethodConfig.describe``'s format, filled with the precision's resolved
+    knobs except those in ``label_as_given`` (shown as given; None as 'default'); ``fields``:
+    the knobs ``MethodConfig.fields`` writes, in order, those in ``fields_resolved`` with their
+    default filled in; ``refused_in_float64``: why it cannot keep double=True's promise
+    (``DOUBLE_RHO_TOL``), None if it can."""
+
+    defaults: tuple = ()
+    table: str | None = None
+    defines: tuple = ()
+    label: str = ""
+    label_as_given: tuple = ()
+    fields: tuple = ()
+    fields_resolved: tuple = ()
+    refused_in_float64: str | None = None
+
+    @property
+    def define(self) -> str:
+        return f"BD_METHOD_{self.name.upper()}"
+
+    def default(self, knob: str, double: bool):
+        """The knob's default in the precision (None: the config's own value)."""
+        return next((f64 if double else f32 for k, f32, f64 in self.defaults if k == knob),
+                    None)
+
+
+#: how a knob's value is written as a build option (others as given)
+KNOB_FORMAT = {"tol": lambda v: repr(float(v))}
+
+#: Bisection runs over the unknown's bit patterns and stops when they are adjacent: 31 steps
+#: suffice in float32, 63 in float64 (64: one to spare). The secant's relative residual
+#: tolerance by precision: a few ulp of the unknown in float32; in float64 small enough that
+#: rho (2x the unknown's relative error) is within 1e-12. Newton steps after the table lookup
+#: by precision: none in float32 (the table is as accurate as float32 allows); in float64, 2
+#: take the float32-coefficient table's ~1e-7 to ~1e-15.
+METHOD = Registry("method", (
+    InversionMethod(
+        "table", "cubic Hermite table of the inverse in split variables, optional Newton "
+                 "polish (the default; docs/model.md \"Inversion\")",
+        defaults=(("polish", 0, 2),), table="table_size",
+        defines=(("BD_TABLE_N", "table_size"), ("BD_POLISH", "polish")),
+        label="table(size={table_size}, polish={polish})", fields=("table_size", "polish")),
+    InversionMethod(
+        "secant", "safeguarded secant in the split variables, seeded from a coarse table "
+                  "(value and slope), bracketed",
+        defaults=(("iterations", 40, 40), ("tol", 2e-7, 1e-14)), table="seed_size",
+        defines=(("BD_ITERATIONS", "iterations"), ("BD_TOL", "tol"),
+                 ("BD_TABLE_N", "seed_size")),
+        label="secant(tol={tol}, seed={seed_size})", label_as_given=("tol",),
+        fields=("tol", "seed_size", "iterations")),
+    InversionMethod(
+        "bisection", "bisection in the split variables (robust fallback)",
+        defaults=(("iterations", 64, 64),), defines=(("BD_ITERATIONS", "iterations"),),
+        label="bisection(iterations={iterations})", fields=("iterations",),
+        fields_resolved=("iterations",)),
+    InversionMethod(
+        "memo", "Hery TM 12-11's float bisection in alpha', verbatim (baseline; loses rho "
+                "near alpha' = 1, docs/model.md)",
+        defaults=(("iterations", 50, 50),), defines=(("BD_ITERATIONS", "iterations"),),
+        label="memo(iterations={iterations})", fields=("iterations",),
+        fields_resolved=("iterations",),
+        refused_in_float64="method='memo' is the memo's bisection in alpha', a float32 "
+                           "baseline: it cannot give rho to 1e-12 near alpha' = 1 "
+                           "(docs/model.md \"Stiffness\"); use table, secant or bisection "
+                           "with double=True"),
+))
+METHODS = METHOD.names
+#: ``method="auto"``: the measured choice (``methods.choice``), beside the methods themselves
+AUTO = Option("auto", "the cheapest measured configuration meeting tol (bdipole-cl report's "
+                      "data, methods/choice.py)")
+METHOD_OR_AUTO = Registry("method", (*METHOD, AUTO))
+
+
+@dataclass(frozen=True)
+class BlurMethod(Option):
+    """One blur method: ``textured``, it takes texture-varying parameters; ``chooses``, it
+    picks one of the others (``auto``)."""
+
+    textured: bool = False
+    chooses: bool = False
+
+
+BLUR_METHOD = Registry("method", (
+    BlurMethod("auto", "the cheapest method meeting tol on this device (measured data)",
+               textured=True, chooses=True),
+    BlurMethod("direct", "the exact truncated kernel, summed on the device (constant "
+                         "parameters only)"),
+    BlurMethod("gaussians", "a sum of separable Gaussians fitted to the profile, on the "
+                            "device", textured=True),
+    BlurMethod("fft", "FFT convolution with the exact kernel (float64, on the host)",
+               textured=True),
+))
+BLUR_METHODS = BLUR_METHOD.names
+TEXTURED_BLUR_METHODS = tuple(m.name for m in BLUR_METHOD if m.textured)
+#: the methods themselves, not the choice among them (the report and crosscheck sweep these)
+BLUR_KERNELS = tuple(m.name for m in BLUR_METHOD if not m.chooses)
+
+BORDER = Registry("border", (
+    Option("clamp", "texels beyond the image edge are the nearest edge texel"),
+    Option("zero", "texels beyond the image edge are 0"),
+    Option("wrap", "the image repeats (tiling textures)"),
+))
+BORDERS = BORDER.names
+
+#: what a mean free path is (docs/model.md "Mean free path")
+MFP_KIND = Registry("mfp_kind", (
+    Option("diffuse", "ld = 1/mu_tr (Jensen/Hery, the default)"),
+    Option("extinction", "the medium's mean free path 1/sigma_t' (OpenPBR, Standard Surface)"),
+))
+MFP_KINDS = MFP_KIND.names
+
+#: the channel groups an inversion writes (``outputs=``, ``--outputs``, scene ``outputs``)
+OUTPUT = Registry("outputs", (
+    Option("alpha", "alpha', the reduced albedo sigma_s'/sigma_t'"),
+    Option("rho", "rho = 1 - alpha' = sigma_a/sigma_t'"),
+    Option("sigma_a", "sigma_a, the absorption coefficient (1/unit of mfp)"),
+    Option("sigma_s", "sigma_s', the reduced scattering coefficient (1/unit of mfp)"),
+    Option("sigma_t", "sigma_t' = sigma_a + sigma_s', the reduced extinction (1/unit of mfp)"),
+))
+OUTPUTS = OUTPUT.names
+
 #: what double=True promises: rho within this relative error of the exact inverse
 DOUBLE_RHO_TOL = 1e-12
+#: MethodConfig's knobs (None: the method's default in the precision)
+KNOBS = ("iterations", "tol", "table_size", "polish", "seed_size")
 
 
 @dataclass(frozen=True)
 class MethodConfig:
-    """One inversion configuration: a method and its cost knobs."""
+    """One inversion configuration: a method and its cost knobs (what each means for the
+    method, and its defaults: ``METHOD[method]``)."""
 
     method: str = "table"
     iterations: int | None = None
@@ -56,8 +176,7 @@ class MethodConfig:
     seed_size: int = 16
 
     def __post_init__(self):
-        if self.method not in METHODS:
-            raise ValueError(f"method={self.method!r}: expected one of {METHODS}")
+        object.__setattr__(self, "method", METHOD.canonical(self.method))
         for knob in ("iterations", "table_size", "seed_size"):
             value = getattr(self, knob)
             if value is not None and (int(value) != value or value < 1):
@@ -67,65 +186,60 @@ class MethodConfig:
         if self.tol is not None and not self.tol > 0:
             raise ValueError(f"tol={self.tol!r}: expected > 0")
 
+    @property
+    def spec(self) -> InversionMethod:
+        """The method's registry entry."""
+        return METHOD[self.method]
+
     def resolved(self, double: bool) -> "MethodConfig":
         """This config with every knob left at None set to its default for the precision.
         float64 (``double``) promises rho within DOUBLE_RHO_TOL: the memo's float bisection in
         alpha' cannot (docs/model.md "Stiffness"), so it is refused there."""
-        if double and self.method == "memo":
-            raise ValueError("method='memo' is the memo's bisection in alpha', a float32 "
-                             "baseline: it cannot give rho to 1e-12 near alpha' = 1 "
-                             "(docs/model.md \"Stiffness\"); use table, secant or bisection "
-                             "with double=True")
-        changes = {}
-        if self.iterations is None and self.method in DEFAULT_ITERATIONS:
-            changes["iterations"] = DEFAULT_ITERATIONS[self.method]
-        if self.method == "secant" and self.tol is None:
-            changes["tol"] = DEFAULT_SECANT_TOL[bool(double)]
-        if self.method == "table" and self.polish is None:
-            changes["polish"] = DEFAULT_POLISH[bool(double)]
+        spec = self.spec
+        if double and spec.refused_in_float64:
+            raise ValueError(spec.refused_in_float64)
+        changes = {knob: spec.default(knob, bool(double)) for knob, *_ in spec.defaults
+                   if getattr(self, knob) is None}
         return replace(self, **changes) if changes else self
 
     @property
     def table_n(self) -> int:
         """Intervals per segment of the table the kernel reads (0: none)."""
-        return {"table": self.table_size, "secant": self.seed_size}.get(self.method, 0)
+        return getattr(self, self.spec.table) if self.spec.table else 0
 
     def defines(self, double: bool) -> dict:
         """The build options (``BD_<NAME>``: value) of kernels/invert.cl for this config."""
-        c = self.resolved(double)
-        m = c.method
-        if m in ("memo", "bisection"):
-            return {f"BD_METHOD_{m.upper()}": None, "BD_ITERATIONS": c.iterations}
-        if m == "secant":
-            return {"BD_METHOD_SECANT": None, "BD_ITERATIONS": c.iterations,
-                    "BD_TOL": repr(float(c.tol)), "BD_TABLE_N": c.seed_size}
-        return {"BD_METHOD_TABLE": None, "BD_TABLE_N": c.table_size, "BD_POLISH": c.polish}
+        c, spec = self.resolved(double), self.spec
+        return {spec.define: None, **{name: KNOB_FORMAT.get(knob, _as_given)(getattr(c, knob))
+                                      for name, knob in spec.defines}}
 
     def describe(self, double: bool = False) -> str:
         """A short label for tables and logs (not parsed back: data use ``fields``); the
-        defaults of the precision shown. Secant's default tol shows as 'default'."""
-        m = self.method
-        c = self.resolved(double) if not (double and m == "memo") else self
-        if m in ("memo", "bisection"):
-            return f"{m}(iterations={c.iterations or DEFAULT_ITERATIONS[m]})"
-        if m == "secant":
-            return (f"secant(tol={self.tol if self.tol is not None else 'default'}, "
-                    f"seed={self.seed_size})")
-        return f"table(size={c.table_size}, polish={c.polish})"
+        defaults of the precision shown (float32's for a method float64 refuses). Secant's
+        default tol shows as 'default'."""
+        spec = self.spec
+        c = self.resolved(bool(double) and not spec.refused_in_float64)
+        values = {k: getattr(c, k) for k in KNOBS}
+        values.update({k: "default" if getattr(self, k) is None else getattr(self, k)
+                       for k in spec.label_as_given})
+        return spec.label.format(**values)
 
     def fields(self) -> dict:
         """The knobs that matter for this method, as plain data (JSON)."""
-        m = self.method
-        if m in ("memo", "bisection"):
-            return {"method": m, "iterations": self.iterations or DEFAULT_ITERATIONS[m]}
-        if m == "secant":
-            return {"method": m, "tol": self.tol, "seed_size": self.seed_size,
-                    "iterations": self.iterations}
-        return {"method": m, "table_size": self.table_size, "polish": self.polish}
+        spec = self.spec
+        values = {k: getattr(self, k) for k in spec.fields}
+        for k in spec.fields_resolved:
+            if values[k] is None:
+                values[k] = spec.default(k, False)
+        return {"method": self.method, **values}
 
     @classmethod
     def from_fields(cls, fields: dict) -> "MethodConfig":
         return cls(**{k: v for k, v in fields.items() if v is not None})
+
+
+def _as_given(value):
+    return value
 
 
 @dataclass(frozen=True)

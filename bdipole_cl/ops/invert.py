@@ -10,7 +10,7 @@ import numpy as np
 from ..device import get_runtime
 from ..errors import check_policy, find_invalid
 from ..methods.choice import DeviceKey, resolve_method
-from ..methods.registry import MFP_KINDS, MethodConfig
+from ..methods.registry import MFP_KIND, OUTPUTS, MethodConfig
 from .inversion_kernel import (CHECK_ALBEDO, CHECK_COEFFICIENTS, InversionKernel,
                                inversion_kernel, output_array)
 
@@ -117,9 +117,6 @@ def invert_albedo(rd, eta, method="table", *, return_rho=False, model="better", 
     return (alpha, outs["rho"].reshape(rd.shape)) if return_rho else alpha
 
 
-OUTPUTS = ("alpha", "rho", "sigma_a", "sigma_s", "sigma_t")
-
-
 def check_outputs(outputs):
     """``outputs`` as a tuple: some of OUTPUTS, each at most once (a channel is written once),
     else ValueError."""
@@ -135,9 +132,7 @@ def check_outputs(outputs):
 
 
 def check_mfp_kind(mfp_kind):
-    if mfp_kind not in MFP_KINDS:
-        raise ValueError(f"mfp_kind={mfp_kind!r}: expected one of {', '.join(MFP_KINDS)}")
-    return mfp_kind
+    return MFP_KIND.canonical(mfp_kind)
 
 
 def kernel_outputs(outputs, mfp_kind):

@@ -36,15 +36,10 @@ from typing import NamedTuple
 
 import numpy as np
 
-from . import fresnel_fit
+from .fresnel import (ETA_EXACT_RANGE, ETA_FIT_RANGE, check_eta, fresnel_moments,  # noqa: F401
+                      fresnel_moments_exact, fresnel_moments_fit, fresnel_reflectance)
+from .models import BETTER, DIPOLE, MODEL, MODELS  # noqa: F401  (MODELS re-exported)
 
-MODELS = ("better", "dipole")
-
-#: eta interval where the d'Eon fits keep Rd(alpha') monotone (docs/model.md "Fresnel moments":
-#: invalid from ~2.9 up).
-ETA_FIT_RANGE = (0.5, 2.8)
-#: eta interval accepted with exact (quadrature) Fresnel moments.
-ETA_EXACT_RANGE = (0.2, 5.0)
 #: alpha' where the inversion switches from the lower to the upper half.
 ALPHA_SPLIT = 0.5
 
@@ -59,80 +54,16 @@ class DipoleConstants(NamedTuple):
     a_coef: np.ndarray
 
 
-# {{{ Fresnel moments
+# {{{ boundary constants (the Fresnel moments: physics.fresnel)
 
 def _poly(x, coefs):
     return np.polynomial.polynomial.polyval(x, coefs)
 
 
-def fresnel_moments_fit(eta):
-    """d'Eon & Irving 2011 fits of the first two Fresnel moments (pbrt-v3 FresnelMoment1/2),
-    evaluated exactly and rounded once (``fresnel_fit``: the float64 sums cancel)."""
-    return fresnel_fit.fresnel_moments_fit(eta)
-
-
-def fresnel_reflectance(mu, eta):
-    """Unpolarized dielectric Fresnel reflectance for light inside a medium of index ``eta``
-    meeting a boundary to index 1 at cosine ``mu``; 1 past the critical angle."""
-    mu = np.asarray(mu, dtype=np.float64)
-    eta = np.asarray(eta, dtype=np.float64)
-    sin2_t = eta**2 * (1.0 - mu**2)
-    cos_t = np.sqrt(np.maximum(1.0 - sin2_t, 0.0))
-    with np.errstate(invalid="ignore", divide="ignore"):
-        r_par = (mu - eta * cos_t) / (mu + eta * cos_t)
-        r_perp = (eta * mu - cos_t) / (eta * mu + cos_t)
-        f = 0.5 * (r_par**2 + r_perp**2)
-    return np.where(sin2_t >= 1.0, 1.0, f)
-
-
-def fresnel_moments_exact(eta, nodes=256):
-    """``C_i(eta) = Int_0^1 mu^i F_r(mu; eta -> 1) dmu`` for i = 1, 2, by Gauss-Legendre.
-
-    Past the critical cosine ``mu_c`` F_r = 1 and the integral is closed-form; on [mu_c, 1] the
-    substitution ``mu = mu_c + (1 - mu_c) t^2`` removes the square-root kink at mu_c, so the
-    rule converges spectrally (checked against scipy.quad to 1e-13 in the tests).
-    """
-    eta = np.asarray(eta, dtype=np.float64)
-    mu_c = np.sqrt(np.maximum(1.0 - 1.0 / eta**2, 0.0))
-    x, w = np.polynomial.legendre.leggauss(nodes)
-    t = 0.5 * (x + 1.0)
-    w = 0.5 * w
-    mc = mu_c[..., None]
-    mu = mc + (1.0 - mc) * t**2
-    jac = 2.0 * (1.0 - mc) * t
-    f = fresnel_reflectance(mu, eta[..., None]) * jac * w
-    c1 = 0.5 * mu_c**2 + np.sum(f * mu, axis=-1)
-    c2 = mu_c**3 / 3.0 + np.sum(f * mu**2, axis=-1)
-    return c1, c2
-
-
-def check_eta(eta, exact=False, model="better"):
-    """Raise ValueError naming the offending eta if it is outside the model's valid range."""
-    lo, hi = ETA_EXACT_RANGE if (exact and model == "better") else ETA_FIT_RANGE
-    e = np.asarray(eta, dtype=np.float64)
-    bad = ~((e >= lo) & (e <= hi))
-    if np.any(bad):
-        first = float(e.reshape(-1)[np.flatnonzero(bad.reshape(-1))[0]])
-        how = "exact Fresnel moments" if exact else "the d'Eon fits (use exact=True beyond)"
-        raise ValueError(
-            f"eta={first!r} is outside [{lo}, {hi}], the range where {how} keep Rd(alpha') "
-            f"monotone and the inversion well defined")
-
-
-def fresnel_moments(eta, exact=False):
-    """First two Fresnel moments ``(C1, C2)`` of ``eta`` (memo: ``2C1``, ``3C2`` are 2x, 3x these).
-
-    ``exact=False`` uses d'Eon & Irving's fits, valid for eta in ``ETA_FIT_RANGE``;
-    ``exact=True`` integrates the Fresnel reflectance (valid in ``ETA_EXACT_RANGE``).
-    """
-    check_eta(eta, exact)
-    return fresnel_moments_exact(eta) if exact else fresnel_moments_fit(eta)
-
-
 def dipole_constants(eta, exact=False, model="better"):
     """``(Cphi, Ce, A)`` of memo eq. 1 for the Better Dipole; for ``model="dipole"`` Jensen's
     ``A = (1 + Fdr)/(1 - Fdr)`` (``cphi``, ``ce`` are then unused and set to 1/4, 1/2)."""
-    if model == "dipole":
+    if MODEL[model] is DIPOLE:
         check_eta(eta, False, model)
         e = np.asarray(eta, dtype=np.float64)
         fdr = np.where(e < 1.0,
@@ -140,8 +71,6 @@ def dipole_constants(eta, exact=False, model="better"):
                        -1.440 / e**2 + 0.710 / e + 0.668 + 0.0636 * e)
         a_coef = (1.0 + fdr) / (1.0 - fdr)
         return DipoleConstants(np.full_like(a_coef, 0.25), np.full_like(a_coef, 0.5), a_coef)
-    if model != "better":
-        raise ValueError(f"model={model!r}: expected one of {MODELS}")
     c1, c2 = fresnel_moments(eta, exact)
     cphi = 0.25 * (1.0 - 2.0 * c1)
     ce = 0.5 * (1.0 - 3.0 * c2)
@@ -188,7 +117,7 @@ def psi(x):
 # {{{ Rd(alpha') in the split variables
 
 def _power(model):
-    return 2 if model == "better" else 1
+    return MODEL[model].power
 
 
 def _k_terms(q, c: DipoleConstants, model):
@@ -204,7 +133,7 @@ def _k_terms(q, c: DipoleConstants, model):
     """
     q = np.asarray(q, dtype=np.float64)
     q2 = q * q
-    if model == "better":
+    if MODEL[model] is BETTER:
         s = _SQRT3 * q / np.sqrt(1.0 + q2)
         ds = _SQRT3 / (1.0 + q2) ** 1.5
         x = 4.0 * c.a_coef * q * np.sqrt((1.0 + q2) / 3.0)
@@ -398,7 +327,7 @@ def mu_tr_over_sigma_t(rho, model="better"):
     """``mu_tr / sigma_t'``: sqrt(3 rho/(1 + rho)) (better; D = (1+rho)/(3 sigma_t'))
     or sqrt(3 rho) (dipole; D = 1/(3 sigma_t'))."""
     rho = np.asarray(rho, dtype=np.float64)
-    return np.sqrt(3.0 * rho / (1.0 + rho)) if model == "better" else np.sqrt(3.0 * rho)
+    return np.sqrt(3.0 * rho / (1.0 + rho)) if MODEL[model] is BETTER else np.sqrt(3.0 * rho)
 
 
 def albedo_to_coefficients(rd_value, mfp, eta, exact=False, model="better"):

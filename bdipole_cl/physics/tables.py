@@ -18,6 +18,7 @@ import numpy as np
 
 from ..caches import ByteCache
 from . import reference as ref
+from .models import MODEL
 
 SEGMENTS = 3
 
@@ -59,7 +60,7 @@ def inversion_table(eta: float, n: int, exact: bool = False, model: str = "bette
     split = float(ref.rd_split(c, model))
     if not split < 0.5:
         raise ValueError(f"eta={eta}: Rd(alpha'=1/2) = {split} >= 1/2; the table needs it below")
-    power = 2 if model == "better" else 1
+    power = MODEL[model].power
     x_split, x_mid = split ** (1.0 / power), 0.5 ** (1.0 / power)
     # segment 0: alpha' of x = Rd^(1/n); dalpha/dx = 1/F'(alpha)
     x0 = np.linspace(0.0, x_split, n + 1)

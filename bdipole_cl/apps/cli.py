@@ -6,7 +6,7 @@ import functools
 import sys
 
 from ..errors import POLICIES
-from ..methods.registry import BLUR_METHODS, BORDERS
+from ..methods.registry import ALPHA_CHANNEL, BLUR_METHODS, BORDERS
 from ..signals import SignalStop
 from ..version import __version__
 from .cli_blur import cmd_blur
@@ -330,7 +330,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--colorspace", default="auto", type=colorspace_arg,
                    help="colour space of the albedo files (auto: as each declares, else sRGB "
                         "for 8-bit, the working space for 16-bit/float); mfp never converted")
-    p.add_argument("--alpha", default="keep", choices=("keep", "drop"),
+    p.add_argument("--alpha", default="keep", choices=ALPHA_CHANNEL.names,
                    help="alpha channel: copied through or dropped (never inverted)")
     p.add_argument("--on-invalid", default="raise", choices=POLICIES,
                    help="NaN/Inf/>=1 albedo or bad mfp texels: fail the file, or clamp")

@@ -157,6 +157,13 @@ OUTPUT = Registry("outputs", (
 ))
 OUTPUTS = OUTPUT.names
 
+#: what a texture batch does with the albedo's alpha channel (``process_textures(alpha=)``,
+#: ``invert --alpha``)
+ALPHA_CHANNEL = Registry("alpha", (
+    Option("keep", "copied through to the output unchanged (never inverted)"),
+    Option("drop", "left out of the output"),
+))
+
 #: what double=True promises: rho within this relative error of the exact inverse
 DOUBLE_RHO_TOL = 1e-12
 #: MethodConfig's knobs (None: the method's default in the precision)

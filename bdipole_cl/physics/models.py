@@ -1,5 +1,5 @@
 """The diffusion models (``model=``): one registry, the same names in Python, the CLI's
-``--model`` and scene files' ``model`` (docs/model.md "Models").
+``--model`` and scene files' ``model`` (docs/model.md "Model").
 
 Both have the form ``Rd = alpha'^n exp(K(q))``, q = sqrt(1 - alpha') (``physics.reference``);
 what differs is n, K and where the boundary constants come from.

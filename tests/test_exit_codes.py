@@ -1,0 +1,22 @@
+"""The CLI's exit code comes from the error's type, never from its message: a usage error
+whose text happens to say "died" or "did not finish" (words of a run that failed) still exits
+2, a failure 1 (``main``'s contract: usage 2, failure 1). No device needed: these fail before
+any kernel is built."""
+import pytest
+
+from bdipole_cl.apps.cli import main as cli_main
+
+
+def test_a_missing_function_named_like_a_failed_run_is_a_usage_error(tmp_path, capsys):
+    source = tmp_path / "kernel.cl"
+    source.write_text("float ok(float rd, float a, float b) { return rd; }\n")
+    assert cli_main(["crosscheck", "--user-kernel", str(source), "--function", "died",
+                     "--against", "invert"]) == 2
+    assert "no function named died" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("name", ["did not finish.cl", "it died.cl"])
+def test_a_missing_file_named_like_a_failed_run_is_a_usage_error(tmp_path, capsys, name):
+    assert cli_main(["crosscheck", "--user-kernel", str(tmp_path / name), "--function", "f",
+                     "--against", "invert"]) == 2
+    assert name in capsys.readouterr().err

@@ -1,5 +1,6 @@
 """One vocabulary: every option kind's registry is what the CLI offers, what scene files
-accept, what the Python checks accept and what README "Vocabulary" lists. No device needed."""
+accept, what the Python checks accept and what README "Vocabulary" lists. No device needed
+but for the last test (once per working device)."""
 import argparse
 import importlib
 import re
@@ -228,3 +229,43 @@ def test_a_registry_looks_up_names_and_aliases_only():
     with pytest.raises(ValueError, match="kind='c': expected one of a, alpha, b"):
         reg["c"]
     assert isinstance(errors.POLICY, vocabulary.Registry)
+
+
+@pytest.mark.usefixtures("on_device")
+@pytest.mark.parametrize("alias", models.BETTER.aliases)
+def test_a_model_alias_runs_the_canonical_models_kernels(alias):
+    # the Python API on a device: the alias's coefficients are the canonical name's, bit for
+    # bit (the same build options and constants), and not the other model's
+    import bdipole_cl as bd
+    rd = np.linspace(0.01, 0.95, 257, dtype=np.float32)
+    got = bd.albedo_to_coefficients(rd, 1.0, 1.4, model=alias)
+    want = bd.albedo_to_coefficients(rd, 1.0, 1.4, model=models.BETTER.name)
+    other = bd.albedo_to_coefficients(rd, 1.0, 1.4, model=models.DIPOLE.name)
+    for g, w, o in zip(got, want, other):
+        np.testing.assert_array_equal(g, w)
+        assert not np.array_equal(g, o)
+
+
+def methods_table():
+    """README "Python API"'s table of inversion methods: {method: its knobs cell}."""
+    text = README.read_text()
+    section = text.split("Methods (`method=`) and their knobs:", 1)[1].split("\n\n", 2)[1]
+    rows = [[c.strip() for c in ln.strip("|").split("|")] for ln in section.splitlines()[2:]]
+    return {re.match(r"`(\w+)`", r[0]).group(1): r[2] for r in rows}
+
+
+def test_the_docs_give_each_methods_defaults():
+    # the README's methods and their knobs' defaults (float32; float64 where it differs) are
+    # the registry's, and MethodConfig's own defaults (table_size, seed_size) too
+    table = methods_table()
+    assert tuple(table) == registry.METHOD_OR_AUTO.names
+    config = registry.MethodConfig()
+    for spec in registry.METHOD:
+        knobs = table[spec.name]
+        for knob, f32, f64 in spec.defaults:
+            given = re.search(rf"`{knob}` \(([-+.e\d]+)(?:; ([-+.e\d]+) in float64)?", knobs)
+            assert given, (spec.name, knob, knobs)
+            doc32, doc64 = float(given[1]), float(given[2] or given[1])
+            assert (doc32, doc64) == (f32, f64), (spec.name, knob, knobs)
+        if spec.table:
+            assert f"`{spec.table}` ({getattr(config, spec.table)})" in knobs, (spec.name, knobs)

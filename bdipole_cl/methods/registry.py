@@ -1,27 +1,16 @@
 """Methods and their knobs: the registry the API, the CLI and the report share.
 
-Inversion (kernels/invert.cl), each a specialization of the one kernel by build options:
+Each kind of option is one ``vocabulary.Registry`` of objects (README "Vocabulary"):
 
-=============  ===========================================================  ==================
-name           what                                                         knobs
-=============  ===========================================================  ==================
-``table``      cubic Hermite table of the inverse in split variables        ``table_size``,
-               (default; docs/model.md "Inversion"), optional Newton polish ``polish``
-``secant``     safeguarded secant in the split variables, seeded from a     ``tol``,
-               coarse table (value and slope), bracketed                    ``iterations``,
-                                                                            ``seed_size``
-``bisection``  bisection in the split variables (robust fallback)           ``iterations``
-``memo``       Hery TM 12-11's float bisection in alpha', verbatim          ``iterations``
-               (baseline; loses rho near alpha' = 1, docs/model.md)
-=============  ===========================================================  ==================
+- ``METHOD``: the inversion methods, each a specialization of kernels/invert.cl by build
+  options (``InversionMethod``: what it is, its knobs and their defaults per precision, its
+  build options, its label; ``MethodConfig`` delegates to it); ``METHOD_OR_AUTO`` adds
+  ``auto``, the measured choice (``methods.choice``);
+- ``BLUR_METHOD`` (bdipole_cl/ops/blur; ``textured``: takes texture-varying parameters) and
+  ``BORDER``;
+- ``MFP_KIND``, ``OUTPUT`` and ``ALPHA_CHANNEL``.
 
-Blur (bdipole_cl/ops/blur): ``direct``, ``gaussians``, ``fft``, and ``auto``; with
-texture-varying parameters ``fft``, ``gaussians`` and ``auto``. Borders: clamp, zero, wrap.
-
-Each kind is one ``vocabulary.Registry`` of objects (README "Vocabulary"): ``METHOD`` (the
-inversion methods, ``InversionMethod``: knobs, defaults per precision, build options, label),
-``METHOD_OR_AUTO``, ``BLUR_METHOD``, ``BORDER``, ``MFP_KIND`` and ``OUTPUT``; the tuples of
-names (``METHODS``, ``BLUR_METHODS``, ...) are read from them.
+The tuples of names (``METHODS``, ``BLUR_METHODS``, ...) are read from them, never retyped.
 """
 from __future__ import annotations
 
@@ -74,7 +63,7 @@ KNOB_FORMAT = {"tol": lambda v: repr(float(v))}
 METHOD = Registry("method", (
     InversionMethod(
         "table", "cubic Hermite table of the inverse in split variables, optional Newton "
-                 "polish (the default; docs/model.md \"Inversion\")",
+                 "polish (the default; docs/model.md \"Inversion table\")",
         defaults=(("polish", 0, 2),), table="table_size",
         defines=(("BD_TABLE_N", "table_size"), ("BD_POLISH", "polish")),
         label="table(size={table_size}, polish={polish})", fields=("table_size", "polish")),

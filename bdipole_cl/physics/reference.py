@@ -1,7 +1,9 @@
 """Float64 NumPy reference of the Better Dipole (d'Eon 2012) and its inversion (Hery TM 12-11).
 
 This module is the single source of truth for every test and every host-side table. It is
-vectorized (NumPy broadcasting on all arguments) and written for accuracy, not speed.
+vectorized (NumPy broadcasting on all arguments) and written for accuracy, not speed. The
+Fresnel moments and the eta ranges are in ``physics.fresnel``, the models' names in
+``physics.models``; both are re-exported here.
 
 Notation (as in docs/model.md and the memo)
 -----------------------------------------
@@ -12,7 +14,7 @@ Notation (as in docs/model.md and the memo)
 ``eta``    relative index of refraction, medium over outside       [1]
 ``rd``     diffuse reflectance (the painted "albedo"), memo eq. 3  [1]
 
-Two models share the inversion machinery (``model=``):
+Two models share the inversion machinery (``model=``, ``physics.models.MODEL``):
 
 * ``"better"``: the Better Dipole, memo eqs. 1-4, Fresnel moments from d'Eon & Irving's fits
   (or exact quadrature).

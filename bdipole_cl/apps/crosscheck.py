@@ -108,7 +108,7 @@ def _invert_rows(etas, n, rt):
             for name, got, want in (("alpha", a, want_a), ("rho", rho, want_rho)):
                 err = np.abs(got / want - 1)
                 i = int(np.argmax(err))
-                bound = None if cfg.method == "memo" else INVERT_BOUNDS[name]
+                bound = None if cfg.spec.baseline else INVERT_BOUNDS[name]
                 rows.append(Row(f"invert {cfg.describe()} {name} (eta {eta})", "f32",
                                 float(err[i]), "rel", bound, f"Rd={rd[i]:.6g}"))
     return rows

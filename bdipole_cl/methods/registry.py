@@ -30,7 +30,8 @@ class InversionMethod(Option):
     knobs except those in ``label_as_given`` (shown as given; None as 'default'); ``fields``:
     the knobs ``MethodConfig.fields`` writes, in order, those in ``fields_resolved`` with their
     default filled in; ``refused_in_float64``: why it cannot keep double=True's promise
-    (``DOUBLE_RHO_TOL``), None if it can."""
+    (``DOUBLE_RHO_TOL``), None if it can; ``baseline``: kept for comparison, not held to the
+    accuracy contract (docs/model.md "Accuracy")."""
 
     defaults: tuple = ()
     table: str | None = None
@@ -40,6 +41,7 @@ class InversionMethod(Option):
     fields: tuple = ()
     fields_resolved: tuple = ()
     refused_in_float64: str | None = None
+    baseline: bool = False
 
     @property
     def define(self) -> str:
@@ -85,7 +87,7 @@ METHOD = Registry("method", (
                 "near alpha' = 1, docs/model.md)",
         defaults=(("iterations", 50, 50),), defines=(("BD_ITERATIONS", "iterations"),),
         label="memo(iterations={iterations})", fields=("iterations",),
-        fields_resolved=("iterations",),
+        fields_resolved=("iterations",), baseline=True,
         refused_in_float64="method='memo' is the memo's bisection in alpha', a float32 "
                            "baseline: it cannot give rho to 1e-12 near alpha' = 1 "
                            "(docs/model.md \"Stiffness\"); use table, secant or bisection "

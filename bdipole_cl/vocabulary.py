@@ -40,6 +40,11 @@ class Registry(Generic[T]):
                     raise ValueError(f"{kind}: {spelling!r} names two options")
                 self.by_spelling[spelling] = option
 
+    @classmethod
+    def of(cls, kind: str, **summaries: str) -> "Registry[Option]":
+        """A registry of plain options, each ``name="summary"``, in the order given."""
+        return cls(kind, (Option(name, summary) for name, summary in summaries.items()))
+
     @property
     def names(self) -> tuple:
         """The canonical names, in order."""

@@ -269,3 +269,8 @@ def test_the_docs_give_each_methods_defaults():
             assert (doc32, doc64) == (f32, f64), (spec.name, knob, knobs)
         if spec.table:
             assert f"`{spec.table}` ({getattr(config, spec.table)})" in knobs, (spec.name, knobs)
+
+
+def test_a_registry_of_plain_options_keeps_their_order():
+    reg = Registry.of("kind", b="two", a="one")
+    assert reg.names == ("b", "a") and reg["a"] == Option("a", "one")

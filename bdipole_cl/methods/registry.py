@@ -124,36 +124,31 @@ TEXTURED_BLUR_METHODS = tuple(m.name for m in BLUR_METHOD if m.textured)
 #: the methods themselves, not the choice among them (the report and crosscheck sweep these)
 BLUR_KERNELS = tuple(m.name for m in BLUR_METHOD if not m.chooses)
 
-BORDER = Registry("border", (
-    Option("clamp", "texels beyond the image edge are the nearest edge texel"),
-    Option("zero", "texels beyond the image edge are 0"),
-    Option("wrap", "the image repeats (tiling textures)"),
-))
+BORDER = Registry.of(
+    "border", clamp="texels beyond the image edge are the nearest edge texel",
+    zero="texels beyond the image edge are 0", wrap="the image repeats (tiling textures)")
 BORDERS = BORDER.names
 
 #: what a mean free path is (docs/model.md "Mean free path")
-MFP_KIND = Registry("mfp_kind", (
-    Option("diffuse", "ld = 1/mu_tr (Jensen/Hery, the default)"),
-    Option("extinction", "the medium's mean free path 1/sigma_t' (OpenPBR, Standard Surface)"),
-))
+MFP_KIND = Registry.of(
+    "mfp_kind", diffuse="ld = 1/mu_tr (Jensen/Hery, the default)",
+    extinction="the medium's mean free path 1/sigma_t' (OpenPBR, Standard Surface)")
 MFP_KINDS = MFP_KIND.names
 
 #: the channel groups an inversion writes (``outputs=``, ``--outputs``, scene ``outputs``)
-OUTPUT = Registry("outputs", (
-    Option("alpha", "alpha', the reduced albedo sigma_s'/sigma_t'"),
-    Option("rho", "rho = 1 - alpha' = sigma_a/sigma_t'"),
-    Option("sigma_a", "sigma_a, the absorption coefficient (1/unit of mfp)"),
-    Option("sigma_s", "sigma_s', the reduced scattering coefficient (1/unit of mfp)"),
-    Option("sigma_t", "sigma_t' = sigma_a + sigma_s', the reduced extinction (1/unit of mfp)"),
-))
+OUTPUT = Registry.of(
+    "outputs", alpha="alpha', the reduced albedo sigma_s'/sigma_t'",
+    rho="rho = 1 - alpha' = sigma_a/sigma_t'",
+    sigma_a="sigma_a, the absorption coefficient (1/unit of mfp)",
+    sigma_s="sigma_s', the reduced scattering coefficient (1/unit of mfp)",
+    sigma_t="sigma_t' = sigma_a + sigma_s', the reduced extinction (1/unit of mfp)")
 OUTPUTS = OUTPUT.names
 
 #: what a texture batch does with the albedo's alpha channel (``process_textures(alpha=)``,
 #: ``invert --alpha``)
-ALPHA_CHANNEL = Registry("alpha", (
-    Option("keep", "copied through to the output unchanged (never inverted)"),
-    Option("drop", "left out of the output"),
-))
+ALPHA_CHANNEL = Registry.of(
+    "alpha", keep="copied through to the output unchanged (never inverted)",
+    drop="left out of the output")
 
 #: what double=True promises: rho within this relative error of the exact inverse
 DOUBLE_RHO_TOL = 1e-12

@@ -284,10 +284,10 @@ def test_a_registry_of_plain_options_keeps_their_order():
 KNOWN_COPIES = {
     ("apps/preview.py", "OUTPUT"),          # GROUP_LABELS: a label per output group
     ("dask.py", "BORDER"),                  # BOUNDARIES: dask's boundary per border
-    ("io/batch.py", "MFP_KIND"),            # MFP_CONVENTIONS: a description per mfp kind
-    ("io/batch.py", "ALPHA_CHANNEL"),       # process_textures' check of alpha=
-    ("io/scene.py", "OUTPUT"),              # the outputs a material leaves out
-    ("io/scene_records.py", "MFP_KIND"),    # MFP_MEANING: a description per mfp kind
+    ("jobs/invert_file.py", "MFP_KIND"),    # MFP_CONVENTIONS: a description per mfp kind
+    ("jobs/job.py", "ALPHA_CHANNEL"),       # the check of alpha=
+    ("jobs/scene.py", "OUTPUT"),            # the outputs a material leaves out
+    ("jobs/scene_records.py", "MFP_KIND"),  # MFP_MEANING: a description per mfp kind
     ("ops/blur/fft.py", "BORDER"),          # numpy.pad's mode per border
 }
 

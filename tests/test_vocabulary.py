@@ -285,8 +285,6 @@ KNOWN_COPIES = {
     ("apps/preview.py", "OUTPUT"),          # GROUP_LABELS: a label per output group
     ("dask.py", "BORDER"),                  # BOUNDARIES: dask's boundary per border
     ("jobs/invert_file.py", "MFP_KIND"),    # MFP_CONVENTIONS: a description per mfp kind
-    ("jobs/job.py", "ALPHA_CHANNEL"),       # the check of alpha=
-    ("jobs/scene.py", "OUTPUT"),            # the outputs a material leaves out
     ("jobs/scene_records.py", "MFP_KIND"),  # MFP_MEANING: a description per mfp kind
     ("ops/blur/fft.py", "BORDER"),          # numpy.pad's mode per border
 }

@@ -24,9 +24,11 @@ from ..io.mipmaps import texture_options
 from ..io.patterns import companion_path, expand_inputs, stem, written_by_us  # noqa: F401
 from ..io.verify import is_complete
 from ..methods.choice import DeviceKey, device_auto_note, resolve_method
+from ..methods.registry import ALPHA_CHANNEL
 from ..ops.invert import CoefficientMapper, check_mfp_kind
+from ..physics.models import MODEL
 from . import runner
-from .job import ALPHA_CHANNEL_RULES, InvertWork, Job
+from .job import InvertWork, Job
 from .results import BatchReport, FileResult
 
 DEFAULT_OUTPUT = "{dir}/{stem}.bdipole.exr"
@@ -135,8 +137,8 @@ def process_textures(inputs, *, mfp=1.0, eta=1.4, output=DEFAULT_OUTPUT,
     check_colorspace(colorspace, working.config)
     if isinstance(inputs, (str, os.PathLike)):
         inputs = [inputs]
-    if alpha not in ALPHA_CHANNEL_RULES:
-        raise ValueError(f"alpha={alpha!r}: expected one of {ALPHA_CHANNEL_RULES}")
+    alpha = ALPHA_CHANNEL.canonical(alpha)
+    model = MODEL.canonical(model)
     rt = get_runtime(device)
     key = DeviceKey.of(rt.device) if method == "auto" else None
     config = resolve_method(method, double=double, device_key=key, **knobs)

@@ -19,8 +19,6 @@ from ..ops.blur import Scattering
 #: the kinds of job: an albedo texture inverted into coefficient maps, an irradiance map
 #: blurred into exitance, and a material with constant albedo and mfp (its coefficients)
 JOB_KINDS = ("invert", "blur", "constant")
-#: what becomes of an albedo's alpha channel in an inversion (never inverted)
-ALPHA_CHANNEL_RULES = ("keep", "drop")
 #: where an inversion's mask comes from: the albedo's alpha, or a mask texture (``inputs``)
 MASK_SOURCES = ("alpha", "texture")
 
@@ -38,7 +36,7 @@ class InvertWork:
     exact: bool
     half: bool
     colorspace: str
-    alpha_channel: str           # ALPHA_CHANNEL_RULES: keep or drop the albedo's alpha
+    alpha_channel: str           # methods.registry.ALPHA_CHANNEL: keep or drop the alpha
     on_invalid: str              # errors.POLICIES
     max_memory: int
     outputs: tuple

@@ -45,7 +45,7 @@ from ..io.scene_file import load as load_scene_file
 from ..io.scene_import import import_materials, is_imported
 from ..io.tiles import TileError, is_pattern
 from ..methods.choice import DeviceKey, device_auto_note, resolve_method
-from ..methods.registry import MethodConfig
+from ..methods.registry import OUTPUTS, MethodConfig
 from . import runner
 from .blur_file import colour_of
 from .job import BlurWork, ConstantWork, InvertWork, Job
@@ -202,7 +202,7 @@ def _plan_invert(m, path, tile, force, device, problems_all, max_memory):
                             f"{m.tol:g} on the albedos present [{rd_range[0]:.4g}, "
                             f"{rd_range[1]:.4g}] (measured {err:.2e})")
     job.config = config
-    left = [o for o in ("alpha", "rho", "sigma_a", "sigma_s", "sigma_t") if o not in m.outputs]
+    left = [o for o in OUTPUTS if o not in m.outputs]
     job.computes.append(f"{', '.join(m.outputs)} of {len(names)} channel(s) "
                         f"({', '.join(names)}) with {config.describe(m.double)}")
     job.left_out.append(f"outputs {', '.join(left)}: not asked for")

@@ -16,7 +16,7 @@ import numpy as np
 
 from ...device import Runtime, get_runtime
 from ...errors import check_policy
-from ...methods.registry import BLUR_METHODS, BORDERS
+from ...methods.registry import BLUR_METHOD, BORDER
 from ..bands import band_rows, bands, gather_rows
 from .dispatch import BlurKernels
 from .params import checked_irradiance
@@ -144,12 +144,10 @@ class BlurPlan:
 
 
 def check_blur_options(method, tol, border, on_invalid):
-    if method not in BLUR_METHODS:
-        raise ValueError(f"method={method!r}: expected one of {BLUR_METHODS}")
+    """ValueError naming the option and its choices unless each is one of its registry's."""
+    BLUR_METHOD[method], BORDER[border]
     if not 0 < tol < 1:
         raise ValueError(f"tol={tol!r}: expected 0 < tol < 1")
-    if border not in BORDERS:
-        raise ValueError(f"border={border!r}: expected one of {BORDERS}")
     check_policy(on_invalid)
 
 

@@ -1,10 +1,12 @@
-"""The host FFT paths of the blur: the constant kernel's convolution, and the texture-varying
+"""The host FFT paths of the blur: the constant kernels' convolution, and the texture-varying
 basis blurs with their kernel spectra (scipy.fft and numpy.fft on all cores).
 
-Shapes are even and fast (``fft_shape``), padded by the border rule (``fft_padded``); a
-circular convolution on the padded image then equals the linear one on the image. The
-texture-varying basis kernels' spectra are real (even kernels: a DCT-I of the quadrant) and kept
-across calls in ``SPECTRA_CACHE``, bounded in bytes.
+Shapes are even and fast (``fft_shape``), padded by the border rule; a circular convolution on
+the padded image then equals the linear one on the image. The kernels are even, so their
+spectra are real (a DCT-I of the quadrant), kept across calls in ``SPECTRA_CACHE``, bounded in
+bytes. The constant kernels' convolution (``fft_blur_channels``) is float32 where its round-off
+fits in tol beside the truncation (``fft_dtype``), all channels in one transform;
+``fft_blur_channel`` is the float64 one-channel convolution the tools and tests measure against.
 """
 from __future__ import annotations
 
@@ -16,7 +18,6 @@ import numpy as np
 
 from ...caches import ByteCache
 from ...signals import check_stop
-
 
 
 def fft_shape(shape, k):
@@ -39,8 +40,8 @@ def fft_padded(e2d, k, border):
 
 
 def fft_blur_channel(e2d, weights, border):
-    """Exact-weights convolution of one channel by FFT (scipy.fft, all cores), with the same
-    border rule as the kernels (the image padded by the kernel radius)."""
+    """Exact-weights convolution of one channel by float64 FFT (scipy.fft, all cores), with the
+    same border rule as the kernels (the image padded by the kernel radius): the reference."""
     import scipy.fft as sfft
     k = (weights.shape[0] - 1) // 2
     pad, shape = fft_padded(e2d.astype(np.float64), k, border)
@@ -53,39 +54,44 @@ def fft_blur_channel(e2d, weights, border):
 #: the blurs' absolute round-off floor, in float32 eps times max|E| * Rd(x) (``settled``): one
 #: eps (the float32 resolution of the brightest exitance) for the device kernels and the
 #: float64 constant fft (whose round-off far from any light is ~3 eps of float64), and 16 for
-#: the float32 texture-varying FFTs, whose round-off far from any light measured up to 2.1 eps
-#: on half-lit random images of 64^2 to 512^2 (8x margin); docs/model.md "Blur error bound"
+#: the float32 FFTs, whose round-off far from any light measured up to 2.1 eps on half-lit
+#: random images of 64^2 to 512^2 (8x margin; the constant one's up to 5.7 eps anywhere on
+#: 512^2 to 4096^2 maps); docs/model.md "Blur error bound"
 ROUNDOFF_ULPS, FFT32_ROUNDOFF_ULPS = 1, 16
 
 
-def settled(m, e2d, rd, ulps=ROUNDOFF_ULPS):
+def settled(m, e2d, rd, ulps=ROUNDOFF_ULPS, e_range=None):
     """One channel's exitance m (in place) with the round-off of a zero result removed: values
     below ulps * eps32 * max|E| * Rd (Rd a scalar or a per-texel map) in magnitude are 0 (a
     dark texel's -1e-18 is neither light nor a value half floats hold), and where the
     irradiance is non-negative so is the result (R >= 0 and the truncated kernels are >= 0:
-    clamping at 0 only reduces the error)."""
-    floor = ulps * float(np.finfo(np.float32).eps) * float(np.abs(e2d).max()) * \
+    clamping at 0 only reduces the error). ``e_range``: (min E, max E), where known."""
+    low, high = e_range or (float(e2d.min()), float(e2d.max()))
+    floor = ulps * float(np.finfo(np.float32).eps) * max(high, -low) * \
         np.asarray(rd, np.float64)
-    m[np.abs(m) < floor] = 0
-    if e2d.min() >= 0:
-        np.maximum(m, 0, out=m)
+    if low >= 0:                      # |m| < floor to 0, and so is every m < 0: one pass
+        np.copyto(m, 0, where=m < floor)
+    else:
+        m[np.abs(m) < floor] = 0
     return m
 
 
-def kernel_spectra(quads, shape):
-    """Real DFTs (G, N0 // 2 + 1, N1 // 2 + 1) float32, rows 0..N0/2, of the even kernels of
-    quadrants quads (G, K+1, K+1) centred on 0, at the even FFT shape (N0, N1). An even
-    kernel's DFT is the cosine sum sum_{a,b} m_a m_b Q(a, b) cos(2 pi f a / N0) cos(2 pi g b /
-    N1) (m: 1 at 0, else 2): the DCT-I of the quadrant zero-padded to (N0/2 + 1, N1/2 + 1).
-    Rows N0/2 + 1..N0 - 1 are rows N0/2 - 1..1 (``_times_spectrum``)."""
+def kernel_spectra(quads, shape, compute=np.float32, store=np.float32):
+    """Real DFTs (G, N0 // 2 + 1, N1 // 2 + 1), rows 0..N0/2, of the even kernels of
+    quadrants quads (G, K+1, K+1) centred on 0, at the even FFT shape (N0, N1), computed in
+    ``compute`` and stored as ``store``. An even kernel's DFT is the cosine sum sum_{a,b} m_a m_b
+    Q(a, b) cos(2 pi f a / N0) cos(2 pi g b / N1) (m: 1 at 0, else 2): the DCT-I of the
+    quadrant zero-padded to (N0/2 + 1, N1/2 + 1). Rows N0/2 + 1..N0 - 1 are rows N0/2 - 1..1
+    (``_times_spectrum``)."""
     import scipy.fft as sfft
     n0, n1 = shape
     nbasis, kk = quads.shape[:2]
-    rows = np.zeros((nbasis, kk, n1 // 2 + 1), np.float32)      # the other rows are zero: so are
+    rows = np.zeros((nbasis, kk, n1 // 2 + 1), compute)       # the other rows are zero: so are
     rows[:, :, :kk] = quads                                 # their transforms along axis 2
-    half = np.zeros((nbasis, n0 // 2 + 1, n1 // 2 + 1), np.float32)
+    half = np.zeros((nbasis, n0 // 2 + 1, n1 // 2 + 1), compute)
     half[:, :kk] = sfft.dct(rows, type=1, axis=2, workers=-1, overwrite_x=True)
-    return sfft.dct(half, type=1, axis=1, workers=-1, overwrite_x=True)
+    spec = sfft.dct(half, type=1, axis=1, workers=-1, overwrite_x=True)
+    return spec.astype(store, copy=False)
 
 
 #: kernel spectra are kept across calls up to this many bytes (least recently used first out):
@@ -103,6 +109,103 @@ def cached_spectra(plan, shape):
     spec = kernel_spectra(plan.quadrants(), shape)
     SPECTRA_CACHE.put(key, (plan, spec), spec.nbytes)
     return spec
+
+
+#: the float32 constant FFT's round-off, relative to max|E| * Rd, that its error bound charges
+#: (docs/model.md "Blur error bound"): the statistical model's maximum over 2^26 padded texels,
+#: 2.9e-6, plus the settle floor (FFT32_ROUNDOFF_ULPS eps32 = 1.9e-6), with a 2x margin;
+#: measured: at most 7e-7 from the FFT on 512^2 to 4096^2 maps, 1.9e-6 with the floor
+FFT32_ROUNDOFF = 1e-5
+
+
+def fft_dtype(truncated, tol):
+    """float32 for the constant FFT where its round-off fits beside the kernel's truncation
+    (``truncated`` + FFT32_ROUNDOFF <= tol: the bound stays within tol), else float64."""
+    return np.float32 if truncated + FFT32_ROUNDOFF <= tol else np.float64
+
+
+def fft_bound(kernel, dtype):
+    """The error bound of the constant FFT in ``dtype``: float32, the energy its truncation
+    left out plus its round-off; float64, the kernel's truncation tol (round-off ~1e-15)."""
+    return float(kernel.truncated + FFT32_ROUNDOFF) if dtype == np.float32 else kernel.tol
+
+
+def padded_planes(e, channels, k, shape, dtype, border):
+    """(G, N0, N1) ``dtype`` planes: channel ``channels[g]`` of the (H, W, C) image at rows
+    [k, k + H), columns [k, k + W), padded by k texels by the border rule, zeros beyond (the
+    circular convolution by a kernel of radius k reads rows [0, H + 2k) for outputs [k, k + H)).
+    """
+    h, w = e.shape[:2]
+    planes = np.zeros((len(channels), *shape), dtype)
+    if border == "wrap":
+        for g, c in enumerate(channels):
+            planes[g, :h + 2 * k, :w + 2 * k] = np.pad(e[..., c], k, mode="wrap")
+        return planes
+    for g, c in enumerate(channels):
+        planes[g, k:k + h, k:k + w] = e[..., c]
+    if border == "clamp":
+        inner = planes[:, :h + 2 * k]
+        inner[:, :k, k:k + w] = inner[:, k:k + 1, k:k + w]
+        inner[:, k + h:, k:k + w] = inner[:, k + h - 1:k + h, k:k + w]
+        inner[:, :, :k] = inner[:, :, k:k + 1]
+        inner[:, :, k + w:k + w + k] = inner[:, :, k + w - 1:k + w]
+    return planes
+
+
+def times_real_spectrum(kp, spec):
+    """spec *= K in place, K the real spectrum of an even kernel as float pairs (each value
+    twice: ``constant_spectra``) over its rows 0..N0/2: rows N0/2 + 1..N0 - 1 are rows
+    N0/2 - 1..1 (``kernel_spectra``). Real times complex, as one float multiply."""
+    m = kp.shape[0]
+    flat = spec.view(kp.dtype)
+    flat[:m] *= kp
+    flat[m:] *= kp[m - 2:0:-1]
+
+
+def constant_spectra(kernels, k, shape, dtype):
+    """The kernels' half spectra at FFT shape (float64 DCT-I of the exact weights, stored in
+    ``dtype``) as float pairs (``times_real_spectrum``), from SPECTRA_CACHE when it has them
+    (keyed by the kernels, which it holds)."""
+    key = ("constant", tuple(id(ck) for ck in kernels), tuple(shape), np.dtype(dtype).str)
+    hit = SPECTRA_CACHE.get(key)
+    if hit is not None and all(a is b for a, b in zip(hit[0], kernels)):
+        return hit[1]
+    quads = np.zeros((len(kernels), k + 1, k + 1))
+    for g, ck in enumerate(kernels):
+        quads[g, :ck.radius + 1, :ck.radius + 1] = ck.weights[ck.radius:, ck.radius:]
+    pairs = np.repeat(kernel_spectra(quads, shape, np.float64, dtype), 2, axis=-1)
+    SPECTRA_CACHE.put(key, (tuple(kernels), pairs), pairs.nbytes)
+    return pairs
+
+
+def fft_blur_channels(e, channels, kernels, dtype, border, out):
+    """out[..., c] = channel c of the (H, W, C) image convolved with its constant kernel, for
+    each c of ``channels`` (``kernels`` theirs), all in one batched FFT in ``dtype`` on all
+    cores: the planes padded by the largest radius K at the fast even shape, one forward
+    transform, the cached real kernel spectra multiplied in place, the inverse over the columns
+    and then over the image's rows only; each result settled (``settled``) on its plane."""
+    import scipy.fft as sfft
+    h, w = e.shape[:2]
+    k = max(ck.radius for ck in kernels)
+    shape = fft_shape((h, w), k)
+    ks = constant_spectra(kernels, k, shape, dtype)
+    planes = padded_planes(e, channels, k, shape, dtype, border)
+    # each plane's range is its channel's (the padding repeats texels or adds zeros, which
+    # change neither max|E| nor whether E >= 0): contiguous reductions for ``settled``
+    ranges = list(zip(planes.min(axis=(1, 2)).tolist(), planes.max(axis=(1, 2)).tolist()))
+    spec = sfft.rfft2(planes, axes=(1, 2), workers=-1, overwrite_x=True)
+    check_stop()
+    for g in range(len(channels)):
+        times_real_spectrum(ks[g], spec[g])
+    cols = sfft.ifft(spec, axis=1, workers=-1, overwrite_x=True)
+    check_stop()
+    rows = sfft.irfft(cols[:, k:k + h], shape[1], axis=2, workers=-1)
+    ulps = FFT32_ROUNDOFF_ULPS if dtype == np.float32 else ROUNDOFF_ULPS
+    for g, (c, ck) in enumerate(zip(channels, kernels)):
+        plane = rows[g, :, k:k + w]
+        settled(plane, None, ck.rd, ulps, ranges[g])
+        out[..., c] = plane
+    return out
 
 
 def times_spectrum(ks, spec, out):

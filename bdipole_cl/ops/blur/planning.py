@@ -14,7 +14,7 @@ from ...methods.choice import (AUTO_DIRECT_MAX_RADIUS, ChoiceData, DeviceKey, au
                                choice_for)
 from ...signals import check_stop
 from .dispatch import DeviceBlur
-from .fft import fft_blur_channel, settled
+from .fft import fft_blur_channels, fft_bound, fft_dtype, settled
 from .fit import fit_gaussians
 from .params import channel_parameters
 from .weights import ChannelKernel, channel_kernel
@@ -165,7 +165,7 @@ def blur_whole(e, params, plans, border, exact, kernels):
     """One in-memory image (or band with its halo), its channel plans resolved, on the plan's
     device kernels (``dispatch.BlurKernels``): (M, BlurInfo)."""
     device = None
-    fft_out = {}
+    fft_dtypes = {}                    # channel: the constant FFT's precision
     info = []
     for c, ((a, st, et), plan) in enumerate(zip(params, plans)):
         check_stop()
@@ -187,8 +187,8 @@ def blur_whole(e, params, plans, border, exact, kernels):
                     f"{bound:.2e} > tol {tol:g}; energy is kept, the shape is not: use "
                     f"method='direct' or 'fft' for the exact kernel"), stacklevel=4)
         else:
-            fft_out[c] = fft_blur_channel(e[..., c], ck.weights, border)
-            bound = ck.tol
+            fft_dtypes[c] = fft_dtype(ck.truncated, tol)
+            bound = fft_bound(ck, fft_dtypes[c])
         if plan.auto is not None and plan.auto.measured_error is not None:
             bound = max(bound, plan.auto.measured_error)
         if bound > tol and plan.method != "gaussians":
@@ -197,8 +197,10 @@ def blur_whole(e, params, plans, border, exact, kernels):
                 stacklevel=4)
         info.append(ChannelInfo(c, plan.method, ck.radius, bound, rd=ck.rd, auto=plan.auto))
     out = device.result() if device is not None else np.empty_like(e)
-    for c, v in fft_out.items():
-        out[..., c] = v
+    if fft_dtypes:                     # one batched transform, settled there
+        fft_blur_channels(e, list(fft_dtypes), [plans[c].kernel for c in fft_dtypes],
+                          np.result_type(*fft_dtypes.values()), border, out)
     for c, plan in enumerate(plans):
-        settled(out[..., c], e[..., c], plan.kernel.rd)
+        if c not in fft_dtypes:
+            settled(out[..., c], e[..., c], plan.kernel.rd)
     return out, BlurInfo(tuple(info))

@@ -12,7 +12,9 @@ the speed ratio against two peers timed in the same run:
   one the blur's speed goal is measured against ("x f32" column: its time / the method's).
 
 Times are the best of --repeats (the machine may be shared: the fastest repeat is the least
-disturbed one).
+disturbed one). The last lines sum up the goals in the same run: the constant default (``auto``)
+against the float32 one-liner (goal: >= 2x faster) and the texture-varying default against the
+constant one (goal: <= 2.5x its time).
 
 Texture-varying parameters (``--varying``, on by default): albedo = the constant albedo times
 (1 + 0.2 n(x)) and mfp = mfp * 2^(n(x)/2), n a smooth pattern in [-1, 1]. Printed: the cold
@@ -78,6 +80,8 @@ def main(argv=None):
     ap.add_argument("--samples", type=int, default=48, help="texels checked per channel")
     ap.add_argument("--device", help="OpenCL device (as `bdipole-cl --device`); default: automatic")
     args = ap.parse_args(argv)
+    if "auto" not in args.methods:
+        ap.error("--methods: the ratios are to auto's time; include auto")
     if args.device:
         use_device(args.device)
     print(f"device: {get_runtime().describe()}")
@@ -88,6 +92,7 @@ def main(argv=None):
           f"border clamp; error = max|M - exact| / (max E * Rd)")
     print(f"{'mfp':>5s} {'method':10s} {'radius':>6s} {'s':>8s} {'max err':>9s} "
           f"{'x scipy fft':>11s} {'x f32':>6s}")
+    summary = []
     for mfp in args.mfp:
         params = channel_parameters(3, albedo=ALBEDO, mfp=mfp, eta=1.4)
         kernels = [channel_kernel(*p, args.tol) for p in params]
@@ -118,9 +123,20 @@ def main(argv=None):
                   f"{t_peer / t:6.2f}")
             if m == "auto":
                 t_const = t
-        if args.varying_methods:
-            varying_rows(e, mfp, t_const, args)
+        t_vary = varying_rows(e, mfp, t_const, args) if args.varying_methods else None
+        summary.append((mfp, t_peer, t_const, t_vary))
+    print_summary(summary)
     return 0
+
+
+def print_summary(summary):
+    """The goals, from this run's times: auto against the float32 one-liner, the varying auto
+    against the constant one."""
+    print("summary (this run): mfp, f32 one-liner s, constant auto s (x f32, goal >= 2), "
+          "varying auto warm s (x constant auto, goal <= 2.5)")
+    for mfp, t_peer, t_const, t_vary in summary:
+        vary = "" if t_vary is None else f", {t_vary:.3f} s ({t_vary / t_const:.2f}x)"
+        print(f"  mfp {mfp:g}: {t_peer:.3f} s, {t_const:.3f} s ({t_peer / t_const:.2f}x){vary}")
 
 
 def varying_maps(n, mfp):
@@ -152,7 +168,9 @@ def sampled_error(e, out, albedo, mfp, info, samples, rng):
 
 
 def varying_rows(e, mfp, t_const, args):
+    """The texture-varying rows; returns the warm time of ``auto`` (None if not run)."""
     albedo, mfps = varying_maps(e.shape[0], mfp)
+    t_auto = None
     rng = np.random.default_rng(1)
     for m in args.varying_methods:
         def run():
@@ -170,6 +188,9 @@ def varying_rows(e, mfp, t_const, args):
               f"{'':11s} cold {cold:.2f} s, {t / t_const:.2f}x the constant default, "
               f"without the spectra cache {t_nospec:.2f} s ({t_nospec / t_const:.2f}x), "
               f"basis {basis}, bound {max(c.error_bound for c in info.channels):.1e}")
+        if m == "auto":
+            t_auto = t
+    return t_auto
 
 
 if __name__ == "__main__":

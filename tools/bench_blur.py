@@ -8,7 +8,8 @@ the speed ratio against two peers timed in the same run:
   edge-padded map with the exact weights (what the error is measured against);
 - ``f32 one-liner``: what a user would write, ``fftconvolve(E[..., c], K_c, mode="same")`` in
   float32 per channel, K_c the blur's own truncated kernel (the default blur's impulse
-  response, cropped to the radius ``return_info`` reports; zero border). Its time is the
+  response, cropped to the radius ``return_info`` reports: the exact weights at the
+  truncation its plan chose; zero border). Its time is the
   one the blur's speed goal is measured against ("x f32" column: its time / the method's).
 
 Times are the best of --repeats (the machine may be shared: the fastest repeat is the least
@@ -51,16 +52,21 @@ def timed(fn, repeats, stat=min):
 
 
 def impulse_responses(mfp, tol):
-    """The default blur's own kernels: its response to a unit impulse (zero border), one
-    (2R+1)^2 float32 array per channel, R the radius its BlurInfo reports for that channel."""
+    """The default blur's own kernels, exactly: its response to a unit impulse, which for each
+    channel is the exact weights at the truncation its plan chose (``return_info``: auto may
+    pick a tighter one than tol's), float32, (2R+1)^2, R the radius BlurInfo reports (taken
+    from the weights, not from an impulse blurred by the library: that would carry the blur's
+    own float32 round-off into the peer)."""
     _, info = blur(np.zeros((1, 1, 3), np.float32), albedo=ALBEDO, mfp=mfp, eta=1.4, tol=tol,
                    return_info=True)
-    r = max(c.radius for c in info.channels)
-    delta = np.zeros((2 * r + 1, 2 * r + 1, 3), np.float32)
-    delta[r, r] = 1.0
-    out = blur(delta, albedo=ALBEDO, mfp=mfp, eta=1.4, tol=tol, border="zero")
-    return [np.ascontiguousarray(out[r - c.radius:r + c.radius + 1, r - c.radius:r + c.radius + 1,
-                                     c.channel]) for c in info.channels]
+    params = channel_parameters(3, albedo=ALBEDO, mfp=mfp, eta=1.4)
+    kernels = []
+    for c, p in zip(info.channels, params):
+        used = c.auto.truncation_tol if c.auto is not None else tol
+        ck = channel_kernel(*p, used)
+        assert ck.radius == c.radius, (c, ck.radius)
+        kernels.append(ck.weights.astype(np.float32))
+    return kernels
 
 
 def one_liner(e, kernels):

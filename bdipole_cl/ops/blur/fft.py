@@ -20,6 +20,17 @@ from ...caches import ByteCache
 from ...signals import check_stop
 
 
+#: threads for the row-wise inverse FFTs and the row blocks of the constant FFT's copies
+#: (NumPy releases the GIL in both): the cores this process may run on
+FFT_THREADS = (len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity")
+               else os.cpu_count() or 1)
+
+
+@lru_cache(maxsize=1)
+def _fft_threads():
+    return ThreadPoolExecutor(FFT_THREADS, thread_name_prefix="bdipole-irfft")
+
+
 def fft_shape(shape, k):
     """The fast even FFT shape (>= the image padded by k) for the circular convolution of the
     padded image with a (2k+1)^2 kernel: the wrap-around reaches only the first 2k rows and
@@ -130,26 +141,46 @@ def fft_bound(kernel, dtype):
     return float(kernel.truncated + FFT32_ROUNDOFF) if dtype == np.float32 else kernel.tol
 
 
+def row_blocks(h):
+    """[r0, r1) row blocks of an image of h rows, one per FFT thread."""
+    edges = np.linspace(0, h, FFT_THREADS + 1).astype(int)
+    return list(zip(edges[:-1], edges[1:]))
+
+
+def in_row_blocks(fn, h):
+    """fn(r0, r1) for each row block, on the FFT threads (NumPy's copies and reductions
+    release the GIL): its results, in block order."""
+    return list(_fft_threads().map(lambda block: fn(*block), row_blocks(h)))
+
+
 def padded_planes(e, channels, k, shape, dtype, border):
     """(G, N0, N1) ``dtype`` planes: channel ``channels[g]`` of the (H, W, C) image at rows
     [k, k + H), columns [k, k + W), padded by k texels by the border rule, zeros beyond (the
-    circular convolution by a kernel of radius k reads rows [0, H + 2k) for outputs [k, k + H)).
-    """
+    circular convolution by a kernel of radius k reads rows [0, H + 2k) for outputs [k, k + H));
+    and each channel's (min, max), for ``settled``."""
     h, w = e.shape[:2]
     planes = np.zeros((len(channels), *shape), dtype)
-    if border == "wrap":
+
+    def fill(r0, r1):
+        rng = []
         for g, c in enumerate(channels):
-            planes[g, :h + 2 * k, :w + 2 * k] = np.pad(e[..., c], k, mode="wrap")
-        return planes
-    for g, c in enumerate(channels):
-        planes[g, k:k + h, k:k + w] = e[..., c]
+            block = planes[g, k + r0:k + r1, k:k + w]
+            block[...] = e[r0:r1, :, c]
+            rng.append((block.min(), block.max()) if r1 > r0 else (np.inf, -np.inf))
+        return rng
+    blocks = in_row_blocks(fill, h)
+    ranges = [(float(min(b[g][0] for b in blocks)), float(max(b[g][1] for b in blocks)))
+              for g in range(len(channels))]
+    inner = planes[:, :h + 2 * k]
     if border == "clamp":
-        inner = planes[:, :h + 2 * k]
         inner[:, :k, k:k + w] = inner[:, k:k + 1, k:k + w]
         inner[:, k + h:, k:k + w] = inner[:, k + h - 1:k + h, k:k + w]
         inner[:, :, :k] = inner[:, :, k:k + 1]
         inner[:, :, k + w:k + w + k] = inner[:, :, k + w - 1:k + w]
-    return planes
+    elif border == "wrap":
+        for g, c in enumerate(channels):
+            inner[g, :, :w + 2 * k] = np.pad(e[..., c], k, mode="wrap")
+    return planes, ranges
 
 
 def times_real_spectrum(kp, spec):
@@ -189,22 +220,21 @@ def fft_blur_channels(e, channels, kernels, dtype, border, out):
     k = max(ck.radius for ck in kernels)
     shape = fft_shape((h, w), k)
     ks = constant_spectra(kernels, k, shape, dtype)
-    planes = padded_planes(e, channels, k, shape, dtype, border)
-    # each plane's range is its channel's (the padding repeats texels or adds zeros, which
-    # change neither max|E| nor whether E >= 0): contiguous reductions for ``settled``
-    ranges = list(zip(planes.min(axis=(1, 2)).tolist(), planes.max(axis=(1, 2)).tolist()))
+    planes, ranges = padded_planes(e, channels, k, shape, dtype, border)
     spec = sfft.rfft2(planes, axes=(1, 2), workers=-1, overwrite_x=True)
     check_stop()
-    for g in range(len(channels)):
-        times_real_spectrum(ks[g], spec[g])
+    list(_fft_threads().map(times_real_spectrum, ks, spec))
     cols = sfft.ifft(spec, axis=1, workers=-1, overwrite_x=True)
     check_stop()
     rows = sfft.irfft(cols[:, k:k + h], shape[1], axis=2, workers=-1)
     ulps = FFT32_ROUNDOFF_ULPS if dtype == np.float32 else ROUNDOFF_ULPS
-    for g, (c, ck) in enumerate(zip(channels, kernels)):
-        plane = rows[g, :, k:k + w]
-        settled(plane, None, ck.rd, ulps, ranges[g])
-        out[..., c] = plane
+
+    def settle_and_store(r0, r1):
+        for g, (c, ck) in enumerate(zip(channels, kernels)):
+            plane = rows[g, r0:r1, k:k + w]
+            settled(plane, None, ck.rd, ulps, ranges[g])
+            out[r0:r1, :, c] = plane
+    in_row_blocks(settle_and_store, h)
     return out
 
 
@@ -214,17 +244,6 @@ def times_spectrum(ks, spec, out):
     m = ks.shape[0]
     np.multiply(ks, spec[:m], out=out[:m])
     np.multiply(ks[m - 2:0:-1], spec[m:], out=out[m:])
-
-
-#: threads for the row-wise inverse FFTs (numpy's FFT releases the GIL): the cores this
-#: process may run on
-FFT_THREADS = (len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity")
-               else os.cpu_count() or 1)
-
-
-@lru_cache(maxsize=1)
-def _fft_threads():
-    return ThreadPoolExecutor(FFT_THREADS, thread_name_prefix="bdipole-irfft")
 
 
 def basis_blurs(e2d, plan, kspec, border, planes):

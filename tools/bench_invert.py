@@ -10,9 +10,12 @@ copy 2, so a 1-read-2-write kernel's own floor is 2/3 of a copy).
 
 Then, on the same host arrays: ``invert_albedo(rd, eta, return_rho=True)`` and
 ``albedo_to_coefficients(rd, 2.0, eta)`` (sigma_a, sigma_s') host to host (NumPy in, NumPy
-out: what a user holding the arrays in memory sees), and NumPy's own
-1-read-2-write pass over them (``alpha = np.sqrt(rd); rho = 1 - alpha``, fresh outputs as
-``invert_albedo`` returns), the peer every host path is compared with.
+out: what a user holding the arrays in memory sees), each with fresh outputs and with ``out=``
+arrays (``np.empty``, made once), beside NumPy's own 1-read-2-write pass over the same input,
+the peer a user would write, in the same two forms: ``alpha = np.sqrt(rd); rho = 1 - alpha``
+(fresh outputs, whose pages are first touched by the pass) and ``np.sqrt(rd, out=alpha);
+np.subtract(1, alpha, out=rho)`` (outputs made once). Each host path is compared with the
+NumPy pass of its own form.
 
     python tools/bench_invert.py                       # 32M texels, eta 1.4, every method
     python tools/bench_invert.py --default-only --device pocl
@@ -56,10 +59,36 @@ def best_time(fn, repeats):
     return min(times)
 
 
-def numpy_pass(rd):
-    """NumPy's own 1-read-2-write pass: two fresh outputs from one input."""
-    alpha = np.sqrt(rd)
-    return alpha, np.subtract(np.float32(1.0), alpha)
+def numpy_pass(rd, out=None):
+    """NumPy's own 1-read-2-write pass: two outputs from one input, fresh or ``out``."""
+    if out is None:
+        alpha = np.sqrt(rd)
+        return alpha, np.subtract(np.float32(1.0), alpha)
+    alpha, rho = out
+    np.sqrt(rd, out=alpha)
+    return alpha, np.subtract(np.float32(1.0), alpha, out=rho)
+
+
+def host_rows(rd, eta, rt, repeats):
+    """(name, seconds, NumPy peer's seconds) of the host-to-host paths, fresh and ``out=``
+    (the NumPy pass timed beside each, in the same form)."""
+    out = (np.empty_like(rd), np.empty_like(rd))
+    numpy_fresh = best_time(lambda: numpy_pass(rd), repeats)
+    numpy_out = best_time(lambda: numpy_pass(rd, out), repeats)
+    rows = [
+        ("invert_albedo(return_rho=True)", lambda: invert_albedo(rd, eta, return_rho=True,
+                                                                 device=rt), numpy_fresh),
+        ("  out=(alpha, rho)", lambda: invert_albedo(rd, eta, return_rho=True, device=rt,
+                                                     out=out), numpy_out),
+        ("albedo_to_coefficients(mfp=2)", lambda: albedo_to_coefficients(rd, 2.0, eta,
+                                                                         device=rt),
+         numpy_fresh),
+        ("  out=(sigma_a, sigma_s)", lambda: albedo_to_coefficients(rd, 2.0, eta, device=rt,
+                                                                    out=out), numpy_out),
+    ]
+    timed = [(name, best_time(fn, repeats), peer) for name, fn, peer in rows]
+    return timed + [("NumPy 1-read-2-write pass", numpy_fresh, numpy_fresh),
+                    ("  out=(alpha, rho)", numpy_out, numpy_out)]
 
 
 def main(argv=None):
@@ -102,18 +131,10 @@ def main(argv=None):
               f"{r.max_err_rho:11.2e} {vs_memo} {100 * copy_s / r.seconds:6.1f}%")
     print(f"{'copy kernel (memory floor)':34s} {'f32':5s} {args.n / copy_s / 1e6:9.2f} "
           f"{copy_s * 1e3:9.2f}")
-    host_s = best_time(lambda: invert_albedo(rd, args.eta, return_rho=True, device=rt),
-                       args.repeats)
-    coeff_s = best_time(lambda: albedo_to_coefficients(rd, 2.0, args.eta, device=rt),
-                        args.repeats)
-    numpy_s = best_time(lambda: numpy_pass(rd), args.repeats)
-    print(f"\nhost to host, same {args.n} float32 albedos:")
-    print(f"{'invert_albedo(return_rho=True)':34s} {'f32':5s} {args.n / host_s / 1e6:9.2f} "
-          f"{host_s * 1e3:9.2f}   {100 * numpy_s / host_s:.0f}% of NumPy's pass")
-    print(f"{'albedo_to_coefficients(mfp=2)':34s} {'f32':5s} {args.n / coeff_s / 1e6:9.2f} "
-          f"{coeff_s * 1e3:9.2f}   {100 * numpy_s / coeff_s:.0f}% of NumPy's pass")
-    print(f"{'NumPy 1-read-2-write pass':34s} {'f32':5s} {args.n / numpy_s / 1e6:9.2f} "
-          f"{numpy_s * 1e3:9.2f}")
+    print(f"\nhost to host, same {args.n} float32 albedos (% of NumPy's pass of the same form):")
+    for name, seconds, peer in host_rows(rd, args.eta, rt, args.repeats):
+        print(f"{name:34s} {'f32':5s} {args.n / seconds / 1e6:9.2f} {seconds * 1e3:9.2f}"
+              f"   {100 * peer / seconds:.0f}%")
     return 0
 
 

@@ -63,14 +63,19 @@ def _literals(values, double):
 
 class InversionKernel:
     """kernels/invert.cl built for one configuration, precision, model and tuple of etas, with
-    its constant buffers on the device; call it on device buffers (benchmarks do).
+    its constant buffers on the device; call it on device buffers (benchmarks do), or on host
+    arrays with ``run`` / ``run_checked`` (one call at a time: a lock serialises them, as a
+    pyopencl Kernel's arguments are set per call).
 
-    ``bake``: specialise the build for one job (a scene's): the channels' constant records are
-    compiled in, and so are ``mfp_const`` (a constant mfp per channel: no mfp buffer is read)
-    and ``outputs`` (only those are computed). Each distinct specialisation is built once."""
+    ``specialise`` (``bake`` is its old name): compile constants of one job into the build:
+    the channels' constant records, ``mfp_const`` (a constant mfp per channel: no mfp buffer is
+    read) and ``outputs`` (only those are computed). Each distinct specialisation is built
+    once (``bdipole_cl.device.programs``' cache)."""
 
     def __init__(self, etas, config: MethodConfig, *, exact=False, model="better",
-                 double=False, runtime=None, bake=False, mfp_const=None, outputs=None):
+                 double=False, runtime=None, specialise=False, mfp_const=None, outputs=None,
+                 bake=None):
+        specialise = bool(specialise or bake)
         self.rt = get_runtime(runtime)
         config = config.resolved(double)
         self.config, self.etas, self.exact, self.model = config, tuple(etas), exact, model
@@ -82,8 +87,8 @@ class InversionKernel:
         params = channel_params(etas, exact=exact, model=model, table_n=self.table_n,
                                 dtype=self.dtype)
         defines = config.defines(double)
-        self.mfp_baked = bake and mfp_const is not None
-        if bake:
+        self.mfp_baked = specialise and mfp_const is not None
+        if specialise:
             defines["BD_BAKED_PARAMS"] = _literals(params, double)
             if mfp_const is not None:
                 mfp_const = np.broadcast_to(np.asarray(mfp_const, np.float64), (self.nchan,))
@@ -107,6 +112,11 @@ class InversionKernel:
         mf = cl.mem_flags
         self.params = cl.Buffer(self.rt.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=params)
         self.tables = cl.Buffer(self.rt.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=tab)
+        # kept across calls: the invalid flag, the last per-channel mfp (values, buffer)
+        self._flag = np.zeros(1, np.int32)
+        self._flag_buf = cl.Buffer(self.rt.context, mf.READ_WRITE, self._flag.nbytes)
+        self._mfp_channels = (None, None)
+        self._lock = threading.Lock()
 
     def _table_kernel(self, bits: int, check: int = 0, mfp_channels: bool = False):
         """kernels/invert_table.cl for the outputs ``bits`` (OUTPUT_BITS), the validity test
@@ -174,38 +184,50 @@ class InversionKernel:
 
         Returns ({output: 1-D array}, flagged): with ``check`` (the vectorised kernel only),
         whether some input broke the rule (None: not tested)."""
+        with self._lock:
+            return self._run_checked(rd, mfp, want, out, check, mfp_channels)
+
+    def _mfp_channels_buffer(self, values):
+        """A constant buffer of the per-channel mfp ``values``, the last one kept."""
+        values = np.ascontiguousarray(values, self.dtype)
+        held, buf = self._mfp_channels
+        if held is None or not np.array_equal(held, values):
+            buf = cl.Buffer(self.rt.context, cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR,
+                            hostbuf=values)
+            self._mfp_channels = (values, buf)
+        return buf
+
+    def _run_checked(self, rd, mfp, want, out, check, mfp_channels):
         rt, dtype = self.rt, self.dtype
         rd = np.ascontiguousarray(rd, dtype=dtype).reshape(-1)
         n = rd.size
-        outs = {k: output_array(out, k, n, dtype) for k in want}
+        outs = {k: output_array(out, k, n, dtype, like=rd) for k in want}
         inputs = {"rd": rd}
         if mfp is not None:
             inputs["mfp"] = np.ascontiguousarray(mfp, dtype=dtype).reshape(-1)
-        mf = cl.mem_flags
-        const_mfp = None
-        if mfp_channels is not None:
-            const_mfp = cl.Buffer(rt.context, mf.READ_ONLY | mf.COPY_HOST_PTR,
-                                  hostbuf=np.ascontiguousarray(mfp_channels, dtype))
-        flag = np.zeros(1, np.int32)
-        flag_buf = (cl.Buffer(rt.context, mf.READ_WRITE | mf.COPY_HOST_PTR, hostbuf=flag)
-                    if check else None)
+        const_mfp = None if mfp_channels is None else self._mfp_channels_buffer(mfp_channels)
+        flag_buf = self._flag_buf if check else None
+        if check:
+            self._flag[0] = 0
+            cl.enqueue_copy(rt.queue, flag_buf, self._flag)
 
         def launch(count, bufs):
             return self(count, bufs["rd"], bufs.get("mfp", const_mfp),
                         **{k: bufs[k] for k in want}, invalid=flag_buf, check=check,
                         mfp_channels=const_mfp is not None)
 
-        run_elementwise(rt, launch, inputs, outs, multiple=self.nchan * max(self.width, 1))
+        run_elementwise(rt, launch, inputs, outs, multiple=self.nchan * max(self.width, 1),
+                        nchan=self.nchan)
         if check:
-            cl.enqueue_copy(rt.queue, flag, flag_buf)
-        return outs, (bool(flag[0]) if check else None)
+            cl.enqueue_copy(rt.queue, self._flag, flag_buf)
+        return outs, (bool(self._flag[0]) if check else None)
 
 
-def output_array(out, name, n, dtype):
-    """``out[name]`` checked (1-D view of n elements of dtype, contiguous), or a new aligned
-    array."""
+def output_array(out, name, n, dtype, like=None):
+    """``out[name]`` checked (1-D view of n elements of dtype, contiguous), or a new array
+    aligned as ``like`` (an input: ``bdipole_cl.device.transfer.aligned_empty``)."""
     if out is None or name not in out:
-        return aligned_empty(n, dtype)
+        return aligned_empty(n, dtype, like=like)
     a = out[name]
     if not (isinstance(a, np.ndarray) and a.dtype == dtype and a.size == n
             and a.flags.c_contiguous and a.flags.writeable):

@@ -1,0 +1,182 @@
+"""The inversion plan (``bdipole_cl.ops.inversion_plan``): made once, applied per band, its
+program built once, its outputs written where the caller says; and host arrays reaching the
+kernel in place whatever their offset from the device's alignment (``device.transfer``).
+
+The plan does the same operations on the same values as one call on the whole array, so the
+comparisons are exact (no tolerance)."""
+import numpy as np
+import pyopencl as cl
+import pytest
+
+from bdipole_cl import InvalidInputError, albedo_to_coefficients, clear_caches, invert_albedo
+from bdipole_cl.device import programs, transfer
+from bdipole_cl.methods.registry import MethodConfig
+from bdipole_cl.ops import inversion_kernel as ik
+from bdipole_cl.ops.invert import CoefficientMapper, InversionPlan, Inverted, plan_inversion
+
+ETAS = (1.3, 1.4, 2.0)
+
+
+def albedo_map(h=37, w=29, seed=5):
+    """An h x w RGB float32 albedo map (odd sizes: bands end mid work-item), stiff ends too."""
+    rng = np.random.default_rng(seed)
+    rd = rng.uniform(1e-6, 0.999, (h, w, 3)).astype(np.float32)
+    rd[0, :3] = [[1e-7, 0.5, 0.9999]] * 3
+    return rd
+
+
+def bands(height, rows):
+    return [(y, min(y + rows, height)) for y in range(0, height, rows)]
+
+
+@pytest.fixture
+def build_count(monkeypatch):
+    """How many times kernels/invert*.cl programs are asked for (``get_program`` calls from
+    the inversion kernels), with the inversion kernel cache emptied first."""
+    ik.KERNEL_CACHE.clear()
+    calls = []
+    real = ik.get_program
+
+    def counting(rt, name, options=()):
+        calls.append((name, options))
+        return real(rt, name, options)
+
+    monkeypatch.setattr(ik, "get_program", counting)
+    return calls
+
+
+@pytest.mark.parametrize("kind", ["albedo", "diffuse", "extinction"])
+@pytest.mark.parametrize("specialise", [False, True], ids=["generic", "specialised"])
+def test_plan_per_band_is_one_call_and_builds_once(on_device, build_count, kind, specialise):
+    """One plan applied band by band (uneven bands, an mfp map) gives the bits of one call on
+    the whole map, and asks for its program once, not once per band."""
+    rd = albedo_map()
+    mfp = np.random.default_rng(6).uniform(0.1, 9.0, rd.shape).astype(np.float32)
+    if kind == "albedo":
+        outputs, mfp_kind, args = ("alpha", "rho"), None, (rd,)
+        want = invert_albedo(rd, ETAS, return_rho=True)
+    else:
+        outputs, mfp_kind, args = ("sigma_a", "sigma_s", "sigma_t"), kind, (rd, mfp)
+        want = albedo_to_coefficients(rd, mfp, ETAS, outputs=outputs, mfp_kind=kind)
+    built_by_calls = len(build_count)
+    plan = plan_inversion(ETAS, outputs=outputs, mfp_kind=mfp_kind, specialise=specialise)
+    got = {k: np.empty(rd.shape, np.float32) for k in outputs}
+    before = len(build_count)
+    for y0, y1 in bands(rd.shape[0], 8):
+        band = plan.apply(rd[y0:y1], None if mfp_kind is None else mfp[y0:y1])
+        assert isinstance(band, Inverted) and tuple(band.arrays) == outputs
+        for k in outputs:
+            got[k][y0:y1] = band.arrays[k]
+    assert len(build_count) - before <= 1, build_count[before:]     # built by the first band
+    assert built_by_calls >= 1                                       # (the spy sees builds)
+    for k, w in zip(outputs, want):
+        np.testing.assert_array_equal(got[k], w, err_msg=f"{k}, {kind}")
+
+
+def test_plan_builds_one_program_in_the_cache(on_device):
+    """Counted in the built-program cache itself: the first apply builds one program, five
+    more bands build none."""
+    clear_caches()
+    plan = plan_inversion((1.4,), outputs=("alpha", "rho"))
+    rd = albedo_map()[..., 0]
+    start = programs.program_count()
+    plan.apply(rd[:5])
+    assert programs.program_count() == start + 1
+    for y in range(5, 30, 5):
+        plan.apply(rd[y:y + 5])
+    assert programs.program_count() == start + 1
+
+
+def test_plan_fills_given_outputs(on_device):
+    """``out=`` as a dict, a sequence in outputs order, or one array: the results are those
+    arrays (views of the same memory), bit for bit those of a plan without ``out``."""
+    rd = albedo_map()
+    plan = plan_inversion(ETAS, outputs=("rho", "sigma_s"), mfp_kind="diffuse")
+    want = plan.apply(rd, 2.0).arrays
+    rho, ss = np.empty(rd.shape, np.float32), np.empty(rd.shape, np.float32)
+    for out in ({"rho": rho, "sigma_s": ss}, (rho, ss)):
+        rho[...] = ss[...] = np.nan
+        got = plan.apply(rd, 2.0, out=out).arrays
+        assert got["rho"].ctypes.data == rho.ctypes.data
+        assert got["sigma_s"].ctypes.data == ss.ctypes.data
+        np.testing.assert_array_equal(rho, want["rho"])
+        np.testing.assert_array_equal(ss, want["sigma_s"])
+    alpha = np.empty(rd.shape[:2] + (1,), np.float32)
+    one = plan_inversion((1.4,)).apply(rd[..., :1], out=alpha).arrays["alpha"]
+    assert one.ctypes.data == alpha.ctypes.data
+    with pytest.raises(ValueError, match="2 outputs"):
+        plan.apply(rd, 2.0, out=(rho,))
+
+
+def test_plan_masks_and_counts_invalid_texels(on_device):
+    """A mask leaves texels out (0 out, not validated); with "clamp" the counts of invalid
+    albedo and mfp values are returned; with "raise" the first is named."""
+    rd = albedo_map(6, 5)
+    rd[1, 2, 0], rd[2, 3, 1] = np.nan, 1.0
+    mfp = np.full(rd.shape, 2.0, np.float32)
+    mfp[4, 4, 2] = -1.0
+    mask = np.ones(rd.shape[:2] + (1,), np.float32)
+    mask[2, 3] = 0
+    plan = plan_inversion(ETAS, outputs=("sigma_a",), mfp_kind="diffuse", on_invalid="clamp")
+    done = plan.apply(rd, mfp, mask)
+    assert (done.invalid_albedo, done.invalid_mfp) == (1, 1)
+    assert np.all(done.arrays["sigma_a"][2, 3] == 0)
+    with pytest.raises(InvalidInputError, match="albedo"):
+        plan_inversion(ETAS, outputs=("sigma_a",), mfp_kind="diffuse").apply(rd, mfp)
+    albedo_plan = plan_inversion(ETAS, on_invalid="clamp")
+    assert albedo_plan.apply(rd).invalid_albedo == 1        # Rd = 1 is valid here, NaN not
+    with pytest.raises(ValueError, match="no mfp"):
+        albedo_plan.apply(rd, mfp)
+    with pytest.raises(ValueError, match="need an mfp"):
+        InversionPlan(ETAS, outputs=("sigma_a",))
+
+
+def test_coefficient_mapper_is_the_plan(on_device):
+    """The older ``CoefficientMapper`` (``bake=`` the older name of ``specialise=``) returns
+    (outputs, counts) from the plan it holds, the same bits as ``albedo_to_coefficients``."""
+    rd = albedo_map()
+    mapper = CoefficientMapper(ETAS, MethodConfig(), outputs=("sigma_a", "sigma_s"), bake=True,
+                               mfp_const=(1.0, 2.0, 3.0))
+    assert isinstance(mapper.plan, InversionPlan) and mapper.plan.specialise
+    assert mapper.kernel.mfp_baked and mapper.outputs == ("sigma_a", "sigma_s")
+    mfp = np.broadcast_to(np.float32([1.0, 2.0, 3.0]), rd.shape)
+    outs, counts = mapper(rd, mfp, None)
+    assert counts == {"albedo": 0, "mfp": 0}
+    want = albedo_to_coefficients(rd, np.array(mfp), ETAS)
+    for k, w in zip(("sigma_a", "sigma_s"), want):
+        np.testing.assert_array_equal(outs[k], w, err_msg=k)
+
+
+@pytest.mark.parametrize("offset", [0, 4, 12, 16, 64, 124])
+@pytest.mark.parametrize("nchan", [1, 3])
+def test_unaligned_inputs_are_used_in_place(runtime, monkeypatch, offset, nchan):
+    """An input that starts ``offset`` bytes past the device's alignment (NumPy's arrays start
+    16 bytes past a page) goes in two launches: its head, then the rest from the boundary,
+    whose buffer is the array itself (aligned, so the runtime need not copy it). The channel
+    phase is kept (the head is a whole number of texels), so the results are those of an
+    aligned copy of the input."""
+    align = transfer.base_alignment(runtime)
+    n = 3 * 1000 + 7 if nchan == 1 else 3 * 1000
+    raw = transfer.aligned_empty(n + align, np.float32)
+    rd = raw[offset // 4:offset // 4 + n]
+    rd[...] = albedo_map(40, 26).reshape(-1)[:n]
+    etas = ETAS if nchan == 3 else (1.4,)
+    k = ik.InversionKernel(etas, MethodConfig(), runtime=runtime)
+    want = k.run(np.array(rd), None, ("alpha", "rho"))
+    made = []
+    real = cl.Buffer
+
+    def spy(context, flags, size=0, hostbuf=None):
+        if hostbuf is not None and flags & cl.mem_flags.READ_ONLY:
+            made.append((hostbuf.ctypes.data, hostbuf.size))
+        return real(context, flags, size, hostbuf)
+
+    monkeypatch.setattr(transfer.cl, "Buffer", spy)
+    got = k.run(rd, None, ("alpha", "rho"))
+    monkeypatch.undo()
+    head = transfer.aligned_head(rd, align, nchan)
+    assert head % nchan == 0 and (rd.ctypes.data + 4 * head) % align == 0
+    assert made[-1][0] % align == 0, (offset, made)
+    assert sum(size for _, size in made) == n and (len(made) == 2) == (head > 0), made
+    for key in ("alpha", "rho"):
+        np.testing.assert_array_equal(got[key], want[key], err_msg=f"{key}, offset {offset}")

@@ -204,15 +204,15 @@ inline void invert_one(real rd, bd_params p, __global const float4 *table, real 
 }
 #endif
 
-// Specialisation for one scene's job (bdipole_cl/ops/invert.py: InversionKernel(bake=True)):
-//   -DBD_BAKED_PARAMS=v,v,...  the channels' constant records compiled in (the params buffer
+// Specialisation for one job (bdipole_cl/ops/inversion_kernel.py: InversionKernel(specialise=True)):
+//   -DBD_CONST_PARAMS=v,v,...  the channels' constant records compiled in (the params buffer
 //                              is not read)
 //   -DBD_MFP_CONST=v,...       a constant mfp per channel compiled in (no mfp buffer read)
 //   -DBD_OUTPUTS=bits          the outputs written, known at build time (1 alpha', 2 rho,
 //                              4 sigma_a, 8 sigma_s'): the others are not computed
-#ifdef BD_BAKED_PARAMS
-__constant real bd_baked_params[] = {BD_BAKED_PARAMS};
-#define BD_PARAM_SOURCE bd_baked_params
+#ifdef BD_CONST_PARAMS
+__constant real bd_const_params[] = {BD_CONST_PARAMS};
+#define BD_PARAM_SOURCE bd_const_params
 #else
 #define BD_PARAM_SOURCE params
 #endif

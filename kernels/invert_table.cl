@@ -11,7 +11,7 @@
 //   - the outputs written fixed at build time (BD_OUTPUTS: 1 alpha', 2 rho, 4 sigma_a,
 //     8 sigma_s'), the channel count too (BD_NCHAN), so no NULL or channel tests per element.
 // Needs bdipole.h in front, and -DBD_TABLE_N, -DBD_WIDTH, -DBD_NCHAN, -DBD_OUTPUTS
-// (and -DBD_MFP_CONST, below).
+// (and -DBD_MFP_CONST, -DBD_CONST_PARAMS, below).
 // Element e is texel e / BD_NCHAN, channel e % BD_NCHAN (interleaved, as the host holds it).
 // Float32 only (the float64 default polishes: kernels/invert.cl).
 
@@ -65,6 +65,15 @@ inline vec lane_value(__constant const float *values, int stride, ivec ch)
     return v;
 }
 #define lane_param(params, ch, field) lane_value((params) + (field), BD_PARAM_STRIDE, ch)
+
+// -DBD_CONST_PARAMS=v,...: the channels' constant records compiled in (a specialised kernel:
+// the params argument is not read, and the compiler folds the constants)
+#ifdef BD_CONST_PARAMS
+__constant float bd_const_params[] = {BD_CONST_PARAMS};
+#define BD_PARAM_SOURCE bd_const_params
+#else
+#define BD_PARAM_SOURCE params
+#endif
 
 // The mfp: -DBD_MFP_CONST=v,... one per channel compiled in (the mfp argument is not read);
 // -DBD_MFP_CHANNELS: the mfp argument holds one value per channel (__constant); else one per
@@ -159,7 +168,7 @@ __kernel void invert_table(__global const float *rd, BD_MFP_SPACE const float *m
     if (ANY_LANE(!(r < 1.0f) | (r == -INFINITY))) *invalid = 1;
 #endif
     ivec upper;
-    vec v = table_lookup(r, ch, params, tables, table_stride, &upper);
+    vec v = table_lookup(r, ch, BD_PARAM_SOURCE, tables, table_stride, &upper);
     // the two halves kept on their sides of the split (kernels/invert.cl: lower_result,
     // upper_result), then Rd <= 0 -> (0, 1) and Rd >= 1 -> (1, 0)
     vec a_lower = fmin(v, BD_ALPHA_SPLIT), rho_upper = fmin(v * v, BD_RHO_SPLIT);

@@ -40,15 +40,19 @@ def scalar_table_kernel(etas, model, runtime):
 @pytest.mark.parametrize("width", ["1", "4", "8", "16"])
 @pytest.mark.parametrize("etas", [(1.4,), (1.3, 1.4, 2.0)], ids=["1ch", "3ch"])
 @pytest.mark.parametrize("model", ["better", "dipole"])
-def test_vector_kernel_is_bitwise_the_scalar_one(runtime, monkeypatch, width, etas, model):
-    """Every width, channel count and model, a length that leaves a partial last work-item,
-    mfp per element and per channel: the same bits as kernels/invert.cl."""
+@pytest.mark.parametrize("specialise", [False, True], ids=["generic", "specialised"])
+def test_vector_kernel_is_bitwise_the_scalar_one(runtime, monkeypatch, width, etas, model,
+                                                 specialise):
+    """Every width, channel count and model, generic or with the constants compiled in
+    (``specialise``), a length that leaves a partial last work-item, mfp per element and per
+    channel: the same bits as kernels/invert.cl."""
     monkeypatch.setenv(TABLE_WIDTH_VARIABLE, width)
     rd = albedos(20011)
     rd = rd[:rd.size - rd.size % len(etas)]
     mfp = np.random.default_rng(4).uniform(0.1, 10.0, rd.size).astype(np.float32)
     want = scalar_table_kernel(etas, model, runtime).run(rd, mfp, WANT)
-    fast = InversionKernel(etas, MethodConfig(), model=model, runtime=runtime)
+    fast = InversionKernel(etas, MethodConfig(), model=model, runtime=runtime,
+                           specialise=specialise)
     assert fast.width == int(width)
     got = fast.run(rd, mfp, WANT)
     for k in WANT:

@@ -138,7 +138,7 @@ def test_coefficient_mapper_is_the_plan(on_device):
     mapper = CoefficientMapper(ETAS, MethodConfig(), outputs=("sigma_a", "sigma_s"), bake=True,
                                mfp_const=(1.0, 2.0, 3.0))
     assert isinstance(mapper.plan, InversionPlan) and mapper.plan.specialise
-    assert mapper.kernel.mfp_baked and mapper.outputs == ("sigma_a", "sigma_s")
+    assert mapper.kernel.mfp_compiled and mapper.outputs == ("sigma_a", "sigma_s")
     mfp = np.broadcast_to(np.float32([1.0, 2.0, 3.0]), rd.shape)
     outs, counts = mapper(rd, mfp, None)
     assert counts == {"albedo": 0, "mfp": 0}

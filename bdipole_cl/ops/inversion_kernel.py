@@ -87,9 +87,9 @@ class InversionKernel:
         params = channel_params(etas, exact=exact, model=model, table_n=self.table_n,
                                 dtype=self.dtype)
         defines = config.defines(double)
-        self.mfp_baked = specialise and mfp_const is not None
+        self.mfp_compiled = specialise and mfp_const is not None
         if specialise:
-            defines["BD_BAKED_PARAMS"] = _literals(params, double)
+            defines["BD_CONST_PARAMS"] = _literals(params, double)
             if mfp_const is not None:
                 mfp_const = np.broadcast_to(np.asarray(mfp_const, np.float64), (self.nchan,))
                 defines["BD_MFP_CONST"] = _literals(mfp_const, double)
@@ -101,7 +101,9 @@ class InversionKernel:
             # kernels/invert_table.cl: built per set of outputs (on the first call)
             self._table_defines = {"BD_TABLE_N": config.table_size, "BD_WIDTH": self.width,
                                    "BD_NCHAN": self.nchan}
-            if self.mfp_baked:
+            if specialise:
+                self._table_defines["BD_CONST_PARAMS"] = defines["BD_CONST_PARAMS"]
+            if self.mfp_compiled:
                 self._table_defines["BD_MFP_CONST"] = defines["BD_MFP_CONST"]
             self.kernel = None
         else:
@@ -117,6 +119,11 @@ class InversionKernel:
         self._flag_buf = cl.Buffer(self.rt.context, mf.READ_WRITE, self._flag.nbytes)
         self._mfp_channels = (None, None)
         self._lock = threading.Lock()
+
+    @property
+    def mfp_baked(self) -> bool:
+        """The older name of ``mfp_compiled``."""
+        return self.mfp_compiled
 
     def _table_kernel(self, bits: int, check: int = 0, mfp_channels: bool = False):
         """kernels/invert_table.cl for the outputs ``bits`` (OUTPUT_BITS), the validity test

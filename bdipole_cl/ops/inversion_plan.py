@@ -297,7 +297,7 @@ class InversionPlan:
         float32 inputs are tested by the kernel as it reads them: the host looks at them again
         only when it saw an invalid one."""
         k, policy = self.kernel, self.on_invalid
-        reads_mfp = not (k.mfp_baked or self.extinction)
+        reads_mfp = not (k.mfp_compiled or self.extinction)
         per_channel = channel_values(mfp, k.nchan) if reads_mfp and k.width else None
         as_kernel = None if per_channel is None else as_kernel_dtype(per_channel, k.dtype)
         if as_kernel is not None and not np.all((as_kernel > 0) & np.isfinite(as_kernel)):

@@ -104,8 +104,8 @@ def test_plan_fills_given_outputs(on_device):
     alpha = np.empty(rd.shape[:2] + (1,), np.float32)
     one = plan_inversion((1.4,)).apply(rd[..., :1], out=alpha).arrays["alpha"]
     assert one.ctypes.data == alpha.ctypes.data
-    with pytest.raises(ValueError, match="2 outputs"):
-        plan.apply(rd, 2.0, out=(rho,))
+    with pytest.raises(ValueError, match="3 arrays for the 2 outputs"):
+        plan.apply(rd, 2.0, out=(rho, ss, ss))
 
 
 def test_plan_masks_and_counts_invalid_texels(on_device):

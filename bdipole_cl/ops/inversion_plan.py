@@ -218,9 +218,10 @@ class InversionPlan:
 
         ``mask`` (broadcast against ``rd``): texels where it is 0 are left out, neither
         validated nor inverted, and come out as 0. ``out``: where to write the outputs, a
-        {name: array} dict, a sequence in ``outputs`` order, or one array (one output); each
-        C-contiguous, writeable, of the input's size and the plan's dtype (on a device that
-        shares host memory the kernel writes into them in place)."""
+        {name: array} dict, a sequence in ``outputs`` order, or one array (the first output);
+        each C-contiguous, writeable, of the input's size and the plan's dtype (on a device
+        that shares host memory the kernel writes into them in place); outputs not given are
+        new arrays."""
         out = self._out_dict(out)
         with self._lock:
             if self.mfp_kind is None:
@@ -261,7 +262,7 @@ class InversionPlan:
         if out is None or isinstance(out, dict):
             return out
         arrays = (out,) if isinstance(out, np.ndarray) else tuple(out)
-        if len(arrays) != len(self.outputs):
+        if len(arrays) > len(self.outputs):
             raise ValueError(f"out: {len(arrays)} arrays for the {len(self.outputs)} outputs "
                              f"{', '.join(self.outputs)}")
         return dict(zip(self.outputs, arrays))

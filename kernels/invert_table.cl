@@ -6,7 +6,7 @@
 //     directly rather than vectorising a scalar kernel across work-items (which Intel's and
 //     PoCL's runtimes do poorly for this kernel: its gathers and selects stay scalar);
 //   - no branches: the segment, its variable and scale are chosen by selects, one interval is
-//     gathered per lane, both halves' results are formed and one selected, and Rd <= 0 / >= 1
+//     gathered per lane (straight into its lane), both halves' results are formed and one selected, and Rd <= 0 / >= 1
 //     (NaN is reported or clamped on the host first) are selects at the end;
 //   - the outputs written fixed at build time (BD_OUTPUTS: 1 alpha', 2 rho, 4 sigma_a,
 //     8 sigma_s'), the channel count too (BD_NCHAN), so no NULL or channel tests per element.
@@ -47,6 +47,25 @@ typedef BD_CAT(int, BD_WIDTH) ivec;
 #define BD_LANES (ivec)(0, 1, 2, 3, 4, 5, 6, 7)
 #elif BD_WIDTH == 16
 #define BD_LANES (ivec)(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15)
+#endif
+// BD_EACH_LANE(F): F(l) for each lane l; BD_LANE(v, l): lane l of v (v itself at width 1).
+// Lanes are set one by one (not stored to a private array and loaded back as a vector: the
+// narrow stores cannot forward to the wide load, and PoCL's code for it was ~20% slower).
+#if BD_WIDTH == 1
+#define BD_LANE(v, l) (v)
+#define BD_EACH_LANE(F) F(0)
+#else
+#define BD_LANE(v, l) (v).s##l
+#endif
+#if BD_WIDTH == 2
+#define BD_EACH_LANE(F) F(0) F(1)
+#elif BD_WIDTH == 4
+#define BD_EACH_LANE(F) F(0) F(1) F(2) F(3)
+#elif BD_WIDTH == 8
+#define BD_EACH_LANE(F) F(0) F(1) F(2) F(3) F(4) F(5) F(6) F(7)
+#elif BD_WIDTH == 16
+#define BD_EACH_LANE(F) F(0) F(1) F(2) F(3) F(4) F(5) F(6) F(7) F(8) F(9) F(a) F(b) F(c) F(d) \
+    F(e) F(f)
 #endif
 // 1 where a lane's test holds, else 0 (vector comparisons give -1, scalar ones 1)
 #define ONE_IF(test) select((ivec)0, (ivec)1, test)
@@ -110,16 +129,13 @@ inline vec table_lookup(vec rd, ivec ch, __constant const float *params,
     ivec i = clamp(TO_INT(t), 0, BD_TABLE_N - 1);
     vec u = t - TO_FLOAT(i);
     ivec k = ch * table_stride + (ONE_IF(up) + ONE_IF(top)) * BD_SEGMENT_STRIDE + i;
-    float c0[BD_WIDTH], c1[BD_WIDTH], c2[BD_WIDTH], c3[BD_WIDTH], c4[BD_WIDTH];
-    int ks[BD_WIDTH];
-    VSTORE(k, 0, ks);
-    for (int j = 0; j < BD_WIDTH; ++j) {        // the gather: interval and its end node
-        float4 c = tables[ks[j]];
-        c0[j] = c.x; c1[j] = c.y; c2[j] = c.z; c3[j] = c.w;
-        c4[j] = tables[ks[j] + 1].x;
-    }
-    vec a = VLOAD(0, c0), b = VLOAD(0, c1), cc = VLOAD(0, c2), d = VLOAD(0, c3),
-        end = VLOAD(0, c4);
+    // the gather: each lane's interval (c0..c3) and its end node, straight into the lanes
+    vec a, b, cc, d, end;
+#define BD_GATHER_LANE(l) {                                                       \
+        float4 c = tables[BD_LANE(k, l)];                                         \
+        BD_LANE(a, l) = c.x; BD_LANE(b, l) = c.y; BD_LANE(cc, l) = c.z;            \
+        BD_LANE(d, l) = c.w; BD_LANE(end, l) = tables[BD_LANE(k, l) + 1].x; }
+    BD_EACH_LANE(BD_GATHER_LANE)
     // c0 + fma(u, c1, u^2 (c2 + c3 u)): monotone in u (kernels/invert.cl: table_value)
     vec small = u * u * (cc + u * d);
     *upper = up;

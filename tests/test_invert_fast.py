@@ -15,6 +15,7 @@ from bdipole_cl.device import build_options, get_program, transfer
 from bdipole_cl.methods.registry import MethodConfig
 from bdipole_cl.ops import inversion_kernel as ik
 from bdipole_cl.ops.inversion_kernel import InversionKernel, TABLE_WIDTH_VARIABLE
+from bdipole_cl.physics import tables
 
 WANT = ("alpha", "rho", "sigma_a", "sigma_s")
 
@@ -34,6 +35,8 @@ def scalar_table_kernel(etas, model, runtime):
     k.width = 0
     k.kernel = cl.Kernel(get_program(runtime, "invert", build_options(
         k.config.defines(False), model=model)), "invert_albedo")
+    k.tables = cl.Buffer(runtime.context, cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR,
+                         hostbuf=tables.channel_tables(etas, k.table_n, model=model))  # its rows
     return k
 
 

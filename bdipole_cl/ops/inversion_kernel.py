@@ -61,6 +61,16 @@ def _literals(values, double):
     return ",".join(repr(float(v)) + ("" if double else "f") for v in values)
 
 
+def interval_records(rows):
+    """The table's rows ((m, 4) float32: each interval's c0..c3, a segment's end node after its
+    intervals) as kernels/invert_table.cl reads them: (m, 8), a row, then the next row's c0
+    (the interval's end node: the same float as kernels/invert.cl reads), then zeros."""
+    records = np.zeros((rows.shape[0], 8), np.float32)
+    records[:, :4] = rows
+    records[:-1, 4] = rows[1:, 0]
+    return records
+
+
 class InversionKernel:
     """kernels/invert.cl built for one configuration, precision, model and tuple of etas, with
     its constant buffers on the device; call it on device buffers (benchmarks do), or on host
@@ -111,6 +121,8 @@ class InversionKernel:
             self.kernel = cl.Kernel(get_program(self.rt, "invert", opts), "invert_albedo")
         tab = (tables.channel_tables(etas, self.table_n, exact=exact, model=model)
                if self.table_n else np.zeros((1, 4), np.float32))
+        if self.width:
+            tab = interval_records(tab)
         mf = cl.mem_flags
         self.params = cl.Buffer(self.rt.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=params)
         self.tables = cl.Buffer(self.rt.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=tab)

@@ -15,7 +15,7 @@
 // (and -DBD_MFP_CONST, -DBD_CONST_PARAMS, below).
 // The table: kernels/invert.cl's rows as 8-float records (bdipole_cl/ops/inversion_kernel.py:
 // interval_records): c0..c3 of the interval, then its end node (the next row's c0), then
-// padding, so that each lane's interval is one aligned 32-byte load (~10% faster on Intel's
+// padding, so that each lane's interval is one aligned 32-byte load (~3-10% faster on Intel's
 // runtime than a 16-byte row and the next row's first float).
 // Element e is texel e / BD_NCHAN, channel e % BD_NCHAN (interleaved, as the host holds it).
 // Float32 only (the float64 default polishes: kernels/invert.cl).

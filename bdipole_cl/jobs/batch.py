@@ -25,7 +25,7 @@ from ..io.patterns import companion_path, expand_inputs, stem, written_by_us  # 
 from ..io.verify import is_complete
 from ..methods.choice import DeviceKey, device_auto_note, resolve_method
 from ..methods.registry import ALPHA_CHANNEL
-from ..ops.invert import CoefficientMapper, check_mfp_kind
+from ..ops.invert import InversionPlan, check_mfp_kind
 from ..physics.models import MODEL
 from . import runner
 from .job import InvertWork, Job
@@ -151,8 +151,9 @@ def process_textures(inputs, *, mfp=1.0, eta=1.4, output=DEFAULT_OUTPUT,
         alpha_channel=alpha, on_invalid=check_policy(on_invalid), max_memory=int(max_memory),
         outputs=tuple(outputs), unit=unit, double=bool(double),
         mfp_kind=check_mfp_kind(mfp_kind), texture=texture_options(texture))
-    CoefficientMapper((work.eta[0],), config, outputs=work.outputs, model=model,
-                      exact=exact, on_invalid=on_invalid, device=rt)  # fail fast on bad settings
+    InversionPlan((work.eta[0],), config, outputs=work.outputs, mfp_kind=work.mfp_kind,
+                  model=model, exact=exact, on_invalid=work.on_invalid,
+                  runtime=rt)                           # fail fast on bad settings
     files = expand_inputs(inputs)
     jobs_list, skip, results = batch_jobs(files, work, output, mfp, skip_existing)
     clashes = collisions(job_claims(jobs_list))     # skipped jobs' inputs are inputs too

@@ -1,7 +1,7 @@
 """One inversion job: an albedo texture (+ an mfp texture or constants, + a mask) in, a
 scattering-coefficient EXR out, streamed in bands of rows (a multiple of the tile height for
-tiled files) so that memory stays bounded by ``max_memory``; the next band is read in a
-helper thread while the device works on the current one. The output is written to a
+tiled files) so that memory stays bounded by ``max_memory``; the next band is read and the
+last one written in helper threads while the device works on the current one. The output is written to a
 temporary file, verified and renamed when complete (``io.images.Writer``), so an interrupted
 or failed job leaves nothing half-written.
 
@@ -12,7 +12,6 @@ attributes; mfp textures are data (no colour conversion), values times ``mfp_sca
 from __future__ import annotations
 
 import time
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -22,8 +21,9 @@ from ..errors import InvalidInputError
 from ..io.images import (Cancelled, Reader, TextureError, Writer, check_same_window,
                          classify_channels, invalid_texels, output_spec)
 from ..ops.bands import band_rows
-from ..ops.invert import CoefficientMapper
+from ..ops.invert import InversionPlan, check_mfp_kind
 from ..version import __version__
+from .pipeline import stream_bands
 from .results import FileResult
 
 #: the mfp convention each kind writes to an output's header
@@ -112,49 +112,56 @@ def output_header(job, work, etas, inp, route) -> dict:
             **work.header}
 
 
-def coefficient_mapper(work, etas, inp, runtime) -> CoefficientMapper:
-    """The job's inversion plan on ``runtime`` (constants compiled in with ``specialise``)."""
-    return CoefficientMapper(tuple(etas), work.config, outputs=work.outputs, model=work.model,
-                             exact=work.exact, on_invalid=work.on_invalid, device=runtime,
-                             double=work.double, bake=work.specialise, mfp_kind=work.mfp_kind,
-                             mfp_const=inp.mfp_const if work.specialise else None)
+def inversion_plan(work, etas, inp, runtime) -> InversionPlan:
+    """The job's inversion plan on ``runtime``, made once and applied to every band
+    (constants compiled into its kernel with ``specialise``)."""
+    return InversionPlan(tuple(etas), work.config, outputs=work.outputs,
+                         mfp_kind=check_mfp_kind(work.mfp_kind), model=work.model,
+                         exact=work.exact, double=work.double, on_invalid=work.on_invalid,
+                         specialise=work.specialise,
+                         mfp_const=inp.mfp_const if work.specialise else None,
+                         runtime=runtime)
 
 
-def invert_bands(job, work, inp, route, mapper, writer, result, lock, cancel, progress):
-    """The band loop: read (one band ahead), convert, invert on the device, write."""
+def invert_bands(job, work, inp, route, plan, writer, result, lock, cancel, progress):
+    """The band loop (``pipeline.stream_bands``: the next band read and the last written
+    while one is inverted): read, convert, invert on the device, write. The band budget
+    counts three bands' texels (the one read ahead, the one inverted, the one written)."""
     spec = inp.albedo.spec
     keep_alpha = inp.alpha >= 0 and work.alpha_channel == "keep"
     nout = len(work.outputs) * len(inp.names) + keep_alpha
     per_texel = 4 * 3 * (spec.nchannels + len(inp.names) * (1 + len(work.outputs)) + nout)
     rows = band_rows(spec.height, spec.width * per_texel, work.max_memory,
                      tile_height=spec.tile_height if spec.tile_width else 0)
-    bands = [(y, min(y + rows, spec.height)) for y in range(0, spec.height, rows)]
     scale = np.asarray(work.mfp_scale, np.float32)
-    with ThreadPoolExecutor(1) as prefetch:
-        pending = prefetch.submit(inp.read, bands[0], work) if bands else None
-        for k, (y0, y1) in enumerate(bands):
-            a, m, mask = pending.result()
-            if k + 1 < len(bands):
-                pending = prefetch.submit(inp.read, bands[k + 1], work)
-            albedo = route.convert(a[..., inp.colour], inp.names)
-            mfp = inp.mfp_const if m is None else m[..., inp.mfp_channels] * scale
-            try:
-                with lock:
-                    outs, counts = mapper(albedo, mfp, mask)
-            except InvalidInputError as exc:
-                yy, xx, cc = exc.first_index
-                raise invalid_texels(exc, job.source, spec.x + xx, spec.y + y0 + yy,
-                                     inp.names[cc], f" in rows {y0}..{y1 - 1}") from None
-            for key, n in counts.items():
-                result.invalid[key] = result.invalid.get(key, 0) + n
-            parts = [outs[o] for o in work.outputs]
-            if keep_alpha:
-                parts.append(a[..., inp.alpha:inp.alpha + 1])
-            if cancel is not None and cancel.is_set():
-                raise Cancelled(f"{job.source}: interrupted; nothing written")
-            writer.write_band(y0, y1, np.concatenate(parts, axis=-1))
-            if progress is not None:
-                progress.update((y1 - y0) * spec.width)
+
+    def compute(band, data):
+        (y0, y1), (a, m, mask) = band, data
+        albedo = route.convert(a[..., inp.colour], inp.names)
+        mfp = inp.mfp_const if m is None else m[..., inp.mfp_channels] * scale
+        try:
+            with lock:
+                done = plan.apply(albedo, mfp, mask)
+        except InvalidInputError as exc:
+            yy, xx, cc = exc.first_index
+            raise invalid_texels(exc, job.source, spec.x + xx, spec.y + y0 + yy,
+                                 inp.names[cc], f" in rows {y0}..{y1 - 1}") from None
+        for key, n in (("albedo", done.invalid_albedo), ("mfp", done.invalid_mfp)):
+            result.invalid[key] = result.invalid.get(key, 0) + n
+        parts = [done.arrays[o] for o in work.outputs]
+        if keep_alpha:
+            parts.append(a[..., inp.alpha:inp.alpha + 1])
+        if cancel is not None and cancel.is_set():
+            raise Cancelled(f"{job.source}: interrupted; nothing written")
+        return np.concatenate(parts, axis=-1)
+
+    def write(band, block):
+        writer.write_band(*band, block)
+        if progress is not None:
+            progress.update((band[1] - band[0]) * spec.width)
+
+    stream_bands([(y, min(y + rows, spec.height)) for y in range(0, spec.height, rows)],
+                 lambda band: inp.read(band, work), compute, write)
 
 
 def run_invert(job, runtime, *, cancel=None, lock, progress=None) -> FileResult:
@@ -184,8 +191,8 @@ def run_invert(job, runtime, *, cancel=None, lock, progress=None) -> FileResult:
         writer = Writer(job.output, out_spec, work.on_invalid, texture=work.texture,
                         cancel=cancel)
         with lock:
-            mapper = coefficient_mapper(work, etas, inp, runtime)
-        invert_bands(job, work, inp, route, mapper, writer, result, lock, cancel, progress)
+            plan = inversion_plan(work, etas, inp, runtime)
+        invert_bands(job, work, inp, route, plan, writer, result, lock, cancel, progress)
         if writer.invalid:
             result.invalid["half range" if work.half else "not finite"] = writer.invalid
         writer.commit()

@@ -7,7 +7,7 @@ computed and what is left out, and why:
 - **outputs and channels**: only the outputs asked for; as many channels as the albedo has
   colour channels (a grey albedo is one), alpha carried, other channels left out;
 - **kernel specialisation**: the job's eta constants, model, outputs and a constant mfp are
-  compiled into the inversion kernel (``InversionKernel(bake=True)``), which then reads only
+  compiled into the inversion kernel (``InversionPlan(specialise=True)``), which then reads only
   the albedo (and an mfp texture if there is one); each distinct build is cached;
 - **table size**: with ``method = "auto"`` (float32), a statistics pass finds the albedo
   range present (unmasked texels), and the smallest monotone table that meets tol there is

@@ -7,6 +7,7 @@ import warnings
 
 import numpy as np
 
+from ...device.transfer import aligned_empty
 from ...methods.registry import TEXTURED_BLUR_METHODS
 from ...signals import check_stop
 from .dispatch import DeviceBlur, device_weight_planes, gather_exitance
@@ -59,18 +60,25 @@ def blur_band(e, plans, rows, method, border, kernels):
         for c, (_, rd, _) in enumerate(plans):
             settled(out[..., c], e[..., c], rd[rows])
         return out
-    out = np.empty_like(e)
+    out = host_array(e.shape)
     planes = None          # the basis blurs, (G, H, FFT width), reused across channels
     for c, (plan, rd, ld) in enumerate(plans):
         check_stop()
         shape = fft_shape((h, w), plan.radius)
         kspec = cached_spectra(plan, shape)
         if planes is None or planes.shape != (len(kspec), h, shape[1]):
-            planes = np.empty((len(kspec), h, shape[1]), np.float32)
+            planes = host_array((len(kspec), h, shape[1]))
         basis_blurs(e[..., c], plan, kspec, border, planes)
         gather_exitance(out, c, plan, rd[rows], ld[rows], planes, plan.radius, rt)
         settled(out[..., c], e[..., c], rd[rows], FFT32_ROUNDOFF_ULPS)
     return out
+
+
+def host_array(shape):
+    """An uninitialised float32 array on the device-alignment boundary, so that a CPU
+    runtime reads and writes it in place (an unaligned host pointer is copied whole, in and
+    out: ``device.transfer``)."""
+    return aligned_empty(int(np.prod(shape)), np.float32).reshape(shape)
 
 
 def textured_row_bytes(width, nchan, radius, nbasis) -> int:

@@ -49,8 +49,9 @@ from .caches import clear_caches
 from .device import DeviceError, DeviceState, Runtime, get_runtime, survey, use_device
 from .errors import POLICIES, InvalidInputError
 from .methods.registry import METHODS, MethodConfig
-from .ops.blur import BlurInfo, ChannelInfo, blur
-from .ops.invert import OUTPUTS, albedo_to_coefficients, invert_albedo
+from .ops.blur import BlurInfo, BlurPlan, ChannelInfo, Scattering, blur, plan_blur
+from .ops.invert import (OUTPUTS, InversionPlan, albedo_to_coefficients, invert_albedo,
+                         plan_inversion)
 from .physics import reference
 from .physics.models import MODELS
 from .version import __version__
@@ -61,18 +62,23 @@ __all__ = [
     "OUTPUTS",
     "POLICIES",
     "BlurInfo",
+    "BlurPlan",
     "ChannelInfo",
     "DeviceError",
     "DeviceState",
     "InvalidInputError",
+    "InversionPlan",
     "MethodConfig",
     "Runtime",
+    "Scattering",
     "__version__",
     "albedo_to_coefficients",
     "blur",
     "clear_caches",
     "get_runtime",
     "invert_albedo",
+    "plan_blur",
+    "plan_inversion",
     "reference",
     "survey",
     "use_device",

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import logging
 import shutil
+import signal
 import tempfile
 import threading
 import time
@@ -74,9 +75,10 @@ def connect(scheduler: str, *, memory_limit=None):
                              f"{MIN_WORKER_MEMORY >> 20}M (its Python, OpenCL runtime and one "
                              f"band); give more, e.g. 1G")
         logging.getLogger("distributed").setLevel(logging.CRITICAL)
-        cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
-                               memory_limit=memory_limit or "auto", dashboard_address=":0",
-                               silence_logs=logging.CRITICAL)
+        with sigint_ignored_by_children():
+            cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
+                                   memory_limit=memory_limit or "auto",
+                                   dashboard_address=":0", silence_logs=logging.CRITICAL)
         try:
             with Client(cluster) as client:
                 yield client
@@ -85,6 +87,23 @@ def connect(scheduler: str, *, memory_limit=None):
     else:
         with Client(scheduler) as client:
             yield client
+
+
+@contextmanager
+def sigint_ignored_by_children():
+    """Processes started inside ignore SIGINT (an ignored signal stays ignored across exec,
+    and Python then installs no KeyboardInterrupt handler): a Ctrl-C, which the terminal sends
+    to the whole process group, reaches only this process, which cancels the tasks and
+    closes the cluster; a worker interrupted mid-task could leave that close waiting on it.
+    SIGTERM still stops the workers. Outside the main thread, nothing changes."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
 
 def _progress(total, desc, enabled):

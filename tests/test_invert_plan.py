@@ -180,3 +180,31 @@ def test_unaligned_inputs_are_used_in_place(runtime, monkeypatch, offset, nchan)
     assert sum(size for _, size in made) == n and (len(made) == 2) == (head > 0), made
     for key in ("alpha", "rho"):
         np.testing.assert_array_equal(got[key], want[key], err_msg=f"{key}, offset {offset}")
+
+
+def test_plan_refuses_a_channel_count_that_is_not_its_etas(runtime):
+    """Three etas are one per channel: a two-channel input is an error, not etas cycled over
+    the texels."""
+    import bdipole_cl as bd
+    plan = bd.plan_inversion((1.3, 1.4, 1.5), device=runtime)
+    with pytest.raises(ValueError, match="eta has 3 values but the input's last axis has 2"):
+        plan.apply(np.full((4, 4, 2), 0.5, np.float32))
+    one = bd.plan_inversion(1.4, device=runtime)          # a scalar eta, as elsewhere
+    assert one.apply(np.full(5, 0.5, np.float32)).arrays["alpha"].shape == (5,)
+
+
+def test_plan_pickles_and_masks_by_texel(runtime):
+    """A plan pickles as its settings (for clusters); an HxW mask masks every channel."""
+    import pickle
+
+    import bdipole_cl as bd
+    plan = bd.plan_inversion((1.3, 1.4, 1.5), outputs=("sigma_a",), mfp_kind="diffuse",
+                             device=runtime)
+    again = pickle.loads(pickle.dumps(plan))
+    rd = np.full((4, 4, 3), 0.5, np.float32)
+    mask = np.ones((4, 4))
+    mask[0] = 0
+    got = again.apply(rd, 1.0, mask=mask).arrays["sigma_a"]
+    want = plan.apply(rd, 1.0).arrays["sigma_a"]
+    assert np.all(got[0] == 0)
+    np.testing.assert_array_equal(got[1:], want[1:])

@@ -103,3 +103,26 @@ def test_a_dask_bake_calls_the_one_runner(scene_files, calls, on_device):
                                        progress=False)
     assert report.exit_code == 0, report.summary()
     assert sorted(calls) == ["blur", "invert", "invert"]
+
+
+def test_blur_refuses_a_mixed_parameter_pair(tmp_path, capsys):
+    """--sigma-t belongs to --alpha-prime: with --albedo and --mfp it is a usage error, not
+    silently dropped."""
+    e = np.ones((8, 8, 3), np.float32)
+    write_exr(tmp_path / "e.exr", e, ("R", "G", "B"))
+    rc = cli_main(["blur", str(tmp_path / "e.exr"), "--albedo", "0.8", "--mfp", "2",
+                   "--sigma-t", "1", "-o", str(tmp_path / "m.exr"), "--no-progress"])
+    assert rc == 2 and "not both pairs" in capsys.readouterr().err
+    assert not (tmp_path / "m.exr").exists()
+
+
+def test_the_output_names_the_planned_methods_whatever_the_bands(tmp_path, runtime):
+    """bdipole:methods comes from the plan, so a dark first band does not drop it."""
+    import OpenImageIO as oiio
+    e = np.zeros((64, 16, 1), np.float32)
+    e[48:] = 1.0                                   # the first bands get no light
+    write_exr(tmp_path / "e.exr", e, ("Y",))
+    blur_file(tmp_path / "e.exr", tmp_path / "m.exr", albedo=0.5, mfp=1.0,
+              max_memory=16 * 4 * 10 * 8, device=runtime)
+    spec = oiio.ImageInput.open(str(tmp_path / "m.exr")).spec()
+    assert "(r=" in spec.get_string_attribute("bdipole:methods")

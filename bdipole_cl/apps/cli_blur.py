@@ -52,6 +52,11 @@ def cmd_blur(args) -> int:
     if args.alpha_prime is not None and args.sigma_t is None:
         print("bdipole-cl blur: error: --alpha-prime needs --sigma-t", file=sys.stderr)
         return 2
+    if (args.alpha_prime is None) != (args.sigma_t is None) or (
+            args.alpha_prime is not None and (args.albedo is not None or args.mfp is not None)):
+        print("bdipole-cl blur: error: give --albedo and --mfp, or --alpha-prime and "
+              "--sigma-t, not both pairs", file=sys.stderr)
+        return 2
     sources = {name: v for name, v in (("albedo", args.albedo), ("mfp", args.mfp),
                                        ("alpha", args.alpha_prime), ("sigma_t", args.sigma_t))
                if v is not None and number_list(v) is None}
@@ -87,6 +92,11 @@ def blur_on_cluster(args, sources, stop) -> int:
     from ..io.images import Cancelled, TextureError
     job = blur_job(args, sources)
     s = job.work.scattering
+    if s.textured:                      # before any cluster starts
+        print("bdipole-cl blur: error: --scheduler takes constant parameters (one value or one "
+              "per channel); with parameter textures, blur without --scheduler",
+              file=sys.stderr)
+        return 2
     try:
         with cluster_client(args) as client:
             n = blur_file_on_cluster(args.input, args.output, client, half=args.half,
@@ -96,7 +106,8 @@ def blur_on_cluster(args, sources, stop) -> int:
                                      mfp=s.mfp, eta=s.eta, texel_size=s.texel_size,
                                      alpha=s.alpha_prime, sigma_t=s.sigma_t, tol=args.tol,
                                      method=args.method, border=args.border,
-                                     on_invalid=args.on_invalid, exact=args.exact)
+                                     on_invalid=args.on_invalid, exact=args.exact,
+                                     progress=not args.no_progress)
     except TextureError as exc:
         print(f"bdipole-cl {args.command}: error: {exc}", file=sys.stderr)
         return (stop.exit_code or 1) if isinstance(exc, Cancelled) else 1

@@ -20,15 +20,17 @@ from ..ops.blur import BlurPlan, Scattering, plan_blur
 from ..ops.blur.params import checked_irradiance
 from ..ops.invert import invert_albedo
 from ..signals import Stopped
-from .pipeline import BANDS_IN_FLIGHT, stream_bands
+from .pipeline import stream_bands
 from .results import FileResult
 from .scene_stats import read_albedo
 
 #: working set per row of a streamed band, in floats per texel and channel of the file: the
-#: band as read, the colour planes, the blur's own working set (``constant_row_bytes``) and
-#: the output with alpha (10), and the band read ahead and the one being written
-#: (``pipeline.BANDS_IN_FLIGHT``, 2 floats each)
-FILE_ROW_FLOATS = 10 + 2 * BANDS_IN_FLIGHT
+#: band as read, the colour planes, the blur's own working set (``constant_row_bytes``, which
+#: counts float64 FFT copies; the float32 FFT needs half) and the output with alpha, and the
+#: band read ahead and the one being written (``pipeline.BANDS_IN_FLIGHT``) in what the
+#: float32 FFT leaves. Measured: a 4096^2 RGB blur at --max-memory 64M peaks 65-70 MB above
+#: the process's own (a 64-row image's) peak
+FILE_ROW_FLOATS = 10
 
 
 def located(exc, path, sources, spec, idx):
@@ -73,7 +75,7 @@ def blurred_band(plan, px, colour, names, route, idx, mask, y0, y1, max_memory=N
 
 
 def exitance_writer(path, output, spec, colour, alpha_ch, route, plan, *, half=False,
-                    header=None, info=None, texture=False, cancel=None) -> Writer:
+                    header=None, texture=False, cancel=None) -> Writer:
     """The writer of a blur's output: the irradiance's colour channels (then its alpha), the
     parameters and the methods used as ``bdipole:*`` attributes, tagged with the working
     space. The one output layout of the file blur and of its cluster form."""
@@ -81,8 +83,7 @@ def exitance_writer(path, output, spec, colour, alpha_ch, route, plan, *, half=F
     if alpha_ch >= 0:
         names.append(spec.channelnames[alpha_ch])
     meta = plan.scattering.header() | {"tol": plan.tol, "border": plan.border}
-    if info is not None:
-        meta["methods"] = ",".join(f"{c.method}(r={c.radius})" for c in info.channels)
+    meta["methods"] = ",".join(planned_methods(plan))
     meta.update(header or {})
     meta["source"] = str(path)
     meta.update(route.header("irradiance"))
@@ -90,6 +91,13 @@ def exitance_writer(path, output, spec, colour, alpha_ch, route, plan, *, half=F
     return Writer(output, output_spec(spec, names, len(names) - 1 if alpha_ch >= 0 else -1,
                                       half, meta, working=route.working),
                   plan.on_invalid, texture=texture, cancel=cancel)
+
+
+def planned_methods(plan):
+    """Each channel's method and radius, as the plan decided them (before any band runs)."""
+    if plan.textured:
+        return [f"{c.method}(r={c.radius})" for c in plan.textured_info.channels]
+    return [f"{p.method}(r={p.kernel.radius})" for p in plan.channels]
 
 
 def blur_file(path, output, *, colorspace="auto", working_space=None, half=False,
@@ -151,8 +159,7 @@ def blur_file(path, output, *, colorspace="auto", working_space=None, half=False
             if state["writer"] is None:
                 state["writer"] = exitance_writer(path, output, spec, colour, alpha_ch, route,
                                                   plan, half=half, header=header,
-                                                  info=state["info"], texture=texture,
-                                                  cancel=cancel)
+                                                  texture=texture, cancel=cancel)
             return out
 
         def write(band, block):

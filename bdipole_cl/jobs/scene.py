@@ -345,10 +345,11 @@ def scene_job(job: PlannedJob, scene: Scene, max_memory=DEFAULT_MEMORY) -> Job:
 
 def not_run(job: PlannedJob) -> FileResult | None:
     """The result of a planned job that is not run (it cannot, or it is up to date)."""
+    source = f"{job.name} (constants)" if job.kind == "constant" else job.source
     if job.problem:
-        return FileResult(job.source, job.output, error=job.problem)
+        return FileResult(source, job.output, error=job.problem)
     if job.up_to_date:
-        return FileResult(job.source, job.output, status="skipped")
+        return FileResult(source, job.output, status="skipped")
     return None
 
 

@@ -235,7 +235,8 @@ class InversionPlan:
                     mfp = np.asarray(self.mfp_const, np.float64)
                 rd, mfp = (as_float(a) for a in np.broadcast_arrays(np.asarray(rd),
                                                                    np.asarray(mfp)))
-            keep = None if mask is None else np.broadcast_to(np.asarray(mask) > 0, rd.shape)
+            self._check_channels(rd.shape)
+            keep = None if mask is None else self._keep(mask, rd.shape)
             if keep is not None:
                 if not keep.any():                 # nothing to invert: no device call at all
                     return Inverted(self._zeros(rd.shape, out))
@@ -257,6 +258,28 @@ class InversionPlan:
                 outs["sigma_t"] = np.add(outs["sigma_a"], outs["sigma_s"],
                                          out=output_array(out, "sigma_t", rd.size, self.dtype))
             return Inverted({k: outs[k].reshape(rd.shape) for k in self.outputs}, n_rd, n_mfp)
+
+    def _check_channels(self, shape):
+        """Several etas are one per channel of the input's last axis (ValueError if not)."""
+        n = len(self.etas)
+        if n > 1 and (len(shape) == 0 or shape[-1] != n):
+            raise ValueError(f"eta has {n} values but the input's last axis has "
+                             f"{shape[-1] if shape else 'no'} channels")
+
+    def _keep(self, mask, shape):
+        """The mask as booleans of the input's shape: an HxW mask of an HxWxC input masks
+        every channel of its texels."""
+        keep = np.asarray(mask) > 0
+        if len(self.etas) > 1 and keep.ndim == len(shape) - 1:
+            keep = keep[..., None]
+        return np.broadcast_to(keep, shape)
+
+    def __reduce__(self):
+        """Pickled as its settings: unpickled, it builds its kernel on the default device
+        of the process that receives it."""
+        return (InversionPlan, (self.etas, self.config, self.outputs, self.mfp_kind,
+                                self.model, self.exact, self.double, self.on_invalid,
+                                self.specialise, self.mfp_const))
 
     def _out_dict(self, out):
         if out is None or isinstance(out, dict):
@@ -333,6 +356,7 @@ def plan_inversion(etas, method="table", *, outputs=("alpha",), mfp_kind=None,
     rt = get_runtime(device)
     config = resolve_method(method, double=double, device_key=DeviceKey.of(rt.device),
                             **knobs)
-    return InversionPlan(tuple(etas), config, outputs=outputs, mfp_kind=mfp_kind, model=model,
+    etas = tuple(float(e) for e in np.atleast_1d(np.asarray(etas, np.float64)))
+    return InversionPlan(etas, config, outputs=outputs, mfp_kind=mfp_kind, model=model,
                          exact=exact, double=double, on_invalid=on_invalid,
                          specialise=specialise, mfp_const=mfp_const, runtime=rt)

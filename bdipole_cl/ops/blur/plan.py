@@ -127,7 +127,8 @@ class BlurPlan:
 
     def apply(self, irradiance, max_memory=None):
         """The whole image (HxW or HxWxC), in bands of rows within ``max_memory`` bytes if
-        given (the same result as in one piece: each band carries the halo): (M, BlurInfo)."""
+        given (each band carries the halo, so the result is the one-piece result up to the
+        float32 FFT's round-off, whose transform sizes differ by band): (M, BlurInfo)."""
         e = checked_irradiance(irradiance, self.on_invalid)
         if e.shape != tuple(self.shape):
             raise ValueError(f"irradiance has shape {e.shape}; the plan is for {self.shape}")

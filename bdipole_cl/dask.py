@@ -253,6 +253,19 @@ def blur_band_task(path, band_path, y0, y1, plan, colorspace, working, device=No
     return band_path
 
 
+def band_folder_prefix(output) -> str:
+    return f".{Path(output).stem}.bands-"
+
+
+def remove_band_folders(output) -> int:
+    """Remove the band folders a cluster blur of ``output`` left when its process was killed
+    (the one process that writes ``output`` calls this first: outputs never collide)."""
+    stale = list(Path(output).parent.glob(band_folder_prefix(output) + "*"))
+    for folder in stale:
+        shutil.rmtree(folder, ignore_errors=True)
+    return len(stale)
+
+
 def blur_file_on_cluster(path, output, client, *, colorspace="auto", working_space=None,
                          half=False, max_memory=256 << 20, device=None, progress=True,
                          texture=False,
@@ -280,8 +293,8 @@ def blur_file_on_cluster(path, output, client, *, colorspace="auto", working_spa
     halo = plan.halo
     rows = band_rows(spec.height, spec.width * spec.nchannels * 4 * FILE_ROW_FLOATS,
                      max_memory, halo=halo)
-    work = Path(tempfile.mkdtemp(prefix=f".{Path(output).stem}.bands-",
-                                 dir=Path(output).parent))
+    remove_band_folders(output)         # what a run of this output killed mid-way left
+    work = Path(tempfile.mkdtemp(prefix=band_folder_prefix(output), dir=Path(output).parent))
     try:
         futures, run_id = {}, uuid.uuid4().hex[:12]
         for k, (y0, y1, _) in enumerate(bands(spec.height, rows)):

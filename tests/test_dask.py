@@ -133,6 +133,9 @@ def test_file_blur_on_the_cluster_equals_the_local_file_blur(client, tmp_path):
     write_exr(tmp_path / "e.exr", e, ("R", "G", "B"))
     kw = dict(albedo=(0.8, 0.6, 0.4), mfp=(2.0, 1.0, 0.5), eta=1.4)
     blur_file(tmp_path / "e.exr", tmp_path / "local.exr", **kw)
+    stale = tmp_path / ".cluster.bands-killed"     # what a killed run of this output left
+    stale.mkdir()
+    (stale / "band00000.exr").write_bytes(b"partial")
     n = bdask.blur_file_on_cluster(tmp_path / "e.exr", tmp_path / "cluster.exr", client,
                                    max_memory=40 * 3 * 4 * 10 * 30, progress=False, **kw)
     assert n > 2                                   # in bands, with halos

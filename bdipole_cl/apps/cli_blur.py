@@ -115,15 +115,6 @@ def blur_on_cluster(args, sources, stop) -> int:
     return 0
 
 
-def texels_of(path):
-    from ..io.images import Reader
-    r = Reader(path, "irradiance")
-    try:
-        return r.spec.width * r.spec.height
-    finally:
-        r.close()
-
-
 @contextlib.contextmanager
 def texel_bar(path, desc, enabled):
     """A tqdm bar over ``path``'s texels (None when disabled)."""
@@ -131,6 +122,8 @@ def texel_bar(path, desc, enabled):
         yield None
         return
     from tqdm import tqdm
-    with tqdm(total=texels_of(path), unit="texel", unit_scale=True, desc=desc,
+
+    from ..io.images import texel_count
+    with tqdm(total=texel_count(path), unit="texel", unit_scale=True, desc=desc,
               disable=None) as bar:                 # None: shown on a terminal only
         yield bar

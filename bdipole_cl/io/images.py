@@ -100,6 +100,18 @@ def is_regular_file(path) -> bool:
         return False
 
 
+def texel_count(path) -> int:
+    """Width x height of an image file, 0 when it is not a readable regular file (a progress
+    bar's total: the job itself reports why it cannot read it)."""
+    inp = oiio.ImageInput.open(str(path)) if is_regular_file(path) else None
+    if inp is None:
+        return 0
+    try:
+        return inp.spec().width * inp.spec().height
+    finally:
+        inp.close()
+
+
 def check_regular_file(path, what):
     """TextureError unless ``path`` is a regular file (a FIFO or device would block or never
     end)."""

@@ -12,14 +12,13 @@ import os
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
-import OpenImageIO as oiio
 
 from ..device import get_runtime
 from ..errors import check_policy
 from ..io import tiles
 from ..io.collisions import Claim, collisions
 from ..io.colour import check_colorspace, resolve_working_space
-from ..io.images import TextureError, check_output_format, is_regular_file
+from ..io.images import TextureError, check_output_format, texel_count
 from ..io.mipmaps import texture_options
 from ..io.patterns import companion_path, expand_inputs, stem, written_by_us  # noqa: F401
 from ..io.verify import is_complete
@@ -206,10 +205,5 @@ def batch_jobs(files, work, output, mfp, skip_existing):
 def texel_bar(jobs_list, desc):
     """A tqdm bar over the texels of the jobs' sources."""
     from tqdm import tqdm
-    total = 0
-    for j in jobs_list:
-        inp = oiio.ImageInput.open(j.source) if is_regular_file(j.source) else None
-        if inp is not None:
-            total += inp.spec().width * inp.spec().height
-            inp.close()
-    return tqdm(total=total, unit="texel", unit_scale=True, desc=desc)
+    return tqdm(total=sum(texel_count(j.source) for j in jobs_list), unit="texel",
+                unit_scale=True, desc=desc)

@@ -14,7 +14,7 @@ from ..io.collisions import Claim, check_claim
 from ..io.colour import resolve_working_space
 from ..io.images import (Cancelled, Reader, TextureError, Writer, check_output_format,
                          check_same_window, invalid_texels, output_spec, read_parameter_texture,
-                         read_rows)
+                         read_rows, texel_count)
 from ..ops.bands import band_rows, bands
 from ..ops.blur import BlurPlan, Scattering, plan_blur
 from ..ops.blur.params import checked_irradiance
@@ -262,21 +262,13 @@ def run_blur(job, runtime, *, cancel=None, lock=None, progress=None) -> FileResu
             on_invalid=w.on_invalid, exact=exact, device=runtime, max_memory=w.max_memory,
             texture=w.texture, progress=progress)
         result.status = "ok"
-        result.texels = texels if texels is not None else irradiance_texels(job.source)
+        result.texels = texels if texels is not None else texel_count(job.source)
     except Cancelled as exc:
         result.status, result.error = "cancelled", str(exc)
     except (TextureError, OSError, ValueError) as exc:
         result.error = str(exc)
     result.seconds = time.perf_counter() - t0
     return result
-
-
-def irradiance_texels(path) -> int:
-    r = Reader(path, "irradiance")
-    try:
-        return r.spec.width * r.spec.height
-    finally:
-        r.close()
 
 
 def colour_of(path, role, colorspace, working) -> str:

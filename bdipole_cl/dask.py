@@ -54,7 +54,6 @@ MIN_WORKER_MEMORY = 384 << 20
 POLL = 0.25
 #: seconds a run waits for a cluster without workers before failing its unfinished jobs
 NO_WORKER_TIMEOUT = 60.0
-_worker_lock = threading.Lock()
 
 
 @contextmanager
@@ -161,7 +160,7 @@ def run_on_worker(job: Job, device=None) -> FileResult:
     process), after removing what a writer that died there before left of its output."""
     if job.kind != "constant":
         remove_partial_files(job.output)
-    return runner.run_job(job, get_runtime(device), lock=_worker_lock)
+    return runner.run_job(job, get_runtime(device))   # the process's one device lock
 
 
 def bake_on_cluster(plan: Plan, client, *, device=None, progress=True,
@@ -237,11 +236,8 @@ def blur_band_task(path, band_path, y0, y1, plan, colorspace, working, device=No
         px = read_rows(reader, idx)
     finally:
         reader.close()
-    out, _ = blurred_band(plan, px, colour, [spec.channelnames[c] for c in colour], route, idx,
-                          None, y0, y1)
-    if alpha >= 0:
-        out = np.concatenate([out, px[plan.halo:plan.halo + y1 - y0, :, alpha:alpha + 1]],
-                             axis=-1)
+    out, _ = blurred_band(plan, px, colour, alpha, [spec.channelnames[c] for c in colour],
+                          route, idx, None, y0, y1)
     band = oiio.ImageSpec(spec.width, y1 - y0, out.shape[-1], "float")
     writer = Writer(band_path, band)
     try:

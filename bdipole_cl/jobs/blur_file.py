@@ -52,25 +52,30 @@ def file_plan(path, spec, ncolour, scattering, options, sources) -> BlurPlan:
         raise located(exc, path, sources, spec, np.arange(spec.height)) from None
 
 
-def blurred_band(plan, px, colour, names, route, idx, mask, y0, y1, max_memory=None):
-    """Rows [y0, y1) of the exitance from the band ``px`` read at rows ``idx`` (the halo
+def blurred_band(plan, px, colour, alpha_ch, names, route, idx, mask, y0, y1,
+                 max_memory=None):
+    """Rows [y0, y1) of the output from the band ``px`` read at rows ``idx`` (the halo
     included): the colour channels converted into the working space, masked texels unlit,
     blurred by ``plan`` (a texture-varying plan reads its whole image at once: no halo);
-    bands with no light are not blurred (0)."""
+    bands with no light are not blurred (0); then the alpha channel ``alpha_ch`` (if >= 0)
+    as read. (output, BlurInfo or None)."""
     k = plan.halo if len(idx) > y1 - y0 else 0
     e = route.convert(px[..., colour], names)
     if mask is not None:
         e = e * (np.asarray(mask)[np.maximum(idx, 0)] > 0)[..., None] \
             * (idx >= 0)[:, None, None]
     if not np.any(e):                   # no light reaches this band: nothing to blur
-        return np.zeros((y1 - y0, px.shape[1], len(colour)), np.float32), None
-    if plan.textured:
-        out, info = plan.apply(e, max_memory)
+        out, info = np.zeros((y1 - y0, px.shape[1], len(colour)), np.float32), None
     else:
-        out, info = plan.apply_band(checked_irradiance(e, plan.on_invalid), idx)
-    out = out[k:k + y1 - y0]
-    if mask is not None:
-        out = out * (np.asarray(mask)[y0:y1] > 0)[..., None]
+        if plan.textured:
+            out, info = plan.apply(e, max_memory)
+        else:
+            out, info = plan.apply_band(checked_irradiance(e, plan.on_invalid), idx)
+        out = out[k:k + y1 - y0]
+        if mask is not None:
+            out = out * (np.asarray(mask)[y0:y1] > 0)[..., None]
+    if alpha_ch >= 0:
+        out = np.concatenate([out, px[k:k + y1 - y0, :, alpha_ch:alpha_ch + 1]], axis=-1)
     return out, info
 
 
@@ -149,13 +154,11 @@ def blur_file(path, output, *, colorspace="auto", working_space=None, half=False
             if cancel is not None and cancel.is_set():
                 raise Cancelled(f"{path}: interrupted; nothing written")
             try:
-                out, band_info = blurred_band(plan, px, colour, names, route, idx, mask, y0,
-                                              y1, max_memory)
+                out, band_info = blurred_band(plan, px, colour, alpha_ch, names, route, idx,
+                                              mask, y0, y1, max_memory)
             except InvalidInputError as exc:
                 raise located(exc, path, sources, spec, idx) from None
             state["info"] = band_info or state["info"]
-            if alpha_ch >= 0:
-                out = np.concatenate([out, px[k:k + y1 - y0, :, alpha_ch:alpha_ch + 1]], -1)
             if state["writer"] is None:
                 state["writer"] = exitance_writer(path, output, spec, colour, alpha_ch, route,
                                                   plan, half=half, header=header,

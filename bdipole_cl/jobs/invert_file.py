@@ -54,10 +54,7 @@ class InvertInputs:
     mfp_channels: list | None
     mfp_const: np.ndarray | None     # per channel, scaled (no mfp texture)
     mask: Reader | None
-
-    @property
-    def readers(self):
-        return [r for r in (self.albedo, self.mfp, self.mask) if r is not None]
+    keep_alpha: bool                 # the alpha channel is carried to the output
 
     def read(self, band, work):
         """Rows [y0, y1) of (albedo, mfp texture or None, mask or None)."""
@@ -98,7 +95,7 @@ def open_inputs(job, work, readers) -> InvertInputs:
         readers.append(mask_reader)
         check_same_window(spec, mask_reader.spec, job.source, "mask", job.inputs["mask"])
     return InvertInputs(alb, colour, alpha_ch, names, mfp_reader, mfp_channels, mfp_const,
-                        mask_reader)
+                        mask_reader, alpha_ch >= 0 and work.alpha_channel == "keep")
 
 
 def output_header(job, work, etas, inp, route) -> dict:
@@ -128,8 +125,7 @@ def invert_bands(job, work, inp, route, plan, writer, result, lock, cancel, prog
     while one is inverted): read, convert, invert on the device, write. The band budget
     counts three bands' texels (the one read ahead, the one inverted, the one written)."""
     spec = inp.albedo.spec
-    keep_alpha = inp.alpha >= 0 and work.alpha_channel == "keep"
-    nout = len(work.outputs) * len(inp.names) + keep_alpha
+    nout = len(work.outputs) * len(inp.names) + inp.keep_alpha
     per_texel = 4 * 3 * (spec.nchannels + len(inp.names) * (1 + len(work.outputs)) + nout)
     rows = band_rows(spec.height, spec.width * per_texel, work.max_memory,
                      tile_height=spec.tile_height if spec.tile_width else 0)
@@ -149,7 +145,7 @@ def invert_bands(job, work, inp, route, plan, writer, result, lock, cancel, prog
         for key, n in (("albedo", done.invalid_albedo), ("mfp", done.invalid_mfp)):
             result.invalid[key] = result.invalid.get(key, 0) + n
         parts = [done.arrays[o] for o in work.outputs]
-        if keep_alpha:
+        if inp.keep_alpha:
             parts.append(a[..., inp.alpha:inp.alpha + 1])
         if cancel is not None and cancel.is_set():
             raise Cancelled(f"{job.source}: interrupted; nothing written")
@@ -181,10 +177,9 @@ def run_invert(job, runtime, *, cancel=None, lock, progress=None) -> FileResult:
         route = inp.albedo.colour(work.colorspace, work.working)
         result.colour = route.describe()
         out_names = [f"{o}.{n}" for o in work.outputs for n in inp.names]
-        if inp.alpha >= 0 and work.alpha_channel == "keep":
+        if inp.keep_alpha:
             out_names.append(spec.channelnames[inp.alpha])
-        keep_alpha = inp.alpha >= 0 and work.alpha_channel == "keep"
-        out_spec = output_spec(spec, out_names, len(out_names) - 1 if keep_alpha else -1,
+        out_spec = output_spec(spec, out_names, len(out_names) - 1 if inp.keep_alpha else -1,
                                work.half, output_header(job, work, etas, inp, route),
                                working=route.working)
         Path(job.output).parent.mkdir(parents=True, exist_ok=True)

@@ -34,8 +34,6 @@ HDR values are fine: weights sum to Rd <= 1.
 """
 from __future__ import annotations
 
-import numpy as np
-
 from ...methods.registry import BLUR_METHODS, BORDERS
 from .fit import fit_gaussians
 from .params import PARAM_KEYS, channel_parameters, checked_irradiance
@@ -49,8 +47,9 @@ __all__ = ["BLUR_METHODS", "BORDERS", "PARAM_KEYS", "BlurInfo", "BlurPlan", "Cha
 
 
 def is_textured(**physical) -> bool:
-    """Whether any physical parameter is a texture (2D or more) rather than per channel."""
-    return any(np.ndim(v) >= 2 for v in physical.values() if v is not None)
+    """Whether any physical parameter (``blur``'s keywords) is a texture (2D or more)
+    rather than per channel: ``Scattering.textured``."""
+    return Scattering.split(physical)[0].textured
 
 
 def blur(irradiance, *, albedo=None, mfp=None, eta=1.4, texel_size=1.0, alpha=None,

@@ -24,6 +24,11 @@ from .planning import BlurInfo, blur_whole, channel_plans, constant_row_bytes, h
 from .textured import blur_band, textured_info, textured_method, textured_plans, textured_row_bytes
 
 
+#: ``blur``'s keyword of each Scattering field (``alpha`` is alpha', the API's older name)
+KEYWORDS = {"albedo": "albedo", "mfp": "mfp", "eta": "eta", "texel_size": "texel_size",
+            "alpha_prime": "alpha", "sigma_t": "sigma_t"}
+
+
 @dataclass(frozen=True)
 class Scattering:
     """The blur's physical parameters: albedo (Rd) and mfp (ld = 1/mu_tr, in the unit of
@@ -45,16 +50,13 @@ class Scattering:
 
     def keywords(self) -> dict:
         """The parameters as ``params.channel_parameters`` and ``texel_parameters`` take them."""
-        return dict(albedo=self.albedo, mfp=self.mfp, eta=self.eta,
-                    texel_size=self.texel_size, alpha=self.alpha_prime, sigma_t=self.sigma_t)
+        return {key: getattr(self, name) for name, key in KEYWORDS.items()}
 
     @classmethod
     def split(cls, keywords: dict):
         """(Scattering, the other keywords) of ``blur``-style keywords."""
         rest = dict(keywords)
-        names = dict(albedo="albedo", mfp="mfp", eta="eta", texel_size="texel_size",
-                     alpha="alpha_prime", sigma_t="sigma_t")
-        given = {field_: rest.pop(key) for key, field_ in names.items() if key in rest}
+        given = {name: rest.pop(key) for name, key in KEYWORDS.items() if key in rest}
         return cls(**given), rest
 
     def header(self) -> dict:
@@ -101,11 +103,14 @@ class BlurPlan:
         return {**self.__dict__, "runtime": None, "kernels": None}
 
     def on(self, device=None) -> BlurPlan:
-        """This plan on ``device``'s runtime: itself if it is bound there, else a copy."""
+        """This plan on ``device``'s runtime: itself if it is there (or unbound, then bound
+        there), else a copy (its kernels built there on first use)."""
         rt = get_runtime(device)
-        if self.runtime is rt and self.kernels is not None:
+        if self.runtime is None and self.kernels is None:
+            self.runtime = rt
+        if self.runtime is rt:
             return self
-        return replace(self, runtime=rt, kernels=BlurKernels(rt, self.border))
+        return replace(self, runtime=rt, kernels=None)
 
     def bound_kernels(self) -> BlurKernels:
         """The plan's device kernels, bound on first use (to ``runtime``, None: the default)."""
@@ -159,7 +164,7 @@ def plan_blur(shape, scattering: Scattering, *, tol=1e-3, method="auto", border=
     check_blur_options(method, tol, border, on_invalid)
     shape = tuple(shape) if len(shape) == 3 else (*shape, 1)
     rt = get_runtime(device)
-    base = BlurPlan(scattering, shape, tol, method, border, exact, on_invalid, 0)
+    base = BlurPlan(scattering, shape, tol, method, border, exact, on_invalid, 0, runtime=rt)
     if scattering.textured:
         chans = textured_plans(shape, tol=tol, exact=exact, on_invalid=on_invalid,
                                method=method, **scattering.keywords())
@@ -169,4 +174,4 @@ def plan_blur(shape, scattering: Scattering, *, tol=1e-3, method="auto", border=
         params, plans = channel_plans(shape[2], method=method, tol=tol, exact=exact,
                                       device=rt, **scattering.keywords())
         plan = replace(base, params=tuple(params), channels=tuple(plans), halo=halo_of(plans))
-    return plan.on(rt)                 # the device ``auto`` decided for
+    return plan                        # on the device ``auto`` decided for

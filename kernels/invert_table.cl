@@ -161,6 +161,17 @@ inline vec table_lookup(vec rd, ivec ch, __constant const float *params,
     return clamp(a + fma(u, b, small), fmin(a, end), fmax(a, end));
 }
 
+// Work-item g's lanes from p[g * BD_WIDTH ...]; when it is not whole, those at n or above
+// are `fill` (a value every later step takes without a NaN).
+inline vec load_lanes(__global const float *p, uint g, int whole, uint n, float fill)
+{
+    if (whole) return VLOAD(g, p);
+    float lanes[BD_WIDTH];
+    for (uint j = 0; j < BD_WIDTH; ++j)
+        lanes[j] = g * BD_WIDTH + j < n ? p[g * BD_WIDTH + j] : fill;
+    return VLOAD(0, lanes);
+}
+
 // Work-item g's lanes to out[g * BD_WIDTH ...], only those below n when it is not whole.
 inline void store_lanes(vec v, uint g, int whole, uint n, __global float *out)
 {
@@ -182,14 +193,7 @@ __kernel void invert_table(__global const float *rd, BD_MFP_SPACE const float *m
     const uint g = get_global_id(0), first = g * BD_WIDTH;
     if (first >= n) return;
     const int whole = first + BD_WIDTH <= n;   // the last work-item may hold fewer elements
-    float lanes[BD_WIDTH];
-    vec r;
-    if (whole) {
-        r = VLOAD(g, rd);
-    } else {
-        for (int j = 0; j < BD_WIDTH; ++j) lanes[j] = first + j < n ? rd[first + j] : 0.5f;
-        r = VLOAD(0, lanes);
-    }
+    vec r = load_lanes(rd, g, whole, n, 0.5f);
 #if BD_NCHAN == 1
     ivec ch = (ivec)0;
 #elif BD_WIDTH == 1
@@ -222,13 +226,7 @@ __kernel void invert_table(__global const float *rd, BD_MFP_SPACE const float *m
 #elif defined(BD_MFP_CHANNELS)
     vec ld = lane_value(mfp, 1, ch);
 #else
-    vec ld;
-    if (whole) {
-        ld = VLOAD(g, mfp);
-    } else {
-        for (int j = 0; j < BD_WIDTH; ++j) lanes[j] = first + j < n ? mfp[first + j] : 1.0f;
-        ld = VLOAD(0, lanes);
-    }
+    vec ld = load_lanes(mfp, g, whole, n, 1.0f);
 #if BD_CHECK == 2
     if (ANY_LANE(!(ld > 0.0f) | (ld == INFINITY))) *invalid = 1;
 #endif

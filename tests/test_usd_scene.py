@@ -15,6 +15,7 @@ from bdipole_cl.apps.cli import main as cli_main  # noqa: E402
 from bdipole_cl.apps.demo import write_exr  # noqa: E402
 from bdipole_cl.io.scene_import import EXTRA, import_materials  # noqa: E402
 from bdipole_cl.io.shaders import SHADERS  # noqa: E402
+from test_scene import read  # noqa: E402  (an image's pixels and channel names)
 
 pytestmark = pytest.mark.usefixtures("on_device")
 
@@ -102,16 +103,6 @@ def write_stage(root, meters_per_unit=0.01, radius=0.5):
         UsdShade.MaterialBindingAPI.Apply(mesh.GetPrim()).Bind(material)
     stage.GetRootLayer().Save()
     return root / "asset.usda"
-
-
-def read(path):
-    import OpenImageIO as oiio
-    inp = oiio.ImageInput.open(str(path))
-    assert inp is not None, oiio.geterror()
-    px = np.asarray(inp.read_image(oiio.FLOAT))
-    names = list(inp.spec().channelnames)
-    inp.close()
-    return px, names
 
 
 def check_texture_bake(out, albedo, mfp, eta, mfp_kind):

@@ -251,10 +251,8 @@ def run_blur(job, runtime, *, cancel=None, lock=None, progress=None) -> FileResu
                                                       w.working)
             scattering, keep, albedo_header = material_scattering(job, runtime)
             header |= albedo_header
-            exact = w.material.exact
         else:
-            texels = None
-            scattering, exact = w.scattering, w.exact
+            texels, scattering = None, w.scattering
         sources = {k: v for k, v in job.inputs.items() if k != "irradiance" and k != "mask"}
         result.info = blur_file(
             job.source, job.output, half=w.half, sources=sources, cancel=cancel, mask=keep,
@@ -262,7 +260,7 @@ def run_blur(job, runtime, *, cancel=None, lock=None, progress=None) -> FileResu
             albedo=scattering.albedo, mfp=scattering.mfp, eta=scattering.eta,
             texel_size=scattering.texel_size, alpha=scattering.alpha_prime,
             sigma_t=scattering.sigma_t, tol=w.tol, method=w.method, border=w.border,
-            on_invalid=w.on_invalid, exact=exact, device=runtime, max_memory=w.max_memory,
+            on_invalid=w.on_invalid, exact=w.exact, device=runtime, max_memory=w.max_memory,
             texture=w.texture, progress=progress)
         result.status = "ok"
         result.texels = texels if texels is not None else texel_count(job.source)

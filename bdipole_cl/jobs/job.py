@@ -60,7 +60,7 @@ class BlurWork:
     tol: float = 1e-3
     method: str = "auto"
     border: str = "clamp"
-    exact: bool = False
+    exact: bool = False                    # a scene blur: its material's
     on_invalid: str = "raise"
     half: bool = False
     texture: TextureOptions | bool | None = False

@@ -7,6 +7,7 @@ from bdipole_cl import InvalidInputError
 from bdipole_cl import reference as ref
 from bdipole_cl.ops.bands import band_rows, bands
 from bdipole_cl.ops.blur import blur, channel_kernel, channel_parameters, fit_gaussians
+from bdipole_cl.ops.blur.params import all_finite, checked_irradiance
 from bdipole_cl.ops.blur.planning import channel_plans, constant_row_bytes, halo_of
 
 METHODS = ["direct", "gaussians", "fft", "auto"]
@@ -98,6 +99,21 @@ def test_nan_irradiance_policy():
     np.testing.assert_allclose(out, blur(impulse(), albedo=0.8, mfp=1.0), rtol=1e-6)
     with pytest.raises(ValueError, match="on_invalid='zero': expected one of raise, clamp"):
         blur(e, albedo=0.8, mfp=1.0, on_invalid="zero")
+
+
+@pytest.mark.parametrize("bad", [np.nan, np.inf, -np.inf])
+def test_every_non_finite_irradiance_is_found_past_the_one_reduction(bad):
+    # all_finite's one sum answers for the whole map; a non-finite texel anywhere (and a sum
+    # that overflows, which is not one) must still send the check texel by texel
+    e = impulse(value=3e38)
+    e[-1, -1, 0] = 3e38                            # the sum overflows: finite, not known so
+    assert not all_finite(e)
+    assert checked_irradiance(e) is not None       # ... and the texel test passes it
+    e[5, 2, 0] = bad
+    assert not all_finite(e)
+    with pytest.raises(InvalidInputError, match=r"1 invalid irradiance.*x=2, y=5"):
+        checked_irradiance(e)
+    assert all_finite(impulse()) and all_finite(np.zeros((2, 2, 1), np.float32))
 
 
 def test_alpha_sigma_t_parameters_and_texel_size():

@@ -75,5 +75,5 @@ def blur(irradiance, *, albedo=None, mfp=None, eta=1.4, texel_size=1.0, alpha=No
     plan = plan_blur(e.shape, Scattering(albedo, mfp, eta, texel_size, alpha, sigma_t),
                      tol=tol, method=method, border=border, exact=exact,
                      on_invalid=on_invalid, device=device)
-    out, info = plan.apply(e, max_memory)
+    out, info = plan.apply_checked(e, max_memory)
     return (out, info) if return_info else out

@@ -9,6 +9,8 @@ as float32 maps (``texel_parameters``). Both check their values with ``RULES``; 
 """
 from __future__ import annotations
 
+from functools import lru_cache
+
 import numpy as np
 
 from ...errors import check_policy, find_invalid
@@ -60,6 +62,13 @@ def channel_values(value, nchan, name):
     return np.broadcast_to(v, (nchan,))
 
 
+@lru_cache(maxsize=4096)
+def channel_coefficients(rd: float, ld: float, eta: float, exact: bool):
+    """(sigma_a, sigma_s') of one channel's constant albedo and mfp (the float64 reference's
+    inversion, ~4 ms), kept: the same material is planned again for every image and band."""
+    return tuple(float(v) for v in ref.albedo_to_coefficients(rd, ld, eta, exact))
+
+
 def channel_parameters(nchan, *, albedo=None, mfp=None, eta=1.4, texel_size=1.0, alpha=None,
                        sigma_t=None, exact=False):
     """Per-channel (alpha', sigma_t' per texel, eta) from albedo + mfp (memo's mapping, float64)
@@ -74,7 +83,8 @@ def channel_parameters(nchan, *, albedo=None, mfp=None, eta=1.4, texel_size=1.0,
         sa = np.empty(nchan)
         ss = np.empty(nchan)
         for c in range(nchan):
-            sa[c], ss[c] = ref.albedo_to_coefficients(rd[c], ld[c], etas[c], exact)
+            sa[c], ss[c] = channel_coefficients(float(rd[c]), float(ld[c]), float(etas[c]),
+                                                bool(exact))
         st = sa + ss
         a = ss / st
     if not (np.all(texel_size > 0) and np.all(np.isfinite(texel_size))):
@@ -169,8 +179,19 @@ def checked_irradiance(irradiance, on_invalid="raise"):
     e = np.ascontiguousarray(e, dtype=np.float32)
     if e.shape[0] == 0 or e.shape[1] == 0:
         raise ValueError(f"irradiance is empty (shape {e.shape}): nothing to blur")
+    check_policy(on_invalid)
+    if all_finite(e):
+        return e
     bad = ~np.isfinite(e)
-    if find_invalid("irradiance", e, bad, "NaN or infinite", check_policy(on_invalid),
-                    texels=True):
+    if find_invalid("irradiance", e, bad, "NaN or infinite", on_invalid, texels=True):
         e = np.where(bad, np.float32(0), e)
     return e
+
+
+def all_finite(a) -> bool:
+    """True only if every value of float array ``a`` is finite, by one reduction: a NaN or
+    infinity makes the sum NaN or infinite. A sum that overflows (HDR values near the float32
+    limit) answers False too: then the caller tests texel by texel, so False is only "not
+    known"."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        return bool(np.isfinite(np.add.reduce(a, axis=None)))

@@ -134,7 +134,10 @@ class BlurPlan:
         """The whole image (HxW or HxWxC), in bands of rows within ``max_memory`` bytes if
         given (each band carries the halo, so the result is the one-piece result up to the
         float32 FFT's round-off, whose transform sizes differ by band): (M, BlurInfo)."""
-        e = checked_irradiance(irradiance, self.on_invalid)
+        return self.apply_checked(checked_irradiance(irradiance, self.on_invalid), max_memory)
+
+    def apply_checked(self, e, max_memory=None):
+        """``apply`` of an irradiance ``params.checked_irradiance`` has already checked."""
         if e.shape != tuple(self.shape):
             raise ValueError(f"irradiance has shape {e.shape}; the plan is for {self.shape}")
         h = e.shape[0]

@@ -2,8 +2,8 @@
 // of the shared basis, w_j(x) = sum_{a,b = 0,1} lu[a] lv[b] table[iu + a][iv + b][j], the
 // bilinear interpolation (2 nodes per axis) of the fine weight table (textured_plan.fine_table: the
 // node weights' cubic interpolation, REFINE points per lattice step) at the texel's fine-table
-// coordinates (cu, cv) (logit Rd and ln ld, from textured_plan.texel_coords). An axis on which the
-// texture is constant has one node.
+// coordinates (cu, cv) (logit Rd and ln ld, ``fine_coords`` below). An axis on which the texture is
+// constant has one node.
 //
 // Specialized by -DBD_NBASIS=G (basis size), -DBD_NU_TAPS, -DBD_NV_TAPS (2, or 1 for a constant axis),
 // so the loops unroll.
@@ -57,6 +57,28 @@ inline taps_t texel_taps(const float cu, const float cv, const int nu, const int
     return r;
 }
 
+// a texel's fine-table coordinates (cu, cv) from its Rd and ld (textured_plan.texel_coords,
+// the host's float32 version, which the tests compare): cu = logit(Rd clamped to [rd_lo, rd_hi])
+// * su - ou, cv = ln(ld) * sv - ov; on a constant axis its scale and offset are 0 (the clamp
+// keeps logit finite and ld > 0 is checked, so the coordinate is then 0)
+inline float2 fine_coords(const float rd, const float ld, const float rd_lo, const float rd_hi,
+                          const float su, const float ou, const float sv, const float ov)
+{
+    const float p = clamp(rd, rd_lo, rd_hi);
+    return (float2)(log(p / (1.0f - p)) * su - ou, log(ld) * sv - ov);
+}
+
+// the coordinate arguments every kernel below takes after its own
+#define BD_COORD_ARGS const float rd_lo, const float rd_hi, const float su, const float ou, \
+    const float sv, const float ov
+#define BD_TEXEL_TAPS(p) texel_taps_at(fine_coords(rd[p], ld[p], rd_lo, rd_hi, su, ou, sv, ov), \
+    nu, nv)
+
+inline taps_t texel_taps_at(const float2 c, const int nu, const int nv)
+{
+    return texel_taps(c.x, c.y, nu, nv);
+}
+
 // weight w_j of basis kernel j (without the Rd factor) from the texel's taps (scalar code, no
 // per-texel arrays: PoCL keeps it in registers)
 inline float texel_weight(__global const float *table, const taps_t tp, const int j)
@@ -66,13 +88,13 @@ inline float texel_weight(__global const float *table, const taps_t tp, const in
 }
 
 // the weight planes: w[j * npix + p] = rd[p] * w_j(p)   (the separable-Gaussian path)
-__kernel void lattice_weights(__global const float *rd, __global const float *cu,
-                              __global const float *cv, __global const float *table,
-                              __global float *w, const int npix, const int nu, const int nv)
+__kernel void lattice_weights(__global const float *rd, __global const float *ld,
+                              __global const float *table, __global float *w, const int npix,
+                              const int nu, const int nv, BD_COORD_ARGS)
 {
     const int p = get_global_id(0);
     if (p >= npix) return;
-    const taps_t tp = texel_taps(cu[p], cv[p], nu, nv);
+    const taps_t tp = BD_TEXEL_TAPS(p);
     const float scale = rd[p];
     for (int j = 0; j < BD_NBASIS; ++j)
         w[(size_t)j * npix + p] = scale * texel_weight(table, tp, j);
@@ -81,16 +103,16 @@ __kernel void lattice_weights(__global const float *rd, __global const float *cu
 // the exitance of channel c at texel (x, y) of a w x h image (the FFT path), gathered from
 // the basis blurs: out[(y * w + x) * nch + c] = rd * sum_j w_j * planes[j][y][x0 + x], the
 // planes `plane` floats apart with rows `pitch` floats apart.
-__kernel void gather_exitance(__global const float *rd, __global const float *cu,
-                              __global const float *cv, __global const float *table,
-                              __global const float *planes, __global float *out, const int w,
-                              const int h, const int pitch, const int plane, const int x0,
-                              const int nch, const int c, const int nu, const int nv)
+__kernel void gather_exitance(__global const float *rd, __global const float *ld,
+                              __global const float *table, __global const float *planes,
+                              __global float *out, const int w, const int h, const int pitch,
+                              const int plane, const int x0, const int nch, const int c,
+                              const int nu, const int nv, BD_COORD_ARGS)
 {
     const int x = get_global_id(0), y = get_global_id(1);
     if (x >= w || y >= h) return;
     const size_t p = (size_t)y * w + x;
-    const taps_t tp = texel_taps(cu[p], cv[p], nu, nv);
+    const taps_t tp = BD_TEXEL_TAPS(p);
     __global const float *blurred = planes + (size_t)y * pitch + x0 + x;
     float sum = 0.0f;
     for (int j = 0; j < BD_NBASIS; ++j)

@@ -9,7 +9,7 @@ import pyopencl as cl
 from ...device import build_options, get_program
 from ...signals import check_stop
 from .fit import gaussian_1d
-from .textured_plan import texel_coords
+from .textured_plan import RD_MAX, RD_MIN, fine_axis_map
 
 #: work-group side of blur_direct.cl (its local-memory tiles are BD_TILE x BD_TILE outputs)
 TILE = 16
@@ -128,11 +128,15 @@ def read_back(rt, buf, array):
 
 
 def lattice_args(plan):
-    """Program options and the lattice arguments of kernels/blur_textured.cl for a plan."""
+    """Program options and the lattice arguments of kernels/blur_textured.cl for a plan: the
+    fine table's size, then its coordinates' (``fine_coords``: the Rd clamp, and per axis the
+    scale and offset of ``textured_plan.texel_coords``)."""
     nu, nv, nbasis = plan.fine.shape
     opts = build_options({"BD_NBASIS": nbasis, "BD_NU_TAPS": 1 if nu == 1 else 2,
                           "BD_NV_TAPS": 1 if nv == 1 else 2})
-    return opts, (np.int32(nu), np.int32(nv))
+    coords = [np.float32(v) for v in (RD_MIN, RD_MAX, *fine_axis_map(plan.axes[0]),
+                                      *fine_axis_map(plan.axes[1]))]
+    return opts, (np.int32(nu), np.int32(nv), *coords)
 
 
 def weight_planes(plan, rd, ld, rt):
@@ -149,8 +153,7 @@ def device_weight_planes(plan, rd, ld, rt):
     h, w = rd.shape
     mf = cl.mem_flags
     opts, axis_args = lattice_args(plan)
-    bufs = [host_buffer(rt, a, mf.READ_ONLY) for a in (rd, *texel_coords(plan, rd, ld),
-                                                         plan.fine)]
+    bufs = [host_buffer(rt, a, mf.READ_ONLY) for a in (rd, ld, plan.fine)]
     planes = cl.Buffer(rt.context, mf.READ_WRITE, max(plan.fine.shape[2] * h * w * 4, 4))
     cl.Kernel(get_program(rt, "blur_textured", opts), "lattice_weights")(
         rt.queue, (h * w,), None, *bufs, planes, np.int32(h * w), *axis_args)
@@ -163,8 +166,7 @@ def gather_exitance(out, c, plan, rd, ld, planes, x0, rt):
     h, w, nch = out.shape
     mf = cl.mem_flags
     opts, axis_args = lattice_args(plan)
-    bufs = [host_buffer(rt, a, mf.READ_ONLY) for a in (rd, *texel_coords(plan, rd, ld),
-                                                         plan.fine, planes)]
+    bufs = [host_buffer(rt, a, mf.READ_ONLY) for a in (rd, ld, plan.fine, planes)]
     dst = host_buffer(rt, out, mf.READ_WRITE)
     cl.Kernel(get_program(rt, "blur_textured", opts), "gather_exitance")(
         rt.queue, (w, h), None, *bufs, dst, np.int32(w), np.int32(h),

@@ -78,8 +78,9 @@ def settled(m, e2d, rd, ulps=ROUNDOFF_ULPS, e_range=None):
     irradiance is non-negative so is the result (R >= 0 and the truncated kernels are >= 0:
     clamping at 0 only reduces the error). ``e_range``: (min E, max E), where known."""
     low, high = e_range or (float(e2d.min()), float(e2d.max()))
-    floor = ulps * float(np.finfo(np.float32).eps) * max(high, -low) * \
-        np.asarray(rd, np.float64)
+    scale = ulps * float(np.finfo(np.float32).eps) * max(high, -low)
+    # a map's floor in float32 (a threshold: its own rounding is immaterial), a scalar's exact
+    floor = rd * np.float32(scale) if np.ndim(rd) else scale * float(rd)
     if low >= 0:                      # |m| < floor to 0, and so is every m < 0: one pass
         np.copyto(m, 0, where=m < floor)
     else:
@@ -93,7 +94,7 @@ def kernel_spectra(quads, shape, compute=np.float32, store=np.float32):
     ``compute`` and stored as ``store``. An even kernel's DFT is the cosine sum sum_{a,b} m_a m_b
     Q(a, b) cos(2 pi f a / N0) cos(2 pi g b / N1) (m: 1 at 0, else 2): the DCT-I of the
     quadrant zero-padded to (N0/2 + 1, N1/2 + 1). Rows N0/2 + 1..N0 - 1 are rows N0/2 - 1..1
-    (``_times_spectrum``)."""
+    (``times_spectrum``)."""
     import scipy.fft as sfft
     n0, n1 = shape
     nbasis, kk = quads.shape[:2]
@@ -240,10 +241,16 @@ def fft_blur_channels(e, channels, kernels, dtype, border, out):
 
 def times_spectrum(ks, spec, out):
     """out = K * spec, K the full (N0, N1 // 2 + 1) spectrum of half spectrum ks (rows
-    0..N0/2): an even kernel's rows N0 - f and f are equal."""
-    m = ks.shape[0]
-    np.multiply(ks, spec[:m], out=out[:m])
-    np.multiply(ks[m - 2:0:-1], spec[m:], out=out[m:])
+    0..N0/2): an even kernel's rows N0 - f and f are equal. In row blocks on the FFT threads."""
+    m, n0 = ks.shape[0], spec.shape[0]
+
+    def rows(r0, r1):
+        if min(r1, m) > r0:                              # rows f < m: K's row f
+            np.multiply(ks[r0:min(r1, m)], spec[r0:min(r1, m)], out=out[r0:min(r1, m)])
+        b0 = max(r0, m)
+        if r1 > b0:                                      # rows f >= m: K's row n0 - f
+            np.multiply(ks[n0 - b0:n0 - r1:-1], spec[b0:r1], out=out[b0:r1])
+    in_row_blocks(rows, n0)
 
 
 def basis_blurs(e2d, plan, kspec, border, planes):

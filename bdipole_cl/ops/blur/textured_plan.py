@@ -325,15 +325,26 @@ def _with_interp_error(plan, rd_range, ld_range, exact):
     return TexturedPlan(**{**plan.__dict__, "interp_error": worst})
 
 
+def fine_axis_map(axis):
+    """(scale, offset) of an axis's fine-table coordinate, t * scale - offset for transformed
+    value t (float32; both 0 on a constant axis): as ``texel_coords`` and the device's
+    ``fine_coords`` (kernels/blur_textured.cl) compute it."""
+    if axis.step == 0:
+        return np.float32(0), np.float32(0)
+    return np.float32(REFINE / axis.step), np.float32(REFINE * axis.origin)
+
+
 def texel_coords(plan, rd, ld):
     """Fine-table coordinates (float32 maps) of the texels' Rd, ld float32 maps: logit(Rd
     clipped to [RD_MIN, RD_MAX]) and ln(ld) in fine steps (lattice step / REFINE) from node 0
-    (zeros on a constant axis). In float32 they are good to ~1e-6 of a lattice step."""
+    (zeros on a constant axis). In float32 they are good to ~1e-6 of a lattice step. The host
+    version of what the device computes per texel (kernels/blur_textured.cl ``fine_coords``)."""
     def on_axis(axis, t):
         if axis.step == 0:
             return np.zeros(t.shape, np.float32)
-        t *= np.float32(REFINE / axis.step)
-        t -= np.float32(REFINE * axis.origin)
+        scale, offset = fine_axis_map(axis)
+        t *= scale
+        t -= offset
         return t
 
     p = np.clip(rd, np.float32(RD_MIN), np.float32(RD_MAX))

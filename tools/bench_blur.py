@@ -15,7 +15,9 @@ the speed ratio against two peers timed in the same run:
 Times are the best of --repeats (the machine may be shared: the fastest repeat is the least
 disturbed one). The last lines sum up the goals in the same run: the constant default (``auto``)
 against the float32 one-liner (goal: >= 2x faster) and the texture-varying default against the
-constant one (goal: <= 2.5x its time).
+constant one (goal: <= 2.5x its time), each as the median ratio of --pairs alternated runs of
+its two sides (a pair is timed back to back, so a slow moment of a shared machine slows both
+of its sides rather than one side of the comparison), with the range of the pairs' ratios.
 
 Texture-varying parameters (``--varying``, on by default): albedo = the constant albedo times
 (1 + 0.2 n(x)) and mfp = mfp * 2^(n(x)/2), n a smooth pattern in [-1, 1]. Printed: the cold
@@ -51,6 +53,18 @@ def timed(fn, repeats, stat=min):
     return stat(times), out
 
 
+def paired_ratio(slow, fast, pairs):
+    """The median over ``pairs`` alternated runs of slow()'s time / fast()'s (each pair timed
+    back to back, so a disturbance of the shared machine hits both sides of a pair, not one
+    side of the whole comparison), and the pairs' (min, max) ratio."""
+    ratios = []
+    for _ in range(pairs):
+        t_slow, _ = timed(slow, 1)
+        t_fast, _ = timed(fast, 1)
+        ratios.append(t_slow / t_fast)
+    return float(np.median(ratios)), (min(ratios), max(ratios))
+
+
 def impulse_responses(mfp, tol):
     """The default blur's own kernels, exactly: its response to a unit impulse, which for each
     channel is the exact weights at the truncation its plan chose (``return_info``: auto may
@@ -83,6 +97,8 @@ def main(argv=None):
     ap.add_argument("--methods", nargs="+", default=["auto", "direct", "gaussians", "fft"])
     ap.add_argument("--varying-methods", nargs="*", default=["auto"],
                     help="methods for texture-varying parameters (none: skip)")
+    ap.add_argument("--pairs", type=int, default=5,
+                    help="alternated runs of each goal's two sides (their median ratio)")
     ap.add_argument("--samples", type=int, default=48, help="texels checked per channel")
     ap.add_argument("--device", help="OpenCL device (as `bdipole-cl --device`); default: automatic")
     args = ap.parse_args(argv)
@@ -129,20 +145,35 @@ def main(argv=None):
                   f"{t_peer / t:6.2f}")
             if m == "auto":
                 t_const = t
+        def constant_auto():
+            return blur(e, albedo=ALBEDO, mfp=mfp, eta=1.4, tol=args.tol)
+        vs_peer = paired_ratio(lambda: one_liner(e, peer_k), constant_auto, args.pairs)
         t_vary = varying_rows(e, mfp, t_const, args) if args.varying_methods else None
-        summary.append((mfp, t_peer, t_const, t_vary))
-    print_summary(summary)
+        vs_vary = None
+        if t_vary is not None:
+            albedo, mfps = varying_maps(e.shape[0], mfp)
+            vs_vary = paired_ratio(lambda: blur(e, albedo=albedo, mfp=mfps, eta=1.4,
+                                                tol=args.tol), constant_auto, args.pairs)
+        summary.append((mfp, t_peer, t_const, t_vary, vs_peer, vs_vary))
+    print_summary(summary, args.pairs)
     return 0
 
 
-def print_summary(summary):
-    """The goals, from this run's times: auto against the float32 one-liner, the varying auto
-    against the constant one."""
-    print("summary (this run): mfp, f32 one-liner s, constant auto s (x f32, goal >= 2), "
-          "varying auto warm s (x constant auto, goal <= 2.5)")
-    for mfp, t_peer, t_const, t_vary in summary:
-        vary = "" if t_vary is None else f", {t_vary:.3f} s ({t_vary / t_const:.2f}x)"
-        print(f"  mfp {mfp:g}: {t_peer:.3f} s, {t_const:.3f} s ({t_peer / t_const:.2f}x){vary}")
+def print_summary(summary, pairs):
+    """The goals, from this run: auto against the float32 one-liner, the varying auto against
+    the constant one; each the median ratio of alternated pairs (``paired_ratio``), with the
+    best-of times beside it."""
+    print(f"summary (this run; ratios: median of {pairs} alternated pairs [min, max]):")
+    print("  mfp   f32 one-liner / constant auto (goal >= 2)   "
+          "varying auto / constant auto, warm (goal <= 2.5)")
+    for mfp, t_peer, t_const, t_vary, (r, (lo, hi)), vary in summary:
+        line = (f"  {mfp:<5g} {r:5.2f}x [{lo:.2f}, {hi:.2f}]  ({t_peer:.3f} s / {t_const:.3f} s "
+                f"best)")
+        if vary is not None:
+            vr, (vlo, vhi) = vary
+            line += (f"     {vr:5.2f}x [{vlo:.2f}, {vhi:.2f}]  ({t_vary:.3f} s / "
+                     f"{t_const:.3f} s best)")
+        print(line)
 
 
 def varying_maps(n, mfp):

@@ -6,7 +6,9 @@ the one least disturbed), max relative error of alpha' and rho against the float
 inverse of the float32 input (its first --check values), the speed ratio against the memo's
 50-iteration float bisection (the baseline, timed in this same run) and the fraction of a plain
 copy kernel's throughput (the memory-bound floor; the inversion moves 3 arrays per texel, the
-copy 2, so a 1-read-2-write kernel's own floor is 2/3 of a copy).
+copy 2, so a 1-read-2-write kernel's own floor is 2/3 of a copy). The default's fraction is
+then measured again as the median of --pairs alternated copy / default measurements (each pair
+back to back, so that a slow moment of a shared machine slows both of its sides).
 
 Then, on the same host arrays: ``invert_albedo(rd, eta, return_rho=True)`` and
 ``albedo_to_coefficients(rd, 2.0, eta)`` (sigma_a, sigma_s') host to host (NumPy in, NumPy
@@ -26,11 +28,14 @@ import sys
 import time
 
 import numpy as np
+import pyopencl as cl
 
 from bdipole_cl import albedo_to_coefficients, get_runtime, invert_albedo, use_device
-from bdipole_cl.apps.benchmark import (inversion_workload, reference_inverse, time_copy,
-                                       time_inversion)
+from bdipole_cl.apps.benchmark import (inversion_workload, median_time, reference_inverse,
+                                       time_copy, time_inversion)
+from bdipole_cl.device import build_options, get_program
 from bdipole_cl.methods.registry import MethodConfig
+from bdipole_cl.ops.invert import InversionKernel
 
 DEFAULT = MethodConfig()
 CONFIGS = [
@@ -46,6 +51,31 @@ CONFIGS = [
     DEFAULT,
     MethodConfig("table", table_size=1024),
 ]
+
+
+def copy_ratios(config, rd, eta, pairs=7, repeats=3):
+    """The copy kernel's time over ``config``'s (the fraction of the memory floor an inversion
+    kernel reaches, alpha' and rho written) in ``pairs`` alternated measurements on the same
+    device buffers, each side the best of ``repeats``: a pair is timed back to back, so a slow
+    moment of a shared machine slows both of its sides rather than one side of the comparison.
+    Returns the pairs' ratios."""
+    rt = get_runtime()
+    n = rd.size
+    kernel = InversionKernel((eta,), config)
+    prg = get_program(rt, "copy", build_options())
+    copy = cl.Kernel(prg, "copy")
+    mf = cl.mem_flags
+    host = np.ascontiguousarray(rd, dtype=np.float32)
+    src = cl.Buffer(rt.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=host)
+    dst = [cl.Buffer(rt.context, mf.WRITE_ONLY, host.nbytes) for _ in range(2)]
+    ratios = []
+    for _ in range(pairs):
+        t_copy = median_time(lambda: copy(rt.queue, (n,), None, src, dst[0], np.uint64(n)),
+                             repeats, stat=min)
+        t_kernel = median_time(lambda: kernel(n, src, alpha=dst[0], rho=dst[1]), repeats,
+                               stat=min)
+        ratios.append(t_copy / t_kernel)
+    return ratios
 
 
 def best_time(fn, repeats):
@@ -101,6 +131,8 @@ def main(argv=None):
     ap.add_argument("--default-only", action="store_true",
                     help="time only the default method (table, size 256)")
     ap.add_argument("--double", action="store_true", help="also time float64 kernels")
+    ap.add_argument("--pairs", type=int, default=7,
+                    help="alternated copy / default-kernel measurements (their median ratio)")
     ap.add_argument("--device", help="OpenCL device (as `bdipole-cl --device`); default: automatic")
     args = ap.parse_args(argv)
     if args.device:
@@ -131,6 +163,10 @@ def main(argv=None):
               f"{r.max_err_rho:11.2e} {vs_memo} {100 * copy_s / r.seconds:6.1f}%")
     print(f"{'copy kernel (memory floor)':34s} {'f32':5s} {args.n / copy_s / 1e6:9.2f} "
           f"{copy_s * 1e3:9.2f}")
+    ratios = copy_ratios(DEFAULT, rd, args.eta, args.pairs)
+    print(f"{DEFAULT.describe()} against the copy kernel, {args.pairs} alternated pairs: "
+          f"median {100 * np.median(ratios):.1f}% of copy [{100 * min(ratios):.1f}%, "
+          f"{100 * max(ratios):.1f}%]")
     print(f"\nhost to host, same {args.n} float32 albedos (% of NumPy's pass of the same form):")
     for name, seconds, peer in host_rows(rd, args.eta, rt, args.repeats):
         print(f"{name:34s} {'f32':5s} {args.n / seconds / 1e6:9.2f} {seconds * 1e3:9.2f}"

@@ -245,9 +245,9 @@ def times_spectrum(ks, spec, out):
     m, n0 = ks.shape[0], spec.shape[0]
 
     def rows(r0, r1):
-        if min(r1, m) > r0:                              # rows f < m: K's row f
-            np.multiply(ks[r0:min(r1, m)], spec[r0:min(r1, m)], out=out[r0:min(r1, m)])
-        b0 = max(r0, m)
+        a1, b0 = min(r1, m), max(r0, m)
+        if a1 > r0:                                      # rows f < m: K's row f
+            np.multiply(ks[r0:a1], spec[r0:a1], out=out[r0:a1])
         if r1 > b0:                                      # rows f >= m: K's row n0 - f
             np.multiply(ks[n0 - b0:n0 - r1:-1], spec[b0:r1], out=out[b0:r1])
     in_row_blocks(rows, n0)
@@ -266,8 +266,6 @@ def basis_blurs(e2d, plan, kspec, border, planes):
     pad, shape = fft_padded(e2d, k, border)
     spec = sfft.rfft2(pad, shape, workers=-1)
     prod = np.empty_like(spec)
-    pool = _fft_threads()
-    edges = np.linspace(0, h, FFT_THREADS + 1).astype(int)
     for plane, ks in zip(planes, kspec):
         check_stop()
         times_spectrum(ks, spec, prod)
@@ -275,5 +273,5 @@ def basis_blurs(e2d, plan, kspec, border, planes):
 
         def rows_of_plane(r0, r1, cols=cols, plane=plane):
             np.fft.irfft(cols[k + r0:k + r1], shape[1], axis=-1, out=plane[r0:r1])
-        list(pool.map(rows_of_plane, edges[:-1], edges[1:]))
+        in_row_blocks(rows_of_plane, h)
     return planes

@@ -42,11 +42,12 @@ inline int axis_base(const float coord, const int nodes, const int ntaps, float 
     return base;
 }
 
-inline taps_t texel_taps(const float cu, const float cv, const int nu, const int nv)
+// the taps at fine-table coordinates c = (cu, cv) (``fine_coords``)
+inline taps_t texel_taps(const float2 c, const int nu, const int nv)
 {
     float fu, fv;
-    const int iu = axis_base(cu, nu, BD_NU_TAPS, &fu);
-    const int iv = axis_base(cv, nv, BD_NV_TAPS, &fv);
+    const int iu = axis_base(c.x, nu, BD_NU_TAPS, &fu);
+    const int iv = axis_base(c.y, nv, BD_NV_TAPS, &fv);
     taps_t r;
     r.node = (iu * nv + iv) * BD_NBASIS;
     r.du = (BD_NU_TAPS == 2) ? nv * BD_NBASIS : 0;
@@ -71,13 +72,8 @@ inline float2 fine_coords(const float rd, const float ld, const float rd_lo, con
 // the coordinate arguments every kernel below takes after its own
 #define BD_COORD_ARGS const float rd_lo, const float rd_hi, const float su, const float ou, \
     const float sv, const float ov
-#define BD_TEXEL_TAPS(p) texel_taps_at(fine_coords(rd[p], ld[p], rd_lo, rd_hi, su, ou, sv, ov), \
-    nu, nv)
-
-inline taps_t texel_taps_at(const float2 c, const int nu, const int nv)
-{
-    return texel_taps(c.x, c.y, nu, nv);
-}
+#define BD_TEXEL_TAPS(p) \
+    texel_taps(fine_coords(rd[p], ld[p], rd_lo, rd_hi, su, ou, sv, ov), nu, nv)
 
 // weight w_j of basis kernel j (without the Rd factor) from the texel's taps (scalar code, no
 // per-texel arrays: PoCL keeps it in registers)

@@ -331,18 +331,21 @@ class InversionPlan:
             host_mfp, n_mfp = checked_mfp(mfp, policy, k.dtype)
         if per_channel is not None or not reads_mfp:
             mfp = None
+        def host_checked(rd, mfp, n_mfp):
+            """The kernel's inputs tested on the host: (rd, its count, mfp, its count)."""
+            rd, n_rd = checked_albedo_for_coefficients(rd, policy, k.dtype)
+            if mfp is not None:
+                mfp, n_mfp = checked_mfp(mfp, policy, k.dtype)
+            return rd, n_rd, mfp, n_mfp
+
         in_kernel = k.checks_inputs(rd, *([] if mfp is None else [mfp]))
         n_rd = 0
         if not in_kernel:
-            rd, n_rd = checked_albedo_for_coefficients(rd, policy, k.dtype)
-            if mfp is not None:
-                mfp, n_mfp = checked_mfp(mfp, policy, k.dtype)
+            rd, n_rd, mfp, n_mfp = host_checked(rd, mfp, n_mfp)
         outs, flagged = k.run_checked(rd, mfp, self.kernel_outputs, mfp_channels=per_channel,
                                       check=CHECK_COEFFICIENTS if in_kernel else 0, out=out)
         if flagged:     # name the first (raise), or clamp and map again (rare)
-            rd, n_rd = checked_albedo_for_coefficients(rd, policy, k.dtype)
-            if mfp is not None:
-                mfp, n_mfp = checked_mfp(mfp, policy, k.dtype)
+            rd, n_rd, mfp, n_mfp = host_checked(rd, mfp, n_mfp)
             outs = k.run(rd, mfp, self.kernel_outputs, mfp_channels=per_channel, out=out)
         return outs, n_rd, n_mfp, host_mfp if mfp is None else mfp
 

@@ -28,6 +28,9 @@ MOVED_MODULES = {f"{__name__}.io.{name}": f"{__name__}.jobs.{name}"
 class _MovedModuleFinder(importlib.abc.MetaPathFinder, importlib.abc.Loader):
     """Imports ``bdipole_cl.io.batch`` (say) as the one module ``bdipole_cl.jobs.batch``."""
 
+    def __init__(self):
+        self._own_specs = {}                      # alias name: the module's own spec
+
     def find_spec(self, fullname, path=None, target=None):
         if fullname in MOVED_MODULES:
             return importlib.util.spec_from_loader(fullname, self)
@@ -35,11 +38,13 @@ class _MovedModuleFinder(importlib.abc.MetaPathFinder, importlib.abc.Loader):
 
     def create_module(self, spec):
         module = importlib.import_module(MOVED_MODULES[spec.name])
-        self.own_spec = module.__spec__
+        self._own_specs[spec.name] = module.__spec__
         return module
 
     def exec_module(self, module):
-        module.__spec__ = self.own_spec           # the import machinery set the alias's
+        # the import machinery set the alias's spec: give the module back its own (keyed by
+        # the alias, so that two aliases imported at once in two threads cannot swap them)
+        module.__spec__ = self._own_specs.pop(module.__spec__.name)
 
 
 if not any(isinstance(f, _MovedModuleFinder) for f in sys.meta_path):

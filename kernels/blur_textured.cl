@@ -96,13 +96,23 @@ __kernel void lattice_weights(__global const float *rd, __global const float *ld
         w[(size_t)j * npix + p] = scale * texel_weight(table, tp, j);
 }
 
+// a gathered exitance m with the round-off of a zero result removed (fft.settled, the host's
+// rule, which the tests compare): |m| below floor = rd * scale is 0, and so is every m < 0 where
+// the irradiance is non-negative (nonneg)
+inline float settle(const float m, const float rd, const float scale, const int nonneg)
+{
+    const float floor = rd * scale;
+    return (nonneg ? m < floor : fabs(m) < floor) ? 0.0f : m;
+}
+
 // the exitance of channel c at texel (x, y) of a w x h image (the FFT path), gathered from
-// the basis blurs: out[(y * w + x) * nch + c] = rd * sum_j w_j * planes[j][y][x0 + x], the
-// planes `plane` floats apart with rows `pitch` floats apart.
+// the basis blurs and settled: out[(y * w + x) * nch + c] = rd * sum_j w_j * planes[j][y][x0 + x],
+// the planes `plane` floats apart with rows `pitch` floats apart.
 __kernel void gather_exitance(__global const float *rd, __global const float *ld,
                               __global const float *table, __global const float *planes,
                               __global float *out, const int w, const int h, const int pitch,
                               const int plane, const int x0, const int nch, const int c,
+                              const float scale, const int nonneg,
                               const int nu, const int nv, BD_COORD_ARGS)
 {
     const int x = get_global_id(0), y = get_global_id(1);
@@ -113,5 +123,5 @@ __kernel void gather_exitance(__global const float *rd, __global const float *ld
     float sum = 0.0f;
     for (int j = 0; j < BD_NBASIS; ++j)
         sum += texel_weight(table, tp, j) * blurred[(size_t)j * plane];
-    out[p * nch + c] = rd[p] * sum;
+    out[p * nch + c] = settle(rd[p] * sum, rd[p], scale, nonneg);
 }

@@ -121,7 +121,7 @@ def test_banded_equals_whole():
 
 def test_device_weights_match_host_interpolation(runtime):
     albedo, mfp = gradient_maps()
-    (plan, rd, ld), = channel_plans((H, W, 1), tol=1e-3, albedo=albedo, mfp=mfp)
+    (plan, rd, ld, _), = channel_plans((H, W, 1), tol=1e-3, albedo=albedo, mfp=mfp)
     dev = weight_planes(plan, rd, ld, runtime)
     cu, cv = texel_coords(plan, rd, ld)
     host = interpolated_weights(plan, cu, cv) * rd[..., None].astype(np.float64)
@@ -130,10 +130,33 @@ def test_device_weights_match_host_interpolation(runtime):
                                atol=1e-5 * np.abs(host).max())
 
 
+@pytest.mark.parametrize("e_range", [(0.0, 3.0), (-2.0, 3.0)])
+def test_device_gather_settles_as_the_host_does(runtime, e_range):
+    """The gather's settle (kernels/blur_textured.cl) is fft.settled's rule on the same float32
+    values: equal to the unsettled gather settled on the host, bit for bit, with results near
+    the floor, below it and negative."""
+    from bdipole_cl.ops.blur.dispatch import gather_exitance
+    from bdipole_cl.ops.blur.textured import host_array
+    albedo, mfp = gradient_maps()
+    (plan, rd, ld, _), = channel_plans((H, W, 1), tol=1e-3, albedo=albedo, mfp=mfp)
+    g, x0 = plan.fine.shape[2], 3
+    rng = np.random.default_rng(5)
+    planes = host_array((g, H, W + 2 * x0))
+    # values spread over decades around the settle floor (~1e-6 here), of both signs
+    planes[...] = rng.choice([-1, 1], planes.shape) * 10.0 ** rng.uniform(-9, 0, planes.shape)
+    floor = blur_fft.settle_floor(e_range, blur_fft.FFT32_ROUNDOFF_ULPS)
+    raw, dev = host_array((H, W, 1)), host_array((H, W, 1))
+    gather_exitance(raw, 0, plan, rd, ld, planes, x0, runtime, settle=(0.0, False))
+    gather_exitance(dev, 0, plan, rd, ld, planes, x0, runtime, settle=floor)
+    host = blur_fft.settled(raw[..., 0].copy(), None, rd, blur_fft.FFT32_ROUNDOFF_ULPS, e_range)
+    assert 0 < np.count_nonzero(host == 0) < host.size     # the floor cut some, not all
+    np.testing.assert_array_equal(dev[..., 0], host)
+
+
 def test_float32_node_coordinates_match_float64():
     albedo, mfp = gradient_maps()
     albedo[0, 0], albedo[1, 1] = 0.0, 0.9995       # clipped to the shape bounds
-    (plan, rd, ld), = channel_plans((H, W, 1), tol=1e-3, albedo=albedo, mfp=mfp)
+    (plan, rd, ld, _), = channel_plans((H, W, 1), tol=1e-3, albedo=albedo, mfp=mfp)
     cu, cv = texel_coords(plan, rd, ld)
     assert cu.dtype == cv.dtype == np.float32
     t_rd, t_ld = transformed(rd, ld)
@@ -250,7 +273,7 @@ def test_cli_with_parameter_textures(tmp_path, capsys):
 
 def test_spectra_cached_per_plan_and_shape():
     albedo, mfp = gradient_maps()
-    (plan, _, _), = channel_plans((H, W, 1), tol=1e-3, albedo=albedo, mfp=mfp)
+    (plan, _, _, _), = channel_plans((H, W, 1), tol=1e-3, albedo=albedo, mfp=mfp)
     first = cached_spectra(plan, (40, 42))
     assert cached_spectra(plan, (40, 42)) is first
     other = cached_spectra(plan, (40, 44))
@@ -260,7 +283,7 @@ def test_spectra_cached_per_plan_and_shape():
 
 def test_spectra_cache_keeps_to_its_byte_budget(monkeypatch):
     albedo, mfp = gradient_maps()
-    (plan, _, _), = channel_plans((H, W, 1), tol=1e-3, albedo=albedo, mfp=mfp)
+    (plan, _, _, _), = channel_plans((H, W, 1), tol=1e-3, albedo=albedo, mfp=mfp)
     one = kernel_spectra(plan.quadrants(), (40, 42)).nbytes
     cache = blur_fft.SPECTRA_CACHE
     monkeypatch.setattr(cache, "max_bytes", 2 * one)

@@ -161,15 +161,18 @@ def device_weight_planes(plan, rd, ld, rt):
     return planes
 
 
-def gather_exitance(out, c, plan, rd, ld, planes, x0, rt):
-    """out[..., c] = Rd(x) sum_j w_j(x) planes[j, y, x0 + x], on ``rt``'s device."""
+def gather_exitance(out, c, plan, rd, ld, planes, x0, rt, settle=(0.0, True)):
+    """out[..., c] = Rd(x) sum_j w_j(x) planes[j, y, x0 + x], on ``rt``'s device, settled by
+    ``settle`` = (scale, non-negative) (``fft.settle_floor``; the default settles nothing but
+    the negative round-off of a non-negative irradiance)."""
     h, w, nch = out.shape
     mf = cl.mem_flags
     opts, axis_args = lattice_args(plan)
     bufs = [host_buffer(rt, a, mf.READ_ONLY) for a in (rd, ld, plan.fine, planes)]
     dst = host_buffer(rt, out, mf.READ_WRITE)
+    scale, nonneg = settle
     cl.Kernel(get_program(rt, "blur_textured", opts), "gather_exitance")(
         rt.queue, (w, h), None, *bufs, dst, np.int32(w), np.int32(h),
         np.int32(planes.shape[2]), np.int32(planes.shape[1] * planes.shape[2]), np.int32(x0),
-        np.int32(nch), np.int32(c), *axis_args)
+        np.int32(nch), np.int32(c), np.float32(scale), np.int32(bool(nonneg)), *axis_args)
     read_back(rt, dst, out)

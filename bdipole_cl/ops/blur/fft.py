@@ -71,17 +71,27 @@ def fft_blur_channel(e2d, weights, border):
 ROUNDOFF_ULPS, FFT32_ROUNDOFF_ULPS = 1, 16
 
 
+def settle_floor(e_range, ulps):
+    """(scale, non-negative) of ``settled``'s rule for a channel whose irradiance spans
+    e_range = (min E, max E): results below scale * Rd in magnitude are round-off of a zero
+    result (scale = ulps * eps32 * max|E|, as float32, the precision of the maps it scales),
+    and where the irradiance is non-negative so is the result. The device's gather applies the
+    same rule (kernels/blur_textured.cl ``settle``)."""
+    low, high = e_range
+    scale = ulps * float(np.finfo(np.float32).eps) * max(high, -low)
+    return scale, low >= 0
+
+
 def settled(m, e2d, rd, ulps=ROUNDOFF_ULPS, e_range=None):
     """One channel's exitance m (in place) with the round-off of a zero result removed: values
     below ulps * eps32 * max|E| * Rd (Rd a scalar or a per-texel map) in magnitude are 0 (a
     dark texel's -1e-18 is neither light nor a value half floats hold), and where the
     irradiance is non-negative so is the result (R >= 0 and the truncated kernels are >= 0:
     clamping at 0 only reduces the error). ``e_range``: (min E, max E), where known."""
-    low, high = e_range or (float(e2d.min()), float(e2d.max()))
-    scale = ulps * float(np.finfo(np.float32).eps) * max(high, -low)
+    scale, nonneg = settle_floor(e_range or (float(e2d.min()), float(e2d.max())), ulps)
     # a map's floor in float32 (a threshold: its own rounding is immaterial), a scalar's exact
     floor = rd * np.float32(scale) if np.ndim(rd) else scale * float(rd)
-    if low >= 0:                      # |m| < floor to 0, and so is every m < 0: one pass
+    if nonneg:                        # |m| < floor to 0, and so is every m < 0: one pass
         np.copyto(m, 0, where=m < floor)
     else:
         m[np.abs(m) < floor] = 0
@@ -253,18 +263,21 @@ def times_spectrum(ks, spec, out):
     in_row_blocks(rows, n0)
 
 
-def basis_blurs(e2d, plan, kspec, border, planes):
-    """planes[j] = (B_j * E) for every basis kernel of the plan, as (H, W + 2K) float32 rows
-    whose columns [K, K + W) are the image's: float32 FFTs, one forward transform, and per basis
-    kernel an inverse transform pruned to the image's rows. One basis kernel at a time, in
-    place: scipy.fft (all cores) in place over the columns, then numpy's ``irfft`` straight into
-    the plane, in row blocks on all cores (fresh large arrays and copies cost more here than
-    the FFTs' own threads save)."""
+def basis_blurs(e, c, plan, kspec, border, planes):
+    """planes[j] = (B_j * E) for every basis kernel of the plan, E channel c of the (H, W, C)
+    image, as (H, W + 2K) float32 rows whose columns [K, K + W) are the image's: float32 FFTs,
+    one forward transform (of ``padded_planes``' plane), and per basis kernel an inverse
+    transform pruned to the image's rows. One basis kernel at a time, in place: scipy.fft (all
+    cores) in place over the columns, then numpy's ``irfft`` straight into the plane, in row
+    blocks on all cores (fresh large arrays and copies cost more here than the FFTs' own
+    threads save). Returns the channel's (min, max) irradiance, for ``settle_floor``."""
     import scipy.fft as sfft
     k = plan.radius
-    h = e2d.shape[0]
-    pad, shape = fft_padded(e2d, k, border)
-    spec = sfft.rfft2(pad, shape, workers=-1)
+    h, w = e.shape[:2]
+    shape = fft_shape((h, w), k)
+    padded, (e_range,) = padded_planes(e, [c], k, shape, np.float32, border)
+    spec = sfft.rfft2(padded[0], workers=-1, overwrite_x=True)
+    del padded
     prod = np.empty_like(spec)
     for plane, ks in zip(planes, kspec):
         check_stop()
@@ -274,4 +287,4 @@ def basis_blurs(e2d, plan, kspec, border, planes):
         def rows_of_plane(r0, r1, cols=cols, plane=plane):
             np.fft.irfft(cols[k + r0:k + r1], shape[1], axis=-1, out=plane[r0:r1])
         in_row_blocks(rows_of_plane, h)
-    return planes
+    return e_range

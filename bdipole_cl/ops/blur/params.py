@@ -13,6 +13,7 @@ from functools import lru_cache
 
 import numpy as np
 
+from ...device.transfer import ALIGNMENT, aligned_empty
 from ...errors import check_policy, find_invalid
 from ...physics import reference as ref
 
@@ -132,6 +133,8 @@ def checked_parameter(value, shape, c, name, on_invalid="raise", dtype=None):
     if dtype is not None:
         with np.errstate(over="ignore"):          # an overflow to inf is caught by the rule
             v = v.astype(dtype)
+    if within_rule(ok, v):
+        return v
     bad = ~ok(v)
     if find_invalid(name, v, bad, f"outside {rule}", check_policy(on_invalid), texels=True,
                     channel=c):
@@ -142,14 +145,34 @@ def checked_parameter(value, shape, c, name, on_invalid="raise", dtype=None):
     return v
 
 
+def within_rule(ok, v) -> bool:
+    """True if every value of ``v`` passes the interval rule ``ok``, by its two extremes (a
+    NaN makes both NaN, which fails every rule); False sends the caller texel by texel."""
+    return bool(np.all(ok(np.array([v.min(), v.max()]))))
+
+
 def float32_map(v):
-    return np.ascontiguousarray(v, np.float32)
+    """``v`` as a C-contiguous float32 map on the device-alignment boundary (a CPU runtime
+    reads it in place: ``device.transfer``), copied only where it is not one already."""
+    v = np.asarray(v)
+    if (v.dtype == np.float32 and v.flags.c_contiguous
+            and v.ctypes.data % ALIGNMENT == 0):
+        return v
+    return aligned_float32(v)
+
+
+def aligned_float32(v):
+    """A new float32 copy of ``v`` on the device-alignment boundary."""
+    out = aligned_empty(np.size(v), np.float32).reshape(np.shape(v))
+    np.copyto(out, v, casting="unsafe")           # float64 -> float32: rounds as astype
+    return out
 
 
 def rd_map(rd):
     """A float32 Rd map of Rd < 1 in float64: an Rd within 2^-25 of 1 rounds to 1.0 in float32,
     so it is kept at the largest float32 below 1 (the nearest value the kernels can take)."""
-    return float32_map(np.minimum(float32_map(rd), np.float32(BELOW_ONE_32)))
+    out = aligned_float32(rd)
+    return np.minimum(out, np.float32(BELOW_ONE_32), out=out)
 
 
 def texel_parameters(shape, c, *, albedo=None, mfp=None, eta=1.4, texel_size=1.0, alpha=None,

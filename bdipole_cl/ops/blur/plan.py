@@ -95,7 +95,7 @@ class BlurPlan:
         """Working set per image row (``bands.band_rows`` takes it)."""
         h, w, nch = self.shape
         if self.textured:
-            nbasis = max(len(p.kernels) for p, _, _ in self.textured)
+            nbasis = max(len(ch.plan.kernels) for ch in self.textured)
             return textured_row_bytes(w, nch, self.halo, nbasis)
         return constant_row_bytes(w, nch)
 
@@ -171,7 +171,7 @@ def plan_blur(shape, scattering: Scattering, *, tol=1e-3, method="auto", border=
     if scattering.textured:
         chans = textured_plans(shape, tol=tol, exact=exact, on_invalid=on_invalid,
                                method=method, **scattering.keywords())
-        plan = replace(base, textured=tuple(chans), halo=max(p.radius for p, _, _ in chans),
+        plan = replace(base, textured=tuple(chans), halo=max(ch.plan.radius for ch in chans),
                        textured_info=textured_info(chans, textured_method(method), exact))
     else:
         params, plans = channel_plans(shape[2], method=method, tol=tol, exact=exact,

@@ -4,6 +4,7 @@ of their weights on the device (kernels/blur_textured.cl)."""
 from __future__ import annotations
 
 import warnings
+from typing import NamedTuple
 
 import numpy as np
 
@@ -11,10 +12,12 @@ from ...device.transfer import aligned_empty
 from ...methods.registry import TEXTURED_BLUR_METHODS
 from ...signals import check_stop
 from .dispatch import DeviceBlur, device_weight_planes, gather_exitance
-from .fft import FFT32_ROUNDOFF_ULPS, basis_blurs, cached_spectra, fft_shape, settled
+from .fft import (FFT32_ROUNDOFF_ULPS, basis_blurs, cached_spectra, fft_shape, settle_floor,
+                  settled)
 from .params import texel_parameters
 from .planning import BlurAccuracyWarning, BlurInfo, ChannelInfo
-from .textured_plan import RD_MAX, RD_MIN, parameter_ranges, plan_for_ranges, shape_clamp_error
+from .textured_plan import (RD_MAX, RD_MIN, MapExtremes, TexturedPlan, map_extremes,
+                            parameter_ranges, plan_for_ranges, shape_clamp_error)
 
 
 def textured_method(method) -> str:
@@ -26,9 +29,19 @@ def textured_method(method) -> str:
     return "fft" if method == "auto" else method
 
 
+class TexturedChannel(NamedTuple):
+    """One channel of a texture-varying blur: its plan, float32 Rd and ld maps, and their
+    extremes."""
+
+    plan: TexturedPlan
+    rd: np.ndarray
+    ld: np.ndarray
+    extremes: MapExtremes
+
+
 def textured_plans(shape, *, tol, exact=False, eta=1.4, method="auto", on_invalid="raise",
                    **physical):
-    """Per channel: (TexturedPlan, Rd map, ld map) for an HxWxC image, for ``method`` (its
+    """Per channel a TexturedChannel (plan, Rd map, ld map, extremes) for an HxWxC image, for ``method`` (its
     basis: separable Gaussians for ``gaussians``, else eigen-kernels). Each channel has the
     plan of its own ranges (a union over channels would need more basis kernels per channel;
     the kernels' spectra are cheap, so sharing them saves little)."""
@@ -42,8 +55,9 @@ def textured_plans(shape, *, tol, exact=False, eta=1.4, method="auto", on_invali
     for c in range(shape[2]):
         rd, ld = texel_parameters(shape, c, eta=float(etas[c]), exact=exact,
                                   on_invalid=on_invalid, **physical)
-        out.append((plan_for_ranges(*parameter_ranges(rd, ld), float(etas[c]), float(tol),
-                                    exact, basis), rd, ld))
+        ext = map_extremes(rd, ld)
+        out.append(TexturedChannel(plan_for_ranges(*parameter_ranges(ext), float(etas[c]),
+                                                   float(tol), exact, basis), rd, ld, ext))
     return out
 
 
@@ -54,23 +68,23 @@ def blur_band(e, plans, rows, method, border, kernels):
     rt = kernels.rt
     if method == "gaussians":
         device = DeviceBlur(e, kernels)
-        for c, (plan, rd, ld) in enumerate(plans):
+        for c, (plan, rd, ld, _) in enumerate(plans):
             device.run_textured(c, plan, device_weight_planes(plan, rd[rows], ld[rows], rt))
         out = device.result()
-        for c, (_, rd, _) in enumerate(plans):
+        for c, (_, rd, _, _) in enumerate(plans):
             settled(out[..., c], e[..., c], rd[rows])
         return out
     out = host_array(e.shape)
     planes = None          # the basis blurs, (G, H, FFT width), reused across channels
-    for c, (plan, rd, ld) in enumerate(plans):
+    for c, (plan, rd, ld, _) in enumerate(plans):
         check_stop()
         shape = fft_shape((h, w), plan.radius)
         kspec = cached_spectra(plan, shape)
         if planes is None or planes.shape != (len(kspec), h, shape[1]):
             planes = host_array((len(kspec), h, shape[1]))
-        basis_blurs(e[..., c], plan, kspec, border, planes)
-        gather_exitance(out, c, plan, rd[rows], ld[rows], planes, plan.radius, rt)
-        settled(out[..., c], e[..., c], rd[rows], FFT32_ROUNDOFF_ULPS)
+        e_range = basis_blurs(e, c, plan, kspec, border, planes)
+        gather_exitance(out, c, plan, rd[rows], ld[rows], planes, plan.radius, rt,
+                        settle_floor(e_range, FFT32_ROUNDOFF_ULPS))
     return out
 
 
@@ -91,15 +105,15 @@ def textured_info(plans, method, exact) -> BlurInfo:
     """What a texture-varying blur does per channel, its error bound with the shape clamp's."""
     return BlurInfo(tuple(
         ChannelInfo(c, f"{method} (texture-varying, {len(p.kernels)} {p.basis} basis kernels)",
-                    p.radius, p.error_bound + clamp_bound(c, p, rd, ld, exact),
+                    p.radius, p.error_bound + clamp_bound(c, p, ext, exact),
                     fit_error=p.fit_error, interp_error=p.interp_error,
                     nodes=int(np.prod(p.table.shape[:2])))
-        for c, (p, rd, ld) in enumerate(plans)))
+        for c, (p, _, _, ext) in enumerate(plans)))
 
 
-def clamp_bound(c, plan, rd, ld, exact) -> float:
+def clamp_bound(c, plan, ext, exact) -> float:
     """What the albedo shape clamp adds to channel c's bound; warned of when it is not 0."""
-    err = shape_clamp_error(plan, rd, ld, exact)
+    err = shape_clamp_error(plan, ext, exact)
     if err > 0:
         warnings.warn(BlurAccuracyWarning(
             f"channel {c}: albedo texels outside [{RD_MIN:g}, 1 - {1 - RD_MAX:.0e}] take the "

@@ -184,13 +184,31 @@ def transformed(rd, ld):
             np.log(np.asarray(ld, np.float64)))
 
 
-def parameter_ranges(rd, ld):
-    """((lo, hi) of logit Rd, (lo, hi) of ln ld) over maps rd, ld: the transforms are monotone,
-    so these are the transformed extremes. Texels of Rd = 0 give 0 whatever their shape, so
-    they do not widen the albedo range (a masked map would pay for nodes down to RD_MIN)."""
-    lit = rd[rd > 0]
-    lo = lit.min() if lit.size else rd.min()
-    t_rd = transformed([lo, rd.max()], [ld.min(), ld.max()])
+@dataclass(frozen=True)
+class MapExtremes:
+    """The extremes of one channel's Rd and ld maps that its plan and bound depend on."""
+
+    rd_lit_min: float        # the smallest Rd > 0 (the smallest Rd if no texel is lit)
+    rd_max: float
+    ld_min: float
+    ld_max: float
+
+
+def map_extremes(rd, ld) -> MapExtremes:
+    """MapExtremes of float maps rd, ld, by whole-map reductions (a masked one only where some
+    texel is unlit)."""
+    lo = rd.min()
+    if lo <= 0 and rd.max() > 0:
+        lo = np.min(rd, where=rd > 0, initial=np.inf)
+    return MapExtremes(float(lo), float(rd.max()), float(ld.min()), float(ld.max()))
+
+
+def parameter_ranges(ext: MapExtremes):
+    """((lo, hi) of logit Rd, (lo, hi) of ln ld) over maps of extremes ``ext``: the transforms
+    are monotone, so these are the transformed extremes. Texels of Rd = 0 give 0 whatever
+    their shape, so they do not widen the albedo range (a masked map would pay for nodes down
+    to RD_MIN)."""
+    t_rd = transformed([ext.rd_lit_min, ext.rd_max], [ext.ld_min, ext.ld_max])
     return tuple((float(t[0]), float(t[1])) for t in t_rd)
 
 
@@ -352,19 +370,19 @@ def texel_coords(plan, rd, ld):
     return on_axis(plan.axes[0], u), on_axis(plan.axes[1], np.log(ld))
 
 
-def shape_clamp_error(plan, rd, ld, exact=False) -> float:
+def shape_clamp_error(plan, ext: MapExtremes, exact=False) -> float:
     """L1 error (of the normalized kernel) of taking the shape of RD_MIN or RD_MAX for the
-    texels of ``rd`` beyond them (Rd = 0 aside: it gives 0), at the extremes of ``ld``: what
-    the clamp adds to the bound (0 if no texel is beyond). The shape moves away from the
-    bound's monotonically with Rd, so the most extreme texel is the worst."""
-    positive = rd[rd > 0]
-    if positive.size == 0:
+    texels of maps with extremes ``ext`` beyond them (Rd = 0 aside: it gives 0), at the
+    extremes of ld: what the clamp adds to the bound (0 if no texel is beyond). The shape
+    moves away from the bound's monotonically with Rd, so the most extreme texel is the
+    worst."""
+    if not ext.rd_max > 0:
         return 0.0
     worst = 0.0
-    for far, bound in ((float(positive.min()), RD_MIN), (float(rd.max()), RD_MAX)):
+    for far, bound in ((ext.rd_lit_min, RD_MIN), (ext.rd_max, RD_MAX)):
         if RD_MIN <= far <= RD_MAX:
             continue
-        for length in {float(ld.min()), float(ld.max())}:
+        for length in {ext.ld_min, ext.ld_max}:
             check_stop()
             diff = (node_kernel(far, length, plan.eta, plan.radius, exact)
                     - node_kernel(bound, length, plan.eta, plan.radius, exact))

@@ -63,6 +63,51 @@ def test_matches_the_per_exit_texel_reference(method, varying):
     assert ch.error_bound < 3e-3
 
 
+@pytest.mark.parametrize("near", [-1, 0, 1, 2, 3])
+def test_every_near_field_matches_the_per_exit_texel_reference(monkeypatch, near):
+    """Each near field radius (its cells' node weights interpolated per texel and summed in
+    the gather, the rest in the FFT basis) within the plan's measured error of the per-texel
+    reference, and its basis no larger than with less near field."""
+    from bdipole_cl.ops.blur import textured_plan
+    monkeypatch.setattr(textured_plan, "NEAR_RADII", (near,))
+    textured_plan.PLAN_CACHE.clear()
+    rng = np.random.default_rng(9)
+    e = rng.uniform(0, 1, (H, W, 1)).astype(np.float32)
+    e[5, 7] = 30.0                                  # a bright texel: the near cells carry it
+    albedo, mfp = gradient_maps()
+    mfp *= 2.0                                       # ld 2..4 texels: K ~ 20
+    try:
+        out, info = blur(e, albedo=albedo, mfp=mfp, eta=1.4, return_info=True)
+        (plan, *_), = channel_plans((H, W, 1), tol=1e-3, albedo=albedo, mfp=mfp)
+    finally:
+        textured_plan.PLAN_CACHE.clear()
+    assert plan.near == near
+    ch = info.channels[0]
+    want = per_texel_reference(e[..., 0], albedo[..., 0], mfp[..., 0], 1.4, ch.radius)
+    err = np.abs(out[..., 0] - want) / (e.max() * albedo[..., 0])
+    # as test_matches_the_per_exit_texel_reference: the plan's measured kernel error bounds
+    # the output's relative to max(E) * Rd(x), + 1e-5 for float32 accumulation
+    assert err.max() <= max(ch.fit_error, ch.interp_error) + 1e-5, (near, err.max(), ch)
+    # the near cells' weights are the nodes' own: node 0's near cells reconstructed exactly
+    node0 = np.tensordot(plan.table[0, 0].astype(np.float64), plan.quadrants(), 1)
+    exact = node_kernel(plan.axes[0].values[0], plan.axes[1].values[0], 1.4, plan.radius)
+    r = max(near, -1) + 1
+    np.testing.assert_allclose(node0[:r, :r], exact[:r, :r], rtol=1e-6, atol=0)
+
+
+def test_near_field_shrinks_the_fft_basis(monkeypatch):
+    from bdipole_cl.ops.blur import textured_plan
+    albedo, mfp = gradient_maps()
+    sizes = []
+    for near in (-1, 3):
+        monkeypatch.setattr(textured_plan, "NEAR_RADII", (near,))
+        textured_plan.PLAN_CACHE.clear()
+        (plan, *_), = channel_plans((H, W, 1), tol=1e-3, albedo=albedo, mfp=4 * mfp)
+        sizes.append(len(plan.kernels))
+    textured_plan.PLAN_CACHE.clear()
+    assert sizes[1] < sizes[0], sizes
+
+
 def test_uniform_texture_equals_constant_parameters():
     rng = np.random.default_rng(6)
     e = rng.uniform(0, 1, (H, W, 2)).astype(np.float32)
@@ -146,8 +191,10 @@ def test_device_gather_settles_as_the_host_does(runtime, e_range):
     planes[...] = rng.choice([-1, 1], planes.shape) * 10.0 ** rng.uniform(-9, 0, planes.shape)
     floor = blur_fft.settle_floor(e_range, blur_fft.FFT32_ROUNDOFF_ULPS)
     raw, dev = host_array((H, W, 1)), host_array((H, W, 1))
-    gather_exitance(raw, 0, plan, rd, ld, planes, x0, runtime, settle=(0.0, False))
-    gather_exitance(dev, 0, plan, rd, ld, planes, x0, runtime, settle=floor)
+    padded = np.zeros((H + 2 * x0, W + 2 * x0), np.float32)
+    padded[x0:-x0, x0:-x0] = rng.uniform(-1e-6, 1e-6, (H, W))
+    gather_exitance(raw, 0, plan, rd, ld, planes, padded, x0, runtime, settle=(0.0, False))
+    gather_exitance(dev, 0, plan, rd, ld, planes, padded, x0, runtime, settle=floor)
     host = blur_fft.settled(raw[..., 0].copy(), None, rd, blur_fft.FFT32_ROUNDOFF_ULPS, e_range)
     assert 0 < np.count_nonzero(host == 0) < host.size     # the floor cut some, not all
     np.testing.assert_array_equal(dev[..., 0], host)
@@ -278,13 +325,13 @@ def test_spectra_cached_per_plan_and_shape():
     assert cached_spectra(plan, (40, 42)) is first
     other = cached_spectra(plan, (40, 44))
     assert other is not first and other.shape[2] == 44 // 2 + 1
-    np.testing.assert_array_equal(first, kernel_spectra(plan.quadrants(), (40, 42)))
+    np.testing.assert_array_equal(first, kernel_spectra(plan.blurred_quadrants(), (40, 42)))
 
 
 def test_spectra_cache_keeps_to_its_byte_budget(monkeypatch):
     albedo, mfp = gradient_maps()
     (plan, _, _, _), = channel_plans((H, W, 1), tol=1e-3, albedo=albedo, mfp=mfp)
-    one = kernel_spectra(plan.quadrants(), (40, 42)).nbytes
+    one = kernel_spectra(plan.blurred_quadrants(), (40, 42)).nbytes
     cache = blur_fft.SPECTRA_CACHE
     monkeypatch.setattr(cache, "max_bytes", 2 * one)
     cache.clear()

@@ -131,9 +131,9 @@ def lattice_args(plan):
     """Program options and the lattice arguments of kernels/blur_textured.cl for a plan: the
     fine table's size, then its coordinates' (``fine_coords``: the Rd clamp, and per axis the
     scale and offset of ``textured_plan.texel_coords``)."""
-    nu, nv, nbasis = plan.fine.shape
-    opts = build_options({"BD_NBASIS": nbasis, "BD_NU_TAPS": 1 if nu == 1 else 2,
-                          "BD_NV_TAPS": 1 if nv == 1 else 2})
+    nu, nv, _ = plan.fine.shape
+    opts = build_options({"BD_NBASIS": len(plan.kernels), "BD_NEAR": plan.near,
+                          "BD_NU_TAPS": 1 if nu == 1 else 2, "BD_NV_TAPS": 1 if nv == 1 else 2})
     coords = [np.float32(v) for v in (RD_MIN, RD_MAX, *fine_axis_map(plan.axes[0]),
                                       *fine_axis_map(plan.axes[1]))]
     return opts, (np.int32(nu), np.int32(nv), *coords)
@@ -161,18 +161,21 @@ def device_weight_planes(plan, rd, ld, rt):
     return planes
 
 
-def gather_exitance(out, c, plan, rd, ld, planes, x0, rt, settle=(0.0, True)):
-    """out[..., c] = Rd(x) sum_j w_j(x) planes[j, y, x0 + x], on ``rt``'s device, settled by
-    ``settle`` = (scale, non-negative) (``fft.settle_floor``; the default settles nothing but
-    the negative round-off of a non-negative irradiance)."""
+def gather_exitance(out, c, plan, rd, ld, planes, padded, x0, rt, settle=(0.0, True)):
+    """out[..., c] = Rd(x) (sum_j w_j(x) planes[j, y, x0 + x] + the near field's classes'
+    weights times the irradiance there, from ``padded``: the channel padded by x0 texels by
+    the border rule), on ``rt``'s device, settled by ``settle`` = (scale, non-negative)
+    (``fft.settle_floor``; the default settles nothing but the negative round-off of a
+    non-negative irradiance)."""
     h, w, nch = out.shape
     mf = cl.mem_flags
     opts, axis_args = lattice_args(plan)
-    bufs = [host_buffer(rt, a, mf.READ_ONLY) for a in (rd, ld, plan.fine, planes)]
+    bufs = [host_buffer(rt, a, mf.READ_ONLY) for a in (rd, ld, plan.fine, planes, padded)]
     dst = host_buffer(rt, out, mf.READ_WRITE)
     scale, nonneg = settle
     cl.Kernel(get_program(rt, "blur_textured", opts), "gather_exitance")(
         rt.queue, (w, h), None, *bufs, dst, np.int32(w), np.int32(h),
-        np.int32(planes.shape[2]), np.int32(planes.shape[1] * planes.shape[2]), np.int32(x0),
-        np.int32(nch), np.int32(c), np.float32(scale), np.int32(bool(nonneg)), *axis_args)
+        np.int32(planes.shape[2]), np.int32(planes.shape[1] * planes.shape[2]),
+        np.int32(padded.shape[1]), np.int32(x0), np.int32(nch), np.int32(c),
+        np.float32(scale), np.int32(bool(nonneg)), *axis_args)
     read_back(rt, dst, out)

@@ -128,7 +128,7 @@ def cached_spectra(plan, shape):
     hit = SPECTRA_CACHE.get(key)
     if hit is not None and hit[0] is plan:    # the entry holds the plan: its id is its own
         return hit[1]
-    spec = kernel_spectra(plan.quadrants(), shape)
+    spec = kernel_spectra(plan.blurred_quadrants(), shape)
     SPECTRA_CACHE.put(key, (plan, spec), spec.nbytes)
     return spec
 
@@ -270,14 +270,15 @@ def basis_blurs(e, c, plan, kspec, border, planes):
     transform pruned to the image's rows. One basis kernel at a time, in place: scipy.fft (all
     cores) in place over the columns, then numpy's ``irfft`` straight into the plane, in row
     blocks on all cores (fresh large arrays and copies cost more here than the FFTs' own
-    threads save). Returns the channel's (min, max) irradiance, for ``settle_floor``."""
+    threads save). Returns the padded channel (N0, N1) (the image at rows and columns
+    [K, K + H), [K, K + W): the near field's irradiance) and its (min, max), for
+    ``settle_floor``."""
     import scipy.fft as sfft
     k = plan.radius
     h, w = e.shape[:2]
     shape = fft_shape((h, w), k)
     padded, (e_range,) = padded_planes(e, [c], k, shape, np.float32, border)
-    spec = sfft.rfft2(padded[0], workers=-1, overwrite_x=True)
-    del padded
+    spec = sfft.rfft2(padded[0], workers=-1)
     prod = np.empty_like(spec)
     for plane, ks in zip(planes, kspec):
         check_stop()
@@ -287,4 +288,4 @@ def basis_blurs(e, c, plan, kspec, border, planes):
         def rows_of_plane(r0, r1, cols=cols, plane=plane):
             np.fft.irfft(cols[k + r0:k + r1], shape[1], axis=-1, out=plane[r0:r1])
         in_row_blocks(rows_of_plane, h)
-    return e_range
+    return padded[0], e_range

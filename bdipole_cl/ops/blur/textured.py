@@ -82,8 +82,8 @@ def blur_band(e, plans, rows, method, border, kernels):
         kspec = cached_spectra(plan, shape)
         if planes is None or planes.shape != (len(kspec), h, shape[1]):
             planes = host_array((len(kspec), h, shape[1]))
-        e_range = basis_blurs(e, c, plan, kspec, border, planes)
-        gather_exitance(out, c, plan, rd[rows], ld[rows], planes, plan.radius, rt,
+        padded, e_range = basis_blurs(e, c, plan, kspec, border, planes)
+        gather_exitance(out, c, plan, rd[rows], ld[rows], planes, padded, plan.radius, rt,
                         settle_floor(e_range, FFT32_ROUNDOFF_ULPS))
     return out
 

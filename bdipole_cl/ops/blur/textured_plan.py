@@ -133,21 +133,77 @@ def svd_basis(targets, tol):
     """Eigen-kernels of the node kernels (SVD of the quadrants, weighted by cell multiplicity
     so that it is the SVD of the whole kernels): the fewest whose reconstruction of every node
     is within L1 error tol (or all of them). Returns (quadrants (G, K+1, K+1), node
-    coefficients (nodes, G), each row scaled so that its kernel sums to 1)."""
+    coefficients (nodes, G), each row scaled so that its kernel sums to what its target
+    does)."""
     shape = targets[0].shape
     mult = multiplicity(shape[0] - 1).ravel()
     sw = np.sqrt(mult)
     a_mat = np.stack([t.ravel() * sw for t in targets], axis=1)        # cells x nodes
+    sums = (a_mat / sw[:, None]).T @ mult
     u, _, _ = np.linalg.svd(a_mat, full_matrices=False)
     for rank in range(1, u.shape[1] + 1):
         check_stop()
         phi = u[:, :rank] / sw[:, None]                                 # quadrant values
         coef = (u[:, :rank].T @ a_mat).T                                # nodes x rank
-        coef /= (coef @ (phi.T @ mult))[:, None]                        # kernels sum to 1
+        coef *= (sums / (coef @ (phi.T @ mult)))[:, None]               # sums as the targets'
         err = np.abs(phi @ coef.T - a_mat / sw[:, None]).T @ mult
         if err.max() <= tol:
             break
     return phi.T.reshape((rank,) + shape), coef
+
+
+def near_classes(near):
+    """The near field's cell classes (a, b), near >= a >= b >= 0: class (a, b) is the cells
+    (+-a, +-b) and (+-b, +-a) of the radially symmetric kernel, whose weights are equal. The
+    order is the gather's (kernels/blur_textured.cl ``near_sum``). near < 0: none."""
+    return tuple((a, b) for a in range(near + 1) for b in range(a + 1))
+
+
+def class_quadrants(classes, radius):
+    """(n, K+1, K+1) quadrant of each near class's kernel: 1 on its cells."""
+    quads = np.zeros((len(classes), radius + 1, radius + 1))
+    for q, (a, b) in zip(quads, classes):
+        q[a, b] = q[b, a] = 1.0
+    return quads
+
+
+#: near field radii tried per plan: the cells within ``near`` (Chebyshev) of the texel have
+#: their exact node weights interpolated per texel and summed in the gather, so the FFT basis
+#: fits only the kernels beyond them, which the parameters change less (fewer basis kernels:
+#: at mfp 4 texels, 8 with no near field, 5 with near 2). -1: no near field.
+NEAR_RADII = (-1, 0, 1, 2, 3)
+#: the gather's cost of one near cell (a read and an add) and of one near class (its weight's
+#: 4 table taps and the class's sum), in units of one basis blur (an inverse FFT and its
+#: weight's taps, ~38 ms at 2048^2), per texel: measured on Intel's runtime on the 2-core AVX
+#: CPU (a cell ~1 ms, a class ~3.5 ms at 2048^2; PoCL's gather is slower, and there a near
+#: field about breaks even)
+NEAR_CELL_COST, NEAR_CLASS_COST = 0.025, 0.09
+
+
+def near_cost(near, nbasis):
+    """The blur's cost model in basis blurs per texel: nbasis inverse FFTs and the near
+    field's cells and classes."""
+    return nbasis + NEAR_CELL_COST * (2 * near + 1) ** 2 + NEAR_CLASS_COST * len(
+        near_classes(near))
+
+
+def near_field_basis(targets, tol, radius):
+    """(near, far quadrants (G, K+1, K+1), node coefficients (nodes, G + classes)) of the
+    cheapest near field of NEAR_RADII (``near_cost``): the far basis is ``svd_basis`` of the
+    node kernels with the near cells removed, fitted to their far mass (so every node still
+    sums to 1), and the near classes' coefficients are the nodes' exact weights there."""
+    best = None
+    for near in (r for r in NEAR_RADII if r <= radius):
+        classes = near_classes(near)
+        mask = class_quadrants(classes, radius).sum(axis=0) > 0
+        far = [np.where(mask, 0.0, t) for t in targets]
+        quads, coef = svd_basis(far, tol)
+        near_coef = np.array([[t[a, b] for a, b in classes] for t in targets]).reshape(
+            len(targets), len(classes))
+        cost = near_cost(near, len(quads))
+        if best is None or cost < best[0]:
+            best = (cost, near, quads, np.concatenate([coef, near_coef], axis=1))
+    return best[1:]
 
 
 @dataclass(frozen=True)
@@ -164,18 +220,26 @@ class TexturedPlan:
     fit_error: float         # max L1 error of the node kernels in the basis
     interp_error: float      # max L1 error at the check points (basis + interpolation)
     truncation_tol: float
+    near: int = -1           # the near field's radius (``near_classes``; -1: none)
 
     @property
     def error_bound(self):
         """Bound on |M - exact| / (max E * Rd(x)): truncation + the measured kernel error."""
         return self.truncation_tol + max(self.fit_error, self.interp_error)
 
-    def quadrants(self):
-        """(G, K+1, K+1) quadrant of each basis kernel."""
+    def blurred_quadrants(self):
+        """(G, K+1, K+1) quadrant of each basis kernel the image is blurred with (by FFT or
+        the separable kernels)."""
         if self.basis == "svd":
             return np.asarray(self.kernels)
         return basis_columns(self.kernels, self.radius).T.reshape(
             (-1, self.radius + 1, self.radius + 1))
+
+    def quadrants(self):
+        """(G + classes, K+1, K+1): the blurred basis kernels' quadrants, then the near
+        classes' (``class_quadrants``): the table's weights, in its order."""
+        return np.concatenate([self.blurred_quadrants(),
+                               class_quadrants(near_classes(self.near), self.radius)])
 
 
 def transformed(rd, ld):
@@ -283,16 +347,18 @@ def plan_for_ranges(rd_range, ld_range, eta, tol, exact=False, basis="svd", max_
                          f"raise tol or the texel size")
     targets = [node_kernel(a, b, eta, radius, exact) for a in axes[0].values
                for b in axes[1].values]
+    near = -1
     if basis == "svd":
-        quads, coef = svd_basis(targets, tol)
+        near, quads, coef = near_field_basis(targets, tol, radius)
         kernels = tuple(quads)
-        fit_error = float(max(np.abs(unfold_quadrant(np.tensordot(c, quads, 1) - t)).sum()
+        every = np.concatenate([quads, class_quadrants(near_classes(near), radius)])
+        fit_error = float(max(np.abs(unfold_quadrant(np.tensordot(c, every, 1) - t)).sum()
                               for c, t in zip(coef, targets)))
     else:
         kernels, coef, fit_error = _gaussian_fits(targets, radius, tol)
     table = coef.reshape(len(axes[0].values), len(axes[1].values), -1).astype(np.float32)
     plan = TexturedPlan(radius, basis, kernels, axes, table, fine_table(table), eta, fit_error,
-                       0.0, tol)
+                       0.0, tol, near)
     return _with_interp_error(plan, rd_range, ld_range, exact)
 
 

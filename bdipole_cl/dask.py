@@ -264,7 +264,7 @@ def remove_band_folders(output) -> int:
 
 def blur_file_on_cluster(path, output, client, *, colorspace="auto", working_space=None,
                          half=False, max_memory=256 << 20, device=None, progress=True,
-                         texture=False,
+                         texture=False, force=False,
                          **kwargs):
     """``blur_file`` with its bands as tasks: each worker reads its rows and the halo of the
     truncation radius from ``path``, blurs them within ``max_memory`` bytes, and writes them
@@ -273,7 +273,7 @@ def blur_file_on_cluster(path, output, client, *, colorspace="auto", working_spa
     Returns the number of bands."""
     from .io.images import check_output_format
     check_output_format(output)
-    check_claim(Claim(str(path), str(output), {"irradiance": str(path)}))
+    check_claim(Claim(str(path), str(output), {"irradiance": str(path)}), force)
     scattering, options = Scattering.split(kwargs)
     if scattering.textured:
         raise ValueError("a blur on a cluster takes constant parameters (one value or one per "

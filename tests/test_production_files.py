@@ -136,6 +136,81 @@ def test_collision_message_is_on_the_right_files_row(tmp_path):
 
 # }}}
 
+# {{{ class 1b: an output replaces only what bdipole-cl wrote, or what --force allows
+
+def painted(path, value=0.3):
+    """A file the user made (no bdipole:version): an 8x8 EXR, or a PNG by suffix."""
+    if str(path).endswith(".png"):
+        write(path, np.full((8, 8, 3), value, np.float32), fmt="uint8")
+    else:
+        write(path, np.full((8, 8, 3), value, np.float32))
+    return path.read_bytes()
+
+
+def test_preview_never_writes_onto_its_input_or_a_users_picture(tmp_path, capsys):
+    write(tmp_path / "a.exr", ramp())
+    before = painted(tmp_path / "paint.png")
+    for target, why in ((tmp_path / "paint.png", "would overwrite an input"),):
+        rc = cli_main(["preview", str(tmp_path / "paint.png"), "-o", str(target)])
+        assert rc == 2 and why in capsys.readouterr().err
+    rc = cli_main(["preview", str(tmp_path / "a.exr"), "-o", str(tmp_path / "paint.png")])
+    assert rc == 2 and "not written by bdipole-cl" in capsys.readouterr().err
+    assert (tmp_path / "paint.png").read_bytes() == before
+    rc = cli_main(["preview", str(tmp_path / "a.exr"), "-o", str(tmp_path / "a2.exr")])
+    assert rc == 2 and "a picture is PNG or SVG" in capsys.readouterr().err
+    for suffix in (".png", ".svg"):                      # its own sheet it may replace
+        out = tmp_path / f"sheet{suffix}"
+        assert cli_main(["preview", str(tmp_path / "a.exr"), "-o", str(out)]) == 0
+        assert cli_main(["preview", str(tmp_path / "a.exr"), "-o", str(out)]) == 0, \
+            capsys.readouterr().err
+    assert cli_main(["preview", str(tmp_path / "a.exr"), "-o", str(tmp_path / "paint.png"),
+                     "--force"]) == 0
+    assert (tmp_path / "paint.png").read_bytes() != before
+    before = painted(tmp_path / "p.png")
+    rc = cli_main(["profile", "--albedo", "0.5", "--mfp", "1", "-o", str(tmp_path / "p.png")])
+    assert rc == 2 and "not written by bdipole-cl" in capsys.readouterr().err
+    assert (tmp_path / "p.png").read_bytes() == before
+
+
+def test_invert_and_blur_never_replace_a_file_they_did_not_write(tmp_path, capsys):
+    write(tmp_path / "a.exr", ramp())
+    before = painted(tmp_path / "precious.exr")
+    rep = process_textures(str(tmp_path / "a.exr"), output=str(tmp_path / "precious.exr"))
+    assert rep.exit_code == 1 and "not written by bdipole-cl" in rep.results[0].error
+    rc = cli_main(["blur", str(tmp_path / "a.exr"), "--albedo", "0.5", "--mfp", "1",
+                   "-o", str(tmp_path / "precious.exr"), "--no-progress"])
+    assert rc == 2 and "not written by bdipole-cl" in capsys.readouterr().err
+    assert (tmp_path / "precious.exr").read_bytes() == before
+    (tmp_path / "adir.exr").mkdir()
+    rep = process_textures(str(tmp_path / "a.exr"), output=str(tmp_path / "adir.exr"),
+                           force=True)
+    assert "is a directory" in rep.results[0].error           # never, even forced
+    # its own outputs it replaces; a foreign one only when forced
+    for out in ("inv.exr", "precious.exr"):
+        force = out == "precious.exr"
+        for _ in range(2):
+            rep = process_textures(str(tmp_path / "a.exr"), output=str(tmp_path / out),
+                                   force=force)
+            assert rep.exit_code == 0, rep.summary()
+    for _ in range(2):
+        assert cli_main(["blur", str(tmp_path / "a.exr"), "--albedo", "0.5", "--mfp", "1",
+                         "-o", str(tmp_path / "sss.exr"), "--no-progress"]) == 0
+
+
+def test_bake_never_replaces_an_output_it_did_not_write(tmp_path, capsys):
+    write(tmp_path / "a.exr", ramp())
+    path = scene(tmp_path, '[[material]]\nname = "a"\nalbedo = "a.exr"\nmfp = 1.0\n'
+                           'output = "out/a_sss.exr"\n')
+    (tmp_path / "out").mkdir()
+    before = painted(tmp_path / "out" / "a_sss.exr")
+    assert cli_main(["bake", str(path), "--no-progress"]) == 1
+    assert "not written by bdipole-cl" in capsys.readouterr().err
+    assert (tmp_path / "out" / "a_sss.exr").read_bytes() == before
+    assert cli_main(["bake", str(path), "--no-progress", "--force"]) == 0
+    assert cli_main(["bake", str(path), "--no-progress"]) == 0        # now its own
+
+# }}}
+
 
 # {{{ class 2: production image formats
 
@@ -416,6 +491,24 @@ def test_a_worker_memory_no_worker_can_run_in_is_one_line(capsys):
     err = capsys.readouterr().err
     assert rc == 2 and len(err.strip().splitlines()) == 1 and "at least" in err, err
 
+def test_a_signal_during_blurs_last_write_never_exits_0(tmp_path, monkeypatch, capsys):
+    """SIGTERM arriving as the output's last band is written (the run then finishes: the file
+    is complete) still exits 143, and says the output is complete."""
+    from bdipole_cl.jobs import runner
+    write(tmp_path / "irr.exr", ramp())
+    real = runner.run_job
+
+    def run_then_signal(*a, **kw):
+        result = real(*a, **kw)
+        os.kill(os.getpid(), signal.SIGTERM)             # the handler only records it
+        return result
+    monkeypatch.setattr(runner, "run_job", run_then_signal)
+    rc = cli_main(["blur", str(tmp_path / "irr.exr"), "--albedo", "0.5", "--mfp", "1",
+                   "-o", str(tmp_path / "o.exr"), "--no-progress"])
+    assert rc == 128 + signal.SIGTERM
+    assert "it is complete" in capsys.readouterr().err
+    assert np.isfinite(read(tmp_path / "o.exr")[0]).all()
+
 # }}}
 
 
@@ -557,6 +650,26 @@ def test_an_unknown_device_still_lists_the_devices(capsys):
     assert "works" in captured.out and "nonsense" in captured.err
 
 # }}}
+
+
+def test_a_negative_albedo_texel_is_invalid_not_silently_zero(tmp_path):
+    """Below 0 (a painted -0.2, or ACEScg green outside Rec.709's gamut) is no albedo: the
+    file fails naming the texel, or with clamp it is 0 and counted; blur refuses it too."""
+    px = np.full((8, 8, 3), 0.5, np.float32)
+    px[3, 5, 2] = -0.2
+    write(tmp_path / "n.exr", px)
+    write(tmp_path / "ok.exr", np.full((8, 8, 3), 0.5, np.float32))
+    rep = process_textures([str(tmp_path / "n.exr"), str(tmp_path / "ok.exr")],
+                           output="{dir}/{stem}_out.exr")
+    bad, good = rep.results
+    assert rep.exit_code == 1 and good.status == "ok", rep.summary()
+    assert "below 0" in bad.error and "x=5, y=3, channel B: -0.2" in bad.error, bad.error
+    assert not (tmp_path / "n_out.exr").exists()
+    rep = process_textures(str(tmp_path / "n.exr"), output="{dir}/{stem}_out.exr",
+                           on_invalid="clamp")
+    assert rep.exit_code == 0 and rep.results[0].invalid["albedo"] == 1, rep.summary()
+    rho = read(tmp_path / "n_out.exr")[0]
+    assert np.isfinite(rho).all()
 
 
 # {{{ class 4 (continued): a clamp changes only its own texel

@@ -203,6 +203,29 @@ def test_skip_existing(tmp_path):
     assert process_textures(tmp_path / "a.exr", **kw).results[0].status == "skipped"
     os.utime(tmp_path / "a.exr", (2e9, 2e9))   # input newer than the output
     assert process_textures(tmp_path / "a.exr", **kw).results[0].status == "ok"
+    # other settings make another output: rebuilt, never kept as "skipped"
+    os.utime(tmp_path / "a.exr", (1e9, 1e9))
+    for change in ({"eta": 1.3}, {"mfp": 5.0}, {"outputs": ("rho",)}, {"half": True},
+                   {"working_space": "ACEScg"}):
+        assert process_textures(tmp_path / "a.exr", **(kw | change)).results[0].status == \
+            "ok", change
+        assert process_textures(tmp_path / "a.exr", **(kw | change)).results[0].status == \
+            "skipped", change
+
+
+def test_skip_existing_digest_is_the_same_in_a_new_process(tmp_path):
+    """The settings' digest has no per-process part (an object's address): a later run of the
+    same command skips."""
+    import subprocess
+    import sys
+    write_image(tmp_path / "a.exr", albedo_image(3), "float", ("R", "G", "B"))
+    code = ("import sys; from bdipole_cl.io.batch import process_textures; "
+            f"r = process_textures({str(tmp_path / 'a.exr')!r}, mfp=1.0, skip_existing=True, "
+            f"output={str(tmp_path / 'o.exr')!r}, texture=True, working_space='ACEScg'); "
+            "print(r.results[0].status)")
+    runs = [subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                           timeout=120) for _ in range(2)]
+    assert [r.stdout.strip().splitlines()[-1] for r in runs] == ["ok", "skipped"], runs
 
 
 def test_demo_runs(tmp_path, capsys):

@@ -30,16 +30,17 @@ def sheet_path(output) -> Path:
     return Path(output).with_suffix(".preview.png")
 
 
-def bake_preview(plan, report, page=None) -> BakePreview:
+def bake_preview(plan, report, page=None, force=False) -> BakePreview:
     """Contact sheets of every output the bake left (made now or up to date), and the page
-    (default: beside the scene file, ``scene.preview.png``)."""
+    (default: beside the scene file, ``scene.preview.png``); neither replaces a file this tool
+    did not write unless ``force``."""
     done = {r.output for r in report.results if r.status in ("ok", "skipped")}
-    sheets = [contact_sheet(j.output, sheet_path(j.output), title=_job_title(j))
+    sheets = [contact_sheet(j.output, sheet_path(j.output), title=_job_title(j), force=force)
               for j in plan.jobs if j.output in done and Path(j.output).is_file()]
     scene = plan.scene
     page = Path(page) if page is not None else Path(scene.path).with_suffix(".preview.png")
     materials = tuple(m.name for m in scene.materials)
-    _bake_page(scene, plan, sheets, page)
+    _bake_page(scene, plan, sheets, page, force)
     return BakePreview(tuple(sheets), str(page), materials)
 
 
@@ -71,7 +72,7 @@ def _page_rows(scene, plan, sheets: list):
     return rows
 
 
-def _bake_page(scene, plan, sheets, page):
+def _bake_page(scene, plan, sheets, page, force=False):
     require_matplotlib()
     from matplotlib.figure import Figure
     rows = _page_rows(scene, plan, sheets)
@@ -114,5 +115,5 @@ def _bake_page(scene, plan, sheets, page):
         if not groups:
             fig.text((0.2 + 0.5 * cols * THUMB_IN) / width, y0 + 0.5 * cell_h,
                      f"{name}: no output", ha="center", fontsize=9)
-    save_figure(fig, page)
+    save_figure(fig, page, [scene.path], force)
 

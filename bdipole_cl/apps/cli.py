@@ -69,7 +69,7 @@ def _invert(args, run_files) -> int:
         jobs=args.jobs, skip_existing=args.skip_existing, unit=args.unit, double=args.double,
         mfp_scale=args.mfp_scale, mfp_kind=args.mfp_kind,
         progress=not args.no_progress and run_files is None,
-        run_files=run_files, texture=args.texture, **method_knobs(args))
+        run_files=run_files, texture=args.texture, force=args.force, **method_knobs(args))
     return _finish(report, stop)
 
 
@@ -142,7 +142,7 @@ def _cmd_bake(args) -> int:
     code = _finish(report, stop)
     if args.preview and not stop.exit_code:
         from .bake_page import bake_preview
-        print(bake_preview(plan, report).describe())
+        print(bake_preview(plan, report, force=args.force).describe())
     return code
 
 
@@ -232,13 +232,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=_cmd_crosscheck)
 
     p = _scene_command(command, "plan", "what a scene's bake computes and leaves out, per job",
-                       "plan every job, up to date or not",
+                       "plan every job, up to date or not, as if replacing existing outputs "
+                       "bdipole-cl did not write",
                        "host memory for the statistics pass's bands of rows")
     p.add_argument("--json", action="store_true", help="the plan as JSON")
     p.set_defaults(func=_cmd_plan)
 
     p = _scene_command(command, "bake", "run a scene's plan: only what is needed, only what "
-                       "changed", "rebuild every output",
+                       "changed", "rebuild every output, and replace existing outputs "
+                       "bdipole-cl did not write",
                        "host memory per job for bands of rows (e.g. 512M)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar and job lines")
     p.add_argument("--preview", action="store_true",
@@ -271,6 +273,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = command("blur", help="blur an irradiance map with the Better Dipole profile R(r)")
     p.add_argument("input", help="irradiance image (EXR/TIFF/PNG...)")
     p.add_argument("-o", "--output", required=True, help="output EXR")
+    p.add_argument("--force", action="store_true",
+                   help="replace an existing -o file that bdipole-cl did not write")
     p.add_argument("--albedo", type=constant_or_texture("albedo"),
                    help="Rd: one value, per channel 'r,g,b', or a texture (texture-varying)")
     p.add_argument("--mfp", type=constant_or_texture("mfp"),
@@ -339,7 +343,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-j", "--jobs", type=positive_int, default=1,
                    help="files processed at once")
     p.add_argument("--skip-existing", action="store_true",
-                   help="skip files whose output is newer than their inputs")
+                   help="skip files whose output is newer than their inputs and was made with "
+                        "the same settings")
+    p.add_argument("--force", action="store_true",
+                   help="replace existing outputs that bdipole-cl did not write")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--double", action="store_true",
                    help="compute in float64 (devices with cl_khr_fp64); written as float/half")

@@ -61,7 +61,8 @@ def cmd_blur(args) -> int:
                                        ("alpha", args.alpha_prime), ("sigma_t", args.sigma_t))
                if v is not None and number_list(v) is None}
     check_output_format(args.output)            # usage errors (exit 2) before any work
-    check_claim(Claim(args.input, args.output, {"irradiance": args.input, **sources}))
+    check_claim(Claim(args.input, args.output, {"irradiance": args.input, **sources}),
+                args.force)
     stop = SignalStop().install()
     if args.scheduler:
         return blur_on_cluster(args, sources, stop)
@@ -83,7 +84,17 @@ def cmd_blur(args) -> int:
     texels = result.texels
     print(f"wrote {args.output}: {texels} texels in {result.seconds:.2f} s "
           f"({texels / max(result.seconds, 1e-9) / 1e6:.3g} Mtexel/s)")
-    return 0
+    return stopped_after_writing(stop, args.output)
+
+
+def stopped_after_writing(stop, output) -> int:
+    """0, or where a stop signal came while the last write finished (the output complete and
+    verified), 128 + the signal, said: a stopped command never exits 0."""
+    if not stop.exit_code:
+        return 0
+    print(f"interrupted by signal {stop.signum} as {output} was written: it is complete",
+          file=sys.stderr)
+    return stop.exit_code
 
 
 def blur_on_cluster(args, sources, stop) -> int:
@@ -107,12 +118,12 @@ def blur_on_cluster(args, sources, stop) -> int:
                                      alpha=s.alpha_prime, sigma_t=s.sigma_t, tol=args.tol,
                                      method=args.method, border=args.border,
                                      on_invalid=args.on_invalid, exact=args.exact,
-                                     progress=not args.no_progress)
+                                     progress=not args.no_progress, force=args.force)
     except TextureError as exc:
         print(f"bdipole-cl {args.command}: error: {exc}", file=sys.stderr)
         return (stop.exit_code or 1) if isinstance(exc, Cancelled) else 1
     print(f"{n} bands blurred on the cluster; wrote {args.output}")
-    return 0
+    return stopped_after_writing(stop, args.output)
 
 
 @contextlib.contextmanager

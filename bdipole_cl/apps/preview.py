@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..io.collisions import PICTURE_MARK, Claim, check_claim
 from ..io.images import classify_channels, read_whole
 
 #: positive values spanning more than this many decades are shown on a log scale
@@ -253,13 +254,33 @@ def pixel_bbox(fig, ax):
             int(np.floor(height - y0)))
 
 
-def save_figure(fig, path):
-    """Save a figure (format by extension) through a temporary file beside it, renamed."""
+#: the picture formats a sheet or page is saved as
+PICTURE_FORMATS = (".png", ".svg")
+
+
+def check_picture_output(path, inputs=(), force=False):
+    """ValueError (one line, naming the option and file) unless ``path`` is a PNG or SVG that
+    lands on none of ``inputs`` and replaces no file this tool did not write (``force``:
+    replace it; ``io.collisions.foreign``)."""
+    suffix = Path(path).suffix.lower()
+    if suffix not in PICTURE_FORMATS:
+        raise ValueError(f"-o {path}: a picture is PNG or SVG (.png, .svg), got "
+                         f"'{suffix or 'no extension'}'")
+    check_claim(Claim(str(next(iter(inputs), path)), str(path),
+                      {"input": str(p) for p in inputs} if inputs else {}), force)
+
+
+def save_figure(fig, path, inputs=(), force=False):
+    """Save a figure (PNG or SVG by extension, marked as this tool's: PICTURE_MARK) through a
+    temporary file beside it, renamed; ``check_picture_output`` first."""
+    check_picture_output(path, inputs, force)
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.stem}.partial-{os.getpid()}{path.suffix}")
+    fmt = path.suffix.lstrip(".").lower()
+    mark = {"Software": PICTURE_MARK} if fmt == "png" else {"Creator": PICTURE_MARK}
     try:
-        fig.savefig(tmp, dpi=fig.dpi, format=path.suffix.lstrip(".").lower() or "png")
+        fig.savefig(tmp, dpi=fig.dpi, format=fmt, metadata=mark)
         os.replace(tmp, path)
     finally:
         if tmp.exists():
@@ -282,10 +303,13 @@ def sheet_axes(fig, rows, cols, top, bottom):
     return out
 
 
-def contact_sheet(path, output=None, *, title=None) -> ContactSheet:
+def contact_sheet(path, output=None, *, title=None, force=False) -> ContactSheet:
     """The contact sheet of ``path`` (an EXR, or any image OpenImageIO reads), saved to
-    ``output`` (PNG or SVG by extension; default: beside the file, ``.preview.png``)."""
+    ``output`` (PNG or SVG by extension; default: beside the file, ``.preview.png``), which
+    is never ``path`` itself and replaces no file this tool did not write unless ``force``."""
     require_matplotlib()
+    output = Path(output) if output is not None else Path(path).with_suffix(".preview.png")
+    check_picture_output(output, [path], force)         # before any work
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
     px, names, alpha, header = read_image(path)
@@ -307,7 +331,6 @@ def contact_sheet(path, output=None, *, title=None) -> ContactSheet:
     for ax, cax in cells[len(groups):]:
         fig.delaxes(ax)
         fig.delaxes(cax)
-    output = Path(output) if output is not None else Path(path).with_suffix(".preview.png")
     canvas = FigureCanvasAgg(fig)
     canvas.draw()                              # lays out (image aspect) as the PNG will be
     for (ax, cax), _ in zip(cells, groups):
@@ -316,7 +339,7 @@ def contact_sheet(path, output=None, *, title=None) -> ContactSheet:
     tiles = tuple(GroupTile(g, log, lo, hi, var, im, pixel_bbox(fig, ax), scale, lim)
                   for ax, (g, log, lo, hi, var, im, scale, lim) in drawn)
     size = (int(round(fig.get_figwidth() * DPI)), int(round(fig.get_figheight() * DPI)))
-    save_figure(fig, output)
+    save_figure(fig, output, [path], force)
     return ContactSheet(str(path), tiles, caption, size, str(output))
 
 
@@ -337,11 +360,13 @@ def add_command(command):
     p = command("preview", help="contact sheet of an EXR: a thumbnail per channel group")
     p.add_argument("input", help="an EXR (a bdipole output, or any)")
     p.add_argument("-o", "--output", help="PNG or SVG (default: FILE.preview.png beside it)")
+    p.add_argument("--force", action="store_true",
+                   help="replace an existing -o file that bdipole-cl did not write")
     p.set_defaults(func=_cmd_preview)
 
 
 def _cmd_preview(args) -> int:
-    sheet = contact_sheet(args.input, args.output)
+    sheet = contact_sheet(args.input, args.output, force=args.force)
     for t in sheet.tiles:
         scale = "log" if t.log else "linear"
         print(f"{t.group.name}: {', '.join(t.group.names)}  {t.vmin:.4g} .. {t.vmax:.4g} "

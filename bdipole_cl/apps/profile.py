@@ -168,10 +168,12 @@ def draw_rd(ax, specs, profiles):
     return alpha, curves, shaded
 
 
-def profile_plot(specs, output, *, unit="mm", tol=1e-3, title=None) -> ProfilePlot:
-    """Draw and save (PNG or SVG by extension) the profile page of ``specs``."""
-    from .preview import require_matplotlib, save_figure
+def profile_plot(specs, output, *, unit="mm", tol=1e-3, title=None, force=False) -> ProfilePlot:
+    """Draw and save (PNG or SVG by extension) the profile page of ``specs`` (replacing no
+    file this tool did not write unless ``force``)."""
+    from .preview import check_picture_output, require_matplotlib, save_figure
     require_matplotlib()
+    check_picture_output(output, (), force)             # before any work
     from matplotlib.figure import Figure
     fig = Figure(figsize=(11.0, 4.6), dpi=100, layout="constrained")
     left, right = fig.subplots(1, 2, width_ratios=(1.35, 1.0))
@@ -181,7 +183,7 @@ def profile_plot(specs, output, *, unit="mm", tol=1e-3, title=None) -> ProfilePl
     right.set_title("Rd($\\alpha'$): the albedo the inversion matches", fontsize=10)
     title = title or "profile"
     fig.suptitle(title, fontsize=11, weight="bold")
-    save_figure(fig, output)
+    save_figure(fig, output, (), force)
     size = (int(round(fig.get_figwidth() * fig.dpi)), int(round(fig.get_figheight() * fig.dpi)))
     return ProfilePlot(title, unit, tol, tuple(profiles), alpha, curves, shaded, size,
                        str(output))
@@ -258,6 +260,8 @@ def add_command(command):
                                       "its textures, their range shaded")
     p.add_argument("-o", "--output", help="PNG or SVG (default: profile.png, or "
                                           "MATERIAL.profile.png)")
+    p.add_argument("--force", action="store_true",
+                   help="replace an existing -o file that bdipole-cl did not write")
     p.set_defaults(func=_cmd_profile)
 
 
@@ -276,7 +280,7 @@ def _cmd_profile(args) -> int:
         tol = args.tol or DEFAULT_BLUR_TOL
         output = args.output or "profile.png"
         title = None
-    plot = profile_plot(specs, output, unit=unit, tol=tol, title=title)
+    plot = profile_plot(specs, output, unit=unit, tol=tol, title=title, force=args.force)
     for c in plot.channels:
         print(f"channel {c.spec.name}: albedo {c.spec.albedo:.4g}, mfp {c.spec.mfp:.4g} {unit}: "
               f"alpha' {c.alpha:.4g}, sigma_t' {c.sigma_t:.4g} 1/{unit}, truncation radius "

@@ -7,12 +7,22 @@ textures). ``collisions`` compares them all, jobs that will be skipped as up to 
 (``os.path.realpath``; an existing file is also compared by device and inode, which catches
 hard links). An output that is any input of any job, or the output of two jobs, is refused, and
 the message names the job that owns the output and the job and role whose file it would
-overwrite.
+overwrite. An output path that already holds a file this tool did not write (``foreign``:
+a painted texture, a maketx'd one, anything without the ``bdipole:version`` header or the
+preview's mark) is refused too, unless the run is forced (``force``): an output replaces only
+what bdipole-cl made, or what the user said it may.
 """
 from __future__ import annotations
 
 import os
+import stat
 from dataclasses import dataclass, field
+
+import OpenImageIO as oiio
+
+#: the mark a contact sheet carries (PNG text "Software", SVG creator), so that a later
+#: ``preview`` may replace it
+PICTURE_MARK = "bdipole_cl preview"
 
 
 @dataclass(frozen=True)
@@ -34,9 +44,44 @@ def file_key(path) -> tuple:
         return real, None
 
 
-def collisions(claims) -> list:
+def ours(path) -> bool:
+    """``path`` (an existing regular file) is one of this tool's outputs: an image whose header
+    has ``bdipole:version``, or a contact sheet with PICTURE_MARK."""
+    if str(path).lower().endswith(".svg"):
+        with open(path, "rb") as f:
+            return PICTURE_MARK.encode() in f.read(1 << 16)
+    inp = oiio.ImageInput.open(str(path))
+    if inp is None:
+        return False
+    try:
+        spec = inp.spec()
+        return bool(spec.getattribute("bdipole:version")) or \
+            PICTURE_MARK in str(spec.getattribute("Software") or "")
+    finally:
+        inp.close()
+
+
+def foreign(path):
+    """None if writing ``path`` replaces nothing but this tool's own output (nothing there,
+    or ``ours``), else the one-line reason. A symbolic link is judged by its target (the
+    write replaces the link with the file); a directory, FIFO or device is never replaced."""
+    try:
+        mode = os.stat(path).st_mode
+    except OSError:
+        return None                          # nothing there (or a dangling link)
+    if not stat.S_ISREG(mode):
+        kind = "a directory" if stat.S_ISDIR(mode) else "not a regular file"
+        return f"output {path} is {kind}; give a file path"
+    if ours(path):
+        return None
+    return (f"output {path} exists and was not written by bdipole-cl; move it, choose "
+            f"another output, or pass --force (force=True) to replace it")
+
+
+def collisions(claims, force=False) -> list:
     """For each claim, in order: None if its output is safe to write, else the one-line
-    reason (its output is an input of some job of the run, or two jobs share it)."""
+    reason (its output is an input of some job of the run, or two jobs share it, or it holds
+    a file this tool did not write and the run is not ``force``d: ``foreign``)."""
     claims = list(claims)
     readers_by_path, readers_by_inode = {}, {}
     for c in claims:
@@ -66,11 +111,16 @@ def collisions(claims) -> list:
             others = ", ".join(j for j in writers[real] if j != c.job)
             bad[n] = (f"{c.job}: output {c.output} is also the output of {others}: put "
                       f"<UDIM>, {{udim}}, {{stem}} or {{name}} in -o so each input has its own")
+        else:
+            why = foreign(c.output)
+            if why and (not force or why.endswith("file path")):
+                bad[n] = f"{c.job}: {why}"
     return bad
 
 
-def check_claim(claim: Claim):
-    """The single-job run (a file blur): ValueError naming the input it would overwrite."""
-    bad = collisions([claim])[0]
+def check_claim(claim: Claim, force=False):
+    """The single-job run (a file blur, a preview): ValueError naming the input it would
+    overwrite, or the file not of this tool's making it would replace (unless ``force``)."""
+    bad = collisions([claim], force)[0]
     if bad:
         raise ValueError(bad)

@@ -44,6 +44,20 @@ def header_fields(inputs: dict, digest: str) -> dict:
             "inputs_digest": content_digest(files)}
 
 
+def header_attribute(path, name):
+    """Attribute ``name`` of the image header at ``path`` (None if it has none, or is not a
+    readable regular file)."""
+    if not os.path.isfile(path):
+        return None
+    inp = oiio.ImageInput.open(str(path))
+    if inp is None:
+        return None
+    try:
+        return inp.spec().getattribute(name)
+    finally:
+        inp.close()
+
+
 def is_up_to_date(output, inputs: dict, digest: str) -> bool:
     if not os.path.isfile(output):       # missing, or not a regular file (never opened)
         return False

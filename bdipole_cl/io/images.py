@@ -28,6 +28,7 @@ import OpenImageIO as oiio
 from .mipmaps import TextureBuildError, build_texture, texture_options
 from .verify import BandDigests, WriteCheckError, finite_texels, read_back, read_rows_of
 from .colour import COLOUR_ATTRIBS, colour_path, tag_output
+from ..version import __version__
 
 
 class TextureError(RuntimeError):
@@ -245,7 +246,8 @@ SKIP_ATTRIBS = ("compression", "oiio:BitsPerSample", "oiio:UnassociatedAlpha",
 def output_spec(in_spec, channel_names, alpha_index, half, params, *, working):
     """The ImageSpec of an output of ``in_spec``'s size and window: ``channel_names``, float or
     half, the input's metadata but not its colour tags, tagged as in the WorkingSpace
-    ``working``, and ``params`` as ``bdipole:*`` attributes."""
+    ``working``, and ``params`` as ``bdipole:*`` attributes, ``bdipole:version`` always (the
+    mark of this tool's outputs: ``io.collisions.ours``)."""
     spec = oiio.ImageSpec(in_spec.width, in_spec.height, len(channel_names),
                           "half" if half else "float")
     spec.x, spec.y, spec.z = in_spec.x, in_spec.y, in_spec.z
@@ -264,7 +266,7 @@ def output_spec(in_spec, channel_names, alpha_index, half, params, *, working):
             pass
     spec.attribute("compression", "zip")
     tag_output(spec, working)
-    for key, value in params.items():
+    for key, value in {"version": __version__, **params}.items():
         spec.attribute(f"bdipole:{key}", str(value))
     return spec
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import os
 from concurrent.futures import ThreadPoolExecutor
+from dataclasses import fields, replace
 
 import numpy as np
 
@@ -17,6 +18,7 @@ from ..device import get_runtime
 from ..errors import check_policy
 from ..io import tiles
 from ..io.collisions import Claim, collisions
+from ..io.freshness import header_attribute, params_digest
 from ..io.colour import check_colorspace, resolve_working_space
 from ..io.images import TextureError, check_output_format, texel_count
 from ..io.mipmaps import texture_options
@@ -52,6 +54,14 @@ def parse_constant(value, what):
     raise TypeError(f"{what}: expected a number, per-channel numbers or a path, got {value!r}")
 
 
+def work_digest(work: InvertWork) -> str:
+    """The digest of everything an inversion's output depends on but its inputs' content
+    (what ``--skip-existing`` compares with the output's ``bdipole:params_digest``): every
+    field of its work but the band budget and the header."""
+    return params_digest({f.name: getattr(work, f.name) for f in fields(work)
+                          if f.name not in ("max_memory", "header")})
+
+
 def newer_than_inputs(output, inputs):
     """``--skip-existing``: the output is complete (every pixel reads) and newer than every
     input's last change, content (mtime) or inode (ctime: which ``touch -r`` cannot restore)."""
@@ -73,7 +83,7 @@ def process_textures(inputs, *, mfp=1.0, eta=1.4, output=DEFAULT_OUTPUT,
                      on_invalid="raise", max_memory=256 << 20, jobs=1, skip_existing=False,
                      unit="mm", mfp_scale=1.0, progress=False, device=None, cancel=None,
                      double=False, run_files=None, mfp_kind="diffuse", texture=False,
-                     **knobs) -> BatchReport:
+                     force=False, **knobs) -> BatchReport:
     """Invert albedo textures into scattering-coefficient EXRs (the ``bdipole-cl invert`` job).
 
     Parameters
@@ -115,7 +125,8 @@ def process_textures(inputs, *, mfp=1.0, eta=1.4, output=DEFAULT_OUTPUT,
     jobs : int
         Files processed at once (I/O of one overlaps the device work of another).
     skip_existing : bool
-        Skip files whose output is newer than all their inputs.
+        Skip files whose output is newer than all their inputs and was made with the same
+        settings (its ``bdipole:params_digest``: ``work_digest``).
     unit : str
         Length unit of the mfp (coefficients are per this unit); written to the header.
     mfp_scale : float
@@ -130,6 +141,9 @@ def process_textures(inputs, *, mfp=1.0, eta=1.4, output=DEFAULT_OUTPUT,
     cancel : threading.Event or None
         When set (the CLI sets it on SIGINT/SIGTERM), files stop at their next band: their
         temporary files are removed, finished files stay, and they are reported "cancelled".
+    force : bool
+        Replace existing outputs this tool did not write (else such a file fails its row:
+        ``io.collisions.foreign``).
     """
     check_output_format(output)
     working = resolve_working_space(working_space)
@@ -150,12 +164,13 @@ def process_textures(inputs, *, mfp=1.0, eta=1.4, output=DEFAULT_OUTPUT,
         alpha_channel=alpha, on_invalid=check_policy(on_invalid), max_memory=int(max_memory),
         outputs=tuple(outputs), unit=unit, double=bool(double),
         mfp_kind=check_mfp_kind(mfp_kind), texture=texture_options(texture))
+    work = replace(work, header={"params_digest": work_digest(work)})
     InversionPlan((work.eta[0],), config, outputs=work.outputs, mfp_kind=work.mfp_kind,
                   model=model, exact=exact, on_invalid=work.on_invalid,
                   runtime=rt)                           # fail fast on bad settings
     files = expand_inputs(inputs)
     jobs_list, skip, results = batch_jobs(files, work, output, mfp, skip_existing)
-    clashes = collisions(job_claims(jobs_list))     # skipped jobs' inputs are inputs too
+    clashes = collisions(job_claims(jobs_list), force)  # skipped jobs' inputs are inputs too
     for j, s, clash in zip(jobs_list, skip, clashes):
         if clash:
             results.append(FileResult(j.source, j.output, error=clash))
@@ -197,8 +212,9 @@ def batch_jobs(files, work, output, mfp, skip_existing):
             continue
         inputs = {"albedo": path} | ({"mfp": mfp_path} if mfp_path else {})
         jobs_list.append(Job("invert", path, out, inputs, work, tile.label if tile else None))
-        skip.append(skip_existing and os.path.exists(path)
-                    and newer_than_inputs(out, [path, mfp_path]))
+        skip.append(skip_existing and newer_than_inputs(out, [path, mfp_path])
+                    and header_attribute(out, "bdipole:params_digest")
+                    == work.header.get("params_digest"))
     return jobs_list, skip, results
 
 

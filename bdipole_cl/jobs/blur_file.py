@@ -108,7 +108,7 @@ def planned_methods(plan):
 def blur_file(path, output, *, colorspace="auto", working_space=None, half=False,
               max_memory=256 << 20, sources=None, cancel=None, mask=None, header=None,
               progress=None, texture=False, albedo=None, mfp=None, eta=1.4, texel_size=1.0,
-              alpha=None, sigma_t=None, device=None, **options):
+              alpha=None, sigma_t=None, device=None, force=False, **options):
     """Blur an irradiance image file into an EXR, streamed in bands of rows with a halo of the
     truncation radius (memory bounded by ``max_memory``). The irradiance is converted from
     ``colorspace`` (else as the file declares, as in ``process_textures``) into
@@ -125,10 +125,11 @@ def blur_file(path, output, *, colorspace="auto", working_space=None, half=False
     exitance (written as 0); bands whose halo'd irradiance is all 0 are not blurred at all.
     ``header``: more ``bdipole:*`` attributes for the output. ``progress``: a tqdm bar
     advanced by texels. ``texture`` (True or a TextureOptions): a tiled, mip-mapped EXR
-    (``images.Writer``). Returns the BlurInfo (None when every band was skipped)."""
+    (``images.Writer``). ``force``: replace an existing ``output`` this tool did not write
+    (``io.collisions.foreign``). Returns the BlurInfo (None when every band was skipped)."""
     check_output_format(output)
     sources = dict(sources or {})
-    check_claim(Claim(str(path), str(output), {"irradiance": str(path), **sources}))
+    check_claim(Claim(str(path), str(output), {"irradiance": str(path), **sources}), force)
     scattering = Scattering(albedo, mfp, eta, texel_size, alpha, sigma_t)
     reader = Reader(path, "irradiance")
     writer = None
@@ -261,7 +262,8 @@ def run_blur(job, runtime, *, cancel=None, lock=None, progress=None) -> FileResu
             texel_size=scattering.texel_size, alpha=scattering.alpha_prime,
             sigma_t=scattering.sigma_t, tol=w.tol, method=w.method, border=w.border,
             on_invalid=w.on_invalid, exact=w.exact, device=runtime, max_memory=w.max_memory,
-            texture=w.texture, progress=progress)
+            texture=w.texture, progress=progress,
+            force=True)      # its claim was checked where the job was made, with the run's force
         result.status = "ok"
         result.texels = texels if texels is not None else texel_count(job.source)
     except Cancelled as exc:

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import InvalidInputError
+from ..errors import InvalidInputError, find_invalid
 from ..io.images import (Cancelled, Reader, TextureError, Writer, check_same_window,
                          classify_channels, invalid_texels, output_spec)
 from ..ops.bands import band_rows
@@ -120,6 +120,20 @@ def inversion_plan(work, etas, inp, runtime) -> InversionPlan:
                          runtime=runtime)
 
 
+def non_negative_albedo(albedo, on_invalid):
+    """(albedo, count): a texture's albedo below 0 (outside the working space's gamut after
+    the colour conversion, or painted so) is invalid: an InvalidInputError naming the first,
+    or with "clamp" 0 and counted. (``invert_albedo``'s arrays map Rd <= 0 to alpha' = 0; a
+    file's texel below 0 is not an albedo, and is never silently changed.)"""
+    low = albedo.min() if albedo.size else 0.0
+    if not low < 0:                  # also NaN (the plan's own rule reports it)
+        return albedo, 0
+    bad = albedo < 0
+    n = find_invalid("albedo", albedo, bad, "below 0 in the working space: outside its gamut, "
+                     "or not an albedo", on_invalid, texels=True)
+    return np.where(bad, albedo.dtype.type(0), albedo), n
+
+
 def invert_bands(job, work, inp, route, plan, writer, result, lock, cancel, progress):
     """The band loop (``pipeline.stream_bands``: the next band read and the last written
     while one is inverted): read, convert, invert on the device, write. The band budget
@@ -136,13 +150,14 @@ def invert_bands(job, work, inp, route, plan, writer, result, lock, cancel, prog
         albedo = route.convert(a[..., inp.colour], inp.names)
         mfp = inp.mfp_const if m is None else m[..., inp.mfp_channels] * scale
         try:
+            albedo, negative = non_negative_albedo(albedo, work.on_invalid)
             with lock:
                 done = plan.apply(albedo, mfp, mask)
         except InvalidInputError as exc:
             yy, xx, cc = exc.first_index
             raise invalid_texels(exc, job.source, spec.x + xx, spec.y + y0 + yy,
                                  inp.names[cc], f" in rows {y0}..{y1 - 1}") from None
-        for key, n in (("albedo", done.invalid_albedo), ("mfp", done.invalid_mfp)):
+        for key, n in (("albedo", done.invalid_albedo + negative), ("mfp", done.invalid_mfp)):
             result.invalid[key] = result.invalid.get(key, 0) + n
         parts = [done.arrays[o] for o in work.outputs]
         if inp.keep_alpha:

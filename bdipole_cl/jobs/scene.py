@@ -302,7 +302,8 @@ def plan(scene: Scene, *, force=False, device=None, max_memory=DEFAULT_MEMORY) -
                     jobs.append(PlannedJob(kind, e.name, path, tile.label if tile else None, "",
                                            {"source": path}, problem=problem))
                     problems.append(problem)
-    for j, clash in zip(jobs, collisions(Claim(j.source, j.output, j.inputs) for j in jobs)):
+    for j, clash in zip(jobs, collisions((Claim(j.source, j.output, j.inputs) for j in jobs),
+                                         force)):
         if clash:
             j.problem, j.up_to_date = clash, False
     folder = records_dir(scene)

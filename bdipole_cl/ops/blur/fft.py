@@ -140,10 +140,15 @@ def cached_spectra(plan, shape):
 FFT32_ROUNDOFF = 1e-5
 
 
-def fft_dtype(truncated, tol):
+def fft_dtype(truncated, tol, peak_to_mean=1.0):
     """float32 for the constant FFT where its round-off fits beside the kernel's truncation
-    (``truncated`` + FFT32_ROUNDOFF <= tol: the bound stays within tol), else float64."""
-    return np.float32 if truncated + FFT32_ROUNDOFF <= tol else np.float64
+    (``truncated`` + FFT32_ROUNDOFF <= tol: the bound stays within tol), else float64. With
+    the image's ``peak_to_mean`` (max|E| / |mean E|, once it is known): where the round-off,
+    which scales with max|E|, would exceed tol at the image's mean level (a 1e6 hot texel in
+    an irradiance of ~0.5: the float32 round-off is then most of the light elsewhere, and the
+    settle floor zeroes it), float64."""
+    return (np.float32 if truncated + FFT32_ROUNDOFF * max(peak_to_mean, 1.0) <= tol
+            else np.float64)
 
 
 def fft_bound(kernel, dtype):
@@ -164,11 +169,12 @@ def in_row_blocks(fn, h):
     return list(_fft_threads().map(lambda block: fn(*block), row_blocks(h)))
 
 
-def padded_planes(e, channels, k, shape, dtype, border):
+def padded_planes(e, channels, k, shape, dtype, border, sums=None):
     """(G, N0, N1) ``dtype`` planes: channel ``channels[g]`` of the (H, W, C) image at rows
     [k, k + H), columns [k, k + W), padded by k texels by the border rule, zeros beyond (the
     circular convolution by a kernel of radius k reads rows [0, H + 2k) for outputs [k, k + H));
-    and each channel's (min, max), for ``settled``."""
+    and each channel's (min, max), for ``settled``. ``sums``: a list that gets each channel's
+    sum (float64), from the same pass."""
     h, w = e.shape[:2]
     planes = np.zeros((len(channels), *shape), dtype)
 
@@ -177,11 +183,14 @@ def padded_planes(e, channels, k, shape, dtype, border):
         for g, c in enumerate(channels):
             block = planes[g, k + r0:k + r1, k:k + w]
             block[...] = e[r0:r1, :, c]
-            rng.append((block.min(), block.max()) if r1 > r0 else (np.inf, -np.inf))
+            rng.append((block.min(), block.max(), block.sum(dtype=np.float64) if sums
+                        is not None else 0.0) if r1 > r0 else (np.inf, -np.inf, 0.0))
         return rng
     blocks = in_row_blocks(fill, h)
     ranges = [(float(min(b[g][0] for b in blocks)), float(max(b[g][1] for b in blocks)))
               for g in range(len(channels))]
+    if sums is not None:
+        sums[:] = [float(sum(b[g][2] for b in blocks)) for g in range(len(channels))]
     inner = planes[:, :h + 2 * k]
     if border == "clamp":
         inner[:, :k, k:k + w] = inner[:, k:k + 1, k:k + w]
@@ -192,6 +201,15 @@ def padded_planes(e, channels, k, shape, dtype, border):
         for g, c in enumerate(channels):
             inner[g, :, :w + 2 * k] = np.pad(e[..., c], k, mode="wrap")
     return planes, ranges
+
+
+def peak_to_mean(e_range, mean) -> float:
+    """max|E| / |mean E| of a channel (infinite for a mean of 0 under a non-zero peak; 1 for
+    an all-zero channel)."""
+    peak = max(abs(e_range[0]), abs(e_range[1]))
+    if peak == 0:
+        return 1.0
+    return peak / abs(mean) if mean != 0 else np.inf
 
 
 def times_real_spectrum(kp, spec):
@@ -220,18 +238,26 @@ def constant_spectra(kernels, k, shape, dtype):
     return pairs
 
 
-def fft_blur_channels(e, channels, kernels, dtype, border, out):
+def fft_blur_channels(e, channels, kernels, dtype, border, out, tol=None):
     """out[..., c] = channel c of the (H, W, C) image convolved with its constant kernel, for
     each c of ``channels`` (``kernels`` theirs), all in one batched FFT in ``dtype`` on all
     cores: the planes padded by the largest radius K at the fast even shape, one forward
     transform, the cached real kernel spectra multiplied in place, the inverse over the columns
-    and then over the image's rows only; each result settled (``settled``) on its plane."""
+    and then over the image's rows only; each result settled (``settled``) on its plane. With
+    ``tol``, a float32 blur of an image whose peak is too far above its mean for the float32
+    round-off (``fft_dtype``'s peak_to_mean) is done in float64 instead."""
     import scipy.fft as sfft
     h, w = e.shape[:2]
     k = max(ck.radius for ck in kernels)
     shape = fft_shape((h, w), k)
+    sums = [] if tol is not None and dtype == np.float32 else None
+    planes, ranges = padded_planes(e, channels, k, shape, dtype, border, sums)
+    if sums is not None and any(
+            fft_dtype(ck.truncated, tol, peak_to_mean(r, total / (h * w))) != np.float32
+            for ck, r, total in zip(kernels, ranges, sums)):
+        del planes
+        return fft_blur_channels(e, channels, kernels, np.float64, border, out)
     ks = constant_spectra(kernels, k, shape, dtype)
-    planes, ranges = padded_planes(e, channels, k, shape, dtype, border)
     spec = sfft.rfft2(planes, axes=(1, 2), workers=-1, overwrite_x=True)
     check_stop()
     list(_fft_threads().map(times_real_spectrum, ks, spec))

@@ -199,7 +199,7 @@ def blur_whole(e, params, plans, border, exact, kernels):
     out = device.result() if device is not None else np.empty_like(e)
     if fft_dtypes:                     # one batched transform, settled there
         fft_blur_channels(e, list(fft_dtypes), [plans[c].kernel for c in fft_dtypes],
-                          np.result_type(*fft_dtypes.values()), border, out)
+                          np.result_type(*fft_dtypes.values()), border, out, tol)
     for c, plan in enumerate(plans):
         if c not in fft_dtypes:
             settled(out[..., c], e[..., c], plan.kernel.rd)

@@ -38,6 +38,9 @@ class SignalStop:
         self.signum = None
 
     def install(self):
+        """Obey SIGINT/SIGTERM from now on, for a command that starts un-stopped (a stop
+        request of an earlier command in the same process is over)."""
+        STOP.clear()
         for sig in (signal.SIGINT, signal.SIGTERM):
             signal.signal(sig, self._handle)
         return self

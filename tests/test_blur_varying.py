@@ -1,4 +1,6 @@
 """Texture-varying blur parameters (bdipole_cl/ops/blur/textured*.py, kernels/blur_textured.cl)."""
+import functools
+
 import numpy as np
 import pytest
 from scipy.integrate import dblquad
@@ -63,19 +65,30 @@ def test_matches_the_per_exit_texel_reference(method, varying):
     assert ch.error_bound < 3e-3
 
 
-@pytest.mark.parametrize("near", [-1, 0, 1, 2, 3])
+@functools.lru_cache(maxsize=1)
+def near_case():
+    """(E with one bright texel, albedo, mfp of ld 2..4 texels: K ~ 20) and its per-texel
+    reference at the common radius (the same for every near field)."""
+    rng = np.random.default_rng(9)
+    e = rng.uniform(0, 1, (H, W, 1)).astype(np.float32)
+    e[5, 7] = 30.0                                  # a bright texel: the near cells carry it
+    albedo, mfp = gradient_maps()
+    mfp *= 2.0
+    _, info = blur(e, albedo=albedo, mfp=mfp, eta=1.4, return_info=True)
+    radius = info.channels[0].radius
+    return e, albedo, mfp, radius, per_texel_reference(e[..., 0], albedo[..., 0],
+                                                       mfp[..., 0], 1.4, radius)
+
+
+@pytest.mark.parametrize("near", [-1, 1, 3])
 def test_every_near_field_matches_the_per_exit_texel_reference(monkeypatch, near):
     """Each near field radius (its cells' node weights interpolated per texel and summed in
     the gather, the rest in the FFT basis) within the plan's measured error of the per-texel
     reference, and its basis no larger than with less near field."""
     from bdipole_cl.ops.blur import textured_plan
+    e, albedo, mfp, radius, want = near_case()
     monkeypatch.setattr(textured_plan, "NEAR_RADII", (near,))
     textured_plan.PLAN_CACHE.clear()
-    rng = np.random.default_rng(9)
-    e = rng.uniform(0, 1, (H, W, 1)).astype(np.float32)
-    e[5, 7] = 30.0                                  # a bright texel: the near cells carry it
-    albedo, mfp = gradient_maps()
-    mfp *= 2.0                                       # ld 2..4 texels: K ~ 20
     try:
         out, info = blur(e, albedo=albedo, mfp=mfp, eta=1.4, return_info=True)
         (plan, *_), = channel_plans((H, W, 1), tol=1e-3, albedo=albedo, mfp=mfp)
@@ -83,7 +96,7 @@ def test_every_near_field_matches_the_per_exit_texel_reference(monkeypatch, near
         textured_plan.PLAN_CACHE.clear()
     assert plan.near == near
     ch = info.channels[0]
-    want = per_texel_reference(e[..., 0], albedo[..., 0], mfp[..., 0], 1.4, ch.radius)
+    assert ch.radius == radius
     err = np.abs(out[..., 0] - want) / (e.max() * albedo[..., 0])
     # as test_matches_the_per_exit_texel_reference: the plan's measured kernel error bounds
     # the output's relative to max(E) * Rd(x), + 1e-5 for float32 accumulation

@@ -313,6 +313,23 @@ def test_albedo_and_mfp_with_different_data_windows_are_refused(tmp_path):
                            output=str(tmp_path / "o.exr"))
     assert rep.exit_code == 1 and "data windows" in rep.results[0].error, rep.summary()
 
+def test_integer_and_luminance_chroma_exrs_are_refused_by_name(tmp_path):
+    """A UINT EXR (IDs, counts) would be scaled by 1 / (2^32 - 1) as a normalized colour, and
+    Y/RY/BY (OpenEXR luminance/chroma) would be read as grey Y: both refused, named."""
+    spec = oiio.ImageSpec(8, 8, 3, "uint")
+    out = oiio.ImageOutput.create(str(tmp_path / "ids.exr"))
+    out.open(str(tmp_path / "ids.exr"), spec)
+    out.write_image(np.full((8, 8, 3), 900, np.uint32))
+    out.close()
+    write(tmp_path / "yc.exr", np.full((8, 8, 3), 0.5, np.float32), ["Y", "RY", "BY"])
+    write(tmp_path / "ok.exr", ramp())
+    rep = process_textures([str(tmp_path / n) for n in ("ids.exr", "yc.exr", "ok.exr")],
+                           output="{dir}/{stem}_out.exr")
+    ids, yc, ok = rep.results
+    assert "32-bit integers" in ids.error and "R, G, B" in ids.error, ids.error
+    assert "not linear RGB" in yc.error, yc.error
+    assert ok.status == "ok", rep.summary()
+
 # }}}
 
 
@@ -503,8 +520,13 @@ def test_a_signal_during_blurs_last_write_never_exits_0(tmp_path, monkeypatch, c
         os.kill(os.getpid(), signal.SIGTERM)             # the handler only records it
         return result
     monkeypatch.setattr(runner, "run_job", run_then_signal)
-    rc = cli_main(["blur", str(tmp_path / "irr.exr"), "--albedo", "0.5", "--mfp", "1",
-                   "-o", str(tmp_path / "o.exr"), "--no-progress"])
+    try:
+        rc = cli_main(["blur", str(tmp_path / "irr.exr"), "--albedo", "0.5", "--mfp", "1",
+                       "-o", str(tmp_path / "o.exr"), "--no-progress"])
+    finally:                            # this process goes on: un-stopped, SIGTERM its own
+        from bdipole_cl.signals import STOP
+        STOP.clear()
+        signal.signal(signal.SIGTERM, signal.SIG_DFL)
     assert rc == 128 + signal.SIGTERM
     assert "it is complete" in capsys.readouterr().err
     assert np.isfinite(read(tmp_path / "o.exr")[0]).all()
@@ -617,6 +639,29 @@ def test_udim_field_without_a_udim_input_writes_nothing(tmp_path):
     rep = process_textures(str(tmp_path / "a.exr"), output=str(tmp_path / "s.{udim}.exr"))
     assert rep.exit_code == 1 and "needs a UDIM" in rep.results[0].error
     assert sorted(os.listdir(tmp_path)) == ["a.exr"]
+
+def test_one_file_named_twice_is_one_job(tmp_path, monkeypatch):
+    write(tmp_path / "in.exr", ramp())
+    os.symlink(tmp_path / "in.exr", tmp_path / "link.exr")
+    monkeypatch.chdir(tmp_path)
+    rep = process_textures(["in.exr", "./in.exr", str(tmp_path / "in.exr"), "link.exr"],
+                           output="o/{stem}.exr")
+    assert rep.exit_code == 0 and len(rep.results) == 1, rep.summary()
+
+
+def test_skip_existing_digest_is_the_same_in_a_new_process(tmp_path):
+    """The settings' digest has no per-process part (an object's address): a later run of the
+    same command skips."""
+    import subprocess
+    import sys
+    write(tmp_path / "a.exr", ramp())
+    code = ("import sys; from bdipole_cl.io.batch import process_textures; "
+            f"r = process_textures({str(tmp_path / 'a.exr')!r}, mfp=1.0, skip_existing=True, "
+            f"output={str(tmp_path / 'o.exr')!r}, texture=True, working_space='ACEScg'); "
+            "print(r.results[0].status)")
+    runs = [subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                           timeout=120) for _ in range(2)]
+    assert [r.stdout.strip().splitlines()[-1] for r in runs] == ["ok", "skipped"], runs
 
 # }}}
 

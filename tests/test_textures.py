@@ -213,21 +213,6 @@ def test_skip_existing(tmp_path):
             "skipped", change
 
 
-def test_skip_existing_digest_is_the_same_in_a_new_process(tmp_path):
-    """The settings' digest has no per-process part (an object's address): a later run of the
-    same command skips."""
-    import subprocess
-    import sys
-    write_image(tmp_path / "a.exr", albedo_image(3), "float", ("R", "G", "B"))
-    code = ("import sys; from bdipole_cl.io.batch import process_textures; "
-            f"r = process_textures({str(tmp_path / 'a.exr')!r}, mfp=1.0, skip_existing=True, "
-            f"output={str(tmp_path / 'o.exr')!r}, texture=True, working_space='ACEScg'); "
-            "print(r.results[0].status)")
-    runs = [subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                           timeout=120) for _ in range(2)]
-    assert [r.stdout.strip().splitlines()[-1] for r in runs] == ["ok", "skipped"], runs
-
-
 def test_demo_runs(tmp_path, capsys):
     assert cli_main(["demo", "--dir", str(tmp_path / "demo"), "--no-progress"]) == 0
     spec, px = read(tmp_path / "demo" / "coefficients.exr")

@@ -46,7 +46,8 @@ def file_key(path) -> tuple:
 
 def ours(path) -> bool:
     """``path`` (an existing regular file) is one of this tool's outputs: an image whose header
-    has ``bdipole:version``, or a contact sheet with PICTURE_MARK."""
+    has ``bdipole:*`` attributes (every output has ``bdipole:version``; a file blur of an
+    earlier version had only its parameters), or a contact sheet with PICTURE_MARK."""
     if str(path).lower().endswith(".svg"):
         with open(path, "rb") as f:
             return PICTURE_MARK.encode() in f.read(1 << 16)
@@ -55,7 +56,7 @@ def ours(path) -> bool:
         return False
     try:
         spec = inp.spec()
-        return bool(spec.getattribute("bdipole:version")) or \
+        return any(a.name.startswith("bdipole:") for a in spec.extra_attribs) or \
             PICTURE_MARK in str(spec.getattribute("Software") or "")
     finally:
         inp.close()

@@ -140,7 +140,15 @@ def _part_names(inp):
 
 
 #: channel name sets that are colour models other than linear RGB: never read as R, G, B, A
-NOT_RGB = ({"L", "a", "b"},)
+NOT_RGB = ({"L", "a", "b"}, {"Y", "RY", "BY"})    # Lab; OpenEXR's luminance/chroma
+
+
+def integer_channels(spec) -> list:
+    """Names of the channels stored as 32-bit integers (an EXR's UINT: object IDs, counts),
+    which OpenImageIO would scale by 1 / (2^32 - 1) as if they were a normalized colour."""
+    formats = list(spec.channelformats) or [spec.format] * spec.nchannels
+    return [str(n) for n, f in zip(spec.channelnames, formats)
+            if f.basetype in (oiio.UINT, oiio.INT)]
 
 
 class Reader:
@@ -160,6 +168,10 @@ class Reader:
         if self.spec.deep:
             problem = (f"{path}: a deep image ({what}): deep (per-sample) data is not a "
                        f"texture; flatten it first (oiiotool {path} --flatten -o flat.exr)")
+        elif integer_channels(self.spec):
+            problem = (f"{path}: channels {', '.join(integer_channels(self.spec))} ({what}) "
+                       f"are 32-bit integers (IDs or counts), not texture values: write them "
+                       f"as half or float")
         else:
             parts = _part_names(self.inp)
             if len(parts) > 1:

@@ -30,7 +30,8 @@ def written_by_us(path) -> bool:
 def expand_inputs(patterns):
     """Files named by paths, globs (``textures/*.tif``) or tile patterns (``a.<UDIM>.exr``,
     ``a_<UVTILE>.exr``, ...: ``tiles``), as ``(path, Tile or None)``, in order, without
-    duplicates. A pattern matching nothing is kept as a path, so that it is reported as missing
+    duplicates (one file named twice, ``a.exr`` and ``./a.exr`` or through a link, is one
+    job: compared by real path). A pattern matching nothing is kept as a path, so that it is reported as missing
     rather than silently skipped. A path that exists is taken as it is (``tex[v2]/a.exr`` is a
     file name, not a glob); the files a pattern matches leave out this tool's own outputs
     (``written_by_us``)."""
@@ -46,8 +47,9 @@ def expand_inputs(patterns):
         if not found:
             found = [(pattern, None)]
         for path, tile in found:
-            if path not in seen:
-                seen.add(path)
+            key = os.path.realpath(path) if os.path.exists(path) else path
+            if key not in seen:
+                seen.add(key)
                 out.append((path, tile))
     return out
 

@@ -351,5 +351,28 @@ def test_spectra_cache_keeps_to_its_byte_budget(monkeypatch):
     for n1 in (42, 44, 46):           # a third shape pushes the first out
         cached_spectra(plan, (40, n1))
     assert cache.nbytes <= 2 * one
-    assert cache.get((id(plan), (40, 42))) is None
-    assert cache.get((id(plan), (40, 46))) is not None
+    f32 = np.dtype(np.float32).str
+    assert cache.get((id(plan), (40, 42), f32)) is None
+    assert cache.get((id(plan), (40, 46), f32)) is not None
+
+
+def test_a_hot_texel_does_not_drown_the_rest_of_a_varying_blur():
+    """A 1e6 texel in an irradiance of ~0.5: the basis blurs then run in float64 (the float32
+    round-off, ~1e-6 of max|E|, would be ~1 everywhere), so texels beyond the kernel radius of
+    it are within the plan's kernel error of their own light."""
+    rng = np.random.default_rng(4)
+    n = 40
+    e = rng.uniform(0, 1, (n, n, 1)).astype(np.float32)
+    e[4, 4] = 1e6
+    yy, xx = np.mgrid[0:n, 0:n]
+    albedo = (0.3 + 0.15 * (xx // 10))[..., None].astype(np.float32)    # 4 albedos, 4 mfps:
+    mfp = (1.0 + 0.25 * (yy // 10))[..., None].astype(np.float32)       # 16 node kernels
+    out, info = blur(e, albedo=albedo, mfp=mfp, eta=1.4, return_info=True)
+    ch = info.channels[0]
+    want = per_texel_reference(e[..., 0], albedo[..., 0], mfp[..., 0], 1.4, ch.radius)
+    far = np.maximum(np.abs(yy - 4), np.abs(xx - 4)) > ch.radius
+    assert far.mean() > 0.5
+    # each far texel's light is <= 1 (E in [0, 1) within its radius): the kernel error
+    # (fit + interpolation, L1) times that, + 1e-5 for float32 accumulation
+    err = np.abs(out[..., 0] - want)[far] / albedo[..., 0][far]
+    assert err.max() <= max(ch.fit_error, ch.interp_error) + 1e-5, err.max()

@@ -122,13 +122,14 @@ SPECTRA_CACHE_BYTES = 1 << 30
 SPECTRA_CACHE = ByteCache("kernel spectra", SPECTRA_CACHE_BYTES)
 
 
-def cached_spectra(plan, shape):
-    """kernel_spectra of the plan's basis at FFT shape, from the cache when it has them."""
-    key = (id(plan), tuple(shape))
+def cached_spectra(plan, shape, dtype=np.float32):
+    """kernel_spectra of the plan's basis at FFT shape (computed and stored in ``dtype``),
+    from the cache when it has them."""
+    key = (id(plan), tuple(shape), np.dtype(dtype).str)
     hit = SPECTRA_CACHE.get(key)
     if hit is not None and hit[0] is plan:    # the entry holds the plan: its id is its own
         return hit[1]
-    spec = kernel_spectra(plan.blurred_quadrants(), shape)
+    spec = kernel_spectra(plan.blurred_quadrants(), shape, dtype, dtype)
     SPECTRA_CACHE.put(key, (plan, spec), spec.nbytes)
     return spec
 
@@ -289,22 +290,30 @@ def times_spectrum(ks, spec, out):
     in_row_blocks(rows, n0)
 
 
-def basis_blurs(e, c, plan, kspec, border, planes):
+def basis_blurs(e, c, plan, border, planes):
     """planes[j] = (B_j * E) for every basis kernel of the plan, E channel c of the (H, W, C)
-    image, as (H, W + 2K) float32 rows whose columns [K, K + W) are the image's: float32 FFTs,
-    one forward transform (of ``padded_planes``' plane), and per basis kernel an inverse
-    transform pruned to the image's rows. One basis kernel at a time, in place: scipy.fft (all
-    cores) in place over the columns, then numpy's ``irfft`` straight into the plane, in row
-    blocks on all cores (fresh large arrays and copies cost more here than the FFTs' own
-    threads save). Returns the padded channel (N0, N1) (the image at rows and columns
-    [K, K + H), [K, K + W): the near field's irradiance) and its (min, max), for
-    ``settle_floor``."""
+    image, as (H, W + 2K) float32 rows whose columns [K, K + W) are the image's: one forward
+    transform (of ``padded_planes``' plane), and per basis kernel an inverse transform pruned
+    to the image's rows. One basis kernel at a time, in place: scipy.fft (all cores) in place
+    over the columns, then numpy's ``irfft`` into the plane, in row blocks on all cores (fresh
+    large arrays and copies cost more here than the FFTs' own threads save). The transforms
+    are float32 unless the channel's peak is too far above its mean for their round-off
+    (``fft_dtype``'s peak_to_mean at the plan's tol: then float64, the planes still float32,
+    good to eps32 of each texel's own value). Returns the padded float32 channel (N0, N1) (the
+    image at rows and columns [K, K + H), [K, K + W): the near field's irradiance), its
+    (min, max), and the transforms' dtype, for ``settle_floor``."""
     import scipy.fft as sfft
     k = plan.radius
     h, w = e.shape[:2]
     shape = fft_shape((h, w), k)
-    padded, (e_range,) = padded_planes(e, [c], k, shape, np.float32, border)
-    spec = sfft.rfft2(padded[0], workers=-1)
+    sums = []
+    padded, (e_range,) = padded_planes(e, [c], k, shape, np.float32, border, sums)
+    dtype = fft_dtype(0.0, plan.truncation_tol, peak_to_mean(e_range, sums[0] / (h * w)))
+    source = padded if dtype == np.float32 else padded_planes(e, [c], k, shape, dtype,
+                                                              border)[0]
+    kspec = cached_spectra(plan, shape, dtype)
+    spec = sfft.rfft2(source[0], workers=-1)
+    del source
     prod = np.empty_like(spec)
     for plane, ks in zip(planes, kspec):
         check_stop()
@@ -312,6 +321,9 @@ def basis_blurs(e, c, plan, kspec, border, planes):
         cols = sfft.ifft(prod, axis=0, workers=-1, overwrite_x=True)
 
         def rows_of_plane(r0, r1, cols=cols, plane=plane):
-            np.fft.irfft(cols[k + r0:k + r1], shape[1], axis=-1, out=plane[r0:r1])
+            if dtype == np.float32:
+                np.fft.irfft(cols[k + r0:k + r1], shape[1], axis=-1, out=plane[r0:r1])
+            else:
+                plane[r0:r1] = np.fft.irfft(cols[k + r0:k + r1], shape[1], axis=-1)
         in_row_blocks(rows_of_plane, h)
-    return padded[0], e_range
+    return padded[0], e_range, dtype

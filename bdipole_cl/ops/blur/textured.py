@@ -12,7 +12,7 @@ from ...device.transfer import aligned_empty
 from ...methods.registry import TEXTURED_BLUR_METHODS
 from ...signals import check_stop
 from .dispatch import DeviceBlur, device_weight_planes, gather_exitance
-from .fft import (FFT32_ROUNDOFF_ULPS, basis_blurs, cached_spectra, fft_shape, settle_floor,
+from .fft import (FFT32_ROUNDOFF_ULPS, ROUNDOFF_ULPS, basis_blurs, fft_shape, settle_floor,
                   settled)
 from .params import texel_parameters
 from .planning import BlurAccuracyWarning, BlurInfo, ChannelInfo
@@ -79,12 +79,12 @@ def blur_band(e, plans, rows, method, border, kernels):
     for c, (plan, rd, ld, _) in enumerate(plans):
         check_stop()
         shape = fft_shape((h, w), plan.radius)
-        kspec = cached_spectra(plan, shape)
-        if planes is None or planes.shape != (len(kspec), h, shape[1]):
-            planes = host_array((len(kspec), h, shape[1]))
-        padded, e_range = basis_blurs(e, c, plan, kspec, border, planes)
+        if planes is None or planes.shape != (len(plan.kernels), h, shape[1]):
+            planes = host_array((len(plan.kernels), h, shape[1]))
+        padded, e_range, dtype = basis_blurs(e, c, plan, border, planes)
+        ulps = FFT32_ROUNDOFF_ULPS if dtype == np.float32 else ROUNDOFF_ULPS
         gather_exitance(out, c, plan, rd[rows], ld[rows], planes, padded, plan.radius, rt,
-                        settle_floor(e_range, FFT32_ROUNDOFF_ULPS))
+                        settle_floor(e_range, ulps))
     return out
 
 

@@ -19,6 +19,8 @@ tol = 1e-9 weights in float64 by FFT.
 from __future__ import annotations
 
 import csv
+import io
+import os
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -159,16 +161,32 @@ def mark_pareto(points):
     return points
 
 
+def replaced(path, write):
+    """``write(tmp)`` to a temporary file beside ``path``, then renamed over it: a report is
+    whole or not there, never half-written."""
+    path = Path(path)
+    tmp = path.with_name(f".{path.stem}.partial-{os.getpid()}{path.suffix}")
+    try:
+        write(tmp)
+        os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+
+
 def write_outputs(points, folder, device, workloads):
+    """report.csv, report.md and report.png in ``folder``, each written whole (``replaced``)."""
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
-    with open(folder / "report.csv", "w", newline="") as f:
-        w = csv.writer(f)
-        w.writerow(["kind", "method", "config", "precision", "median_s", "max_error",
-                    "mean_error", "pareto"])
-        for p in points:
-            w.writerow([p.kind, p.method, p.config, p.precision, f"{p.seconds:.6g}",
-                        f"{p.max_error:.3e}", f"{p.mean_error:.3e}", int(p.pareto)])
+    table = io.StringIO(newline="")
+    w = csv.writer(table)
+    w.writerow(["kind", "method", "config", "precision", "median_s", "max_error",
+                "mean_error", "pareto"])
+    for p in points:
+        w.writerow([p.kind, p.method, p.config, p.precision, f"{p.seconds:.6g}",
+                    f"{p.max_error:.3e}", f"{p.mean_error:.3e}", int(p.pareto)])
+    replaced(folder / "report.csv",
+             lambda tmp: tmp.write_text(table.getvalue(), newline=""))
     lines = [f"Device: {device}", "", *workloads, ""]
     for kind in dict.fromkeys(p.kind for p in points):
         err_name = "max rel err rho" if kind == "inversion" else "max err / (max E Rd)"
@@ -183,8 +201,8 @@ def write_outputs(points, folder, device, workloads):
                          f"{p.max_error:.2e} | {p.mean_error:.2e} | {'*' if p.pareto else ''} |"
                          + (f" {flag}" if mono else ""))
         lines.append("")
-    (folder / "report.md").write_text("\n".join(lines))
-    _plot(points, folder / "report.png", device)
+    replaced(folder / "report.md", lambda tmp: tmp.write_text("\n".join(lines)))
+    replaced(folder / "report.png", lambda tmp: _plot(points, tmp, device))
     return folder
 
 
@@ -213,7 +231,7 @@ def _plot(points, path, device):
         ax.legend(fontsize=7)
     fig.suptitle(f"bdipole_cl error vs run time on {device}", fontsize=9)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    fig.savefig(path, dpi=110, format="png")
     plt.close(fig)
 
 

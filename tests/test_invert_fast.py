@@ -112,6 +112,35 @@ def test_out_arrays_are_written_in_place(on_device):
         invert_albedo(rd, 1.4, out=np.empty(rd.shape, np.float64))
 
 
+@pytest.mark.parametrize("offset", [-40, -1, 1, 3, 40])
+def test_out_overlapping_the_input_gives_what_separate_arrays_give(on_device, offset):
+    """An out= view shifted against the input (as NumPy ufuncs allow) is written as if they
+    were apart (the input copied first); the very same array (out=rd) is in place."""
+    rd = np.random.default_rng(0).uniform(0.01, 0.99, 4096).astype(np.float32)
+    mfp = np.full(4096, 2.0, np.float32)
+    want = invert_albedo(rd, 1.4)
+    want_sa, _ = albedo_to_coefficients(rd, mfp, 1.4)
+    big = np.zeros(4400, np.float32)
+    big[100:4196] = rd
+    invert_albedo(big[100:4196], 1.4, out=big[100 + offset:4196 + offset])
+    np.testing.assert_array_equal(big[100 + offset:4196 + offset], want)
+    big[100:4196] = mfp
+    sa = big[100 + offset:4196 + offset]
+    albedo_to_coefficients(rd, big[100:4196], 1.4, out=(sa, np.empty_like(rd)))
+    np.testing.assert_array_equal(sa, want_sa)
+    same = rd.copy()
+    invert_albedo(same, 1.4, out=same)
+    np.testing.assert_array_equal(same, want)
+
+
+def test_out_arrays_that_overlap_each_other_are_refused(on_device):
+    rd = np.linspace(0.05, 0.95, 12, dtype=np.float32)
+    o = np.empty(24, np.float32)
+    for pair in ((o[:12], o[:12]), (o[:12], o[6:18])):
+        with pytest.raises(ValueError, match="alpha and rho overlap"):
+            invert_albedo(rd, 1.4, return_rho=True, out=pair)
+
+
 def test_host_memory_is_used_without_copies(runtime):
     """On a CPU device the kernel's buffers are the host arrays themselves: mapping an output
     buffer gives back the array's own memory (in each launch)."""

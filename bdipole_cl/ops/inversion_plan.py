@@ -113,6 +113,22 @@ def checked_mfp(mfp, on_invalid, dtype=np.float32):
     return mfp, n
 
 
+def apart_from(out, rd, mfp):
+    """(rd, mfp), each copied where an ``out`` array overlaps it other than as the very same
+    elements (out=rd is safe: each element is read before it is written; a shifted view is
+    not, as the kernel would read texels it has already overwritten)."""
+    def same(a, b):
+        return (a.__array_interface__["data"][0] == b.__array_interface__["data"][0]
+                and a.strides == b.strides and a.size == b.size)
+    for arr in (out or {}).values():
+        arr = np.asarray(arr)
+        if np.may_share_memory(arr, rd) and not same(arr, rd):
+            rd = rd.copy()
+        if mfp is not None and np.may_share_memory(arr, mfp) and not same(arr, mfp):
+            mfp = mfp.copy()
+    return rd, mfp
+
+
 def channel_values(values, nchan):
     """``values`` (broadcast to the input's shape) as one float per channel when it holds no
     more than that (a scalar or a per-channel tuple broadcast: zero strides), else None."""
@@ -236,6 +252,7 @@ class InversionPlan:
                 rd, mfp = (as_float(a) for a in np.broadcast_arrays(np.asarray(rd),
                                                                    np.asarray(mfp)))
             self._check_channels(rd.shape)
+            rd, mfp = apart_from(out, rd, mfp)
             keep = None if mask is None else self._keep(mask, rd.shape)
             if keep is not None:
                 if not keep.any():                 # nothing to invert: no device call at all
@@ -282,13 +299,23 @@ class InversionPlan:
                                 self.specialise, self.mfp_const))
 
     def _out_dict(self, out):
-        if out is None or isinstance(out, dict):
+        if out is None:
             return out
-        arrays = (out,) if isinstance(out, np.ndarray) else tuple(out)
-        if len(arrays) > len(self.outputs):
-            raise ValueError(f"out: {len(arrays)} arrays for the {len(self.outputs)} outputs "
-                             f"{', '.join(self.outputs)}")
-        return dict(zip(self.outputs, arrays))
+        if isinstance(out, dict):
+            arrays = out
+        else:
+            seq = (out,) if isinstance(out, np.ndarray) else tuple(out)
+            if len(seq) > len(self.outputs):
+                raise ValueError(f"out: {len(seq)} arrays for the {len(self.outputs)} "
+                                 f"outputs {', '.join(self.outputs)}")
+            arrays = dict(zip(self.outputs, seq))
+        names = list(arrays)
+        for i, a in enumerate(names):
+            for b in names[i + 1:]:
+                if np.shares_memory(arrays[a], arrays[b]):
+                    raise ValueError(f"out: the arrays for {a} and {b} overlap; give each "
+                                     f"output its own memory")
+        return arrays
 
     def _zeros(self, shape, out):
         n = int(np.prod(shape))

@@ -256,3 +256,41 @@ def test_exitance_of_a_bright_texel_among_zeros_has_no_negative_or_round_off_val
     # a channel with negative irradiance is not clamped: -E gives -M
     neg = blur(-e, albedo=albedo, mfp=3.0, method=method)
     np.testing.assert_allclose(neg, -out, atol=floor)
+
+
+@pytest.mark.parametrize("method", ["fft", "direct"])
+def test_the_bound_holds_for_irradiance_of_both_signs(method):
+    """+1 within the kernel's radius of a texel and -1 beyond: the renormalized truncation's
+    two errors (the kept weights' excess, the dropped tail) add up, to 2 t max|E| Rd; the
+    bound says so (and warns: it is above tol), against a float64 convolution with the exact
+    weights to radius 120."""
+    import warnings
+    from bdipole_cl.ops.blur.weights import quadrant_weights, unfold_quadrant
+    from scipy.signal import fftconvolve
+    e = -np.ones((64, 64))
+    e[26:39, 26:39] = 1.0
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        out, info = blur(e.astype(np.float32), albedo=0.8, mfp=1.5, tol=1e-3, method=method,
+                         return_info=True)
+    assert any("both signs" in str(c.message) for c in caught)
+    (a, st, et), = channel_parameters(1, albedo=0.8, mfp=1.5, eta=1.4)
+    w = unfold_quadrant(quadrant_weights(a, st, et, 120))
+    want = fftconvolve(np.pad(e, 120, mode="edge"), w, mode="valid")
+    err = np.abs(out[..., 0] - want).max() / 0.8
+    assert 1e-3 < err <= info.channels[0].error_bound, (err, info.channels[0])
+
+
+def test_alpha_prime_zero_gives_zero_not_nan():
+    for method in ("auto", "direct", "fft"):
+        out = blur(np.ones((8, 8, 3), np.float32), alpha=(0.9, 0.0, 0.5), sigma_t=1.0,
+                   method=method)
+        assert np.isfinite(out).all() and not out[..., 1].any() and out[..., 0].min() > 0
+
+
+@pytest.mark.parametrize("value", [1e36, 3e38])
+def test_a_field_near_the_float32_limit_stays_finite(value):
+    """A float32 FFT of 1e36 x 4096 texels would overflow: such planes are transformed in
+    float64 (``fft_dtype``'s peak_sum), and the exitance is E x Rd."""
+    out = blur(np.full((64, 64), value, np.float32), albedo=0.8, mfp=2.0, method="fft")
+    np.testing.assert_allclose(out[8:-8, 8:-8], 0.8 * value, rtol=1e-6)

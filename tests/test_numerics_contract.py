@@ -286,7 +286,9 @@ def test_textured_bound_holds_for_albedo_near_zero_and_one(region):
         warnings.simplefilter("always")
         out, info = bd.blur(e.astype(np.float32), albedo=albedo, mfp=1.0, method="fft",
                             border="zero", return_info=True)
-    warned = any(issubclass(c.category, BlurAccuracyWarning) for c in caught)
+    # the clamp's own warning (a texture-varying bound above tol is warned of as well)
+    warned = any(issubclass(c.category, BlurAccuracyWarning)
+                 and "kernel shape of the bound" in str(c.message) for c in caught)
     err = float((np.abs(out[..., 0] - exit_texel_reference(e, albedo, 1.0)) / albedo).max())
     assert err <= info.channels[0].error_bound, (region, err, info.channels[0])
     assert warned == (region < 1e-5), (region, warned)

@@ -18,6 +18,7 @@ from ..io.images import (Cancelled, Reader, TextureError, Writer, check_output_f
 from ..ops.bands import band_rows, bands
 from ..ops.blur import BlurPlan, Scattering, plan_blur
 from ..ops.blur.params import checked_irradiance
+from ..ops.blur.planning import worse
 from ..ops.invert import invert_albedo
 from ..signals import Stopped
 from .pipeline import stream_bands
@@ -159,7 +160,7 @@ def blur_file(path, output, *, colorspace="auto", working_space=None, half=False
                                               mask, y0, y1, max_memory)
             except InvalidInputError as exc:
                 raise located(exc, path, sources, spec, idx) from None
-            state["info"] = band_info or state["info"]
+            state["info"] = worse(state["info"], band_info)
             if state["writer"] is None:
                 state["writer"] = exitance_writer(path, output, spec, colour, alpha_ch, route,
                                                   plan, half=half, header=header,

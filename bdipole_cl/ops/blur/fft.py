@@ -141,15 +141,21 @@ def cached_spectra(plan, shape, dtype=np.float32):
 FFT32_ROUNDOFF = 1e-5
 
 
-def fft_dtype(truncated, tol, peak_to_mean=1.0):
+#: a float32 transform of a plane whose max|E| times its size exceeds this could overflow (its
+#: values are bounded by sum |E|, and float32 ends at 3.4e38): float64 then
+FFT32_SUM_LIMIT = 1e37
+
+
+def fft_dtype(truncated, tol, peak_to_mean=1.0, peak_sum=0.0):
     """float32 for the constant FFT where its round-off fits beside the kernel's truncation
     (``truncated`` + FFT32_ROUNDOFF <= tol: the bound stays within tol), else float64. With
     the image's ``peak_to_mean`` (max|E| / |mean E|, once it is known): where the round-off,
     which scales with max|E|, would exceed tol at the image's mean level (a 1e6 hot texel in
     an irradiance of ~0.5: the float32 round-off is then most of the light elsewhere, and the
-    settle floor zeroes it), float64."""
+    settle floor zeroes it), float64; and where max|E| times the transform's size
+    (``peak_sum``) could overflow float32 (FFT32_SUM_LIMIT: a field of 1e36 at 2048^2)."""
     return (np.float32 if truncated + FFT32_ROUNDOFF * max(peak_to_mean, 1.0) <= tol
-            else np.float64)
+            and peak_sum <= FFT32_SUM_LIMIT else np.float64)
 
 
 def fft_bound(kernel, dtype):
@@ -204,13 +210,18 @@ def padded_planes(e, channels, k, shape, dtype, border, sums=None):
     return planes, ranges
 
 
+def peak(e_range) -> float:
+    """max|E| of a channel of range (min E, max E)."""
+    return max(abs(e_range[0]), abs(e_range[1]))
+
+
 def peak_to_mean(e_range, mean) -> float:
     """max|E| / |mean E| of a channel (infinite for a mean of 0 under a non-zero peak; 1 for
     an all-zero channel)."""
-    peak = max(abs(e_range[0]), abs(e_range[1]))
-    if peak == 0:
+    top = peak(e_range)
+    if top == 0:
         return 1.0
-    return peak / abs(mean) if mean != 0 else np.inf
+    return top / abs(mean) if mean != 0 else np.inf
 
 
 def times_real_spectrum(kp, spec):
@@ -239,25 +250,30 @@ def constant_spectra(kernels, k, shape, dtype):
     return pairs
 
 
-def fft_blur_channels(e, channels, kernels, dtype, border, out, tol=None):
+def fft_blur_channels(e, channels, kernels, dtype, border, out, tol=None, ranges=None):
     """out[..., c] = channel c of the (H, W, C) image convolved with its constant kernel, for
     each c of ``channels`` (``kernels`` theirs), all in one batched FFT in ``dtype`` on all
     cores: the planes padded by the largest radius K at the fast even shape, one forward
     transform, the cached real kernel spectra multiplied in place, the inverse over the columns
     and then over the image's rows only; each result settled (``settled``) on its plane. With
     ``tol``, a float32 blur of an image whose peak is too far above its mean for the float32
-    round-off (``fft_dtype``'s peak_to_mean) is done in float64 instead."""
+    round-off (``fft_dtype``'s peak_to_mean) is done in float64 instead. ``ranges``: a list
+    that gets each channel's (min, max) irradiance. Returns ``out``, or ``ranges`` if given."""
     import scipy.fft as sfft
     h, w = e.shape[:2]
     k = max(ck.radius for ck in kernels)
     shape = fft_shape((h, w), k)
     sums = [] if tol is not None and dtype == np.float32 else None
-    planes, ranges = padded_planes(e, channels, k, shape, dtype, border, sums)
+    planes, e_ranges = padded_planes(e, channels, k, shape, dtype, border, sums)
+    if ranges is not None:
+        ranges[:] = e_ranges
     if sums is not None and any(
-            fft_dtype(ck.truncated, tol, peak_to_mean(r, total / (h * w))) != np.float32
-            for ck, r, total in zip(kernels, ranges, sums)):
+            fft_dtype(ck.truncated, tol, peak_to_mean(r, total / (h * w)),
+                      peak(r) * shape[0] * shape[1]) != np.float32
+            for ck, r, total in zip(kernels, e_ranges, sums)):
         del planes
-        return fft_blur_channels(e, channels, kernels, np.float64, border, out)
+        fft_blur_channels(e, channels, kernels, np.float64, border, out)
+        return out if ranges is None else ranges
     ks = constant_spectra(kernels, k, shape, dtype)
     spec = sfft.rfft2(planes, axes=(1, 2), workers=-1, overwrite_x=True)
     check_stop()
@@ -270,10 +286,10 @@ def fft_blur_channels(e, channels, kernels, dtype, border, out, tol=None):
     def settle_and_store(r0, r1):
         for g, (c, ck) in enumerate(zip(channels, kernels)):
             plane = rows[g, r0:r1, k:k + w]
-            settled(plane, None, ck.rd, ulps, ranges[g])
+            settled(plane, None, ck.rd, ulps, e_ranges[g])
             out[r0:r1, :, c] = plane
     in_row_blocks(settle_and_store, h)
-    return out
+    return out if ranges is None else ranges
 
 
 def times_spectrum(ks, spec, out):
@@ -308,7 +324,8 @@ def basis_blurs(e, c, plan, border, planes):
     shape = fft_shape((h, w), k)
     sums = []
     padded, (e_range,) = padded_planes(e, [c], k, shape, np.float32, border, sums)
-    dtype = fft_dtype(0.0, plan.truncation_tol, peak_to_mean(e_range, sums[0] / (h * w)))
+    dtype = fft_dtype(0.0, plan.truncation_tol, peak_to_mean(e_range, sums[0] / (h * w)),
+                      peak(e_range) * shape[0] * shape[1])
     source = padded if dtype == np.float32 else padded_planes(e, [c], k, shape, dtype,
                                                               border)[0]
     kspec = cached_spectra(plan, shape, dtype)

@@ -20,7 +20,8 @@ from ...methods.registry import BLUR_METHOD, BORDER
 from ..bands import band_rows, bands, gather_rows
 from .dispatch import BlurKernels
 from .params import checked_irradiance
-from .planning import BlurInfo, blur_whole, channel_plans, constant_row_bytes, halo_of
+from .planning import (BlurInfo, blur_whole, channel_plans, constant_row_bytes, halo_of,
+                       signed_irradiance_bound, worse)
 from .textured import blur_band, textured_info, textured_method, textured_plans, textured_row_bytes
 
 
@@ -126,8 +127,16 @@ class BlurPlan:
         kernels = self.bound_kernels()
         if self.textured:
             rows = slice(0, self.shape[0]) if rows is None else np.maximum(rows, 0)
-            return blur_band(e, self.textured, rows, textured_method(self.method),
-                             self.border, kernels), self.textured_info
+            ranges = []
+            out = blur_band(e, self.textured, rows, textured_method(self.method), self.border,
+                            kernels, ranges)
+            chans = list(self.textured_info.channels)
+            for c, (low, high) in enumerate(ranges):
+                if low < 0 < high:
+                    chans[c] = signed_irradiance_bound(chans[c],
+                                                       self.textured[c].plan.truncation_tol,
+                                                       self.tol)
+            return out, BlurInfo(tuple(chans))
         return blur_whole(e, self.params, self.channels, self.border, self.exact, kernels)
 
     def apply(self, irradiance, max_memory=None):
@@ -147,7 +156,8 @@ class BlurPlan:
         out = np.empty_like(e)
         info = None
         for y0, y1, idx in bands(h, rows, self.halo, self.border):
-            res, info = self.apply_band(gather_rows(e, idx), idx)
+            res, band_info = self.apply_band(gather_rows(e, idx), idx)
+            info = worse(info, band_info)
             out[y0:y1] = res[self.halo:self.halo + (y1 - y0)]
         return out, info
 

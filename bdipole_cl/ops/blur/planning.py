@@ -4,7 +4,7 @@ the typed record of what a blur did (``BlurInfo``); and one image (or band) blur
 from __future__ import annotations
 
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -78,6 +78,29 @@ class BlurInfo:
     """What ``blur`` did, per channel."""
 
     channels: tuple
+
+
+def worse(a: BlurInfo | None, b: BlurInfo | None) -> BlurInfo | None:
+    """The BlurInfo of two bands of one image: per channel the one of the larger bound."""
+    if a is None or b is None:
+        return a or b
+    return BlurInfo(tuple(x if x.error_bound >= y.error_bound else y
+                          for x, y in zip(a.channels, b.channels)))
+
+
+def signed_irradiance_bound(info: ChannelInfo, truncated: float, tol: float) -> ChannelInfo:
+    """``info`` for an irradiance of both signs: the renormalized truncation's error, at most
+    t max|E| Rd when E >= 0 (the kept weights' excess and the dropped tail have the same
+    sign of error and it is their larger), is up to 2 t max|E| Rd when they can have opposite
+    signs (docs/model.md "Blur error bound"): the bound takes ``truncated`` (t) once more, and
+    a bound above tol is warned of."""
+    bound = info.error_bound + truncated
+    if bound > tol:
+        warnings.warn(BlurAccuracyWarning(
+            f"channel {info.channel}: the irradiance has both signs: the kernel truncation's "
+            f"error can add up from both: error bound {bound:.2e} > tol {tol:g}"),
+            stacklevel=5)
+    return replace(info, error_bound=bound)
 
 
 @dataclass(frozen=True)
@@ -197,9 +220,18 @@ def blur_whole(e, params, plans, border, exact, kernels):
                 stacklevel=4)
         info.append(ChannelInfo(c, plan.method, ck.radius, bound, rd=ck.rd, auto=plan.auto))
     out = device.result() if device is not None else np.empty_like(e)
+    low = {}                           # channel: its irradiance's (min, max)
     if fft_dtypes:                     # one batched transform, settled there
-        fft_blur_channels(e, list(fft_dtypes), [plans[c].kernel for c in fft_dtypes],
-                          np.result_type(*fft_dtypes.values()), border, out, tol)
+        ranges = fft_blur_channels(e, list(fft_dtypes), [plans[c].kernel for c in fft_dtypes],
+                                   np.result_type(*fft_dtypes.values()), border, out, tol,
+                                   ranges=[])
+        low = dict(zip(fft_dtypes, ranges))
+    for c, plan in enumerate(plans):
+        lowest, highest = low[c] if c in low else (float(e[..., c].min()),
+                                                   float(e[..., c].max()))
+        if lowest < 0 < highest:
+            tol = plan.tol if plan.tol is not None else plan.kernel.tol
+            info[c] = signed_irradiance_bound(info[c], plan.kernel.truncated, tol)
     for c, plan in enumerate(plans):
         if c not in fft_dtypes:
             settled(out[..., c], e[..., c], plan.kernel.rd)

@@ -61,9 +61,11 @@ def textured_plans(shape, *, tol, exact=False, eta=1.4, method="auto", on_invali
     return out
 
 
-def blur_band(e, plans, rows, method, border, kernels):
+def blur_band(e, plans, rows, method, border, kernels, ranges=None):
     """Blur one image or band (rows: the rows of the parameter maps it covers) with the
-    plan's device kernels (``dispatch.BlurKernels``)."""
+    plan's device kernels (``dispatch.BlurKernels``). ``ranges``: a list that gets each
+    channel's (min, max) irradiance."""
+    ranges = [] if ranges is None else ranges
     h, w, _ = e.shape
     rt = kernels.rt
     if method == "gaussians":
@@ -72,7 +74,8 @@ def blur_band(e, plans, rows, method, border, kernels):
             device.run_textured(c, plan, device_weight_planes(plan, rd[rows], ld[rows], rt))
         out = device.result()
         for c, (_, rd, _, _) in enumerate(plans):
-            settled(out[..., c], e[..., c], rd[rows])
+            ranges.append((float(e[..., c].min()), float(e[..., c].max())))
+            settled(out[..., c], e[..., c], rd[rows], e_range=ranges[-1])
         return out
     out = host_array(e.shape)
     planes = None          # the basis blurs, (G, H, FFT width), reused across channels
@@ -82,6 +85,7 @@ def blur_band(e, plans, rows, method, border, kernels):
         if planes is None or planes.shape != (len(plan.kernels), h, shape[1]):
             planes = host_array((len(plan.kernels), h, shape[1]))
         padded, e_range, dtype = basis_blurs(e, c, plan, border, planes)
+        ranges.append(e_range)
         ulps = FFT32_ROUNDOFF_ULPS if dtype == np.float32 else ROUNDOFF_ULPS
         gather_exitance(out, c, plan, rd[rows], ld[rows], planes, padded, plan.radius, rt,
                         settle_floor(e_range, ulps))
@@ -102,13 +106,22 @@ def textured_row_bytes(width, nchan, radius, nbasis) -> int:
 
 
 def textured_info(plans, method, exact) -> BlurInfo:
-    """What a texture-varying blur does per channel, its error bound with the shape clamp's."""
-    return BlurInfo(tuple(
+    """What a texture-varying blur does per channel, its error bound with the shape clamp's
+    (a bound above the plan's tol is warned of)."""
+    info = BlurInfo(tuple(
         ChannelInfo(c, f"{method} (texture-varying, {len(p.kernels)} {p.basis} basis kernels)",
                     p.radius, p.error_bound + clamp_bound(c, p, ext, exact),
                     fit_error=p.fit_error, interp_error=p.interp_error,
                     nodes=int(np.prod(p.table.shape[:2])))
         for c, (p, _, _, ext) in enumerate(plans)))
+    for ch, (p, *_) in zip(info.channels, plans):
+        if ch.error_bound > p.truncation_tol:
+            warnings.warn(BlurAccuracyWarning(
+                f"channel {ch.channel}: texture-varying error bound {ch.error_bound:.2e} > tol "
+                f"{p.truncation_tol:g} (truncation at tol, plus the basis fit "
+                f"{p.fit_error:.1e} and the interpolation {p.interp_error:.1e}): a smaller "
+                f"tol tightens it"), stacklevel=5)
+    return info
 
 
 def clamp_bound(c, plan, ext, exact) -> float:

@@ -151,6 +151,9 @@ def channel_kernel(alpha, sigma_t_texels, eta, tol, exact=False, max_radius=2048
                          f"raise tol or the texel size")
     w = unfold_quadrant(quadrant_weights(alpha, st, eta, k, exact))
     kept = w.sum()
-    w *= rd / kept
+    if kept > 0:
+        w *= rd / kept
+    else:                     # alpha' = 0: Rd = 0, no light comes out (not 0 / 0)
+        w[...] = 0.0
     w.setflags(write=False)
-    return ChannelKernel(w, k, rd, alpha, st, 1.0 - kept / rd, tol)
+    return ChannelKernel(w, k, rd, alpha, st, 1.0 - kept / rd if kept > 0 else 0.0, tol)

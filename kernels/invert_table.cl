@@ -228,7 +228,7 @@ __kernel void invert_table(__global const float *rd, BD_MFP_SPACE const float *m
 #else
     vec ld = load_lanes(mfp, g, whole, n, 1.0f);
 #if BD_CHECK == 2
-    if (ANY_LANE(!(ld > 0.0f) | (ld == INFINITY))) *invalid = 1;
+    if (ANY_LANE(!(ld >= BD_MFP_MIN) | (ld == INFINITY))) *invalid = 1;
 #endif
 #endif
 #ifdef BD_MODEL_DIPOLE

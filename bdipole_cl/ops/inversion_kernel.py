@@ -21,8 +21,12 @@ from ..physics import tables
 
 
 #: kernels/invert_table.cl's validity tests (BD_CHECK): invert_albedo's rule (Rd NaN, infinite
-#: or > 1) and the coefficients' (Rd NaN, infinite or >= 1; mfp NaN, <= 0 or infinite)
+#: or > 1) and the coefficients' (Rd NaN, infinite or >= 1; mfp NaN, below MFP_MIN or infinite)
 CHECK_ALBEDO, CHECK_COEFFICIENTS = 1, 2
+
+#: the least valid mfp: below it sigma' = f(Rd) / mfp can pass float32's 3.4e38 (f reaches
+#: ~1e4 at the largest float32 albedo below 1), so 1e-20 keeps every coefficient finite
+MFP_MIN = 1e-20
 
 #: kernels/invert.cl's output bits (BD_OUTPUTS)
 OUTPUT_BITS = {"alpha": 1, "rho": 2, "sigma_a": 4, "sigma_s": 8}
@@ -143,7 +147,8 @@ class InversionKernel:
         key = (bits, check, mfp_channels)
         knl = self._table_kernels.get(key)
         if knl is None:
-            defines = {**self._table_defines, "BD_OUTPUTS": bits, "BD_CHECK": check}
+            defines = {**self._table_defines, "BD_OUTPUTS": bits, "BD_CHECK": check,
+                       "BD_MFP_MIN": f"{MFP_MIN:g}f"}
             if mfp_channels:
                 defines["BD_MFP_CHANNELS"] = None
             opts = build_options(defines, model=self.model)

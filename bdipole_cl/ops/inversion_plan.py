@@ -20,14 +20,20 @@ from ..errors import check_policy, find_invalid
 from ..methods.choice import DeviceKey, resolve_method
 from ..methods.registry import MFP_KIND, MFP_KINDS, OUTPUTS, MethodConfig
 from ..physics.models import MODEL
-from .inversion_kernel import (CHECK_ALBEDO, CHECK_COEFFICIENTS, InversionKernel,
+from .inversion_kernel import (CHECK_ALBEDO, CHECK_COEFFICIENTS, MFP_MIN, InversionKernel,
                                inversion_kernel, output_array)
 
 #: largest float32 below 1: where ``on_invalid="clamp"`` puts Rd >= 1 for coefficients.
 RD_CLAMP_MAX = float(np.nextafter(np.float32(1.0), np.float32(0.0)))
 
-#: where ``on_invalid="clamp"`` puts mfp values that are NaN, <= 0 or infinite.
-MFP_CLAMP_RANGE = (1e-20, 1e20)
+#: where ``on_invalid="clamp"`` puts mfp values that are NaN, below MFP_MIN or infinite.
+MFP_CLAMP_RANGE = (MFP_MIN, 1e20)
+
+
+def valid_mfp(mfp):
+    """The coefficients' mfp rule: finite and >= MFP_MIN (a smaller one's coefficients could
+    overflow float32)."""
+    return (mfp >= MFP_MIN) & np.isfinite(mfp)
 
 
 def check_outputs(outputs):
@@ -102,11 +108,12 @@ def checked_albedo_for_coefficients(rd, on_invalid, dtype=np.float32):
 
 
 def checked_mfp(mfp, on_invalid, dtype=np.float32):
-    """``mfp`` in the kernel's precision and its invalid count (NaN, <= 0 or infinite there);
-    clamped into MFP_CLAMP_RANGE (NaN and +inf to its top)."""
+    """``mfp`` in the kernel's precision and its invalid count (``valid_mfp`` there); clamped
+    into MFP_CLAMP_RANGE (NaN and +inf to its top)."""
     given, mfp = mfp, as_kernel_dtype(mfp, dtype)
-    n = find_invalid("mfp", given, ~((mfp > 0.0) & np.isfinite(mfp)),
-                     f"NaN, <= 0 or infinite as {np.dtype(dtype).name}", on_invalid)
+    n = find_invalid("mfp", given, ~valid_mfp(mfp),
+                     f"NaN, below {MFP_MIN:g} (its coefficients would overflow) or infinite "
+                     f"as {np.dtype(dtype).name}", on_invalid)
     if n:
         lo, hi = MFP_CLAMP_RANGE
         mfp = np.clip(np.nan_to_num(mfp, nan=hi, posinf=hi, neginf=lo), lo, hi).astype(dtype)
@@ -351,7 +358,7 @@ class InversionPlan:
         reads_mfp = not (k.mfp_compiled or self.extinction)
         per_channel = channel_values(mfp, k.nchan) if reads_mfp and k.width else None
         as_kernel = None if per_channel is None else as_kernel_dtype(per_channel, k.dtype)
-        if as_kernel is not None and not np.all((as_kernel > 0) & np.isfinite(as_kernel)):
+        if as_kernel is not None and not np.all(valid_mfp(as_kernel)):
             per_channel = None            # the texels named (or clamped) one by one, below
         n_mfp, host_mfp = 0, mfp
         if not reads_mfp:                 # compiled in, or divided by on the host: checked here

@@ -26,6 +26,18 @@ def check_policy(on_invalid: str) -> str:
     return POLICY.canonical(on_invalid)
 
 
+def shortest(value) -> str:
+    """``value`` in the fewest digits that still tell it apart in its own precision
+    (1.0000001, not 1: a message saying "> 1: 1" is no help); ``g`` when that is as exact."""
+    v = np.asarray(value)
+    if v.dtype.kind != "f":
+        return f"{float(v):g}"
+    short = f"{float(v):g}"
+    if not np.isfinite(v) or v.dtype.type(short) == v:
+        return short
+    return str(v[()])                  # NumPy's shortest repr that round-trips in its dtype
+
+
 class InvalidInputError(ValueError):
     """Input values the model cannot take.
 
@@ -43,7 +55,7 @@ class InvalidInputError(ValueError):
         else:
             where = f"index {self.first_index}"
         super().__init__(f"{count} invalid {name} value(s) ({why}); first at {where}: "
-                         f"{float(first_value):g} (on_invalid='clamp' / --on-invalid clamp "
+                         f"{shortest(first_value)} (on_invalid='clamp' / --on-invalid clamp "
                          f"clamps them)")
 
 

@@ -321,3 +321,37 @@ def test_blur_of_an_empty_array_is_a_clear_error():
         blur(np.zeros((0, 0, 3), np.float32), albedo=0.5, mfp=1.0)
 
 # }}}
+
+
+def test_more_bad_arguments_are_one_line_value_errors():
+    import numpy as np
+    from bdipole_cl import blur, invert_albedo
+    rd = np.float32([0.5])
+    with pytest.raises(ValueError, match="eta must be a scalar or one value per channel"):
+        invert_albedo(rd, eta=[])
+    with pytest.raises(ValueError, match="no texels or no channels"):
+        blur(np.ones((4, 5, 0), np.float32), albedo=0.8, mfp=2.0)
+    for tol in (0, float("nan"), 2):
+        with pytest.raises(ValueError, match="takes 0 < tol < 1"):
+            invert_albedo(rd, 1.4, method="auto", tol=tol)
+
+
+def test_an_invalid_value_is_shown_in_the_digits_that_make_it_invalid():
+    import numpy as np
+    from bdipole_cl import InvalidInputError, invert_albedo
+    with pytest.raises(InvalidInputError, match=r": 1\.000000001 \("):
+        invert_albedo(np.array([1 + 1e-9]), 1.4)
+    with pytest.raises(InvalidInputError, match=r"> 1\); first at index \(0,\): 2 \("):
+        invert_albedo(np.array([2.0]), 1.4)
+
+
+def test_a_uniform_texture_blurs_without_numpy_warnings():
+    """Its kernel within the near field leaves a far part of 0: no 0 / 0 in the fit."""
+    import warnings
+    import numpy as np
+    from bdipole_cl import blur
+    e = np.random.default_rng(0).random((32, 30, 3), dtype=np.float32)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        out = blur(e, albedo=np.full((32, 30, 3), (0.8, 0.6, 0.4), np.float32), mfp=0.5)
+    np.testing.assert_allclose(out, blur(e, albedo=(0.8, 0.6, 0.4), mfp=0.5), atol=1e-6)

@@ -220,7 +220,11 @@ def resolve_method(method="table", double=False, device_key=None, **knobs) -> Me
     if isinstance(method, MethodConfig):
         return method
     if method == "auto":
-        tol = knobs.get("tol") or AUTO_DEFAULT_TOL
+        tol = knobs.get("tol")
+        tol = AUTO_DEFAULT_TOL if tol is None else tol
+        if not 0 < tol < 1:             # also NaN
+            raise ValueError(f"tol={tol!r}: method='auto' takes 0 < tol < 1 (the largest "
+                             f"relative error of rho it may give)")
         data, source = choice_for(device_key)
         choice = auto_inversion_config(tol, double, data)
         logging.getLogger("bdipole_cl").info(

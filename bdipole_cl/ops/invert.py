@@ -23,7 +23,7 @@ def channel_etas(eta, shape):
     """Etas per channel: one eta (also when all are equal), or one per channel along the last
     axis of ``shape``."""
     etas = np.atleast_1d(np.asarray(eta, dtype=np.float64))
-    if etas.ndim != 1:
+    if etas.ndim != 1 or etas.size == 0:
         raise ValueError(f"eta must be a scalar or one value per channel, got shape {etas.shape}")
     if etas.size == 1 or np.all(etas == etas[0]):
         return (float(etas[0]),)

@@ -200,8 +200,9 @@ def checked_irradiance(irradiance, on_invalid="raise"):
     if e.ndim != 3:
         raise ValueError(f"irradiance must be HxW or HxWxC, got shape {e.shape}")
     e = np.ascontiguousarray(e, dtype=np.float32)
-    if e.shape[0] == 0 or e.shape[1] == 0:
-        raise ValueError(f"irradiance is empty (shape {e.shape}): nothing to blur")
+    if 0 in e.shape:
+        raise ValueError(f"irradiance is empty (shape {e.shape}: no texels or no channels): "
+                         f"nothing to blur")
     check_policy(on_invalid)
     if all_finite(e):
         return e

@@ -145,7 +145,10 @@ def svd_basis(targets, tol):
         check_stop()
         phi = u[:, :rank] / sw[:, None]                                 # quadrant values
         coef = (u[:, :rank].T @ a_mat).T                                # nodes x rank
-        coef *= (sums / (coef @ (phi.T @ mult)))[:, None]               # sums as the targets'
+        recon = coef @ (phi.T @ mult)
+        # sums as the targets' (a far part that is all zero, a kernel within the near field,
+        # keeps coefficients 0, not 0 / 0)
+        coef *= np.divide(sums, recon, out=np.zeros_like(sums), where=recon != 0)[:, None]
         err = np.abs(phi @ coef.T - a_mat / sw[:, None]).T @ mult
         if err.max() <= tol:
             break

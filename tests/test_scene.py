@@ -263,3 +263,25 @@ def test_a_constant_material_gets_its_coefficients_in_the_summary_and_the_manife
 def bd_coefficients(rd, mfp, eta):
     from bdipole_cl import albedo_to_coefficients
     return albedo_to_coefficients(np.asarray(rd), np.asarray(mfp), eta)
+
+
+def test_plan_refuses_what_the_bake_would_refuse_per_channel_counts(tmp_path, capsys):
+    """eta or mfp with a count that is neither one nor the albedo's channels cannot run, said
+    by plan (not only by bake); equal values are one value (USD's mfp x colour of a grey
+    albedo)."""
+    write_exr(tmp_path / "rgb.exr", np.full((8, 8, 3), 0.5, np.float32), ("R", "G", "B"))
+    write_exr(tmp_path / "grey.exr", np.full((8, 8, 1), 0.5, np.float32), ("Y",))
+    path = tmp_path / "s.toml"
+    path.write_text('[[material]]\nname = "a"\nalbedo = "rgb.exr"\nmfp = 1.0\n'
+                    'eta = [1.3, 1.4]\noutput = "out/a.exr"\n'
+                    '[[material]]\nname = "b"\nalbedo = "grey.exr"\nmfp = [1.0, 2.0, 3.0]\n'
+                    'output = "out/b.exr"\n'
+                    '[[material]]\nname = "c"\nalbedo = "grey.exr"\nmfp = [0.5, 0.5, 0.5]\n'
+                    'output = "out/c.exr"\n')
+    plan = scenes.load(path).plan()
+    by_name = {j.name: j for j in plan.jobs}
+    assert "eta has 2 values but the albedo has 3" in by_name["a"].problem
+    assert "mfp has 3 values but the albedo has 1" in by_name["b"].problem
+    assert not by_name["c"].problem
+    report = plan.run()
+    assert [r.status for r in report.results].count("ok") == 1

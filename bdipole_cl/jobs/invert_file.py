@@ -32,9 +32,10 @@ MFP_CONVENTIONS = {"diffuse": "ld = 1/mu_tr (Jensen/Hery)",
 
 
 def per_channel(values, ncolor, what, path):
-    """One value, or one per colour channel (a TextureError naming the file if neither)."""
-    if len(values) == 1:
-        return tuple(values) * ncolor
+    """One value (also given as several equal ones), or one per colour channel (a TextureError
+    naming the file if neither)."""
+    if len(set(values)) == 1:
+        return tuple(values[:1]) * ncolor
     if len(values) != ncolor:
         raise TextureError(f"{path}: {what} has {len(values)} values but the albedo has "
                            f"{ncolor} colour channels")

@@ -48,6 +48,7 @@ from ..methods.choice import DeviceKey, device_auto_note, resolve_method
 from ..methods.registry import OUTPUTS, MethodConfig
 from . import runner
 from .blur_file import colour_of
+from .invert_file import per_channel
 from .job import BlurWork, ConstantWork, InvertWork, Job
 from .results import BatchReport, FileResult
 from .scene_records import (LAYER, MANIFEST, constant_config, constant_text, finish_bake,
@@ -186,9 +187,15 @@ def _plan_invert(m, path, tile, force, device, problems_all, max_memory):
             path, m.mask, inputs.get("mask"), m.colorspace, working, max_memory)
     except TextureError as exc:          # this job cannot run (unreadable, or a colour space
         return _cannot_run(job, str(exc), problems_all)   # the config cannot follow); others do
+    try:                                 # what the bake would refuse, refused now
+        per_channel(m.eta, len(names), "eta", path)
+        if not isinstance(m.mfp, str):
+            per_channel(tuple(m.mfp), len(names), "mfp", path)
+    except TextureError as exc:
+        return _cannot_run(job, str(exc), problems_all)
     job.computes.append(f"colour: albedo {route.describe()}")
     job.left_out.append(_not_converted(m.mask))
-    etas = m.eta if len(m.eta) > 1 else m.eta * len(names)
+    etas = per_channel(m.eta, len(names), "eta", path)
     if len(set(etas)) == 1:
         etas = etas[:1]
     key = DeviceKey.of(get_runtime(device).device)

@@ -141,6 +141,11 @@ def cached_spectra(plan, shape, dtype=np.float32):
 FFT32_ROUNDOFF = 1e-5
 
 
+#: the float32 FFT's round-off relative to max|E| * Rd as the round-off model gives it (its
+#: maximum over 2^26 texels, 2.9e-6) plus the settle floor (1.9e-6): what a texel at the
+#: image's mean level sees, times max|E| / |mean E| (``fft_dtype``)
+FFT32_TYPICAL_ROUNDOFF = 5e-6
+
 #: a float32 transform of a plane whose max|E| times its size exceeds this could overflow (its
 #: values are bounded by sum |E|, and float32 ends at 3.4e38): float64 then
 FFT32_SUM_LIMIT = 1e37
@@ -150,11 +155,14 @@ def fft_dtype(truncated, tol, peak_to_mean=1.0, peak_sum=0.0):
     """float32 for the constant FFT where its round-off fits beside the kernel's truncation
     (``truncated`` + FFT32_ROUNDOFF <= tol: the bound stays within tol), else float64. With
     the image's ``peak_to_mean`` (max|E| / |mean E|, once it is known): where the round-off,
-    which scales with max|E|, would exceed tol at the image's mean level (a 1e6 hot texel in
-    an irradiance of ~0.5: the float32 round-off is then most of the light elsewhere, and the
-    settle floor zeroes it), float64; and where max|E| times the transform's size
-    (``peak_sum``) could overflow float32 (FFT32_SUM_LIMIT: a field of 1e36 at 2048^2)."""
-    return (np.float32 if truncated + FFT32_ROUNDOFF * max(peak_to_mean, 1.0) <= tol
+    which scales with max|E|, would exceed tol at the image's mean level
+    (FFT32_TYPICAL_ROUNDOFF x peak_to_mean > tol: a 1e6 hot texel in an irradiance of ~0.5,
+    where the float32 round-off is most of the light elsewhere and the settle floor zeroes
+    it; highlights at 50 in a map of ~0.5 stay float32), float64; and where max|E| times the
+    transform's size (``peak_sum``) could overflow float32 (FFT32_SUM_LIMIT: a field of 1e36
+    at 2048^2)."""
+    return (np.float32 if truncated + FFT32_ROUNDOFF <= tol
+            and FFT32_TYPICAL_ROUNDOFF * peak_to_mean <= tol
             and peak_sum <= FFT32_SUM_LIMIT else np.float64)
 
 

@@ -31,10 +31,10 @@ def expand_inputs(patterns):
     """Files named by paths, globs (``textures/*.tif``) or tile patterns (``a.<UDIM>.exr``,
     ``a_<UVTILE>.exr``, ...: ``tiles``), as ``(path, Tile or None)``, in order, without
     duplicates (one file named twice, ``a.exr`` and ``./a.exr`` or through a link, is one
-    job: compared by real path). A pattern matching nothing is kept as a path, so that it is reported as missing
-    rather than silently skipped. A path that exists is taken as it is (``tex[v2]/a.exr`` is a
-    file name, not a glob); the files a pattern matches leave out this tool's own outputs
-    (``written_by_us``)."""
+    job: compared by real path). A pattern matching nothing is kept as a path, so that it is
+    reported as missing rather than silently skipped. A path that exists is taken as it is
+    (``tex[v2]/a.exr`` is a file name, not a glob); the files a pattern matches leave out this
+    tool's own outputs (``written_by_us``)."""
     out, seen = [], set()
     for pattern in patterns:
         pattern = str(pattern)

@@ -41,10 +41,10 @@ class TexturedChannel(NamedTuple):
 
 def textured_plans(shape, *, tol, exact=False, eta=1.4, method="auto", on_invalid="raise",
                    **physical):
-    """Per channel a TexturedChannel (plan, Rd map, ld map, extremes) for an HxWxC image, for ``method`` (its
-    basis: separable Gaussians for ``gaussians``, else eigen-kernels). Each channel has the
-    plan of its own ranges (a union over channels would need more basis kernels per channel;
-    the kernels' spectra are cheap, so sharing them saves little)."""
+    """Per channel a TexturedChannel (plan, Rd map, ld map, extremes) for an HxWxC image, for
+    ``method`` (its basis: separable Gaussians for ``gaussians``, else eigen-kernels). Each
+    channel has the plan of its own ranges (a union over channels would need more basis
+    kernels per channel; the kernels' spectra are cheap, so sharing them saves little)."""
     basis = "gaussians" if textured_method(method) == "gaussians" else "svd"
     etas = np.broadcast_to(np.atleast_1d(np.asarray(eta, np.float64)), (shape[2],)) \
         if np.ndim(eta) <= 1 and np.size(eta) in (1, shape[2]) else None
@@ -109,7 +109,8 @@ def textured_info(plans, method, exact) -> BlurInfo:
     """What a texture-varying blur does per channel, its error bound with the shape clamp's
     (a bound above the plan's tol is warned of)."""
     info = BlurInfo(tuple(
-        ChannelInfo(c, f"{method} (texture-varying, {len(p.kernels)} {p.basis} basis kernels)",
+        ChannelInfo(c, f"{method} (texture-varying, {len(p.kernels)} {p.basis} basis kernels"
+                       + (f", near field {p.near}" if p.near >= 0 else "") + ")",
                     p.radius, p.error_bound + clamp_bound(c, p, ext, exact),
                     fit_error=p.fit_error, interp_error=p.interp_error,
                     nodes=int(np.prod(p.table.shape[:2])))

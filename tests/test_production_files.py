@@ -606,6 +606,18 @@ def test_scene_files_in_other_encodings(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "latin.toml:2: not UTF-8" in err, err
 
+def test_a_warning_is_one_line_naming_what_widened_the_bound(tmp_path):
+    e = -np.ones((32, 32, 1), np.float32)
+    e[12:20, 12:20] = 1.0
+    write(tmp_path / "irr.exr", e, ["Y"])
+    rc, _, err = run_cli("blur", tmp_path / "irr.exr", "--albedo", "0.8",
+                         "--mfp", "1.5", "-o", tmp_path / "o.exr", "--no-progress")
+    assert rc == 0, err
+    lines = [ln for ln in err.splitlines() if "warning" in ln]
+    assert lines and all(ln.startswith("bdipole-cl: warning: channel 0: the irradiance has "
+                                       "both signs") for ln in lines), err
+    assert ".py:" not in err                      # no source file and line, no code shown
+
 # }}}
 
 

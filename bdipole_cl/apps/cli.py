@@ -4,6 +4,7 @@ from __future__ import annotations
 import argparse
 import functools
 import sys
+import warnings
 
 from ..errors import POLICIES
 from ..methods.registry import ALPHA_CHANNEL, BLUR_METHODS, BORDERS
@@ -356,10 +357,19 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def one_line_warning(message, category, filename, lineno, line=None) -> str:
+    """A warning as the CLI shows it: ``bdipole-cl: warning: <message>`` (its kind for
+    non-bdipole warnings), without the source line."""
+    kind = "" if category.__module__.startswith("bdipole_cl") else f"{category.__name__}: "
+    return f"bdipole-cl: warning: {kind}{' '.join(str(message).split())}\n"
+
+
 def main(argv=None) -> int:
     """Usage errors (bad options or values) exit 2, failures 1, a signal 128 + its number; each
     is one line on stderr, with the traceback only under --debug."""
     args = build_parser().parse_args(argv)
+    if not args.debug:                # a warning is one line, as an error is (--debug: Python's)
+        warnings.formatwarning = one_line_warning
     from ..device import DeviceError, use_device
     from ..io.images import TextureError
     try:

@@ -197,6 +197,31 @@ def test_invert_and_blur_never_replace_a_file_they_did_not_write(tmp_path, capsy
                          "-o", str(tmp_path / "sss.exr"), "--no-progress"]) == 0
 
 
+def test_only_this_tools_mark_makes_a_file_its_own(tmp_path):
+    """An unrelated bdipole: attribute is not the mark, and a texture another tool made from
+    one of its outputs (maketx copies the whole header) is the user's; its own texture
+    outputs it replaces."""
+    write(tmp_path / "a.exr", ramp())
+    spec = oiio.ImageSpec(8, 8, 3, "float")
+    spec.attribute("bdipole:note", "a studio's own tag")
+    out = oiio.ImageOutput.create(str(tmp_path / "tagged.exr"))
+    out.open(str(tmp_path / "tagged.exr"), spec)
+    out.write_image(np.zeros((8, 8, 3), np.float32))
+    out.close()
+    assert process_textures(str(tmp_path / "a.exr"),
+                            output=str(tmp_path / "plain.exr")).exit_code == 0
+    oiio.ImageBufAlgo.make_texture(oiio.MakeTxTexture, oiio.ImageBuf(str(tmp_path / "plain.exr")),
+                                   str(tmp_path / "tx.exr"), oiio.ImageSpec())
+    for name in ("tagged.exr", "tx.exr"):
+        before = (tmp_path / name).read_bytes()
+        rep = process_textures(str(tmp_path / "a.exr"), output=str(tmp_path / name))
+        assert "not written by bdipole-cl" in rep.results[0].error, (name, rep.summary())
+        assert (tmp_path / name).read_bytes() == before
+    for _ in range(2):                                   # its own texture output, again
+        assert process_textures(str(tmp_path / "a.exr"), output=str(tmp_path / "t.exr"),
+                                texture=True).exit_code == 0
+
+
 def test_bake_never_replaces_an_output_it_did_not_write(tmp_path, capsys):
     write(tmp_path / "a.exr", ramp())
     path = scene(tmp_path, '[[material]]\nname = "a"\nalbedo = "a.exr"\nmfp = 1.0\n'

@@ -266,8 +266,9 @@ def check_picture_output(path, inputs=(), force=False):
     if suffix not in PICTURE_FORMATS:
         raise ValueError(f"-o {path}: a picture is PNG or SVG (.png, .svg), got "
                          f"'{suffix or 'no extension'}'")
-    check_claim(Claim(str(next(iter(inputs), path)), str(path),
-                      {"input": str(p) for p in inputs} if inputs else {}), force)
+    job = str(next(iter(inputs))) if inputs else "picture"
+    check_claim(Claim(job, str(path), {"input": str(p) for p in inputs} if inputs else {}),
+                force)
 
 
 def save_figure(fig, path, inputs=(), force=False):

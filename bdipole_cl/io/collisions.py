@@ -46,8 +46,10 @@ def file_key(path) -> tuple:
 
 def ours(path) -> bool:
     """``path`` (an existing regular file) is one of this tool's outputs: an image whose header
-    has ``bdipole:*`` attributes (every output has ``bdipole:version``; a file blur of an
-    earlier version had only its parameters), or a contact sheet with PICTURE_MARK."""
+    has ``bdipole:version`` (every output has it; an unrelated ``bdipole:`` attribute is not
+    the mark) and, if it is a texture (``textureformat``, maketx's mark), ``bdipole:texture``
+    (this tool's texture outputs have it: a texture another tool made from one of its outputs
+    copies the rest of the header and is the user's), or a contact sheet with PICTURE_MARK."""
     if str(path).lower().endswith(".svg"):
         with open(path, "rb") as f:
             return PICTURE_MARK.encode() in f.read(1 << 16)
@@ -56,8 +58,10 @@ def ours(path) -> bool:
         return False
     try:
         spec = inp.spec()
-        return any(a.name.startswith("bdipole:") for a in spec.extra_attribs) or \
-            PICTURE_MARK in str(spec.getattribute("Software") or "")
+        if spec.getattribute("bdipole:version"):
+            return (spec.getattribute("textureformat") is None
+                    or spec.getattribute("bdipole:texture") is not None)
+        return PICTURE_MARK in str(spec.getattribute("Software") or "")
     finally:
         inp.close()
 

@@ -322,6 +322,10 @@ class Writer:
         self.digests = BandDigests(self.half)
         self.invalid = 0
         self.texture = texture_options(texture)
+        if self.texture is not None:      # the mark of this tool's textures (collisions.ours)
+            t = self.texture
+            spec.attribute("bdipole:texture", f"tiles {t.tile}, {t.mip_filter} mips, "
+                                              f"{t.compression}")
         self.cancel = cancel
         self.out = oiio.ImageOutput.create(str(self.tmp))
         if self.out is None:

@@ -368,8 +368,17 @@ def main(argv=None) -> int:
     """Usage errors (bad options or values) exit 2, failures 1, a signal 128 + its number; each
     is one line on stderr, with the traceback only under --debug."""
     args = build_parser().parse_args(argv)
+    shown = warnings.formatwarning
     if not args.debug:                # a warning is one line, as an error is (--debug: Python's)
         warnings.formatwarning = one_line_warning
+    try:
+        return run_command(args)
+    finally:                          # a caller's process keeps its own format
+        warnings.formatwarning = shown
+
+
+def run_command(args) -> int:
+    """The parsed command, its errors as ``main`` says."""
     from ..device import DeviceError, use_device
     from ..io.images import TextureError
     try:

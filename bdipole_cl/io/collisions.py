@@ -18,7 +18,7 @@ import os
 import stat
 from dataclasses import dataclass, field
 
-import OpenImageIO as oiio
+from .images import image_header
 
 #: the mark a contact sheet carries (PNG text "Software", SVG creator), so that a later
 #: ``preview`` may replace it
@@ -53,17 +53,13 @@ def ours(path) -> bool:
     if str(path).lower().endswith(".svg"):
         with open(path, "rb") as f:
             return PICTURE_MARK.encode() in f.read(1 << 16)
-    inp = oiio.ImageInput.open(str(path))
-    if inp is None:
+    spec = image_header(path)
+    if spec is None:
         return False
-    try:
-        spec = inp.spec()
-        if spec.getattribute("bdipole:version"):
-            return (spec.getattribute("textureformat") is None
-                    or spec.getattribute("bdipole:texture") is not None)
-        return PICTURE_MARK in str(spec.getattribute("Software") or "")
-    finally:
-        inp.close()
+    if spec.getattribute("bdipole:version"):
+        return (spec.getattribute("textureformat") is None
+                or spec.getattribute("bdipole:texture") is not None)
+    return PICTURE_MARK in str(spec.getattribute("Software") or "")
 
 
 def foreign(path):

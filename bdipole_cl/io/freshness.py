@@ -7,9 +7,8 @@ import hashlib
 import json
 import os
 
-import OpenImageIO as oiio
-
 from ..version import __version__
+from .images import image_header
 from .verify import is_complete
 
 
@@ -44,28 +43,10 @@ def header_fields(inputs: dict, digest: str) -> dict:
             "inputs_digest": content_digest(files)}
 
 
-def header_attribute(path, name):
-    """Attribute ``name`` of the image header at ``path`` (None if it has none, or is not a
-    readable regular file)."""
-    if not os.path.isfile(path):
-        return None
-    inp = oiio.ImageInput.open(str(path))
-    if inp is None:
-        return None
-    try:
-        return inp.spec().getattribute(name)
-    finally:
-        inp.close()
-
-
 def is_up_to_date(output, inputs: dict, digest: str) -> bool:
-    if not os.path.isfile(output):       # missing, or not a regular file (never opened)
+    spec = image_header(output)          # None: missing, unreadable, or not a regular file
+    if spec is None:
         return False
-    inp = oiio.ImageInput.open(str(output))
-    if inp is None:
-        return False
-    spec = inp.spec()
-    inp.close()
     get = spec.getattribute
     if get("bdipole:params_digest") != digest or get("bdipole:version") != __version__:
         return False

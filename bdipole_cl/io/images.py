@@ -101,16 +101,23 @@ def is_regular_file(path) -> bool:
         return False
 
 
+def image_header(path):
+    """The ImageSpec of the image file at ``path`` (its first part), None when it is not a
+    readable regular file (never opened then: a FIFO would block)."""
+    inp = oiio.ImageInput.open(str(path)) if is_regular_file(path) else None
+    if inp is None:
+        return None
+    try:
+        return inp.spec()
+    finally:
+        inp.close()
+
+
 def texel_count(path) -> int:
     """Width x height of an image file, 0 when it is not a readable regular file (a progress
     bar's total: the job itself reports why it cannot read it)."""
-    inp = oiio.ImageInput.open(str(path)) if is_regular_file(path) else None
-    if inp is None:
-        return 0
-    try:
-        return inp.spec().width * inp.spec().height
-    finally:
-        inp.close()
+    spec = image_header(path)
+    return 0 if spec is None else spec.width * spec.height
 
 
 def check_regular_file(path, what):

@@ -7,24 +7,15 @@ import os
 import re
 from pathlib import Path
 
-import OpenImageIO as oiio
-
 from . import tiles
-from .images import TextureError, is_regular_file
+from .images import TextureError, image_header
 
 
 def written_by_us(path) -> bool:
     """An EXR whose header says bdipole-cl wrote it (``bdipole:version``): one of this tool's
     own outputs, never picked up again by a glob."""
-    if not str(path).lower().endswith(".exr") or not is_regular_file(path):
-        return False
-    inp = oiio.ImageInput.open(str(path))
-    if inp is None:
-        return False
-    try:
-        return bool(inp.spec().getattribute("bdipole:version"))
-    finally:
-        inp.close()
+    spec = image_header(path) if str(path).lower().endswith(".exr") else None
+    return spec is not None and bool(spec.getattribute("bdipole:version"))
 
 
 def expand_inputs(patterns):

@@ -18,9 +18,9 @@ from ..device import get_runtime
 from ..errors import check_policy
 from ..io import tiles
 from ..io.collisions import Claim, collisions
-from ..io.freshness import header_attribute, params_digest
+from ..io.freshness import params_digest
 from ..io.colour import check_colorspace, resolve_working_space
-from ..io.images import TextureError, check_output_format, texel_count
+from ..io.images import TextureError, check_output_format, image_header, texel_count
 from ..io.mipmaps import texture_options
 from ..io.patterns import companion_path, expand_inputs, stem, written_by_us  # noqa: F401
 from ..io.verify import is_complete
@@ -60,6 +60,12 @@ def work_digest(work: InvertWork) -> str:
     field of its work but the band budget and the header."""
     return params_digest({f.name: getattr(work, f.name) for f in fields(work)
                           if f.name not in ("max_memory", "header")})
+
+
+def made_with(output, digest) -> bool:
+    """The output's header records the settings' digest ``digest`` (``work_digest``)."""
+    spec = image_header(output)
+    return spec is not None and spec.getattribute("bdipole:params_digest") == digest
 
 
 def newer_than_inputs(output, inputs):
@@ -213,8 +219,7 @@ def batch_jobs(files, work, output, mfp, skip_existing):
         inputs = {"albedo": path} | ({"mfp": mfp_path} if mfp_path else {})
         jobs_list.append(Job("invert", path, out, inputs, work, tile.label if tile else None))
         skip.append(skip_existing and newer_than_inputs(out, [path, mfp_path])
-                    and header_attribute(out, "bdipole:params_digest")
-                    == work.header.get("params_digest"))
+                    and made_with(out, work.header["params_digest"]))
     return jobs_list, skip, results
 
 

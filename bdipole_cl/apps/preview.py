@@ -271,21 +271,27 @@ def check_picture_output(path, inputs=(), force=False):
                 force)
 
 
-def save_figure(fig, path, inputs=(), force=False):
-    """Save a figure (PNG or SVG by extension, marked as this tool's: PICTURE_MARK) through a
-    temporary file beside it, renamed; ``check_picture_output`` first."""
-    check_picture_output(path, inputs, force)
+def replaced(path, write):
+    """``write(tmp)`` to a temporary file beside ``path`` (its folder made), then renamed over
+    it: a picture or report is whole or not there, never half-written."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.stem}.partial-{os.getpid()}{path.suffix}")
-    fmt = path.suffix.lstrip(".").lower()
-    mark = {"Software": PICTURE_MARK} if fmt == "png" else {"Creator": PICTURE_MARK}
     try:
-        fig.savefig(tmp, dpi=fig.dpi, format=fmt, metadata=mark)
+        write(tmp)
         os.replace(tmp, path)
     finally:
         if tmp.exists():
             tmp.unlink()
+
+
+def save_figure(fig, path, inputs=(), force=False):
+    """Save a figure (PNG or SVG by extension, marked as this tool's: PICTURE_MARK) through a
+    temporary file beside it, renamed (``replaced``); ``check_picture_output`` first."""
+    check_picture_output(path, inputs, force)
+    fmt = Path(path).suffix.lstrip(".").lower()
+    mark = {"Software": PICTURE_MARK} if fmt == "png" else {"Creator": PICTURE_MARK}
+    replaced(path, lambda tmp: fig.savefig(tmp, dpi=fig.dpi, format=fmt, metadata=mark))
 
 
 def sheet_axes(fig, rows, cols, top, bottom):

@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import csv
 import io
-import os
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -31,6 +30,7 @@ from ..methods.choice import ChoiceData, DeviceKey, calibration_path, write_choi
 from ..methods.registry import BLUR_KERNELS, BlurChoice, InversionChoice, MethodConfig
 from ..ops.invert import InversionKernel
 from .benchmark import inversion_workload, reference_inverse, stiff_workload, time_inversion
+from .preview import replaced
 
 INVERSION_SWEEP = (
     [MethodConfig("memo", iterations=i) for i in (12, 24, 50)]
@@ -159,19 +159,6 @@ def mark_pareto(points):
                            and (q.seconds < p.seconds or q.max_error < p.max_error)
                            for q in points)
     return points
-
-
-def replaced(path, write):
-    """``write(tmp)`` to a temporary file beside ``path``, then renamed over it: a report is
-    whole or not there, never half-written."""
-    path = Path(path)
-    tmp = path.with_name(f".{path.stem}.partial-{os.getpid()}{path.suffix}")
-    try:
-        write(tmp)
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
 
 
 def write_outputs(points, folder, device, workloads):

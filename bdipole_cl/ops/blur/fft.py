@@ -218,6 +218,13 @@ def padded_planes(e, channels, k, shape, dtype, border, sums=None):
     return planes, ranges
 
 
+def image_fft_dtype(truncated, tol, e_range, e_sum, texels, shape):
+    """``fft_dtype`` for an image channel of range (min E, max E) ``e_range`` and sum
+    ``e_sum`` over ``texels`` texels, transformed at FFT shape ``shape``."""
+    return fft_dtype(truncated, tol, peak_to_mean(e_range, e_sum / texels),
+                     peak(e_range) * shape[0] * shape[1])
+
+
 def peak(e_range) -> float:
     """max|E| of a channel of range (min E, max E)."""
     return max(abs(e_range[0]), abs(e_range[1]))
@@ -258,30 +265,29 @@ def constant_spectra(kernels, k, shape, dtype):
     return pairs
 
 
-def fft_blur_channels(e, channels, kernels, dtype, border, out, tol=None, ranges=None):
+def fft_blur_channels(e, channels, kernels, dtype, border, out, tols=None, ranges=None):
     """out[..., c] = channel c of the (H, W, C) image convolved with its constant kernel, for
     each c of ``channels`` (``kernels`` theirs), all in one batched FFT in ``dtype`` on all
     cores: the planes padded by the largest radius K at the fast even shape, one forward
     transform, the cached real kernel spectra multiplied in place, the inverse over the columns
     and then over the image's rows only; each result settled (``settled``) on its plane. With
-    ``tol``, a float32 blur of an image whose peak is too far above its mean for the float32
-    round-off (``fft_dtype``'s peak_to_mean) is done in float64 instead. ``ranges``: a list
-    that gets each channel's (min, max) irradiance. Returns ``out``, or ``ranges`` if given."""
+    ``tols`` (each channel's), a float32 blur of an image whose peak is too far above its mean
+    for the float32 round-off, or whose sums could overflow float32 (``image_fft_dtype``), is
+    done in float64 instead. ``ranges``: a list that gets each channel's (min, max)
+    irradiance. Returns ``out``."""
     import scipy.fft as sfft
     h, w = e.shape[:2]
     k = max(ck.radius for ck in kernels)
     shape = fft_shape((h, w), k)
-    sums = [] if tol is not None and dtype == np.float32 else None
+    sums = [] if tols is not None and dtype == np.float32 else None
     planes, e_ranges = padded_planes(e, channels, k, shape, dtype, border, sums)
     if ranges is not None:
         ranges[:] = e_ranges
     if sums is not None and any(
-            fft_dtype(ck.truncated, tol, peak_to_mean(r, total / (h * w)),
-                      peak(r) * shape[0] * shape[1]) != np.float32
-            for ck, r, total in zip(kernels, e_ranges, sums)):
+            image_fft_dtype(ck.truncated, t, r, total, h * w, shape) != np.float32
+            for ck, t, r, total in zip(kernels, tols, e_ranges, sums)):
         del planes
-        fft_blur_channels(e, channels, kernels, np.float64, border, out)
-        return out if ranges is None else ranges
+        return fft_blur_channels(e, channels, kernels, np.float64, border, out)
     ks = constant_spectra(kernels, k, shape, dtype)
     spec = sfft.rfft2(planes, axes=(1, 2), workers=-1, overwrite_x=True)
     check_stop()
@@ -297,7 +303,7 @@ def fft_blur_channels(e, channels, kernels, dtype, border, out, tol=None, ranges
             settled(plane, None, ck.rd, ulps, e_ranges[g])
             out[r0:r1, :, c] = plane
     in_row_blocks(settle_and_store, h)
-    return out if ranges is None else ranges
+    return out
 
 
 def times_spectrum(ks, spec, out):
@@ -332,8 +338,7 @@ def basis_blurs(e, c, plan, border, planes):
     shape = fft_shape((h, w), k)
     sums = []
     padded, (e_range,) = padded_planes(e, [c], k, shape, np.float32, border, sums)
-    dtype = fft_dtype(0.0, plan.truncation_tol, peak_to_mean(e_range, sums[0] / (h * w)),
-                      peak(e_range) * shape[0] * shape[1])
+    dtype = image_fft_dtype(0.0, plan.truncation_tol, e_range, sums[0], h * w, shape)
     source = padded if dtype == np.float32 else padded_planes(e, [c], k, shape, dtype,
                                                               border)[0]
     kspec = cached_spectra(plan, shape, dtype)

@@ -113,6 +113,11 @@ class ChannelPlan:
     auto: AutoPick | None = None
     tol: float | None = None           # the error bound asked for (None: the kernel's tol)
 
+    @property
+    def asked_tol(self) -> float:
+        """The error bound asked for: ``tol``, else the kernel's truncation tol."""
+        return self.tol if self.tol is not None else self.kernel.tol
+
 
 def constant_row_bytes(width: int, nchan: int) -> int:
     """Working set per image row of a constant-parameter blur: input, output, a temporary and
@@ -195,7 +200,7 @@ def blur_whole(e, params, plans, border, exact, kernels):
         ck = plan.kernel
         if plan.method in ("direct", "gaussians") and device is None:
             device = DeviceBlur(e, kernels)
-        tol = plan.tol if plan.tol is not None else ck.tol
+        tol = plan.asked_tol
         if plan.method == "direct":
             device.run_direct(c, ck)
             bound = ck.tol
@@ -220,19 +225,18 @@ def blur_whole(e, params, plans, border, exact, kernels):
                 stacklevel=4)
         info.append(ChannelInfo(c, plan.method, ck.radius, bound, rd=ck.rd, auto=plan.auto))
     out = device.result() if device is not None else np.empty_like(e)
-    low = {}                           # channel: its irradiance's (min, max)
+    ranges = {}                        # channel: its irradiance's (min, max)
     if fft_dtypes:                     # one batched transform, settled there
-        ranges = fft_blur_channels(e, list(fft_dtypes), [plans[c].kernel for c in fft_dtypes],
-                                   np.result_type(*fft_dtypes.values()), border, out, tol,
-                                   ranges=[])
-        low = dict(zip(fft_dtypes, ranges))
-    for c, plan in enumerate(plans):
-        lowest, highest = low[c] if c in low else (float(e[..., c].min()),
-                                                   float(e[..., c].max()))
-        if lowest < 0 < highest:
-            tol = plan.tol if plan.tol is not None else plan.kernel.tol
-            info[c] = signed_irradiance_bound(info[c], plan.kernel.truncated, tol)
+        got = []
+        fft_blur_channels(e, list(fft_dtypes), [plans[c].kernel for c in fft_dtypes],
+                          np.result_type(*fft_dtypes.values()), border, out,
+                          tols=[plans[c].asked_tol for c in fft_dtypes], ranges=got)
+        ranges.update(zip(fft_dtypes, got))
     for c, plan in enumerate(plans):
         if c not in fft_dtypes:
-            settled(out[..., c], e[..., c], plan.kernel.rd)
+            ranges[c] = (float(e[..., c].min()), float(e[..., c].max()))
+            settled(out[..., c], e[..., c], plan.kernel.rd, e_range=ranges[c])
+        low, high = ranges[c]
+        if low < 0 < high:
+            info[c] = signed_irradiance_bound(info[c], plan.kernel.truncated, plan.asked_tol)
     return out, BlurInfo(tuple(info))

@@ -188,14 +188,13 @@ def _plan_invert(m, path, tile, force, device, problems_all, max_memory):
     except TextureError as exc:          # this job cannot run (unreadable, or a colour space
         return _cannot_run(job, str(exc), problems_all)   # the config cannot follow); others do
     try:                                 # what the bake would refuse, refused now
-        per_channel(m.eta, len(names), "eta", path)
+        etas = per_channel(m.eta, len(names), "eta", path)
         if not isinstance(m.mfp, str):
             per_channel(tuple(m.mfp), len(names), "mfp", path)
     except TextureError as exc:
         return _cannot_run(job, str(exc), problems_all)
     job.computes.append(f"colour: albedo {route.describe()}")
     job.left_out.append(_not_converted(m.mask))
-    etas = per_channel(m.eta, len(names), "eta", path)
     if len(set(etas)) == 1:
         etas = etas[:1]
     key = DeviceKey.of(get_runtime(device).device)

@@ -158,7 +158,8 @@ def svd_basis(targets, tol):
 def near_classes(near):
     """The near field's cell classes (a, b), near >= a >= b >= 0: class (a, b) is the cells
     (+-a, +-b) and (+-b, +-a) of the radially symmetric kernel, whose weights are equal. The
-    order is the gather's (kernels/blur_textured.cl ``near_sum``). near < 0: none."""
+    order is the gather's (kernels/blur_textured.cl ``gather_exitance``, ``class_sum``).
+    near < 0: none."""
     return tuple((a, b) for a in range(near + 1) for b in range(a + 1))
 
 
@@ -168,6 +169,12 @@ def class_quadrants(classes, radius):
     for q, (a, b) in zip(quads, classes):
         q[a, b] = q[b, a] = 1.0
     return quads
+
+
+def with_near_classes(quads, near, radius):
+    """The table's kernels, in its order: the blurred basis quadrants ``quads``, then the near
+    field's classes' (``class_quadrants``)."""
+    return np.concatenate([quads, class_quadrants(near_classes(near), radius)])
 
 
 #: near field radii tried per plan: the cells within ``near`` (Chebyshev) of the texel have
@@ -241,8 +248,7 @@ class TexturedPlan:
     def quadrants(self):
         """(G + classes, K+1, K+1): the blurred basis kernels' quadrants, then the near
         classes' (``class_quadrants``): the table's weights, in its order."""
-        return np.concatenate([self.blurred_quadrants(),
-                               class_quadrants(near_classes(self.near), self.radius)])
+        return with_near_classes(self.blurred_quadrants(), self.near, self.radius)
 
 
 def transformed(rd, ld):
@@ -264,10 +270,10 @@ class MapExtremes:
 def map_extremes(rd, ld) -> MapExtremes:
     """MapExtremes of float maps rd, ld, by whole-map reductions (a masked one only where some
     texel is unlit)."""
-    lo = rd.min()
-    if lo <= 0 and rd.max() > 0:
+    lo, hi = rd.min(), rd.max()
+    if lo <= 0 < hi:
         lo = np.min(rd, where=rd > 0, initial=np.inf)
-    return MapExtremes(float(lo), float(rd.max()), float(ld.min()), float(ld.max()))
+    return MapExtremes(float(lo), float(hi), float(ld.min()), float(ld.max()))
 
 
 def parameter_ranges(ext: MapExtremes):
@@ -354,7 +360,7 @@ def plan_for_ranges(rd_range, ld_range, eta, tol, exact=False, basis="svd", max_
     if basis == "svd":
         near, quads, coef = near_field_basis(targets, tol, radius)
         kernels = tuple(quads)
-        every = np.concatenate([quads, class_quadrants(near_classes(near), radius)])
+        every = with_near_classes(quads, near, radius)
         fit_error = float(max(np.abs(unfold_quadrant(np.tensordot(c, every, 1) - t)).sum()
                               for c, t in zip(coef, targets)))
     else:

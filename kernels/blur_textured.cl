@@ -5,12 +5,23 @@
 // coordinates (cu, cv) (logit Rd and ln ld, ``fine_coords`` below). An axis on which the texture is
 // constant has one node.
 //
-// The FFT path's gather adds a near field: the cells within BD_NEAR (Chebyshev) of the texel, in
-// classes of equal weight (textured_plan.near_classes), each class's weight interpolated from
-// the table like the basis weights (after them) and applied to the irradiance there.
+// The FFT path's gather adds a near field: the cells within BD_NEAR (Chebyshev) of the texel. Its
+// kernels are BD_NEAR_RANK fixed kernels of the near cells (near_field.near_field_basis: values per
+// class of symmetric cells, near_field.near_classes), each convolved here with the irradiance
+// (the class sums, shared by all of them) and weighted per texel from the table like the FFT
+// basis kernels (after them).
+//
+// Every work-item takes BD_WIDTH (1, 4, 8 or 16) neighbouring texels of one row in explicit
+// vectors: CPU runtimes compile them to SIMD directly (PoCL leaves a scalar kernel scalar, and
+// its scalar log and loads cost ~10x Intel's vectorized ones here); the table's entries are
+// gathered per lane. Rows hold at least BD_WIDTH texels (the host builds a narrower kernel for
+// a narrower image), and the last work-item of a row takes the row's last BD_WIDTH texels
+// (``first_texel``), overlapping the one before: every load is a whole vector, and the texels
+// computed twice are written twice with the same value.
 //
 // Specialized by -DBD_NBASIS=G (blurred basis kernels), -DBD_NEAR (near field radius, -1: none),
-// -DBD_NU_TAPS, -DBD_NV_TAPS (2, or 1 for a constant axis), so the loops unroll.
+// -DBD_NEAR_RANK (near kernels), -DBD_NU_TAPS, -DBD_NV_TAPS (2, or 1 for a constant axis),
+// -DBD_WIDTH, so the loops unroll.
 
 #ifndef BD_NBASIS
 #error "build with -DBD_NBASIS=<basis size>"
@@ -24,39 +35,97 @@
 #ifndef BD_NEAR
 #define BD_NEAR (-1)
 #endif
-// weights per table node: the basis kernels', then the near classes' ((n + 1)(n + 2) / 2)
-#define BD_NWEIGHTS (BD_NBASIS + (BD_NEAR + 1) * (BD_NEAR + 2) / 2)
+#ifndef BD_NEAR_RANK
+#define BD_NEAR_RANK 0
+#endif
+#ifndef BD_WIDTH
+#define BD_WIDTH 8
+#endif
+// near classes (near_field.near_classes) and weights per table node: the basis kernels', then
+// the near kernels'
+#define BD_NCLASSES ((BD_NEAR + 1) * (BD_NEAR + 2) / 2)
+#define BD_NWEIGHTS (BD_NBASIS + BD_NEAR_RANK)
 
 // offset (floats) of the second node along v: 0 on a constant axis, whose second "node" is
 // the first with weight 0 (so every read stays in the table)
 #define DV ((BD_NV_TAPS == 2) ? BD_NWEIGHTS : 0)
 
-// a texel's bilinear taps: the offset of its first node (iu, iv) in the table, the offset du
+// {{{ lane types: vec (float lanes), ivec (int lanes), VLOAD/VSTORE, FOR_LANES
+
+#if BD_WIDTH == 1
+typedef float vec;
+typedef int ivec;
+#define VLOAD(i, p) ((p)[i])
+#define VSTORE(v, i, p) ((p)[i] = (v))
+#define TO_INT(v) ((int)(v))
+#define FOR_LANES(M) M(, 0)
+#else
+#define BD_CAT_(a, b) a##b
+#define BD_CAT(a, b) BD_CAT_(a, b)
+typedef BD_CAT(float, BD_WIDTH) vec;
+typedef BD_CAT(int, BD_WIDTH) ivec;
+#define VLOAD(i, p) BD_CAT(vload, BD_WIDTH)(i, p)
+#define VSTORE(v, i, p) BD_CAT(vstore, BD_WIDTH)(v, i, p)
+#define TO_INT(v) BD_CAT(convert_int, BD_WIDTH)(v)
+#endif
+#if BD_WIDTH == 4
+#define FOR_LANES(M) M(.s0, 0) M(.s1, 1) M(.s2, 2) M(.s3, 3)
+#elif BD_WIDTH == 8
+#define FOR_LANES(M) M(.s0, 0) M(.s1, 1) M(.s2, 2) M(.s3, 3) M(.s4, 4) M(.s5, 5) M(.s6, 6) \
+    M(.s7, 7)
+#elif BD_WIDTH == 16
+#define FOR_LANES(M) M(.s0, 0) M(.s1, 1) M(.s2, 2) M(.s3, 3) M(.s4, 4) M(.s5, 5) M(.s6, 6) \
+    M(.s7, 7) M(.s8, 8) M(.s9, 9) M(.sa, 10) M(.sb, 11) M(.sc, 12) M(.sd, 13) M(.se, 14) M(.sf, 15)
+#elif BD_WIDTH != 1
+#error "BD_WIDTH must be 1, 4, 8 or 16"
+#endif
+
+// lanes of p[idx + j], per lane (a gather)
+inline vec gather(__global const float *p, const ivec idx, const int j)
+{
+    vec v;
+#define BD_GATHER_LANE(s, i) v s = p[idx s + j];
+    FOR_LANES(BD_GATHER_LANE)
+#undef BD_GATHER_LANE
+    return v;
+}
+
+// the first of work-item g's BD_WIDTH texels in a row of n >= BD_WIDTH: the last work-item
+// takes the row's last BD_WIDTH
+inline int first_texel(const int g, const int n)
+{
+    return min(g * BD_WIDTH, n - BD_WIDTH);
+}
+
+// }}}
+
+// a texel's bilinear taps: the offsets of its first node (iu, iv) in the table, the offset du
 // of the second node along u (0 on a constant axis, as DV), and the tap weights of nodes
 // (iu, iv), (iu, iv + 1), (iu + 1, iv), (iu + 1, iv + 1)
 typedef struct {
-    int node, du;
-    float t00, t01, t10, t11;
+    ivec node;
+    int du;
+    vec t00, t01, t10, t11;
 } taps_t;
 
 // node index and fraction of one axis at fine-table coordinate coord (0, 0 on a constant axis)
-inline int axis_base(const float coord, const int nodes, const int ntaps, float *frac)
+inline ivec axis_base(const vec coord, const int nodes, const int ntaps, vec *frac)
 {
     if (ntaps == 1) {
-        *frac = 0.0f;
-        return 0;
+        *frac = (vec)0.0f;
+        return (ivec)0;
     }
-    const int base = clamp((int)floor(coord), 0, nodes - 2);
-    *frac = coord - (float)base;
-    return base;
+    const vec base = clamp(floor(coord), 0.0f, (float)(nodes - 2));
+    *frac = coord - base;
+    return TO_INT(base);
 }
 
-// the taps at fine-table coordinates c = (cu, cv) (``fine_coords``)
-inline taps_t texel_taps(const float2 c, const int nu, const int nv)
+// the taps at fine-table coordinates (cu, cv) (``fine_coords``)
+inline taps_t texel_taps(const vec cu, const vec cv, const int nu, const int nv)
 {
-    float fu, fv;
-    const int iu = axis_base(c.x, nu, BD_NU_TAPS, &fu);
-    const int iv = axis_base(c.y, nv, BD_NV_TAPS, &fv);
+    vec fu, fv;
+    const ivec iu = axis_base(cu, nu, BD_NU_TAPS, &fu);
+    const ivec iv = axis_base(cv, nv, BD_NV_TAPS, &fv);
     taps_t r;
     r.node = (iu * nv + iv) * BD_NWEIGHTS;
     r.du = (BD_NU_TAPS == 2) ? nv * BD_NWEIGHTS : 0;
@@ -71,98 +140,118 @@ inline taps_t texel_taps(const float2 c, const int nu, const int nv)
 // the host's float32 version, which the tests compare): cu = logit(Rd clamped to [rd_lo, rd_hi])
 // * su - ou, cv = ln(ld) * sv - ov; on a constant axis its scale and offset are 0 (the clamp
 // keeps logit finite and ld > 0 is checked, so the coordinate is then 0)
-inline float2 fine_coords(const float rd, const float ld, const float rd_lo, const float rd_hi,
-                          const float su, const float ou, const float sv, const float ov)
+inline taps_t fine_taps(const vec rd, const vec ld, const int nu, const int nv,
+                        const float rd_lo, const float rd_hi, const float su, const float ou,
+                        const float sv, const float ov)
 {
-    const float p = clamp(rd, rd_lo, rd_hi);
-    return (float2)(log(p / (1.0f - p)) * su - ou, log(ld) * sv - ov);
+    const vec p = clamp(rd, rd_lo, rd_hi);
+    return texel_taps(log(p / (1.0f - p)) * su - ou, log(ld) * sv - ov, nu, nv);
 }
 
 // the coordinate arguments every kernel below takes after its own
-#define BD_COORD_ARGS const float rd_lo, const float rd_hi, const float su, const float ou, \
-    const float sv, const float ov
-#define BD_TEXEL_TAPS(p) \
-    texel_taps(fine_coords(rd[p], ld[p], rd_lo, rd_hi, su, ou, sv, ov), nu, nv)
+#define BD_COORD_ARGS const int nu, const int nv, const float rd_lo, const float rd_hi, \
+    const float su, const float ou, const float sv, const float ov
+#define BD_COORDS nu, nv, rd_lo, rd_hi, su, ou, sv, ov
 
-// weight w_j of basis kernel j (without the Rd factor) from the texel's taps (scalar code, no
-// per-texel arrays: PoCL keeps it in registers)
-inline float texel_weight(__global const float *table, const taps_t tp, const int j)
+// weight w_j of basis kernel j (without the Rd factor) from the texels' taps
+inline vec texel_weight(__global const float *table, const taps_t tp, const int j)
 {
-    __global const float *n = table + tp.node + j;
-    return tp.t00 * n[0] + tp.t01 * n[DV] + tp.t10 * n[tp.du] + tp.t11 * n[tp.du + DV];
+    return tp.t00 * gather(table, tp.node, j) + tp.t01 * gather(table, tp.node, j + DV)
+        + tp.t10 * gather(table, tp.node, j + tp.du)
+        + tp.t11 * gather(table, tp.node, j + tp.du + DV);
 }
 
 // the weight planes: w[j * npix + p] = rd[p] * w_j(p), every weight of the table (the
-// separable-Gaussian path's, which has no near field; the tests read the others)
+// separable-Gaussian path's, which has no near field; the tests read the others), for the
+// texels p = g * BD_WIDTH + lane < npix
 __kernel void lattice_weights(__global const float *rd, __global const float *ld,
                               __global const float *table, __global float *w, const int npix,
-                              const int nu, const int nv, BD_COORD_ARGS)
+                              BD_COORD_ARGS)
 {
-    const int p = get_global_id(0);
-    if (p >= npix) return;
-    const taps_t tp = BD_TEXEL_TAPS(p);
-    const float scale = rd[p];
+    const int first = first_texel(get_global_id(0), npix);
+    const vec r = VLOAD(0, rd + first);
+    const taps_t tp = fine_taps(r, VLOAD(0, ld + first), BD_COORDS);
     for (int j = 0; j < BD_NWEIGHTS; ++j)
-        w[(size_t)j * npix + p] = scale * texel_weight(table, tp, j);
+        VSTORE(r * texel_weight(table, tp, j), 0, w + (size_t)j * npix + first);
 }
 
 // a gathered exitance m with the round-off of a zero result removed (fft.settled, the host's
 // rule, which the tests compare): |m| below floor = rd * scale is 0, and so is every m < 0 where
 // the irradiance is non-negative (nonneg)
-inline float settle(const float m, const float rd, const float scale, const int nonneg)
+inline vec settle(const vec m, const vec rd, const float scale, const int nonneg)
 {
-    const float floor = rd * scale;
+    const vec floor = rd * scale;
+#if BD_WIDTH == 1
     return (nonneg ? m < floor : fabs(m) < floor) ? 0.0f : m;
+#else
+    return select(m, (vec)0.0f, nonneg ? m < floor : fabs(m) < floor);
+#endif
 }
 
 // the irradiance summed over the cells of near class (a, b) (cells (+-a, +-b), (+-b, +-a), each
-// once) around the texel at e, rows `pitch` floats apart
-inline float class_sum(__global const float *e, const int pitch, const int a, const int b)
+// once) around the texels at e (row ``row``'s column x), rows `pitch` floats apart
+inline vec class_sum(__global const float *e, const int pitch, const int a, const int b)
 {
-    float s = e[a * pitch + b];
-    if (a) s += e[-a * pitch + b];
+#define BD_CELL(dy, dx) VLOAD(0, e + (dy) * pitch + (dx))
+    vec s = BD_CELL(a, b);
+    if (a) s += BD_CELL(-a, b);
     if (b) {
-        s += e[a * pitch - b];
-        if (a) s += e[-a * pitch - b];
+        s += BD_CELL(a, -b);
+        if (a) s += BD_CELL(-a, -b);
     }
     if (a != b) {
-        s += e[b * pitch + a];
-        if (b) s += e[-b * pitch + a];
+        s += BD_CELL(b, a);
+        if (b) s += BD_CELL(-b, a);
         if (a) {
-            s += e[b * pitch - a];
-            if (b) s += e[-b * pitch - a];
+            s += BD_CELL(b, -a);
+            if (b) s += BD_CELL(-b, -a);
         }
     }
+#undef BD_CELL
     return s;
 }
 
-// the exitance of channel c at texel (x, y) of a w x h image (the FFT path), gathered from
-// the basis blurs and the near field, and settled: out[(y * w + x) * nch + c] = rd * (sum_j w_j *
-// planes[j][y][x0 + x] + sum_classes w_class * class_sum), the planes `plane` floats apart with
-// rows `pitch` floats apart; e: the channel's irradiance, padded by x0 texels on every side by the
-// border rule, rows `epitch` floats apart
+// the exitance of channel c at the texels (x, y) .. (x + BD_WIDTH - 1, y) of a w x h image (the
+// FFT path), gathered from the basis blurs and the near field, and settled: out[(y * w + x) *
+// nch + c] = rd * (sum_j w_j * planes[j][y][x0 + x] + sum_m w_m * (near_m * E)), the planes
+// `plane` floats apart with rows `pitch` floats apart; e: the channel's irradiance, padded by x0
+// texels on every side by the border rule, rows `epitch` floats apart; near_basis: the near
+// kernels' values per class (BD_NEAR_RANK x BD_NCLASSES, near_field.near_field_basis)
 __kernel void gather_exitance(__global const float *rd, __global const float *ld,
                               __global const float *table, __global const float *planes,
-                              __global const float *e, __global float *out, const int w,
-                              const int h, const int pitch, const int plane, const int epitch,
-                              const int x0, const int nch, const int c,
-                              const float scale, const int nonneg,
-                              const int nu, const int nv, BD_COORD_ARGS)
+                              __global const float *e, __constant const float *near_basis,
+                              __global float *out, const int w, const int h, const int pitch,
+                              const int plane, const int epitch, const int x0, const int nch,
+                              const int c, const float scale, const int nonneg, BD_COORD_ARGS)
 {
-    const int x = get_global_id(0), y = get_global_id(1);
-    if (x >= w || y >= h) return;
+    const int x = first_texel(get_global_id(0), w), y = get_global_id(1);
     const size_t p = (size_t)y * w + x;
-    const taps_t tp = BD_TEXEL_TAPS(p);
+    const vec r = VLOAD(0, rd + p);
+    const taps_t tp = fine_taps(r, VLOAD(0, ld + p), BD_COORDS);
     __global const float *blurred = planes + (size_t)y * pitch + x0 + x;
-    float sum = 0.0f;
+    vec sum = (vec)0.0f;
     for (int j = 0; j < BD_NBASIS; ++j)
-        sum += texel_weight(table, tp, j) * blurred[(size_t)j * plane];
-#if BD_NEAR >= 0
+        sum += texel_weight(table, tp, j) * VLOAD(0, blurred + (size_t)j * plane);
+#if BD_NEAR >= 0 && BD_NEAR_RANK > 0
+    // the near kernels convolved with the irradiance: class sums, shared, times each kernel's
+    // value on the class
     __global const float *here = e + (size_t)(y + x0) * epitch + x0 + x;
-    int j = BD_NBASIS;
+    vec near[BD_NEAR_RANK];
+    for (int m = 0; m < BD_NEAR_RANK; ++m)
+        near[m] = (vec)0.0f;
+    int k = 0;
     for (int a = 0; a <= BD_NEAR; ++a)
-        for (int b = 0; b <= a; ++b, ++j)
-            sum += texel_weight(table, tp, j) * class_sum(here, epitch, a, b);
+        for (int b = 0; b <= a; ++b, ++k) {
+            const vec s = class_sum(here, epitch, a, b);
+            for (int m = 0; m < BD_NEAR_RANK; ++m)
+                near[m] += near_basis[m * BD_NCLASSES + k] * s;
+        }
+    for (int m = 0; m < BD_NEAR_RANK; ++m)
+        sum += texel_weight(table, tp, BD_NBASIS + m) * near[m];
 #endif
-    out[p * nch + c] = settle(rd[p] * sum, rd[p], scale, nonneg);
+    const vec v = settle(r * sum, r, scale, nonneg);
+    __global float *o = out + p * nch + c;
+#define BD_STORE_LANE(s, i) o[(i) * nch] = v s;
+    FOR_LANES(BD_STORE_LANE)
+#undef BD_STORE_LANE
 }

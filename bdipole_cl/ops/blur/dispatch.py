@@ -7,8 +7,10 @@ import numpy as np
 import pyopencl as cl
 
 from ...device import build_options, get_program
+from ...device.runtime import device_kind
 from ...signals import check_stop
 from .fit import gaussian_1d
+from .near_field import DEFAULT_GATHER_COSTS, GatherCosts
 from .textured_plan import RD_MAX, RD_MIN, fine_axis_map
 
 #: work-group side of blur_direct.cl (its local-memory tiles are BD_TILE x BD_TILE outputs)
@@ -127,13 +129,47 @@ def read_back(rt, buf, array):
     rt.queue.finish()
 
 
-def lattice_args(plan):
-    """Program options and the lattice arguments of kernels/blur_textured.cl for a plan: the
-    fine table's size, then its coordinates' (``fine_coords``: the Rd clamp, and per axis the
-    scale and offset of ``textured_plan.texel_coords``)."""
+#: texels per work-item of kernels/blur_textured.cl by OpenCL platform (a case-insensitive part
+#: of its name), and its costs (``near_field.GatherCosts``), measured at 2048^2 on the 2-core
+#: AVX-512 CPU (tools/bench_blur.py --gather): Intel's runtime vectorizes the one-texel kernel
+#: across work-items itself (8 lanes a work-item: 2x slower there); PoCL leaves a one-texel
+#: kernel scalar (its logs and taps ~5x slower than in explicit vectors), 16 lanes its best.
+#: Devices not listed (GPUs) get one texel per work-item and the default costs
+GATHER_WIDTHS = {"intel(r) opencl": 1, "portable computing language": 16}
+GATHER_COSTS = {"intel(r) opencl": DEFAULT_GATHER_COSTS,
+                "portable computing language": GatherCosts(cell=0.017, term=0.007, weight=0.33)}
+
+
+def _platform_entry(rt, table, default):
+    if device_kind(rt.device) != "cpu":
+        return default
+    platform = rt.device.platform.name.strip().lower()
+    return next((v for name, v in table.items() if name in platform), default)
+
+
+def gather_width(rt, n) -> int:
+    """Texels per work-item of kernels/blur_textured.cl on ``rt``'s device for rows of n
+    texels (a work-item's texels lie in one row: 1 for rows narrower than the width)."""
+    width = _platform_entry(rt, GATHER_WIDTHS, 1)
+    return width if n >= width else 1
+
+
+def gather_costs(rt) -> GatherCosts:
+    """The gather's costs on ``rt``'s device (``GATHER_COSTS``): what chooses its near
+    field."""
+    return _platform_entry(rt, GATHER_COSTS, DEFAULT_GATHER_COSTS)
+
+
+def lattice_args(plan, width):
+    """Program options and the lattice arguments of kernels/blur_textured.cl for a plan, at
+    ``width`` texels per work-item: the fine table's size, then its coordinates'
+    (``fine_coords``: the Rd clamp, and per axis the scale and offset of
+    ``textured_plan.texel_coords``)."""
     nu, nv, _ = plan.fine.shape
     opts = build_options({"BD_NBASIS": len(plan.kernels), "BD_NEAR": plan.near,
-                          "BD_NU_TAPS": 1 if nu == 1 else 2, "BD_NV_TAPS": 1 if nv == 1 else 2})
+                          "BD_NEAR_RANK": len(plan.near_basis),
+                          "BD_NU_TAPS": 1 if nu == 1 else 2, "BD_NV_TAPS": 1 if nv == 1 else 2,
+                          "BD_WIDTH": width})
     coords = [np.float32(v) for v in (RD_MIN, RD_MAX, *fine_axis_map(plan.axes[0]),
                                       *fine_axis_map(plan.axes[1]))]
     return opts, (np.int32(nu), np.int32(nv), *coords)
@@ -152,29 +188,32 @@ def device_weight_planes(plan, rd, ld, rt):
     buffer the separable column pass reads: kernels/blur_textured.cl, blur_separable.cl)."""
     h, w = rd.shape
     mf = cl.mem_flags
-    opts, axis_args = lattice_args(plan)
+    width = gather_width(rt, h * w)
+    opts, axis_args = lattice_args(plan, width)
     bufs = [host_buffer(rt, a, mf.READ_ONLY) for a in (rd, ld, plan.fine)]
     planes = cl.Buffer(rt.context, mf.READ_WRITE, max(plan.fine.shape[2] * h * w * 4, 4))
     cl.Kernel(get_program(rt, "blur_textured", opts), "lattice_weights")(
-        rt.queue, (h * w,), None, *bufs, planes, np.int32(h * w), *axis_args)
+        rt.queue, (-(-h * w // width),), None, *bufs, planes, np.int32(h * w), *axis_args)
     rt.queue.finish()                  # the host arrays under ``bufs`` are then free to go
     return planes
 
 
 def gather_exitance(out, c, plan, rd, ld, planes, padded, x0, rt, settle=(0.0, True)):
-    """out[..., c] = Rd(x) (sum_j w_j(x) planes[j, y, x0 + x] + the near field's classes'
-    weights times the irradiance there, from ``padded``: the channel padded by x0 texels by
-    the border rule), on ``rt``'s device, settled by ``settle`` = (scale, non-negative)
-    (``fft.settle_floor``; the default settles nothing but the negative round-off of a
-    non-negative irradiance)."""
+    """out[..., c] = Rd(x) (sum_j w_j(x) planes[j, y, x0 + x] + the near kernels' weights
+    times their convolution with the irradiance there, from ``padded``: the channel padded by
+    x0 texels by the border rule), on ``rt``'s device, settled by ``settle`` = (scale,
+    non-negative) (``fft.settle_floor``; the default settles nothing but the negative
+    round-off of a non-negative irradiance)."""
     h, w, nch = out.shape
     mf = cl.mem_flags
-    opts, axis_args = lattice_args(plan)
-    bufs = [host_buffer(rt, a, mf.READ_ONLY) for a in (rd, ld, plan.fine, planes, padded)]
+    width = gather_width(rt, w)
+    opts, axis_args = lattice_args(plan, width)
+    bufs = [host_buffer(rt, a if a.size else np.zeros(1, np.float32), mf.READ_ONLY)
+            for a in (rd, ld, plan.fine, planes, padded, plan.near_basis)]   # none: 1 float
     dst = host_buffer(rt, out, mf.READ_WRITE)
     scale, nonneg = settle
     cl.Kernel(get_program(rt, "blur_textured", opts), "gather_exitance")(
-        rt.queue, (w, h), None, *bufs, dst, np.int32(w), np.int32(h),
+        rt.queue, (-(-w // width), h), None, *bufs, dst, np.int32(w), np.int32(h),
         np.int32(planes.shape[2]), np.int32(planes.shape[1] * planes.shape[2]),
         np.int32(padded.shape[1]), np.int32(x0), np.int32(nch), np.int32(c),
         np.float32(scale), np.int32(bool(nonneg)), *axis_args)

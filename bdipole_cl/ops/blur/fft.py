@@ -17,6 +17,7 @@ from functools import lru_cache
 import numpy as np
 
 from ...caches import ByteCache
+from ...device.transfer import aligned_empty
 from ...signals import check_stop
 
 
@@ -191,11 +192,18 @@ def padded_planes(e, channels, k, shape, dtype, border, sums=None):
     and each channel's (min, max), for ``settled``. ``sums``: a list that gets each channel's
     sum (float64), from the same pass."""
     h, w = e.shape[:2]
-    planes = np.zeros((len(channels), *shape), dtype)
+    # on the device-alignment boundary, so that the texture-varying gather reads the padded
+    # channel in place (an unaligned host pointer is copied whole: ``device.transfer``)
+    planes = aligned_empty(len(channels) * shape[0] * shape[1], dtype).reshape(
+        (len(channels), *shape))
+    planes[:, :k] = 0
+    planes[:, k + h:] = 0
 
     def fill(r0, r1):
         rng = []
         for g, c in enumerate(channels):
+            planes[g, k + r0:k + r1, :k] = 0
+            planes[g, k + r0:k + r1, k + w:] = 0
             block = planes[g, k + r0:k + r1, k:k + w]
             block[...] = e[r0:r1, :, c]
             rng.append((block.min(), block.max(), block.sum(dtype=np.float64) if sums
@@ -339,6 +347,8 @@ def basis_blurs(e, c, plan, border, planes):
     sums = []
     padded, (e_range,) = padded_planes(e, [c], k, shape, np.float32, border, sums)
     dtype = image_fft_dtype(0.0, plan.truncation_tol, e_range, sums[0], h * w, shape)
+    if not len(plan.kernels):          # the near field holds the whole kernel
+        return padded[0], e_range, dtype
     source = padded if dtype == np.float32 else padded_planes(e, [c], k, shape, dtype,
                                                               border)[0]
     kspec = cached_spectra(plan, shape, dtype)

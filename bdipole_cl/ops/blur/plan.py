@@ -18,7 +18,7 @@ from ...device import Runtime, get_runtime
 from ...errors import check_policy
 from ...methods.registry import BLUR_METHOD, BORDER
 from ..bands import band_rows, bands, gather_rows
-from .dispatch import BlurKernels
+from .dispatch import BlurKernels, gather_costs
 from .params import checked_irradiance
 from .planning import (BlurInfo, blur_whole, channel_plans, constant_row_bytes, halo_of,
                        signed_irradiance_bound, worse)
@@ -180,7 +180,7 @@ def plan_blur(shape, scattering: Scattering, *, tol=1e-3, method="auto", border=
     base = BlurPlan(scattering, shape, tol, method, border, exact, on_invalid, 0, runtime=rt)
     if scattering.textured:
         chans = textured_plans(shape, tol=tol, exact=exact, on_invalid=on_invalid,
-                               method=method, **scattering.keywords())
+                               method=method, costs=gather_costs(rt), **scattering.keywords())
         plan = replace(base, textured=tuple(chans), halo=max(ch.plan.radius for ch in chans),
                        textured_info=textured_info(chans, textured_method(method), exact))
     else:

@@ -16,6 +16,7 @@ from .fft import (FFT32_ROUNDOFF_ULPS, ROUNDOFF_ULPS, basis_blurs, fft_shape, se
                   settled)
 from .params import texel_parameters
 from .planning import BlurAccuracyWarning, BlurInfo, ChannelInfo
+from .near_field import DEFAULT_GATHER_COSTS
 from .textured_plan import (RD_MAX, RD_MIN, MapExtremes, TexturedPlan, map_extremes,
                             parameter_ranges, plan_for_ranges, shape_clamp_error)
 
@@ -40,11 +41,12 @@ class TexturedChannel(NamedTuple):
 
 
 def textured_plans(shape, *, tol, exact=False, eta=1.4, method="auto", on_invalid="raise",
-                   **physical):
+                   costs=DEFAULT_GATHER_COSTS, **physical):
     """Per channel a TexturedChannel (plan, Rd map, ld map, extremes) for an HxWxC image, for
     ``method`` (its basis: separable Gaussians for ``gaussians``, else eigen-kernels). Each
     channel has the plan of its own ranges (a union over channels would need more basis
-    kernels per channel; the kernels' spectra are cheap, so sharing them saves little)."""
+    kernels per channel; the kernels' spectra are cheap, so sharing them saves little), its
+    near field chosen for gather costs ``costs`` (the device's: ``dispatch.gather_costs``)."""
     basis = "gaussians" if textured_method(method) == "gaussians" else "svd"
     etas = np.broadcast_to(np.atleast_1d(np.asarray(eta, np.float64)), (shape[2],)) \
         if np.ndim(eta) <= 1 and np.size(eta) in (1, shape[2]) else None
@@ -57,7 +59,8 @@ def textured_plans(shape, *, tol, exact=False, eta=1.4, method="auto", on_invali
                                   on_invalid=on_invalid, **physical)
         ext = map_extremes(rd, ld)
         out.append(TexturedChannel(plan_for_ranges(*parameter_ranges(ext), float(etas[c]),
-                                                   float(tol), exact, basis), rd, ld, ext))
+                                                   float(tol), exact, basis, costs=costs),
+                                   rd, ld, ext))
     return out
 
 
@@ -110,7 +113,8 @@ def textured_info(plans, method, exact) -> BlurInfo:
     (tol + fit + interpolation: above tol by construction, reported, not warned of)."""
     return BlurInfo(tuple(
         ChannelInfo(c, f"{method} (texture-varying, {len(p.kernels)} {p.basis} basis kernels"
-                       + (f", near field {p.near}" if p.near >= 0 else "") + ")",
+                       + (f", near field {p.near} with {len(p.near_values)} kernels"
+                          if p.near >= 0 else "") + ")",
                     p.radius, p.error_bound + clamp_bound(c, p, ext, exact),
                     fit_error=p.fit_error, interp_error=p.interp_error,
                     nodes=int(np.prod(p.table.shape[:2])))

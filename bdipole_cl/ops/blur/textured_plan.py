@@ -32,16 +32,17 @@ non-finite are invalid (``params.checked_parameter``). eta is constant per chann
 from __future__ import annotations
 
 import itertools
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from ...caches import ByteCache
 from ...physics import reference as ref
 from ...signals import check_stop
+from .near_field import DEFAULT_GATHER_COSTS, GatherCosts, near_field_basis, with_near_classes
 from .fit import (BASIS_RATIO, MAX_BASIS, basis_columns, basis_count, basis_kernels,
                   basis_sigmas, fit_node)
-from .weights import (multiplicity, quadrant_sum, quadrant_weights, truncation_radius,
+from .weights import (quadrant_sum, quadrant_weights, truncation_radius,
                       unfold_quadrant)
 
 #: node kernels (each up to (K+1)^2 float64), plans (their tables and basis), per process
@@ -129,93 +130,6 @@ def node_radius(rd, ld, eta, tol, exact=False):
     return int(np.ceil(r_t - 0.5)) if r_t > 0.5 else 0
 
 
-def svd_basis(targets, tol):
-    """Eigen-kernels of the node kernels (SVD of the quadrants, weighted by cell multiplicity
-    so that it is the SVD of the whole kernels): the fewest whose reconstruction of every node
-    is within L1 error tol (or all of them). Returns (quadrants (G, K+1, K+1), node
-    coefficients (nodes, G), each row scaled so that its kernel sums to what its target
-    does)."""
-    shape = targets[0].shape
-    mult = multiplicity(shape[0] - 1).ravel()
-    sw = np.sqrt(mult)
-    a_mat = np.stack([t.ravel() * sw for t in targets], axis=1)        # cells x nodes
-    sums = (a_mat / sw[:, None]).T @ mult
-    u, _, _ = np.linalg.svd(a_mat, full_matrices=False)
-    for rank in range(1, u.shape[1] + 1):
-        check_stop()
-        phi = u[:, :rank] / sw[:, None]                                 # quadrant values
-        coef = (u[:, :rank].T @ a_mat).T                                # nodes x rank
-        recon = coef @ (phi.T @ mult)
-        # sums as the targets' (a far part that is all zero, a kernel within the near field,
-        # keeps coefficients 0, not 0 / 0)
-        coef *= np.divide(sums, recon, out=np.zeros_like(sums), where=recon != 0)[:, None]
-        err = np.abs(phi @ coef.T - a_mat / sw[:, None]).T @ mult
-        if err.max() <= tol:
-            break
-    return phi.T.reshape((rank,) + shape), coef
-
-
-def near_classes(near):
-    """The near field's cell classes (a, b), near >= a >= b >= 0: class (a, b) is the cells
-    (+-a, +-b) and (+-b, +-a) of the radially symmetric kernel, whose weights are equal. The
-    order is the gather's (kernels/blur_textured.cl ``gather_exitance``, ``class_sum``).
-    near < 0: none."""
-    return tuple((a, b) for a in range(near + 1) for b in range(a + 1))
-
-
-def class_quadrants(classes, radius):
-    """(n, K+1, K+1) quadrant of each near class's kernel: 1 on its cells."""
-    quads = np.zeros((len(classes), radius + 1, radius + 1))
-    for q, (a, b) in zip(quads, classes):
-        q[a, b] = q[b, a] = 1.0
-    return quads
-
-
-def with_near_classes(quads, near, radius):
-    """The table's kernels, in its order: the blurred basis quadrants ``quads``, then the near
-    field's classes' (``class_quadrants``)."""
-    return np.concatenate([quads, class_quadrants(near_classes(near), radius)])
-
-
-#: near field radii tried per plan: the cells within ``near`` (Chebyshev) of the texel have
-#: their exact node weights interpolated per texel and summed in the gather, so the FFT basis
-#: fits only the kernels beyond them, which the parameters change less (fewer basis kernels:
-#: at mfp 4 texels, 8 with no near field, 5 with near 2). -1: no near field.
-NEAR_RADII = (-1, 0, 1, 2, 3)
-#: the gather's cost of one near cell (a read and an add) and of one near class (its weight's
-#: 4 table taps and the class's sum), in units of one basis blur (an inverse FFT and its
-#: weight's taps, ~38 ms at 2048^2), per texel: measured on Intel's runtime on the 2-core AVX
-#: CPU (a cell ~1 ms, a class ~3.5 ms at 2048^2; PoCL's gather is slower, and there a near
-#: field about breaks even)
-NEAR_CELL_COST, NEAR_CLASS_COST = 0.025, 0.09
-
-
-def near_cost(near, nbasis):
-    """The blur's cost model in basis blurs per texel: nbasis inverse FFTs and the near
-    field's cells and classes."""
-    return nbasis + NEAR_CELL_COST * (2 * near + 1) ** 2 + NEAR_CLASS_COST * len(
-        near_classes(near))
-
-
-def near_field_basis(targets, tol, radius):
-    """(near, far quadrants (G, K+1, K+1), node coefficients (nodes, G + classes)) of the
-    cheapest near field of NEAR_RADII (``near_cost``): the far basis is ``svd_basis`` of the
-    node kernels with the near cells removed, fitted to their far mass (so every node still
-    sums to 1), and the near classes' coefficients are the nodes' exact weights there."""
-    best = None
-    for near in (r for r in NEAR_RADII if r <= radius):
-        classes = near_classes(near)
-        mask = class_quadrants(classes, radius).sum(axis=0) > 0
-        far = [np.where(mask, 0.0, t) for t in targets]
-        quads, coef = svd_basis(far, tol)
-        near_coef = np.array([[t[a, b] for a, b in classes] for t in targets]).reshape(
-            len(targets), len(classes))
-        cost = near_cost(near, len(quads))
-        if best is None or cost < best[0]:
-            best = (cost, near, quads, np.concatenate([coef, near_coef], axis=1))
-    return best[1:]
-
-
 @dataclass(frozen=True)
 class TexturedPlan:
     """One channel's shared basis, lattice and node weights."""
@@ -227,10 +141,14 @@ class TexturedPlan:
     table: np.ndarray        # (n_rd, n_ld, G) float32 node weights; node kernels sum to 1
     fine: np.ndarray         # (REFINE (n_rd - 1) + 1, ..., G) float32: the gather's table
     eta: float
-    fit_error: float         # max L1 error of the node kernels in the basis
+    fit_error: float         # max L1 error of the node kernels in the basis (svd: of the nodes
+    #                          within the texture's range; the others serve the cubic only)
     interp_error: float      # max L1 error at the check points (basis + interpolation)
     truncation_tol: float
     near: int = -1           # the near field's radius (``near_classes``; -1: none)
+    near_values: np.ndarray = field(default_factory=lambda: np.zeros((0, 0), np.float32))
+    #                          (M, classes) float32: the near kernels' values per near class
+    #                          (``near_field_basis``)
 
     @property
     def error_bound(self):
@@ -240,15 +158,23 @@ class TexturedPlan:
     def blurred_quadrants(self):
         """(G, K+1, K+1) quadrant of each basis kernel the image is blurred with (by FFT or
         the separable kernels)."""
-        if self.basis == "svd":
-            return np.asarray(self.kernels)
+        if self.basis == "svd":         # none where the near field holds the whole kernel
+            return np.asarray(self.kernels).reshape((-1, self.radius + 1, self.radius + 1))
         return basis_columns(self.kernels, self.radius).T.reshape(
             (-1, self.radius + 1, self.radius + 1))
 
+    @property
+    def near_basis(self):
+        """(M, classes) float32: the near kernels' values per near class (``near_classes``),
+        in the table's order after the blurred basis kernels (kernels/blur_textured.cl
+        ``gather_exitance``)."""
+        return np.ascontiguousarray(self.near_values, np.float32)
+
     def quadrants(self):
-        """(G + classes, K+1, K+1): the blurred basis kernels' quadrants, then the near
-        classes' (``class_quadrants``): the table's weights, in its order."""
-        return with_near_classes(self.blurred_quadrants(), self.near, self.radius)
+        """(G + M, K+1, K+1): the blurred basis kernels' quadrants, then the near kernels'
+        (``near_quadrants``): the table's weights, in its order."""
+        return with_near_classes(self.blurred_quadrants(), self.near_values, self.near,
+                                 self.radius)
 
 
 def transformed(rd, ld):
@@ -345,8 +271,10 @@ def common_radius(rd_range, ld_range, eta, tol, exact=False):
 
 
 @PLAN_CACHE.memoize
-def plan_for_ranges(rd_range, ld_range, eta, tol, exact=False, basis="svd", max_radius=2048):
-    """The TexturedPlan for logit(Rd) in rd_range and ln(ld texels) in ld_range."""
+def plan_for_ranges(rd_range, ld_range, eta, tol, exact=False, basis="svd", max_radius=2048,
+                    costs: GatherCosts = DEFAULT_GATHER_COSTS):
+    """The TexturedPlan for logit(Rd) in rd_range and ln(ld texels) in ld_range, its near
+    field chosen for a device of gather costs ``costs``."""
     steps = lattice_steps(tol)
     axes = (_axis(*rd_range, steps[0], lambda t: min(max(sigmoid(t), RD_MIN), RD_MAX)),
             _axis(*ld_range, steps[1], np.exp))
@@ -356,19 +284,29 @@ def plan_for_ranges(rd_range, ld_range, eta, tol, exact=False, basis="svd", max_
                          f"raise tol or the texel size")
     targets = [node_kernel(a, b, eta, radius, exact) for a in axes[0].values
                for b in axes[1].values]
-    near = -1
+    shape_axes = tuple(len(a.values) for a in axes)
+    checks = range_kernels(axes, rd_range, ld_range, eta, radius, exact)
     if basis == "svd":
-        near, quads, coef = near_field_basis(targets, tol, radius)
-        kernels = tuple(quads)
-        every = with_near_classes(quads, near, radius)
-        fit_error = float(max(np.abs(unfold_quadrant(np.tensordot(c, every, 1) - t)).sum()
-                              for c, t in zip(coef, targets)))
+        inside = [a and b for a in inside_range(axes[0], rd_range)
+                  for b in inside_range(axes[1], ld_range)]
+        train = [t for t, i in zip(targets, inside) if i] + [q for _, q in checks]
+
+        def measure(quads, values, near, coef):
+            table = coef.reshape(*shape_axes, -1).astype(np.float32)
+            return interp_error(fine_table(table), with_near_classes(quads, values, near, radius),
+                                axes, checks)
+        best = near_field_basis(targets, train, tol, radius, measure, costs)
+        near, kernels, near_values, coef = best.near, tuple(best.quads), best.near_values, best.coef
+        every = with_near_classes(best.quads, near_values, near, radius)
+        fit_error = max((float(np.abs(unfold_quadrant(np.tensordot(c, every, 1) - t)).sum())
+                         for c, t, i in zip(coef, targets, inside) if i), default=0.0)
     else:
+        near, near_values = -1, np.zeros((0, 0), np.float32)
         kernels, coef, fit_error = _gaussian_fits(targets, radius, tol)
-    table = coef.reshape(len(axes[0].values), len(axes[1].values), -1).astype(np.float32)
+    table = coef.reshape(*shape_axes, -1).astype(np.float32)
     plan = TexturedPlan(radius, basis, kernels, axes, table, fine_table(table), eta, fit_error,
-                       0.0, tol, near)
-    return _with_interp_error(plan, rd_range, ld_range, exact)
+                       0.0, tol, near, near_values)
+    return replace(plan, interp_error=interp_error(plan.fine, plan.quadrants(), axes, checks))
 
 
 def _gaussian_fits(targets, radius, tol):
@@ -383,6 +321,28 @@ def _gaussian_fits(targets, radius, tol):
         if fit_error <= tol or len(kernels) >= MAX_BASIS:
             return kernels, np.stack([c for c, _ in fits]), fit_error
         ratio = ratio ** (2.0 / 3.0)
+
+
+def inside_range(axis, t_range):
+    """Per node of ``axis``: True if it lies within the transformed range t_range = (lo, hi)
+    (texels have its kernel's parameters; the nodes beyond serve the cubic's stencil only)."""
+    lo, hi = t_range
+    if axis.step == 0:
+        return [True] * len(axis.values)
+    t = (np.arange(len(axis.values)) + axis.origin) * axis.step
+    slack = 1e-9 * max(1.0, abs(lo), abs(hi))
+    return list((t >= lo - slack) & (t <= hi + slack))
+
+
+def range_kernels(axes, rd_range, ld_range, eta, radius, exact=False):
+    """((t_rd, t_ld), exact kernel quadrant) at the check points of the range
+    (``_check_points``: its corners and the lattice cells' midpoints), where the
+    interpolation is measured; with the nodes inside the range, the kernels the SVD bases are
+    fitted to."""
+    return [((t_rd, t_ld), node_kernel(float(np.clip(sigmoid(t_rd), RD_MIN, RD_MAX)),
+                                       float(np.exp(t_ld)), eta, radius, exact))
+            for t_rd, t_ld in itertools.product(_check_points(*rd_range, axes[0].step),
+                                                _check_points(*ld_range, axes[1].step))]
 
 
 def _check_points(lo, hi, step):
@@ -401,21 +361,18 @@ def _fine_coords(axis, t):
     return axis.coords(t) * REFINE
 
 
-def _with_interp_error(plan, rd_range, ld_range, exact):
-    """Measure the gather's kernel (bilinear in the fine table) against the exact kernel at
-    check points of the parameter range (its corners and the lattice cells' midpoints)."""
-    quads = plan.quadrants()
+def interp_error(fine, quads, axes, checks):
+    """The largest L1 error of the gather's kernel (the fine table's ``fine`` weights, bilinear,
+    of the kernels ``quads``) against the exact kernels ``checks`` (``range_kernels``)."""
     worst = 0.0
-    for t_rd, t_ld in itertools.product(_check_points(*rd_range, plan.axes[0].step),
-                                        _check_points(*ld_range, plan.axes[1].step)):
+    for (t_rd, t_ld), exact_q in checks:
         check_stop()
-        w = interpolated_weights(plan, _fine_coords(plan.axes[0], t_rd),
-                                 _fine_coords(plan.axes[1], t_ld))
-        rd_shape = float(np.clip(sigmoid(t_rd), RD_MIN, RD_MAX))
-        exact_q = node_kernel(rd_shape, float(np.exp(t_ld)), plan.eta, plan.radius, exact)
+        w = _interpolate(fine.astype(np.float64),
+                         _linear_taps(fine.shape[0], _fine_coords(axes[0], t_rd)),
+                         _linear_taps(fine.shape[1], _fine_coords(axes[1], t_ld)))
         worst = max(worst, float(np.abs(unfold_quadrant(np.tensordot(w, quads, 1)
                                                         - exact_q)).sum()))
-    return TexturedPlan(**{**plan.__dict__, "interp_error": worst})
+    return worst
 
 
 def fine_axis_map(axis):

@@ -27,8 +27,15 @@ warm time to the constant default in the same run, the warm time with the spectr
 each call, and the max error at sampled texels against their own exact kernels (per-exit-texel
 reference).
 
+``--gather`` measures instead the texture-varying gather's costs on the device
+(``near_field.GatherCosts``, what chooses the near field): for each near field radius, the
+gather's time and the basis blurs' per kernel on the varying workload at mfp 4, and the
+least-squares costs per near cell, per near kernel and class, and per table weight, in units
+of one basis blur (``dispatch.GATHER_COSTS`` holds the figures for the runtimes measured).
+
     python tools/bench_blur.py
     python tools/bench_blur.py --size 1024 --mfp 1 4 --tol 1e-3
+    python tools/bench_blur.py --gather --device 1:0
 """
 import argparse
 import sys
@@ -101,12 +108,16 @@ def main(argv=None):
                     help="alternated runs of each goal's two sides (their median ratio)")
     ap.add_argument("--samples", type=int, default=48, help="texels checked per channel")
     ap.add_argument("--device", help="OpenCL device (as `bdipole-cl --device`); default: automatic")
+    ap.add_argument("--gather", action="store_true",
+                    help="measure the texture-varying gather's costs per near field radius")
     args = ap.parse_args(argv)
     if "auto" not in args.methods:
         ap.error("--methods: the ratios are to auto's time; include auto")
     if args.device:
         use_device(args.device)
     print(f"device: {get_runtime().describe()}")
+    if args.gather:
+        return gather_costs(args)
     rng = np.random.default_rng(0)
     e = rng.uniform(0.0, 1.0, (args.size, args.size, 3)).astype(np.float32)
     e[rng.uniform(size=e.shape[:2]) < 1e-3] = 50.0      # a few HDR highlights
@@ -228,6 +239,51 @@ def varying_rows(e, mfp, t_const, args):
         if m == "auto":
             t_auto = t
     return t_auto
+
+
+def gather_costs(args):
+    """The gather's time per near field radius on the varying workload at mfp 4 (channel 0),
+    the basis blurs' time per kernel, and the least-squares GatherCosts in basis blurs."""
+    from bdipole_cl.ops.blur import near_field
+    from bdipole_cl.ops.blur.dispatch import gather_exitance
+    from bdipole_cl.ops.blur.fft import basis_blurs, fft_shape
+    from bdipole_cl.ops.blur.textured import host_array, textured_plans
+    from bdipole_cl.ops.blur.textured_plan import PLAN_CACHE
+    n, rt = args.size, get_runtime()
+    e = np.random.default_rng(0).uniform(0.0, 1.0, (n, n, 3)).astype(np.float32)
+    albedo, mfps = varying_maps(n, 4.0)
+    out, rows, per_blur = host_array(e.shape), [], []
+    radii = near_field.NEAR_RADII
+    print(f"{'near':>4s} {'G':>3s} {'M':>3s} {'cells':>5s} {'terms':>5s} {'weights':>7s} "
+          f"{'gather ms':>9s} {'basis ms / kernel':>17s}")
+    try:
+        for near in radii:
+            near_field.NEAR_RADII = (near,)
+            PLAN_CACHE.clear()
+            plan, rd, ld, _ = textured_plans(e.shape, tol=args.tol, albedo=albedo, mfp=mfps,
+                                             eta=1.4)[0]
+            planes = host_array((len(plan.kernels), n, fft_shape((n, n), plan.radius)[1]))
+            t_basis, (padded, _, _) = timed(lambda: basis_blurs(e, 0, plan, "clamp", planes),
+                                            args.repeats)
+            t_gather, _ = timed(lambda: gather_exitance(out, 0, plan, rd, ld, planes, padded,
+                                                        plan.radius, rt), args.repeats + 2)
+            g, m = len(plan.kernels), len(plan.near_values)
+            cells, terms = near_field.near_cells(near), len(near_field.near_classes(near)) * m
+            rows.append((cells, terms, g + m, t_gather))
+            if g:
+                per_blur.append(t_basis / (g + 1))   # the forward transform and g inverses
+            print(f"{near:4d} {g:3d} {m:3d} {cells:5d} {terms:5d} {g + m:7d} "
+                  f"{t_gather * 1e3:9.1f} {t_basis / (g + 1) * 1e3 if g else 0:17.1f}")
+    finally:
+        near_field.NEAR_RADII = radii
+        PLAN_CACHE.clear()
+    a = np.array([[1.0, c, t, w] for c, t, w, _ in rows])
+    fit = np.linalg.lstsq(a, np.array([r[3] for r in rows]), rcond=None)[0]
+    unit = float(np.median(per_blur))
+    cell, term, weight = (max(v, 0.0) / unit for v in fit[1:])
+    print(f"a basis blur: {unit * 1e3:.1f} ms; GatherCosts(cell={cell:.2g}, term={term:.2g}, "
+          f"weight={weight:.2g}) (gather's fixed part {fit[0] * 1e3:.1f} ms)")
+    return 0
 
 
 if __name__ == "__main__":

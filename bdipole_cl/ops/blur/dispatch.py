@@ -137,7 +137,7 @@ def read_back(rt, buf, array):
 #: Devices not listed (GPUs) get one texel per work-item and the default costs
 GATHER_WIDTHS = {"intel(r) opencl": 1, "portable computing language": 16}
 GATHER_COSTS = {"intel(r) opencl": DEFAULT_GATHER_COSTS,
-                "portable computing language": GatherCosts(cell=0.017, term=0.007, weight=0.33)}
+                "portable computing language": GatherCosts(cell=0.005, term=0.018, weight=0.1)}
 
 
 def _platform_entry(rt, table, default):

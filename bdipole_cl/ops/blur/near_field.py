@@ -150,13 +150,18 @@ class GatherCosts:
 
 
 #: Intel's CPU runtime's, measured there (``dispatch.GATHER_COSTS``), for devices not measured
-DEFAULT_GATHER_COSTS = GatherCosts(cell=0.0035, term=0.0015, weight=0.13)
+DEFAULT_GATHER_COSTS = GatherCosts(cell=0.0073, term=0.0, weight=0.072)
+
+
+def near_cells(near) -> int:
+    """The cells of near field ``near`` (-1: none)."""
+    return (2 * near + 1) ** 2 if near >= 0 else 0
 
 
 def near_cost(near, nbasis, nnear, costs: GatherCosts):
     """The blur's cost model in basis blurs per texel: nbasis inverse FFTs, the near field's
     cells and class terms, and the table's weights."""
-    return (nbasis + costs.cell * (2 * near + 1) ** 2
+    return (nbasis + costs.cell * near_cells(near)
             + costs.term * len(near_classes(near)) * nnear + costs.weight * (nbasis + nnear))
 
 

@@ -132,7 +132,8 @@ def checked_parameter(value, shape, c, name, on_invalid="raise", dtype=None):
     v = texture_channel(value, shape, c, name)
     if dtype is not None:
         with np.errstate(over="ignore"):          # an overflow to inf is caught by the rule
-            v = v.astype(dtype)
+            # float32: the aligned map the kernels read (``float32_map``), in one copy
+            v = aligned_float32(v) if np.dtype(dtype) == np.float32 else v.astype(dtype)
     if within_rule(ok, v):
         return v
     bad = ~ok(v)
@@ -175,19 +176,35 @@ def rd_map(rd):
     return np.minimum(out, np.float32(BELOW_ONE_32), out=out)
 
 
+def source_channel(value, c) -> int:
+    """The channel of parameter ``value`` (as ``texture_channel`` takes it) that channel c
+    reads: 0 where it has one."""
+    v = np.asarray(value)
+    ones = v.size == 1 if v.ndim <= 1 else v.ndim == 2 or v.shape[2] == 1
+    return 0 if ones else c
+
+
 def texel_parameters(shape, c, *, albedo=None, mfp=None, eta=1.4, texel_size=1.0, alpha=None,
-                     sigma_t=None, exact=False, on_invalid="raise"):
+                     sigma_t=None, exact=False, on_invalid="raise", ld_maps=None):
     """(Rd, ld in texels) HxW float32 maps of channel c, from albedo + mfp or alpha' + sigma_t'
-    (the node coordinates, ``texel_coords``, are computed from these same float32 values)."""
+    (the node coordinates, ``texel_coords``, are computed from these same float32 values).
+    ``ld_maps``: a dict of the ld maps made so far by mfp channel, so that channels that read
+    one mfp channel share its map (made and checked once)."""
     if parameter_pair(albedo, mfp, alpha, sigma_t) == "alpha":
         a = checked_parameter(alpha, shape, c, "alpha", on_invalid).astype(np.float64)
         st = checked_parameter(sigma_t, shape, c, "sigma_t", on_invalid).astype(np.float64)
         ld = 1.0 / (st * texel_size * ref.mu_tr_over_sigma_t(1.0 - a))
         return rd_map(ref.rd(a, eta, exact)), float32_map(ld)
     rd = float32_map(checked_parameter(albedo, shape, c, "albedo", on_invalid, np.float32))
+    source = source_channel(mfp, c)
+    if ld_maps is not None and source in ld_maps:
+        return rd, ld_maps[source]
     if texel_size != 1.0:               # ld in texels, checked as the kernel sees it
         mfp = texture_channel(mfp, shape, c, "mfp") / texel_size
-    return rd, float32_map(checked_parameter(mfp, shape, c, "mfp", on_invalid, np.float32))
+    ld = float32_map(checked_parameter(mfp, shape, c, "mfp", on_invalid, np.float32))
+    if ld_maps is not None:
+        ld_maps[source] = ld
+    return rd, ld
 
 
 def checked_irradiance(irradiance, on_invalid="raise"):

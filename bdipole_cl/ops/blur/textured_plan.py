@@ -193,13 +193,14 @@ class MapExtremes:
     ld_max: float
 
 
-def map_extremes(rd, ld) -> MapExtremes:
+def map_extremes(rd, ld, ld_range=None) -> MapExtremes:
     """MapExtremes of float maps rd, ld, by whole-map reductions (a masked one only where some
-    texel is unlit)."""
+    texel is unlit); ``ld_range``: ld's (min, max), where known."""
     lo, hi = rd.min(), rd.max()
     if lo <= 0 < hi:
         lo = np.min(rd, where=rd > 0, initial=np.inf)
-    return MapExtremes(float(lo), float(hi), float(ld.min()), float(ld.max()))
+    ld_lo, ld_hi = ld_range if ld_range is not None else (ld.min(), ld.max())
+    return MapExtremes(float(lo), float(hi), float(ld_lo), float(ld_hi))
 
 
 def parameter_ranges(ext: MapExtremes):

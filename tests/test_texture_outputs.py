@@ -205,3 +205,54 @@ def test_what_a_killed_texture_write_leaves_is_recognised_as_partial(tmp_path):
     assert partial_files(target) == sorted(left)
     assert remove_partial_files(target) == 3
     assert os.listdir(tmp_path) == ["skin.1002.exr"]
+
+
+def test_a_texture_without_the_space_for_it_fails_its_file_and_leaves_nothing(
+        tmp_path, capsys, monkeypatch):
+    """OpenImageIO's texture build can hang on a full disk (seen with 3.2 on a full tmpfs):
+    the space it may need is checked first, and the file fails, named, with nothing left."""
+    from collections import namedtuple
+    from bdipole_cl.io import mipmaps
+    usage = namedtuple("usage", "total used free")
+    monkeypatch.setattr(mipmaps.shutil, "disk_usage", lambda path: usage(1 << 30, 1 << 30, 4096))
+    write_exr(tmp_path / "a.exr", albedo_rgba()[..., :3], ("R", "G", "B"))
+    out_dir = tmp_path / "out"
+    rc = cli_main(["invert", str(tmp_path / "a.exr"), "--texture", "--no-progress",
+                   "-o", str(out_dir / "{stem}.exr")])
+    out = capsys.readouterr().out
+    assert rc == 1 and "not enough space for the texture" in out and "a.exr" in out, out
+    assert os.listdir(out_dir) == []
+
+
+def test_a_stop_during_a_hung_texture_build_is_heard(tmp_path, monkeypatch):
+    """A texture build that never returns (a full disk) is abandoned on a stop request within
+    ~0.1 s plus ABANDON_WAIT: Cancelled, nothing left, and builds_running says so."""
+    import threading
+    from bdipole_cl.io import mipmaps
+    from bdipole_cl.io.images import Cancelled
+    release = threading.Event()
+
+    def hung(mode, buf, out, config):
+        open(f"{out}.1234.temp.exr", "wb").close()       # what OpenImageIO writes first
+        release.wait(30)
+        return False
+
+    monkeypatch.setattr(mipmaps.oiio.ImageBufAlgo, "make_texture", hung)
+    monkeypatch.setattr(mipmaps, "ABANDON_WAIT", 0.2)
+    cancel = threading.Event()
+    spec = oiio.ImageSpec(20, 10, 3, "float")
+    spec.channelnames = ("R", "G", "B")
+    w = Writer(tmp_path / "t.exr", output_spec(spec, spec.channelnames, -1, False, {},
+                                               working=WORKING), texture=True, cancel=cancel)
+    w.write_band(0, 10, np.full((10, 20, 3), 0.5, np.float32))
+    threading.Timer(0.3, cancel.set).start()
+    t0 = time.monotonic()
+    try:
+        with pytest.raises(Cancelled):
+            w.commit()
+        assert time.monotonic() - t0 < 5
+        assert mipmaps.builds_running()
+        assert os.listdir(tmp_path) == []
+    finally:
+        release.set()
+        mipmaps.ABANDONED.clear()

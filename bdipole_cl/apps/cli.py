@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import argparse
 import functools
+import os
 import sys
 import warnings
 
@@ -403,5 +404,19 @@ def run_command(args) -> int:
         return 2 if usage else 1
 
 
+def console_main() -> int:
+    """The ``bdipole-cl`` command: ``main``, then the process's exit. Where a stop request
+    abandoned a texture build that still runs (``mipmaps.builds_running``), the process ends
+    at once with the status (``os._exit``, streams flushed), as the interpreter's teardown
+    would crash under the build."""
+    from ..io.mipmaps import builds_running
+    rc = main()
+    if builds_running():
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(rc)
+    return rc
+
+
 if __name__ == "__main__":  # pragma: no cover
-    sys.exit(main())
+    sys.exit(console_main())

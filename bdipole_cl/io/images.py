@@ -25,9 +25,11 @@ from pathlib import Path
 import numpy as np
 import OpenImageIO as oiio
 
-from .mipmaps import TextureBuildError, build_texture, texture_options
+from .mipmaps import (TextureBuildCancelled, TextureBuildError, build_texture,
+                      texture_options)
 from .verify import BandDigests, WriteCheckError, finite_texels, read_back, read_rows_of
 from .colour import COLOUR_ATTRIBS, colour_path, tag_output
+from ..signals import STOP
 from ..version import __version__
 
 
@@ -316,8 +318,9 @@ class Writer:
 
     ``texture`` (True or a TextureOptions): the verified temporary file is made into a tiled,
     mip-mapped texture beside it (``mipmaps.build_texture``), verified against it, and that is
-    renamed; ``cancel`` (threading.Event) set by then discards both (a texture build is one
-    uninterruptible OpenImageIO call: a signal during it is acted on when it returns)."""
+    renamed; ``cancel`` (threading.Event, else the process's stop request) set by then, or
+    during the build, discards both (the build runs on a thread of its own, waited for in
+    steps of 0.1 s: ``mipmaps.build_texture``)."""
 
     def __init__(self, path, spec, on_invalid="raise", texture=None, cancel=None):
         self.path = Path(path)
@@ -382,8 +385,11 @@ class Writer:
         tex = self.tmp.with_name(f"{self.tmp.stem}.tx{self.tmp.suffix}")
         try:
             spec, px = read_whole(self.tmp, "plain output")
+            cancelled = None if self.cancel is None else self.cancel.is_set
             try:
-                build_texture(spec, px, tex, self.texture)
+                build_texture(spec, px, tex, self.texture, cancelled or STOP.is_set)
+            except TextureBuildCancelled:
+                raise Cancelled(f"{self.path}: interrupted; nothing written") from None
             except TextureBuildError as exc:
                 raise TextureError(f"{self.path}: {exc}") from None
             if self.cancel is not None and self.cancel.is_set():

@@ -11,8 +11,12 @@ resamples (changes values by ~1e-7).
 """
 from __future__ import annotations
 
+import glob
 import math
+import shutil
+import threading
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 import OpenImageIO as oiio
@@ -54,9 +58,37 @@ TEXTURE_REWRITES = ("oiio:RowsPerChunk", "oiio:SourcePath", "DateTime", "openexr
                     "oiio:subimages")
 
 
-def build_texture(spec, px, texture, options: TextureOptions):
+class TextureBuildCancelled(TextureBuildError):
+    """A texture build abandoned because ``cancelled()`` said so (a signal)."""
+
+
+def texture_bytes(spec, options: TextureOptions) -> int:
+    """An upper bound on the texture's size: every mip level uncompressed, in whole tiles
+    (zip never stores a chunk larger than uncompressed), plus 64 KiB for headers and offsets."""
+    total, w, h = 0, spec.full_width, spec.full_height
+    for _ in range(mip_levels(w, h)):
+        tiles = -(-w // options.tile) * -(-h // options.tile)
+        total += tiles * options.tile ** 2 * spec.nchannels * spec.format.size()
+        w, h = max(w // 2, 1), max(h // 2, 1)
+    return total + (1 << 16)
+
+
+def check_space(spec, texture, options: TextureOptions):
+    """TextureBuildError where the texture's disk has less free space than ``texture_bytes``:
+    OpenImageIO's texture build can hang on a full disk rather than fail."""
+    need = texture_bytes(spec, options)
+    free = shutil.disk_usage(Path(texture).parent).free
+    if free < need:
+        raise TextureBuildError(f"not enough space for the texture: it needs up to "
+                                f"{need / 2**20:.1f} MiB, {free / 2**20:.1f} MiB are free")
+
+
+def build_texture(spec, px, texture, options: TextureOptions, cancelled=None):
     """Write the texture of the plain output (its ``spec`` and pixels ``px``, HxWxC float32 of
-    its data window) to ``texture``, and verify it (``texture_problems``)."""
+    its data window) to ``texture``, and verify it (``texture_problems``). The build runs on a
+    thread of its own, ``cancelled()`` (a stop request) asked every 0.1 s: then it is
+    abandoned (TextureBuildCancelled), its files removed."""
+    check_space(spec, texture, options)
     src = oiio.ImageBuf(spec)                     # its pixel type (half stays half), header
     src.set_pixels(src.roi, np.ascontiguousarray(px, np.float32))
     config = oiio.ImageSpec()
@@ -65,13 +97,63 @@ def build_texture(spec, px, texture, options: TextureOptions):
     config.attribute("maketx:filtername", options.mip_filter)
     config.set_format(spec.format)
     full = oiio.ImageBufAlgo.crop(src, src.roi_full)
-    if full.has_error or not oiio.ImageBufAlgo.make_texture(oiio.MakeTxTexture, full,
-                                                            str(texture), config):
+    if full.has_error or not _make_texture(full, texture, config, cancelled):
         raise TextureBuildError(f"making the texture failed: "
                                 f"{full.geterror() or oiio.geterror()}")
     problems = texture_problems(spec, px, texture, options)
     if problems:
         raise TextureBuildError(f"the texture does not verify: {'; '.join(problems)}")
+
+
+#: (thread, texture path) of the texture builds abandoned on a stop request
+ABANDONED = []
+#: how long an abandoned build is waited for (s): a build that is not hung ends by then, and
+#: its files are removed then; a hung one (a full disk) is left to the process's end
+ABANDON_WAIT = 2.0
+
+
+def builds_running() -> bool:
+    """Whether an abandoned texture build still runs (its files removed once more first): a
+    process must then end without Python's interpreter teardown (``os._exit``), which would
+    pull OpenImageIO out from under it (a crash instead of the signal's exit status)."""
+    running = False
+    for worker, texture in ABANDONED:
+        _remove_build(texture)
+        running = running or worker.is_alive()
+    return running
+
+
+def _remove_build(texture):
+    for p in [Path(texture), *build_files(texture)]:
+        try:
+            p.unlink()
+        except FileNotFoundError:
+            pass
+
+
+def _make_texture(full, texture, config, cancelled) -> bool:
+    """OpenImageIO's make_texture of ``full`` to ``texture`` on a daemon thread (it releases
+    the GIL), waited for in steps of 0.1 s so that ``cancelled()`` is heard: then the build is
+    waited for ABANDON_WAIT more, left to its thread (``ABANDONED``: the process ends it),
+    and its files are removed."""
+    result = []
+    worker = threading.Thread(target=lambda: result.append(oiio.ImageBufAlgo.make_texture(
+        oiio.MakeTxTexture, full, str(texture), config)), daemon=True, name="bdipole-maketx")
+    worker.start()
+    while worker.is_alive():
+        worker.join(0.1)
+        if worker.is_alive() and cancelled is not None and cancelled():
+            worker.join(ABANDON_WAIT)
+            ABANDONED.append((worker, texture))
+            _remove_build(texture)
+            raise TextureBuildCancelled("interrupted during the texture build")
+    return bool(result and result[0])
+
+
+def build_files(texture) -> list:
+    """The temporary files OpenImageIO's texture build writes beside ``texture``."""
+    texture = Path(texture)
+    return sorted(texture.parent.glob(f"{glob.escape(texture.name)}.*.temp*"))
 
 
 def _read_texture(path):

@@ -174,13 +174,13 @@ USAGE = [
      "argument --tol: '-1e-3': expected a number in (0, 1)"),
     (["invert", "X", "--mfp-scale", "0"], "argument --mfp-scale: '0': expected a number > 0"),
     (["invert", "X", "--mfp-scale", "nan"], "argument --mfp-scale: 'nan': expected a number"),
-    (["invert", "X", "--mfp", "0"], "argument --mfp: '0': expected mfp in (0, inf)"),
+    (["invert", "X", "--mfp", "0"], "argument --mfp: '0': expected mfp in [1e-20, 3.4e+38]"),
     (["invert", "X", "--mfp", "1,nan,1"], "argument --mfp: '1,nan,1': expected mfp in"),
-    (["invert", "X", "--mfp", "inf"], "argument --mfp: 'inf': expected mfp in (0, inf)"),
+    (["invert", "X", "--mfp", "inf"], "argument --mfp: 'inf': expected mfp in [1e-20, 3.4e+38]"),
     (["blur", "X", "--albedo", "1.5", "--mfp", "1", "-o", "y.exr"],
      "argument --albedo: '1.5': expected albedo in (0, 1)"),
     (["blur", "X", "--albedo", "0.5", "--mfp", "-2", "-o", "y.exr"],
-     "argument --mfp: '-2': expected mfp in (0, inf)"),
+     "argument --mfp: '-2': expected mfp in [1e-20, 3.4e+38]"),
     (["blur", "X", "--alpha-prime", "1", "--sigma-t", "1", "-o", "y.exr"],
      "argument --alpha-prime: '1': expected alpha in [0, 1)"),
     (["blur", "X", "--alpha-prime", "0.5", "--sigma-t", "0", "-o", "y.exr"],
@@ -190,6 +190,13 @@ USAGE = [
     (["invert", "X", "--method", "auto", "--tol", "1e-9"], "--double on the command line"),
     (["blur", "X", "-o", "y.exr"], "give --albedo and --mfp"),
     (["blur", "X", "--alpha-prime", "0.9", "-o", "y.exr"], "--alpha-prime needs --sigma-t"),
+    (["invert", "X", "--mfp", "1e300"], "'1e300': expected mfp in [1e-20, 3.4e+38]"),
+    (["blur", "X", "--albedo", "0.5", "--mfp", "1e-30", "-o", "y.exr"],
+     "'1e-30': expected mfp in [1e-20, 3.4e+38]"),
+    (["invert", "X", "--mfp", "1", "--mfp-scale", "1e40"], "mfp 1 x mfp_scale 1e+40 = 1e+40"),
+    (["invert", "X", "--table-size", "100000000"],
+     "table_size=100000000: expected an integer from 1 to 65536"),
+    (["invert", "X", "--method", "secant", "--tol", "inf"], "tol=inf: expected a finite number"),
 ]
 
 
@@ -355,3 +362,13 @@ def test_a_uniform_texture_blurs_without_numpy_warnings():
         warnings.simplefilter("error", RuntimeWarning)
         out = blur(e, albedo=np.full((32, 30, 3), (0.8, 0.6, 0.4), np.float32), mfp=0.5)
     np.testing.assert_allclose(out, blur(e, albedo=(0.8, 0.6, 0.4), mfp=0.5), atol=1e-6)
+
+
+@pytest.mark.parametrize("keywords", [{"mfp": 1.0, "texel_size": 1e-300}, {"mfp": 1e30}])
+def test_a_kernel_beyond_float64_is_refused_not_blurred_to_zero(keywords):
+    """An mfp of more than ~1e6 texels (mfp / texel_size) has a kernel far wider than any
+    max_radius, whose radius no longer computes (1/sigma_t' overflows): it was blurred with a
+    radius-0 plan to all zeros, 'ok'. It is refused, named."""
+    from bdipole_cl import blur
+    with pytest.raises(ValueError, match="an mfp of over a million texels"):
+        blur(np.ones((4, 4, 1), np.float32), albedo=0.5, **keywords)

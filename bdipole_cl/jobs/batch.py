@@ -54,6 +54,20 @@ def parse_constant(value, what):
     raise TypeError(f"{what}: expected a number, per-channel numbers or a path, got {value!r}")
 
 
+def check_scaled_mfp(mfp, scale):
+    """A ValueError naming both values where a constant mfp (``parse_constant``'s, or None)
+    times ``mfp_scale`` (both checked on their own) leaves the range every kernel can take
+    (``params.CONSTANT_RULES``): it would fail every texel of every file."""
+    from ..ops.blur.params import CONSTANT_RULES
+    rule, valid = CONSTANT_RULES["mfp"]
+    for v in mfp or ():
+        with np.errstate(over="ignore", under="ignore"):
+            scaled = np.float32(np.float64(v) * scale)
+        if not valid(np.float64(scaled)):
+            raise ValueError(f"mfp {v:g} x mfp_scale {scale:g} = {float(v) * scale:g}: expected "
+                             f"mfp in {rule} (as float32)")
+
+
 def work_digest(work: InvertWork) -> str:
     """The digest of everything an inversion's output depends on but its inputs' content
     (what ``--skip-existing`` compares with the output's ``bdipole:params_digest``): every
@@ -163,9 +177,11 @@ def process_textures(inputs, *, mfp=1.0, eta=1.4, output=DEFAULT_OUTPUT,
     config = resolve_method(method, double=double, device_key=key, **knobs)
     if method == "auto" and progress:
         print(f"method='auto': using {config.describe()} ({device_auto_note(key)})")
+    constant_mfp = parse_constant(mfp, "mfp")
+    check_scaled_mfp(constant_mfp, float(mfp_scale))
     work = InvertWork(
         eta=tuple(np.atleast_1d(np.asarray(eta, np.float64)).tolist()),
-        mfp=parse_constant(mfp, "mfp"), mfp_scale=float(mfp_scale), config=config,
+        mfp=constant_mfp, mfp_scale=float(mfp_scale), config=config,
         model=model, exact=exact, half=half, colorspace=colorspace, working=working,
         alpha_channel=alpha, on_invalid=check_policy(on_invalid), max_memory=int(max_memory),
         outputs=tuple(outputs), unit=unit, double=bool(double),

@@ -16,12 +16,14 @@ import numpy as np
 from ...device.transfer import ALIGNMENT, aligned_empty
 from ...errors import check_policy, find_invalid
 from ...physics import reference as ref
+from ..inversion_kernel import MFP_MIN
 
 #: the physical parameters of ``blur``
 PARAM_KEYS = ("albedo", "mfp", "eta", "texel_size", "alpha", "sigma_t")
 #: the largest float32 below 1: the top of [0, 1) for the float32 maps the kernels read (the
 #: float64 nextafter(1, 0) rounds to 1.0 in float32)
 BELOW_ONE_32 = float(np.nextafter(np.float32(1), np.float32(0)))
+FLOAT32_MAX = float(np.finfo(np.float32).max)
 #: each parameter's valid range: (rule text, test, clamp range). albedo and mfp are checked on
 #: their float32 rounding, the values the kernels see; alpha and sigma_t in float64, which is
 #: what Rd and ld are computed from
@@ -32,9 +34,16 @@ RULES = {
     "sigma_t": ("(0, inf)", lambda v: (v > 0) & np.isfinite(v), (1e-20, 1e20)),
 }
 #: constants must also give a kernel: albedo and alpha' of 0 have no profile to blur with
+#: and an mfp the inversion's kernels can take (docs/model.md "Mean free path": below MFP_MIN
+#: its coefficients overflow float32, above float32's largest it is inf there)
 CONSTANT_RULES = {"albedo": ("(0, 1)", lambda v: (v > 0) & (v < 1)),
                   "alpha": ("[0, 1)", RULES["alpha"][1]),
-                  "mfp": RULES["mfp"][:2], "sigma_t": RULES["sigma_t"][:2]}
+                  "mfp": (f"[{MFP_MIN:g}, {FLOAT32_MAX:.3g}]",
+                          lambda v: (v >= MFP_MIN) & (v <= FLOAT32_MAX)),
+                  "sigma_t": RULES["sigma_t"][:2]}
+#: a sigma_t' per texel below this is an mfp of > ~1e6 texels: a kernel far wider than any
+#: max_radius, whose truncation radius no longer computes in float64 (1/sigma_t' overflows)
+MIN_SIGMA_T_PER_TEXEL = 1e-6
 
 
 def parameter_pair(albedo, mfp, alpha, sigma_t) -> str:
@@ -90,8 +99,14 @@ def channel_parameters(nchan, *, albedo=None, mfp=None, eta=1.4, texel_size=1.0,
         a = ss / st
     if not (np.all(texel_size > 0) and np.all(np.isfinite(texel_size))):
         raise ValueError(f"texel_size={texel_size!r} must be a finite number > 0")
-    with np.errstate(over="ignore"):
+    with np.errstate(over="ignore", under="ignore"):
         per_texel = st * texel_size
+    if np.any(per_texel < MIN_SIGMA_T_PER_TEXEL):
+        c = int(np.flatnonzero(per_texel < MIN_SIGMA_T_PER_TEXEL)[0])
+        raise ValueError(f"channel {c}: sigma_t' of {per_texel[c]:.3g} per texel (texel_size="
+                         f"{texel_size!r}): an mfp of over a million texels, whose kernel is "
+                         f"far wider than any max_radius; give the mfp and the texel size in "
+                         f"one unit")
     if not np.all(np.isfinite(per_texel)):
         c = int(np.flatnonzero(~np.isfinite(per_texel))[0])
         raise ValueError(f"texel_size={texel_size!r}: channel {c}'s sigma_t' {st[c]:g} per unit "

@@ -774,3 +774,20 @@ def test_a_clamped_parameter_texel_changes_no_other_texel(what, bad):
     np.testing.assert_array_equal(got, want)
 
 # }}}
+
+
+@pytest.mark.parametrize("role", ["albedo", "mfp"])
+def test_blur_refuses_parameter_textures_off_the_irradiances_window(tmp_path, capsys, role):
+    """Textures are combined texel by texel: an irradiance whose data window starts at (-5, 7)
+    and an albedo or mfp texture of the same size at (0, 0) would be misregistered by (5, -7)
+    texels. blur fails the file, naming both windows, and writes nothing (as invert and a
+    scene blur do)."""
+    write(tmp_path / "irr.exr", ramp(), ("R", "G", "B"), window=(-5, 7))
+    write(tmp_path / "param.exr", ramp(lo=0.3, hi=0.6), ("R", "G", "B"))
+    other = {"albedo": ["--mfp", "1"], "mfp": ["--albedo", "0.5"]}[role]
+    rc = cli_main(["blur", str(tmp_path / "irr.exr"), f"--{role}", str(tmp_path / "param.exr"),
+                   *other, "-o", str(tmp_path / "out.exr"), "--no-progress"])
+    captured = capsys.readouterr()
+    text = captured.out + captured.err
+    assert rc == 1 and "data windows and resolutions must match" in text, text
+    assert not (tmp_path / "out.exr").exists()

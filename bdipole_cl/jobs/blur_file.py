@@ -14,7 +14,7 @@ from ..io.collisions import Claim, check_claim
 from ..io.colour import resolve_working_space
 from ..io.images import (Cancelled, Reader, TextureError, Writer, check_output_format,
                          check_same_window, invalid_texels, output_spec, read_parameter_texture,
-                         read_rows, texel_count)
+                         read_rows)
 from ..ops.bands import band_rows, bands
 from ..ops.blur import BlurPlan, Scattering, plan_blur
 from ..ops.blur.params import checked_irradiance
@@ -247,14 +247,14 @@ def run_blur(job, runtime, *, cancel=None, lock=None, progress=None) -> FileResu
     t0 = time.perf_counter()
     try:
         keep, header = None, dict(w.header)
+        texels = check_windows(job)     # parameter textures meet the irradiance texel by texel
         if w.material is not None:
-            texels = check_windows(job)
             result.colour = "irradiance " + colour_of(job.source, "irradiance", w.colorspace,
                                                       w.working)
             scattering, keep, albedo_header = material_scattering(job, runtime)
             header |= albedo_header
         else:
-            texels, scattering = None, w.scattering
+            scattering = w.scattering
         sources = {k: v for k, v in job.inputs.items() if k != "irradiance" and k != "mask"}
         result.info = blur_file(
             job.source, job.output, half=w.half, sources=sources, cancel=cancel, mask=keep,
@@ -266,7 +266,7 @@ def run_blur(job, runtime, *, cancel=None, lock=None, progress=None) -> FileResu
             texture=w.texture, progress=progress,
             force=True)      # its claim was checked where the job was made, with the run's force
         result.status = "ok"
-        result.texels = texels if texels is not None else texel_count(job.source)
+        result.texels = texels
     except Cancelled as exc:
         result.status, result.error = "cancelled", str(exc)
     except (TextureError, OSError, ValueError) as exc:

@@ -52,3 +52,30 @@ class SignalStop:
     @property
     def exit_code(self):
         return 128 + self.signum if self.signum else None
+
+
+class Terminated(BaseException):
+    """SIGTERM in a command that has no stop checks (``terminate_raises``): raised where the
+    main thread is, as KeyboardInterrupt is for SIGINT."""
+
+    def __init__(self, signum):
+        super().__init__(f"terminated by signal {signum}")
+        self.signum = signum
+
+
+class terminate_raises:
+    """Within it, SIGTERM raises Terminated in the main thread (the command's files are
+    written whole, so an exception anywhere leaves nothing half-written); the handler before
+    it is restored after."""
+
+    def __enter__(self):
+        self._previous = signal.signal(signal.SIGTERM, self._raise)
+        return self
+
+    @staticmethod
+    def _raise(signum, frame):
+        raise Terminated(signum)
+
+    def __exit__(self, *exc):
+        signal.signal(signal.SIGTERM, self._previous)
+        return False

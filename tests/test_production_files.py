@@ -791,3 +791,78 @@ def test_blur_refuses_parameter_textures_off_the_irradiances_window(tmp_path, ca
     text = captured.out + captured.err
     assert rc == 1 and "data windows and resolutions must match" in text, text
     assert not (tmp_path / "out.exr").exists()
+
+
+def test_report_never_replaces_files_it_did_not_write(tmp_path, capsys):
+    """report -o DIR and --write-choice PATH replaced a user's report.md and any file named
+    as choice data: refused (exit 2, before any measuring) unless --force; the tool's own
+    report and choice files are replaced as before."""
+    from bdipole_cl.apps.report import Point, check_report_outputs, write_outputs
+    from bdipole_cl.methods.choice import ChoiceData, write_choice_data
+    folder, choice = tmp_path / "r", tmp_path / "mychoice.json"
+    folder.mkdir()
+    (folder / "report.md").write_text("my notes\n")
+    choice.write_text("precious\n")
+    for argv in (["-o", folder], ["-o", tmp_path / "r2", "--write-choice", choice]):
+        rc = cli_main(["report", *map(str, argv), "--n", "4096", "--blur-size", "32",
+                       "--repeats", "1"])
+        err = capsys.readouterr().err
+        assert rc == 2 and "was not written by bdipole-cl" in err and "--force" in err, err
+    assert (folder / "report.md").read_text() == "my notes\n"
+    assert choice.read_text() == "precious\n" and not (tmp_path / "r2").exists()
+    check_report_outputs(folder, choice, force=True)           # --force: allowed
+    points = [Point("inversion", "table", "table(size=4)", "f32", 1e-3, 1e-3, 1e-4)]
+    write_outputs(points, tmp_path / "ours", "a device", ["a workload"])
+    write_choice_data(ChoiceData("a device", (), ()), tmp_path / "ours.json")
+    check_report_outputs(tmp_path / "ours", tmp_path / "ours.json")   # its own: no --force
+    (tmp_path / "d" / "report.csv").mkdir(parents=True)
+    with pytest.raises(ValueError, match="not a regular file"):
+        check_report_outputs(tmp_path / "d", force=True)
+
+
+def test_report_files_change_together_or_not_at_all(tmp_path, monkeypatch):
+    """A full disk while writing report.png left a new report.csv beside the old report.md:
+    the three are written to temporary files first and renamed together; on a failure none
+    changes and no temporary file is left. The choice data writer too."""
+    import errno
+    from bdipole_cl.apps import report
+    from bdipole_cl.methods.choice import ChoiceData, write_choice_data
+    points = [report.Point("inversion", "table", "table(size=4)", "f32", 1e-3, 1e-3, 1e-4)]
+    report.write_outputs(points, tmp_path, "old device", ["old"])
+    before = snapshot(tmp_path)
+
+    def full(points, path, device):
+        path.write_bytes(b"\x89PNG half")
+        raise OSError(errno.ENOSPC, "No space left on device")
+    monkeypatch.setattr(report, "_plot", full)
+    with pytest.raises(OSError):
+        report.write_outputs(points, tmp_path, "new device", ["new"])
+    assert snapshot(tmp_path) == before and sorted(p.name for p in tmp_path.iterdir()) == [
+        "report.csv", "report.md", "report.png"]
+
+    def full_text(self, *a, **k):
+        open(self, "w").write("{\"half")
+        raise OSError(errno.ENOSPC, "No space left on device")
+    monkeypatch.setattr(type(tmp_path), "write_text", full_text)
+    with pytest.raises(OSError, match=r"writing .*c\.json: No space left"):
+        write_choice_data(ChoiceData("a device", (), ()), tmp_path / "c" / "c.json")
+    assert list((tmp_path / "c").iterdir()) == []
+
+
+def test_report_under_sigterm_says_so_and_leaves_nothing(tmp_path):
+    """SIGTERM during a report ended it by the signal's default action, silently: now it is
+    'interrupted', exit 143, and no report file or temporary is left."""
+    out = tmp_path / "r"
+    proc = subprocess.Popen([sys.executable, "-m", "bdipole_cl", "report", "-o", str(out),
+                             "--n", "65536", "--blur-size", "64", "--repeats", "3"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and proc.poll() is None:
+        line = proc.stdout.readline()
+        if "inversion sweep" in line:
+            break
+    time.sleep(0.5)
+    proc.send_signal(signal.SIGTERM)
+    _, stderr = proc.communicate(timeout=120)
+    assert proc.returncode == 143 and "interrupted" in stderr, (proc.returncode, stderr)
+    assert not out.exists() or list(out.iterdir()) == []

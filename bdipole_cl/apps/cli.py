@@ -9,7 +9,7 @@ import warnings
 
 from ..errors import POLICIES
 from ..methods.registry import ALPHA_CHANNEL, BLUR_METHODS, BORDERS
-from ..signals import SignalStop
+from ..signals import SignalStop, Terminated, terminate_raises
 from ..version import __version__
 from .cli_blur import cmd_blur
 from .cli_options import (add_global_args, add_method_args, add_scheduler_args, cluster_client,
@@ -149,12 +149,16 @@ def _cmd_bake(args) -> int:
 
 
 def _cmd_report(args) -> int:
-    from .report import calibrate, run_report
-    if args.calibrate:
-        calibrate()
-        return 0
-    run_report(args.output, n=args.n, blur_size=args.blur_size, repeats=args.repeats,
-               write_choice_to=args.write_choice)
+    """The report or the calibration; SIGTERM ends it as SIGINT does (its files are each
+    written whole: nothing half-written is left), exit 128 + the signal."""
+    from .report import calibrate, check_report_outputs, run_report
+    with terminate_raises():
+        if args.calibrate:
+            calibrate()
+            return 0
+        check_report_outputs(args.output, args.write_choice, args.force)
+        run_report(args.output, n=args.n, blur_size=args.blur_size, repeats=args.repeats,
+                   write_choice_to=args.write_choice)
     return 0
 
 
@@ -270,6 +274,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="measure this device (a minute or two) and store the data in the user's "
                         "cache ($XDG_CACHE_HOME/bdipole_cl), where method='auto' on this device "
                         "then decides from it")
+    p.add_argument("--force", action="store_true",
+                   help="replace report files or a --write-choice file bdipole-cl did not write")
     p.set_defaults(func=_cmd_report)
 
     p = command("blur", help="blur an irradiance map with the Better Dipole profile R(r)")
@@ -386,11 +392,11 @@ def run_command(args) -> int:
         if args.device and args.command != "devices":
             use_device(args.device)
         return args.func(args)
-    except KeyboardInterrupt:
+    except (KeyboardInterrupt, Terminated) as exc:
         if args.debug:
             raise
         print("interrupted", file=sys.stderr)
-        return 130
+        return 128 + exc.signum if isinstance(exc, Terminated) else 130
     except Exception as exc:
         if args.debug:
             raise

@@ -274,15 +274,27 @@ def check_picture_output(path, inputs=(), force=False):
 def replaced(path, write):
     """``write(tmp)`` to a temporary file beside ``path`` (its folder made), then renamed over
     it: a picture or report is whole or not there, never half-written."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.stem}.partial-{os.getpid()}{path.suffix}")
+    replaced_together([(path, write)])
+
+
+def replaced_together(writes):
+    """Each ``write(tmp)`` of ``writes`` ((path, write) pairs) to a temporary file beside its
+    path, then all renamed over their paths: where one write fails (a full disk), no file is
+    changed and no temporary file is left."""
+    done = []
     try:
-        write(tmp)
-        os.replace(tmp, path)
+        for path, write in writes:
+            path = Path(path)
+            path.parent.mkdir(parents=True, exist_ok=True)
+            tmp = path.with_name(f".{path.stem}.partial-{os.getpid()}{path.suffix}")
+            done.append((tmp, path))
+            write(tmp)
+        for tmp, path in done:
+            os.replace(tmp, path)
     finally:
-        if tmp.exists():
-            tmp.unlink()
+        for tmp, _ in done:
+            if tmp.exists():
+                tmp.unlink()
 
 
 def save_figure(fig, path, inputs=(), force=False):

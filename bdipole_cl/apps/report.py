@@ -20,6 +20,8 @@ from __future__ import annotations
 
 import csv
 import io
+import os
+import stat
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -30,7 +32,7 @@ from ..methods.choice import ChoiceData, DeviceKey, calibration_path, write_choi
 from ..methods.registry import BLUR_KERNELS, BlurChoice, InversionChoice, MethodConfig
 from ..ops.invert import InversionKernel
 from .benchmark import inversion_workload, reference_inverse, stiff_workload, time_inversion
-from .preview import replaced
+from .preview import replaced_together
 
 INVERSION_SWEEP = (
     [MethodConfig("memo", iterations=i) for i in (12, 24, 50)]
@@ -161,20 +163,62 @@ def mark_pareto(points):
     return points
 
 
+#: the mark of this tool's reports: report.md's first line (an HTML comment, invisible when
+#: rendered) and report.png's Software; report.csv is known by its header row
+REPORT_MARK = "bdipole_cl report"
+CSV_HEADER = ("kind", "method", "config", "precision", "median_s", "max_error", "mean_error",
+              "pareto")
+REPORT_FILES = ("report.csv", "report.md", "report.png")
+
+
+def report_is_ours(path) -> bool:
+    """Whether ``path`` (an existing regular file) is a report file this tool wrote."""
+    path = Path(path)
+    if path.suffix == ".png":
+        from ..io.images import image_header
+        spec = image_header(path)
+        return spec is not None and REPORT_MARK in str(spec.getattribute("Software") or "")
+    try:
+        with open(path, encoding="utf-8", errors="replace") as f:
+            first = f.readline().rstrip("\r\n")
+    except OSError:
+        return False
+    return first == (",".join(CSV_HEADER) if path.suffix == ".csv" else
+                     f"<!-- {REPORT_MARK} -->")
+
+
+def check_report_outputs(folder, choice_path=None, force=False):
+    """A ValueError (a usage error, before any measuring) where a report file in ``folder``
+    or the ``choice_path`` (``--write-choice``) would replace a file this tool did not write
+    (unless ``force``), or is a directory or other non-regular file (always)."""
+    from ..methods.choice import is_choice_data
+    targets = [(Path(folder) / name, report_is_ours) for name in REPORT_FILES]
+    if choice_path:
+        targets.append((Path(choice_path), is_choice_data))
+    for path, is_ours in targets:
+        try:
+            mode = os.stat(path).st_mode
+        except OSError:
+            continue                              # nothing there
+        if not stat.S_ISREG(mode):
+            raise ValueError(f"output {path} is not a regular file; give another path")
+        if not force and not is_ours(path):
+            raise ValueError(f"output {path} exists and was not written by bdipole-cl; move "
+                             f"it, choose another output, or pass --force to replace it")
+
+
 def write_outputs(points, folder, device, workloads):
-    """report.csv, report.md and report.png in ``folder``, each written whole (``replaced``)."""
+    """report.csv, report.md and report.png in ``folder``, written together
+    (``replaced_together``: all three, or none of them changed)."""
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     table = io.StringIO(newline="")
     w = csv.writer(table)
-    w.writerow(["kind", "method", "config", "precision", "median_s", "max_error",
-                "mean_error", "pareto"])
+    w.writerow(CSV_HEADER)
     for p in points:
         w.writerow([p.kind, p.method, p.config, p.precision, f"{p.seconds:.6g}",
                     f"{p.max_error:.3e}", f"{p.mean_error:.3e}", int(p.pareto)])
-    replaced(folder / "report.csv",
-             lambda tmp: tmp.write_text(table.getvalue(), newline=""))
-    lines = [f"Device: {device}", "", *workloads, ""]
+    lines = [f"<!-- {REPORT_MARK} -->", f"Device: {device}", "", *workloads, ""]
     for kind in dict.fromkeys(p.kind for p in points):
         err_name = "max rel err rho" if kind == "inversion" else "max err / (max E Rd)"
         mono = kind == "inversion"
@@ -188,8 +232,10 @@ def write_outputs(points, folder, device, workloads):
                          f"{p.max_error:.2e} | {p.mean_error:.2e} | {'*' if p.pareto else ''} |"
                          + (f" {flag}" if mono else ""))
         lines.append("")
-    replaced(folder / "report.md", lambda tmp: tmp.write_text("\n".join(lines)))
-    replaced(folder / "report.png", lambda tmp: _plot(points, tmp, device))
+    replaced_together([
+        (folder / "report.csv", lambda tmp: tmp.write_text(table.getvalue(), newline="")),
+        (folder / "report.md", lambda tmp: tmp.write_text("\n".join(lines))),
+        (folder / "report.png", lambda tmp: _plot(points, tmp, device))])
     return folder
 
 
@@ -218,7 +264,7 @@ def _plot(points, path, device):
         ax.legend(fontsize=7)
     fig.suptitle(f"bdipole_cl error vs run time on {device}", fontsize=9)
     fig.tight_layout()
-    fig.savefig(path, dpi=110, format="png")
+    fig.savefig(path, dpi=110, format="png", metadata={"Software": REPORT_MARK})
     plt.close(fig)
 
 

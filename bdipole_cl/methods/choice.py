@@ -180,12 +180,32 @@ def write_choice_data(data: ChoiceData, path) -> Path:
            "blur": [{"method": b.method, "tol": b.tol, "radius": b.radius, "mfp": b.mfp,
                      "max_error": b.max_error, "median_s": b.median_s} for b in data.blur]}
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    tmp.write_text(json.dumps(raw, indent=1))
-    os.replace(tmp, path)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp.write_text(json.dumps(raw, indent=1))
+        os.replace(tmp, path)
+    except OSError as exc:             # a full disk: named, and nothing half-written left
+        raise OSError(exc.errno, f"writing {path}: {exc.strerror}") from None
+    finally:
+        if tmp.exists():
+            tmp.unlink()
     _DATA_CACHE.clear()
     return path
+
+
+#: the keys of a choice data file (``write_choice_data``): a JSON file without them is not one
+CHOICE_KEYS = ("device", "inversion", "blur")
+
+
+def is_choice_data(path) -> bool:
+    """Whether the file at ``path`` is choice data this tool wrote (a JSON object with
+    CHOICE_KEYS): what ``--write-choice`` may replace without --force."""
+    try:
+        raw = json.loads(Path(path).read_text())
+    except (OSError, ValueError):
+        return False
+    return isinstance(raw, dict) and all(k in raw for k in CHOICE_KEYS)
 
 
 def auto_inversion_config(tol: float, double: bool = False, data: ChoiceData | None = None,

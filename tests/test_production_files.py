@@ -199,8 +199,8 @@ def test_invert_and_blur_never_replace_a_file_they_did_not_write(tmp_path, capsy
 
 def test_only_this_tools_mark_makes_a_file_its_own(tmp_path):
     """An unrelated bdipole: attribute is not the mark, and a texture another tool made from
-    one of its outputs (maketx copies the whole header) is the user's; its own texture
-    outputs it replaces."""
+    one of its outputs (maketx copies the whole header), or an edit of one by another tool,
+    is the user's; its own outputs and texture outputs it replaces."""
     write(tmp_path / "a.exr", ramp())
     spec = oiio.ImageSpec(8, 8, 3, "float")
     spec.attribute("bdipole:note", "a studio's own tag")
@@ -212,7 +212,13 @@ def test_only_this_tools_mark_makes_a_file_its_own(tmp_path):
                             output=str(tmp_path / "plain.exr")).exit_code == 0
     oiio.ImageBufAlgo.make_texture(oiio.MakeTxTexture, oiio.ImageBuf(str(tmp_path / "plain.exr")),
                                    str(tmp_path / "tx.exr"), oiio.ImageSpec())
-    for name in ("tagged.exr", "tx.exr"):
+    # an output edited by another tool (as `oiiotool plain.exr --mulc 2 -o edited.exr`: the
+    # header kept, Software its own) is the user's too
+    edited = oiio.ImageBufAlgo.mul(oiio.ImageBuf(str(tmp_path / "plain.exr")), 2.0)
+    edited.specmod().attribute("Software", "OpenImageIO 3.2.2.0 : oiiotool")
+    assert edited.write(str(tmp_path / "edited.exr"))
+    assert oiio.ImageBuf(str(tmp_path / "edited.exr")).spec().getattribute("bdipole:version")
+    for name in ("tagged.exr", "tx.exr", "edited.exr"):
         before = (tmp_path / name).read_bytes()
         rep = process_textures(str(tmp_path / "a.exr"), output=str(tmp_path / name))
         assert "not written by bdipole-cl" in rep.results[0].error, (name, rep.summary())
@@ -220,6 +226,23 @@ def test_only_this_tools_mark_makes_a_file_its_own(tmp_path):
     for _ in range(2):                                   # its own texture output, again
         assert process_textures(str(tmp_path / "a.exr"), output=str(tmp_path / "t.exr"),
                                 texture=True).exit_code == 0
+
+
+def test_an_svg_that_only_mentions_the_mark_is_the_users(tmp_path, capsys):
+    """A hand-made SVG whose comment contains the words 'bdipole_cl preview' was replaced by
+    profile -o: the mark is the creator element this tool's sheets carry."""
+    from bdipole_cl.io.collisions import ours
+    svg = tmp_path / "mine.svg"
+    svg.write_text('<svg xmlns="http://www.w3.org/2000/svg"><!-- not a bdipole_cl preview -->'
+                   '<rect width="4" height="4"/></svg>')
+    before = svg.read_bytes()
+    assert not ours(svg)
+    rc = cli_main(["profile", "--albedo", "0.8", "--mfp", "1", "-o", str(svg)])
+    assert rc == 2 and "not written by bdipole-cl" in capsys.readouterr().err
+    assert svg.read_bytes() == before
+    assert cli_main(["profile", "--albedo", "0.8", "--mfp", "1", "-o",
+                     str(tmp_path / "p.svg")]) == 0
+    assert ours(tmp_path / "p.svg")
 
 
 def test_bake_never_replaces_an_output_it_did_not_write(tmp_path, capsys):
@@ -422,9 +445,12 @@ def test_content_changed_with_size_and_time_restored_is_rebuilt(tmp_path):
 @pytest.mark.parametrize("mfp", ["1e-38", "1e-40"])
 def test_tiny_mfp_is_never_written_as_infinite_coefficients(tmp_path, mfp):
     write(tmp_path / "a.exr", ramp(4, 4))
-    rc = cli_main(["invert", str(tmp_path / "a.exr"), "--mfp", mfp, "--no-progress",
-                   "-o", str(tmp_path / "o.exr")])
-    assert rc == 1 and not (tmp_path / "o.exr").exists()
+    with pytest.raises(SystemExit) as usage:                # a constant out of range
+        cli_main(["invert", str(tmp_path / "a.exr"), "--mfp", mfp, "--no-progress",
+                  "-o", str(tmp_path / "o.exr")])
+    assert usage.value.code == 2 and not (tmp_path / "o.exr").exists()
+    with pytest.raises(ValueError, match=f"mfp {float(mfp):g} x mfp_scale 1 "):
+        process_textures(str(tmp_path / "a.exr"), mfp=float(mfp), output=str(tmp_path / "o.exr"))
     rep = process_textures(str(tmp_path / "a.exr"), mfp=float(mfp), on_invalid="clamp",
                            output=str(tmp_path / "o.exr"))
     # below MFP_MIN (1e-20) an mfp is invalid (its coefficients would overflow float32):
@@ -473,13 +499,13 @@ def test_half_blur_of_one_texel_among_zeros_writes_no_round_off(tmp_path, capsys
 # {{{ class 5: signals and hangs
 
 def test_one_band_blur_obeys_sigint_within_seconds(tmp_path):
-    # mfp 20 (radius ~84): ~2.2e10 taps, ~15 s on an idle 2-core machine without the stop
-    # checks (mfp 12 took 5 s, too close to the 3 s before the signal), a launch ~0.1-0.5 s
-    # with them
-    e = np.random.default_rng(0).uniform(0, 1, (512, 512, 3)).astype(np.float32)
+    # 1024^2 at mfp 30 (radius ~126): ~2e11 taps, ~20 s on the 2-core AVX-512 machine
+    # without the stop checks (512^2 at mfp 20 took 2.4 s there, under the 3 s before the
+    # signal; ~15 s on the older AVX one), a launch ~0.1-0.5 s with them
+    e = np.random.default_rng(0).uniform(0, 1, (1024, 1024, 3)).astype(np.float32)
     write(tmp_path / "irr.exr", e)
     proc = subprocess.Popen([sys.executable, "-m", "bdipole_cl", "--device", "intel", "blur",
-                             str(tmp_path / "irr.exr"), "--albedo", "0.8", "--mfp", "20",
+                             str(tmp_path / "irr.exr"), "--albedo", "0.8", "--mfp", "30",
                              "--method", "direct",
                              "-o", str(tmp_path / "o.exr")],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
@@ -609,7 +635,7 @@ def test_bad_numbers_are_usage_errors(argv, capsys):
 
 def test_texel_size_that_overflows_is_one_line(tmp_path, capsys):
     write(tmp_path / "irr.exr", ramp())
-    rc = cli_main(["blur", str(tmp_path / "irr.exr"), "--albedo", "0.5", "--mfp", "1e-30",
+    rc = cli_main(["blur", str(tmp_path / "irr.exr"), "--albedo", "0.5", "--mfp", "1e-20",
                    "--texel-size", "1e300", "-o", str(tmp_path / "o.exr")])
     err = capsys.readouterr().err
     assert rc in (1, 2) and "overflows" in err and "unexpected" not in err, err

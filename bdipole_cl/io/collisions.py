@@ -18,11 +18,14 @@ import os
 import stat
 from dataclasses import dataclass, field
 
-from .images import image_header
+from .images import SOFTWARE, image_header
 
 #: the mark a contact sheet carries (PNG text "Software", SVG creator), so that a later
 #: ``preview`` may replace it
 PICTURE_MARK = "bdipole_cl preview"
+#: an SVG sheet's mark: the creator element matplotlib writes for it (the words alone, in a
+#: comment of a hand-made SVG, are not the mark)
+SVG_MARK = f"<dc:creator>\n     <cc:Agent>\n      <dc:title>{PICTURE_MARK}</dc:title>"
 
 
 @dataclass(frozen=True)
@@ -47,19 +50,24 @@ def file_key(path) -> tuple:
 def ours(path) -> bool:
     """``path`` (an existing regular file) is one of this tool's outputs: an image whose header
     has ``bdipole:version`` (every output has it; an unrelated ``bdipole:`` attribute is not
-    the mark) and, if it is a texture (``textureformat``, maketx's mark), ``bdipole:texture``
+    the mark) whose Software, if any, is this tool's, and, if it is a texture
+    (``textureformat``, maketx's mark), ``bdipole:texture``
     (this tool's texture outputs have it: a texture another tool made from one of its outputs
     copies the rest of the header and is the user's), or a contact sheet with PICTURE_MARK."""
     if str(path).lower().endswith(".svg"):
         with open(path, "rb") as f:
-            return PICTURE_MARK.encode() in f.read(1 << 16)
+            return SVG_MARK.encode() in f.read(1 << 16)
     spec = image_header(path)
     if spec is None:
         return False
+    software = spec.getattribute("Software")
     if spec.getattribute("bdipole:version"):
-        return (spec.getattribute("textureformat") is None
-                or spec.getattribute("bdipole:texture") is not None)
-    return PICTURE_MARK in str(spec.getattribute("Software") or "")
+        # an edit by another tool keeps the header but writes its own Software (outputs
+        # written before this tool wrote Software have none)
+        return ((software is None or str(software).startswith(SOFTWARE))
+                and (spec.getattribute("textureformat") is None
+                     or spec.getattribute("bdipole:texture") is not None))
+    return PICTURE_MARK in str(software or "")
 
 
 def foreign(path):

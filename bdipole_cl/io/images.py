@@ -264,11 +264,15 @@ SKIP_ATTRIBS = ("compression", "oiio:BitsPerSample", "oiio:UnassociatedAlpha",
                 "chunkCount") + COLOUR_ATTRIBS
 
 
+#: an output's Software header: the name, then the version
+SOFTWARE = "bdipole_cl"
+
+
 def output_spec(in_spec, channel_names, alpha_index, half, params, *, working):
     """The ImageSpec of an output of ``in_spec``'s size and window: ``channel_names``, float or
     half, the input's metadata but not its colour tags, tagged as in the WorkingSpace
-    ``working``, and ``params`` as ``bdipole:*`` attributes, ``bdipole:version`` always (the
-    mark of this tool's outputs: ``io.collisions.ours``)."""
+    ``working``, and ``params`` as ``bdipole:*`` attributes, ``bdipole:version`` always and
+    Software (the marks of this tool's outputs: ``io.collisions.ours``)."""
     spec = oiio.ImageSpec(in_spec.width, in_spec.height, len(channel_names),
                           "half" if half else "float")
     spec.x, spec.y, spec.z = in_spec.x, in_spec.y, in_spec.z
@@ -286,6 +290,9 @@ def output_spec(in_spec, channel_names, alpha_index, half, params, *, working):
         except Exception:  # an attribute type the Python binding cannot copy: leave it out
             pass
     spec.attribute("compression", "zip")
+    # who wrote it: an image tool that edits the output writes its own (oiiotool does), so an
+    # edited copy is not taken for this tool's output (``collisions.ours``)
+    spec.attribute("Software", f"{SOFTWARE} {__version__}")
     tag_output(spec, working)
     for key, value in {"version": __version__, **params}.items():
         spec.attribute(f"bdipole:{key}", str(value))

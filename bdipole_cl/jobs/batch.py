@@ -57,7 +57,8 @@ def parse_constant(value, what):
 def check_scaled_mfp(mfp, scale):
     """A ValueError naming both values where a constant mfp (``parse_constant``'s, or None)
     times ``mfp_scale`` (both checked on their own) leaves the range every kernel can take
-    (``params.CONSTANT_RULES``): it would fail every texel of every file."""
+    (``params.CONSTANT_RULES``): it would fail every texel of every file (unless they are
+    clamped: ``on_invalid="clamp"``)."""
     from ..ops.blur.params import CONSTANT_RULES
     rule, valid = CONSTANT_RULES["mfp"]
     for v in mfp or ():
@@ -178,7 +179,8 @@ def process_textures(inputs, *, mfp=1.0, eta=1.4, output=DEFAULT_OUTPUT,
     if method == "auto" and progress:
         print(f"method='auto': using {config.describe()} ({device_auto_note(key)})")
     constant_mfp = parse_constant(mfp, "mfp")
-    check_scaled_mfp(constant_mfp, float(mfp_scale))
+    if on_invalid != "clamp":          # clamp: each texel's, clamped and counted
+        check_scaled_mfp(constant_mfp, float(mfp_scale))
     work = InvertWork(
         eta=tuple(np.atleast_1d(np.asarray(eta, np.float64)).tolist()),
         mfp=constant_mfp, mfp_scale=float(mfp_scale), config=config,

@@ -892,3 +892,26 @@ def test_report_under_sigterm_says_so_and_leaves_nothing(tmp_path):
     _, stderr = proc.communicate(timeout=120)
     assert proc.returncode == 143 and "interrupted" in stderr, (proc.returncode, stderr)
     assert not out.exists() or list(out.iterdir()) == []
+
+
+def test_demo_never_rewrites_a_file_changed_in_its_folder(tmp_path):
+    """A second demo into its folder replaced a scene.toml the user had edited and an albedo
+    they had copied over the demo's: the demo records what it wrote, and refuses a folder
+    whose files changed or were added since (a complete record; an unfinished run's folder is
+    still its own)."""
+    from bdipole_cl.apps.demo import claim_folder, record_folder
+    folder = tmp_path / "dm"
+    claim_folder(folder)
+    (folder / "scene").mkdir()
+    (folder / "scene" / "scene.toml").write_text("# the demo's\n")
+    (folder / "albedo.exr").write_bytes(b"demo pixels")
+    record_folder(folder, complete=True)
+    claim_folder(folder)                                  # unchanged: its own
+    record_folder(folder, complete=True)
+    for change in (lambda: (folder / "scene" / "scene.toml").write_text("# my edit\n"),
+                   lambda: (folder / "notes.txt").write_text("mine")):
+        change()
+        with pytest.raises(ValueError, match="changed or added since the demo made"):
+            claim_folder(folder)
+    assert (folder / "scene" / "scene.toml").read_text() == "# my edit\n"
+    assert cli_main(["demo", "--dir", str(folder), "--no-progress"]) == 2

@@ -1,6 +1,8 @@
 """``bdipole-cl demo``: a small built-in example, made procedurally, and the main jobs on it."""
 from __future__ import annotations
 
+import hashlib
+import json
 from pathlib import Path
 
 import numpy as np
@@ -43,21 +45,58 @@ def make_inputs(folder):
     return paths
 
 
-#: the file that marks a folder as made by ``demo`` (which may then rewrite it)
+#: the file that marks a folder as made by ``demo`` (which may then rewrite it): a JSON record of
+#: the files it wrote and their digests (``record_folder``)
 MARKER = ".bdipole_demo"
+
+
+def folder_digests(folder) -> dict:
+    """{path relative to ``folder``: sha256} of every regular file below it but the MARKER."""
+    folder = Path(folder)
+    return {str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest()
+            for p in sorted(folder.rglob("*")) if p.is_file() and p.name != MARKER}
+
+
+def recorded_files(folder):
+    """The files and digests the demo recorded in ``folder`` (None: no complete record, a
+    marker of an earlier version or of a run that did not finish)."""
+    try:
+        record = json.loads((Path(folder) / MARKER).read_text())
+    except (OSError, ValueError):
+        return None
+    return record.get("files") if isinstance(record, dict) and record.get("complete") else None
+
+
+def record_folder(folder, complete):
+    """The MARKER: the folder is the demo's, and (``complete``) the files it holds now are
+    what the demo wrote."""
+    record = {"made by": "bdipole-cl demo: it may rewrite the files it made here",
+              "complete": bool(complete), "files": folder_digests(folder) if complete else {}}
+    (Path(folder) / MARKER).write_text(json.dumps(record, indent=1))
 
 
 def claim_folder(folder):
     """Make ``folder`` the demo's: refused (ValueError) if it holds files the demo did not
-    make, so a user's folder is never overwritten."""
+    make, or files changed since it made them (a user's edit or addition in a demo folder),
+    so a user's file is never overwritten."""
     folder = Path(folder)
     if folder.exists() and not folder.is_dir():
         raise ValueError(f"--dir {folder}: exists and is not a folder")
     if folder.is_dir() and any(folder.iterdir()) and not (folder / MARKER).exists():
         raise ValueError(f"--dir {folder}: the folder holds files the demo did not make; give "
                          f"a new or empty folder (nothing was written)")
+    recorded = recorded_files(folder) if folder.is_dir() else None
+    if recorded is not None:
+        changed = [name for name, digest in folder_digests(folder).items()
+                   if recorded.get(name) != digest]
+        if changed:
+            shown = ", ".join(changed[:3]) + (f" and {len(changed) - 3} more"
+                                              if len(changed) > 3 else "")
+            raise ValueError(f"--dir {folder}: {shown} changed or added since the demo made "
+                             f"the folder; move them or give a new folder (nothing was "
+                             f"written)")
     folder.mkdir(parents=True, exist_ok=True)
-    (folder / MARKER).write_text("made by bdipole-cl demo: it may rewrite this folder\n")
+    record_folder(folder, complete=False)
 
 
 def run_demo(folder="bdipole_demo", progress=True) -> int:
@@ -89,6 +128,7 @@ def run_demo(folder="bdipole_demo", progress=True) -> int:
     print("\n3. a scene (scene.toml): two materials on UDIM tiles with masks, and a blur; "
           "planned, baked, and baked again (nothing to do).")
     scene_rc = run_scene(Path(folder) / "scene")
+    record_folder(folder, complete=True)
     return max(report.exit_code, scene_rc)
 
 

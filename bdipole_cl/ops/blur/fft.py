@@ -185,6 +185,39 @@ def in_row_blocks(fn, h):
     return list(_fft_threads().map(lambda block: fn(*block), row_blocks(h)))
 
 
+#: rows per piece of ``value_range`` and ``copy_rows`` within a thread's block: a piece of a
+#: 4096-wide float32 map is 1 MiB, so its min and max read it from the cache
+PIECE_ROWS = 64
+
+
+def value_range(v):
+    """(min, max) of array ``v`` (NaN if any value is NaN), in row blocks on the FFT threads,
+    each block's min and max taken piece by piece (one read of the map from memory)."""
+    v = np.asarray(v)
+    if v.ndim < 2 or v.size < (1 << 16):
+        return v.min(), v.max()
+
+    def block(r0, r1):
+        lows, highs = [], []
+        for p in range(r0, r1, PIECE_ROWS):
+            piece = v[p:min(p + PIECE_ROWS, r1)]
+            lows.append(piece.min())
+            highs.append(piece.max())
+        return np.min(lows), np.max(highs)
+    parts = [b for b in in_row_blocks(block, v.shape[0]) if b is not None]
+    return np.min([lo for lo, _ in parts]), np.max([hi for _, hi in parts])
+
+
+def copy_rows(out, v):
+    """out[...] = v (cast as ``np.copyto`` does, unsafe), in row blocks on the FFT threads."""
+    if np.ndim(v) < 2 or out.size < (1 << 16):
+        np.copyto(out, v, casting="unsafe")
+        return out
+    in_row_blocks(lambda r0, r1: np.copyto(out[r0:r1], v[r0:r1], casting="unsafe"),
+                  out.shape[0])
+    return out
+
+
 def padded_planes(e, channels, k, shape, dtype, border, sums=None):
     """(G, N0, N1) ``dtype`` planes: channel ``channels[g]`` of the (H, W, C) image at rows
     [k, k + H), columns [k, k + W), padded by k texels by the border rule, zeros beyond (the

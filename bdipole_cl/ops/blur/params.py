@@ -17,6 +17,7 @@ from ...device.transfer import ALIGNMENT, aligned_empty
 from ...errors import check_policy, find_invalid
 from ...physics import reference as ref
 from ..inversion_kernel import MFP_MIN
+from .fft import copy_rows, value_range
 
 #: the physical parameters of ``blur``
 PARAM_KEYS = ("albedo", "mfp", "eta", "texel_size", "alpha", "sigma_t")
@@ -164,7 +165,7 @@ def checked_parameter(value, shape, c, name, on_invalid="raise", dtype=None):
 def within_rule(ok, v) -> bool:
     """True if every value of ``v`` passes the interval rule ``ok``, by its two extremes (a
     NaN makes both NaN, which fails every rule); False sends the caller texel by texel."""
-    return bool(np.all(ok(np.array([v.min(), v.max()]))))
+    return bool(np.all(ok(np.array(value_range(v)))))
 
 
 def float32_map(v):
@@ -180,8 +181,7 @@ def float32_map(v):
 def aligned_float32(v):
     """A new float32 copy of ``v`` on the device-alignment boundary."""
     out = aligned_empty(np.size(v), np.float32).reshape(np.shape(v))
-    np.copyto(out, v, casting="unsafe")           # float64 -> float32: rounds as astype
-    return out
+    return copy_rows(out, v)                      # float64 -> float32: rounds as astype
 
 
 def rd_map(rd):

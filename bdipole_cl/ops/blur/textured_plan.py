@@ -39,6 +39,7 @@ import numpy as np
 from ...caches import ByteCache
 from ...physics import reference as ref
 from ...signals import check_stop
+from .fft import value_range
 from .near_field import DEFAULT_GATHER_COSTS, GatherCosts, near_field_basis, with_near_classes
 from .fit import (BASIS_RATIO, MAX_BASIS, basis_columns, basis_count, basis_kernels,
                   basis_sigmas, fit_node)
@@ -196,10 +197,10 @@ class MapExtremes:
 def map_extremes(rd, ld, ld_range=None) -> MapExtremes:
     """MapExtremes of float maps rd, ld, by whole-map reductions (a masked one only where some
     texel is unlit); ``ld_range``: ld's (min, max), where known."""
-    lo, hi = rd.min(), rd.max()
+    lo, hi = value_range(rd)
     if lo <= 0 < hi:
         lo = np.min(rd, where=rd > 0, initial=np.inf)
-    ld_lo, ld_hi = ld_range if ld_range is not None else (ld.min(), ld.max())
+    ld_lo, ld_hi = ld_range if ld_range is not None else value_range(ld)
     return MapExtremes(float(lo), float(hi), float(ld_lo), float(ld_hi))
 
 

@@ -94,10 +94,13 @@ def test_memo_is_refused_in_float64_but_still_labelled(config):
 
 @pytest.mark.parametrize("bad, message", [
     (dict(method="newton"), "method='newton': expected one of table, secant, bisection, memo"),
-    (dict(iterations=0), "iterations=0: expected a positive integer"),
-    (dict(table_size=2.5), "table_size=2.5: expected a positive integer"),
-    (dict(polish=-1), "polish=-1: expected an integer >= 0"),
-    (dict(tol=0.0), "tol=0.0: expected > 0"),
+    (dict(iterations=0), "iterations=0: expected an integer from 1 to 256"),
+    (dict(table_size=2.5), "table_size=2.5: expected an integer from 1 to 65536"),
+    (dict(table_size=10 ** 8), "table_size=100000000: expected an integer from 1 to 65536"),
+    (dict(polish=-1), "polish=-1: expected an integer from 0 to 16"),
+    (dict(seed_size=1 << 17), "seed_size=131072: expected an integer from 1 to 65536"),
+    (dict(tol=0.0), "tol=0.0: expected a finite number > 0"),
+    (dict(tol=float("inf")), "tol=inf: expected a finite number > 0"),
 ])
 def test_method_config_refuses_bad_knobs(bad, message):
     with pytest.raises(ValueError, match=message):

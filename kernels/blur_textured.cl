@@ -50,35 +50,7 @@
 // the first with weight 0 (so every read stays in the table)
 #define DV ((BD_NV_TAPS == 2) ? BD_NWEIGHTS : 0)
 
-// {{{ lane types: vec (float lanes), ivec (int lanes), VLOAD/VSTORE, FOR_LANES
-
-#if BD_WIDTH == 1
-typedef float vec;
-typedef int ivec;
-#define VLOAD(i, p) ((p)[i])
-#define VSTORE(v, i, p) ((p)[i] = (v))
-#define TO_INT(v) ((int)(v))
-#define FOR_LANES(M) M(, 0)
-#else
-#define BD_CAT_(a, b) a##b
-#define BD_CAT(a, b) BD_CAT_(a, b)
-typedef BD_CAT(float, BD_WIDTH) vec;
-typedef BD_CAT(int, BD_WIDTH) ivec;
-#define VLOAD(i, p) BD_CAT(vload, BD_WIDTH)(i, p)
-#define VSTORE(v, i, p) BD_CAT(vstore, BD_WIDTH)(v, i, p)
-#define TO_INT(v) BD_CAT(convert_int, BD_WIDTH)(v)
-#endif
-#if BD_WIDTH == 4
-#define FOR_LANES(M) M(.s0, 0) M(.s1, 1) M(.s2, 2) M(.s3, 3)
-#elif BD_WIDTH == 8
-#define FOR_LANES(M) M(.s0, 0) M(.s1, 1) M(.s2, 2) M(.s3, 3) M(.s4, 4) M(.s5, 5) M(.s6, 6) \
-    M(.s7, 7)
-#elif BD_WIDTH == 16
-#define FOR_LANES(M) M(.s0, 0) M(.s1, 1) M(.s2, 2) M(.s3, 3) M(.s4, 4) M(.s5, 5) M(.s6, 6) \
-    M(.s7, 7) M(.s8, 8) M(.s9, 9) M(.sa, 10) M(.sb, 11) M(.sc, 12) M(.sd, 13) M(.se, 14) M(.sf, 15)
-#elif BD_WIDTH != 1
-#error "BD_WIDTH must be 1, 4, 8 or 16"
-#endif
+// {{{ lane helpers (the lane types, vec, ivec, VLOAD, VSTORE, TO_INT, FOR_LANES: kernels/lanes.h)
 
 // lanes of p[idx + j], per lane (a gather)
 inline vec gather(__global const float *p, const ivec idx, const int j)

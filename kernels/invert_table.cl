@@ -22,37 +22,8 @@
 
 #define BD_SEGMENT_STRIDE (BD_TABLE_N + 1)
 
-// {{{ lane types: vec (float lanes), ivec (int lanes), VLOAD/VSTORE, TO_INT/TO_FLOAT
+// {{{ the gather's lane groups (the lane types, vec, ivec, VLOAD, ..., BD_LANES: kernels/lanes.h)
 
-#if BD_WIDTH == 1
-typedef float vec;
-typedef int ivec;
-#define VLOAD(i, p) ((p)[i])
-#define VSTORE(v, i, p) ((p)[i] = (v))
-#define TO_INT(v) ((int)(v))
-#define TO_FLOAT(v) ((float)(v))
-#define ANY_LANE(test) (test)
-#else
-#define BD_CAT_(a, b) a##b
-#define BD_CAT(a, b) BD_CAT_(a, b)
-typedef BD_CAT(float, BD_WIDTH) vec;
-typedef BD_CAT(int, BD_WIDTH) ivec;
-#define VLOAD(i, p) BD_CAT(vload, BD_WIDTH)(i, p)
-#define VSTORE(v, i, p) BD_CAT(vstore, BD_WIDTH)(v, i, p)
-#define TO_INT(v) BD_CAT(convert_int, BD_WIDTH)(v)
-#define TO_FLOAT(v) BD_CAT(convert_float, BD_WIDTH)(v)
-#define ANY_LANE(test) any(test)
-#endif
-// lane numbers 0 .. BD_WIDTH - 1
-#if BD_WIDTH == 2
-#define BD_LANES (ivec)(0, 1)
-#elif BD_WIDTH == 4
-#define BD_LANES (ivec)(0, 1, 2, 3)
-#elif BD_WIDTH == 8
-#define BD_LANES (ivec)(0, 1, 2, 3, 4, 5, 6, 7)
-#elif BD_WIDTH == 16
-#define BD_LANES (ivec)(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15)
-#endif
 // The gather's lane groups. Lanes are set in the coefficient vectors directly, not stored to
 // private arrays and loaded back as vectors (the narrow stores cannot forward to the wide
 // load: PoCL's code for that was ~15% slower): at width 4 and up four lanes at a time, whose

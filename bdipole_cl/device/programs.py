@@ -22,6 +22,8 @@ from .runtime import DeviceError, Runtime, build_quietly
 
 #: The header every kernel source is joined behind.
 HEADER = "bdipole.h"
+#: the explicit vector lanes (BD_WIDTH) of the kernels that take several elements a work-item
+LANES = "lanes.h"
 
 #: the built programs' budget: their device binaries' bytes (a program is a few hundred KiB)
 PROGRAM_CACHE_BYTES = 256 << 20
@@ -48,11 +50,13 @@ def kernel_dir() -> Path:
 
 
 def kernel_source(name: str, body: str | None = None) -> str:
-    """The generated layout, then the physics header, then ``kernels/<name>.cl`` (or ``body``,
-    a kernel's text given directly, named ``name``)."""
+    """The generated layout, then the physics header and the lane types (empty without
+    BD_WIDTH), then ``kernels/<name>.cl`` (or ``body``, a kernel's text given directly, named
+    ``name``)."""
     d = kernel_dir()
     text = (d / f"{name}.cl").read_text() if body is None else body
     return (layout.header() + f"#line 1 \"{HEADER}\"\n" + (d / HEADER).read_text()
+            + f"\n#line 1 \"{LANES}\"\n" + (d / LANES).read_text()
             + f"\n#line 1 \"{name}.cl\"\n" + text)
 
 

@@ -94,6 +94,30 @@ def test_scene_output_on_its_mfp_or_another_materials_mask_is_refused(tmp_path, 
     assert "out_b.exr" in after                               # the good job still ran
 
 
+def test_bake_previews_never_land_on_a_file_of_the_run(tmp_path, capsys):
+    """A contact sheet goes beside its output (out.preview.png): where that is another
+    material's albedo, bake --preview --force drew the sheet over it, and the next bake
+    inverted the sheet. The pictures are outputs of the run's collision check, checked
+    before any work: refused, forced or not, and nothing is baked."""
+    tex = tmp_path / "tex"
+    tex.mkdir()
+    write(tex / "a.exr", ramp())
+    png = oiio.ImageBuf(oiio.ImageSpec(12, 16, 3, "uint8"))
+    oiio.ImageBufAlgo.fill(png, (0.4, 0.3, 0.2))
+    assert png.write(str(tex / "paint.preview.png"))
+    before = snapshot(tex)
+    path = scene(tmp_path, '[[material]]\nname = "a"\nalbedo = "tex/a.exr"\nmfp = 1.0\n'
+                           'output = "tex/paint.exr"\n[[material]]\nname = "b"\n'
+                           'albedo = "tex/paint.preview.png"\nmfp = 1.0\n'
+                           'output = "tex/b_out.exr"\non_invalid = "clamp"\n')
+    for force in ([], ["--force"]):
+        rc = cli_main(["bake", str(path), "--preview", "--no-progress", *force])
+        err = capsys.readouterr().err
+        assert rc == 2 and "--preview: contact sheet of" in err and "would overwrite an input" \
+            in err and "albedo" in err, err
+        assert snapshot(tex) == before                        # nothing baked, nothing drawn
+
+
 def test_skipped_jobs_inputs_are_still_inputs(tmp_path):
     tex = tmp_path / "tex"
     tex.mkdir()
@@ -915,3 +939,10 @@ def test_demo_never_rewrites_a_file_changed_in_its_folder(tmp_path):
             claim_folder(folder)
     assert (folder / "scene" / "scene.toml").read_text() == "# my edit\n"
     assert cli_main(["demo", "--dir", str(folder), "--no-progress"]) == 2
+    # a demo that did not finish (Ctrl-C) recorded no files: its folder is not rewritten
+    unfinished = tmp_path / "unfinished"
+    claim_folder(unfinished)
+    (unfinished / "albedo.exr").write_bytes(b"the user's copy")
+    with pytest.raises(ValueError, match="an earlier demo there did not finish"):
+        claim_folder(unfinished)
+    assert (unfinished / "albedo.exr").read_bytes() == b"the user's copy"

@@ -5,6 +5,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
+from ..io.collisions import Claim, collisions
+
 from .preview import (ContactSheet, contact_sheet, draw_group, read_image, require_matplotlib,
                       save_figure)
 from .profile import draw_profiles, material_specs
@@ -30,15 +32,36 @@ def sheet_path(output) -> Path:
     return Path(output).with_suffix(".preview.png")
 
 
+def page_path(plan, page=None) -> Path:
+    """The bake's page: ``page``, else ``scene.preview.png`` beside the scene file."""
+    return Path(page) if page is not None else Path(plan.scene.path).with_suffix(".preview.png")
+
+
+def check_preview_outputs(plan, page=None, force=False):
+    """ValueError (one line) where a contact sheet or the page of ``plan``'s bake would land
+    on any input or output of any of its jobs (never allowed, ``force`` or not), or replace a
+    file this tool did not write (unless ``force``): the run's collision check
+    (``io.collisions.collisions``) with the pictures as outputs of their own."""
+    jobs = [Claim(j.source, j.output, j.inputs) for j in plan.jobs if j.output]
+    pictures = [Claim(f"contact sheet of {j.output}", str(sheet_path(j.output)), {})
+                for j in plan.jobs if j.output and j.kind != "constant"]
+    pictures.append(Claim("the bake's page", str(page_path(plan, page)), {}))
+    for clash in collisions(jobs + pictures, force)[len(jobs):]:
+        if clash:
+            raise ValueError(f"--preview: {clash}")
+
+
 def bake_preview(plan, report, page=None, force=False) -> BakePreview:
     """Contact sheets of every output the bake left (made now or up to date), and the page
-    (default: beside the scene file, ``scene.preview.png``); neither replaces a file this tool
-    did not write unless ``force``."""
+    (default: beside the scene file, ``scene.preview.png``); none lands on a file of the run
+    (``check_preview_outputs``), nor replaces a file this tool did not write unless
+    ``force``."""
+    check_preview_outputs(plan, page, force)
     done = {r.output for r in report.results if r.status in ("ok", "skipped")}
     sheets = [contact_sheet(j.output, sheet_path(j.output), title=_job_title(j), force=force)
               for j in plan.jobs if j.output in done and Path(j.output).is_file()]
     scene = plan.scene
-    page = Path(page) if page is not None else Path(scene.path).with_suffix(".preview.png")
+    page = page_path(plan, page)
     materials = tuple(m.name for m in scene.materials)
     _bake_page(scene, plan, sheets, page, force)
     return BakePreview(tuple(sheets), str(page), materials)

@@ -116,6 +116,9 @@ def _cmd_bake(args) -> int:
     stop = SignalStop().install()
     plan = load(args.scene, args.working_space).plan(force=args.force,
                                                     max_memory=args.max_memory)
+    if args.preview:                        # its pictures land on no file of the run
+        from .bake_page import check_preview_outputs
+        check_preview_outputs(plan, force=args.force)
     for problem in plan.missing:            # every missing input, before any work starts
         print(f"cannot run: {problem}", file=sys.stderr)
     bar = None

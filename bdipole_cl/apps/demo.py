@@ -77,18 +77,23 @@ def record_folder(folder, complete):
 
 def claim_folder(folder):
     """Make ``folder`` the demo's: refused (ValueError) if it holds files the demo did not
-    make, or files changed since it made them (a user's edit or addition in a demo folder),
-    so a user's file is never overwritten."""
+    make, or files changed since it made them (a user's edit or addition in a demo folder), or
+    files of a demo that did not finish (whose files were not recorded), so a user's file is
+    never overwritten."""
     folder = Path(folder)
     if folder.exists() and not folder.is_dir():
         raise ValueError(f"--dir {folder}: exists and is not a folder")
     if folder.is_dir() and any(folder.iterdir()) and not (folder / MARKER).exists():
         raise ValueError(f"--dir {folder}: the folder holds files the demo did not make; give "
                          f"a new or empty folder (nothing was written)")
+    present = folder_digests(folder) if folder.is_dir() else {}
     recorded = recorded_files(folder) if folder.is_dir() else None
+    if present and recorded is None:
+        raise ValueError(f"--dir {folder}: an earlier demo there did not finish (or an older "
+                         f"version made it), so its files cannot be told from yours; give a new "
+                         f"folder or remove this one (nothing was written)")
     if recorded is not None:
-        changed = [name for name, digest in folder_digests(folder).items()
-                   if recorded.get(name) != digest]
+        changed = [name for name, digest in present.items() if recorded.get(name) != digest]
         if changed:
             shown = ", ".join(changed[:3]) + (f" and {len(changed) - 3} more"
                                               if len(changed) > 3 else "")

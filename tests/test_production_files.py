@@ -3,6 +3,7 @@ checked, every signal obeyed (README "Safety"). Each test writes its own real fi
 mip-mapped EXRs by ``make_texture``, RGBA PNGs with unassociated alpha, multi-part and deep
 EXRs, a FIFO, a file size limit for the full disk) and asserts the exit code, the message and
 what happened to the files."""
+import json
 import os
 import resource
 import signal
@@ -865,6 +866,22 @@ def test_report_never_replaces_files_it_did_not_write(tmp_path, capsys):
     write_outputs(points, tmp_path / "ours", "a device", ["a workload"])
     write_choice_data(ChoiceData("a device", (), ()), tmp_path / "ours.json")
     check_report_outputs(tmp_path / "ours", tmp_path / "ours.json")   # its own: no --force
+    # its own files, changed since: the user's (report.md's mark records each file's digest)
+    with open(tmp_path / "ours" / "report.md", "a") as f:
+        f.write("\nmy notes\n")
+    with pytest.raises(ValueError, match=r"report\.(csv|md) exists .* changed since"):
+        check_report_outputs(tmp_path / "ours")
+    raw = json.loads((tmp_path / "ours.json").read_text())
+    raw["mine"] = 1
+    (tmp_path / "ours.json").write_text(json.dumps(raw))
+    with pytest.raises(ValueError, match="ours.json exists .* changed since"):
+        check_report_outputs(tmp_path / "new", tmp_path / "ours.json")
+    # the choice data on the report's own files, and a report folder that is a file
+    for choice in (tmp_path / "new" / "report.csv", tmp_path / "new"):
+        with pytest.raises(ValueError, match="is the report's folder or one of its files"):
+            check_report_outputs(tmp_path / "new", choice)
+    with pytest.raises(ValueError, match="exists and is not a folder"):
+        check_report_outputs(tmp_path / "ours.json")
     (tmp_path / "d" / "report.csv").mkdir(parents=True)
     with pytest.raises(ValueError, match="not a regular file"):
         check_report_outputs(tmp_path / "d", force=True)
@@ -881,12 +898,17 @@ def test_report_files_change_together_or_not_at_all(tmp_path, monkeypatch):
     report.write_outputs(points, tmp_path, "old device", ["old"])
     before = snapshot(tmp_path)
 
-    def full(points, path, device):
-        path.write_bytes(b"\x89PNG half")
-        raise OSError(errno.ENOSPC, "No space left on device")
-    monkeypatch.setattr(report, "_plot", full)
+    real_write = type(tmp_path).write_bytes
+
+    def full(self, data):                   # the disk fills while the picture is written
+        if self.suffix == ".png":
+            real_write(self, data[:100])
+            raise OSError(errno.ENOSPC, "No space left on device")
+        return real_write(self, data)
+    monkeypatch.setattr(type(tmp_path), "write_bytes", full)
     with pytest.raises(OSError):
         report.write_outputs(points, tmp_path, "new device", ["new"])
+    monkeypatch.undo()
     assert snapshot(tmp_path) == before and sorted(p.name for p in tmp_path.iterdir()) == [
         "report.csv", "report.md", "report.png"]
 

@@ -19,6 +19,7 @@ tol = 1e-9 weights in float64 by FFT.
 from __future__ import annotations
 
 import csv
+import hashlib
 import io
 import os
 import stat
@@ -164,36 +165,67 @@ def mark_pareto(points):
 
 
 #: the mark of this tool's reports: report.md's first line (an HTML comment, invisible when
-#: rendered) and report.png's Software; report.csv is known by its header row
+#: rendered), with the sha256 of the rest of report.md and of report.csv and report.png, so
+#: that an edited report file is the user's (``report_is_ours``)
 REPORT_MARK = "bdipole_cl report"
 CSV_HEADER = ("kind", "method", "config", "precision", "median_s", "max_error", "mean_error",
               "pareto")
 REPORT_FILES = ("report.csv", "report.md", "report.png")
 
 
-def report_is_ours(path) -> bool:
-    """Whether ``path`` (an existing regular file) is a report file this tool wrote."""
-    path = Path(path)
-    if path.suffix == ".png":
-        from ..io.images import image_header
-        spec = image_header(path)
-        return spec is not None and REPORT_MARK in str(spec.getattribute("Software") or "")
+def mark_line(md_body: bytes, csv_bytes: bytes, png_bytes: bytes) -> str:
+    """report.md's first line: REPORT_MARK and the three files' digests."""
+    digests = [hashlib.sha256(b).hexdigest() for b in (md_body, csv_bytes, png_bytes)]
+    return f"<!-- {REPORT_MARK} md:{digests[0]} csv:{digests[1]} png:{digests[2]} -->"
+
+
+def recorded_digests(folder) -> dict:
+    """{file name: sha256} of the report files as report.md's mark records them, where
+    report.md is this tool's and unchanged ({} else)."""
     try:
-        with open(path, encoding="utf-8", errors="replace") as f:
-            first = f.readline().rstrip("\r\n")
+        first, _, body = (Path(folder) / "report.md").read_bytes().partition(b"\n")
+    except OSError:
+        return {}
+    fields = first.decode("utf-8", "replace").split()
+    if fields[:3] != ["<!--", "bdipole_cl", "report"] or fields[-1] != "-->":
+        return {}
+    digests = dict(f.split(":", 1) for f in fields[3:-1] if ":" in f)
+    if digests.get("md") != hashlib.sha256(body).hexdigest():
+        return {}
+    return {f"report.{k}": v for k, v in digests.items()}
+
+
+def report_is_ours(path) -> bool:
+    """Whether ``path`` (an existing regular report file) is one this tool wrote, unchanged
+    since (its digest as report.md records it)."""
+    path = Path(path)
+    recorded = recorded_digests(path.parent)
+    if path.name == "report.md":                   # its own digest is of the rest of it
+        return bool(recorded)
+    recorded = recorded.get(path.name)
+    try:
+        return recorded == hashlib.sha256(path.read_bytes()).hexdigest()
     except OSError:
         return False
-    return first == (",".join(CSV_HEADER) if path.suffix == ".csv" else
-                     f"<!-- {REPORT_MARK} -->")
 
 
 def check_report_outputs(folder, choice_path=None, force=False):
     """A ValueError (a usage error, before any measuring) where a report file in ``folder``
-    or the ``choice_path`` (``--write-choice``) would replace a file this tool did not write
-    (unless ``force``), or is a directory or other non-regular file (always)."""
+    or the ``choice_path`` (``--write-choice``) would replace a file this tool did not write,
+    or one it wrote that was changed since (unless ``force``), or is a directory or other
+    non-regular file (always); where ``folder`` is a file, or ``choice_path`` is ``folder``
+    or one of its report files."""
     from ..methods.choice import is_choice_data
-    targets = [(Path(folder) / name, report_is_ours) for name in REPORT_FILES]
+    folder = Path(folder)
+    if folder.exists() and not folder.is_dir():
+        raise ValueError(f"-o {folder}: exists and is not a folder; the report is a folder of "
+                         f"{', '.join(REPORT_FILES)}")
+    targets = [(folder / name, report_is_ours) for name in REPORT_FILES]
     if choice_path:
+        real = os.path.realpath(choice_path)
+        if real in {os.path.realpath(p) for p, _ in targets} | {os.path.realpath(folder)}:
+            raise ValueError(f"--write-choice {choice_path}: is the report's folder or one of "
+                             f"its files; give another path")
         targets.append((Path(choice_path), is_choice_data))
     for path, is_ours in targets:
         try:
@@ -203,8 +235,9 @@ def check_report_outputs(folder, choice_path=None, force=False):
         if not stat.S_ISREG(mode):
             raise ValueError(f"output {path} is not a regular file; give another path")
         if not force and not is_ours(path):
-            raise ValueError(f"output {path} exists and was not written by bdipole-cl; move "
-                             f"it, choose another output, or pass --force to replace it")
+            raise ValueError(f"output {path} exists and was not written by bdipole-cl (or was "
+                             f"changed since); move it, choose another output, or pass --force "
+                             f"to replace it")
 
 
 def write_outputs(points, folder, device, workloads):
@@ -218,7 +251,7 @@ def write_outputs(points, folder, device, workloads):
     for p in points:
         w.writerow([p.kind, p.method, p.config, p.precision, f"{p.seconds:.6g}",
                     f"{p.max_error:.3e}", f"{p.mean_error:.3e}", int(p.pareto)])
-    lines = [f"<!-- {REPORT_MARK} -->", f"Device: {device}", "", *workloads, ""]
+    lines = [f"Device: {device}", "", *workloads, ""]
     for kind in dict.fromkeys(p.kind for p in points):
         err_name = "max rel err rho" if kind == "inversion" else "max err / (max E Rd)"
         mono = kind == "inversion"
@@ -232,10 +265,14 @@ def write_outputs(points, folder, device, workloads):
                          f"{p.max_error:.2e} | {p.mean_error:.2e} | {'*' if p.pareto else ''} |"
                          + (f" {flag}" if mono else ""))
         lines.append("")
+    picture = io.BytesIO()
+    _plot(points, picture, device)
+    csv_bytes, body = table.getvalue().encode(), "\n".join(lines).encode()
+    md = (mark_line(body, csv_bytes, picture.getvalue()) + "\n").encode() + body
     replaced_together([
-        (folder / "report.csv", lambda tmp: tmp.write_text(table.getvalue(), newline="")),
-        (folder / "report.md", lambda tmp: tmp.write_text("\n".join(lines))),
-        (folder / "report.png", lambda tmp: _plot(points, tmp, device))])
+        (folder / "report.csv", lambda tmp: tmp.write_bytes(csv_bytes)),
+        (folder / "report.md", lambda tmp: tmp.write_bytes(md)),
+        (folder / "report.png", lambda tmp: tmp.write_bytes(picture.getvalue()))])
     return folder
 
 

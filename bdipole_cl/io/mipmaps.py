@@ -73,6 +73,11 @@ def texture_bytes(spec, options: TextureOptions) -> int:
     return total + (1 << 16)
 
 
+def size_text(n) -> str:
+    """A byte count in KiB below 1 MiB (2 significant figures at least), else MiB."""
+    return f"{n / 2**10:.1f} KiB" if n < 2**20 else f"{n / 2**20:.2f} MiB"
+
+
 def check_space(spec, texture, options: TextureOptions):
     """TextureBuildError where the texture's disk has less free space than ``texture_bytes``:
     OpenImageIO's texture build can hang on a full disk rather than fail."""
@@ -80,7 +85,7 @@ def check_space(spec, texture, options: TextureOptions):
     free = shutil.disk_usage(Path(texture).parent).free
     if free < need:
         raise TextureBuildError(f"not enough space for the texture: it needs up to "
-                                f"{need / 2**20:.1f} MiB, {free / 2**20:.1f} MiB are free")
+                                f"{size_text(need)}, {size_text(free)} are free")
 
 
 def build_texture(spec, px, texture, options: TextureOptions, cancelled=None):

@@ -179,6 +179,7 @@ def write_choice_data(data: ChoiceData, path) -> Path:
                          for c in data.inversion],
            "blur": [{"method": b.method, "tol": b.tol, "radius": b.radius, "mfp": b.mfp,
                      "max_error": b.max_error, "median_s": b.median_s} for b in data.blur]}
+    raw["digest"] = choice_digest(raw)
     path = Path(path)
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
     try:
@@ -198,14 +199,22 @@ def write_choice_data(data: ChoiceData, path) -> Path:
 CHOICE_KEYS = ("device", "inversion", "blur")
 
 
+def choice_digest(raw: dict) -> str:
+    """The sha256 of choice data's fields but its digest (canonical JSON)."""
+    fields = {k: v for k, v in raw.items() if k != "digest"}
+    return hashlib.sha256(json.dumps(fields, sort_keys=True).encode()).hexdigest()
+
+
 def is_choice_data(path) -> bool:
-    """Whether the file at ``path`` is choice data this tool wrote (a JSON object with
-    CHOICE_KEYS): what ``--write-choice`` may replace without --force."""
+    """Whether the file at ``path`` is choice data this tool wrote, unchanged since: a JSON
+    object with CHOICE_KEYS whose ``digest`` matches its fields (files written before the
+    digest have none): what ``--write-choice`` may replace without --force."""
     try:
         raw = json.loads(Path(path).read_text())
     except (OSError, ValueError):
         return False
-    return isinstance(raw, dict) and all(k in raw for k in CHOICE_KEYS)
+    return (isinstance(raw, dict) and all(k in raw for k in CHOICE_KEYS)
+            and raw.get("digest", choice_digest(raw)) == choice_digest(raw))
 
 
 def auto_inversion_config(tol: float, double: bool = False, data: ChoiceData | None = None,

@@ -372,3 +372,18 @@ def test_a_kernel_beyond_float64_is_refused_not_blurred_to_zero(keywords):
     from bdipole_cl import blur
     with pytest.raises(ValueError, match="an mfp of over a million texels"):
         blur(np.ones((4, 4, 1), np.float32), albedo=0.5, **keywords)
+
+
+def test_a_masked_array_is_refused_not_unmasked_silently():
+    """numpy.ma arrays lost their mask in np.asarray: the masked texels' data was blurred as
+    if valid. A masked value is now a clear error naming the parameter (none masked: used)."""
+    from bdipole_cl import blur
+    e = np.ones((6, 7, 1), np.float32)
+    albedo = np.ma.masked_array(np.full((6, 7), 0.5), mask=np.zeros((6, 7), bool))
+    blur(e, albedo=albedo, mfp=1.0)                      # nothing masked: fine
+    albedo[2, 3] = np.ma.masked
+    for kw in ({"albedo": albedo, "mfp": 1.0}, {"albedo": 0.5, "mfp": albedo + 1.0}):
+        with pytest.raises(ValueError, match="masked array with 1 masked value"):
+            blur(e, **kw)
+    with pytest.raises(ValueError, match="irradiance is a masked array"):
+        blur(np.ma.masked_array(e, mask=e > 0), albedo=0.5, mfp=1.0)

@@ -116,11 +116,21 @@ def channel_parameters(nchan, *, albedo=None, mfp=None, eta=1.4, texel_size=1.0,
     return [(float(a[c]), float(per_texel[c]), float(etas[c])) for c in range(nchan)]
 
 
+def plain_array(value, name):
+    """``value`` as a NumPy array; a masked array (numpy.ma) with masked values is a
+    ValueError naming it (its mask would be dropped silently: the masked texels' data used)."""
+    if isinstance(value, np.ma.MaskedArray) and np.ma.getmaskarray(value).any():
+        raise ValueError(f"{name} is a masked array with {int(np.ma.count_masked(value))} "
+                         f"masked value(s): fill them (numpy.ma.filled) first; blur's masked "
+                         f"texels are those of an alpha or mask texture in a scene")
+    return np.asarray(value)
+
+
 def texture_channel(value, shape, c, name):
     """Channel c of a scalar, per-channel tuple, HxW or HxWxC parameter, as an HxW array (a
     texture keeps its float type: it is checked before it is rounded to float32)."""
     h, w, nch = shape
-    v = np.asarray(value)
+    v = plain_array(value, name)
     if not np.issubdtype(v.dtype, np.floating):
         v = v.astype(np.float64)
     if v.ndim <= 1:
@@ -226,7 +236,7 @@ def checked_irradiance(irradiance, on_invalid="raise"):
     """Irradiance as HxWxC float32. NaN and infinite texels are invalid: an InvalidInputError
     naming the first, or with ``on_invalid="clamp"`` unlit (0): irradiance has no upper bound
     to clamp to, and an unlit texel neither adds nor removes light that is really there."""
-    e = np.asarray(irradiance)
+    e = plain_array(irradiance, "irradiance")
     if e.ndim == 2:
         e = e[..., None]
     if e.ndim != 3:

@@ -69,11 +69,22 @@ def test_short_calibration_is_what_auto_then_reads(on_device, cache_dir, caplog)
     blur's auto then decide from it and say so."""
     path = calibrate(n=4096, blur_size=24, repeats=1, progress=lambda *a: None,
                      sweep=[MethodConfig("table", table_size=64)], sweep_f64=[],
-                     blur_sweep=[("direct", 1e-4)])
+                     blur_sweep=[("direct", 1e-4)], gather_size=48)
     here = DeviceKey.of(on_device.device)
     assert path == calibration_path(here) and path.is_file()
     data, source = choice.choice_for(here)
     assert source.kind == "calibrated" and data.device_key == here
+    # the kernels' shapes measured here, and read for this device only
+    from bdipole_cl.apps.benchmark import GATHER_WIDTH_CHOICES, TABLE_WIDTH_CHOICES
+    from bdipole_cl.ops.blur.dispatch import gather_costs, gather_width
+    from bdipole_cl.ops.inversion_kernel import table_width
+    tuned = data.kernels
+    assert tuned.table_width in TABLE_WIDTH_CHOICES and tuned.gather_width in GATHER_WIDTH_CHOICES
+    assert len(tuned.gather_costs) == 3 and all(c >= 0 for c in tuned.gather_costs)
+    assert table_width(on_device) == tuned.table_width
+    assert gather_width(on_device, 4096) == tuned.gather_width
+    assert tuple(vars(gather_costs(on_device)).values()) == tuned.gather_costs
+    assert choice.device_tuning(DeviceKey("other", "device", "1")) is None
     assert [c.config.table_size for c in data.inversion] == [64]
     with caplog.at_level(logging.INFO, logger="bdipole_cl"):
         invert_albedo(np.float32([0.5]), 1.4, "auto")

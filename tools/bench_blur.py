@@ -45,6 +45,7 @@ import numpy as np
 from scipy.signal import fftconvolve
 
 from bdipole_cl import get_runtime, use_device
+from bdipole_cl.apps.benchmark import varying_workload
 from bdipole_cl.ops.blur import blur, channel_kernel, channel_parameters
 from bdipole_cl.ops.blur.fft import SPECTRA_CACHE
 
@@ -188,10 +189,9 @@ def print_summary(summary, pairs):
 
 
 def varying_maps(n, mfp):
-    yy, xx = np.mgrid[0:n, 0:n] / n
-    pattern = np.sin(2 * np.pi * (3 * xx + yy)) * np.cos(2 * np.pi * (2 * yy - xx))
-    albedo = np.array(ALBEDO)[None, None, :] * (1.0 + 0.2 * pattern[..., None])
-    return albedo.astype(np.float32), (mfp * 2.0 ** (0.5 * pattern)).astype(np.float32)
+    """The texture-varying maps (``apps.benchmark.varying_workload``: albedo ALBEDO x (1 + 0.2
+    p(x)), mfp x 2^(p(x)/2))."""
+    return varying_workload(n, mfp)[1:]
 
 
 def sampled_error(e, out, albedo, mfp, info, samples, rng):
@@ -243,46 +243,17 @@ def varying_rows(e, mfp, t_const, args):
 
 def gather_costs(args):
     """The gather's time per near field radius on the varying workload at mfp 4 (channel 0),
-    the basis blurs' time per kernel, and the least-squares GatherCosts in basis blurs."""
-    from bdipole_cl.ops.blur import near_field
-    from bdipole_cl.ops.blur.dispatch import gather_exitance
-    from bdipole_cl.ops.blur.fft import basis_blurs, fft_shape
-    from bdipole_cl.ops.blur.textured import host_array, textured_plans
-    from bdipole_cl.ops.blur.textured_plan import PLAN_CACHE
-    n, rt = args.size, get_runtime()
-    e = np.random.default_rng(0).uniform(0.0, 1.0, (n, n, 3)).astype(np.float32)
-    albedo, mfps = varying_maps(n, 4.0)
-    out, rows, per_blur = host_array(e.shape), [], []
-    radii = near_field.NEAR_RADII
+    the basis blurs' time per kernel, and the least-squares GatherCosts in basis blurs
+    (``apps.benchmark.gather_rows``, what ``report --calibrate`` measures)."""
+    from bdipole_cl.apps.benchmark import fitted_gather_costs, gather_rows
     print(f"{'near':>4s} {'G':>3s} {'M':>3s} {'cells':>5s} {'terms':>5s} {'weights':>7s} "
-          f"{'gather ms':>9s} {'basis ms / kernel':>17s}")
-    try:
-        for near in radii:
-            near_field.NEAR_RADII = (near,)
-            PLAN_CACHE.clear()
-            plan, rd, ld, _ = textured_plans(e.shape, tol=args.tol, albedo=albedo, mfp=mfps,
-                                             eta=1.4)[0]
-            planes = host_array((len(plan.kernels), n, fft_shape((n, n), plan.radius)[1]))
-            t_basis, (padded, _, _) = timed(lambda: basis_blurs(e, 0, plan, "clamp", planes),
-                                            args.repeats)
-            t_gather, _ = timed(lambda: gather_exitance(out, 0, plan, rd, ld, planes, padded,
-                                                        plan.radius, rt), args.repeats + 2)
-            g, m = len(plan.kernels), len(plan.near_values)
-            cells, terms = near_field.near_cells(near), len(near_field.near_classes(near)) * m
-            rows.append((cells, terms, g + m, t_gather))
-            if g:
-                per_blur.append(t_basis / (g + 1))   # the forward transform and g inverses
-            print(f"{near:4d} {g:3d} {m:3d} {cells:5d} {terms:5d} {g + m:7d} "
-                  f"{t_gather * 1e3:9.1f} {t_basis / (g + 1) * 1e3 if g else 0:17.1f}")
-    finally:
-        near_field.NEAR_RADII = radii
-        PLAN_CACHE.clear()
-    a = np.array([[1.0, c, t, w] for c, t, w, _ in rows])
-    fit = np.linalg.lstsq(a, np.array([r[3] for r in rows]), rcond=None)[0]
-    unit = float(np.median(per_blur))
-    cell, term, weight = (max(v, 0.0) / unit for v in fit[1:])
-    print(f"a basis blur: {unit * 1e3:.1f} ms; GatherCosts(cell={cell:.2g}, term={term:.2g}, "
-          f"weight={weight:.2g}) (gather's fixed part {fit[0] * 1e3:.1f} ms)")
+          f"{'gather ms':>9s}")
+    rows, per_blur = gather_rows(args.size, args.tol, args.repeats + 2, progress=lambda r: print(
+        f"{r.near:4d} {r.nbasis:3d} {r.nnear:3d} {r.cells:5d} {r.terms:5d} "
+        f"{r.nbasis + r.nnear:7d} {r.seconds * 1e3:9.1f}"))
+    (cell, term, weight), fixed = fitted_gather_costs(rows, per_blur)
+    print(f"a basis blur: {per_blur * 1e3:.1f} ms; GatherCosts(cell={cell:.2g}, term={term:.2g}, "
+          f"weight={weight:.2g}) (gather's fixed part {fixed * 1e3:.1f} ms)")
     return 0
 
 

@@ -106,3 +106,115 @@ def stiff_workload(n=4000):
 def reference_inverse(rd, eta):
     """float64 (alpha', rho) of the float32 values in ``rd``."""
     return ref.invert_rd_rho(np.asarray(rd, np.float64), eta)
+
+
+#: the widths ``report --calibrate`` tries: elements per work-item of the table kernel and
+#: texels per work-item of the texture-varying gather
+TABLE_WIDTH_CHOICES = (1, 4, 8, 16)
+GATHER_WIDTH_CHOICES = (1, 8, 16)
+
+
+def forced(variable, value):
+    """A context in which the environment variable ``variable`` is ``value`` (the width
+    overrides the kernels read when they are built)."""
+    import contextlib
+    import os
+
+    @contextlib.contextmanager
+    def context():
+        before = os.environ.get(variable)
+        os.environ[variable] = str(value)
+        try:
+            yield
+        finally:
+            if before is None:
+                del os.environ[variable]
+            else:
+                os.environ[variable] = before
+    return context()
+
+
+def table_width_times(n, repeats=3, widths=TABLE_WIDTH_CHOICES) -> dict:
+    """{width: seconds} of the default table inversion of ``n`` albedos on the current device
+    (device buffers; best of ``repeats``), at each width."""
+    from ..ops.inversion_kernel import TABLE_WIDTH_VARIABLE
+    rd = inversion_workload(n)
+    want_alpha, want_rho = reference_inverse(rd[:1000], 1.4)
+    times = {}
+    for width in widths:
+        with forced(TABLE_WIDTH_VARIABLE, width):
+            times[width] = time_inversion(MethodConfig(), rd, 1.4, want_alpha, want_rho,
+                                          repeats=repeats, stat=min).seconds
+    return times
+
+
+@dataclass(frozen=True)
+class GatherRow:
+    """One near field's plan on the texture-varying workload: its radius, FFT basis kernels G,
+    near kernels M, and the gather's time."""
+
+    near: int
+    nbasis: int
+    nnear: int
+    cells: int
+    terms: int
+    seconds: float
+
+
+def gather_rows(size=1024, tol=1e-3, repeats=3, radii=None, progress=None):
+    """(GatherRow per near field radius, seconds of one basis blur) on the texture-varying
+    workload at mfp 4 texels (``varying_workload``, channel 0), on the current device."""
+    from ..ops.blur import near_field
+    from ..ops.blur.dispatch import gather_exitance
+    from ..ops.blur.fft import basis_blurs, fft_shape
+    from ..ops.blur.textured import host_array, textured_plans
+    from ..ops.blur.textured_plan import PLAN_CACHE
+    rt = get_runtime()
+    e, albedo, mfp = varying_workload(size, 4.0)
+    out, rows, per_blur = host_array(e.shape), [], []
+    every = near_field.NEAR_RADII
+    try:
+        for near in radii or every:
+            near_field.NEAR_RADII = (near,)
+            PLAN_CACHE.clear()
+            plan, rd, ld, _ = textured_plans(e.shape, tol=tol, albedo=albedo, mfp=mfp,
+                                             eta=1.4)[0]
+            planes = host_array((len(plan.kernels), size, fft_shape((size, size),
+                                                                     plan.radius)[1]))
+            t0 = time.perf_counter()
+            padded, _, _ = basis_blurs(e, 0, plan, "clamp", planes)
+            blurs = time.perf_counter() - t0
+            seconds = median_time(lambda: gather_exitance(out, 0, plan, rd, ld, planes, padded,
+                                                          plan.radius, rt), repeats, stat=min)
+            g, m = len(plan.kernels), len(plan.near_values)
+            rows.append(GatherRow(near, g, m, near_field.near_cells(near),
+                                  len(near_field.near_classes(near)) * m, seconds))
+            if g:
+                per_blur.append(blurs / (g + 1))        # the forward transform and g inverses
+            if progress:
+                progress(rows[-1])
+    finally:
+        near_field.NEAR_RADII = every
+        PLAN_CACHE.clear()
+    return rows, float(np.median(per_blur))
+
+
+def fitted_gather_costs(rows, per_blur):
+    """The least-squares (cell, term, weight) costs of ``gather_rows``' rows in basis blurs
+    (negative fits, where two columns trade off, as 0), and the fixed part in seconds."""
+    a = np.array([[1.0, r.cells, r.terms, r.nbasis + r.nnear] for r in rows])
+    fit = np.linalg.lstsq(a, np.array([r.seconds for r in rows]), rcond=None)[0]
+    return tuple(max(float(v), 0.0) / per_blur for v in fit[1:]), float(fit[0])
+
+
+def varying_workload(n, mfp):
+    """(E, albedo, mfp maps) of the texture-varying benchmark: a random RGB irradiance with a
+    few highlights, albedo (0.8, 0.6, 0.4) x (1 + 0.2 p(x)), mfp x 2^(p(x)/2), p a smooth
+    pattern in [-1, 1]."""
+    rng = np.random.default_rng(0)
+    e = rng.uniform(0.0, 1.0, (n, n, 3)).astype(np.float32)
+    e[rng.uniform(size=e.shape[:2]) < 1e-3] = 50.0
+    yy, xx = np.mgrid[0:n, 0:n] / n
+    pattern = np.sin(2 * np.pi * (3 * xx + yy)) * np.cos(2 * np.pi * (2 * yy - xx))
+    albedo = np.array((0.8, 0.6, 0.4))[None, None, :] * (1.0 + 0.2 * pattern[..., None])
+    return e, albedo.astype(np.float32), (mfp * 2.0 ** (0.5 * pattern)).astype(np.float32)

@@ -29,10 +29,13 @@ from pathlib import Path
 import numpy as np
 
 from ..device import get_runtime
-from ..methods.choice import ChoiceData, DeviceKey, calibration_path, write_choice_data
+from ..methods.choice import (ChoiceData, DeviceKey, KernelTuning, calibration_path,
+                              write_choice_data)
 from ..methods.registry import BLUR_KERNELS, BlurChoice, InversionChoice, MethodConfig
 from ..ops.invert import InversionKernel
-from .benchmark import inversion_workload, reference_inverse, stiff_workload, time_inversion
+from .benchmark import (GATHER_WIDTH_CHOICES, fitted_gather_costs, forced, gather_rows,
+                        inversion_workload, reference_inverse, stiff_workload,
+                        table_width_times, time_inversion)
 from .preview import replaced_together
 
 INVERSION_SWEEP = (
@@ -74,7 +77,10 @@ class Point:
 
 
 #: the calibration's (smaller) workloads: albedos, blur map size, repeats
-CALIBRATION = {"n": 1 << 18, "blur_size": 256, "repeats": 3}
+CALIBRATION = {"n": 1 << 18, "blur_size": 256, "repeats": 3, "gather_size": 512}
+#: the table widths are timed on at least this many albedos (16 MiB: beyond the caches, as a
+#: texture's are)
+TABLE_TUNING_TEXELS = 1 << 22
 
 
 def error_over_eta(cfg, double, stiff, references, etas=ERROR_ETAS):
@@ -314,14 +320,35 @@ def read_csv(path):
                 for r in csv.DictReader(f)]
 
 
-def write_choice(points, path):
-    """Every measured configuration as choice data for ``method="auto"``, cheapest first."""
+def write_choice(points, path, kernels=None):
+    """Every measured configuration as choice data for ``method="auto"``, cheapest first, with
+    the device's KernelTuning ``kernels`` (if measured)."""
     inv = sorted((p.choice for p in points if p.kind == "inversion"), key=lambda c: c.median_s)
     blur = sorted((p.choice for p in points if p.kind.startswith("blur")),
                   key=lambda c: (c.radius, c.median_s))
     rt = get_runtime()
     return write_choice_data(ChoiceData(rt.describe(), tuple(inv), tuple(blur),
-                                        DeviceKey.of(rt.device)), path)
+                                        DeviceKey.of(rt.device), kernels), path)
+
+
+def kernel_tuning(n, gather_size, repeats, progress=print) -> KernelTuning:
+    """The current device's fastest table width (the default table inversion of ``n`` albedos,
+    at least TABLE_TUNING_TEXELS), fastest gather width (the texture-varying gather at near field 3), and gather
+    costs at that width (``benchmark.gather_rows``, a ``gather_size`` map)."""
+    from ..ops.blur.dispatch import GATHER_WIDTH_VARIABLE
+    table = table_width_times(max(n, TABLE_TUNING_TEXELS), repeats)
+    progress("  table widths: " + ", ".join(f"{w}: {t * 1e3:.2f} ms" for w, t in table.items()))
+    gather = {}
+    for width in GATHER_WIDTH_CHOICES:
+        with forced(GATHER_WIDTH_VARIABLE, width):
+            gather[width] = gather_rows(gather_size, repeats=repeats, radii=(3,))[0][0].seconds
+    progress("  gather widths: " + ", ".join(f"{w}: {t * 1e3:.2f} ms" for w, t in gather.items()))
+    best = min(gather, key=gather.get)
+    with forced(GATHER_WIDTH_VARIABLE, best):
+        costs, _ = fitted_gather_costs(*gather_rows(gather_size, repeats=repeats))
+    progress(f"  gather costs (cell, term, weight) in basis blurs: "
+             f"{', '.join(f'{c:.3g}' for c in costs)}")
+    return KernelTuning(min(table, key=table.get), best, costs)
 
 
 def calibrate(*, n=CALIBRATION["n"], blur_size=CALIBRATION["blur_size"],
@@ -329,14 +356,18 @@ def calibrate(*, n=CALIBRATION["n"], blur_size=CALIBRATION["blur_size"],
     """``bdipole-cl report --calibrate``: measure the inversion and blur configurations on the
     current device (smaller workloads than the report) and store them in the user's cache for
     this device; returns the file. ``sweeps``: ``sweep``, ``sweep_f64`` (inversion) and
-    ``blur_sweep`` in place of the report's (a short calibration)."""
+    ``blur_sweep`` in place of the report's, ``gather_size`` (a short calibration). It also
+    measures the kernels' widths and the gather's costs (``kernel_tuning``)."""
     rt = get_runtime()
     progress(f"calibrating {rt.describe()}")
     points = inversion_points(n, repeats=repeats, progress=progress,
                               sweep=sweeps.get("sweep"), sweep_f64=sweeps.get("sweep_f64"))
     points += blur_points(blur_size, repeats=repeats, progress=progress,
                           sweep=sweeps.get("blur_sweep", BLUR_SWEEP))
-    path = write_choice(points, calibration_path(DeviceKey.of(rt.device)))
+    progress("kernel shapes:")
+    kernels = kernel_tuning(n, sweeps.get("gather_size", CALIBRATION["gather_size"]), repeats,
+                            progress)
+    path = write_choice(points, calibration_path(DeviceKey.of(rt.device)), kernels)
     progress(f"wrote {path}: method='auto' on this device now decides from it")
     return path
 

@@ -64,11 +64,36 @@ class DeviceKey:
 
 
 @dataclass(frozen=True)
+class KernelTuning:
+    """How the kernels run fastest on the device the data were measured on (``report
+    --calibrate``): elements per work-item of kernels/invert_table.cl and texels per work-item
+    of kernels/blur_textured.cl's gather, and the gather's costs (cell, term, weight: what
+    ``near_field.GatherCosts`` holds). None: not measured (the per-platform defaults)."""
+
+    table_width: int | None = None
+    gather_width: int | None = None
+    gather_costs: tuple | None = None
+
+    def fields(self) -> dict:
+        return {"table_width": self.table_width, "gather_width": self.gather_width,
+                "gather_costs": None if self.gather_costs is None else list(self.gather_costs)}
+
+    @classmethod
+    def from_fields(cls, raw) -> "KernelTuning | None":
+        if not raw:
+            return None
+        costs = raw.get("gather_costs")
+        return cls(raw.get("table_width"), raw.get("gather_width"),
+                   None if costs is None else tuple(float(c) for c in costs))
+
+
+@dataclass(frozen=True)
 class ChoiceData:
     device: str
     inversion: tuple          # InversionChoice, in the file's order
     blur: tuple               # BlurChoice
     device_key: DeviceKey | None = None     # None: not recorded (older files)
+    kernels: KernelTuning | None = None     # None: not measured
 
 
 @dataclass(frozen=True)
@@ -147,6 +172,19 @@ def choice_for(key: DeviceKey | None = None) -> tuple:
     return data, source
 
 
+def device_tuning(key: DeviceKey) -> KernelTuning | None:
+    """The KernelTuning measured on the device ``key`` itself: from the file named by
+    BDIPOLE_CL_CHOICE_DATA, else this device's calibration, where either is keyed by this
+    very device (never data measured on another: widths and costs are the CPU's own)."""
+    named = os.environ.get(CHOICE_DATA_VARIABLE)
+    for path in ([Path(named)] if named else []) + [calibration_path(key)]:
+        if path.is_file():
+            data = load_choice_data(path)
+            if data.device_key == key:
+                return data.kernels
+    return None
+
+
 @_DATA_CACHE.memoize
 def _load(path: str) -> ChoiceData:
     raw = json.loads(Path(path).read_text())
@@ -159,7 +197,8 @@ def _load(path: str) -> ChoiceData:
                             float(e["max_error"]), float(e["median_s"])) for e in raw["blur"])
     key = raw.get("device_key")
     return ChoiceData(raw.get("device", ""), inversion, blur,
-                      DeviceKey(**key) if key else None)
+                      DeviceKey(**key) if key else None,
+                      KernelTuning.from_fields(raw.get("kernels")))
 
 
 def load_choice_data(path=None) -> ChoiceData:
@@ -179,6 +218,8 @@ def write_choice_data(data: ChoiceData, path) -> Path:
                          for c in data.inversion],
            "blur": [{"method": b.method, "tol": b.tol, "radius": b.radius, "mfp": b.mfp,
                      "max_error": b.max_error, "median_s": b.median_s} for b in data.blur]}
+    if data.kernels is not None:
+        raw["kernels"] = data.kernels.fields()
     raw["digest"] = choice_digest(raw)
     path = Path(path)
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")

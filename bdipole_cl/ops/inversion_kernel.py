@@ -15,6 +15,7 @@ from ..device import build_options, get_program, get_runtime, real_dtype
 from ..device.layout import channel_params
 from ..device.runtime import device_kind
 from ..device.transfer import aligned_empty, run_elementwise
+from ..methods.choice import DeviceKey, device_tuning
 from ..methods.registry import MethodConfig
 from ..physics import reference as ref
 from ..physics import tables
@@ -48,7 +49,9 @@ TABLE_WIDTH_VARIABLE = "BDIPOLE_CL_TABLE_WIDTH"
 
 
 def table_width(rt) -> int:
-    """Elements per work-item of kernels/invert_table.cl on ``rt``'s device."""
+    """Elements per work-item of kernels/invert_table.cl on ``rt``'s device: forced by
+    TABLE_WIDTH_VARIABLE, else the device's calibration (``report --calibrate``), else
+    TABLE_WIDTHS."""
     forced = os.environ.get(TABLE_WIDTH_VARIABLE)
     if forced:
         if forced not in ("1", "2", "4", "8", "16"):
@@ -56,6 +59,9 @@ def table_width(rt) -> int:
         return int(forced)
     if device_kind(rt.device) != "cpu":
         return 1
+    tuned = device_tuning(DeviceKey.of(rt.device))
+    if tuned is not None and tuned.table_width:
+        return int(tuned.table_width)
     platform = rt.device.platform.name.strip().lower()
     return next((w for name, w in TABLE_WIDTHS.items() if name in platform), 8)
 

@@ -200,11 +200,14 @@ def gather_rows(size=1024, tol=1e-3, repeats=3, radii=None, progress=None):
 
 
 def fitted_gather_costs(rows, per_blur):
-    """The least-squares (cell, term, weight) costs of ``gather_rows``' rows in basis blurs
-    (negative fits, where two columns trade off, as 0), and the fixed part in seconds."""
+    """The non-negative least-squares (cell, term, weight) costs of ``gather_rows``' rows in
+    basis blurs, and the fixed part in seconds (the columns move together over the near
+    fields, so an unconstrained fit trades them off into negative costs)."""
+    from scipy.optimize import nnls
     a = np.array([[1.0, r.cells, r.terms, r.nbasis + r.nnear] for r in rows])
-    fit = np.linalg.lstsq(a, np.array([r.seconds for r in rows]), rcond=None)[0]
-    return tuple(max(float(v), 0.0) / per_blur for v in fit[1:]), float(fit[0])
+    scale = a.max(axis=0)                       # columns of one size, for the solver
+    fit = nnls(a / scale, np.array([r.seconds for r in rows]))[0] / scale
+    return tuple(float(v) / per_blur for v in fit[1:]), float(fit[0])
 
 
 def varying_workload(n, mfp):

@@ -77,7 +77,7 @@ class Point:
 
 
 #: the calibration's (smaller) workloads: albedos, blur map size, repeats
-CALIBRATION = {"n": 1 << 18, "blur_size": 256, "repeats": 3, "gather_size": 512}
+CALIBRATION = {"n": 1 << 18, "blur_size": 256, "repeats": 3, "gather_size": 1024}
 #: the table widths are timed on at least this many albedos (16 MiB: beyond the caches, as a
 #: texture's are)
 TABLE_TUNING_TEXELS = 1 << 22

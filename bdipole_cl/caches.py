@@ -8,12 +8,26 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import os
 import threading
 from collections import OrderedDict
+from pathlib import Path
 
 import numpy as np
 
 _caches: list = []
+
+#: the folder of this user's files that outlive a process (calibrations, the OpenCL runtime
+#: registrations): it overrides $XDG_CACHE_HOME/bdipole_cl (tests set it)
+CACHE_DIR_VARIABLE = "BDIPOLE_CL_CACHE_DIR"
+
+
+def user_cache_dir() -> Path:
+    """$BDIPOLE_CL_CACHE_DIR, $XDG_CACHE_HOME/bdipole_cl or ~/.cache/bdipole_cl."""
+    named = os.environ.get(CACHE_DIR_VARIABLE)
+    if named:
+        return Path(named)
+    return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "bdipole_cl"
 
 
 def nbytes_of(value) -> int:

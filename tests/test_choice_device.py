@@ -1,6 +1,7 @@
 """``auto`` decides from the choice data of the device in use (bdipole_cl/methods/choice.py):
 a calibration of this device when there is one, never another device's, else the shipped
 data with a note; ``bdipole-cl report --calibrate`` writes what ``auto`` then reads."""
+import json
 import logging
 from types import SimpleNamespace
 
@@ -107,3 +108,40 @@ def test_auto_blurs_on_a_gpu_without_its_own_data(cache_dir):
     from bdipole_cl.ops.blur.params import channel_parameters
     (a, st, eta), = channel_parameters(1, albedo=0.8, mfp=16.0, eta=1.4)
     assert plan_channel("auto", a, st, eta, 1e-3, False, auto).method != "fft"
+
+
+@pytest.mark.parametrize("text", [
+    "{not json",
+    None,                                   # a valid file whose kernels are out of range
+])
+def test_a_broken_calibration_is_passed_over_and_rewritten(on_device, cache_dir, caplog, text):
+    """Every table inversion and texture-varying blur reads the device's calibration: a file
+    that is not JSON, or whose kernel widths are not ones the kernels are built for (3, which
+    was an OpenCL build error), is passed over with one warning naming it (the per-platform
+    defaults then), and `report --calibrate` rewrites it."""
+    from bdipole_cl.ops.inversion_kernel import table_width
+    here = DeviceKey.of(on_device.device)
+    path = calibration_path(here)
+    path.parent.mkdir(parents=True)
+    if text is None:
+        write_choice_data(foreign_data(here), path)
+        raw = json.loads(path.read_text())
+        raw["kernels"] = {"table_width": 3, "gather_width": "16", "gather_costs": [1, 2]}
+        path.write_text(json.dumps(raw))
+    else:
+        path.write_text(text)
+    choice._DATA_CACHE.clear()
+    rd = np.linspace(0.05, 0.95, 64, dtype=np.float32)
+    with caplog.at_level(logging.WARNING, logger="bdipole_cl"):
+        alpha = invert_albedo(rd, 1.4)
+        assert table_width(on_device) in (1, 8, 16)
+        blur(np.ones((8, 9, 1), np.float32), albedo=np.full((8, 9), 0.6), mfp=1.0)
+    notes = [r.getMessage() for r in caplog.records if str(path) in r.getMessage()]
+    assert len(notes) == 1 and "passed over" in notes[0] and "--calibrate" in notes[0], notes
+    if text is None:
+        assert "kernels.table_width: 3" in notes[0], notes
+    np.testing.assert_allclose(alpha, invert_albedo(rd, 1.4, method="bisection"), rtol=1e-5)
+    calibrate(n=4096, blur_size=24, repeats=1, progress=lambda *a: None,
+              sweep=[MethodConfig("table", table_size=64)], sweep_f64=[],
+              blur_sweep=[("direct", 1e-4)], gather_size=48)
+    assert choice.load_choice_data(path).kernels.table_width in (1, 4, 8, 16)

@@ -968,3 +968,42 @@ def test_demo_never_rewrites_a_file_changed_in_its_folder(tmp_path):
     with pytest.raises(ValueError, match="an earlier demo there did not finish"):
         claim_folder(unfinished)
     assert (unfinished / "albedo.exr").read_bytes() == b"the user's copy"
+
+
+def test_report_checks_its_outputs_again_before_it_writes(tmp_path, monkeypatch, capsys):
+    """A report measures for minutes: a file the user put at report.csv meanwhile, or a
+    hand-written choice file (the format, no digest), is refused when the report is about to
+    write, not only before it measured; --calibrate takes no --write-choice."""
+    from bdipole_cl.apps import report
+    folder = tmp_path / "r"
+    real = report.inversion_points
+
+    def user_meanwhile(*args, **kw):
+        folder.mkdir(exist_ok=True)
+        (folder / "report.csv").write_text("precious\n")
+        return real(*args, **kw)
+    monkeypatch.setattr(report, "inversion_points", user_meanwhile)
+    with pytest.raises(ValueError, match="report.csv exists and was not written"):
+        report.run_report(folder, n=4096, blur_size=24, repeats=1, progress=lambda *_: None)
+    assert (folder / "report.csv").read_text() == "precious\n"
+    hand = tmp_path / "hand.json"
+    hand.write_text(json.dumps({"device": "mine", "inversion": [], "blur": []}))
+    with pytest.raises(ValueError, match="hand.json exists and was not written"):
+        report.check_report_outputs(tmp_path / "new", hand)
+    assert cli_main(["report", "--calibrate", "--write-choice", str(hand)]) == 2
+    assert "--write-choice goes with a report" in capsys.readouterr().err
+
+
+def test_demo_refuses_a_folder_with_a_symbolic_link(tmp_path):
+    """A linked subfolder took the demo's writes into the user's folder (rglob does not walk
+    into it, so the digests saw nothing changed)."""
+    from bdipole_cl.apps.demo import claim_folder, record_folder
+    folder, mine = tmp_path / "dm", tmp_path / "mine"
+    claim_folder(folder)
+    record_folder(folder, complete=True)
+    mine.mkdir()
+    (mine / "skin_albedo.1001.exr").write_text("precious")
+    (folder / "scene").symlink_to(mine, target_is_directory=True)
+    with pytest.raises(ValueError, match="is a symbolic link"):
+        claim_folder(folder)
+    assert (mine / "skin_albedo.1001.exr").read_text() == "precious"

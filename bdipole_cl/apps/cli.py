@@ -157,11 +157,14 @@ def _cmd_report(args) -> int:
     from .report import calibrate, check_report_outputs, run_report
     with terminate_raises():
         if args.calibrate:
+            if args.write_choice:
+                raise ValueError("--calibrate stores this device's data in the user's cache; "
+                                 "--write-choice goes with a report, not with it")
             calibrate()
             return 0
         check_report_outputs(args.output, args.write_choice, args.force)
         run_report(args.output, n=args.n, blur_size=args.blur_size, repeats=args.repeats,
-                   write_choice_to=args.write_choice)
+                   write_choice_to=args.write_choice, force=args.force)
     return 0
 
 

@@ -86,6 +86,10 @@ def claim_folder(folder):
     if folder.is_dir() and any(folder.iterdir()) and not (folder / MARKER).exists():
         raise ValueError(f"--dir {folder}: the folder holds files the demo did not make; give "
                          f"a new or empty folder (nothing was written)")
+    links = [p for p in folder.rglob("*") if p.is_symlink()] if folder.is_dir() else []
+    if links:                     # a linked folder would take the demo's writes elsewhere
+        raise ValueError(f"--dir {folder}: {links[0]} is a symbolic link; the demo writes only "
+                         f"into a folder of its own (nothing was written)")
     present = folder_digests(folder) if folder.is_dir() else {}
     recorded = recorded_files(folder) if folder.is_dir() else None
     if present and recorded is None:

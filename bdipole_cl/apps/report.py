@@ -29,8 +29,8 @@ from pathlib import Path
 import numpy as np
 
 from ..device import get_runtime
-from ..methods.choice import (ChoiceData, DeviceKey, KernelTuning, calibration_path,
-                              write_choice_data)
+from ..methods.choice import (ChoiceData, DeviceKey, KernelTuning, calibration_ignored,
+                              calibration_path, write_choice_data)
 from ..methods.registry import BLUR_KERNELS, BlurChoice, InversionChoice, MethodConfig
 from ..ops.invert import InversionKernel
 from .benchmark import (GATHER_WIDTH_CHOICES, fitted_gather_costs, forced, gather_rows,
@@ -333,8 +333,9 @@ def write_choice(points, path, kernels=None):
 
 def kernel_tuning(n, gather_size, repeats, progress=print) -> KernelTuning:
     """The current device's fastest table width (the default table inversion of ``n`` albedos,
-    at least TABLE_TUNING_TEXELS), fastest gather width (the texture-varying gather at near field 3), and gather
-    costs at that width (``benchmark.gather_rows``, a ``gather_size`` map)."""
+    at least TABLE_TUNING_TEXELS), fastest gather width (the texture-varying gather at near
+    field 3), and gather costs at that width (``benchmark.gather_rows``, a ``gather_size``
+    map)."""
     from ..ops.blur.dispatch import GATHER_WIDTH_VARIABLE
     table = table_width_times(max(n, TABLE_TUNING_TEXELS), repeats)
     progress("  table widths: " + ", ".join(f"{w}: {t * 1e3:.2f} ms" for w, t in table.items()))
@@ -358,6 +359,11 @@ def calibrate(*, n=CALIBRATION["n"], blur_size=CALIBRATION["blur_size"],
     this device; returns the file. ``sweeps``: ``sweep``, ``sweep_f64`` (inversion) and
     ``blur_sweep`` in place of the report's, ``gather_size`` (a short calibration). It also
     measures the kernels' widths and the gather's costs (``kernel_tuning``)."""
+    with calibration_ignored():         # its own measurements, whatever a calibration says
+        return _calibrate(n, blur_size, repeats, progress, sweeps)
+
+
+def _calibrate(n, blur_size, repeats, progress, sweeps):
     rt = get_runtime()
     progress(f"calibrating {rt.describe()}")
     points = inversion_points(n, repeats=repeats, progress=progress,
@@ -373,7 +379,7 @@ def calibrate(*, n=CALIBRATION["n"], blur_size=CALIBRATION["blur_size"],
 
 
 def run_report(folder="report_out", *, n=1 << 20, blur_size=512, repeats=3, write_choice_to=None,
-               progress=print):
+               progress=print, force=False):
     rt = get_runtime()
     progress(f"device: {rt.describe()}")
     progress("inversion sweep:")
@@ -389,6 +395,7 @@ def run_report(folder="report_out", *, n=1 << 20, blur_size=512, repeats=3, writ
                  f"Blur: {blur_size}x{blur_size} RGB uniform random irradiance, albedo "
                  f"0.8, mfp {', '.join(f'{m:g}' for m in BLUR_WORKLOADS)} texels, eta 1.4, "
                  f"border clamp, median of {repeats} calls (host to host)."]
+    check_report_outputs(folder, write_choice_to, force)   # again: files may have come since
     out = write_outputs(points, folder, rt.describe(), workloads)
     if write_choice_to:
         progress(f"wrote {write_choice(points, write_choice_to)}")

@@ -28,6 +28,8 @@ import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
+from ..caches import user_cache_dir
+
 #: the ICD library of Intel's CPU runtime, as the ``intel-opencl-rt`` wheel installs it
 INTEL_ICD_LIBRARY = "libintelocl.so"
 #: its support libraries (``intel-cmplr-lib-rt``), preloaded with RTLD_GLOBAL
@@ -96,8 +98,7 @@ def vendors_directory(entries: dict[str, str]) -> Path:
     """A directory holding exactly ``entries``, named by their content so that processes with
     the same set share it; written atomically (each file via a temporary name)."""
     digest = hashlib.sha256(repr(sorted(entries.items())).encode()).hexdigest()[:16]
-    base = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "bdipole_cl"
-    for root in (base, Path(tempfile.gettempdir()) / f"bdipole_cl-{os.getuid()}"):
+    for root in (user_cache_dir(), Path(tempfile.gettempdir()) / f"bdipole_cl-{os.getuid()}"):
         target = root / f"icd-{digest}"
         try:
             target.mkdir(parents=True, exist_ok=True)
@@ -110,7 +111,8 @@ def vendors_directory(entries: dict[str, str]) -> Path:
             return target
         except OSError:
             continue
-    raise OSError(f"no writable directory for the OpenCL vendors list (tried {base} and "
+    raise OSError(f"no writable directory for the OpenCL vendors list (tried "
+                  f"{user_cache_dir()} and "
                   f"{tempfile.gettempdir()})")
 
 

@@ -22,14 +22,12 @@ import threading
 from dataclasses import dataclass
 from pathlib import Path
 
-from ..caches import ByteCache
+from ..caches import CACHE_DIR_VARIABLE, ByteCache, user_cache_dir  # noqa: F401
 from .registry import BlurChoice, InversionChoice, MethodConfig
 
 #: the data shipped with the package
 PACKAGED_CHOICE_DATA = Path(__file__).resolve().parent.parent / "data" / "choice.json"
 CHOICE_DATA_VARIABLE = "BDIPOLE_CL_CHOICE_DATA"
-#: the folder of this user's calibrations (overrides the XDG cache folder; tests set it)
-CACHE_DIR_VARIABLE = "BDIPOLE_CL_CACHE_DIR"
 #: rho accuracy that ``method="auto"`` aims for when no ``tol`` is given (the inversion's
 #: accuracy contract, docs/model.md "Accuracy")
 AUTO_DEFAULT_TOL = 1e-4
@@ -63,6 +61,11 @@ class DeviceKey:
         return f"{text[:48]}-{digest.hexdigest()[:12]}"
 
 
+#: the widths the kernels are built for (kernels/lanes.h; the gather's 2 is not measured)
+TABLE_WIDTHS_ALLOWED = (1, 2, 4, 8, 16)
+GATHER_WIDTHS_ALLOWED = (1, 4, 8, 16)
+
+
 @dataclass(frozen=True)
 class KernelTuning:
     """How the kernels run fastest on the device the data were measured on (``report
@@ -80,11 +83,23 @@ class KernelTuning:
 
     @classmethod
     def from_fields(cls, raw) -> "KernelTuning | None":
-        if not raw:
+        """From a file's "kernels" entry, each field checked (ValueError naming it)."""
+        if raw is None:
             return None
-        costs = raw.get("gather_costs")
-        return cls(raw.get("table_width"), raw.get("gather_width"),
-                   None if costs is None else tuple(float(c) for c in costs))
+        if not isinstance(raw, dict):
+            raise ValueError(f"kernels: expected an object, got {raw!r}")
+        table, gather, costs = (raw.get(k) for k in ("table_width", "gather_width",
+                                                     "gather_costs"))
+        for name, value, allowed in (("table_width", table, TABLE_WIDTHS_ALLOWED),
+                                     ("gather_width", gather, GATHER_WIDTHS_ALLOWED)):
+            if value is not None and (type(value) is not int or value not in allowed):
+                raise ValueError(f"kernels.{name}: {value!r}, expected one of {allowed}")
+        if costs is not None and not (
+                isinstance(costs, list) and len(costs) == 3
+                and all(type(c) in (int, float) and 0 <= c < float("inf") for c in costs)):
+            raise ValueError(f"kernels.gather_costs: {costs!r}, expected 3 finite numbers >= 0 "
+                             f"(cell, term, weight)")
+        return cls(table, gather, None if costs is None else tuple(float(c) for c in costs))
 
 
 @dataclass(frozen=True)
@@ -125,13 +140,8 @@ def choice_data_path() -> Path:
 
 
 def calibration_dir() -> Path:
-    """This user's calibration folder: $BDIPOLE_CL_CACHE_DIR, $XDG_CACHE_HOME/bdipole_cl or
-    ~/.cache/bdipole_cl."""
-    named = os.environ.get(CACHE_DIR_VARIABLE)
-    if named:
-        return Path(named)
-    base = os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
-    return Path(base) / "bdipole_cl"
+    """This user's calibration folder (``caches.user_cache_dir``)."""
+    return user_cache_dir()
 
 
 def calibration_path(key: DeviceKey) -> Path:
@@ -149,14 +159,21 @@ def choice_for(key: DeviceKey | None = None) -> tuple:
     data, noted once per process and device when they were measured elsewhere."""
     named = os.environ.get(CHOICE_DATA_VARIABLE)
     if named:
+        if not Path(named).is_file():
+            raise ValueError(f"{CHOICE_DATA_VARIABLE}={named}: no such file")
         data = load_choice_data(named)
         return data, ChoiceSource(Path(named), "named", data.device,
                                   key is not None and data.device_key == key)
     if key is not None:
         path = calibration_path(key)
         if path.is_file():
-            data = load_choice_data(path)
-            if data.device_key == key:
+            try:
+                data = load_choice_data(path)
+            except ValueError as exc:          # a broken calibration: the shipped data
+                _warn_once(path, f"{exc}; passed over (`bdipole-cl report --calibrate` "
+                                 f"rewrites it)")
+                data = None
+            if data is not None and data.device_key == key:
                 return data, ChoiceSource(path, "calibrated", data.device, True)
     data = load_choice_data(PACKAGED_CHOICE_DATA)
     source = ChoiceSource(PACKAGED_CHOICE_DATA, "shipped", data.device,
@@ -172,17 +189,51 @@ def choice_for(key: DeviceKey | None = None) -> tuple:
     return data, source
 
 
+#: set while ``report --calibrate`` measures: the kernels take their per-platform defaults (or
+#: the widths it forces), whatever an earlier calibration says (a broken one included)
+_measuring = threading.local()
+
+
+class calibration_ignored:
+    """Within it, ``device_tuning`` is None: the calibration's own measurements."""
+
+    def __enter__(self):
+        _measuring.active = True
+        return self
+
+    def __exit__(self, *exc):
+        _measuring.active = False
+        return False
+
+
 def device_tuning(key: DeviceKey) -> KernelTuning | None:
     """The KernelTuning measured on the device ``key`` itself: from the file named by
     BDIPOLE_CL_CHOICE_DATA, else this device's calibration, where either is keyed by this
-    very device (never data measured on another: widths and costs are the CPU's own)."""
+    very device (never data measured on another: widths and costs are the CPU's own). A file
+    that cannot be read as choice data, or whose kernels are not valid, is passed over with a
+    one-line warning naming it (once per process): the per-platform defaults then."""
+    if getattr(_measuring, "active", False):
+        return None
     named = os.environ.get(CHOICE_DATA_VARIABLE)
     for path in ([Path(named)] if named else []) + [calibration_path(key)]:
         if path.is_file():
-            data = load_choice_data(path)
+            try:
+                data = load_choice_data(path)
+            except (OSError, ValueError) as exc:
+                _warn_once(path, f"{exc}; passed over (`bdipole-cl report --calibrate` "
+                                 f"rewrites it)")
+                continue
             if data.device_key == key:
                 return data.kernels
     return None
+
+
+def _warn_once(path, text):
+    with _noted_lock:
+        first = ("unreadable", str(path)) not in _noted
+        _noted.add(("unreadable", str(path)))
+    if first:
+        logging.getLogger("bdipole_cl").warning("%s", text)
 
 
 @_DATA_CACHE.memoize
@@ -201,9 +252,19 @@ def _load(path: str) -> ChoiceData:
                       KernelTuning.from_fields(raw.get("kernels")))
 
 
+def choice_file_error(path, exc) -> ValueError:
+    """A one-line ValueError naming the choice data file that could not be read."""
+    return ValueError(f"{path}: not choice data bdipole-cl can read ({exc})")
+
+
 def load_choice_data(path=None) -> ChoiceData:
-    """The measured choices (read once per process and path)."""
-    return _load(str(path or choice_data_path()))
+    """The measured choices (read once per process and path); a file that is not choice data
+    is a ValueError naming it."""
+    path = str(path or choice_data_path())
+    try:
+        return _load(path)
+    except (ValueError, TypeError, KeyError, AttributeError, UnicodeDecodeError) as exc:
+        raise choice_file_error(path, exc) from None
 
 
 def write_choice_data(data: ChoiceData, path) -> Path:
@@ -248,14 +309,15 @@ def choice_digest(raw: dict) -> str:
 
 def is_choice_data(path) -> bool:
     """Whether the file at ``path`` is choice data this tool wrote, unchanged since: a JSON
-    object with CHOICE_KEYS whose ``digest`` matches its fields (files written before the
-    digest have none): what ``--write-choice`` may replace without --force."""
+    object with CHOICE_KEYS whose ``digest`` matches its fields (a file without one, written
+    by hand or by an earlier version, is not): what ``--write-choice`` may replace without
+    --force."""
     try:
         raw = json.loads(Path(path).read_text())
     except (OSError, ValueError):
         return False
     return (isinstance(raw, dict) and all(k in raw for k in CHOICE_KEYS)
-            and raw.get("digest", choice_digest(raw)) == choice_digest(raw))
+            and raw.get("digest") == choice_digest(raw))
 
 
 def auto_inversion_config(tol: float, double: bool = False, data: ChoiceData | None = None,

@@ -39,7 +39,7 @@
 #define BD_NEAR_RANK 0
 #endif
 #ifndef BD_WIDTH
-#define BD_WIDTH 8
+#error "build with -DBD_WIDTH=<texels per work-item> (kernels/lanes.h, before this file, needs it)"
 #endif
 // near classes (near_field.near_classes) and weights per table node: the basis kernels', then
 // the near kernels'

@@ -387,3 +387,11 @@ def test_a_masked_array_is_refused_not_unmasked_silently():
             blur(e, **kw)
     with pytest.raises(ValueError, match="irradiance is a masked array"):
         blur(np.ma.masked_array(e, mask=e > 0), albedo=0.5, mfp=1.0)
+
+
+def test_a_one_row_map_has_a_range():
+    """value_range splits rows over the FFT threads: a map of one row left one thread no rows
+    (np.min of nothing raised)."""
+    from bdipole_cl.ops.blur.fft import value_range
+    v = np.linspace(-3.0, 5.0, 1 << 17, dtype=np.float32).reshape(1, -1)
+    assert value_range(v) == (-3.0, 5.0)

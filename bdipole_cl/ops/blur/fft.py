@@ -198,6 +198,8 @@ def value_range(v):
         return v.min(), v.max()
 
     def block(r0, r1):
+        if r1 <= r0:                   # more threads than rows
+            return None
         lows, highs = [], []
         for p in range(r0, r1, PIECE_ROWS):
             piece = v[p:min(p + PIECE_ROWS, r1)]

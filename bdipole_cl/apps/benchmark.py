@@ -6,6 +6,8 @@ float64 reference inverse of the exact float32 inputs.
 """
 from __future__ import annotations
 
+import contextlib
+import os
 import statistics
 import time
 from dataclasses import dataclass
@@ -114,24 +116,19 @@ TABLE_WIDTH_CHOICES = (1, 4, 8, 16)
 GATHER_WIDTH_CHOICES = (1, 8, 16)
 
 
+@contextlib.contextmanager
 def forced(variable, value):
     """A context in which the environment variable ``variable`` is ``value`` (the width
     overrides the kernels read when they are built)."""
-    import contextlib
-    import os
-
-    @contextlib.contextmanager
-    def context():
-        before = os.environ.get(variable)
-        os.environ[variable] = str(value)
-        try:
-            yield
-        finally:
-            if before is None:
-                del os.environ[variable]
-            else:
-                os.environ[variable] = before
-    return context()
+    before = os.environ.get(variable)
+    os.environ[variable] = str(value)
+    try:
+        yield
+    finally:
+        if before is None:
+            del os.environ[variable]
+        else:
+            os.environ[variable] = before
 
 
 def table_width_times(n, repeats=3, widths=TABLE_WIDTH_CHOICES) -> dict:

@@ -22,15 +22,15 @@ import csv
 import hashlib
 import io
 import os
-import stat
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from ..device import get_runtime
+from ..io.collisions import refusal
 from ..methods.choice import (ChoiceData, DeviceKey, KernelTuning, calibration_ignored,
-                              calibration_path, write_choice_data)
+                              calibration_path, is_choice_data, write_choice_data)
 from ..methods.registry import BLUR_KERNELS, BlurChoice, InversionChoice, MethodConfig
 from ..ops.invert import InversionKernel
 from .benchmark import (GATHER_WIDTH_CHOICES, fitted_gather_costs, forced, gather_rows,
@@ -221,7 +221,6 @@ def check_report_outputs(folder, choice_path=None, force=False):
     or one it wrote that was changed since (unless ``force``), or is a directory or other
     non-regular file (always); where ``folder`` is a file, or ``choice_path`` is ``folder``
     or one of its report files."""
-    from ..methods.choice import is_choice_data
     folder = Path(folder)
     if folder.exists() and not folder.is_dir():
         raise ValueError(f"-o {folder}: exists and is not a folder; the report is a folder of "
@@ -234,16 +233,9 @@ def check_report_outputs(folder, choice_path=None, force=False):
                              f"its files; give another path")
         targets.append((Path(choice_path), is_choice_data))
     for path, is_ours in targets:
-        try:
-            mode = os.stat(path).st_mode
-        except OSError:
-            continue                              # nothing there
-        if not stat.S_ISREG(mode):
-            raise ValueError(f"output {path} is not a regular file; give another path")
-        if not force and not is_ours(path):
-            raise ValueError(f"output {path} exists and was not written by bdipole-cl (or was "
-                             f"changed since); move it, choose another output, or pass --force "
-                             f"to replace it")
+        why = refusal(path, force, is_ours)
+        if why:
+            raise ValueError(why)
 
 
 def write_outputs(points, folder, device, workloads):

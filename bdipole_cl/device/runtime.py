@@ -117,6 +117,26 @@ def device_kind(device) -> str:
     return "other"
 
 
+def platform_entry(device, table: dict, default):
+    """``table``'s value for a CPU device's OpenCL platform (keys: a case-insensitive part of
+    its name), else ``default`` (other platforms, and devices that are not CPUs)."""
+    if device_kind(device) != "cpu":
+        return default
+    platform = device.platform.name.strip().lower()
+    return next((v for name, v in table.items() if name in platform), default)
+
+
+def forced_width(variable: str, allowed) -> int | None:
+    """The elements per work-item the environment variable ``variable`` forces (a ValueError
+    naming it unless one of ``allowed``), or None where it is not set."""
+    text = os.environ.get(variable)
+    if not text:
+        return None
+    if text not in {str(w) for w in allowed}:
+        raise ValueError(f"{variable}={text!r}: expected one of {', '.join(map(str, allowed))}")
+    return int(text)
+
+
 def _one_line(text: str, limit: int = 200) -> str:
     """The most telling line of a driver's message: the first one that says 'error'."""
     lines = [ln.strip() for ln in str(text).splitlines() if ln.strip()]

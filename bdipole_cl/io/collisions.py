@@ -70,21 +70,29 @@ def ours(path) -> bool:
     return PICTURE_MARK in str(software or "")
 
 
-def foreign(path):
+def foreign(path, is_ours=ours):
     """None if writing ``path`` replaces nothing but this tool's own output (nothing there,
-    or ``ours``), else the one-line reason. A symbolic link is judged by its target (the
-    write replaces the link with the file); a directory, FIFO or device is never replaced."""
+    or ``is_ours``: ``ours`` for images and pictures), else the one-line reason. A symbolic
+    link is judged by its target (the write replaces the link with the file); a directory,
+    FIFO or device is never replaced."""
     try:
         mode = os.stat(path).st_mode
     except OSError:
         return None                          # nothing there (or a dangling link)
     if not stat.S_ISREG(mode):
-        kind = "a directory" if stat.S_ISDIR(mode) else "not a regular file"
-        return f"output {path} is {kind}; give a file path"
-    if ours(path):
+        kind = "a directory, " if stat.S_ISDIR(mode) else ""
+        return f"output {path} is {kind}not a regular file; give a file path"
+    if is_ours(path):
         return None
-    return (f"output {path} exists and was not written by bdipole-cl; move it, choose "
-            f"another output, or pass --force (force=True) to replace it")
+    return (f"output {path} exists and was not written by bdipole-cl (or was changed since); "
+            f"move it, choose another output, or pass --force (force=True) to replace it")
+
+
+def refusal(path, force=False, is_ours=ours):
+    """``foreign``'s reason where it stands: a directory or other non-regular file always, a
+    file this tool did not write unless ``force``; else None."""
+    why = foreign(path, is_ours)
+    return why if why and (not force or why.endswith("file path")) else None
 
 
 def collisions(claims, force=False) -> list:
@@ -121,8 +129,8 @@ def collisions(claims, force=False) -> list:
             bad[n] = (f"{c.job}: output {c.output} is also the output of {others}: put "
                       f"<UDIM>, {{udim}}, {{stem}} or {{name}} in -o so each input has its own")
         else:
-            why = foreign(c.output)
-            if why and (not force or why.endswith("file path")):
+            why = refusal(c.output, force)
+            if why:
                 bad[n] = f"{c.job}: {why}"
     return bad
 

@@ -392,9 +392,8 @@ class Writer:
         tex = self.tmp.with_name(f"{self.tmp.stem}.tx{self.tmp.suffix}")
         try:
             spec, px = read_whole(self.tmp, "plain output")
-            cancelled = None if self.cancel is None else self.cancel.is_set
             try:
-                build_texture(spec, px, tex, self.texture, cancelled or STOP.is_set)
+                build_texture(spec, px, tex, self.texture, (self.cancel or STOP).is_set)
             except TextureBuildCancelled:
                 raise Cancelled(f"{self.path}: interrupted; nothing written") from None
             except TextureBuildError as exc:

@@ -130,10 +130,7 @@ def builds_running() -> bool:
 
 def _remove_build(texture):
     for p in [Path(texture), *build_files(texture)]:
-        try:
-            p.unlink()
-        except FileNotFoundError:
-            pass
+        p.unlink(missing_ok=True)
 
 
 def _make_texture(full, texture, config, cancelled) -> bool:

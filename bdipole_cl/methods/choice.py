@@ -166,15 +166,9 @@ def choice_for(key: DeviceKey | None = None) -> tuple:
                                   key is not None and data.device_key == key)
     if key is not None:
         path = calibration_path(key)
-        if path.is_file():
-            try:
-                data = load_choice_data(path)
-            except ValueError as exc:          # a broken calibration: the shipped data
-                _warn_once(path, f"{exc}; passed over (`bdipole-cl report --calibrate` "
-                                 f"rewrites it)")
-                data = None
-            if data is not None and data.device_key == key:
-                return data, ChoiceSource(path, "calibrated", data.device, True)
+        data = readable_data(path)            # a broken calibration: the shipped data
+        if data is not None and data.device_key == key:
+            return data, ChoiceSource(path, "calibrated", data.device, True)
     data = load_choice_data(PACKAGED_CHOICE_DATA)
     source = ChoiceSource(PACKAGED_CHOICE_DATA, "shipped", data.device,
                           key is not None and data.device_key == key)
@@ -216,24 +210,27 @@ def device_tuning(key: DeviceKey) -> KernelTuning | None:
         return None
     named = os.environ.get(CHOICE_DATA_VARIABLE)
     for path in ([Path(named)] if named else []) + [calibration_path(key)]:
-        if path.is_file():
-            try:
-                data = load_choice_data(path)
-            except (OSError, ValueError) as exc:
-                _warn_once(path, f"{exc}; passed over (`bdipole-cl report --calibrate` "
-                                 f"rewrites it)")
-                continue
-            if data.device_key == key:
-                return data.kernels
+        data = readable_data(path)
+        if data is not None and data.device_key == key:
+            return data.kernels
     return None
 
 
-def _warn_once(path, text):
-    with _noted_lock:
-        first = ("unreadable", str(path)) not in _noted
-        _noted.add(("unreadable", str(path)))
-    if first:
-        logging.getLogger("bdipole_cl").warning("%s", text)
+def readable_data(path) -> ChoiceData | None:
+    """The choice data at ``path``, None where there is no file, or one that cannot be read
+    as choice data: passed over, with one warning naming it (once per process)."""
+    if not Path(path).is_file():
+        return None
+    try:
+        return load_choice_data(path)
+    except (OSError, ValueError) as exc:
+        with _noted_lock:
+            first = ("unreadable", str(path)) not in _noted
+            _noted.add(("unreadable", str(path)))
+        if first:
+            logging.getLogger("bdipole_cl").warning(
+                "%s; passed over (`bdipole-cl report --calibrate` rewrites it)", exc)
+        return None
 
 
 @_DATA_CACHE.memoize
@@ -263,7 +260,7 @@ def load_choice_data(path=None) -> ChoiceData:
     path = str(path or choice_data_path())
     try:
         return _load(path)
-    except (ValueError, TypeError, KeyError, AttributeError, UnicodeDecodeError) as exc:
+    except (ValueError, TypeError, KeyError, AttributeError) as exc:   # (UnicodeDecodeError too)
         raise choice_file_error(path, exc) from None
 
 

@@ -4,7 +4,6 @@ work-item; host arrays in and out through ``bdipole_cl.device.transfer``.
 """
 from __future__ import annotations
 
-import os
 import threading
 
 import numpy as np
@@ -13,9 +12,9 @@ import pyopencl as cl
 from ..caches import ByteCache
 from ..device import build_options, get_program, get_runtime, real_dtype
 from ..device.layout import channel_params
-from ..device.runtime import device_kind
+from ..device.runtime import device_kind, forced_width, platform_entry
 from ..device.transfer import aligned_empty, run_elementwise
-from ..methods.choice import DeviceKey, device_tuning
+from ..methods.choice import TABLE_WIDTHS_ALLOWED, DeviceKey, device_tuning
 from ..methods.registry import MethodConfig
 from ..physics import reference as ref
 from ..physics import tables
@@ -52,18 +51,15 @@ def table_width(rt) -> int:
     """Elements per work-item of kernels/invert_table.cl on ``rt``'s device: forced by
     TABLE_WIDTH_VARIABLE, else the device's calibration (``report --calibrate``), else
     TABLE_WIDTHS."""
-    forced = os.environ.get(TABLE_WIDTH_VARIABLE)
+    forced = forced_width(TABLE_WIDTH_VARIABLE, TABLE_WIDTHS_ALLOWED)
     if forced:
-        if forced not in ("1", "2", "4", "8", "16"):
-            raise ValueError(f"{TABLE_WIDTH_VARIABLE}={forced!r}: expected 1, 2, 4, 8 or 16")
-        return int(forced)
+        return forced
     if device_kind(rt.device) != "cpu":
         return 1
     tuned = device_tuning(DeviceKey.of(rt.device))
     if tuned is not None and tuned.table_width:
-        return int(tuned.table_width)
-    platform = rt.device.platform.name.strip().lower()
-    return next((w for name, w in TABLE_WIDTHS.items() if name in platform), 8)
+        return tuned.table_width
+    return platform_entry(rt.device, TABLE_WIDTHS, 8)
 
 
 def _literals(values, double):

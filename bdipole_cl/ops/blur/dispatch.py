@@ -3,14 +3,12 @@ kernels/blur_separable.cl, kernels/blur_textured.cl). Every function takes the R
 on; nothing here chooses a device."""
 from __future__ import annotations
 
-import os
-
 import numpy as np
 import pyopencl as cl
 
 from ...device import build_options, get_program
-from ...device.runtime import device_kind
-from ...methods.choice import DeviceKey, device_tuning
+from ...device.runtime import forced_width, platform_entry
+from ...methods.choice import GATHER_WIDTHS_ALLOWED, DeviceKey, device_tuning
 from ...signals import check_stop
 from .fit import gaussian_1d
 from .near_field import DEFAULT_GATHER_COSTS, GatherCosts
@@ -143,15 +141,8 @@ GATHER_COSTS = {"intel(r) opencl": DEFAULT_GATHER_COSTS,
                 "portable computing language": GatherCosts(cell=0.005, term=0.018, weight=0.1)}
 
 
-#: forces the gather's texels per work-item (1, 4, 8 or 16), for measuring
+#: forces the gather's texels per work-item (``GATHER_WIDTHS_ALLOWED``), for measuring
 GATHER_WIDTH_VARIABLE = "BDIPOLE_CL_GATHER_WIDTH"
-
-
-def _platform_entry(rt, table, default):
-    if device_kind(rt.device) != "cpu":
-        return default
-    platform = rt.device.platform.name.strip().lower()
-    return next((v for name, v in table.items() if name in platform), default)
 
 
 def _tuning(rt):
@@ -163,15 +154,11 @@ def gather_width(rt, n) -> int:
     """Texels per work-item of kernels/blur_textured.cl on ``rt``'s device for rows of n
     texels (a work-item's texels lie in one row: 1 for rows narrower than the width): forced
     by GATHER_WIDTH_VARIABLE, else the device's calibration, else GATHER_WIDTHS."""
-    forced = os.environ.get(GATHER_WIDTH_VARIABLE)
-    if forced:
-        if forced not in ("1", "4", "8", "16"):
-            raise ValueError(f"{GATHER_WIDTH_VARIABLE}={forced!r}: expected 1, 4, 8 or 16")
-        width = int(forced)
-    else:
+    width = forced_width(GATHER_WIDTH_VARIABLE, GATHER_WIDTHS_ALLOWED)
+    if not width:
         tuned = _tuning(rt)
-        width = (int(tuned.gather_width) if tuned is not None and tuned.gather_width
-                 else _platform_entry(rt, GATHER_WIDTHS, 1))
+        width = (tuned.gather_width if tuned is not None and tuned.gather_width
+                 else platform_entry(rt.device, GATHER_WIDTHS, 1))
     return width if n >= width else 1
 
 
@@ -181,7 +168,7 @@ def gather_costs(rt) -> GatherCosts:
     tuned = _tuning(rt)
     if tuned is not None and tuned.gather_costs:
         return GatherCosts(*tuned.gather_costs)
-    return _platform_entry(rt, GATHER_COSTS, DEFAULT_GATHER_COSTS)
+    return platform_entry(rt.device, GATHER_COSTS, DEFAULT_GATHER_COSTS)
 
 
 def lattice_args(plan, width):

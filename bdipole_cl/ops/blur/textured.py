@@ -53,12 +53,11 @@ def textured_plans(shape, *, tol, exact=False, eta=1.4, method="auto", on_invali
     if etas is None:
         raise ValueError(f"eta must be one value or one per channel (constant over the texture); "
                          f"got shape {np.shape(eta)}")
-    out, ld_maps, ld_extremes = [], {}, {}
+    out, ld_maps = [], {}
     for c in range(shape[2]):
         rd, ld = texel_parameters(shape, c, eta=float(etas[c]), exact=exact,
                                   on_invalid=on_invalid, ld_maps=ld_maps, **physical)
-        ext = map_extremes(rd, ld, ld_extremes.get(id(ld)))
-        ld_extremes[id(ld)] = (ext.ld_min, ext.ld_max)        # a shared ld map's, once
+        ext = map_extremes(rd, ld)
         out.append(TexturedChannel(plan_for_ranges(*parameter_ranges(ext), float(etas[c]),
                                                    float(tol), exact, basis, costs=costs),
                                    rd, ld, ext))

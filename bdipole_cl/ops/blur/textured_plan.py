@@ -194,13 +194,13 @@ class MapExtremes:
     ld_max: float
 
 
-def map_extremes(rd, ld, ld_range=None) -> MapExtremes:
+def map_extremes(rd, ld) -> MapExtremes:
     """MapExtremes of float maps rd, ld, by whole-map reductions (a masked one only where some
-    texel is unlit); ``ld_range``: ld's (min, max), where known."""
+    texel is unlit)."""
     lo, hi = value_range(rd)
     if lo <= 0 < hi:
         lo = np.min(rd, where=rd > 0, initial=np.inf)
-    ld_lo, ld_hi = ld_range if ld_range is not None else value_range(ld)
+    ld_lo, ld_hi = value_range(ld)
     return MapExtremes(float(lo), float(hi), float(ld_lo), float(ld_hi))
 
 
@@ -298,16 +298,17 @@ def plan_for_ranges(rd_range, ld_range, eta, tol, exact=False, basis="svd", max_
             return interp_error(fine_table(table), with_near_classes(quads, values, near, radius),
                                 axes, checks)
         best = near_field_basis(targets, train, tol, radius, measure, costs)
-        near, kernels, near_values, coef = best.near, tuple(best.quads), best.near_values, best.coef
-        every = with_near_classes(best.quads, near_values, near, radius)
+        every = with_near_classes(best.quads, best.near_values, best.near, radius)
         fit_error = max((float(np.abs(unfold_quadrant(np.tensordot(c, every, 1) - t)).sum())
-                         for c, t, i in zip(coef, targets, inside) if i), default=0.0)
-    else:
-        near, near_values = -1, np.zeros((0, 0), np.float32)
-        kernels, coef, fit_error = _gaussian_fits(targets, radius, tol)
+                         for c, t, i in zip(best.coef, targets, inside) if i), default=0.0)
+        table = best.coef.reshape(*shape_axes, -1).astype(np.float32)
+        # the fit's interpolation error is measured on this very table (``measure``)
+        return TexturedPlan(radius, basis, tuple(best.quads), axes, table, fine_table(table),
+                            eta, fit_error, best.interp_error, tol, best.near, best.near_values)
+    kernels, coef, fit_error = _gaussian_fits(targets, radius, tol)
     table = coef.reshape(*shape_axes, -1).astype(np.float32)
     plan = TexturedPlan(radius, basis, kernels, axes, table, fine_table(table), eta, fit_error,
-                       0.0, tol, near, near_values)
+                       0.0, tol)
     return replace(plan, interp_error=interp_error(plan.fine, plan.quadrants(), axes, checks))
 
 

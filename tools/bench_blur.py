@@ -45,7 +45,7 @@ import numpy as np
 from scipy.signal import fftconvolve
 
 from bdipole_cl import get_runtime, use_device
-from bdipole_cl.apps.benchmark import varying_workload
+from bdipole_cl.apps.benchmark import hdr_irradiance, varying_workload
 from bdipole_cl.ops.blur import blur, channel_kernel, channel_parameters
 from bdipole_cl.ops.blur.fft import SPECTRA_CACHE
 
@@ -119,9 +119,7 @@ def main(argv=None):
     print(f"device: {get_runtime().describe()}")
     if args.gather:
         return gather_costs(args)
-    rng = np.random.default_rng(0)
-    e = rng.uniform(0.0, 1.0, (args.size, args.size, 3)).astype(np.float32)
-    e[rng.uniform(size=e.shape[:2]) < 1e-3] = 50.0      # a few HDR highlights
+    e = hdr_irradiance(args.size)                         # with a few HDR highlights
     print(f"input {args.size}x{args.size} RGB, albedo {ALBEDO}, eta 1.4, tol {args.tol}, "
           f"border clamp; error = max|M - exact| / (max E * Rd)")
     print(f"{'mfp':>5s} {'method':10s} {'radius':>6s} {'s':>8s} {'max err':>9s} "

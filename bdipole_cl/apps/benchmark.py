@@ -207,13 +207,19 @@ def fitted_gather_costs(rows, per_blur):
     return tuple(float(v) / per_blur for v in fit[1:]), float(fit[0])
 
 
-def varying_workload(n, mfp):
-    """(E, albedo, mfp maps) of the texture-varying benchmark: a random RGB irradiance with a
-    few highlights, albedo (0.8, 0.6, 0.4) x (1 + 0.2 p(x)), mfp x 2^(p(x)/2), p a smooth
-    pattern in [-1, 1]."""
+def hdr_irradiance(n):
+    """The blur benchmarks' irradiance: n x n RGB uniform on [0, 1), with a few highlights at
+    50 (a fixed seed)."""
     rng = np.random.default_rng(0)
     e = rng.uniform(0.0, 1.0, (n, n, 3)).astype(np.float32)
     e[rng.uniform(size=e.shape[:2]) < 1e-3] = 50.0
+    return e
+
+
+def varying_workload(n, mfp):
+    """(E, albedo, mfp maps) of the texture-varying benchmark: ``hdr_irradiance``, albedo
+    (0.8, 0.6, 0.4) x (1 + 0.2 p(x)), mfp x 2^(p(x)/2), p a smooth pattern in [-1, 1]."""
+    e = hdr_irradiance(n)
     yy, xx = np.mgrid[0:n, 0:n] / n
     pattern = np.sin(2 * np.pi * (3 * xx + yy)) * np.cos(2 * np.pi * (2 * yy - xx))
     albedo = np.array((0.8, 0.6, 0.4))[None, None, :] * (1.0 + 0.2 * pattern[..., None])

@@ -13,10 +13,12 @@
 //     8 sigma_s'), the channel count too (BD_NCHAN), so no NULL or channel tests per element.
 // Needs bdipole.h in front, and -DBD_TABLE_N, -DBD_WIDTH, -DBD_NCHAN, -DBD_OUTPUTS
 // (and -DBD_MFP_CONST, -DBD_CONST_PARAMS, below).
-// The table: kernels/invert.cl's rows as 8-float records (bdipole_cl/ops/inversion_kernel.py:
-// interval_records): c0..c3 of the interval, then its end node (the next row's c0), then
-// padding, so that each lane's interval is one aligned 32-byte load (~3-10% faster on Intel's
-// runtime than a 16-byte row and the next row's first float).
+// The table: kernels/invert.cl's rows as 4-float records (bdipole_cl/ops/inversion_kernel.py:
+// interval_records): c0, c1, c2 of the interval, then its end node (the next row's c0), so that
+// each lane's interval is one aligned 16-byte load and four lanes one 4x4 transpose; c3 is
+// derived, ((end - c0) - c1) - c2, which the host's rows already hold as c3 (physics/tables.py:
+// derived_c3), so both kernels use the same floats. (32-byte records holding c3 and the end
+// node, which need a fifth shuffle per four lanes: ~5-12% slower on the AVX-512 Xeon.)
 // Element e is texel e / BD_NCHAN, channel e % BD_NCHAN (interleaved, as the host holds it).
 // Float32 only (the float64 default polishes: kernels/invert.cl).
 
@@ -96,7 +98,7 @@ __constant float bd_mfp_const[] = {BD_MFP_CONST};
 // The table's unknown for each lane (clamped between its interval's nodes, as table_value),
 // and whether the lane is in the upper half (segments 1 and 2: the unknown is q).
 inline vec table_lookup(vec rd, ivec ch, __constant const float *params,
-                        __global const float8 *tables, const int table_stride, ivec *upper)
+                        __global const float4 *tables, const int table_stride, ivec *upper)
 {
     vec x = BD_POWER == 2 ? sqrt(rd) : rd;
     ivec up = rd >= lane_param(params, ch, BD_P_RD_SPLIT), top = rd >= 0.5f;
@@ -107,25 +109,25 @@ inline vec table_lookup(vec rd, ivec ch, __constant const float *params,
     ivec i = clamp(TO_INT(t), 0, BD_TABLE_N - 1);
     vec u = t - TO_FLOAT(i);
     ivec k = ch * table_stride + (ONE_IF(up) + ONE_IF(top)) * BD_SEGMENT_STRIDE + i;
-    // the gather: each lane's interval (c0..c3) and its end node, into the lanes
+    // the gather: each lane's interval (c0..c2) and its end node, into the lanes
     vec a, b, cc, d, end;
 #ifdef BD_EACH_QUAD
 #define BD_GATHER_QUAD(q, l0, l1, l2, l3) {                                              \
-        float8 r0 = tables[k.s##l0], r1 = tables[k.s##l1], r2 = tables[k.s##l2],          \
+        float4 r0 = tables[k.s##l0], r1 = tables[k.s##l1], r2 = tables[k.s##l2],          \
                r3 = tables[k.s##l3];                                                     \
         a.s##q = (float4)(r0.s0, r1.s0, r2.s0, r3.s0);                                   \
         b.s##q = (float4)(r0.s1, r1.s1, r2.s1, r3.s1);                                   \
         cc.s##q = (float4)(r0.s2, r1.s2, r2.s2, r3.s2);                                  \
-        d.s##q = (float4)(r0.s3, r1.s3, r2.s3, r3.s3);                                   \
-        end.s##q = (float4)(r0.s4, r1.s4, r2.s4, r3.s4); }
+        end.s##q = (float4)(r0.s3, r1.s3, r2.s3, r3.s3); }
     BD_EACH_QUAD(BD_GATHER_QUAD)
 #else
 #define BD_GATHER_LANE(l) {                                                              \
-        float8 c = tables[BD_LANE(k, l)];                                                \
+        float4 c = tables[BD_LANE(k, l)];                                                \
         BD_LANE(a, l) = c.s0; BD_LANE(b, l) = c.s1; BD_LANE(cc, l) = c.s2;                \
-        BD_LANE(d, l) = c.s3; BD_LANE(end, l) = c.s4; }
+        BD_LANE(end, l) = c.s3; }
     BD_EACH_LANE(BD_GATHER_LANE)
 #endif
+    d = ((end - a) - b) - cc;          // c3, as the host's rows hold it (derived_c3)
     // c0 + fma(u, c1, u^2 (c2 + c3 u)): monotone in u (kernels/invert.cl: table_value)
     vec small = u * u * (cc + u * d);
     *upper = up;
@@ -158,7 +160,7 @@ inline void store_lanes(vec v, uint g, int whole, uint n, __global float *out)
 __kernel void invert_table(__global const float *rd, BD_MFP_SPACE const float *mfp,
                            __global float *alpha_out, __global float *rho_out,
                            __global float *sigma_a_out, __global float *sigma_s_out,
-                           __constant const float *params, __global const float8 *tables,
+                           __constant const float *params, __global const float4 *tables,
                            const int table_stride, const uint n, __global int *invalid)
 {
     const uint g = get_global_id(0), first = g * BD_WIDTH;

@@ -40,9 +40,12 @@ def vectorised(config: MethodConfig, double: bool) -> bool:
 
 
 #: elements per work-item of kernels/invert_table.cl by OpenCL platform (a case-insensitive
-#: part of its name), measured at 32M texels (tools/bench_invert.py --widths): Intel's CPU
-#: runtime is fastest at 16, PoCL at 8; devices not listed (GPUs) get one element per item
-TABLE_WIDTHS = {"intel(r) opencl": 16, "portable computing language": 8}
+#: part of its name), then by the device's native float vector lanes (None: any other),
+#: measured at 32M texels (tools/bench_invert.py with BDIPOLE_CL_TABLE_WIDTH): Intel's CPU
+#: runtime is fastest at 16 on an AVX CPU (8 lanes: the AMD EPYC VM; 8 was 25% slower) and at
+#: 8 on an AVX-512 one (16 lanes: the Xeon VM; 16 was 13% slower), PoCL at 8 on both; devices
+#: not listed (GPUs) get one element per item. ``report --calibrate`` measures the device's own.
+TABLE_WIDTHS = {"intel(r) opencl": {16: 8, None: 16}, "portable computing language": {None: 8}}
 #: ``BDIPOLE_CL_TABLE_WIDTH`` overrides the width (1, 2, 4, 8 or 16), for measuring
 TABLE_WIDTH_VARIABLE = "BDIPOLE_CL_TABLE_WIDTH"
 
@@ -59,7 +62,8 @@ def table_width(rt) -> int:
     tuned = device_tuning(DeviceKey.of(rt.device))
     if tuned is not None and tuned.table_width:
         return tuned.table_width
-    return platform_entry(rt.device, TABLE_WIDTHS, 8)
+    widths = platform_entry(rt.device, TABLE_WIDTHS, {None: 8})
+    return widths.get(rt.device.native_vector_width_float, widths[None])
 
 
 def _literals(values, double):
@@ -69,11 +73,12 @@ def _literals(values, double):
 
 def interval_records(rows):
     """The table's rows ((m, 4) float32: each interval's c0..c3, a segment's end node after its
-    intervals) as kernels/invert_table.cl reads them: (m, 8), a row, then the next row's c0
-    (the interval's end node: the same float as kernels/invert.cl reads), then zeros."""
-    records = np.zeros((rows.shape[0], 8), np.float32)
-    records[:, :4] = rows
-    records[:-1, 4] = rows[1:, 0]
+    intervals) as kernels/invert_table.cl reads them: (m, 4), c0, c1, c2, then the interval's
+    end node (the next row's c0: the same float as kernels/invert.cl reads); the kernel derives
+    c3 from them, as the rows hold it (``tables.derived_c3``)."""
+    records = np.zeros((rows.shape[0], 4), np.float32)
+    records[:, :3] = rows[:, :3]
+    records[:-1, 3] = rows[1:, 0]
     return records
 
 

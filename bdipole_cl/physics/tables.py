@@ -50,6 +50,19 @@ def _solve_q(c, model, neg_log_rd):
                                  0.0, np.sqrt(1.0 - ref.ALPHA_SPLIT))
 
 
+def derived_c3(rows):
+    """One segment's float32 rows with each cubic's c3 replaced by the float32
+    ``((end - c0) - c1) - c2`` (end: the next row's c0), the value kernels/invert_table.cl
+    derives from the 16 bytes it gathers per lane (c0, c1, c2, end) rather than reading c3.
+    In exact arithmetic the Hermite cubic meets its end node, c0 + c1 + c2 + c3 = end, so this
+    moves c3 by a few ulps of the interval's values; every kernel reads the same floats (the
+    same bits everywhere), and the monotone margin is checked on them as stored."""
+    c0, c1, c2 = rows[:-1, 0], rows[:-1, 1], rows[:-1, 2]
+    out = rows.copy()
+    out[:-1, 3] = ((rows[1:, 0] - c0) - c1) - c2      # float32 operations, in this order
+    return out
+
+
 @TABLE_CACHE.memoize
 def inversion_table(eta: float, n: int, exact: bool = False, model: str = "better"):
     """``(rows float32 (3 (n + 1), 4), scales (3,))`` of one eta: per segment n cubics and its
@@ -78,7 +91,7 @@ def inversion_table(eta: float, n: int, exact: bool = False, model: str = "bette
     q2 = _solve_q(c, model, -np.log1p(-x2))
     q2[-1] = q1[-1]                       # Rd = 1/2 ends both segments: one value
     seg2 = _segment(0.0, 0.5, q2, 1.0 / ((1.0 - x2) * ref.upper_residual(q2, c, model)[1]))
-    coefs = np.concatenate([seg0, seg1, seg2]).astype(np.float32)
+    coefs = np.concatenate([derived_c3(s.astype(np.float32)) for s in (seg0, seg1, seg2)])
     coefs.setflags(write=False)
     return coefs, (n / x_split, n / (x_mid - x_split), n / 0.5)
 

@@ -20,3 +20,17 @@ def test_a_missing_file_named_like_a_failed_run_is_a_usage_error(tmp_path, capsy
     assert cli_main(["crosscheck", "--user-kernel", str(tmp_path / name), "--function", "f",
                      "--against", "invert"]) == 2
     assert name in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("variable, value", [("BDIPOLE_CL_GATHER_WIDTH", "3"),
+                                             ("BDIPOLE_CL_TABLE_WIDTH", "sixteen")])
+def test_a_bad_width_variable_is_a_usage_error_before_any_file(tmp_path, capsys, monkeypatch,
+                                                                 variable, value):
+    # it names the variable, not the input file that first reached a kernel, and no output
+    # is written (the check runs before the command)
+    monkeypatch.setenv(variable, value)
+    out = tmp_path / "out.exr"
+    assert cli_main(["invert", str(tmp_path / "albedo.exr"), "-o", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert variable in err and repr(value) in err and "albedo.exr" not in err
+    assert not out.exists()

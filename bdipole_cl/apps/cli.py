@@ -395,6 +395,7 @@ def run_command(args) -> int:
     from ..device import DeviceError, use_device
     from ..io.images import TextureError
     try:
+        check_forced_widths()
         if args.device and args.command != "devices":
             use_device(args.device)
         return args.func(args)
@@ -414,6 +415,18 @@ def run_command(args) -> int:
         text = " ".join(str(exc).split()) if not isinstance(exc, DeviceError) else str(exc)
         print(f"bdipole-cl {args.command}: error: {kind}{text}{hint}", file=sys.stderr)
         return 2 if usage else 1
+
+
+def check_forced_widths():
+    """The kernels' width variables (``BDIPOLE_CL_TABLE_WIDTH``, ``BDIPOLE_CL_GATHER_WIDTH``)
+    checked before any work: a bad value is a usage error naming the variable, not a failure
+    of each input file that reaches a kernel."""
+    from ..device.runtime import forced_width
+    from ..methods.choice import GATHER_WIDTHS_ALLOWED, TABLE_WIDTHS_ALLOWED
+    from ..ops.blur.dispatch import GATHER_WIDTH_VARIABLE
+    from ..ops.inversion_kernel import TABLE_WIDTH_VARIABLE
+    forced_width(TABLE_WIDTH_VARIABLE, TABLE_WIDTHS_ALLOWED)
+    forced_width(GATHER_WIDTH_VARIABLE, GATHER_WIDTHS_ALLOWED)
 
 
 def console_main() -> int:

@@ -40,7 +40,7 @@ def scalar_table_kernel(etas, model, runtime):
     return k
 
 
-@pytest.mark.parametrize("width", ["1", "4", "8", "16"])
+@pytest.mark.parametrize("width", ["1", "2", "4", "8", "16"])
 @pytest.mark.parametrize("etas", [(1.4,), (1.3, 1.4, 2.0)], ids=["1ch", "3ch"])
 @pytest.mark.parametrize("model", ["better", "dipole"])
 @pytest.mark.parametrize("specialise", [False, True], ids=["generic", "specialised"])
@@ -75,6 +75,49 @@ def test_default_is_vectorised_on_cpus(runtime):
     assert k.width == ik.table_width(runtime) > 1
     assert not InversionKernel((1.4,), MethodConfig("table", polish=1), runtime=runtime).width
     assert not InversionKernel((1.4,), MethodConfig("bisection"), runtime=runtime).width
+
+
+@pytest.mark.parametrize("n", [4, 256, 4096])
+@pytest.mark.parametrize("eta, model", [(1.4, "better"), (1.0, "better"), (2.8, "dipole")])
+def test_rows_hold_the_c3_the_vector_kernel_derives(n, eta, model):
+    """invert_table.cl gathers c0, c1, c2 and the end node and forms c3 = ((end - c0) - c1) - c2
+    in float32: every cubic row of every segment must hold exactly that float (else the two
+    kernels differ), and the records it reads must be those four values of the rows."""
+    rows = tables.inversion_table(eta, n, model=model)[0]
+    records = ik.interval_records(rows)
+    for seg in rows.reshape(tables.SEGMENTS, n + 1, 4):
+        c0, c1, c2, c3 = seg[:-1].T
+        end = seg[1:, 0]
+        assert c3.dtype == np.float32
+        np.testing.assert_array_equal(c3, ((end - c0) - c1) - c2)
+    np.testing.assert_array_equal(records[:, :3], rows[:, :3])
+    np.testing.assert_array_equal(records[:-1, 3], rows[1:, 0])
+    if n >= 64:       # the margin holds from 64 intervals at every eta (docs/model.md)
+        assert tables.table_is_monotone(eta, n, model=model)
+
+
+class _FakeCpu:
+    """What table_width reads of a device: its type, platform, native float lanes and key."""
+
+    def __init__(self, platform, lanes):
+        self.type = cl.device_type.CPU
+        self.platform = type("P", (), {"name": platform})()
+        self.native_vector_width_float = lanes
+        self.vendor, self.name, self.driver_version = "fake", f"cpu {lanes}", "0"
+
+
+@pytest.mark.parametrize("platform, lanes, width", [
+    ("Intel(R) OpenCL", 16, 8), ("Intel(R) OpenCL", 8, 16), ("Intel(R) OpenCL", 4, 16),
+    ("Portable Computing Language", 16, 8), ("Portable Computing Language", 8, 8),
+    ("Some Other CPU Runtime", 16, 8)])
+def test_table_width_by_platform_and_native_lanes(monkeypatch, tmp_path, platform, lanes, width):
+    """The measured defaults (``TABLE_WIDTHS``): Intel's runtime 8 on an AVX-512 CPU (16
+    native float lanes), 16 on others; PoCL 8; an unlisted CPU runtime 8."""
+    monkeypatch.delenv(TABLE_WIDTH_VARIABLE, raising=False)
+    monkeypatch.delenv("BDIPOLE_CL_CHOICE_DATA", raising=False)
+    monkeypatch.setenv("BDIPOLE_CL_CACHE_DIR", str(tmp_path))     # no calibration there
+    rt = type("Rt", (), {"device": _FakeCpu(platform, lanes)})()
+    assert ik.table_width(rt) == width
 
 
 @pytest.mark.parametrize("n", [1, 15, 16, 17, 4099])

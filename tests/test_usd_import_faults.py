@@ -251,3 +251,29 @@ def test_pxr_surface_unit_length_multiplies_the_dmfp(tmp_path):
     assert "unitLength must be a positive constant" in left["zero"]
     assert any("unitLength 0.1 (default)" in d for i in scene.imports if i.name == "default"
                for d in i.inputs.values())
+
+
+def test_a_second_stage_beside_the_first_never_replaces_its_bake(tmp_path):
+    """Two stages in one folder share bdipole/: the second's bake (a material of the same
+    name, its own records) is refused, named, while the first's files stay as they were; the
+    first bakes again as usual, and --force (``force=True``) lets the second replace them."""
+    texture(tmp_path / "tex" / "paint.exr")
+    texture(tmp_path / "tex" / "other.exr", (0.2, 0.3, 0.4))
+    first = new_stage(tmp_path)
+    material(first, "paint", "tex/paint.exr")
+    first.GetRootLayer().Save()
+    second = Usd.Stage.CreateNew(str(tmp_path / "look.usda"))
+    material(second, "paint", "tex/other.exr")
+    second.GetRootLayer().Save()
+    assert scenes.load(tmp_path / "asset.usda").plan().run().exit_code == 0
+    out = tmp_path / "bdipole"
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+    plan = scenes.load(tmp_path / "look.usda").plan()
+    assert plan.jobs and all("records the bake of" in j.problem and "asset.usda" in j.problem
+                             for j in plan.jobs)
+    assert plan.run().exit_code != 0
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before
+    again = scenes.load(tmp_path / "asset.usda").plan()
+    assert not any(j.problem for j in again.jobs)
+    assert scenes.load(tmp_path / "look.usda").plan(force=True).run().exit_code == 0
+    assert records(out)[0]["paint"]["albedo"].endswith("other.exr")

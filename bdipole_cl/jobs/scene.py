@@ -52,7 +52,8 @@ from .invert_file import per_channel
 from .job import BlurWork, ConstantWork, InvertWork, Job
 from .results import BatchReport, FileResult
 from .scene_records import (LAYER, MANIFEST, constant_config, constant_text, finish_bake,
-                            imported_lines, mfp_text, read_manifest, records_dir)
+                            foreign_records, imported_lines, mfp_text, read_manifest,
+                            records_dir)
 from .scene_stats import DEFAULT_MEMORY, albedo_stats, table_for_range
 
 #: compile each job's constants into its kernel (tools/bench_scene.py turns it off to measure
@@ -99,6 +100,7 @@ class PlannedJob:
 class Plan:
     scene: Scene
     jobs: list
+    records_problem: str | None = None   # the records folder holds another scene's bake
 
     @property
     def missing(self):
@@ -316,7 +318,11 @@ def plan(scene: Scene, *, force=False, device=None, max_memory=DEFAULT_MEMORY) -
     old = read_manifest(folder) if folder else {}
     jobs += [_plan_constant(m, folder, old, force, scene.source) for m in scene.materials
              if m.constant]
-    return Plan(scene, jobs)
+    taken = None if force else foreign_records(scene, folder)
+    for j in jobs if taken else ():
+        if not j.problem:
+            j.problem, j.up_to_date = taken, False
+    return Plan(scene, jobs, taken)
 
 # }}}
 

@@ -81,6 +81,30 @@ def read_manifest(folder) -> dict:
         return {}
 
 
+def records_owner(folder) -> str | None:
+    """The scene file whose bake wrote the manifest in ``folder`` (None: none, or unreadable)."""
+    try:
+        with open(os.path.join(folder, MANIFEST)) as f:
+            owner = json.load(f).get("scene")
+    except (OSError, ValueError, AttributeError):
+        return None
+    return owner if isinstance(owner, str) and owner else None
+
+
+def foreign_records(scene, folder) -> str | None:
+    """Why ``folder``'s records belong to the bake of another scene file (one line), else
+    None: two stages (or scene files) beside one another share ``bdipole/``, and a bake of
+    one would replace the other's records and the outputs of its materials of the same
+    names, all of them this tool's files."""
+    owner = None if folder is None else records_owner(folder)
+    if owner is None or os.path.realpath(owner) == os.path.realpath(str(scene.path)):
+        return None
+    return (f"{os.path.join(folder, MANIFEST)} records the bake of {owner}: a bake of "
+            f"{scene.path} there would replace its records and the outputs of its materials "
+            f"of the same names; give this scene its own output folder (a scene file with "
+            f"materials_from and `output`), or --force")
+
+
 def _relative(path, folder):
     return "./" + os.path.relpath(path, folder).replace(os.sep, "/")
 
@@ -225,6 +249,8 @@ def write_records(plan, results) -> list:
     folder = records_dir(scene)
     if folder is None:
         return []
+    if plan.records_problem:                   # another scene's records: never replaced
+        return [(os.path.join(folder, MANIFEST), plan.records_problem)]
     old = read_manifest(folder)
     coefficients = {}
     for job, result in zip(plan.jobs, results):

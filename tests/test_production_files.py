@@ -379,6 +379,29 @@ def test_lab_channels_are_not_colour_and_alpha(tmp_path):
     assert not (tmp_path / "o.exr").exists()
 
 
+@pytest.mark.parametrize("names, left", [
+    (["R", "G", "B", "A", "P.x", "P.y", "P.z"], ["P.x", "P.y", "P.z"]),
+    (["R", "G", "B", "motion.x", "motion.y"], ["motion.x", "motion.y"]),
+    (["R", "G", "B", "N.x", "N.y", "N.z", "uv.x", "uv.y"], ["N.x", "N.y", "N.z", "uv.x", "uv.y"]),
+    (["R", "G", "B", "Y"], ["Y"]), (["R", "G", "B", "L"], ["L"])])
+def test_vectors_and_a_luminance_beside_rgb_are_left_out(tmp_path, names, left):
+    """A vector's y component (N.y, P.y, motion.y) is not a luminance Y, and a luminance
+    beside R, G and B is not a fourth colour: only R, G, B are inverted (A kept), the rest
+    named as left out, and a colour conversion still finds its R, G and B."""
+    px = np.concatenate([ramp(), np.full((16, 12, len(names) - 3), 0.5, np.float32)], axis=2)
+    write(tmp_path / "alb.exr", px, names)
+    out = tmp_path / "o.exr"
+    rep = process_textures(str(tmp_path / "alb.exr"), mfp=1.0, output=str(out),
+                           working_space="ACEScg", colorspace="lin_rec709_scene")
+    assert rep.exit_code == 0, rep.summary()
+    got = read(out)[1].channelnames
+    assert not any(n.endswith(tuple("." + x for x in left)) for n in got), got
+    assert {n.rsplit(".", 1)[-1] for n in got if n.startswith("sigma_a")} == {"R", "G", "B"}
+    assert ("A" in names) == ("A" in got)
+    notes = " ".join(rep.results[0].notes)
+    assert all(x in notes for x in left), notes
+
+
 def test_albedo_and_mfp_with_different_data_windows_are_refused(tmp_path):
     write(tmp_path / "a.exr", ramp(8, 8))
     write(tmp_path / "a_mfp.exr", np.ones((8, 8, 1)), ["Y"], window=(4, 0))

@@ -92,6 +92,30 @@ def test_a_data_window_is_filled_to_the_display_window_exactly(tmp_path):
     assert np.all(level0[outside] == 0)
 
 
+@pytest.mark.parametrize("window", [(0, 0, 40, 40, 0, 0, 32, 32), (-4, -3, 40, 40, 0, 0, 32, 32),
+                                    (20, 20, 20, 20, 0, 0, 32, 32), (0, 0, 32, 32, -8, -8, 32, 32)],
+                         ids=["larger", "negative origin", "overlapping", "display moved"])
+def test_a_data_window_outside_the_display_window_is_refused_before_any_work(tmp_path, window):
+    """A texture spans its display window: texels outside it would be lost, so such a file's
+    texture output fails, named with both windows and the remedy, before it is computed, and
+    nothing is left; its plain output is written as usual."""
+    x, y, w, h, fx, fy, fw, fh = window
+    spec = oiio.ImageSpec(w, h, 3, "float")
+    spec.x, spec.y, spec.full_x, spec.full_y, spec.full_width, spec.full_height = window[:2] + (
+        fx, fy, fw, fh)
+    path = tmp_path / "alb.exr"
+    out = oiio.ImageOutput.create(str(path))
+    assert out.open(str(path), spec)
+    out.write_image(np.full((h, w, 3), 0.4, np.float32))
+    out.close()
+    tex = process_textures(str(path), mfp=1.0, output=str(tmp_path / "tex.exr"), texture=True)
+    assert tex.exit_code == 1
+    error = tex.results[0].error
+    assert "display window" in error and f"{w}x{h} at {x},{y}" in error and "--fullpixels" in error
+    assert sorted(os.listdir(tmp_path)) == ["alb.exr"]
+    assert process_textures(str(path), mfp=1.0, output=str(tmp_path / "o.exr")).exit_code == 0
+
+
 def test_a_texture_that_does_not_verify_is_not_written(tmp_path, monkeypatch):
     """The verification can fail: a texture build that changes a texel is refused and the
     target is not created."""

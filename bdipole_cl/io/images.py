@@ -26,7 +26,7 @@ import numpy as np
 import OpenImageIO as oiio
 
 from .mipmaps import (TextureBuildCancelled, TextureBuildError, build_texture,
-                      texture_options)
+                      texture_options, window_problem)
 from .verify import BandDigests, WriteCheckError, finite_texels, read_back, read_rows_of
 from .colour import COLOUR_ATTRIBS, colour_path, tag_output
 from ..signals import STOP
@@ -349,6 +349,10 @@ class Writer:
         self.invalid = 0
         self.texture = texture_options(texture)
         if self.texture is not None:      # the mark of this tool's textures (collisions.ours)
+            why = window_problem(spec)
+            if why:                       # before any band is computed
+                raise TextureError(f"{path}: cannot be a texture (--texture / texture = "
+                                   f"true): {why}")
             t = self.texture
             spec.attribute("bdipole:texture", f"tiles {t.tile}, {t.mip_filter} mips, "
                                               f"{t.compression}")

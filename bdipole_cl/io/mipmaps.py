@@ -7,7 +7,8 @@ type (half stays half), and every header entry of the plain output (``bdipole:*`
 the source's metadata) except those a texture build rewrites (``TEXTURE_REWRITES``); its
 level 0 is the plain output bit for bit. A data window smaller than the display window is
 filled out to it with 0 (a texture spans its display window), by a copy: maketx's own fill
-resamples (changes values by ~1e-7).
+resamples (changes values by ~1e-7); one reaching outside it is refused (``window_problem``:
+its texels would be lost).
 """
 from __future__ import annotations
 
@@ -78,6 +79,21 @@ def size_text(n) -> str:
     return f"{n / 2**10:.1f} KiB" if n < 2**20 else f"{n / 2**20:.2f} MiB"
 
 
+def window_problem(spec) -> str | None:
+    """Why an image of ``spec`` cannot be a texture (one line), else None: a texture spans its
+    display window, so a data window reaching outside it would lose those texels."""
+    inside = (spec.x >= spec.full_x and spec.y >= spec.full_y
+              and spec.x + spec.width <= spec.full_x + spec.full_width
+              and spec.y + spec.height <= spec.full_y + spec.full_height)
+    if inside:
+        return None
+    return (f"its data window ({spec.width}x{spec.height} at {spec.x},{spec.y}) reaches "
+            f"outside its display window ({spec.full_width}x{spec.full_height} at "
+            f"{spec.full_x},{spec.full_y}); a texture spans its display window, so those "
+            f"texels would be lost: write a plain output, or widen the display window "
+            f"(oiiotool IN --fullpixels -o OUT)")
+
+
 def check_space(spec, texture, options: TextureOptions):
     """TextureBuildError where the texture's disk has less free space than ``texture_bytes``:
     OpenImageIO's texture build can hang on a full disk rather than fail."""
@@ -93,6 +109,9 @@ def build_texture(spec, px, texture, options: TextureOptions, cancelled=None):
     its data window) to ``texture``, and verify it (``texture_problems``). The build runs on a
     thread of its own, ``cancelled()`` (a stop request) asked every 0.1 s: then it is
     abandoned (TextureBuildCancelled), its files removed."""
+    why = window_problem(spec)
+    if why:
+        raise TextureBuildError(f"cannot be a texture: {why}")
     check_space(spec, texture, options)
     src = oiio.ImageBuf(spec)                     # its pixel type (half stays half), header
     src.set_pixels(src.roi, np.ascontiguousarray(px, np.float32))

@@ -189,3 +189,19 @@ def test_preview_of_a_texture_output_reads_level_0(tmp_path, on_device):
     rho = ref.invert_rd_rho(px.astype(np.float64), 1.4)[1]
     # the range drawn is level 0's (a coarser mip level's box averages would narrow it)
     assert (tile.vmin, tile.vmax) == pytest.approx((rho.min(), rho.max()), rel=2e-4)
+
+
+@pytest.mark.parametrize("option, value", [("--albedo", "1.5"), ("--albedo", "1"),
+                                           ("--albedo", "0"), ("--albedo", "-1"),
+                                           ("--albedo", "0.5,nan,0.5"), ("--mfp", "0")])
+def test_profile_constants_out_of_range_are_usage_errors(tmp_path, capsys, option, value):
+    """profile takes the constants blur takes (an albedo in (0, 1), an mfp the kernels can
+    take): another is a one-line usage error naming the option and value, never clamped
+    into a plot of something else, nor an error of NumPy's."""
+    args = {"--albedo": "0.5", "--mfp": "1", option: value}
+    with pytest.raises(SystemExit) as usage:
+        cli_main(["profile", *[x for kv in args.items() for x in kv],
+                  "-o", str(tmp_path / "p.png")])
+    err = capsys.readouterr().err
+    assert usage.value.code == 2 and option in err and repr(value) in err, err
+    assert not (tmp_path / "p.png").exists()

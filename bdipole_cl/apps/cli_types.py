@@ -64,6 +64,21 @@ def number_list(text):
         return None
 
 
+def constants(name):
+    """An argparse type for constant(s) of parameter ``name``: ``floats``, each meeting the
+    parameter's constant rule (``ops.blur.params.CONSTANT_RULES``), else a one-line usage
+    error naming the value and the rule."""
+    def parse(text):
+        from ..ops.blur.params import CONSTANT_RULES
+        rule, valid = CONSTANT_RULES[name]
+        values = floats(text)
+        if not all(bool(valid(v)) for v in values):
+            raise argparse.ArgumentTypeError(f"{text!r}: expected {name} in {rule}, one or per "
+                                             f"channel 'r,g,b'")
+        return values
+    return parse
+
+
 def constant_or_texture(name):
     """An argparse type for parameter ``name`` given as constant(s) or a texture: a path is
     kept as given (its texels are checked when it is read); numbers must each meet the

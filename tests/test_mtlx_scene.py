@@ -185,3 +185,26 @@ def test_a_float_image_of_a_baked_input_is_refused_as_one_channel(tmp_path):
     (imp,) = import_materials(write_doc(tmp_path, doc))
     assert "subsurface_radius reads out (a float image: the file's first channel) of rad, " \
         "one channel" in imp.left_out
+
+
+@pytest.mark.parametrize("edit, why", [
+    (('unit="millimeter"', 'unit="parsec"'), "unit 'parsec' is not a distance unit"),
+    (('value="1.4"', 'value="nan"'), "eta = [nan]"),
+    (('value="1.4"', 'value="9"'), "eta=9.0 is outside"),
+    (('value="RADIUS"', 'value="0"'), "mfp = "),
+], ids=["unit", "nan eta", "eta out of range", "zero radius"])
+def test_a_bad_value_in_the_document_leaves_that_material_out_and_the_rest_bake(tmp_path,
+                                                                                edit, why):
+    """A value of one material that cannot be baked (a unit that is not a distance, a NaN or
+    out-of-range eta, a radius of 0) leaves that material out, named with the value, as
+    other not-bakeable materials are: the document still loads and the others bake."""
+    path = write_doc(tmp_path, DOC_139.replace(*edit))
+    scene = scenes.load(path)
+    left = {m.name: m.left_out for m in scene.imports}
+    assert left["skin"] and left["skin"].startswith("not bakeable") and why in left["skin"], left
+    assert "jade" in {m.name for m in scene.materials}
+    assert "skin" not in {m.name for m in scene.materials}
+    assert scene.plan().run().exit_code == 0
+    records = json.loads((tmp_path / "bdipole" / "bdipole_materials.json").read_text())
+    by_name = {e["name"]: e for e in records["materials"]}
+    assert by_name["jade"]["baked"] and why in by_name["skin"]["left_out"]

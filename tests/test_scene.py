@@ -196,12 +196,25 @@ BAD = [
     ("[[material]]\nname = \"a\"\noutputs = [\"sigma_x\"]\n",
      r":3: outputs = \['sigma_x'\]: expected a list from alpha, rho"),
     ("[[material]\nname = 1\n", r"not valid TOML"),
+    ("[[material]]\nname = \"a\"\nalbedo = \"x.exr\"\noutput = \"o.exr\"\nmfp = -1\n",
+     r":5: mfp = -1: expected a number in \[1e-20, 3.4e\+38\]"),
+    ("[[material]]\nname = \"a\"\nalbedo = \"x.exr\"\noutput = \"o.exr\"\nmfp = [1, 0, 1]\n",
+     r":5: mfp = \[1, 0, 1\]: expected a number in"),
+    ("[[material]]\nname = \"a\"\nalbedo = \"x.exr\"\noutput = \"o.exr\"\n"
+     "outputs = [\"sigma_a\", \"sigma_a\"]\n", r":5: outputs = .*each once"),
+    ("[[material]]\nname = \"a\"\nalbedo = \"x.exr\"\noutput = \"o.exr\"\neta = 9\n",
+     r":5: eta = 9: eta=9.0 is outside \[0.5, 2.8\]"),
+    ("[defaults]\neta = 9\n[[material]]\nname = \"a\"\nalbedo = \"x.exr\"\noutput = \"o.exr\"\n",
+     r":2: eta = 9: eta=9.0 is outside"),
 ]
 
 
 @pytest.mark.parametrize("text, message", BAD, ids=["unknown key", "bad value", "missing key",
                                                     "not exr", "unknown material",
-                                                    "bad outputs", "syntax"])
+                                                    "bad outputs", "syntax", "negative mfp",
+                                                    "zero mfp channel", "output twice",
+                                                    "eta out of range",
+                                                    "eta out of range in defaults"])
 def test_bad_scene_files_are_one_line_with_file_line_and_key(tmp_path, capsys, text, message):
     path = tmp_path / "bad.toml"
     path.write_text(text)

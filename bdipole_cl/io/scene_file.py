@@ -38,7 +38,7 @@ from __future__ import annotations
 
 import math
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 try:
@@ -48,6 +48,8 @@ except ImportError:  # pragma: no cover - Python 3.10
 
 from ..errors import POLICY
 from ..methods.registry import BLUR_METHOD, BORDER, METHOD_OR_AUTO, MFP_KIND, OUTPUTS
+from ..ops.blur.params import CONSTANT_RULES
+from ..physics.fresnel import check_eta
 from ..physics.models import MODEL
 from .colour import resolve_colorspace, resolve_working_space
 
@@ -69,18 +71,24 @@ def _positive(v):
     return _number(v) and v > 0
 
 
+def _mfp_constants(v):
+    """An mfp given as constants: each one the kernels can take (``CONSTANT_RULES``)."""
+    return _numbers_or_number(v) and all(bool(CONSTANT_RULES["mfp"][1](x)) for x in _as_list(v))
+
+
 KEYS = {
     "name": ({"material", "blur"}, lambda v: isinstance(v, str) and v, "a non-empty string"),
     "albedo": ({"material"}, lambda v: (isinstance(v, str) and v) or _numbers_or_number(v),
                "a texture path or pattern, or constants (a number or one per channel)"),
-    "mfp": ({"material"}, lambda v: _numbers_or_number(v) or isinstance(v, str),
-            "a number, a list of one per channel, or a texture path"),
+    "mfp": ({"material"}, lambda v: _mfp_constants(v) or (isinstance(v, str) and v),
+            f"a number in {CONSTANT_RULES['mfp'][0]}, a list of one per channel, or a texture "
+            f"path"),
     "mfp_kind": ({"material"}, lambda v: v in MFP_KIND, MFP_KIND.listing('"')),
     "mfp_scale": ({"material"}, lambda v: _numbers_or_number(v) and min(_as_list(v)) > 0,
                   "a number > 0 or one per channel"),
     "eta": ({"material"}, lambda v: _numbers_or_number(v), "a number or one per channel"),
-    "outputs": ({"material"}, lambda v: isinstance(v, list) and v and set(v) <= set(OUTPUTS),
-                f"a list from {', '.join(OUTPUTS)}"),
+    "outputs": ({"material"}, lambda v: isinstance(v, list) and v and set(v) <= set(OUTPUTS)
+                and len(set(v)) == len(v), f"a list from {', '.join(OUTPUTS)}, each once"),
     "output": ({"material", "blur"}, lambda v: isinstance(v, str) and v.endswith(".exr"),
                "an .exr path or pattern (a .tx/TIFF texture drops the channel names: "
                "texture = true writes tiled, mip-mapped EXRs)"),
@@ -283,20 +291,30 @@ def load(path, importer=None, working_space=None) -> SceneData:
             fail(None, 0, "materials_from", str(exc))
     entries = raw.get("material", [])
     overrides = {e.get("name"): i for i, e in enumerate(entries)}
-    materials = {}
+    materials, checked = {}, []
     for imp in imports:
         i = overrides.get(imp.name)
         if imp.left_out:
             if i is not None:
                 fail("material", i, "name", f"material '{imp.name}' of {source} is left out "
                                             f"({imp.left_out}); an override cannot bake it")
-            continue
-        materials[imp.name] = _imported(fail, i, entries[i] if i is not None else {}, imp,
-                                        defaults, resolve, working_space)
+        elif i is not None:          # the user's override: its problems are this file's
+            materials[imp.name] = _imported(fail, i, entries[i], imp, defaults, resolve,
+                                            working_space)
+        else:                        # the stage's own values: a problem leaves it out, named
+            try:                     # ([defaults]' problems stay this file's)
+                materials[imp.name] = _imported(
+                    lambda sec, *a: fail(sec, *a) if sec == "defaults" else _raise(a[-1]),
+                    None, {}, imp, defaults, resolve, working_space)
+            except StageValueError as exc:
+                imp = replace(imp, left_out=f"not bakeable: {exc}")
+        checked.append(imp)
+    imports = tuple(checked)
     for i, entry in enumerate(entries):
         if any(imp.name == entry.get("name") for imp in imports):
             continue
         m = _entry(fail, "material", i, entry, defaults)
+        _check_eta(fail, i, entry, m)
         if not isinstance(m["albedo"], str) and isinstance(m["mfp"], str):
             fail("material", i, "albedo", f"albedo = {m['albedo']!r} is constant and mfp a "
                                           f"texture: a bake is driven by an albedo texture")
@@ -337,13 +355,16 @@ def load_imported(path, importer, working_space=None) -> SceneData:
     working_space = _working_space(working_space)
     imports = tuple(importer(str(path)))
 
-    def fail(section, index, key, message):
-        raise SceneError(f"{path}: {message}")
-
-    materials = tuple(_imported(fail, None, {}, imp, {}, lambda p: p, working_space)
-                      for imp in imports
-                      if not imp.left_out)
-    return SceneData(path, materials, (), str(path), imports)
+    materials, checked = [], []
+    for imp in imports:               # a value the stage gives that cannot be baked leaves
+        if not imp.left_out:          # that material out, named; the others bake
+            try:
+                materials.append(_imported(lambda *a: _raise(a[-1]), None, {}, imp, {},
+                                           lambda p: p, working_space))
+            except StageValueError as exc:
+                imp = replace(imp, left_out=f"not bakeable: {exc}")
+        checked.append(imp)
+    return SceneData(path, tuple(materials), (), str(path), tuple(checked))
 
 
 def _material(m, resolve, colour) -> Material:
@@ -366,9 +387,11 @@ def _imported(fail, index, entry, imp, defaults, resolve, working_space) -> Mate
     converts the stage's distances (in its scene unit) into it."""
     for key, value in imp.facts.items():
         if not KEYS[key][1](value):
-            raise SceneError(f"{imp.path}: {key} = {value!r}: expected {KEYS[key][2]}")
+            fail("material", index or 0, "name",
+                 f"{imp.path}: {key} = {value!r}: expected {KEYS[key][2]}")
     m = _entry(fail, "material", index or 0, {"name": imp.name, **entry}, defaults,
                below=imp.suggestions, above=imp.facts)
+    _check_eta(fail, index or 0, entry, m, from_stage="eta" in imp.facts)
     named = entry.get("unit", defaults.get("unit"))
     if "mfp" in entry:
         m["mfp_scale"] = entry.get("mfp_scale", 1.0)
@@ -409,6 +432,24 @@ def _colour(fail, kind, index, entry, merged, key):
     except ValueError as exc:
         where = (kind, index) if key in entry else ("defaults", 0)
         fail(*where, key, f"{key} = {value!r}: {exc}")
+
+
+class StageValueError(SceneError):
+    """A value a stage or document gives that cannot be baked: its material is left out."""
+
+
+def _raise(message):
+    raise StageValueError(message)
+
+
+def _check_eta(fail, index, entry, m, from_stage=False):
+    """The material's etas within its model's range (``fresnel.check_eta``), else a failure
+    at its eta key (or [defaults]' where neither it nor the stage gives one)."""
+    try:
+        check_eta(_floats(m["eta"]), m["exact"], MODEL.canonical(m["model"]))
+    except ValueError as exc:
+        where = ("material", index) if "eta" in entry or from_stage else ("defaults", 0)
+        fail(*where, "eta", f"eta = {m['eta']!r}: {exc}")
 
 
 def _floats(v) -> tuple:

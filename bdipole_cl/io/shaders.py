@@ -258,7 +258,11 @@ def imported_material(name, path, shader_id, read, *, unit_m, out_dir, bound) ->
     names = (mapping.weight, mapping.albedo, *mapping.distance, mapping.eta,
              *((mapping.anisotropy,) if mapping.anisotropy else ()),
              *((mapping.unit_length,) if mapping.unit_length else ()))
-    inputs = {n: read(n) or default_input(mapping, n) for n in names}
+    try:                               # an input that cannot be read (a unit that is not
+        inputs = {n: read(n) or default_input(mapping, n) for n in names}   # a distance)
+    except SceneError as exc:          # leaves this material out, named; the others bake
+        return ImportedMaterial(name, path, mapping.name, mapping.mfp_kind, {}, {}, {}, unit_m,
+                                f"not bakeable: {exc}", bound=bound)
     described = {n: i.describe() for n, i in inputs.items()}
 
     def left(reason):
@@ -271,7 +275,7 @@ def imported_material(name, path, shader_id, read, *, unit_m, out_dir, bound) ->
     try:
         _check_bakeable(mapping, inputs)
         mfp, scale = _distance(mapping, inputs, unit_m, f"{path}: {mapping.distance[0]}")
-    except NotBakeable as exc:
+    except (NotBakeable, SceneError) as exc:
         return left(f"not bakeable: {exc}")
     albedo = inputs[mapping.albedo]
     facts = {"albedo": albedo.texture.file if albedo.texture else list(albedo.value),

@@ -380,3 +380,23 @@ def test_the_records_never_overwrite_an_input(tmp_path):
     assert stage_path.read_bytes() == before
     assert (tmp_path / "bdipole_materials.json").is_file()      # the other record is written
     assert (tmp_path / "skin_skin.1001.exr").is_file()
+
+
+def test_the_records_never_overwrite_a_layer_the_stage_is_made_of(tmp_path):
+    """The materials in a sublayer at bdipole/bdipole.usda, beside where the records go: that
+    layer is an input of the bake too, never replaced (the root layer alone was checked)."""
+    (tmp_path / "bdipole").mkdir()
+    layer = tmp_path / "bdipole" / "bdipole.usda"
+    os.replace(write_stage(tmp_path), layer)
+    layer.write_text(layer.read_text().replace("@tex/", "@../tex/").replace("@./tex/",
+                                                                          "@../tex/"))
+    before = layer.read_bytes()
+    root = tmp_path / "asset.usda"
+    root.write_text('#usda 1.0\n(\n    subLayers = [@bdipole/bdipole.usda@]\n'
+                    '    metersPerUnit = 0.01\n)\n')
+    assert {m.name for m in scenes.load(root).materials} >= {"skin", "jade"}
+    report = scenes.load(root).plan().run()
+    assert report.exit_code == 1
+    assert "bdipole.usda: the bake's record would overwrite an input" in report.summary()
+    assert layer.read_bytes() == before
+    assert {m.name for m in scenes.load(root).materials} >= {"skin", "jade"}

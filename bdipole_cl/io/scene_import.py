@@ -33,3 +33,19 @@ def import_materials(path) -> list:
         raise SceneError(f"{path}: reading it needs {exc.name or 'pxr and MaterialX'}: "
                          f"{EXTRA}") from None
     return read(path)
+
+
+def source_files(path) -> set:
+    """The real paths of every file a stage is composed of (its root layer and every layer it
+    uses: sublayers, references, payloads), or of a document itself: the inputs a bake's
+    records must never replace."""
+    files = {str(Path(path).resolve())}
+    if Path(path).suffix.lower() in USD_SUFFIXES:
+        try:
+            from pxr import Usd
+            stage = Usd.Stage.Open(str(path), Usd.Stage.LoadAll)
+        except Exception:                # pxr raises Tf.ErrorException; the import read it
+            return files
+        files |= {str(Path(layer.realPath).resolve()) for layer in stage.GetUsedLayers()
+                  if layer.realPath}
+    return files

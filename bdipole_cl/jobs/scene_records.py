@@ -15,6 +15,7 @@ import time
 
 import numpy as np
 
+from ..io.scene_import import source_files
 from ..io.shaders import SHADERS
 from ..methods.choice import resolve_method
 from ..methods.registry import MethodConfig
@@ -265,7 +266,9 @@ def write_records(plan, results) -> list:
              + "\n"}
     if scene.source is not None:
         texts[os.path.join(folder, LAYER)] = usd_layer_text(scene, records, folder)
-    inputs = {os.path.realpath(p) for p in (str(scene.path), scene.source) if p}
+    inputs = {os.path.realpath(str(scene.path))}
+    if scene.source:                     # every layer the stage is made of
+        inputs |= source_files(scene.source)
     inputs |= {os.path.realpath(p) for j in plan.jobs for p in (j.source, *j.inputs.values())}
     written = []
     for path, text in texts.items():

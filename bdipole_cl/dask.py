@@ -34,7 +34,8 @@ from .io.collisions import Claim, check_claim
 from .io.colour import resolve_working_space
 from .io.images import Cancelled, Reader, TextureError, Writer, read_rows, remove_partial_files
 from .jobs import runner
-from .jobs.blur_file import FILE_ROW_FLOATS, blurred_band, exitance_writer, file_plan
+from .jobs.blur_file import (FILE_ROW_FLOATS, blurred_band, exitance_writer, file_plan,
+                              report_clamped)
 from .jobs.job import Job
 from .jobs.results import BatchReport, FileResult
 from .jobs.scene import Plan, not_run, scene_job
@@ -322,6 +323,7 @@ def blur_file_on_cluster(path, output, client, *, colorspace="auto", working_spa
         except Exception:
             writer.abort()
             raise
+        report_clamped(writer, output, None)
         return len(futures)
     finally:
         shutil.rmtree(work, ignore_errors=True)

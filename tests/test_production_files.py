@@ -1030,3 +1030,25 @@ def test_demo_refuses_a_folder_with_a_symbolic_link(tmp_path):
     with pytest.raises(ValueError, match="is a symbolic link"):
         claim_folder(folder)
     assert (mine / "skin_albedo.1001.exr").read_text() == "precious"
+
+
+def test_blur_values_clamped_to_the_half_range_are_counted_on_every_path(tmp_path, capsys):
+    """A half output of a 1e6 highlight under --on-invalid clamp: the clamped values are
+    counted (CLI line, the job's result, a scene's bake row), as invert counts them."""
+    e = np.zeros((16, 16, 3), np.float32)
+    e[8, 8] = 1e6
+    write(tmp_path / "irr.exr", e)
+    assert cli_main(["blur", str(tmp_path / "irr.exr"), "--albedo", "0.8", "--mfp", "2",
+                     "--half", "--on-invalid", "clamp", "--no-progress",
+                     "-o", str(tmp_path / "b.exr")]) == 0
+    out = capsys.readouterr().out
+    assert "values clamped (half range)" in out, out
+    assert np.nanmax(read(tmp_path / "b.exr")[0]) == 65504
+    write(tmp_path / "alb.exr", np.full((16, 16, 3), 0.8, np.float32))
+    path = scene(tmp_path, '[[material]]\nname = "m"\nalbedo = "alb.exr"\nmfp = 2.0\n'
+                           'output = "m_out.exr"\n[[blur]]\nname = "b"\nmaterial = "m"\n'
+                           'irradiance = "irr.exr"\ntexel_size = 1.0\nhalf = true\n'
+                           'on_invalid = "clamp"\noutput = "b_out.exr"\n')
+    report = scenes.load(path).plan().run()
+    row = next(r for r in report.results if r.output.endswith("b_out.exr"))
+    assert row.status == "ok" and row.invalid.get("half range", 0) > 0, report.summary()

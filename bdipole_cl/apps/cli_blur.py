@@ -82,8 +82,10 @@ def cmd_blur(args) -> int:
         print(f"channel {c.channel}: {c.method}, radius {c.radius} texels, {rd}, "
               f"error <= {c.error_bound:.1e} x max(E) x Rd")
     texels = result.texels
+    clamped = "".join(f", {n} texel values clamped ({k})" for k, n in result.invalid.items()
+                      if n)
     print(f"wrote {args.output}: {texels} texels in {result.seconds:.2f} s "
-          f"({texels / max(result.seconds, 1e-9) / 1e6:.3g} Mtexel/s)")
+          f"({texels / max(result.seconds, 1e-9) / 1e6:.3g} Mtexel/s){clamped}")
     return stopped_after_writing(stop, args.output)
 
 

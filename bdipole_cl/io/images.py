@@ -366,6 +366,13 @@ class Writer:
             self._remove_tmp()
             raise TextureError(f"{path}: cannot write output: {err}")
 
+    @property
+    def clamped(self) -> dict:
+        """{what: count} of the texels that could not be stored and were clamped
+        (``on_invalid="clamp"``): "half range" in a half output, else "not finite"."""
+        return {("half range" if self.half else "not finite"): self.invalid} if self.invalid \
+            else {}
+
     def write_band(self, y0, y1, pixels):
         s = self.spec
         try:

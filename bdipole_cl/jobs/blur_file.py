@@ -4,6 +4,7 @@ halo; ``run_blur`` is the runner of blur jobs (``runner.run_job``)."""
 from __future__ import annotations
 
 import time
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -109,7 +110,7 @@ def planned_methods(plan):
 def blur_file(path, output, *, colorspace="auto", working_space=None, half=False,
               max_memory=256 << 20, sources=None, cancel=None, mask=None, header=None,
               progress=None, texture=False, albedo=None, mfp=None, eta=1.4, texel_size=1.0,
-              alpha=None, sigma_t=None, device=None, force=False, **options):
+              alpha=None, sigma_t=None, device=None, force=False, clamped=None, **options):
     """Blur an irradiance image file into an EXR, streamed in bands of rows with a halo of the
     truncation radius (memory bounded by ``max_memory``). The irradiance is converted from
     ``colorspace`` (else as the file declares, as in ``process_textures``) into
@@ -127,7 +128,9 @@ def blur_file(path, output, *, colorspace="auto", working_space=None, half=False
     ``header``: more ``bdipole:*`` attributes for the output. ``progress``: a tqdm bar
     advanced by texels. ``texture`` (True or a TextureOptions): a tiled, mip-mapped EXR
     (``images.Writer``). ``force``: replace an existing ``output`` this tool did not write
-    (``io.collisions.foreign``). Returns the BlurInfo (None when every band was skipped)."""
+    (``io.collisions.foreign``). ``clamped``: a dict that gets the output texels that could
+    not be stored and were clamped (``on_invalid="clamp"``; ``images.Writer.clamped``), else
+    they are warned of. Returns the BlurInfo (None when every band was skipped)."""
     check_output_format(output)
     sources = dict(sources or {})
     check_claim(Claim(str(path), str(output), {"irradiance": str(path), **sources}), force)
@@ -179,6 +182,7 @@ def blur_file(path, output, *, colorspace="auto", working_space=None, half=False
         finally:
             writer, info = state["writer"], state["info"]
         writer.commit()
+        report_clamped(writer, output, clamped)
         writer = None
         return info
     except Stopped:
@@ -190,6 +194,17 @@ def blur_file(path, output, *, colorspace="auto", working_space=None, half=False
         if writer is not None:
             writer.abort()
         reader.close()
+
+
+def report_clamped(writer, output, clamped):
+    """The writer's clamped texels into ``clamped`` (a dict), or a warning naming the output
+    where the caller keeps no count: a clamped value is never silent."""
+    if clamped is not None:
+        clamped.update(writer.clamped)
+    elif writer.clamped:
+        warnings.warn(f"{output}: " + ", ".join(f"{n} texel values clamped ({k})"
+                                                for k, n in writer.clamped.items()),
+                      stacklevel=3)
 
 
 def masked_parameter(values, keep):
@@ -263,7 +278,7 @@ def run_blur(job, runtime, *, cancel=None, lock=None, progress=None) -> FileResu
             texel_size=scattering.texel_size, alpha=scattering.alpha_prime,
             sigma_t=scattering.sigma_t, tol=w.tol, method=w.method, border=w.border,
             on_invalid=w.on_invalid, exact=w.exact, device=runtime, max_memory=w.max_memory,
-            texture=w.texture, progress=progress,
+            texture=w.texture, progress=progress, clamped=result.invalid,
             force=True)      # its claim was checked where the job was made, with the run's force
         result.status = "ok"
         result.texels = texels

@@ -204,8 +204,7 @@ def run_invert(job, runtime, *, cancel=None, lock, progress=None) -> FileResult:
         with lock:
             plan = inversion_plan(work, etas, inp, runtime)
         invert_bands(job, work, inp, route, plan, writer, result, lock, cancel, progress)
-        if writer.invalid:
-            result.invalid["half range" if work.half else "not finite"] = writer.invalid
+        result.invalid.update(writer.clamped)
         writer.commit()
         writer = None
         result.status = "ok"

@@ -16,6 +16,7 @@ on the whole array.
 """
 from __future__ import annotations
 
+import glob
 import logging
 import shutil
 import signal
@@ -257,7 +258,9 @@ def band_folder_prefix(output) -> str:
 def remove_band_folders(output) -> int:
     """Remove the band folders a cluster blur of ``output`` left when its process was killed
     (the one process that writes ``output`` calls this first: outputs never collide)."""
-    stale = list(Path(output).parent.glob(band_folder_prefix(output) + "*"))
+    prefix = band_folder_prefix(output)        # matched literally (an output named m[1])
+    stale = [p for p in Path(output).parent.glob(glob.escape(prefix) + "*")
+             if p.is_dir() and p.name.startswith(prefix)]
     for folder in stale:
         shutil.rmtree(folder, ignore_errors=True)
     return len(stale)

@@ -280,3 +280,19 @@ def test_a_stop_during_a_hung_texture_build_is_heard(tmp_path, monkeypatch):
     finally:
         release.set()
         mipmaps.ABANDONED.clear()
+
+
+def test_partial_files_of_an_output_with_glob_characters_are_its_own(tmp_path):
+    """An output named m[1].exr or *.exr: only its own temporaries are found and removed (a
+    glob of its raw name matched another output's, which a cluster job would have deleted
+    from under a live writer)."""
+    from bdipole_cl.io.images import partial_files, remove_partial_files
+    others = [tmp_path / ".m1.partial-99-1.exr", tmp_path / ".other.partial-98-2.exr",
+              tmp_path / ".m1.partial-99-1.tx.exr"]
+    own = tmp_path / ".m[1].partial-5-6.exr"
+    for p in [*others, own]:
+        p.write_bytes(b"")
+    assert partial_files(tmp_path / "m[1].exr") == [own]
+    assert partial_files(tmp_path / "*.exr") == []
+    assert remove_partial_files(tmp_path / "m[1].exr") == 1
+    assert all(p.exists() for p in others)

@@ -17,7 +17,9 @@
 """
 from __future__ import annotations
 
+import glob
 import os
+import re
 import stat
 import threading
 from pathlib import Path
@@ -309,9 +311,15 @@ def output_spec(in_spec, channel_names, alpha_index, half, params, *, working):
 
 
 def partial_files(path) -> list:
-    """Temporary files a Writer of ``path`` leaves only if its process is killed mid-write."""
+    """Temporary files a Writer of ``path`` leaves only if its process is killed mid-write
+    (``.{stem}.partial-{pid}-{thread}{suffix}``, and a texture build's beside it, ``...tx``
+    and maketx's own ``....temp``), matched literally: an output named ``m[1]`` or ``*``
+    never matches another output's)."""
     path = Path(path)
-    return sorted(path.parent.glob(f".{path.stem}.partial-*{path.suffix}"))
+    name = re.compile(rf"\.{re.escape(path.stem)}\.partial-\d+-\d+(\.[^/]+)?"
+                      rf"{re.escape(path.suffix)}")
+    candidates = path.parent.glob(f".{glob.escape(path.stem)}.partial-*")
+    return sorted(p for p in candidates if name.fullmatch(p.name))
 
 
 def remove_partial_files(path) -> int:

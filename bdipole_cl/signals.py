@@ -69,7 +69,9 @@ class terminate_raises:
     it is restored after."""
 
     def __enter__(self):
-        self._previous = signal.signal(signal.SIGTERM, self._raise)
+        self._previous = None              # signals are the main thread's alone: elsewhere
+        if threading.current_thread() is threading.main_thread():      # it changes nothing
+            self._previous = signal.signal(signal.SIGTERM, self._raise)
         return self
 
     @staticmethod
@@ -77,5 +79,6 @@ class terminate_raises:
         raise Terminated(signum)
 
     def __exit__(self, *exc):
-        signal.signal(signal.SIGTERM, self._previous)
+        if self._previous is not None:
+            signal.signal(signal.SIGTERM, self._previous)
         return False

@@ -119,6 +119,29 @@ def test_bake_previews_never_land_on_a_file_of_the_run(tmp_path, capsys):
         assert snapshot(tex) == before                        # nothing baked, nothing drawn
 
 
+def test_a_stop_during_bake_previews_ends_them(tmp_path, monkeypatch, capsys):
+    """Ctrl-C while bake --preview draws its sheets: the pictures end there (the sheet being
+    drawn whole, no page), and the command exits 130, not 0 after drawing everything."""
+    pytest.importorskip("matplotlib")
+    from bdipole_cl.apps import bake_page
+    for name in ("a", "b", "c"):
+        write(tmp_path / f"{name}.exr", ramp())
+    path = scene(tmp_path, "".join(f'[[material]]\nname = "{n}"\nalbedo = "{n}.exr"\n'
+                                   f'mfp = 1.0\noutput = "{n}_out.exr"\n' for n in "abc"))
+    real, drawn = bake_page.contact_sheet, []
+
+    def sheet_then_ctrl_c(*a, **k):
+        drawn.append(real(*a, **k))
+        os.kill(os.getpid(), signal.SIGINT)
+        return drawn[-1]
+    monkeypatch.setattr(bake_page, "contact_sheet", sheet_then_ctrl_c)
+    rc = cli_main(["bake", str(path), "--preview", "--no-progress"])
+    err = capsys.readouterr().err
+    assert rc == 130 and "during the previews" in err, err
+    assert len(drawn) == 1 and not (tmp_path / "scene.preview.png").exists()
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
+
+
 def test_skipped_jobs_inputs_are_still_inputs(tmp_path):
     tex = tmp_path / "tex"
     tex.mkdir()
@@ -991,6 +1014,49 @@ def test_demo_never_rewrites_a_file_changed_in_its_folder(tmp_path):
     with pytest.raises(ValueError, match="an earlier demo there did not finish"):
         claim_folder(unfinished)
     assert (unfinished / "albedo.exr").read_bytes() == b"the user's copy"
+
+
+@pytest.mark.parametrize("stop", [KeyboardInterrupt, "SIGTERM"])
+def test_an_interrupted_demo_runs_again_in_its_folder(tmp_path, monkeypatch, capsys, stop):
+    """Ctrl-C or SIGTERM during the demo: it ends 130 / 143 with nothing half-written, and
+    records what its folder holds then (its own files), so the next demo there runs; an edit
+    after that is still refused."""
+    import bdipole_cl.jobs.blur_file as blur_file_module
+    folder = tmp_path / "dm"
+
+    def interrupted(*a, **k):
+        if stop == "SIGTERM":
+            os.kill(os.getpid(), signal.SIGTERM)
+            time.sleep(1)
+        raise KeyboardInterrupt
+    monkeypatch.setattr(blur_file_module, "blur_file", interrupted)
+    assert cli_main(["demo", "--dir", str(folder), "--no-progress"]) == (
+        143 if stop == "SIGTERM" else 130)
+    assert not [p for p in folder.rglob(".*") if p.name != ".bdipole_demo"]
+    monkeypatch.undo()
+    assert cli_main(["demo", "--dir", str(folder), "--no-progress"]) == 0
+    (folder / "albedo.exr").write_bytes(b"the user's")
+    assert cli_main(["demo", "--dir", str(folder), "--no-progress"]) == 2
+    assert (folder / "albedo.exr").read_bytes() == b"the user's"
+
+
+def test_sigterm_in_a_picture_command_leaves_no_temporary_file(tmp_path, monkeypatch):
+    """profile (and preview, demo: any command without its own stop checks) ends on SIGTERM
+    as on Ctrl-C: exit 143, its temporary file removed (Python's default was to die there)."""
+    from bdipole_cl.apps import preview
+
+    def killed(tmp):                          # half a picture, then the signal
+        tmp.write_bytes(b"half a picture")
+        os.kill(os.getpid(), signal.SIGTERM)
+        time.sleep(1)
+    real = preview.replaced_together
+
+    def write_then_killed(writes):
+        return real([(path, killed) for path, _ in writes])
+    monkeypatch.setattr(preview, "replaced_together", write_then_killed)
+    out = tmp_path / "p.svg"
+    assert cli_main(["profile", "--albedo", "0.8", "--mfp", "1", "-o", str(out)]) == 143
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_report_checks_its_outputs_again_before_it_writes(tmp_path, monkeypatch, capsys):

@@ -6,6 +6,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from ..io.collisions import Claim, collisions
+from ..signals import check_stop
 
 from .preview import (ContactSheet, contact_sheet, draw_group, read_image, require_matplotlib,
                       save_figure)
@@ -58,11 +59,16 @@ def bake_preview(plan, report, page=None, force=False) -> BakePreview:
     ``force``."""
     check_preview_outputs(plan, page, force)
     done = {r.output for r in report.results if r.status in ("ok", "skipped")}
-    sheets = [contact_sheet(j.output, sheet_path(j.output), title=_job_title(j), force=force)
-              for j in plan.jobs if j.output in done and Path(j.output).is_file()]
+    sheets = []
+    for j in plan.jobs:               # a stop request ends the pictures between two of them
+        if j.output in done and Path(j.output).is_file():      # (each one whole, or not there)
+            check_stop()
+            sheets.append(contact_sheet(j.output, sheet_path(j.output), title=_job_title(j),
+                                        force=force))
     scene = plan.scene
     page = page_path(plan, page)
     materials = tuple(m.name for m in scene.materials)
+    check_stop()
     _bake_page(scene, plan, sheets, page, force)
     return BakePreview(tuple(sheets), str(page), materials)
 

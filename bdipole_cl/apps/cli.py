@@ -146,9 +146,16 @@ def _cmd_bake(args) -> int:
                 bar.close()
     code = _finish(report, stop)
     if args.preview and not stop.exit_code:
+        from ..signals import Stopped
         from .bake_page import bake_preview
-        print(bake_preview(plan, report, force=args.force).describe())
-    return code
+        try:
+            print(bake_preview(plan, report, force=args.force).describe())
+        except Stopped:
+            print(f"interrupted by signal {stop.signum} during the previews: the sheets "
+                  f"written so far are whole, the others and the page not written",
+                  file=sys.stderr)
+            return stop.exit_code
+    return stop.exit_code or code             # a stop as the last picture was written
 
 
 def _cmd_report(args) -> int:
@@ -396,9 +403,10 @@ def run_command(args) -> int:
     from ..io.images import TextureError
     try:
         check_forced_widths()
-        if args.device and args.command != "devices":
-            use_device(args.device)
-        return args.func(args)
+        with terminate_raises():      # a command without its own stop checks (preview,
+            if args.device and args.command != "devices":      # profile, demo, plan) ends
+                use_device(args.device)          # on SIGTERM as on SIGINT: its temporaries
+            return args.func(args)               # removed on the way out, exit 143
     except (KeyboardInterrupt, Terminated) as exc:
         if args.debug:
             raise

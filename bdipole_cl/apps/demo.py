@@ -109,9 +109,16 @@ def claim_folder(folder):
 
 
 def run_demo(folder="bdipole_demo", progress=True) -> int:
+    claim_folder(folder)
+    try:
+        return _run_demo(folder, progress)
+    finally:                # what the folder holds now is the demo's, an interrupted run's too
+        record_folder(folder, complete=True)   # (its writers removed their temporaries)
+
+
+def _run_demo(folder, progress) -> int:
     from ..device import get_runtime
     from ..jobs.batch import process_textures
-    claim_folder(folder)
     rt = get_runtime()
     print(f"device: {rt.describe()}")
     paths = make_inputs(folder)
@@ -137,7 +144,6 @@ def run_demo(folder="bdipole_demo", progress=True) -> int:
     print("\n3. a scene (scene.toml): two materials on UDIM tiles with masks, and a blur; "
           "planned, baked, and baked again (nothing to do).")
     scene_rc = run_scene(Path(folder) / "scene")
-    record_folder(folder, complete=True)
     return max(report.exit_code, scene_rc)
 
 

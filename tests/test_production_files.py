@@ -1118,3 +1118,21 @@ def test_blur_values_clamped_to_the_half_range_are_counted_on_every_path(tmp_pat
     report = scenes.load(path).plan().run()
     row = next(r for r in report.results if r.output.endswith("b_out.exr"))
     assert row.status == "ok" and row.invalid.get("half range", 0) > 0, report.summary()
+
+
+def test_mfp_times_scale_out_of_range_is_named_whatever_the_policy(tmp_path, recwarn):
+    """A constant --mfp x --mfp-scale out of range is a usage error under clamp too (a
+    constant is no texel to clamp); a texture's texels overflowed by the scale name both
+    values, and no NumPy warning leaks."""
+    write(tmp_path / "a.exr", ramp(4, 4))
+    write(tmp_path / "m.exr", np.full((4, 4, 1), 1e30, np.float32), ["Y"])
+    for policy in ("raise", "clamp"):
+        assert cli_main(["invert", str(tmp_path / "a.exr"), "--mfp", "3.4e38", "--mfp-scale",
+                         "10", "--on-invalid", policy, "--no-progress",
+                         "-o", str(tmp_path / "o.exr")]) == 2
+    rep = process_textures(str(tmp_path / "a.exr"), mfp=str(tmp_path / "m.exr"),
+                           mfp_scale=1e30, output=str(tmp_path / "o.exr"))
+    assert rep.exit_code == 1 and "the mfp texture's 1e+30 x --mfp-scale 1e+30" in \
+        rep.results[0].error, rep.summary()
+    assert not [w for w in recwarn if issubclass(w.category, RuntimeWarning)]
+    assert not (tmp_path / "o.exr").exists()

@@ -51,6 +51,10 @@ def _finish(report, stop) -> int:
 
 
 def _cmd_invert(args) -> int:
+    from ..jobs.batch import check_scaled_mfp, parse_constant
+    # a constant --mfp x --mfp-scale out of range is a usage error whatever --on-invalid (a
+    # constant is the user's option, no texel: the API's on_invalid="clamp" clamps it)
+    check_scaled_mfp(parse_constant(args.mfp, "mfp"), float(args.mfp_scale))
     if args.scheduler:
         from ..dask import file_runner
         with cluster_client(args) as client:

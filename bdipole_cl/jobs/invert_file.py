@@ -85,9 +85,10 @@ def open_inputs(job, work, readers) -> InvertInputs:
         if len(mfp_channels) not in (1, len(colour)):
             raise TextureError(f"{job.source}: mfp texture {mfp_path} has "
                                f"{len(mfp_channels)} channels; expected 1 or {len(colour)}")
-    else:
-        mfp_const = np.array(per_channel(work.mfp, len(colour), "mfp", job.source),
-                             np.float32) * np.asarray(work.mfp_scale, np.float32)
+    else:                        # an overflow is invalid (on_invalid: named, or clamped)
+        with np.errstate(over="ignore", under="ignore"):
+            mfp_const = np.array(per_channel(work.mfp, len(colour), "mfp", job.source),
+                                 np.float32) * np.asarray(work.mfp_scale, np.float32)
     if work.mask == "alpha" and alpha_ch < 0:
         raise TextureError(f"{job.source}: mask = 'alpha' but the albedo has no alpha "
                            f"channel (channels {', '.join(spec.channelnames)})")
@@ -149,15 +150,24 @@ def invert_bands(job, work, inp, route, plan, writer, result, lock, cancel, prog
     def compute(band, data):
         (y0, y1), (a, m, mask) = band, data
         albedo = route.convert(a[..., inp.colour], inp.names)
-        mfp = inp.mfp_const if m is None else m[..., inp.mfp_channels] * scale
+        if m is None:
+            mfp = inp.mfp_const
+        else:                             # an overflow is an invalid texel, named below
+            with np.errstate(over="ignore", under="ignore"):
+                mfp = m[..., inp.mfp_channels] * scale
         try:
             albedo, negative = non_negative_albedo(albedo, work.on_invalid)
             with lock:
                 done = plan.apply(albedo, mfp, mask)
         except InvalidInputError as exc:
             yy, xx, cc = exc.first_index
+            scaled = ""
+            if exc.name == "mfp" and m is not None and np.any(scale != 1):
+                ch = inp.mfp_channels[cc if len(inp.mfp_channels) > 1 else 0]
+                scaled = (f" (the mfp texture's {float(m[yy, xx, ch]):g} x --mfp-scale "
+                          f"{float(np.ravel(scale)[cc % scale.size]):g})")
             raise invalid_texels(exc, job.source, spec.x + xx, spec.y + y0 + yy,
-                                 inp.names[cc], f" in rows {y0}..{y1 - 1}") from None
+                                 inp.names[cc], f" in rows {y0}..{y1 - 1}{scaled}") from None
         for key, n in (("albedo", done.invalid_albedo + negative), ("mfp", done.invalid_mfp)):
             result.invalid[key] = result.invalid.get(key, 0) + n
         parts = [done.arrays[o] for o in work.outputs]

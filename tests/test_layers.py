@@ -11,7 +11,7 @@ PACKAGE = Path(__file__).resolve().parent.parent / "bdipole_cl"
 #: layer of each module, by its dotted path below bdipole_cl (the longest prefix decides);
 #: a module may import its own layer and those below
 LAYERS = {
-    "errors": 0, "caches": 0, "version": 0, "signals": 0, "vocabulary": 0,
+    "errors": 0, "caches": 0, "version": 0, "signals": 0, "vocabulary": 0, "durable": 0,
     "physics": 1,
     "device": 2,
     "methods": 3,

@@ -1136,3 +1136,28 @@ def test_mfp_times_scale_out_of_range_is_named_whatever_the_policy(tmp_path, rec
         rep.results[0].error, rep.summary()
     assert not [w for w in recwarn if issubclass(w.category, RuntimeWarning)]
     assert not (tmp_path / "o.exr").exists()
+
+
+def test_outputs_reach_the_disk_before_they_are_renamed_into_place(tmp_path, monkeypatch):
+    """temp file + verified write + fsync + rename + the folder's fsync: a power loss after
+    the rename cannot leave an empty file where the old output was."""
+    from bdipole_cl import durable
+    events = []
+    real_fsync, real_replace = os.fsync, os.replace
+
+    def fsync(fd):
+        events.append(("fsync", os.readlink(f"/proc/self/fd/{fd}")))
+        return real_fsync(fd)
+
+    def replace(a, b):
+        events.append(("replace", str(b)))
+        return real_replace(a, b)
+    monkeypatch.setattr(durable.os, "fsync", fsync)
+    monkeypatch.setattr(durable.os, "replace", replace)
+    write(tmp_path / "a.exr", ramp(4, 4))
+    out = tmp_path / "o.exr"
+    assert process_textures(str(tmp_path / "a.exr"), mfp=1.0, output=str(out)).exit_code == 0
+    kinds = [(k, p) for k, p in events]
+    i = kinds.index(("replace", str(out)))
+    assert kinds[i - 1][0] == "fsync" and ".partial-" in kinds[i - 1][1]   # the data first
+    assert kinds[i + 1] == ("fsync", str(tmp_path))                       # then the rename

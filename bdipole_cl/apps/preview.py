@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..durable import durable_replace
 from ..io.collisions import PICTURE_MARK, Claim, check_claim
 from ..io.images import classify_channels, read_whole
 
@@ -290,7 +291,7 @@ def replaced_together(writes):
             done.append((tmp, path))
             write(tmp)
         for tmp, path in done:
-            os.replace(tmp, path)
+            durable_replace(tmp, path)
     finally:
         for tmp, _ in done:
             if tmp.exists():

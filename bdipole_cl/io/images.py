@@ -31,6 +31,7 @@ from .mipmaps import (TextureBuildCancelled, TextureBuildError, build_texture,
                       texture_options, window_problem)
 from .verify import BandDigests, WriteCheckError, finite_texels, read_back, read_rows_of
 from .colour import COLOUR_ATTRIBS, colour_path, tag_output
+from ..durable import durable_replace
 from ..signals import STOP
 from ..version import __version__
 
@@ -414,7 +415,7 @@ class Writer:
         if self.texture is not None:
             self._commit_texture()
             return
-        os.replace(self.tmp, self.path)
+        durable_replace(self.tmp, self.path)
 
     def _commit_texture(self):
         tex = self.tmp.with_name(f"{self.tmp.stem}.tx{self.tmp.suffix}")
@@ -428,7 +429,7 @@ class Writer:
                 raise TextureError(f"{self.path}: {exc}") from None
             if self.cancel is not None and self.cancel.is_set():
                 raise Cancelled(f"{self.path}: interrupted; nothing written")
-            os.replace(tex, self.path)
+            durable_replace(tex, self.path)
         finally:
             for p in (tex, self.tmp):
                 try:

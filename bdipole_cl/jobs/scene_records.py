@@ -15,6 +15,7 @@ import time
 
 import numpy as np
 
+from ..durable import durable_replace
 from ..io.scene_import import source_files
 from ..io.shaders import SHADERS
 from ..methods.choice import resolve_method
@@ -235,7 +236,7 @@ def write_if_changed(path, text: str) -> bool:
         with open(tmp) as f:
             if f.read() != text:
                 raise OSError(f"{tmp}: written content differs from what was written")
-        os.replace(tmp, path)
+        durable_replace(tmp, path)
     except BaseException:
         if os.path.exists(tmp):
             os.remove(tmp)

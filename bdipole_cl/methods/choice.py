@@ -22,6 +22,7 @@ import threading
 from dataclasses import dataclass
 from pathlib import Path
 
+from ..durable import durable_replace
 from ..caches import CACHE_DIR_VARIABLE, ByteCache, user_cache_dir  # noqa: F401
 from .registry import BlurChoice, InversionChoice, MethodConfig
 
@@ -284,7 +285,7 @@ def write_choice_data(data: ChoiceData, path) -> Path:
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         tmp.write_text(json.dumps(raw, indent=1))
-        os.replace(tmp, path)
+        durable_replace(tmp, path)
     except OSError as exc:             # a full disk: named, and nothing half-written left
         raise OSError(exc.errno, f"writing {path}: {exc.strerror}") from None
     finally:

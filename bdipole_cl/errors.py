@@ -73,3 +73,14 @@ def find_invalid(name, values, bad, why, on_invalid, texels=False, channel=None)
             first += (int(channel),)
         raise InvalidInputError(name, count, first, value, why, texels)
     return count
+
+
+def one_line(text) -> str:
+    """A message as one line: its lines (a library's error may hold several, some repeating
+    an earlier one) joined by "; ", each once, white space folded."""
+    seen = []
+    for line in str(text).splitlines():
+        line = " ".join(line.split())
+        if line and not any(line in kept for kept in seen):
+            seen.append(line)
+    return "; ".join(seen)

@@ -1161,3 +1161,16 @@ def test_outputs_reach_the_disk_before_they_are_renamed_into_place(tmp_path, mon
     i = kinds.index(("replace", str(out)))
     assert kinds[i - 1][0] == "fsync" and ".partial-" in kinds[i - 1][1]   # the data first
     assert kinds[i + 1] == ("fsync", str(tmp_path))                       # then the rename
+
+
+def test_a_truncated_file_fails_on_one_line(tmp_path):
+    """OpenImageIO's error for a truncated EXR holds several lines, one repeating another:
+    the file's row says it on one line, each part once."""
+    write(tmp_path / "a.exr", ramp(8, 8))
+    (tmp_path / "t.exr").write_bytes((tmp_path / "a.exr").read_bytes()[:300])
+    rep = process_textures(str(tmp_path / "t.exr"), mfp=1.0, output=str(tmp_path / "o.exr"))
+    error = rep.results[0].error
+    assert rep.exit_code == 1 and "\n" not in error and "t.exr" in error, error
+    parts = error.split("; ")
+    assert len(parts) == len(set(parts))
+    assert len([ln for ln in rep.summary().splitlines() if "t.exr" in ln]) == 1

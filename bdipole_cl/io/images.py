@@ -32,12 +32,17 @@ from .mipmaps import (TextureBuildCancelled, TextureBuildError, build_texture,
 from .verify import BandDigests, WriteCheckError, finite_texels, read_back, read_rows_of
 from .colour import COLOUR_ATTRIBS, colour_path, tag_output
 from ..durable import durable_replace
+from ..errors import one_line
 from ..signals import STOP
 from ..version import __version__
 
 
 class TextureError(RuntimeError):
-    """A file that cannot be processed; the message names the file and the reason."""
+    """A file that cannot be processed; the message names the file and the reason, on one
+    line (OpenImageIO's errors can hold several: ``errors.one_line``)."""
+
+    def __init__(self, message=""):
+        super().__init__(one_line(message))
 
 
 class Cancelled(TextureError):

@@ -3,6 +3,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from ..errors import one_line
+
 
 @dataclass
 class FileResult:
@@ -40,7 +42,7 @@ class BatchReport:
         for r in self.results:
             inv = ", ".join(f"{k} {v}" for k, v in r.invalid.items() if v) or "0"
             rows.append((r.path, r.status, f"{r.texels}", f"{r.mtexel_per_s:.3g}", inv,
-                         r.error if r.status in ("failed", "cancelled") else
+                         one_line(r.error) if r.status in ("failed", "cancelled") else
                          (r.output or "") + "".join(f" ({n})" for n in r.notes)))
         widths = [max(len(row[i]) for row in rows) for i in range(5)]
         lines = []

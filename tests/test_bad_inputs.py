@@ -314,6 +314,20 @@ def test_udim_pattern_matching_nothing_says_so(tmp_path):
     assert rep.exit_code == 1 and "no file matches" in rep.results[0].error
 
 
+def test_a_pattern_matching_only_own_outputs_says_so(tmp_path):
+    """A glob whose only matches are this tool's outputs (left out, so that a run never
+    inverts its own outputs) says that, not that nothing matches."""
+    from bdipole_cl.apps.demo import write_exr
+    write_exr(tmp_path / "a.exr", np.full((4, 4, 3), 0.5, np.float32), ("R", "G", "B"))
+    assert process_textures(str(tmp_path / "a.exr"), mfp=1.0,
+                            output=str(tmp_path / "out" / "a.exr")).exit_code == 0
+    rep = process_textures(str(tmp_path / "out" / "*.exr"), mfp=1.0,
+                           output=str(tmp_path / "again" / "{stem}.exr"))
+    error = rep.results[0].error
+    assert rep.exit_code == 1 and "only this tool's own outputs" in error, error
+    assert "out/a.exr" in error or "out\\a.exr" in error
+
+
 def test_demo_in_an_unwritable_place_is_one_line(tmp_path, capsys):
     blocker = tmp_path / "file"
     blocker.write_text("x")

@@ -45,6 +45,18 @@ def expand_inputs(patterns):
     return out
 
 
+def unmatched_pattern(pattern) -> str:
+    """Why a pattern named no file (``expand_inputs`` kept it as a path): nothing matches it,
+    or what matches is only this tool's own outputs, which a pattern leaves out."""
+    ours = [h for h, _ in tiles.expand(str(pattern)) if written_by_us(h)]
+    if ours:
+        return (f"{pattern}: matches only this tool's own outputs ({len(ours)}, e.g. "
+                f"{ours[0]}), which a pattern leaves out; name such a file as a path to use it")
+    conv = tiles.token_of(str(pattern))
+    return (f"{pattern}: no file matches this pattern"
+            + (f" ({conv.token} names tiles as {conv.convention})" if conv else ""))
+
+
 def stem(path):
     """The file name without its extension: ``diffuse.1001.exr`` -> ``diffuse.1001``, so that
     the tiles of a UDIM set keep distinct names."""

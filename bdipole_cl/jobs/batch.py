@@ -22,7 +22,8 @@ from ..io.freshness import params_digest
 from ..io.colour import check_colorspace, resolve_working_space
 from ..io.images import TextureError, check_output_format, image_header, texel_count
 from ..io.mipmaps import texture_options
-from ..io.patterns import companion_path, expand_inputs, stem, written_by_us  # noqa: F401
+from ..io.patterns import (companion_path, expand_inputs, stem, unmatched_pattern,  # noqa: F401
+                           written_by_us)
 from ..io.verify import is_complete
 from ..methods.choice import DeviceKey, device_auto_note, resolve_method
 from ..methods.registry import ALPHA_CHANNEL
@@ -223,10 +224,7 @@ def batch_jobs(files, work, output, mfp, skip_existing):
     jobs_list, skip, results = [], [], []
     for path, tile in files:
         if tiles.is_pattern(path) and not os.path.exists(path):
-            conv = tiles.token_of(path)
-            results.append(FileResult(path, error=f"{path}: no file matches this pattern"
-                                      + (f" ({conv.token} names tiles as {conv.convention})"
-                                         if conv else "")))
+            results.append(FileResult(path, error=unmatched_pattern(path)))
             continue
         try:
             out = companion_path(output, path, tile)

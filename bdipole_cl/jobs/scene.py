@@ -39,7 +39,7 @@ from ..io.colour import WorkingSpace, resolve_working_space
 from ..io.freshness import header_fields, is_up_to_date, params_digest
 from ..io.images import TextureError
 from ..io.mipmaps import texture_options
-from ..io.patterns import companion_path, expand_inputs
+from ..io.patterns import companion_path, expand_inputs, unmatched_pattern
 from ..io.scene_file import SceneData, SceneError, load_imported
 from ..io.scene_file import load as load_scene_file
 from ..io.scene_import import import_materials, is_imported
@@ -305,7 +305,7 @@ def plan(scene: Scene, *, force=False, device=None, max_memory=DEFAULT_MEMORY) -
                                 _plan_blur(e, path, tile, force, problems))
                 except (TextureError, TileError) as exc:   # a pattern this file cannot fill
                     role = "albedo" if kind == "invert" else "irradiance"
-                    problem = (f"{role} {path} is missing (no file matches this pattern)"
+                    problem = (f"{role} {unmatched_pattern(path)}"
                                if is_pattern(path) and not os.path.exists(path) else str(exc))
                     jobs.append(PlannedJob(kind, e.name, path, tile.label if tile else None, "",
                                            {"source": path}, problem=problem))

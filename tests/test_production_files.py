@@ -1174,3 +1174,13 @@ def test_a_truncated_file_fails_on_one_line(tmp_path):
     parts = error.split("; ")
     assert len(parts) == len(set(parts))
     assert len([ln for ln in rep.summary().splitlines() if "t.exr" in ln]) == 1
+
+
+def test_an_output_under_a_file_names_the_file(tmp_path):
+    """-o a.exr/x.exr (a file where the output's folder would be): the job fails naming that
+    file, not with [Errno 17] File exists."""
+    write(tmp_path / "a.exr", ramp(4, 4))
+    rep = process_textures(str(tmp_path / "a.exr"), mfp=1.0,
+                           output=str(tmp_path / "a.exr" / "sub" / "x.exr"), force=True)
+    error = rep.results[0].error
+    assert rep.exit_code == 1 and f"{tmp_path / 'a.exr'} is a file, not a folder" in error, error

@@ -77,6 +77,8 @@ def foreign(path, is_ours=ours):
     FIFO or device is never replaced."""
     try:
         mode = os.stat(path).st_mode
+    except NotADirectoryError:               # a file where its folder would be
+        return f"output {path}: {blocking_file(path)} is a file, not a folder; give a file path"
     except OSError:
         return None                          # nothing there (or a dangling link)
     if not stat.S_ISREG(mode):
@@ -86,6 +88,14 @@ def foreign(path, is_ours=ours):
         return None
     return (f"output {path} exists and was not written by bdipole-cl (or was changed since); "
             f"move it, choose another output, or pass --force (force=True) to replace it")
+
+
+def blocking_file(path) -> str:
+    """The nearest existing ancestor of ``path`` that is not a folder (why it cannot be made)."""
+    parent = os.path.dirname(os.path.abspath(path))
+    while parent and not os.path.exists(parent):
+        parent = os.path.dirname(parent)
+    return parent
 
 
 def refusal(path, force=False, is_ours=ours):
@@ -123,11 +133,12 @@ def collisions(claims, force=False) -> list:
             job, role, p = hit
             whose = "its own" if job == c.job else f"{job}'s"
             bad[n] = (f"{c.job}: output {c.output} would overwrite an input ({whose} {role} "
-                      f"{p}); choose another -o / output")
+                      f"{p}); choose another -o (a scene: its output key)")
         elif len(writers[real]) > 1:
             others = ", ".join(j for j in writers[real] if j != c.job)
             bad[n] = (f"{c.job}: output {c.output} is also the output of {others}: put "
-                      f"<UDIM>, {{udim}}, {{stem}} or {{name}} in -o so each input has its own")
+                      f"<UDIM>, {{udim}}, {{stem}} or {{name}} in -o (a scene: its output key) so "
+                      f"each input has its own")
         else:
             why = refusal(c.output, force)
             if why:

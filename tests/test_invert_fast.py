@@ -236,3 +236,14 @@ def test_kernels_are_kept_across_calls(on_device):
     invert_albedo(rd, 1.7, return_rho=True)
     assert len(first) == 1 and dict(ik.KERNEL_CACHE._data).keys() == first.keys()
     assert next(iter(ik.KERNEL_CACHE._data.values()))[0][1] is next(iter(first.values()))[0][1]
+
+
+@pytest.mark.parametrize("make, why", [
+    (lambda: np.empty((3, 8), np.float32)[:, ::2], "not C-contiguous"),
+    (lambda: np.empty((3, 4), np.float64), "its dtype is float64"),
+    (lambda: np.empty((3, 5), np.float32), "it has 15 elements"),
+    (lambda: np.frombuffer(bytes(48), np.float32).reshape(3, 4), "read-only")])
+def test_a_wrong_out_array_is_named_with_its_fault(make, why):
+    """out= arrays refused for each reason by that reason (they all read the same before)."""
+    with pytest.raises(ValueError, match=why):
+        invert_albedo(np.full((3, 4), 0.5, np.float32), 1.4, out=make())

@@ -260,11 +260,15 @@ def output_array(out, name, n, dtype, like=None):
     if out is None or name not in out:
         return aligned_empty(n, dtype, like=like)
     a = out[name]
-    if not (isinstance(a, np.ndarray) and a.dtype == dtype and a.size == n
-            and a.flags.c_contiguous and a.flags.writeable):
-        raise ValueError(f"out[{name!r}]: expected a writeable C-contiguous {dtype} array of "
-                         f"{n} elements, got {getattr(a, 'dtype', type(a))} "
-                         f"shape {np.shape(a)}")
+    wrong = ("not a NumPy array" if not isinstance(a, np.ndarray) else
+             f"its dtype is {a.dtype}" if a.dtype != dtype else
+             f"it has {a.size} elements" if a.size != n else
+             "it is not C-contiguous (a strided view)" if not a.flags.c_contiguous else
+             "it is read-only" if not a.flags.writeable else None)
+    if wrong:
+        raise ValueError(f"out[{name!r}]: expected a writeable C-contiguous {np.dtype(dtype)} "
+                         f"array of {n} elements, shaped as the input; {wrong} (got "
+                         f"{getattr(a, 'dtype', type(a).__name__)} shape {np.shape(a)})")
     return a.reshape(-1)
 
 

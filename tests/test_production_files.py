@@ -1184,3 +1184,25 @@ def test_an_output_under_a_file_names_the_file(tmp_path):
                            output=str(tmp_path / "a.exr" / "sub" / "x.exr"), force=True)
     error = rep.results[0].error
     assert rep.exit_code == 1 and f"{tmp_path / 'a.exr'} is a file, not a folder" in error, error
+
+
+def test_a_failed_write_on_a_nearly_full_disk_says_so(tmp_path, monkeypatch):
+    """OpenEXR's "Failed to write pixel data" names the temporary file only: where the disk
+    is (nearly) full the failure says how much is free."""
+    from collections import namedtuple
+    from bdipole_cl.io import images
+    usage = namedtuple("usage", "total used free")
+    monkeypatch.setattr(images.shutil, "disk_usage", lambda p: usage(1 << 30, 1 << 30, 3 << 19))
+    assert images.low_space(tmp_path / "o.exr") == " (the disk has only 1.5 MiB free)"
+    monkeypatch.setattr(images.shutil, "disk_usage", lambda p: usage(1 << 40, 0, 1 << 39))
+    assert images.low_space(tmp_path / "o.exr") == ""
+
+
+def test_a_fifo_in_a_demo_folder_is_not_the_demos(tmp_path):
+    from bdipole_cl.apps.demo import claim_folder, record_folder
+    folder = tmp_path / "dm"
+    claim_folder(folder)
+    record_folder(folder, complete=True)
+    os.mkfifo(folder / "pipe")
+    with pytest.raises(ValueError, match="is not a regular file or folder"):
+        claim_folder(folder)

@@ -90,6 +90,11 @@ def claim_folder(folder):
     if links:                     # a linked folder would take the demo's writes elsewhere
         raise ValueError(f"--dir {folder}: {links[0]} is a symbolic link; the demo writes only "
                          f"into a folder of its own (nothing was written)")
+    odd = [p for p in folder.rglob("*") if not (p.is_file() or p.is_dir())] \
+        if folder.is_dir() else []
+    if odd:                       # a FIFO or socket: not the demo's, and never read
+        raise ValueError(f"--dir {folder}: {odd[0]} is not a regular file or folder; the demo "
+                         f"made none (nothing was written)")
     present = folder_digests(folder) if folder.is_dir() else {}
     recorded = recorded_files(folder) if folder.is_dir() else None
     if present and recorded is None:

@@ -20,6 +20,7 @@ from __future__ import annotations
 import glob
 import os
 import re
+import shutil
 import stat
 import threading
 from pathlib import Path
@@ -341,6 +342,20 @@ def remove_partial_files(path) -> int:
     return n
 
 
+#: below this many free bytes a failed write names the disk's free space as its likely cause
+LOW_SPACE = 64 << 20
+
+
+def low_space(path) -> str:
+    """"; the disk has only N free" where ``path``'s disk is (nearly) full, else "": a library's
+    "write failed" then says why."""
+    try:
+        free = shutil.disk_usage(Path(path).parent).free
+    except OSError:
+        return ""
+    return f" (the disk has only {free / 2**20:.1f} MiB free)" if free < LOW_SPACE else ""
+
+
 class Writer:
     """An EXR written band by band into a temporary file, renamed by ``commit`` once it reads
     back as written (``verify``). Every band is made storable first (``finite_texels``, by
@@ -403,7 +418,7 @@ class Writer:
             ok = self.out.write_scanlines(s.y + y0, s.y + y1, s.z, pixels)
         if not ok:
             raise TextureError(f"{self.path}: write of rows {y0}..{y1 - 1} failed: "
-                               f"{self.out.geterror()}")
+                               f"{self.out.geterror()}{low_space(self.path)}")
         self.digests.add(y0, y1, pixels)
 
     def commit(self):
@@ -411,7 +426,8 @@ class Writer:
         self.out = None
         if not ok:
             self._remove_tmp()
-            raise TextureError(f"{self.path}: closing the output failed: {oiio.geterror()}")
+            raise TextureError(f"{self.path}: closing the output failed: {oiio.geterror()}"
+                               f"{low_space(self.path)}")
         try:
             read_back(self.tmp, self.digests, str(self.path), list(self.spec.channelnames))
         except WriteCheckError as exc:

@@ -1206,3 +1206,16 @@ def test_a_fifo_in_a_demo_folder_is_not_the_demos(tmp_path):
     os.mkfifo(folder / "pipe")
     with pytest.raises(ValueError, match="is not a regular file or folder"):
         claim_folder(folder)
+
+
+def test_a_float64_highlight_beyond_float32_is_named_as_such_or_kept_bright():
+    """A finite 1e39 in a float64 irradiance is not "NaN or infinite": it is named as beyond
+    float32's range, and under clamp it stays the brightest texel (it was made unlit, 0)."""
+    from bdipole_cl import InvalidInputError, blur
+    e = np.zeros((16, 16, 3))
+    e[8, 8] = 1e39
+    with pytest.raises(InvalidInputError, match="beyond float32's range") as exc:
+        blur(e, albedo=0.8, mfp=2.0)
+    assert exc.value.first_value == 1e39
+    out = blur(e, albedo=0.8, mfp=2.0, on_invalid="clamp")
+    assert np.all(np.isfinite(out)) and out[8, 8, 0] == out[..., 0].max() > 1e37

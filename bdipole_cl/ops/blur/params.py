@@ -241,7 +241,7 @@ def checked_irradiance(irradiance, on_invalid="raise"):
         e = e[..., None]
     if e.ndim != 3:
         raise ValueError(f"irradiance must be HxW or HxWxC, got shape {e.shape}")
-    e = np.ascontiguousarray(e, dtype=np.float32)
+    e = float32_irradiance(e, on_invalid)
     if 0 in e.shape:
         raise ValueError(f"irradiance is empty (shape {e.shape}: no texels or no channels): "
                          f"nothing to blur")
@@ -252,6 +252,22 @@ def checked_irradiance(irradiance, on_invalid="raise"):
     if find_invalid("irradiance", e, bad, "NaN or infinite", on_invalid, texels=True):
         e = np.where(bad, np.float32(0), e)
     return e
+
+
+def float32_irradiance(e, on_invalid):
+    """``e`` as contiguous float32. A wider float's finite value beyond float32's range (a
+    1e39 highlight) is invalid as such (it would read as infinite): named, or with
+    ``on_invalid="clamp"`` clamped to float32's largest, keeping its light."""
+    e = np.asarray(e)
+    if e.dtype.kind == "f" and e.dtype.itemsize > 4:
+        with np.errstate(invalid="ignore"):
+            beyond = np.isfinite(e) & (np.abs(e) > FLOAT32_MAX)
+        if beyond.any() and find_invalid("irradiance", e, beyond,
+                                         f"finite but beyond float32's range "
+                                         f"({FLOAT32_MAX:.3g})", on_invalid, texels=True):
+            e = np.where(beyond, np.clip(e, -FLOAT32_MAX, FLOAT32_MAX), e)
+    with np.errstate(over="ignore"):
+        return np.ascontiguousarray(e, dtype=np.float32)
 
 
 def all_finite(a) -> bool:

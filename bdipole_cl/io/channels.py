@@ -1,0 +1,42 @@
+"""Which channels of an image are colour, alpha and other, by name (I/O layer):
+``classify_channels``, and the colour models that are not linear RGB (``NOT_RGB``)."""
+from __future__ import annotations
+
+COLOUR_NAMES = ("r", "g", "b", "y", "red", "green", "blue", "l", "gray", "grey")
+#: the grey names among them: a grey channel beside R, G and B (an EXR's extra luminance) is
+#: left out, not inverted as a fourth colour
+GREY_NAMES = ("y", "l", "gray", "grey")
+ALPHA_NAMES = ("a", "alpha")
+
+
+def classify_channels(names, alpha_channel=-1):
+    """(colour, alpha, other) channel indices of a file, by name (the part after the last '.',
+    case-insensitive) and the file's declared alpha channel:
+
+    - alpha: the declared alpha channel, else the first named A or alpha;
+    - colour: channels named R, G, B, Y (also red, green, blue, L, gray, grey), in file order;
+      Y only in capitals (a lower-case y is a vector's component: N.y, P.y, motion.y, uv.y),
+      and a grey one only where the file has no R, G or B (beside them it is an extra
+      luminance);
+    - a file whose channels have none of these names but exactly one non-alpha channel: that
+      channel is grey (a 1-channel file of any name; 2 channels of which one is alpha);
+    - everything else (Z, depth, masks, vectors, ...) is other: never inverted, never written.
+
+    So 1 channel is grey; 2 are grey + alpha when one is alpha, else as named (e.g. R and G);
+    4 or more are R, G, B (+ A) with any extra channels left out."""
+    last = [str(n).rsplit(".", 1)[-1].strip() for n in names]
+    short = [n.lower() for n in last]
+    alpha = alpha_channel if 0 <= alpha_channel < len(names) else next(
+        (i for i, s in enumerate(short) if s in ALPHA_NAMES), -1)
+    rest = [i for i in range(len(names)) if i != alpha]
+    colour = [i for i in rest if short[i] in COLOUR_NAMES and last[i] != "y"]
+    if any(short[i] not in GREY_NAMES for i in colour):
+        colour = [i for i in colour if short[i] not in GREY_NAMES]
+    if not colour and len(rest) == 1:
+        colour = rest
+    other = [i for i in rest if i not in colour]
+    return colour, alpha, other
+
+
+#: channel name sets that are colour models other than linear RGB: never read as R, G, B, A
+NOT_RGB = ({"L", "a", "b"}, {"Y", "RY", "BY"})    # Lab; OpenEXR's luminance/chroma

@@ -277,3 +277,42 @@ def test_a_second_stage_beside_the_first_never_replaces_its_bake(tmp_path):
     assert not any(j.problem for j in again.jobs)
     assert scenes.load(tmp_path / "look.usda").plan(force=True).run().exit_code == 0
     assert records(out)[0]["paint"]["albedo"].endswith("other.exr")
+
+
+def test_a_copied_or_renamed_asset_folder_bakes_as_its_own(tmp_path):
+    """The records name their stage relative to their folder: a copy of the whole asset folder
+    bakes as its own (it was refused as another scene's), and so does a renamed stage (the
+    recorded one is gone: no other scene to protect)."""
+    import shutil
+    src = tmp_path / "a"
+    texture(src / "tex" / "paint.exr")
+    stage = new_stage(src)
+    material(stage, "paint", "tex/paint.exr")
+    stage.GetRootLayer().Save()
+    assert scenes.load(src / "asset.usda").plan().run().exit_code == 0
+    shutil.copytree(src, tmp_path / "b")
+    plan = scenes.load(tmp_path / "b" / "asset.usda").plan()
+    assert not any(j.problem for j in plan.jobs) and plan.run().exit_code == 0
+    os.replace(src / "asset.usda", src / "asset_v2.usda")
+    plan = scenes.load(src / "asset_v2.usda").plan()
+    assert not any(j.problem for j in plan.jobs), plan.describe()
+
+
+def test_the_records_layer_sublayered_over_its_stage_is_rewritten(tmp_path):
+    """The README's use of bdipole.usda: sublayer it over the stage. It is then one of the
+    stage's layers, but the tool's own: a rebake after a change rewrites it (it was refused
+    as an input, and left stale beside a new manifest)."""
+    texture(tmp_path / "tex" / "paint.exr")
+    stage = new_stage(tmp_path)
+    material(stage, "paint", "tex/paint.exr")
+    stage.GetRootLayer().Save()
+    assert scenes.load(tmp_path / "asset.usda").plan().run().exit_code == 0
+    stage.GetRootLayer().subLayerPaths.append("bdipole/bdipole.usda")
+    stage.GetRootLayer().Save()
+    texture(tmp_path / "tex" / "paint.exr", (0.2, 0.6, 0.3))
+    plan = scenes.load(tmp_path / "asset.usda").plan()
+    assert plan.records_note is None, plan.describe()
+    report = plan.run()
+    assert report.exit_code == 0, report.summary()
+    by_name, layer = records(tmp_path / "bdipole")
+    assert by_name["paint"]["baked"] and "/Mat/paint" in baked_prims(layer)

@@ -53,7 +53,7 @@ from .job import BlurWork, ConstantWork, InvertWork, Job
 from .results import BatchReport, FileResult
 from .scene_records import (LAYER, MANIFEST, constant_config, constant_text, finish_bake,
                             foreign_records, imported_lines, mfp_text, read_manifest,
-                            records_dir)
+                            records_dir, records_over_input)
 from .scene_stats import DEFAULT_MEMORY, albedo_stats, table_for_range
 
 #: compile each job's constants into its kernel (tools/bench_scene.py turns it off to measure
@@ -101,6 +101,7 @@ class Plan:
     scene: Scene
     jobs: list
     records_problem: str | None = None   # the records folder holds another scene's bake
+    records_note: str | None = None      # a record that would replace an input (not written)
 
     @property
     def missing(self):
@@ -109,7 +110,8 @@ class Plan:
     def describe(self) -> str:
         todo = sum(not j.up_to_date and not j.problem for j in self.jobs)
         jobs = f"{len(self.jobs)} job" + ("" if len(self.jobs) == 1 else "s")
-        return "\n".join(imported_lines(self.scene) + [j.describe() for j in self.jobs]
+        note = [f"records: cannot write {self.records_note}"] if self.records_note else []
+        return "\n".join(imported_lines(self.scene) + [j.describe() for j in self.jobs] + note
                          + [f"{jobs}: {todo} to run, "
                             f"{sum(j.up_to_date for j in self.jobs)} up to date, "
                             f"{len(self.missing)} that cannot run"])
@@ -322,7 +324,7 @@ def plan(scene: Scene, *, force=False, device=None, max_memory=DEFAULT_MEMORY) -
     for j in jobs if taken else ():
         if not j.problem:
             j.problem, j.up_to_date = taken, False
-    return Plan(scene, jobs, taken)
+    return Plan(scene, jobs, taken, records_over_input(scene, folder, jobs))
 
 # }}}
 

@@ -28,6 +28,8 @@ SOURCES = {s.name: s.source for s in SHADERS}
 
 MANIFEST = "bdipole_materials.json"
 LAYER = "bdipole.usda"
+#: the first words of the records layer's comment: the mark of this tool's own layer
+LAYER_MARK = "bdipole-cl bake of "
 #: what a scene's mfp_kind means, for the plan
 MFP_MEANING = {"diffuse": "mfp = ld = 1/mu_tr", "extinction": "sigma_t' = 1/mfp"}
 
@@ -84,13 +86,21 @@ def read_manifest(folder) -> dict:
 
 
 def records_owner(folder) -> str | None:
-    """The scene file whose bake wrote the manifest in ``folder`` (None: none, or unreadable)."""
+    """The scene file whose bake wrote the manifest in ``folder``, where it is now: by its
+    path relative to the folder (so a copied or moved asset folder is still its own), else as
+    recorded; None where there is no readable manifest, or that file is gone (renamed or
+    removed: no other scene to protect)."""
     try:
         with open(os.path.join(folder, MANIFEST)) as f:
-            owner = json.load(f).get("scene")
+            record = json.load(f)
+        relative, recorded = record.get("scene_relative"), record.get("scene")
     except (OSError, ValueError, AttributeError):
         return None
-    return owner if isinstance(owner, str) and owner else None
+    for candidate in (os.path.join(folder, relative) if isinstance(relative, str) else None,
+                      recorded if isinstance(recorded, str) else None):
+        if candidate and os.path.isfile(candidate):
+            return candidate
+    return None
 
 
 def foreign_records(scene, folder) -> str | None:
@@ -99,7 +109,7 @@ def foreign_records(scene, folder) -> str | None:
     one would replace the other's records and the outputs of its materials of the same
     names, all of them this tool's files."""
     owner = None if folder is None else records_owner(folder)
-    if owner is None or os.path.realpath(owner) == os.path.realpath(str(scene.path)):
+    if owner is None or os.path.samefile(owner, str(scene.path)):
         return None
     return (f"{os.path.join(folder, MANIFEST)} records the bake of {owner}: a bake of "
             f"{scene.path} there would replace its records and the outputs of its materials "
@@ -133,7 +143,8 @@ def manifest(scene, jobs, coefficients, folder, results=None) -> dict:
     for m in scene.materials:
         if m.name not in seen:
             entries.append({"name": m.name} | _baked(m, jobs, results, coefficients, folder))
-    return {"source": scene.source, "scene": str(scene.path), "materials": entries}
+    return {"source": scene.source, "scene": str(scene.path),
+            "scene_relative": os.path.relpath(str(scene.path), folder), "materials": entries}
 
 
 def _outcome(m, jobs, results) -> tuple:
@@ -176,7 +187,7 @@ def usd_layer_text(scene, records: dict, folder) -> str:
     """bdipole.usda: an ``over`` on each baked imported material prim."""
     from pxr import Sdf, Vt
     layer = Sdf.Layer.CreateAnonymous(".usda")
-    layer.comment = (f"bdipole-cl bake of {os.path.basename(str(scene.source))}: sublayer it "
+    layer.comment = (f"{LAYER_MARK}{os.path.basename(str(scene.source))}: sublayer it "
                      f"to find each material's coefficients (bdipole: attributes)")
     by_name = {e["name"]: e for e in records["materials"]}
     for imp in scene.imports:
@@ -244,6 +255,45 @@ def write_if_changed(path, text: str) -> bool:
     return True
 
 
+def record_inputs(scene, folder, jobs) -> set:
+    """The real paths the records must never replace: the scene file, every layer its stage
+    is made of (but the records layer itself, sublayered over it) and every job's inputs."""
+    inputs = {os.path.realpath(str(scene.path))}
+    if scene.source:
+        inputs |= source_files(scene.source) - own_layers(folder)
+    return inputs | {os.path.realpath(p) for j in jobs for p in (j.source, *j.inputs.values())
+                     if p}
+
+
+def records_over_input(scene, folder, jobs) -> str | None:
+    """Why the records cannot be written (one of them would replace an input: a stage's own
+    layer named bdipole.usda beside it), known before any work; else None."""
+    if folder is None:
+        return None
+    inputs = record_inputs(scene, folder, jobs)
+    for name in (MANIFEST, LAYER if scene.source is not None else None):
+        path = os.path.join(folder, name) if name else None
+        if path and os.path.realpath(path) in inputs:
+            return (f"{path}: the bake's record would overwrite an input (a layer of the "
+                    f"stage, or a file a job reads); put the outputs in another folder (a "
+                    f"scene file with materials_from and `output`)")
+    return None
+
+
+def own_layers(folder) -> set:
+    """{the records layer's real path} where the file there is this tool's (its comment
+    carries LAYER_MARK: the README's way to use it is to sublayer it over the stage, which
+    makes it one of the stage's layers), else {} (a user's layer there is an input)."""
+    path = os.path.join(folder, LAYER)
+    try:
+        from pxr import Sdf
+        layer = Sdf.Layer.OpenAsAnonymous(path) if os.path.isfile(path) else None
+    except Exception:                    # pxr raises Tf.ErrorException on a bad layer
+        return set()
+    return {os.path.realpath(path)} if layer is not None and \
+        layer.comment.startswith(LAYER_MARK) else set()
+
+
 def write_records(plan, results) -> list:
     """Write the manifest (and, for an imported scene, the USD layer) of a bake, never over
     an input; [(path, None) written or (path, why not)] ([] when nothing changed)."""
@@ -267,10 +317,7 @@ def write_records(plan, results) -> list:
              + "\n"}
     if scene.source is not None:
         texts[os.path.join(folder, LAYER)] = usd_layer_text(scene, records, folder)
-    inputs = {os.path.realpath(str(scene.path))}
-    if scene.source:                     # every layer the stage is made of
-        inputs |= source_files(scene.source)
-    inputs |= {os.path.realpath(p) for j in plan.jobs for p in (j.source, *j.inputs.values())}
+    inputs = record_inputs(scene, folder, plan.jobs)
     written = []
     for path, text in texts.items():
         if os.path.realpath(path) in inputs:

@@ -406,7 +406,9 @@ def test_lab_channels_are_not_colour_and_alpha(tmp_path):
     (["R", "G", "B", "A", "P.x", "P.y", "P.z"], ["P.x", "P.y", "P.z"]),
     (["R", "G", "B", "motion.x", "motion.y"], ["motion.x", "motion.y"]),
     (["R", "G", "B", "N.x", "N.y", "N.z", "uv.x", "uv.y"], ["N.x", "N.y", "N.z", "uv.x", "uv.y"]),
-    (["R", "G", "B", "Y"], ["Y"]), (["R", "G", "B", "L"], ["L"])])
+    (["R", "G", "B", "Y"], ["Y"]), (["R", "G", "B", "L"], ["L"]),
+    (["R", "G", "B", "A", "P.X", "P.Y", "P.Z"], ["P.X", "P.Y", "P.Z"]),
+    (["R", "G", "B", "A", "N.R", "N.G", "N.B"], ["N.R", "N.G", "N.B"])])
 def test_vectors_and_a_luminance_beside_rgb_are_left_out(tmp_path, names, left):
     """A vector's y component (N.y, P.y, motion.y) is not a luminance Y, and a luminance
     beside R, G and B is not a fourth colour: only R, G, B are inverted (A kept), the rest
@@ -423,6 +425,20 @@ def test_vectors_and_a_luminance_beside_rgb_are_left_out(tmp_path, names, left):
     assert ("A" in names) == ("A" in got)
     notes = " ".join(rep.results[0].notes)
     assert all(x in notes for x in left), notes
+
+
+def test_one_colour_layer_is_inverted_and_a_vector_is_not_colour(tmp_path):
+    """diffuse.R/G/B beside specular.R/G/B: the first layer is the albedo, the other left out
+    (both were inverted); P.X, P.Y, P.Z alone have no colour (P.Y was inverted as grey)."""
+    names = ["diffuse.R", "diffuse.G", "diffuse.B", "specular.R", "specular.G", "specular.B"]
+    write(tmp_path / "aov.exr", np.concatenate([ramp(), ramp()], axis=2), names)
+    rep = process_textures(str(tmp_path / "aov.exr"), mfp=1.0, output=str(tmp_path / "o.exr"))
+    assert rep.exit_code == 0, rep.summary()
+    got = read(tmp_path / "o.exr")[1].channelnames
+    assert not any("specular" in n for n in got) and any("diffuse.R" in n for n in got), got
+    write(tmp_path / "p.exr", ramp(), ["P.X", "P.Y", "P.Z"])
+    rep = process_textures(str(tmp_path / "p.exr"), mfp=1.0, output=str(tmp_path / "p_o.exr"))
+    assert rep.exit_code == 1 and "no colour channel" in rep.results[0].error, rep.summary()
 
 
 def test_albedo_and_mfp_with_different_data_windows_are_refused(tmp_path):

@@ -9,27 +9,46 @@ GREY_NAMES = ("y", "l", "gray", "grey")
 ALPHA_NAMES = ("a", "alpha")
 
 
+#: a vector's component names: a named layer holding X or Z (any case) is a vector (P, N,
+#: motion); unlayered, Z is depth beside a luminance Y
+VECTOR_NAMES = ("x", "y", "z", "w")
+
+
+def layer_of(name) -> str:
+    """The layer of a channel name: the part before the last '.' ('' for R, G, B, A)."""
+    return str(name).rsplit(".", 1)[0] if "." in str(name) else ""
+
+
 def classify_channels(names, alpha_channel=-1):
     """(colour, alpha, other) channel indices of a file, by name (the part after the last '.',
     case-insensitive) and the file's declared alpha channel:
 
     - alpha: the declared alpha channel, else the first named A or alpha;
-    - colour: channels named R, G, B, Y (also red, green, blue, L, gray, grey), in file order;
-      Y only in capitals (a lower-case y is a vector's component: N.y, P.y, motion.y, uv.y),
-      and a grey one only where the file has no R, G or B (beside them it is an extra
-      luminance);
+    - colour: channels named R, G, B, Y (also red, green, blue, L, gray, grey), in file order,
+      of one layer: the unlayered one (R, G, B) where it has colour, else the first layer
+      that has (``albedo.R``...): other layers (AOVs: specular.R, N.R) are left out. Y only in
+      capitals, and not in a vector's layer (one that holds X or Z: P.X, P.Y, P.Z; a lower-
+      case y is a component too: N.y, motion.y, uv.y); a grey one only where the layer has no
+      R, G or B (beside them it is an extra luminance);
     - a file whose channels have none of these names but exactly one non-alpha channel: that
       channel is grey (a 1-channel file of any name; 2 channels of which one is alpha);
-    - everything else (Z, depth, masks, vectors, ...) is other: never inverted, never written.
+    - everything else (Z, depth, masks, vectors, other layers, ...) is other: never inverted,
+      never written.
 
     So 1 channel is grey; 2 are grey + alpha when one is alpha, else as named (e.g. R and G);
     4 or more are R, G, B (+ A) with any extra channels left out."""
     last = [str(n).rsplit(".", 1)[-1].strip() for n in names]
     short = [n.lower() for n in last]
+    layers = [layer_of(n) for n in names]
+    vectors = {layers[i] for i in range(len(names)) if short[i] in ("x", "z") and layers[i]}
     alpha = alpha_channel if 0 <= alpha_channel < len(names) else next(
-        (i for i, s in enumerate(short) if s in ALPHA_NAMES), -1)
+        (i for i, s in enumerate(short) if s in ALPHA_NAMES and layers[i] not in vectors), -1)
     rest = [i for i in range(len(names)) if i != alpha]
-    colour = [i for i in rest if short[i] in COLOUR_NAMES and last[i] != "y"]
+    colour = [i for i in rest if short[i] in COLOUR_NAMES and last[i] != "y"
+              and not (short[i] in VECTOR_NAMES and layers[i] in vectors)]
+    if colour:                        # one layer: the unlayered one, else the first
+        layer = "" if any(layers[i] == "" for i in colour) else layers[colour[0]]
+        colour = [i for i in colour if layers[i] == layer]
     if any(short[i] not in GREY_NAMES for i in colour):
         colour = [i for i in colour if short[i] not in GREY_NAMES]
     if not colour and len(rest) == 1:

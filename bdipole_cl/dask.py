@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import glob
 import logging
+import re
 import shutil
 import signal
 import tempfile
@@ -34,6 +35,7 @@ from .device import get_runtime
 from .io.collisions import Claim, check_claim
 from .io.colour import resolve_working_space
 from .io.images import Cancelled, Reader, TextureError, Writer, read_rows, remove_partial_files
+from .io.mipmaps import texture_options, window_problem
 from .jobs import runner
 from .jobs.blur_file import (FILE_ROW_FLOATS, blurred_band, exitance_writer, file_plan,
                               report_clamped)
@@ -258,9 +260,10 @@ def band_folder_prefix(output) -> str:
 def remove_band_folders(output) -> int:
     """Remove the band folders a cluster blur of ``output`` left when its process was killed
     (the one process that writes ``output`` calls this first: outputs never collide)."""
-    prefix = band_folder_prefix(output)        # matched literally (an output named m[1])
-    stale = [p for p in Path(output).parent.glob(glob.escape(prefix) + "*")
-             if p.is_dir() and p.name.startswith(prefix)]
+    prefix = band_folder_prefix(output)        # matched literally (an output named m[1]),
+    name = re.compile(re.escape(prefix) + r"[A-Za-z0-9_]+")    # mkdtemp's characters after
+    stale = [p for p in Path(output).parent.glob(glob.escape(prefix) + "*")    # it (no dot:
+             if p.is_dir() and name.fullmatch(p.name)]     # not .m.bands-x.bands-... of m.bands-x)
     for folder in stale:
         shutil.rmtree(folder, ignore_errors=True)
     return len(stale)
@@ -268,13 +271,13 @@ def remove_band_folders(output) -> int:
 
 def blur_file_on_cluster(path, output, client, *, colorspace="auto", working_space=None,
                          half=False, max_memory=256 << 20, device=None, progress=True,
-                         texture=False, force=False,
+                         texture=False, force=False, clamped=None,
                          **kwargs):
     """``blur_file`` with its bands as tasks: each worker reads its rows and the halo of the
     truncation radius from ``path``, blurs them within ``max_memory`` bytes, and writes them
     to a band file; this process then streams the bands into ``output`` (one band in memory
     at a time) and removes them. Constant parameters only (a texture-varying plan is global).
-    Returns the number of bands."""
+    ``clamped``: as ``blur_file``'s. Returns the number of bands."""
     from .io.images import check_output_format
     check_output_format(output)
     check_claim(Claim(str(path), str(output), {"irradiance": str(path)}), force)
@@ -289,6 +292,9 @@ def blur_file_on_cluster(path, output, client, *, colorspace="auto", working_spa
         route = reader.colour(colorspace, resolve_working_space(working_space))
     finally:
         reader.close()
+    why = window_problem(spec) if texture_options(texture) is not None else None
+    if why:                                  # before any band is sent
+        raise TextureError(f"{output}: cannot be a texture (--texture / texture = true): {why}")
     plan = file_plan(path, spec, len(colour), scattering, dict(options, device=device), {})
     halo = plan.halo
     rows = band_rows(spec.height, spec.width * spec.nchannels * 4 * FILE_ROW_FLOATS,
@@ -326,7 +332,7 @@ def blur_file_on_cluster(path, output, client, *, colorspace="auto", working_spa
         except Exception:
             writer.abort()
             raise
-        report_clamped(writer, output, None)
+        report_clamped(writer, output, clamped)
         return len(futures)
     finally:
         shutil.rmtree(work, ignore_errors=True)

@@ -204,3 +204,39 @@ def test_a_usd_stage_bakes_on_the_cluster_with_the_same_records(client, tmp_path
             (local.parent / "bdipole" / name).read_text()
     again = bdask.bake_on_cluster(scenes.load(cluster).plan(), client, progress=False)
     assert {r.status for r in again.results} == {"skipped"}
+
+
+def test_band_folders_of_an_output_are_its_own(tmp_path):
+    """A blur of m.exr removes what a killed run of it left (.m.bands-XXXX), never the live
+    band folder of m.bands-x.exr's blur (.m.bands-x.bands-XXXX), nor one of m[1].exr's."""
+    own = tmp_path / ".m.bands-abc123_x"
+    others = [tmp_path / ".m.bands-x.bands-abcd1234", tmp_path / ".m[1].bands-abcd1234"]
+    for p in [own, *others]:
+        p.mkdir()
+    assert bdask.remove_band_folders(tmp_path / "m.exr") == 1
+    assert not own.exists() and all(p.exists() for p in others)
+
+
+def test_cluster_blur_refuses_a_texture_of_an_outside_window_first_and_counts_clamps(
+        client, tmp_path):
+    """On a cluster as in one process: a --texture output whose data window reaches outside
+    its display window is refused before any band is sent; and values clamped to the half
+    range are counted (returned to the CLI's line), not only warned of."""
+    from bdipole_cl.io.images import TextureError
+    spec = oiio.ImageSpec(16, 16, 3, "float")
+    spec.x = spec.y = -2
+    spec.full_width = spec.full_height = 16
+    out = oiio.ImageOutput.create(str(tmp_path / "dw.exr"))
+    assert out.open(str(tmp_path / "dw.exr"), spec)
+    out.write_image(np.full((16, 16, 3), 0.5, np.float32))
+    out.close()
+    kw = dict(albedo=0.8, mfp=1.0, eta=1.4, progress=False)
+    with pytest.raises(TextureError, match="cannot be a texture"):
+        bdask.blur_file_on_cluster(tmp_path / "dw.exr", tmp_path / "t.exr", client,
+                                   texture=True, **kw)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["dw.exr"]      # no band folder
+    write_exr(tmp_path / "hot.exr", np.full((16, 16, 3), 1e6, np.float32), ("R", "G", "B"))
+    clamped = {}
+    bdask.blur_file_on_cluster(tmp_path / "hot.exr", tmp_path / "h.exr", client, half=True,
+                               on_invalid="clamp", clamped=clamped, **kw)
+    assert clamped.get("half range") == 16 * 16           # texels

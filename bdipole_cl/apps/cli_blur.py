@@ -82,7 +82,7 @@ def cmd_blur(args) -> int:
         print(f"channel {c.channel}: {c.method}, radius {c.radius} texels, {rd}, "
               f"error <= {c.error_bound:.1e} x max(E) x Rd")
     texels = result.texels
-    clamped = "".join(f", {n} texel values clamped ({k})" for k, n in result.invalid.items()
+    clamped = "".join(f", {n} texels clamped ({k})" for k, n in result.invalid.items()
                       if n)
     print(f"wrote {args.output}: {texels} texels in {result.seconds:.2f} s "
           f"({texels / max(result.seconds, 1e-9) / 1e6:.3g} Mtexel/s){clamped}")
@@ -110,9 +110,11 @@ def blur_on_cluster(args, sources, stop) -> int:
               "per channel); with parameter textures, blur without --scheduler",
               file=sys.stderr)
         return 2
+    clamped = {}
     try:
         with cluster_client(args) as client:
             n = blur_file_on_cluster(args.input, args.output, client, half=args.half,
+                                     clamped=clamped,
                                      max_memory=args.max_memory, device=args.device,
                                      texture=args.texture, colorspace=args.colorspace,
                                      working_space=args.working_space, albedo=s.albedo,
@@ -124,7 +126,8 @@ def blur_on_cluster(args, sources, stop) -> int:
     except TextureError as exc:
         print(f"bdipole-cl {args.command}: error: {exc}", file=sys.stderr)
         return (stop.exit_code or 1) if isinstance(exc, Cancelled) else 1
-    print(f"{n} bands blurred on the cluster; wrote {args.output}")
+    print(f"{n} bands blurred on the cluster; wrote {args.output}"
+          + "".join(f", {v} texels clamped ({k})" for k, v in clamped.items() if v))
     return stopped_after_writing(stop, args.output)
 
 

@@ -285,7 +285,7 @@ def partial_files(path) -> list:
     and maketx's own ``....temp``), matched literally: an output named ``m[1]`` or ``*``
     never matches another output's)."""
     path = Path(path)
-    name = re.compile(rf"\.{re.escape(path.stem)}\.partial-\d+-\d+(\.[^/]+)?"
+    name = re.compile(rf"\.{re.escape(path.stem)}\.partial-\d+(-\d+)?(\.[^/]+)?"
                       rf"{re.escape(path.suffix)}")
     candidates = path.parent.glob(f".{glob.escape(path.stem)}.partial-*")
     return sorted(p for p in candidates if name.fullmatch(p.name))

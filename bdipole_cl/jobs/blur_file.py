@@ -202,7 +202,7 @@ def report_clamped(writer, output, clamped):
     if clamped is not None:
         clamped.update(writer.clamped)
     elif writer.clamped:
-        warnings.warn(f"{output}: " + ", ".join(f"{n} texel values clamped ({k})"
+        warnings.warn(f"{output}: " + ", ".join(f"{n} texels clamped ({k})"
                                                 for k, n in writer.clamped.items()),
                       stacklevel=3)
 

@@ -206,6 +206,10 @@ BAD = [
      r":5: eta = 9: eta=9.0 is outside \[0.5, 2.8\]"),
     ("[defaults]\neta = 9\n[[material]]\nname = \"a\"\nalbedo = \"x.exr\"\noutput = \"o.exr\"\n",
      r":2: eta = 9: eta=9.0 is outside"),
+    ("[[material]]\nname = \"a\"\nalbedo = \"x.exr\"\noutput = \"o.exr\"\nmfp = 1e38\n"
+     "mfp_scale = 100\n", r":6: mfp 1e\+38 x mfp_scale 100 = 1e\+40: expected mfp in"),
+    ("[[material]]\nname = \"a\"\nalbedo = 0.5\noutput = \"o.exr\"\nmfp = 1e-19\n"
+     "mfp_scale = 1e-5\n", r":6: mfp 1e-19 x mfp_scale 1e-05 = 1e-24"),
 ]
 
 
@@ -214,7 +218,9 @@ BAD = [
                                                     "bad outputs", "syntax", "negative mfp",
                                                     "zero mfp channel", "output twice",
                                                     "eta out of range",
-                                                    "eta out of range in defaults"])
+                                                    "eta out of range in defaults",
+                                                    "mfp x scale too large",
+                                                    "mfp x scale too small"])
 def test_bad_scene_files_are_one_line_with_file_line_and_key(tmp_path, capsys, text, message):
     path = tmp_path / "bad.toml"
     path.write_text(text)

@@ -41,6 +41,8 @@ import re
 from dataclasses import dataclass, replace
 from pathlib import Path
 
+import numpy as np
+
 try:
     import tomllib
 except ImportError:  # pragma: no cover - Python 3.10
@@ -315,6 +317,7 @@ def load(path, importer=None, working_space=None) -> SceneData:
             continue
         m = _entry(fail, "material", i, entry, defaults)
         _check_eta(fail, i, entry, m)
+        _check_scaled_mfp(fail, i, entry, m)
         if not isinstance(m["albedo"], str) and isinstance(m["mfp"], str):
             fail("material", i, "albedo", f"albedo = {m['albedo']!r} is constant and mfp a "
                                           f"texture: a bake is driven by an albedo texture")
@@ -410,6 +413,7 @@ def _imported(fail, index, entry, imp, defaults, resolve, working_space) -> Mate
         if "colorspace" in entry or "colorspace" not in imp.facts:   # makes this material
             raise                        # a job that cannot run and the others still bake
         space = imp.facts["colorspace"]
+    _check_scaled_mfp(fail, index or 0, entry, m)
     ws = _colour(fail, "material", index or 0, entry, m, "working_space") or working_space
     return _material(m, resolve, (space, ws))
 
@@ -450,6 +454,24 @@ def _check_eta(fail, index, entry, m, from_stage=False):
     except ValueError as exc:
         where = ("material", index) if "eta" in entry or from_stage else ("defaults", 0)
         fail(*where, "eta", f"eta = {m['eta']!r}: {exc}")
+
+
+def _check_scaled_mfp(fail, index, entry, m):
+    """A constant mfp times its mfp_scale (a stage's radius times the unit conversion, too)
+    within the range the kernels take (``CONSTANT_RULES``, as float32), else a failure naming
+    both at the key that set the scale (or the mfp)."""
+    if isinstance(m["mfp"], str):
+        return
+    rule, valid = CONSTANT_RULES["mfp"]
+    mfp, scale = _floats(m["mfp"]), _floats(m["mfp_scale"])
+    n = max(len(mfp), len(scale))
+    for v, k in zip(mfp * (n // len(mfp) or 1), scale * (n // len(scale) or 1)):
+        with np.errstate(over="ignore", under="ignore"):
+            product = float(np.float32(v * k))
+        if not valid(product):
+            key = "mfp_scale" if "mfp_scale" in entry else "mfp"
+            fail("material", index, key, f"mfp {v:g} x mfp_scale {k:g} = {v * k:g}: expected "
+                                         f"mfp in {rule} (as float32)")
 
 
 def _floats(v) -> tuple:

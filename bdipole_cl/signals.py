@@ -82,3 +82,23 @@ class terminate_raises:
         if self._previous is not None:
             signal.signal(signal.SIGTERM, self._previous)
         return False
+
+
+class signals_deferred:
+    """Within it, SIGINT and SIGTERM wait (blocked; delivered on leaving it): a short write
+    that must not be cut in two (a record of what a folder holds). Elsewhere than the main
+    thread, or where the platform cannot block signals, nothing changes."""
+
+    SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+    def __enter__(self):
+        self._blocked = (threading.current_thread() is threading.main_thread()
+                         and hasattr(signal, "pthread_sigmask"))
+        if self._blocked:
+            signal.pthread_sigmask(signal.SIG_BLOCK, self.SIGNALS)
+        return self
+
+    def __exit__(self, *exc):
+        if self._blocked:
+            signal.pthread_sigmask(signal.SIG_UNBLOCK, self.SIGNALS)
+        return False

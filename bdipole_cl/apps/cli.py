@@ -441,14 +441,22 @@ def check_forced_widths():
     forced_width(GATHER_WIDTH_VARIABLE, GATHER_WIDTHS_ALLOWED)
 
 
+#: the exit codes of a command a signal stopped (SIGINT, SIGTERM)
+STOPPED_CODES = (130, 143)
+
+
 def console_main() -> int:
     """The ``bdipole-cl`` command: ``main``, then the process's exit. Where a stop request
-    abandoned a texture build that still runs (``mipmaps.builds_running``), the process ends
-    at once with the status (``os._exit``, streams flushed), as the interpreter's teardown
-    would crash under the build."""
+    ended the command, or abandoned a texture build that still runs
+    (``mipmaps.builds_running``), the process ends at once with the status (``os._exit``,
+    streams flushed): the interpreter's teardown would crash under the build, or wait on a
+    worker thread the stop caught half-started."""
     from ..io.mipmaps import builds_running
     rc = main()
-    if builds_running():
+    if builds_running() or rc in STOPPED_CODES:
+        # a stop can land while a worker thread is being started (a pool's submit), and the
+        # interpreter's exit then waits on that thread for ever: once the command has ended
+        # (its files closed, temporaries removed), the process ends at once
         sys.stdout.flush()
         sys.stderr.flush()
         os._exit(rc)

@@ -8,6 +8,8 @@ from pathlib import Path
 import numpy as np
 import OpenImageIO as oiio
 
+from ..signals import signals_deferred
+
 W, H = 256, 128
 
 
@@ -118,7 +120,8 @@ def run_demo(folder="bdipole_demo", progress=True) -> int:
     try:
         return _run_demo(folder, progress)
     finally:                # what the folder holds now is the demo's, an interrupted run's too
-        record_folder(folder, complete=True)   # (its writers removed their temporaries)
+        with signals_deferred():               # (its writers removed their temporaries); a
+            record_folder(folder, complete=True)   # second signal waits for the record
 
 
 def _run_demo(folder, progress) -> int:

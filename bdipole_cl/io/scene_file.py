@@ -51,9 +51,10 @@ except ImportError:  # pragma: no cover - Python 3.10
 from ..errors import POLICY
 from ..methods.registry import BLUR_METHOD, BORDER, METHOD_OR_AUTO, MFP_KIND, OUTPUTS
 from ..ops.blur.params import CONSTANT_RULES
-from ..physics.fresnel import check_eta
 from ..physics.models import MODEL
 from .colour import resolve_colorspace, resolve_working_space
+from .scene_values import (as_list, check_material_eta, check_scaled_mfp, floats, mfp_constants,
+                           number, numbers_or_number, positive)
 
 
 class SceneError(ValueError):
@@ -61,34 +62,17 @@ class SceneError(ValueError):
 
 
 #: each key: (kinds it belongs to, check, what is allowed)
-def _number(v):
-    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
-
-
-def _numbers_or_number(v):
-    return _number(v) or (isinstance(v, list) and v and all(_number(x) for x in v))
-
-
-def _positive(v):
-    return _number(v) and v > 0
-
-
-def _mfp_constants(v):
-    """An mfp given as constants: each one the kernels can take (``CONSTANT_RULES``)."""
-    return _numbers_or_number(v) and all(bool(CONSTANT_RULES["mfp"][1](x)) for x in _as_list(v))
-
-
 KEYS = {
     "name": ({"material", "blur"}, lambda v: isinstance(v, str) and v, "a non-empty string"),
-    "albedo": ({"material"}, lambda v: (isinstance(v, str) and v) or _numbers_or_number(v),
+    "albedo": ({"material"}, lambda v: (isinstance(v, str) and v) or numbers_or_number(v),
                "a texture path or pattern, or constants (a number or one per channel)"),
-    "mfp": ({"material"}, lambda v: _mfp_constants(v) or (isinstance(v, str) and v),
+    "mfp": ({"material"}, lambda v: mfp_constants(v) or (isinstance(v, str) and v),
             f"a number in {CONSTANT_RULES['mfp'][0]}, a list of one per channel, or a texture "
             f"path"),
     "mfp_kind": ({"material"}, lambda v: v in MFP_KIND, MFP_KIND.listing('"')),
-    "mfp_scale": ({"material"}, lambda v: _numbers_or_number(v) and min(_as_list(v)) > 0,
+    "mfp_scale": ({"material"}, lambda v: numbers_or_number(v) and min(as_list(v)) > 0,
                   "a number > 0 or one per channel"),
-    "eta": ({"material"}, lambda v: _numbers_or_number(v), "a number or one per channel"),
+    "eta": ({"material"}, lambda v: numbers_or_number(v), "a number or one per channel"),
     "outputs": ({"material"}, lambda v: isinstance(v, list) and v and set(v) <= set(OUTPUTS)
                 and len(set(v)) == len(v), f"a list from {', '.join(OUTPUTS)}, each once"),
     "output": ({"material", "blur"}, lambda v: isinstance(v, str) and v.endswith(".exr"),
@@ -100,7 +84,7 @@ KEYS = {
     "texture": ({"material", "blur"}, lambda v: isinstance(v, bool),
                 "true (tiled, mip-mapped EXR textures) or false"),
     "unit": ({"material", "blur"}, lambda v: isinstance(v, str) and v, "a unit name"),
-    "tol": ({"material", "blur"}, lambda v: _number(v) and 0 < v < 1, "a number in (0, 1)"),
+    "tol": ({"material", "blur"}, lambda v: number(v) and 0 < v < 1, "a number in (0, 1)"),
     "model": ({"material"}, lambda v: v in MODEL, MODEL.listing('"')),
     "method": ({"material"}, lambda v: v in METHOD_OR_AUTO,
                f"one of {', '.join(METHOD_OR_AUTO.names)}"),
@@ -116,7 +100,7 @@ KEYS = {
                       "a scene-linear colour space of the OCIO config"),
     "material": ({"blur"}, lambda v: isinstance(v, str) and v, "a material's name"),
     "irradiance": ({"blur"}, lambda v: isinstance(v, str) and v, "a texture path or pattern"),
-    "texel_size": ({"blur"}, _positive, "a finite number > 0 (in the unit of mfp)"),
+    "texel_size": ({"blur"}, positive, "a finite number > 0 (in the unit of mfp)"),
 }
 REQUIRED = {"material": ("name", "albedo", "output"),
             "blur": ("name", "material", "irradiance", "texel_size", "output")}
@@ -316,8 +300,8 @@ def load(path, importer=None, working_space=None) -> SceneData:
         if any(imp.name == entry.get("name") for imp in imports):
             continue
         m = _entry(fail, "material", i, entry, defaults)
-        _check_eta(fail, i, entry, m)
-        _check_scaled_mfp(fail, i, entry, m)
+        check_material_eta(fail, i, entry, m)
+        check_scaled_mfp(fail, i, entry, m)
         if not isinstance(m["albedo"], str) and isinstance(m["mfp"], str):
             fail("material", i, "albedo", f"albedo = {m['albedo']!r} is constant and mfp a "
                                           f"texture: a bake is driven by an albedo texture")
@@ -375,13 +359,13 @@ def _material(m, resolve, colour) -> Material:
     working_space) as the OCIO config names them."""
     mfp, albedo = m["mfp"], m["albedo"]
     return Material(
-        m["name"], resolve(albedo) if isinstance(albedo, str) else _floats(albedo),
-        resolve(mfp) if isinstance(mfp, str) else _floats(mfp), _floats(m["eta"]),
+        m["name"], resolve(albedo) if isinstance(albedo, str) else floats(albedo),
+        resolve(mfp) if isinstance(mfp, str) else floats(mfp), floats(m["eta"]),
         tuple(m["outputs"]), resolve(m["output"].replace("{material}", m["name"])),
         resolve(m.get("mask")), m["half"], m["unit"], float(m["tol"]),
         MODEL.canonical(m["model"]),
         m["method"], m["exact"], m["double"], m["on_invalid"], *colour, m["mfp_kind"],
-        _floats(m["mfp_scale"]), m["texture"])
+        floats(m["mfp_scale"]), m["texture"])
 
 
 def _imported(fail, index, entry, imp, defaults, resolve, working_space) -> Material:
@@ -394,7 +378,7 @@ def _imported(fail, index, entry, imp, defaults, resolve, working_space) -> Mate
                  f"{imp.path}: {key} = {value!r}: expected {KEYS[key][2]}")
     m = _entry(fail, "material", index or 0, {"name": imp.name, **entry}, defaults,
                below=imp.suggestions, above=imp.facts)
-    _check_eta(fail, index or 0, entry, m, from_stage="eta" in imp.facts)
+    check_material_eta(fail, index or 0, entry, m, from_stage="eta" in imp.facts)
     named = entry.get("unit", defaults.get("unit"))
     if "mfp" in entry:
         m["mfp_scale"] = entry.get("mfp_scale", 1.0)
@@ -405,7 +389,7 @@ def _imported(fail, index, entry, imp, defaults, resolve, working_space) -> Mate
             fail(*where, "unit", f"unit = {named!r}: converting {imp.name}'s distances from "
                                  f"the stage's unit needs one of {', '.join(UNIT_METERS)}")
         factor = imp.unit_m / meters
-        m["mfp_scale"] = [v * factor for v in _as_list(m["mfp_scale"])]
+        m["mfp_scale"] = [v * factor for v in as_list(m["mfp_scale"])]
         m["unit"] = named
     try:                                 # a texture's colour space as the stage names it
         space = _colour(fail, "material", index or 0, entry, m, "colorspace")
@@ -413,7 +397,7 @@ def _imported(fail, index, entry, imp, defaults, resolve, working_space) -> Mate
         if "colorspace" in entry or "colorspace" not in imp.facts:   # makes this material
             raise                        # a job that cannot run and the others still bake
         space = imp.facts["colorspace"]
-    _check_scaled_mfp(fail, index or 0, entry, m)
+    check_scaled_mfp(fail, index or 0, entry, m)
     ws = _colour(fail, "material", index or 0, entry, m, "working_space") or working_space
     return _material(m, resolve, (space, ws))
 
@@ -444,42 +428,6 @@ class StageValueError(SceneError):
 
 def _raise(message):
     raise StageValueError(message)
-
-
-def _check_eta(fail, index, entry, m, from_stage=False):
-    """The material's etas within its model's range (``fresnel.check_eta``), else a failure
-    at its eta key (or [defaults]' where neither it nor the stage gives one)."""
-    try:
-        check_eta(_floats(m["eta"]), m["exact"], MODEL.canonical(m["model"]))
-    except ValueError as exc:
-        where = ("material", index) if "eta" in entry or from_stage else ("defaults", 0)
-        fail(*where, "eta", f"eta = {m['eta']!r}: {exc}")
-
-
-def _check_scaled_mfp(fail, index, entry, m):
-    """A constant mfp times its mfp_scale (a stage's radius times the unit conversion, too)
-    within the range the kernels take (``CONSTANT_RULES``, as float32), else a failure naming
-    both at the key that set the scale (or the mfp)."""
-    if isinstance(m["mfp"], str):
-        return
-    rule, valid = CONSTANT_RULES["mfp"]
-    mfp, scale = _floats(m["mfp"]), _floats(m["mfp_scale"])
-    n = max(len(mfp), len(scale))
-    for v, k in zip(mfp * (n // len(mfp) or 1), scale * (n // len(scale) or 1)):
-        with np.errstate(over="ignore", under="ignore"):
-            product = float(np.float32(v * k))
-        if not valid(product):
-            key = "mfp_scale" if "mfp_scale" in entry else "mfp"
-            fail("material", index, key, f"mfp {v:g} x mfp_scale {k:g} = {v * k:g}: expected "
-                                         f"mfp in {rule} (as float32)")
-
-
-def _floats(v) -> tuple:
-    return tuple(map(float, _as_list(v)))
-
-
-def _as_list(v):
-    return v if isinstance(v, list) else [v]
 
 
 def _check(fail, section, index, key, value, kinds):

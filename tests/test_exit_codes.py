@@ -34,3 +34,12 @@ def test_a_bad_width_variable_is_a_usage_error_before_any_file(tmp_path, capsys,
     err = capsys.readouterr().err
     assert variable in err and repr(value) in err and "albedo.exr" not in err
     assert not out.exists()
+
+
+def test_an_eta_outside_the_model_is_a_usage_error_in_blur_as_in_invert(tmp_path, capsys):
+    """blur --eta 3 failed each file (exit 1) where invert and profile exit 2: the model's
+    range is an option's, checked before any file is read; the message names the CLI flag."""
+    assert cli_main(["blur", str(tmp_path / "irr.exr"), "--albedo", "0.5", "--mfp", "1",
+                     "--eta", "3", "-o", str(tmp_path / "o.exr")]) == 2
+    err = capsys.readouterr().err
+    assert "eta=3.0 is outside" in err and "--exact" in err and "irr.exr" not in err, err

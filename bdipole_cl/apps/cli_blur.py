@@ -57,6 +57,8 @@ def cmd_blur(args) -> int:
         print("bdipole-cl blur: error: give --albedo and --mfp, or --alpha-prime and "
               "--sigma-t, not both pairs", file=sys.stderr)
         return 2
+    from ..physics.fresnel import check_eta
+    check_eta(args.eta, args.exact)   # the model's range: a usage error before any file
     sources = {name: v for name, v in (("albedo", args.albedo), ("mfp", args.mfp),
                                        ("alpha", args.alpha_prime), ("sigma_t", args.sigma_t))
                if v is not None and number_list(v) is None}

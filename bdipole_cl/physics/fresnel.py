@@ -64,7 +64,8 @@ def check_eta(eta, exact=False, model="better"):
     bad = ~((e >= lo) & (e <= hi))
     if np.any(bad):
         first = float(e.reshape(-1)[np.flatnonzero(bad.reshape(-1))[0]])
-        how = "exact Fresnel moments" if exact else "the d'Eon fits (use exact=True beyond)"
+        how = ("exact Fresnel moments" if exact else
+               "the d'Eon fits (exact=True / --exact reaches further)")
         raise ValueError(
             f"eta={first!r} is outside [{lo}, {hi}], the range where {how} keep Rd(alpha') "
             f"monotone and the inversion well defined")

@@ -400,3 +400,62 @@ def test_the_records_never_overwrite_a_layer_the_stage_is_made_of(tmp_path):
     assert "bdipole.usda: the bake's record would overwrite an input" in report.summary()
     assert layer.read_bytes() == before
     assert {m.name for m in scenes.load(root).materials} >= {"skin", "jade"}
+
+
+@pytest.mark.parametrize("thing", ["fifo", "directory", "users file", "not ours json"])
+@pytest.mark.parametrize("name", ["bdipole_materials.json", "bdipole.usda"])
+def test_what_stands_at_a_records_path_is_never_opened_blindly_nor_replaced(tmp_path, thing,
+                                                                            name):
+    """A FIFO at a record's path hung the bake for ever (opened to compare); a directory
+    aborted it with a raw errno; a user's file there was replaced. Each is refused before any
+    work, named, in the plan; a user's file is replaced only with --force."""
+    stage = write_stage(tmp_path)
+    folder = tmp_path / "bdipole"
+    folder.mkdir()
+    path = folder / name
+    if thing == "fifo":
+        os.mkfifo(path)
+    elif thing == "directory":
+        path.mkdir()
+    elif thing == "users file":
+        path.write_text("#usda 1.0\n(\n    doc = \"my notes\"\n)\n" if name.endswith("usda")
+                        else "my notes\n")
+    else:
+        path.write_text('["a list, not this tool\'s record"]\n')
+    plan = scenes.load(stage).plan()
+    assert plan.jobs and all(str(path) in (j.problem or "") for j in plan.jobs), plan.describe()
+    before = path.read_bytes() if path.is_file() else None
+    assert plan.run().exit_code == 1
+    assert (path.read_bytes() if path.is_file() else None) == before
+    forced = scenes.load(stage).plan(force=True)
+    if thing in ("users file", "not ours json"):
+        assert forced.run().exit_code == 0
+        assert path.read_bytes() != before
+    else:
+        assert all(str(path) in (j.problem or "") for j in forced.jobs)
+
+
+def test_recorded_coefficients_are_used_only_as_written(tmp_path, capsys):
+    """A constant material's coefficients in the manifest, edited (NaN, another value, not a
+    list), are computed again, never passed on as up to date; bake --preview of a stage with
+    a constant material draws the images' sheets and exits 0 (it tried to read the
+    manifest as an image)."""
+    stage = write_stage(tmp_path)
+    assert cli_main(["bake", str(stage), "--preview", "--no-progress"]) == 0, \
+        capsys.readouterr().err
+    manifest = tmp_path / "bdipole" / "bdipole_materials.json"
+    record = json.loads(manifest.read_text())
+    jade = next(e for e in record["materials"] if e["name"] == "jade")
+    want = jade["coefficients"]
+    for edit in ({"sigma_a": [float("nan")] * 3, "sigma_s": want["sigma_s"]},
+                 {"sigma_a": [v * 1.1 for v in want["sigma_a"]], "sigma_s": want["sigma_s"]},
+                 "garbage"):
+        jade["coefficients"] = edit
+        manifest.write_text(json.dumps(record))
+        plan = scenes.load(stage).plan()
+        job = next(j for j in plan.jobs if j.name == "jade")
+        assert not job.up_to_date and not job.problem, job.describe()
+        assert plan.run().exit_code == 0
+        fresh = next(e for e in json.loads(manifest.read_text())["materials"]
+                     if e["name"] == "jade")
+        assert fresh["coefficients"] == want

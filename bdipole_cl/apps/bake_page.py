@@ -43,7 +43,8 @@ def check_preview_outputs(plan, page=None, force=False):
     on any input or output of any of its jobs (never allowed, ``force`` or not), or replace a
     file this tool did not write (unless ``force``): the run's collision check
     (``io.collisions.collisions``) with the pictures as outputs of their own."""
-    jobs = [Claim(j.source, j.output, j.inputs) for j in plan.jobs if j.output]
+    jobs = [Claim(j.source, j.output, j.inputs) for j in plan.jobs
+            if j.output and j.kind != "constant"]          # a constant's output: the records
     pictures = [Claim(f"contact sheet of {j.output}", str(sheet_path(j.output)), {})
                 for j in plan.jobs if j.output and j.kind != "constant"]
     pictures.append(Claim("the bake's page", str(page_path(plan, page)), {}))
@@ -61,7 +62,7 @@ def bake_preview(plan, report, page=None, force=False) -> BakePreview:
     done = {r.output for r in report.results if r.status in ("ok", "skipped")}
     sheets = []
     for j in plan.jobs:               # a stop request ends the pictures between two of them
-        if j.output in done and Path(j.output).is_file():      # (each one whole, or not there)
+        if j.kind != "constant" and j.output in done and Path(j.output).is_file():   # (whole)
             check_stop()
             sheets.append(contact_sheet(j.output, sheet_path(j.output), title=_job_title(j),
                                         force=force))

@@ -92,6 +92,7 @@ def image_header(path):
     readable regular file (never opened then: a FIFO would block)."""
     inp = oiio.ImageInput.open(str(path)) if is_regular_file(path) else None
     if inp is None:
+        oiio.geterror()                  # taken: OpenImageIO prints a pending one at exit
         return None
     try:
         return inp.spec()

@@ -28,6 +28,7 @@ computed and what is left out, and why:
 from __future__ import annotations
 
 import json
+import math
 import os
 from dataclasses import asdict, dataclass, field
 
@@ -51,9 +52,10 @@ from .blur_file import colour_of
 from .invert_file import per_channel
 from .job import BlurWork, ConstantWork, InvertWork, Job
 from .results import BatchReport, FileResult
-from .scene_records import (LAYER, MANIFEST, constant_config, constant_text, finish_bake,
+from .scene_records import (LAYER, MANIFEST, coefficients_digest, constant_config,
+                            constant_text, finish_bake,
                             foreign_records, imported_lines, mfp_text, read_manifest,
-                            records_dir, records_over_input)
+                            records_dir, records_over_input, records_refusal)
 from .scene_stats import DEFAULT_MEMORY, albedo_stats, table_for_range
 
 #: compile each job's constants into its kernel (tools/bench_scene.py turns it off to measure
@@ -271,14 +273,26 @@ def _plan_blur(b, path, tile, force, problems_all):
     return job
 
 
+def usable_coefficients(values, outputs) -> bool:
+    """Whether a manifest's recorded coefficients can stand for a constant material's job: a
+    list of finite, non-negative floats for each of its outputs (a hand-edited or broken
+    record is computed again, never passed on)."""
+    return isinstance(values, dict) and all(
+        isinstance(values.get(o), list) and values[o] and all(
+            isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+            and v >= 0 for v in values[o]) for o in outputs)
+
+
 def _plan_constant(m, folder, old, force, scene_source):
     """A material without textures: its coefficients are computed, not written as an image
     (up to date when the manifest holds them for the same parameters)."""
     digest = params_digest(_material_fields(m) | {"kind": "constant", "albedo": m.albedo})
     job = PlannedJob("constant", m.name, "constants", None, os.path.join(folder, MANIFEST),
                      {}, params_digest=digest)
-    if not force and old.get(m.name, {}).get("params_digest") == digest and \
-            old[m.name].get("coefficients"):
+    entry = old.get(m.name, {})
+    if not force and entry.get("params_digest") == digest and \
+            usable_coefficients(entry.get("coefficients"), m.outputs) and \
+            entry.get("coefficients_digest") == coefficients_digest(entry.get("coefficients")):
         job.up_to_date = True
         job.left_out.append("everything: up to date (parameters and version unchanged)")
         return job
@@ -320,7 +334,8 @@ def plan(scene: Scene, *, force=False, device=None, max_memory=DEFAULT_MEMORY) -
     old = read_manifest(folder) if folder else {}
     jobs += [_plan_constant(m, folder, old, force, scene.source) for m in scene.materials
              if m.constant]
-    taken = None if force else foreign_records(scene, folder)
+    taken = records_refusal(scene, folder, jobs, force) or (
+        None if force else foreign_records(scene, folder))
     for j in jobs if taken else ():
         if not j.problem:
             j.problem, j.up_to_date = taken, False

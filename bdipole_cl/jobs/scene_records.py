@@ -8,6 +8,7 @@ mode any file the process creates gets (0666 less the umask), as the images have
 """
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import tempfile
@@ -16,6 +17,7 @@ import time
 import numpy as np
 
 from ..durable import durable_replace
+from ..io.images import is_regular_file
 from ..io.scene_import import source_files
 from ..io.shaders import SHADERS
 from ..methods.choice import resolve_method
@@ -76,13 +78,58 @@ def constant_config(m) -> MethodConfig:
     return resolve_method(m.method, double=m.double, tol=m.tol)
 
 
-def read_manifest(folder) -> dict:
-    """{material name: its entry} of an existing manifest ({} when none or unreadable)."""
+def coefficients_digest(values) -> str:
+    """A digest of a constant material's recorded coefficients: an edit of them in the
+    manifest is seen (the job is computed again), never passed on as up to date."""
+    return hashlib.sha256(json.dumps(values, sort_keys=True).encode()).hexdigest()[:32]
+
+
+def manifest_record(folder):
+    """The manifest in ``folder`` as this tool wrote it (a JSON object with its scene and a
+    list of materials), else None: none there, not a regular file (a FIFO is never opened:
+    it would block), or not this tool's (``records_refusal`` then says so)."""
+    path = os.path.join(folder, MANIFEST)
+    if not is_regular_file(path):
+        return None
     try:
-        with open(os.path.join(folder, MANIFEST)) as f:
-            return {e["name"]: e for e in json.load(f).get("materials", [])}
-    except (OSError, ValueError, KeyError, TypeError, AttributeError):
-        return {}
+        with open(path) as f:
+            record = json.load(f)
+    except (OSError, ValueError):
+        return None
+    ours = (isinstance(record, dict) and isinstance(record.get("scene"), str)
+            and isinstance(record.get("materials"), list))
+    return record if ours else None
+
+
+def read_manifest(folder) -> dict:
+    """{material name: its entry} of an existing manifest of this tool's ({} when none)."""
+    record = manifest_record(folder)
+    entries = record["materials"] if record else []
+    return {e["name"]: e for e in entries if isinstance(e, dict) and isinstance(e.get("name"), str)}
+
+
+def records_refusal(scene, folder, jobs, force=False) -> str | None:
+    """Why the records cannot be written in ``folder`` (one line), else None: something not
+    a regular file at one of their paths (a directory, a FIFO: always), or a file this tool
+    did not write there (its manifest, or its layer by LAYER_MARK) unless ``force``. An
+    input there (the stage's own layer) is not refused here: the images bake, and that record
+    alone is not written (``records_over_input``, named in the plan)."""
+    if folder is None:
+        return None
+    inputs = record_inputs(scene, folder, jobs)
+    for name in (MANIFEST, LAYER if scene.source is not None else None):
+        path = os.path.join(folder, name) if name else None
+        if path is None or not os.path.lexists(path) or os.path.realpath(path) in inputs:
+            continue
+        if not is_regular_file(path):
+            return (f"{path} is not a regular file (a directory, FIFO or link to none); the "
+                    f"bake's records go there: move it")
+        ours = manifest_record(folder) is not None if name == MANIFEST else \
+            bool(own_layers(folder))
+        if not ours and not force:
+            return (f"{path} exists and was not written by bdipole-cl (or was changed since); "
+                    f"the bake's records go there: move it, or pass --force to replace it")
+    return None
 
 
 def records_owner(folder) -> str | None:
@@ -90,12 +137,10 @@ def records_owner(folder) -> str | None:
     path relative to the folder (so a copied or moved asset folder is still its own), else as
     recorded; None where there is no readable manifest, or that file is gone (renamed or
     removed: no other scene to protect)."""
-    try:
-        with open(os.path.join(folder, MANIFEST)) as f:
-            record = json.load(f)
-        relative, recorded = record.get("scene_relative"), record.get("scene")
-    except (OSError, ValueError, AttributeError):
+    record = manifest_record(folder)
+    if record is None:
         return None
+    relative, recorded = record.get("scene_relative"), record.get("scene")
     for candidate in (os.path.join(folder, relative) if isinstance(relative, str) else None,
                       recorded if isinstance(recorded, str) else None):
         if candidate and os.path.isfile(candidate):
@@ -175,6 +220,7 @@ def _baked(m, jobs, results, coefficients, folder) -> dict:
              "mfp_scale": list(m.mfp_scale), "colorspace": m.colorspace}
     if m.constant:
         entry["coefficients"] = coefficients.get(m.name)
+        entry["coefficients_digest"] = coefficients_digest(entry["coefficients"])
         entry["params_digest"] = next((j.params_digest for j in jobs if j.name == m.name
                                        and j.kind == "constant"), "")
     else:
@@ -230,12 +276,14 @@ def default_mode() -> int:
 
 
 def write_if_changed(path, text: str) -> bool:
-    """Write ``text`` to ``path`` (temporary file + rename) unless it already holds it."""
+    """Write ``text`` to ``path`` (temporary file + rename) unless it already holds it (read
+    only where it is a regular file: a FIFO would block)."""
     try:
-        with open(path) as f:
-            if f.read() == text:
-                return False
-    except OSError:
+        if is_regular_file(path):
+            with open(path) as f:
+                if f.read() == text:
+                    return False
+    except (OSError, UnicodeDecodeError):
         pass
     folder = os.path.dirname(path)
     os.makedirs(folder, exist_ok=True)
@@ -287,7 +335,7 @@ def own_layers(folder) -> set:
     path = os.path.join(folder, LAYER)
     try:
         from pxr import Sdf
-        layer = Sdf.Layer.OpenAsAnonymous(path) if os.path.isfile(path) else None
+        layer = Sdf.Layer.OpenAsAnonymous(path) if is_regular_file(path) else None
     except Exception:                    # pxr raises Tf.ErrorException on a bad layer
         return set()
     return {os.path.realpath(path)} if layer is not None and \

@@ -409,3 +409,16 @@ def test_a_one_row_map_has_a_range():
     from bdipole_cl.ops.blur.fft import value_range
     v = np.linspace(-3.0, 5.0, 1 << 17, dtype=np.float32).reshape(1, -1)
     assert value_range(v) == (-3.0, 5.0)
+
+
+@pytest.mark.parametrize("dtype", [np.complex64, object, "U3"])
+def test_blur_refuses_arrays_that_are_not_real_numbers(dtype):
+    """A complex irradiance lost its imaginary part with only NumPy's ComplexWarning, and an
+    object array was taken: refused, naming the dtype; float16, int and bool are numbers."""
+    from bdipole_cl import blur
+    with pytest.raises(ValueError, match="irradiance has dtype"):
+        blur(np.ones((4, 4, 3)).astype(dtype), albedo=0.5, mfp=1.0)
+    with pytest.raises(ValueError, match="albedo has dtype"):
+        blur(np.ones((4, 4, 3), np.float32), albedo=np.ones((4, 4, 3)).astype(dtype), mfp=1.0)
+    for ok in (np.float16, np.int32, bool):
+        assert np.all(np.isfinite(blur(np.ones((4, 4, 3)).astype(ok), albedo=0.5, mfp=1.0)))

@@ -117,13 +117,18 @@ def channel_parameters(nchan, *, albedo=None, mfp=None, eta=1.4, texel_size=1.0,
 
 
 def plain_array(value, name):
-    """``value`` as a NumPy array; a masked array (numpy.ma) with masked values is a
-    ValueError naming it (its mask would be dropped silently: the masked texels' data used)."""
+    """``value`` as a NumPy array of real numbers; a masked array (numpy.ma) with masked
+    values, or a complex, object or string array, is a ValueError naming it (its mask, or
+    imaginary part, would be dropped silently)."""
     if isinstance(value, np.ma.MaskedArray) and np.ma.getmaskarray(value).any():
         raise ValueError(f"{name} is a masked array with {int(np.ma.count_masked(value))} "
                          f"masked value(s): fill them (numpy.ma.filled) first; blur's masked "
                          f"texels are those of an alpha or mask texture in a scene")
-    return np.asarray(value)
+    array = np.asarray(value)
+    if array.dtype.kind not in "biuf":   # complex (its imaginary part would be dropped),
+        raise ValueError(f"{name} has dtype {array.dtype}: expected real numbers (float, "
+                         f"int or bool)")  # objects, strings: refused, named
+    return array
 
 
 def texture_channel(value, shape, c, name):

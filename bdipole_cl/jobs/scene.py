@@ -55,7 +55,8 @@ from .results import BatchReport, FileResult
 from .scene_records import (LAYER, MANIFEST, coefficients_digest, constant_config,
                             constant_text, finish_bake,
                             foreign_records, imported_lines, mfp_text, read_manifest,
-                            records_dir, records_over_input, records_refusal)
+                            record_inputs, records_dir, records_over_input,
+                            records_refusal)
 from .scene_stats import DEFAULT_MEMORY, albedo_stats, table_for_range
 
 #: compile each job's constants into its kernel (tools/bench_scene.py turns it off to measure
@@ -104,6 +105,7 @@ class Plan:
     jobs: list
     records_problem: str | None = None   # the records folder holds another scene's bake
     records_note: str | None = None      # a record that would replace an input (not written)
+    record_inputs: frozenset = frozenset()   # what the records never replace (record_inputs)
 
     @property
     def missing(self):
@@ -334,12 +336,13 @@ def plan(scene: Scene, *, force=False, device=None, max_memory=DEFAULT_MEMORY) -
     old = read_manifest(folder) if folder else {}
     jobs += [_plan_constant(m, folder, old, force, scene.source) for m in scene.materials
              if m.constant]
-    taken = records_refusal(scene, folder, jobs, force) or (
+    inputs = frozenset(record_inputs(scene, folder, jobs)) if folder else frozenset()
+    taken = records_refusal(scene, folder, inputs, force) or (
         None if force else foreign_records(scene, folder))
     for j in jobs if taken else ():
         if not j.problem:
             j.problem, j.up_to_date = taken, False
-    return Plan(scene, jobs, taken, records_over_input(scene, folder, jobs))
+    return Plan(scene, jobs, taken, records_over_input(scene, folder, inputs), inputs)
 
 # }}}
 

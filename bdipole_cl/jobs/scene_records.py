@@ -108,23 +108,28 @@ def read_manifest(folder) -> dict:
     return {e["name"]: e for e in entries if isinstance(e, dict) and isinstance(e.get("name"), str)}
 
 
-def records_refusal(scene, folder, jobs, force=False) -> str | None:
+def record_paths(scene, folder) -> list:
+    """The records' paths in ``folder``: the manifest, and for a stage or document the layer."""
+    return [os.path.join(folder, MANIFEST)] + (
+        [os.path.join(folder, LAYER)] if scene.source is not None else [])
+
+
+def records_refusal(scene, folder, inputs, force=False) -> str | None:
     """Why the records cannot be written in ``folder`` (one line), else None: something not
     a regular file at one of their paths (a directory, a FIFO: always), or a file this tool
     did not write there (its manifest, or its layer by LAYER_MARK) unless ``force``. An
-    input there (the stage's own layer) is not refused here: the images bake, and that record
-    alone is not written (``records_over_input``, named in the plan)."""
+    input there (``inputs``: ``record_inputs``; the stage's own layer) is not refused here:
+    the images bake, and that record alone is not written (``records_over_input``, named in
+    the plan)."""
     if folder is None:
         return None
-    inputs = record_inputs(scene, folder, jobs)
-    for name in (MANIFEST, LAYER if scene.source is not None else None):
-        path = os.path.join(folder, name) if name else None
-        if path is None or not os.path.lexists(path) or os.path.realpath(path) in inputs:
+    for path in record_paths(scene, folder):
+        if not os.path.lexists(path) or os.path.realpath(path) in inputs:
             continue
         if not is_regular_file(path):
             return (f"{path} is not a regular file (a directory, FIFO or link to none); the "
                     f"bake's records go there: move it")
-        ours = manifest_record(folder) is not None if name == MANIFEST else \
+        ours = manifest_record(folder) is not None if path.endswith(MANIFEST) else \
             bool(own_layers(folder))
         if not ours and not force:
             return (f"{path} exists and was not written by bdipole-cl (or was changed since); "
@@ -313,15 +318,14 @@ def record_inputs(scene, folder, jobs) -> set:
                      if p}
 
 
-def records_over_input(scene, folder, jobs) -> str | None:
-    """Why the records cannot be written (one of them would replace an input: a stage's own
-    layer named bdipole.usda beside it), known before any work; else None."""
+def records_over_input(scene, folder, inputs) -> str | None:
+    """Why the records cannot be written (one of them would replace one of ``inputs``,
+    ``record_inputs``: a stage's own layer named bdipole.usda beside it), known before any
+    work; else None."""
     if folder is None:
         return None
-    inputs = record_inputs(scene, folder, jobs)
-    for name in (MANIFEST, LAYER if scene.source is not None else None):
-        path = os.path.join(folder, name) if name else None
-        if path and os.path.realpath(path) in inputs:
+    for path in record_paths(scene, folder):
+        if os.path.realpath(path) in inputs:
             return (f"{path}: the bake's record would overwrite an input (a layer of the "
                     f"stage, or a file a job reads); put the outputs in another folder (a "
                     f"scene file with materials_from and `output`)")
@@ -365,7 +369,7 @@ def write_records(plan, results) -> list:
              + "\n"}
     if scene.source is not None:
         texts[os.path.join(folder, LAYER)] = usd_layer_text(scene, records, folder)
-    inputs = record_inputs(scene, folder, plan.jobs)
+    inputs = plan.record_inputs              # taken by the plan (the stage opened once)
     written = []
     for path, text in texts.items():
         if os.path.realpath(path) in inputs:

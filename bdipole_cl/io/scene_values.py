@@ -6,9 +6,7 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
-
-from ..ops.blur.params import CONSTANT_RULES
+from ..ops.blur.params import CONSTANT_RULES, scaled_mfp_problem
 from ..physics.fresnel import check_eta
 from ..physics.models import MODEL
 
@@ -47,18 +45,10 @@ def check_scaled_mfp(fail, index, entry, m):
     """A constant mfp times its mfp_scale (a stage's radius times the unit conversion, too)
     within the range the kernels take (``CONSTANT_RULES``, as float32), else a failure naming
     both at the key that set the scale (or the mfp)."""
-    if isinstance(m["mfp"], str):
-        return
-    rule, valid = CONSTANT_RULES["mfp"]
-    mfp, scale = floats(m["mfp"]), floats(m["mfp_scale"])
-    n = max(len(mfp), len(scale))
-    for v, k in zip(mfp * (n // len(mfp) or 1), scale * (n // len(scale) or 1)):
-        with np.errstate(over="ignore", under="ignore"):
-            product = float(np.float32(v * k))
-        if not valid(product):
-            key = "mfp_scale" if "mfp_scale" in entry else "mfp"
-            fail("material", index, key, f"mfp {v:g} x mfp_scale {k:g} = {v * k:g}: expected "
-                                         f"mfp in {rule} (as float32)")
+    why = None if isinstance(m["mfp"], str) else scaled_mfp_problem(floats(m["mfp"]),
+                                                                      floats(m["mfp_scale"]))
+    if why:
+        fail("material", index, "mfp_scale" if "mfp_scale" in entry else "mfp", why)
 
 
 def floats(v) -> tuple:

@@ -60,14 +60,10 @@ def check_scaled_mfp(mfp, scale):
     times ``mfp_scale`` (both checked on their own) leaves the range every kernel can take
     (``params.CONSTANT_RULES``): it would fail every texel of every file (unless they are
     clamped: ``on_invalid="clamp"``)."""
-    from ..ops.blur.params import CONSTANT_RULES
-    rule, valid = CONSTANT_RULES["mfp"]
-    for v in mfp or ():
-        with np.errstate(over="ignore", under="ignore"):
-            scaled = np.float32(np.float64(v) * scale)
-        if not valid(np.float64(scaled)):
-            raise ValueError(f"mfp {v:g} x mfp_scale {scale:g} = {float(v) * scale:g}: expected "
-                             f"mfp in {rule} (as float32)")
+    from ..ops.blur.params import scaled_mfp_problem
+    why = scaled_mfp_problem(mfp, scale) if mfp else None
+    if why:
+        raise ValueError(why)
 
 
 def work_digest(work: InvertWork) -> str:

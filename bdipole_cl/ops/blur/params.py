@@ -42,6 +42,24 @@ CONSTANT_RULES = {"albedo": ("(0, 1)", lambda v: (v > 0) & (v < 1)),
                   "mfp": (f"[{MFP_MIN:g}, {FLOAT32_MAX:.3g}]",
                           lambda v: (v >= MFP_MIN) & (v <= FLOAT32_MAX)),
                   "sigma_t": RULES["sigma_t"][:2]}
+def scaled_mfp_problem(mfp, scale) -> str | None:
+    """Why a constant mfp times its mfp_scale (each one value or one per channel) leaves the
+    range the kernels take (CONSTANT_RULES, as float32), naming the first such pair; else
+    None (the CLI's and the scene files' one rule)."""
+    rule, valid = CONSTANT_RULES["mfp"]
+    mfp, scale = [float(v) for v in np.atleast_1d(mfp)], [float(k) for k in np.atleast_1d(scale)]
+    if len(mfp) == 1:                  # one value for every channel of the other
+        mfp = mfp * len(scale)
+    if len(scale) == 1:
+        scale = scale * len(mfp)
+    for v, k in zip(mfp, scale):
+        with np.errstate(over="ignore", under="ignore"):
+            product = float(np.float32(v * k))
+        if not valid(product):
+            return f"mfp {v:g} x mfp_scale {k:g} = {v * k:g}: expected mfp in {rule} (as float32)"
+    return None
+
+
 #: a sigma_t' per texel below this is an mfp of > ~1e6 texels: a kernel far wider than any
 #: max_radius, whose truncation radius no longer computes in float64 (1/sigma_t' overflows)
 MIN_SIGMA_T_PER_TEXEL = 1e-6

@@ -34,8 +34,9 @@ import OpenImageIO as oiio
 from .device import get_runtime
 from .io.collisions import Claim, check_claim
 from .io.colour import resolve_working_space
-from .io.images import Cancelled, Reader, TextureError, Writer, read_rows, remove_partial_files
-from .io.mipmaps import texture_options, window_problem
+from .io.images import (Cancelled, Reader, TextureError, Writer, check_texture_window,
+                        read_rows, remove_partial_files)
+from .io.mipmaps import texture_options
 from .jobs import runner
 from .jobs.blur_file import (FILE_ROW_FLOATS, blurred_band, exitance_writer, file_plan,
                               report_clamped)
@@ -292,9 +293,8 @@ def blur_file_on_cluster(path, output, client, *, colorspace="auto", working_spa
         route = reader.colour(colorspace, resolve_working_space(working_space))
     finally:
         reader.close()
-    why = window_problem(spec) if texture_options(texture) is not None else None
-    if why:                                  # before any band is sent
-        raise TextureError(f"{output}: cannot be a texture (--texture / texture = true): {why}")
+    if texture_options(texture) is not None:
+        check_texture_window(output, spec)   # before any band is sent
     plan = file_plan(path, spec, len(colour), scattering, dict(options, device=device), {})
     halo = plan.halo
     rows = band_rows(spec.height, spec.width * spec.nchannels * 4 * FILE_ROW_FLOATS,

@@ -45,6 +45,7 @@ def cmd_blur(args) -> int:
     from ..io.collisions import Claim, check_claim
     from ..io.images import TextureError, check_output_format
     from ..jobs import runner
+    from ..jobs.blur_file import clamped_text
     if args.alpha_prime is None and (args.albedo is None or args.mfp is None):
         print("bdipole-cl blur: error: give --albedo and --mfp (values or textures), or "
               "--alpha-prime and --sigma-t", file=sys.stderr)
@@ -84,10 +85,10 @@ def cmd_blur(args) -> int:
         print(f"channel {c.channel}: {c.method}, radius {c.radius} texels, {rd}, "
               f"error <= {c.error_bound:.1e} x max(E) x Rd")
     texels = result.texels
-    clamped = "".join(f", {n} texels clamped ({k})" for k, n in result.invalid.items()
-                      if n)
+    clamped = clamped_text(result.invalid)
     print(f"wrote {args.output}: {texels} texels in {result.seconds:.2f} s "
-          f"({texels / max(result.seconds, 1e-9) / 1e6:.3g} Mtexel/s){clamped}")
+          f"({texels / max(result.seconds, 1e-9) / 1e6:.3g} Mtexel/s)"
+          + (f", {clamped}" if clamped else ""))
     return stopped_after_writing(stop, args.output)
 
 
@@ -105,6 +106,7 @@ def blur_on_cluster(args, sources, stop) -> int:
     """``bdipole-cl blur --scheduler``: the bands of one blur as cluster tasks."""
     from ..dask import blur_file_on_cluster
     from ..io.images import Cancelled, TextureError
+    from ..jobs.blur_file import clamped_text
     job = blur_job(args, sources)
     s = job.work.scattering
     if s.textured:                      # before any cluster starts
@@ -128,8 +130,9 @@ def blur_on_cluster(args, sources, stop) -> int:
     except TextureError as exc:
         print(f"bdipole-cl {args.command}: error: {exc}", file=sys.stderr)
         return (stop.exit_code or 1) if isinstance(exc, Cancelled) else 1
+    clamped = clamped_text(clamped)
     print(f"{n} bands blurred on the cluster; wrote {args.output}"
-          + "".join(f", {v} texels clamped ({k})" for k, v in clamped.items() if v))
+          + (f", {clamped}" if clamped else ""))
     return stopped_after_writing(stop, args.output)
 
 

@@ -319,6 +319,14 @@ def low_space(path) -> str:
     return f" (the disk has only {free / 2**20:.1f} MiB free)" if free < LOW_SPACE else ""
 
 
+def check_texture_window(output, spec):
+    """TextureError where an image of ``spec`` cannot be the texture ``output`` (a data window
+    reaching outside its display window: ``mipmaps.window_problem``), before any work."""
+    why = window_problem(spec)
+    if why:
+        raise TextureError(f"{output}: cannot be a texture (--texture / texture = true): {why}")
+
+
 class Writer:
     """An EXR written band by band into a temporary file, renamed by ``commit`` once it reads
     back as written (``verify``). Every band is made storable first (``finite_texels``, by
@@ -341,10 +349,7 @@ class Writer:
         self.invalid = 0
         self.texture = texture_options(texture)
         if self.texture is not None:      # the mark of this tool's textures (collisions.ours)
-            why = window_problem(spec)
-            if why:                       # before any band is computed
-                raise TextureError(f"{path}: cannot be a texture (--texture / texture = "
-                                   f"true): {why}")
+            check_texture_window(path, spec)      # before any band is computed
             t = self.texture
             spec.attribute("bdipole:texture", f"tiles {t.tile}, {t.mip_filter} mips, "
                                               f"{t.compression}")

@@ -202,9 +202,12 @@ def report_clamped(writer, output, clamped):
     if clamped is not None:
         clamped.update(writer.clamped)
     elif writer.clamped:
-        warnings.warn(f"{output}: " + ", ".join(f"{n} texels clamped ({k})"
-                                                for k, n in writer.clamped.items()),
-                      stacklevel=3)
+        warnings.warn(f"{output}: {clamped_text(writer.clamped)}", stacklevel=3)
+
+
+def clamped_text(counts) -> str:
+    """Clamped-texel counts ({what: n}) as words: "5 texels clamped (half range)"."""
+    return ", ".join(f"{n} texels clamped ({k})" for k, n in counts.items() if n)
 
 
 def masked_parameter(values, keep):

@@ -88,12 +88,12 @@ def claim_folder(folder):
     if folder.is_dir() and any(folder.iterdir()) and not (folder / MARKER).exists():
         raise ValueError(f"--dir {folder}: the folder holds files the demo did not make; give "
                          f"a new or empty folder (nothing was written)")
-    links = [p for p in folder.rglob("*") if p.is_symlink()] if folder.is_dir() else []
+    entries = list(folder.rglob("*")) if folder.is_dir() else []
+    links = [p for p in entries if p.is_symlink()]
     if links:                     # a linked folder would take the demo's writes elsewhere
         raise ValueError(f"--dir {folder}: {links[0]} is a symbolic link; the demo writes only "
                          f"into a folder of its own (nothing was written)")
-    odd = [p for p in folder.rglob("*") if not (p.is_file() or p.is_dir())] \
-        if folder.is_dir() else []
+    odd = [p for p in entries if not (p.is_file() or p.is_dir())]
     if odd:                       # a FIFO or socket: not the demo's, and never read
         raise ValueError(f"--dir {folder}: {odd[0]} is not a regular file or folder; the demo "
                          f"made none (nothing was written)")

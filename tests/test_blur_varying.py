@@ -198,6 +198,34 @@ def test_device_weights_match_host_interpolation(runtime):
                                atol=1e-5 * np.abs(host).max())
 
 
+@pytest.mark.parametrize("nweights", [1, 4, 5, 8, 9, 16, 17, 23])
+def test_device_reads_node_records_of_every_size(runtime, nweights):
+    """The kernels read the table as node records of 4, 8 or 16 floats, or several chunks of
+    16 (dispatch.node_records): every weight count, its padding included, gives the host's
+    interpolation of the table (here a random value per weight, so that a weight read from
+    another slot or the padding shows, varying by 1% between nodes, so that the coordinates'
+    float32 rounding moves the result no more than in a fitted table)."""
+    from dataclasses import replace
+    from bdipole_cl.ops.blur.dispatch import node_records, record_chunk
+    albedo, mfp = gradient_maps()
+    (plan, rd, ld, _), = channel_plans((H, W, 1), tol=1e-3, albedo=albedo, mfp=mfp)
+    rng = np.random.default_rng(nweights)
+    fine = (rng.uniform(-1, 1, nweights)
+            + 0.01 * rng.uniform(-1, 1, plan.fine.shape[:2] + (nweights,))).astype(np.float32)
+    plan = replace(plan, fine=fine, kernels=tuple(range(nweights)), near=-1,
+                   near_values=np.zeros((0, 0), np.float32))
+    records = node_records(fine)
+    chunk = record_chunk(nweights)
+    assert records.shape[2] % chunk == 0 and records.shape[2] - chunk < nweights
+    assert not records[..., nweights:].any()
+    dev = weight_planes(plan, rd, ld, runtime)
+    cu, cv = texel_coords(plan, rd, ld)
+    host = interpolated_weights(plan, cu, cv) * rd[..., None].astype(np.float64)
+    # as test_device_weights_match_host_interpolation: float32 sums of <= 4 taps
+    np.testing.assert_allclose(dev, np.moveaxis(host, -1, 0), rtol=0,
+                               atol=1e-5 * np.abs(host).max())
+
+
 @pytest.mark.parametrize("e_range", [(0.0, 3.0), (-2.0, 3.0)])
 def test_device_gather_settles_as_the_host_does(runtime, e_range):
     """The gather's settle (kernels/blur_textured.cl) is fft.settled's rule on the same float32

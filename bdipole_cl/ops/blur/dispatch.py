@@ -8,6 +8,7 @@ import pyopencl as cl
 
 from ...device import build_options, get_program
 from ...device.runtime import forced_width, platform_entry
+from ...device.transfer import aligned_empty
 from ...methods.choice import GATHER_WIDTHS_ALLOWED, DeviceKey, device_tuning
 from ...signals import check_stop
 from .fit import gaussian_1d
@@ -138,7 +139,7 @@ def read_back(rt, buf, array):
 #: Devices not listed (GPUs) get one texel per work-item and the default costs
 GATHER_WIDTHS = {"intel(r) opencl": 1, "portable computing language": 16}
 GATHER_COSTS = {"intel(r) opencl": DEFAULT_GATHER_COSTS,
-                "portable computing language": GatherCosts(cell=0.005, term=0.018, weight=0.1)}
+                "portable computing language": GatherCosts(cell=0.01, term=0.0, weight=0.045)}
 
 
 #: forces the gather's texels per work-item (``GATHER_WIDTHS_ALLOWED``), for measuring
@@ -171,16 +172,37 @@ def gather_costs(rt) -> GatherCosts:
     return platform_entry(rt.device, GATHER_COSTS, DEFAULT_GATHER_COSTS)
 
 
+def record_chunk(nweights) -> int:
+    """Floats per load of a table node's record (kernels/blur_textured.cl ``BD_CHUNK``): the
+    smallest vector of 4, 8 or 16 that holds ``nweights`` weights, else 16 (records of several
+    chunks)."""
+    return next((n for n in (4, 8) if nweights <= n), 16)
+
+
+def node_records(fine):
+    """The fine table (nu, nv, weights) as kernels/blur_textured.cl reads it: each node's
+    weights padded with zeros to a whole number of ``record_chunk`` floats, float32, on the
+    device-alignment boundary (so every chunk load is aligned; a CPU runtime reads it in
+    place)."""
+    nu, nv, nweights = fine.shape
+    chunk = record_chunk(nweights)
+    records = aligned_empty(nu * nv * chunk * -(-nweights // chunk), np.float32).reshape(
+        (nu, nv, -1))
+    records[..., nweights:] = 0
+    records[..., :nweights] = fine
+    return records
+
+
 def lattice_args(plan, width):
     """Program options and the lattice arguments of kernels/blur_textured.cl for a plan, at
     ``width`` texels per work-item: the fine table's size, then its coordinates'
     (``fine_coords``: the Rd clamp, and per axis the scale and offset of
     ``textured_plan.texel_coords``)."""
-    nu, nv, _ = plan.fine.shape
+    nu, nv, nweights = plan.fine.shape
     opts = build_options({"BD_NBASIS": len(plan.kernels), "BD_NEAR": plan.near,
                           "BD_NEAR_RANK": len(plan.near_basis),
                           "BD_NU_TAPS": 1 if nu == 1 else 2, "BD_NV_TAPS": 1 if nv == 1 else 2,
-                          "BD_WIDTH": width})
+                          "BD_WIDTH": width, "BD_CHUNK": record_chunk(nweights)})
     coords = [np.float32(v) for v in (RD_MIN, RD_MAX, *fine_axis_map(plan.axes[0]),
                                       *fine_axis_map(plan.axes[1]))]
     return opts, (np.int32(nu), np.int32(nv), *coords)
@@ -201,7 +223,7 @@ def device_weight_planes(plan, rd, ld, rt):
     mf = cl.mem_flags
     width = gather_width(rt, h * w)
     opts, axis_args = lattice_args(plan, width)
-    bufs = [host_buffer(rt, a, mf.READ_ONLY) for a in (rd, ld, plan.fine)]
+    bufs = [host_buffer(rt, a, mf.READ_ONLY) for a in (rd, ld, node_records(plan.fine))]
     planes = cl.Buffer(rt.context, mf.READ_WRITE, max(plan.fine.shape[2] * h * w * 4, 4))
     cl.Kernel(get_program(rt, "blur_textured", opts), "lattice_weights")(
         rt.queue, (-(-h * w // width),), None, *bufs, planes, np.int32(h * w), *axis_args)
@@ -220,7 +242,8 @@ def gather_exitance(out, c, plan, rd, ld, planes, padded, x0, rt, settle=(0.0, T
     width = gather_width(rt, w)
     opts, axis_args = lattice_args(plan, width)
     bufs = [host_buffer(rt, a if a.size else np.zeros(1, np.float32), mf.READ_ONLY)
-            for a in (rd, ld, plan.fine, planes, padded, plan.near_basis)]   # none: 1 float
+            for a in (rd, ld, node_records(plan.fine), planes, padded,
+                      plan.near_basis)]                                     # none: 1 float
     dst = host_buffer(rt, out, mf.READ_WRITE)
     scale, nonneg = settle
     cl.Kernel(get_program(rt, "blur_textured", opts), "gather_exitance")(

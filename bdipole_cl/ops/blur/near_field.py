@@ -150,7 +150,7 @@ class GatherCosts:
 
 
 #: Intel's CPU runtime's, measured there (``dispatch.GATHER_COSTS``), for devices not measured
-DEFAULT_GATHER_COSTS = GatherCosts(cell=0.0073, term=0.0, weight=0.072)
+DEFAULT_GATHER_COSTS = GatherCosts(cell=0.005, term=0.0, weight=0.04)
 
 
 def near_cells(near) -> int:

@@ -169,21 +169,24 @@ def texture_channel(value, shape, c, name):
     return v[..., c if v.shape[2] > 1 else 0]
 
 
-def checked_parameter(value, shape, c, name, on_invalid="raise", dtype=None):
+def checked_parameter(value, shape, c, name, on_invalid="raise", dtype=None, ranges=None):
     """Channel c of a parameter as HxW (rounded to ``dtype`` first, if given: the check sees
     what the kernel will), every texel within ``RULES[name]``: else an InvalidInputError
     naming the count and the first bad texel, or, with ``on_invalid="clamp"``, the bad texels
     (only they) clamped into the range of the channel's valid texels (NaN to its bottom; the
     rule's range if no texel is valid). So a bad texel never widens the range the
     texture-varying plan is built for, and the valid texels' exitance is what it would be
-    without it."""
+    without it. ``ranges``: a ``MapRanges`` that keeps the (min, max) the check found."""
     rule, ok, (lo, hi) = RULES[name]
     v = texture_channel(value, shape, c, name)
     if dtype is not None:
         with np.errstate(over="ignore"):          # an overflow to inf is caught by the rule
             # float32: the aligned map the kernels read (``float32_map``), in one copy
             v = aligned_float32(v) if np.dtype(dtype) == np.float32 else v.astype(dtype)
-    if within_rule(ok, v):
+    extremes = value_range(v)
+    if np.all(ok(np.array(extremes))):             # a NaN makes both NaN: fails every rule
+        if ranges is not None:
+            ranges.keep(v, extremes)
         return v
     bad = ~ok(v)
     if find_invalid(name, v, bad, f"outside {rule}", check_policy(on_invalid), texels=True,
@@ -195,10 +198,20 @@ def checked_parameter(value, shape, c, name, on_invalid="raise", dtype=None):
     return v
 
 
-def within_rule(ok, v) -> bool:
-    """True if every value of ``v`` passes the interval rule ``ok``, by its two extremes (a
-    NaN makes both NaN, which fails every rule); False sends the caller texel by texel."""
-    return bool(np.all(ok(np.array(value_range(v)))))
+class MapRanges:
+    """The (min, max) of the maps a check has read whole, by map (the same object), so that
+    the plan does not read them again (``textured_plan.map_extremes``)."""
+
+    def __init__(self):
+        self._kept = {}
+
+    def keep(self, v, extremes):
+        self._kept[id(v)] = (v, extremes)
+
+    def of(self, v):
+        """(min, max) of map ``v`` (its own reduction where the check did not keep it)."""
+        hit = self._kept.get(id(v))
+        return hit[1] if hit is not None and hit[0] is v else value_range(v)
 
 
 def float32_map(v):
@@ -233,23 +246,25 @@ def source_channel(value, c) -> int:
 
 
 def texel_parameters(shape, c, *, albedo=None, mfp=None, eta=1.4, texel_size=1.0, alpha=None,
-                     sigma_t=None, exact=False, on_invalid="raise", ld_maps=None):
+                     sigma_t=None, exact=False, on_invalid="raise", ld_maps=None, ranges=None):
     """(Rd, ld in texels) HxW float32 maps of channel c, from albedo + mfp or alpha' + sigma_t'
     (the node coordinates, ``texel_coords``, are computed from these same float32 values).
     ``ld_maps``: a dict of the ld maps made so far by mfp channel, so that channels that read
-    one mfp channel share its map (made and checked once)."""
+    one mfp channel share its map (made and checked once). ``ranges``: a ``MapRanges`` that
+    keeps the extremes the checks found."""
     if parameter_pair(albedo, mfp, alpha, sigma_t) == "alpha":
         a = checked_parameter(alpha, shape, c, "alpha", on_invalid).astype(np.float64)
         st = checked_parameter(sigma_t, shape, c, "sigma_t", on_invalid).astype(np.float64)
         ld = 1.0 / (st * texel_size * ref.mu_tr_over_sigma_t(1.0 - a))
         return rd_map(ref.rd(a, eta, exact)), float32_map(ld)
-    rd = float32_map(checked_parameter(albedo, shape, c, "albedo", on_invalid, np.float32))
+    rd = float32_map(checked_parameter(albedo, shape, c, "albedo", on_invalid, np.float32,
+                                       ranges))
     source = source_channel(mfp, c)
     if ld_maps is not None and source in ld_maps:
         return rd, ld_maps[source]
     if texel_size != 1.0:               # ld in texels, checked as the kernel sees it
         mfp = texture_channel(mfp, shape, c, "mfp") / texel_size
-    ld = float32_map(checked_parameter(mfp, shape, c, "mfp", on_invalid, np.float32))
+    ld = float32_map(checked_parameter(mfp, shape, c, "mfp", on_invalid, np.float32, ranges))
     if ld_maps is not None:
         ld_maps[source] = ld
     return rd, ld

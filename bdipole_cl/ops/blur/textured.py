@@ -14,7 +14,7 @@ from ...signals import check_stop
 from .dispatch import DeviceBlur, device_weight_planes, gather_exitance
 from .fft import (FFT32_ROUNDOFF_ULPS, ROUNDOFF_ULPS, basis_blurs, fft_shape, settle_floor,
                   settled)
-from .params import texel_parameters
+from .params import MapRanges, texel_parameters
 from .planning import BlurAccuracyWarning, BlurInfo, ChannelInfo
 from .near_field import DEFAULT_GATHER_COSTS
 from .textured_plan import (RD_MAX, RD_MIN, MapExtremes, TexturedPlan, map_extremes,
@@ -53,11 +53,12 @@ def textured_plans(shape, *, tol, exact=False, eta=1.4, method="auto", on_invali
     if etas is None:
         raise ValueError(f"eta must be one value or one per channel (constant over the texture); "
                          f"got shape {np.shape(eta)}")
-    out, ld_maps = [], {}
+    out, ld_maps, ranges = [], {}, MapRanges()
     for c in range(shape[2]):
         rd, ld = texel_parameters(shape, c, eta=float(etas[c]), exact=exact,
-                                  on_invalid=on_invalid, ld_maps=ld_maps, **physical)
-        ext = map_extremes(rd, ld)
+                                  on_invalid=on_invalid, ld_maps=ld_maps, ranges=ranges,
+                                  **physical)
+        ext = map_extremes(rd, ld, ranges)
         out.append(TexturedChannel(plan_for_ranges(*parameter_ranges(ext), float(etas[c]),
                                                    float(tol), exact, basis, costs=costs),
                                    rd, ld, ext))

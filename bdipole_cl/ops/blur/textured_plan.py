@@ -194,13 +194,14 @@ class MapExtremes:
     ld_max: float
 
 
-def map_extremes(rd, ld) -> MapExtremes:
+def map_extremes(rd, ld, ranges=None) -> MapExtremes:
     """MapExtremes of float maps rd, ld, by whole-map reductions (a masked one only where some
-    texel is unlit)."""
-    lo, hi = value_range(rd)
+    texel is unlit), or the (min, max) that ``ranges`` (``params.MapRanges``) kept of them."""
+    extremes = value_range if ranges is None else ranges.of
+    lo, hi = extremes(rd)
     if lo <= 0 < hi:
         lo = np.min(rd, where=rd > 0, initial=np.inf)
-    ld_lo, ld_hi = value_range(ld)
+    ld_lo, ld_hi = extremes(ld)
     return MapExtremes(float(lo), float(hi), float(ld_lo), float(ld_hi))
 
 

@@ -277,7 +277,7 @@ def test_the_bound_holds_for_irradiance_of_both_signs(method):
     (a, st, et), = channel_parameters(1, albedo=0.8, mfp=1.5, eta=1.4)
     w = unfold_quadrant(quadrant_weights(a, st, et, 120))
     want = fftconvolve(np.pad(e, 120, mode="edge"), w, mode="valid")
-    err = np.abs(out[..., 0] - want).max() / 0.8
+    err = np.abs(out - want).max() / 0.8             # HxW in, HxW out
     assert 1e-3 < err <= info.channels[0].error_bound, (err, info.channels[0])
 
 
@@ -294,3 +294,20 @@ def test_a_field_near_the_float32_limit_stays_finite(value):
     float64 (``fft_dtype``'s peak_sum), and the exitance is E x Rd."""
     out = blur(np.full((64, 64), value, np.float32), albedo=0.8, mfp=2.0, method="fft")
     np.testing.assert_allclose(out[8:-8, 8:-8], 0.8 * value, rtol=1e-6)
+
+
+@pytest.mark.parametrize("albedo", [0.8, "texture"])
+def test_result_has_the_irradiance_shape(albedo):
+    """HxW in, HxW out (as bdipole_cl.dask.blur); HxWx1 in, HxWx1 out; the same values, from
+    blur and from a plan's apply."""
+    from bdipole_cl.ops.blur import Scattering, plan_blur
+    rng = np.random.default_rng(3)
+    e = rng.uniform(0, 1, (12, 14)).astype(np.float32)
+    a = rng.uniform(0.3, 0.9, (12, 14)).astype(np.float32) if albedo == "texture" else albedo
+    flat = blur(e, albedo=a, mfp=1.5)
+    deep = blur(e[..., None], albedo=a, mfp=1.5)
+    assert flat.shape == (12, 14) and deep.shape == (12, 14, 1)
+    np.testing.assert_array_equal(flat, deep[..., 0])
+    planned, _ = plan_blur(e.shape, Scattering(albedo=a, mfp=1.5)).apply(e)
+    assert planned.shape == (12, 14)
+    np.testing.assert_array_equal(planned, flat)

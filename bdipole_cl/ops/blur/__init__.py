@@ -42,7 +42,7 @@ from __future__ import annotations
 from ...methods.registry import BLUR_METHODS, BORDERS
 from .fit import fit_gaussians
 from .params import PARAM_KEYS, channel_parameters, checked_irradiance
-from .plan import BlurPlan, Scattering, plan_blur
+from .plan import BlurPlan, Scattering, as_given, plan_blur
 from .planning import BlurInfo, ChannelInfo
 from .weights import channel_kernel
 
@@ -65,8 +65,8 @@ def blur(irradiance, *, albedo=None, mfp=None, eta=1.4, texel_size=1.0, alpha=No
     ``albedo`` (Rd) and ``mfp`` (ld = 1/mu_tr, same unit as ``texel_size``), or ``alpha``
     (alpha', the reduced albedo; ``Scattering.alpha_prime``) and ``sigma_t`` (sigma_t',
     1/unit): scalars, per channel, or HxW(xC) textures (texture-varying: the exit texel's
-    profile); ``eta`` per channel. Returns the exitance, HxWxC float32 (and a BlurInfo with
-    ``return_info``). See the package docstring. It is ``plan_blur(...).apply(...)``: make
+    profile); ``eta`` per channel. Returns the exitance, float32 of the irradiance's shape
+    (HxW for HxW, as ``bdipole_cl.dask.blur``), and a BlurInfo with ``return_info``. See the package docstring. It is ``plan_blur(...).apply(...)``: make
     the plan yourself to blur many images (or bands) of one shape with the same parameters.
 
     ``max_memory`` (bytes): blur in bands of rows, each with a halo of the truncation radius
@@ -81,4 +81,5 @@ def blur(irradiance, *, albedo=None, mfp=None, eta=1.4, texel_size=1.0, alpha=No
                      tol=tol, method=method, border=border, exact=exact,
                      on_invalid=on_invalid, device=device)
     out, info = plan.apply_checked(e, max_memory)
+    out = as_given(out, irradiance)
     return (out, info) if return_info else out

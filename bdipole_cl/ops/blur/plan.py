@@ -142,8 +142,11 @@ class BlurPlan:
     def apply(self, irradiance, max_memory=None):
         """The whole image (HxW or HxWxC), in bands of rows within ``max_memory`` bytes if
         given (each band carries the halo, so the result is the one-piece result up to the
-        float32 FFT's round-off, whose transform sizes differ by band): (M, BlurInfo)."""
-        return self.apply_checked(checked_irradiance(irradiance, self.on_invalid), max_memory)
+        float32 FFT's round-off, whose transform sizes differ by band): (M, BlurInfo), M of
+        the irradiance's shape."""
+        out, info = self.apply_checked(checked_irradiance(irradiance, self.on_invalid),
+                                       max_memory)
+        return as_given(out, irradiance), info
 
     def apply_checked(self, e, max_memory=None):
         """``apply`` of an irradiance ``params.checked_irradiance`` has already checked."""
@@ -160,6 +163,11 @@ class BlurPlan:
             info = worse(info, band_info)
             out[y0:y1] = res[self.halo:self.halo + (y1 - y0)]
         return out, info
+
+
+def as_given(out, irradiance):
+    """The HxWxC exitance ``out`` in the shape of the irradiance given: HxW for HxW."""
+    return out[..., 0] if np.ndim(irradiance) == 2 else out
 
 
 def check_blur_options(method, tol, border, on_invalid):

@@ -6,8 +6,8 @@
 //   vec, ivec           float and int lanes (scalars at width 1)
 //   VLOAD, VSTORE       vloadN / vstoreN (a plain element at width 1)
 //   GLOAD, GSTORE       the same from and to __global memory, as one vector access (PoCL
-//                       compiles vloadN and vstoreN to N element accesses: 1.25x the blur
-//                       gather's time there)
+//                       compiles vloadN and vstoreN to N element accesses: the blur gather
+//                       took 1.6x as long with them there)
 //   TO_INT, TO_FLOAT    lane-wise conversions
 //   ANY_LANE(test)      whether any lane's test holds
 //   BD_LANES            the lane numbers 0 .. BD_WIDTH - 1 (ivec; widths 2 and up)

@@ -395,6 +395,12 @@ def blur(irradiance, *, border="clamp", device=None, **kwargs):
 
     def fn(block):                     # the one plan, its device bound once per process
         return plan.on(device).apply_band(checked_irradiance(block, plan.on_invalid))[0]
+
+    def whole(block):                  # the image in one block: the border rule applied there
+        return plan.on(device).apply(block)[0]
+    if k >= min(arr.shape[:2]):        # no overlap of k texels fits: an image that small is
+        out = arr.rechunk({0: -1, 1: -1}).map_blocks(whole, dtype=np.float32)   # one block
+        return out if irradiance.ndim == 3 else out[..., 0]
     # chunks thinner than the radius are merged by dask (allow_rechunk) so that every block's
     # overlap holds all the texels its kernels reach
     out = arr.map_overlap(fn, depth={0: k, 1: k, 2: 0}, boundary=BOUNDARIES[border],

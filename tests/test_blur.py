@@ -311,3 +311,23 @@ def test_result_has_the_irradiance_shape(albedo):
     planned, _ = plan_blur(e.shape, Scattering(albedo=a, mfp=1.5)).apply(e)
     assert planned.shape == (12, 14)
     np.testing.assert_array_equal(planned, flat)
+
+
+@pytest.mark.parametrize("max_memory", [float("nan"), -5, 0, "100", True])
+def test_max_memory_must_be_a_number_of_bytes(max_memory):
+    with pytest.raises(ValueError, match="max_memory=.*expected a number of bytes > 0"):
+        blur(np.ones((8, 8), np.float32), albedo=0.5, mfp=2.0, max_memory=max_memory)
+
+
+def test_max_memory_infinite_is_no_budget():
+    e = np.random.default_rng(2).uniform(0, 1, (8, 8)).astype(np.float32)
+    np.testing.assert_array_equal(blur(e, albedo=0.5, mfp=2.0, max_memory=float("inf")),
+                                  blur(e, albedo=0.5, mfp=2.0))
+
+
+@pytest.mark.parametrize("shape", [(12,), (1, 12, 9, 1), (12, 9, 0), (0, 9), (-3, 9),
+                                   (12.0, 9), 5])
+def test_plan_blur_names_a_bad_shape(shape):
+    from bdipole_cl.ops.blur import Scattering, plan_blur
+    with pytest.raises(ValueError, match=r"shape .*expected \(height, width\)"):
+        plan_blur(shape, Scattering(albedo=0.5, mfp=2.0))

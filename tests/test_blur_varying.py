@@ -414,3 +414,21 @@ def test_a_hot_texel_does_not_drown_the_rest_of_a_varying_blur():
     # (fit + interpolation, L1) times that, + 1e-5 for float32 accumulation
     err = np.abs(out[..., 0] - want)[far] / albedo[..., 0][far]
     assert err.max() <= max(ch.fit_error, ch.interp_error) + 1e-5, err.max()
+
+
+def test_a_plan_too_large_to_build_is_refused_first(monkeypatch):
+    """Planning holds every lattice node's kernel: ranges wide in both albedo and mfp need
+    thousands of large kernels whatever the image's size. Beyond PLAN_PEAK_BYTES the plan is
+    refused up front, by a message naming the ranges, before any node kernel is built."""
+    from bdipole_cl.ops.blur import textured_plan
+    monkeypatch.setattr(textured_plan, "PLAN_PEAK_BYTES", 1 << 20)
+    built = []
+    monkeypatch.setattr(textured_plan, "node_kernel", lambda *a, **k: built.append(a))
+    textured_plan.PLAN_CACHE.clear()
+    albedo = np.array([[0.05, 0.95], [0.95, 0.05]])
+    mfp = np.array([[0.5, 0.5], [8.0, 8.0]])
+    with pytest.raises(ValueError, match=r"albedo 0\.05\.\.0\.95 with mfp 0\.5\.\.8 texels "
+                                         r"needs \d+ lattice kernels of radius \d+.*separately"):
+        blur(np.ones((2, 2), np.float32), albedo=albedo, mfp=mfp)
+    assert not built
+    textured_plan.PLAN_CACHE.clear()

@@ -123,6 +123,18 @@ def test_lazy_blur_equals_the_in_memory_blur(client):
         np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-6 * e.max())
 
 
+def test_lazy_blur_of_an_image_smaller_than_the_kernel(client):
+    """An image no larger than the kernel's radius (no overlap of that depth fits) is blurred
+    as one block: the in-memory result, HxW in and HxW out, under every border rule."""
+    e = np.random.default_rng(4).uniform(0, 1, (12, 9)).astype(np.float32)
+    for border in ("clamp", "zero", "wrap"):
+        want = bdipole_cl.blur(e, albedo=0.5, mfp=2.0, border=border)
+        got = bdask.blur(da.from_array(e, chunks=(4, 9)), albedo=0.5, mfp=2.0,
+                         border=border).compute()
+        assert got.shape == e.shape
+        np.testing.assert_array_equal(got, want)
+
+
 def test_lazy_inversion_equals_the_in_memory_one(client):
     rd = np.random.default_rng(4).uniform(1e-4, 0.999, (64, 48, 3)).astype(np.float32)
     arr = da.from_array(rd, chunks=(20, 20, 3))

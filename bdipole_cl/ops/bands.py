@@ -7,6 +7,8 @@ The in-memory blurs and the file-to-file batches all cut their bands here.
 """
 from __future__ import annotations
 
+import numbers
+
 import numpy as np
 
 
@@ -15,8 +17,12 @@ def band_rows(height: int, per_row_bytes: float, max_memory=None, halo: int = 0,
     """Rows per band: what ``max_memory`` bytes hold at ``per_row_bytes`` a row (the caller's
     working-set estimate for one row), less the two halos; at least 1; a multiple of
     ``tile_height`` for tiled files (whole tiles are read); all rows without a budget."""
-    if max_memory is None:
+    if max_memory is None or max_memory == float("inf"):
         return height
+    if isinstance(max_memory, bool) or not isinstance(max_memory, numbers.Real) \
+            or not max_memory > 0:
+        raise ValueError(f"max_memory={max_memory!r}: expected a number of bytes > 0 "
+                         f"(or None: no budget)")
     rows = max(1, int(max_memory // max(per_row_bytes, 1)) - 2 * halo)
     if tile_height:
         rows = max(tile_height, rows - rows % tile_height)

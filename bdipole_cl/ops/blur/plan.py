@@ -10,6 +10,7 @@ The file blur, Dask and scenes make one plan per image and apply it to every ban
 """
 from __future__ import annotations
 
+import operator
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -170,6 +171,19 @@ def as_given(out, irradiance):
     return out[..., 0] if np.ndim(irradiance) == 2 else out
 
 
+def checked_shape(shape) -> tuple:
+    """An irradiance shape as (H, W, C): HxW or HxWxC of positive integers, else a ValueError
+    naming it."""
+    try:
+        dims = tuple(operator.index(n) for n in shape)
+    except TypeError:
+        dims = ()
+    if len(dims) not in (2, 3) or min(dims) < 1:
+        raise ValueError(f"shape {tuple(shape) if np.iterable(shape) else shape!r}: expected "
+                         f"(height, width) or (height, width, channels), each >= 1")
+    return dims if len(dims) == 3 else (*dims, 1)
+
+
 def check_blur_options(method, tol, border, on_invalid):
     """ValueError naming the option and its choices unless each is one of its registry's."""
     BLUR_METHOD[method], BORDER[border]
@@ -183,7 +197,7 @@ def plan_blur(shape, scattering: Scattering, *, tol=1e-3, method="auto", border=
     """The BlurPlan of an irradiance of ``shape`` (HxW or HxWxC) under ``scattering``: each
     channel's method and kernel decided here, once (``auto`` for ``device``'s runtime)."""
     check_blur_options(method, tol, border, on_invalid)
-    shape = tuple(shape) if len(shape) == 3 else (*shape, 1)
+    shape = checked_shape(shape)
     rt = get_runtime(device)
     base = BlurPlan(scattering, shape, tol, method, border, exact, on_invalid, 0, runtime=rt)
     if scattering.textured:

@@ -273,6 +273,32 @@ def common_radius(rd_range, ld_range, eta, tol, exact=False):
                for r in rds)
 
 
+#: planning holds every lattice node's exact kernel, (K+1)^2 float64 each, and the SVD's
+#: weighted copies and factors of them: measured peaks 7-8x the node kernels' bytes (1.35 GiB
+#: for 1632 nodes at K = 115, 5.4 GiB for 1836 at K = 230). A plan whose estimate exceeds
+#: this is refused before any of it is built (``check_plan_size``)
+PLAN_PEAK_BYTES = 4 << 30
+PLAN_PEAK_PER_NODE_BYTE = 8
+
+
+def check_plan_size(axes, radius, rd_range, ld_range):
+    """ValueError naming the ranges, if planning them would need more than PLAN_PEAK_BYTES:
+    the lattice's node count grows with the width of both ranges and the kernels' size with
+    the largest mfp, whatever the image's size (albedo 1e-4..0.9999 with mfp 0.05..64 texels:
+    ~2000 nodes of radius 460, tens of GiB)."""
+    nodes = len(axes[0].values) * len(axes[1].values)
+    peak = PLAN_PEAK_PER_NODE_BYTE * nodes * (radius + 1) ** 2 * 8
+    if peak <= PLAN_PEAK_BYTES:
+        return
+    (t0, t1), (l0, l1) = rd_range, ld_range
+    raise ValueError(
+        f"texture-varying blur: albedo {sigmoid(t0):.6g}..{sigmoid(t1):.6g} with mfp "
+        f"{np.exp(l0):.3g}..{np.exp(l1):.3g} texels needs {nodes} lattice kernels of radius "
+        f"{radius} (~{peak / 2**30:.0f} GiB to plan, over {PLAN_PEAK_BYTES / 2**30:.0f} GiB): "
+        f"blur the texture's materials separately (narrower ranges), or raise tol or the "
+        f"texel size")
+
+
 @PLAN_CACHE.memoize
 def plan_for_ranges(rd_range, ld_range, eta, tol, exact=False, basis="svd", max_radius=2048,
                     costs: GatherCosts = DEFAULT_GATHER_COSTS):
@@ -285,6 +311,7 @@ def plan_for_ranges(rd_range, ld_range, eta, tol, exact=False, basis="svd", max_
     if radius > max_radius:
         raise ValueError(f"truncation radius {radius} texels exceeds max_radius={max_radius}: "
                          f"raise tol or the texel size")
+    check_plan_size(axes, radius, rd_range, ld_range)
     targets = [node_kernel(a, b, eta, radius, exact) for a in axes[0].values
                for b in axes[1].values]
     shape_axes = tuple(len(a.values) for a in axes)

@@ -57,11 +57,10 @@
 #define BD_RECORD (BD_CHUNK * ((BD_NWEIGHTS + BD_CHUNK - 1) / BD_CHUNK))
 #define BD_CHUNK_CAT_(a, b) a##b
 #define BD_CHUNK_CAT(a, b) BD_CHUNK_CAT_(a, b)
-#if BD_WIDTH > 1 && defined(__clang__)
-// as kernels/lanes.h GLOAD: one vector read (PoCL reads a vloadN element by element); in a
-// one-texel kernel, vloadN (Intel's runtime vectorizes that across work-items 1.6x faster)
-typedef float bd_record_chunk __attribute__((ext_vector_type(BD_CHUNK), aligned(4)));
-#define CHUNK_LOAD(i, p) (((__global const bd_record_chunk *)(p))[i])
+#ifdef GLOADN
+// kernels/lanes.h's one vector read (PoCL reads a vloadN element by element); in a one-texel
+// kernel, vloadN (Intel's runtime vectorizes that across work-items 1.6x faster)
+#define CHUNK_LOAD(i, p) GLOADN(BD_CHUNK, i, p)
 #else
 #define CHUNK_LOAD BD_CHUNK_CAT(vload, BD_CHUNK)
 #endif

@@ -7,7 +7,8 @@
 //   VLOAD, VSTORE       vloadN / vstoreN (a plain element at width 1)
 //   GLOAD, GSTORE       the same from and to __global memory, as one vector access (PoCL
 //                       compiles vloadN and vstoreN to N element accesses: the blur gather
-//                       took 1.6x as long with them there)
+//                       took 1.6x as long with them there); GLOADN(N, i, p) for N floats
+//                       (defined at widths 2 and up, with clang: else use vloadN)
 //   TO_INT, TO_FLOAT    lane-wise conversions
 //   ANY_LANE(test)      whether any lane's test holds
 //   BD_LANES            the lane numbers 0 .. BD_WIDTH - 1 (ivec; widths 2 and up)
@@ -36,15 +37,17 @@ typedef BD_CAT(int, BD_WIDTH) ivec;
 #define ANY_LANE(test) any(test)
 #endif
 
-#if BD_WIDTH == 1
-#define GLOAD VLOAD
-#define GSTORE VSTORE
-#elif defined(__clang__)
-// a vector of the lanes aligned as a float: a pointer to it may point anywhere vloadN may read,
-// and it is read as one unaligned vector (the vector type's own alignment would be assumed)
-typedef float bd_float_lanes __attribute__((ext_vector_type(BD_WIDTH), aligned(4)));
-#define GLOAD(i, p) (((__global const bd_float_lanes *)(p))[i])
-#define GSTORE(v, i, p) (((__global bd_float_lanes *)(p))[i] = (v))
+#if BD_WIDTH > 1 && defined(__clang__)
+// vectors of N floats aligned as a float: a pointer to one may point anywhere vloadN may read,
+// and it is read as one unaligned vector (the vector type's own alignment would be assumed).
+// GLOADN(N, i, p): vloadN(i, p) from __global memory so (N: 2, 4, 8 or 16)
+typedef float bd_float2_u __attribute__((ext_vector_type(2), aligned(4)));
+typedef float bd_float4_u __attribute__((ext_vector_type(4), aligned(4)));
+typedef float bd_float8_u __attribute__((ext_vector_type(8), aligned(4)));
+typedef float bd_float16_u __attribute__((ext_vector_type(16), aligned(4)));
+#define GLOADN(n, i, p) (((__global const BD_CAT(BD_CAT(bd_float, n), _u) *)(p))[i])
+#define GLOAD(i, p) GLOADN(BD_WIDTH, i, p)
+#define GSTORE(v, i, p) (((__global BD_CAT(BD_CAT(bd_float, BD_WIDTH), _u) *)(p))[i] = (v))
 #else
 #define GLOAD VLOAD
 #define GSTORE VSTORE

@@ -28,7 +28,6 @@ computed and what is left out, and why:
 from __future__ import annotations
 
 import json
-import math
 import os
 from dataclasses import asdict, dataclass, field
 
@@ -44,6 +43,7 @@ from ..io.patterns import companion_path, expand_inputs, unmatched_pattern
 from ..io.scene_file import SceneData, SceneError, load_imported
 from ..io.scene_file import load as load_scene_file
 from ..io.scene_import import import_materials, is_imported
+from ..io.scene_values import number
 from ..io.tiles import TileError, is_pattern
 from ..methods.choice import DeviceKey, device_auto_note, resolve_method
 from ..methods.registry import OUTPUTS, MethodConfig
@@ -280,9 +280,8 @@ def usable_coefficients(values, outputs) -> bool:
     list of finite, non-negative floats for each of its outputs (a hand-edited or broken
     record is computed again, never passed on)."""
     return isinstance(values, dict) and all(
-        isinstance(values.get(o), list) and values[o] and all(
-            isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
-            and v >= 0 for v in values[o]) for o in outputs)
+        isinstance(values.get(o), list) and values[o]
+        and all(number(v) and v >= 0 for v in values[o]) for o in outputs)
 
 
 def _plan_constant(m, folder, old, force, scene_source):

@@ -42,6 +42,8 @@ CONSTANT_RULES = {"albedo": ("(0, 1)", lambda v: (v > 0) & (v < 1)),
                   "mfp": (f"[{MFP_MIN:g}, {FLOAT32_MAX:.3g}]",
                           lambda v: (v >= MFP_MIN) & (v <= FLOAT32_MAX)),
                   "sigma_t": RULES["sigma_t"][:2]}
+
+
 def scaled_mfp_problem(mfp, scale) -> str | None:
     """Why a constant mfp times its mfp_scale (each one value or one per channel) leaves the
     range the kernels take (CONSTANT_RULES, as float32), naming the first such pair; else

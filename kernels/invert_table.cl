@@ -3,9 +3,11 @@
 // operations on the same values (so the same results and the same monotone contract,
 // docs/model.md "Monotone inverse"), written for the memory floor:
 //   - explicit vectors of BD_WIDTH lanes (1, 2, 4, 8 or 16): CPU runtimes compile them to SIMD
-//     directly rather than vectorising a scalar kernel across work-items (which Intel's and
-//     PoCL's runtimes do poorly for this kernel: its gathers and selects stay scalar);
-//   - no branches: the segment, its variable and scale are chosen by selects, one interval is
+//     directly (PoCL leaves a one-element kernel scalar); at width 1 the kernel is plain
+//     scalar code that Intel's runtime vectorises across work-items itself, with gather
+//     instructions where the CPU has them (AVX-512: faster than any explicit width there;
+//     bdipole_cl/ops/inversion_kernel.py TABLE_WIDTHS holds the measured widths);
+//   - no branches: the segment, its variable and scale are chosen lane-wise, one interval is
 //     gathered per lane (into the lanes directly, four at a time), both halves' results are
 //     formed and one selected, and Rd <= 0 / >= 1 (NaN is reported or clamped on the host
 //     first) are selects at the end;
@@ -96,25 +98,30 @@ __constant float bd_mfp_const[] = {BD_MFP_CONST};
 // }}}
 
 // The table's unknown for each lane (clamped between its interval's nodes, as table_value),
-// and whether the lane is in the upper half (segments 1 and 2: the unknown is q).
+// and whether the lane is in the upper half (segments 1 and 2: the unknown is q). The segment's
+// variable is chosen by ?: (lane-wise on vectors), which Intel's runtime compiles ~25% faster
+// than the same choice by select() at width 1, its constants read before it (read in its
+// arms, they are masked reads there: ~25% slower again).
 inline vec table_lookup(vec rd, ivec ch, __constant const float *params,
                         __global const float4 *tables, const int table_stride, ivec *upper)
 {
+    const vec rd_split = lane_param(params, ch, BD_P_RD_SPLIT),
+              x_split = lane_param(params, ch, BD_P_X_SPLIT),
+              scale0 = lane_param(params, ch, BD_P_SCALE0),
+              scale1 = lane_param(params, ch, BD_P_SCALE1),
+              scale2 = lane_param(params, ch, BD_P_SCALE2);
     vec x = BD_POWER == 2 ? sqrt(rd) : rd;
-    ivec up = rd >= lane_param(params, ch, BD_P_RD_SPLIT), top = rd >= 0.5f;
-    vec t = select(select(x * lane_param(params, ch, BD_P_SCALE0),
-                          (x - lane_param(params, ch, BD_P_X_SPLIT))
-                              * lane_param(params, ch, BD_P_SCALE1), up),
-                   (1.0f - rd) * lane_param(params, ch, BD_P_SCALE2), top);
+    ivec up = rd >= rd_split, top = rd >= 0.5f;
+    vec t = top ? (1.0f - rd) * scale2 : up ? (x - x_split) * scale1 : x * scale0;
     ivec i = clamp(TO_INT(t), 0, BD_TABLE_N - 1);
     vec u = t - TO_FLOAT(i);
-    ivec k = ch * table_stride + (ONE_IF(up) + ONE_IF(top)) * BD_SEGMENT_STRIDE + i;
+    ivec row = ch * table_stride + (ONE_IF(up) + ONE_IF(top)) * BD_SEGMENT_STRIDE + i;
     // the gather: each lane's interval (c0..c2) and its end node, into the lanes
     vec a, b, cc, d, end;
 #ifdef BD_EACH_QUAD
 #define BD_GATHER_QUAD(q, l0, l1, l2, l3) {                                              \
-        float4 r0 = tables[k.s##l0], r1 = tables[k.s##l1], r2 = tables[k.s##l2],          \
-               r3 = tables[k.s##l3];                                                     \
+        float4 r0 = tables[row.s##l0], r1 = tables[row.s##l1], r2 = tables[row.s##l2],    \
+               r3 = tables[row.s##l3];                                                   \
         a.s##q = (float4)(r0.s0, r1.s0, r2.s0, r3.s0);                                   \
         b.s##q = (float4)(r0.s1, r1.s1, r2.s1, r3.s1);                                   \
         cc.s##q = (float4)(r0.s2, r1.s2, r2.s2, r3.s2);                                  \
@@ -122,9 +129,9 @@ inline vec table_lookup(vec rd, ivec ch, __constant const float *params,
     BD_EACH_QUAD(BD_GATHER_QUAD)
 #else
 #define BD_GATHER_LANE(l) {                                                              \
-        float4 c = tables[BD_LANE(k, l)];                                                \
-        BD_LANE(a, l) = c.s0; BD_LANE(b, l) = c.s1; BD_LANE(cc, l) = c.s2;                \
-        BD_LANE(end, l) = c.s3; }
+        __global const float *c = (__global const float *)(tables + BD_LANE(row, l));    \
+        BD_LANE(a, l) = c[0]; BD_LANE(b, l) = c[1]; BD_LANE(cc, l) = c[2];                \
+        BD_LANE(end, l) = c[3]; }
     BD_EACH_LANE(BD_GATHER_LANE)
 #endif
     d = ((end - a) - b) - cc;          // c3, as the host's rows hold it (derived_c3)
@@ -136,7 +143,7 @@ inline vec table_lookup(vec rd, ivec ch, __constant const float *params,
 
 // Work-item g's lanes from p[g * BD_WIDTH ...]; when it is not whole, those at n or above
 // are `fill` (a value every later step takes without a NaN).
-inline vec load_lanes(__global const float *p, uint g, int whole, uint n, float fill)
+inline vec load_lanes(__global const float *p, size_t g, int whole, uint n, float fill)
 {
     if (whole) return VLOAD(g, p);
     float lanes[BD_WIDTH];
@@ -146,7 +153,7 @@ inline vec load_lanes(__global const float *p, uint g, int whole, uint n, float 
 }
 
 // Work-item g's lanes to out[g * BD_WIDTH ...], only those below n when it is not whole.
-inline void store_lanes(vec v, uint g, int whole, uint n, __global float *out)
+inline void store_lanes(vec v, size_t g, int whole, uint n, __global float *out)
 {
     if (whole) {
         VSTORE(v, g, out);
@@ -163,10 +170,11 @@ __kernel void invert_table(__global const float *rd, BD_MFP_SPACE const float *m
                            __constant const float *params, __global const float4 *tables,
                            const int table_stride, const uint n, __global int *invalid)
 {
-    const uint g = get_global_id(0), first = g * BD_WIDTH;
+    // size_t, not uint: with a 32-bit index Intel's runtime cannot tell that neighbouring
+    // work-items read neighbouring elements, and gathers and scatters them (width 1: ~30% slower)
+    const size_t g = get_global_id(0), first = g * BD_WIDTH;
     if (first >= n) return;
     const int whole = first + BD_WIDTH <= n;   // the last work-item may hold fewer elements
-    vec r = load_lanes(rd, g, whole, n, 0.5f);
 #if BD_NCHAN == 1
     ivec ch = (ivec)0;
 #elif BD_WIDTH == 1
@@ -174,6 +182,7 @@ __kernel void invert_table(__global const float *rd, BD_MFP_SPACE const float *m
 #else
     ivec ch = ((ivec)(int)(first % BD_NCHAN) + BD_LANES) % BD_NCHAN;
 #endif
+    vec r = load_lanes(rd, g, whole, n, 0.5f);
 #if BD_CHECK == 1
     if (ANY_LANE(!(r <= 1.0f) | (r == -INFINITY))) *invalid = 1;
 #elif BD_CHECK == 2

@@ -1,7 +1,8 @@
 // lanes.h -- explicit vector lanes for kernels that take BD_WIDTH elements a work-item
 // (kernels/invert_table.cl, kernels/blur_textured.cl): CPU runtimes compile vector types to
-// SIMD directly, where they vectorise a scalar kernel across work-items poorly or not at all
-// (PoCL leaves it scalar). Prepended to every kernel after bdipole.h
+// SIMD directly, where they may vectorise a scalar kernel across work-items poorly or not at
+// all (PoCL leaves it scalar; Intel's runtime does well with some kernels, not others: the
+// widths are measured per kernel and runtime). Prepended to every kernel after bdipole.h
 // (bdipole_cl/device/programs.py); empty unless BD_WIDTH is defined.
 //   vec, ivec           float and int lanes (scalars at width 1)
 //   VLOAD, VSTORE       vloadN / vstoreN (a plain element at width 1)

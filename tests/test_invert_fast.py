@@ -69,10 +69,10 @@ def test_vector_kernel_is_bitwise_the_scalar_one(runtime, monkeypatch, width, et
 
 
 def test_default_is_vectorised_on_cpus(runtime):
-    """The default configuration runs kernels/invert_table.cl (several elements a work-item on
-    CPU devices); float64 and polished or other methods keep kernels/invert.cl."""
+    """The default configuration runs kernels/invert_table.cl (at the device's elements per
+    work-item); float64 and polished or other methods keep kernels/invert.cl."""
     k = InversionKernel((1.4,), MethodConfig(), runtime=runtime)
-    assert k.width == ik.table_width(runtime) > 1
+    assert k.width == ik.table_width(runtime) >= 1
     assert not InversionKernel((1.4,), MethodConfig("table", polish=1), runtime=runtime).width
     assert not InversionKernel((1.4,), MethodConfig("bisection"), runtime=runtime).width
 
@@ -107,12 +107,13 @@ class _FakeCpu:
 
 
 @pytest.mark.parametrize("platform, lanes, width", [
-    ("Intel(R) OpenCL", 16, 8), ("Intel(R) OpenCL", 8, 16), ("Intel(R) OpenCL", 4, 16),
-    ("Portable Computing Language", 16, 8), ("Portable Computing Language", 8, 8),
+    ("Intel(R) OpenCL", 16, 1), ("Intel(R) OpenCL", 8, 16), ("Intel(R) OpenCL", 4, 16),
+    ("Portable Computing Language", 16, 16), ("Portable Computing Language", 8, 8),
     ("Some Other CPU Runtime", 16, 8)])
 def test_table_width_by_platform_and_native_lanes(monkeypatch, tmp_path, platform, lanes, width):
-    """The measured defaults (``TABLE_WIDTHS``): Intel's runtime 8 on an AVX-512 CPU (16
-    native float lanes), 16 on others; PoCL 8; an unlisted CPU runtime 8."""
+    """The measured defaults (``TABLE_WIDTHS``): Intel's runtime 1 on an AVX-512 CPU (16
+    native float lanes), 16 on others; PoCL 16 on an AVX-512 CPU, 8 on others; an unlisted CPU
+    runtime 8."""
     monkeypatch.delenv(TABLE_WIDTH_VARIABLE, raising=False)
     monkeypatch.delenv("BDIPOLE_CL_CHOICE_DATA", raising=False)
     monkeypatch.setenv("BDIPOLE_CL_CACHE_DIR", str(tmp_path))     # no calibration there

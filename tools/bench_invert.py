@@ -34,6 +34,8 @@ from bdipole_cl import albedo_to_coefficients, get_runtime, invert_albedo, use_d
 from bdipole_cl.apps.benchmark import (inversion_workload, median_time, reference_inverse,
                                        time_copy, time_inversion)
 from bdipole_cl.device import build_options, get_program
+from bdipole_cl.device.layout import P, channel_params
+from bdipole_cl.physics import tables
 from bdipole_cl.methods.registry import MethodConfig
 from bdipole_cl.ops.invert import InversionKernel
 
@@ -51,6 +53,86 @@ CONFIGS = [
     DEFAULT,
     MethodConfig("table", table_size=1024),
 ]
+
+
+#: the issue's peer: the minimal three-segment cubic-table kernel a user would write outside
+#: the project (one texel per work-item: sqrt, segment select, one float4 gather of c0..c3,
+#: the polynomial, two writes; no channels, clamps or validity tests), fed the default's
+#: own table rows and scales, so it computes the same inverse to within its rounding
+MINIMAL_SOURCE = """
+__kernel void minimal_table(__global const float *rd, __global float *alpha,
+                            __global float *rho, __global const float4 *table,
+                            const float rd_split, const float x_split, const float s0,
+                            const float s1, const float s2)
+{
+    size_t i = get_global_id(0);
+    float r = rd[i];
+    float x = sqrt(r);
+    int seg = (r >= rd_split) + (r >= 0.5f);
+    float t = seg == 0 ? x * s0 : seg == 1 ? (x - x_split) * s1 : (1.0f - r) * s2;
+    int j = clamp((int)t, 0, N - 1);
+    float u = t - (float)j;
+    float4 c = table[seg * (N + 1) + j];
+    float v = c.x + u * (c.y + u * (c.z + u * c.w));
+    alpha[i] = seg == 0 ? v : 1.0f - v * v;
+    rho[i] = seg == 0 ? 1.0f - v : v * v;
+}
+"""
+
+
+class MinimalTable:
+    """MINIMAL_SOURCE built for eta on the current device, with the default's table."""
+
+    def __init__(self, eta, config=DEFAULT):
+        self.rt = rt = get_runtime()
+        size = config.resolved(False).table_size
+        self.knl = cl.Kernel(cl.Program(rt.context, MINIMAL_SOURCE).build(f"-DN={size}"),
+                             "minimal_table")
+        rows = tables.channel_tables((eta,), config.resolved(False).table_n)
+        self.table = cl.Buffer(rt.context, cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR,
+                               hostbuf=np.ascontiguousarray(rows, np.float32))
+        prm = channel_params((eta,), table_n=config.resolved(False).table_n)
+        self.args = [np.float32(prm[P[k]]) for k in ("RD_SPLIT", "X_SPLIT", "SCALE0", "SCALE1",
+                                                      "SCALE2")]
+
+    def __call__(self, n, rd, alpha, rho):
+        return self.knl(self.rt.queue, (n,), None, rd, alpha, rho, self.table, *self.args)
+
+
+def minimal_check(rd, eta, want_alpha):
+    """The peer's max relative error of alpha' against the reference (that it computes the
+    inverse the default does), on the checked values."""
+    rt = get_runtime()
+    peer = MinimalTable(eta)
+    host = np.ascontiguousarray(rd[:want_alpha.size], np.float32)
+    mf = cl.mem_flags
+    src = cl.Buffer(rt.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=host)
+    dst = [cl.Buffer(rt.context, mf.WRITE_ONLY, host.nbytes) for _ in range(2)]
+    peer(host.size, src, *dst)
+    alpha = np.empty_like(host)
+    cl.enqueue_copy(rt.queue, alpha, dst[0])
+    return float(np.max(np.abs(alpha / want_alpha - 1.0)))
+
+
+def minimal_ratios(config, rd, eta, pairs=7, repeats=3):
+    """The minimal peer's time over ``config``'s in ``pairs`` alternated measurements on the
+    same device buffers, each side the best of ``repeats`` (as ``copy_ratios``): above 1, the
+    default is the faster."""
+    rt = get_runtime()
+    n = rd.size
+    kernel = InversionKernel((eta,), config)
+    peer = MinimalTable(eta, config)
+    mf = cl.mem_flags
+    host = np.ascontiguousarray(rd, dtype=np.float32)
+    src = cl.Buffer(rt.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=host)
+    dst = [cl.Buffer(rt.context, mf.WRITE_ONLY, host.nbytes) for _ in range(2)]
+    ratios = []
+    for _ in range(pairs):
+        t_peer = median_time(lambda: peer(n, src, *dst), repeats, stat=min)
+        t_kernel = median_time(lambda: kernel(n, src, alpha=dst[0], rho=dst[1]), repeats,
+                               stat=min)
+        ratios.append(t_peer / t_kernel)
+    return ratios
 
 
 def copy_ratios(config, rd, eta, pairs=7, repeats=3):
@@ -167,6 +249,10 @@ def main(argv=None):
     print(f"{DEFAULT.describe()} against the copy kernel, {args.pairs} alternated pairs: "
           f"median {100 * np.median(ratios):.1f}% of copy [{100 * min(ratios):.1f}%, "
           f"{100 * max(ratios):.1f}%]")
+    peer = minimal_ratios(DEFAULT, rd, args.eta, args.pairs)
+    print(f"{DEFAULT.describe()} against the minimal table kernel (max rel err alpha "
+          f"{minimal_check(rd, args.eta, want_a):.1e}), {args.pairs} alternated pairs: "
+          f"median {np.median(peer):.2f}x its speed [{min(peer):.2f}, {max(peer):.2f}]")
     print(f"\nhost to host, same {args.n} float32 albedos (% of NumPy's pass of the same form):")
     for name, seconds, peer in host_rows(rd, args.eta, rt, args.repeats):
         print(f"{name:34s} {'f32':5s} {args.n / seconds / 1e6:9.2f} {seconds * 1e3:9.2f}"

@@ -11,6 +11,7 @@ import pyopencl as cl
 
 from ..caches import ByteCache
 from ..device import build_options, get_program, get_runtime, real_dtype
+from ..device.launch import enqueue_items
 from ..device.layout import channel_params
 from ..device.runtime import device_kind, forced_width, platform_entry
 from ..device.transfer import aligned_empty, run_elementwise
@@ -43,9 +44,12 @@ def vectorised(config: MethodConfig, double: bool) -> bool:
 #: part of its name), then by the device's native float vector lanes (None: any other),
 #: measured at 32M texels (tools/bench_invert.py with BDIPOLE_CL_TABLE_WIDTH): Intel's CPU
 #: runtime is fastest at 16 on an AVX CPU (8 lanes: the AMD EPYC VM; 8 was 25% slower) and at
-#: 8 on an AVX-512 one (16 lanes: the Xeon VM; 16 was 13% slower), PoCL at 8 on both; devices
-#: not listed (GPUs) get one element per item. ``report --calibrate`` measures the device's own.
-TABLE_WIDTHS = {"intel(r) opencl": {16: 8, None: 16}, "portable computing language": {None: 8}}
+#: 1 on an AVX-512 one (16 lanes: the Xeon VM, where it vectorises the one-element kernel
+#: itself with gather instructions: 1.4x width 8 at one channel, 2.9x at three), PoCL at 8 on
+#: the AVX CPU and 16 on the AVX-512 one (1.3x width 8 there); devices not listed (GPUs) get
+#: one element per item. ``report --calibrate`` measures the device's own.
+TABLE_WIDTHS = {"intel(r) opencl": {16: 1, None: 16},
+                "portable computing language": {16: 16, None: 8}}
 #: ``BDIPOLE_CL_TABLE_WIDTH`` overrides the width (1, 2, 4, 8 or 16), for measuring
 TABLE_WIDTH_VARIABLE = "BDIPOLE_CL_TABLE_WIDTH"
 
@@ -179,22 +183,23 @@ class InversionKernel:
 
     def __call__(self, n, rd, mfp=None, *, alpha=None, rho=None, sigma_a=None, sigma_s=None,
                  wait_for=None, invalid=None, check=0, mfp_channels=False):
-        """Enqueue over ``n`` elements (a multiple of nchan); returns the kernel's event.
+        """Enqueue over ``n`` elements (a multiple of nchan); returns the (last) launch's
+        event (``device.launch.enqueue_items``).
         With the vectorised kernel (``width``): ``check`` and the 1-int buffer ``invalid``
         (set when some input breaks the rule), ``mfp_channels`` (``mfp`` holds one value per
         channel)."""
         if self.width:
             given = {"alpha": alpha, "rho": rho, "sigma_a": sigma_a, "sigma_s": sigma_s}
             bits = sum(OUTPUT_BITS[k] for k, b in given.items() if b is not None)
-            return self._table_kernel(bits, check, mfp_channels)(
-                self.rt.queue, (-(-n // self.width),), None, rd, mfp, alpha, rho, sigma_a,
-                sigma_s, self.params, self.tables,
-                np.int32(tables.entries_per_channel(self.table_n)), np.uint32(n), invalid,
-                wait_for=wait_for)
-        return self.kernel(self.rt.queue, (n,), None, rd, mfp, alpha, rho, sigma_a, sigma_s,
-                           self.params, self.tables, np.int32(self.nchan),
-                           np.int32(tables.entries_per_channel(self.table_n)), np.uint32(n),
-                           wait_for=wait_for)
+            return enqueue_items(
+                self._table_kernel(bits, check, mfp_channels), self.rt.queue,
+                -(-n // self.width), rd, mfp, alpha, rho, sigma_a, sigma_s, self.params,
+                self.tables, np.int32(tables.entries_per_channel(self.table_n)), np.uint32(n),
+                invalid, wait_for=wait_for)
+        return enqueue_items(self.kernel, self.rt.queue, n, rd, mfp, alpha, rho, sigma_a,
+                             sigma_s, self.params, self.tables, np.int32(self.nchan),
+                             np.int32(tables.entries_per_channel(self.table_n)), np.uint32(n),
+                             wait_for=wait_for)
 
     def checks_inputs(self, *arrays) -> bool:
         """Whether the kernel itself can test these inputs (the vectorised kernel on float32

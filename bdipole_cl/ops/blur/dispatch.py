@@ -7,6 +7,7 @@ import numpy as np
 import pyopencl as cl
 
 from ...device import build_options, get_program
+from ...device.launch import enqueue_items
 from ...device.runtime import forced_width, platform_entry
 from ...device.transfer import aligned_empty
 from ...methods.choice import GATHER_WIDTHS_ALLOWED, DeviceKey, device_tuning
@@ -225,8 +226,8 @@ def device_weight_planes(plan, rd, ld, rt):
     opts, axis_args = lattice_args(plan, width)
     bufs = [host_buffer(rt, a, mf.READ_ONLY) for a in (rd, ld, node_records(plan.fine))]
     planes = cl.Buffer(rt.context, mf.READ_WRITE, max(plan.fine.shape[2] * h * w * 4, 4))
-    cl.Kernel(get_program(rt, "blur_textured", opts), "lattice_weights")(
-        rt.queue, (-(-h * w // width),), None, *bufs, planes, np.int32(h * w), *axis_args)
+    enqueue_items(cl.Kernel(get_program(rt, "blur_textured", opts), "lattice_weights"),
+                  rt.queue, -(-h * w // width), *bufs, planes, np.int32(h * w), *axis_args)
     rt.queue.finish()                  # the host arrays under ``bufs`` are then free to go
     return planes
 

@@ -248,3 +248,26 @@ def test_a_wrong_out_array_is_named_with_its_fault(make, why):
     """out= arrays refused for each reason by that reason (they all read the same before)."""
     with pytest.raises(ValueError, match=why):
         invert_albedo(np.full((3, 4), 0.5, np.float32), 1.4, out=make())
+
+
+@pytest.mark.parametrize("items", [0, 1, 1023, 1024, 1025, 4099, 33554393])
+def test_launches_cover_every_work_item_once(items):
+    """``launch_ranges``: consecutive launches from 0 that cover the work-items exactly once,
+    all but the last a multiple of LAUNCH_MULTIPLE (a prime count gets a bulk launch too)."""
+    from bdipole_cl.device.launch import LAUNCH_MULTIPLE, launch_ranges
+    ranges = launch_ranges(items)
+    assert sum(count for _, count in ranges) == items
+    assert all(first == sum(c for _, c in ranges[:i]) for i, (first, _) in enumerate(ranges))
+    assert all(count > 0 for _, count in ranges)
+    assert all(count % LAUNCH_MULTIPLE == 0 for _, count in ranges[:-1])
+    assert len(ranges) <= 2 and (items < LAUNCH_MULTIPLE or ranges[0][1] % LAUNCH_MULTIPLE == 0)
+
+
+def test_prime_length_inverts_as_the_composite_one(runtime):
+    """A prime number of albedos (one launch of a multiple of 1024 work-items, then the rest,
+    numbered on by the global offset) gives each albedo the value it has in a longer array."""
+    rd = albedos(70000)[:65537]                      # 65537 is prime
+    whole = invert_albedo(albedos(70000), 1.4, return_rho=True, device=runtime)
+    part = invert_albedo(rd, 1.4, return_rho=True, device=runtime)
+    for got, want in zip(part, whole):              # alpha', rho
+        np.testing.assert_array_equal(got, want[:rd.size])

@@ -8,7 +8,10 @@ inverse of the float32 input (its first --check values), the speed ratio against
 copy kernel's throughput (the memory-bound floor; the inversion moves 3 arrays per texel, the
 copy 2, so a 1-read-2-write kernel's own floor is 2/3 of a copy). The default's fraction is
 then measured again as the median of --pairs alternated copy / default measurements (each pair
-back to back, so that a slow moment of a shared machine slows both of its sides).
+back to back, so that a slow moment of a shared machine slows both of its sides), and so is its
+speed against the issue's peer, the minimal table kernel a user would write outside the
+project (MINIMAL_SOURCE: one texel per work-item, no channels, clamps or tests), fed the
+default's own table.
 
 Then, on the same host arrays: ``invert_albedo(rd, eta, return_rho=True)`` and
 ``albedo_to_coefficients(rd, 2.0, eta)`` (sigma_a, sigma_s') host to host (NumPy in, NumPy
@@ -102,62 +105,53 @@ class MinimalTable:
 def minimal_check(rd, eta, want_alpha):
     """The peer's max relative error of alpha' against the reference (that it computes the
     inverse the default does), on the checked values."""
-    rt = get_runtime()
-    peer = MinimalTable(eta)
-    host = np.ascontiguousarray(rd[:want_alpha.size], np.float32)
-    mf = cl.mem_flags
-    src = cl.Buffer(rt.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=host)
-    dst = [cl.Buffer(rt.context, mf.WRITE_ONLY, host.nbytes) for _ in range(2)]
-    peer(host.size, src, *dst)
-    alpha = np.empty_like(host)
-    cl.enqueue_copy(rt.queue, alpha, dst[0])
+    src, dst = device_buffers(rd[:want_alpha.size])
+    MinimalTable(eta)(want_alpha.size, src, *dst)
+    alpha = np.empty(want_alpha.size, np.float32)
+    cl.enqueue_copy(get_runtime().queue, alpha, dst[0])
     return float(np.max(np.abs(alpha / want_alpha - 1.0)))
 
 
-def minimal_ratios(config, rd, eta, pairs=7, repeats=3):
-    """The minimal peer's time over ``config``'s in ``pairs`` alternated measurements on the
-    same device buffers, each side the best of ``repeats`` (as ``copy_ratios``): above 1, the
-    default is the faster."""
+def device_buffers(rd):
+    """(input, two outputs): device buffers of ``rd``'s size, the input holding it."""
     rt = get_runtime()
-    n = rd.size
-    kernel = InversionKernel((eta,), config)
-    peer = MinimalTable(eta, config)
     mf = cl.mem_flags
     host = np.ascontiguousarray(rd, dtype=np.float32)
     src = cl.Buffer(rt.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=host)
-    dst = [cl.Buffer(rt.context, mf.WRITE_ONLY, host.nbytes) for _ in range(2)]
+    return src, [cl.Buffer(rt.context, mf.WRITE_ONLY, host.nbytes) for _ in range(2)]
+
+
+def peer_ratios(peer, config, rd, eta, pairs=7, repeats=3):
+    """The peer's time over ``config``'s, alpha' and rho written, in ``pairs`` alternated
+    measurements on the same device buffers, each side the best of ``repeats``: a pair is
+    timed back to back, so a slow moment of a shared machine slows both of its sides rather
+    than one side of the comparison. ``peer(n, src, dst)`` enqueues the peer over n elements.
+    Returns the pairs' ratios (above 1: the default is the faster)."""
+    n = rd.size
+    kernel = InversionKernel((eta,), config)
+    src, dst = device_buffers(rd)
     ratios = []
     for _ in range(pairs):
-        t_peer = median_time(lambda: peer(n, src, *dst), repeats, stat=min)
+        t_peer = median_time(lambda: peer(n, src, dst), repeats, stat=min)
         t_kernel = median_time(lambda: kernel(n, src, alpha=dst[0], rho=dst[1]), repeats,
                                stat=min)
         ratios.append(t_peer / t_kernel)
     return ratios
 
 
-def copy_ratios(config, rd, eta, pairs=7, repeats=3):
-    """The copy kernel's time over ``config``'s (the fraction of the memory floor an inversion
-    kernel reaches, alpha' and rho written) in ``pairs`` alternated measurements on the same
-    device buffers, each side the best of ``repeats``: a pair is timed back to back, so a slow
-    moment of a shared machine slows both of its sides rather than one side of the comparison.
-    Returns the pairs' ratios."""
+def copy_ratios(config, rd, eta, pairs=7):
+    """``peer_ratios`` against the copy kernel (one read, one write): the fraction of the
+    memory floor an inversion kernel reaches."""
     rt = get_runtime()
-    n = rd.size
-    kernel = InversionKernel((eta,), config)
-    prg = get_program(rt, "copy", build_options())
-    copy = cl.Kernel(prg, "copy")
-    mf = cl.mem_flags
-    host = np.ascontiguousarray(rd, dtype=np.float32)
-    src = cl.Buffer(rt.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=host)
-    dst = [cl.Buffer(rt.context, mf.WRITE_ONLY, host.nbytes) for _ in range(2)]
-    ratios = []
-    for _ in range(pairs):
-        t_copy = median_time(lambda: copy(rt.queue, (n,), None, src, dst[0], np.uint64(n)),
-                             repeats, stat=min)
-        t_kernel = median_time(lambda: kernel(n, src, alpha=dst[0], rho=dst[1]), repeats,
-                               stat=min)
-        ratios.append(t_copy / t_kernel)
-    return ratios
+    copy = cl.Kernel(get_program(rt, "copy", build_options()), "copy")
+    return peer_ratios(lambda n, src, dst: copy(rt.queue, (n,), None, src, dst[0],
+                                                 np.uint64(n)), config, rd, eta, pairs)
+
+
+def minimal_ratios(config, rd, eta, pairs=7):
+    """``peer_ratios`` against the minimal table kernel (MINIMAL_SOURCE)."""
+    peer = MinimalTable(eta, config)
+    return peer_ratios(lambda n, src, dst: peer(n, src, *dst), config, rd, eta, pairs)
 
 
 def best_time(fn, repeats):

@@ -145,3 +145,34 @@ def test_a_broken_calibration_is_passed_over_and_rewritten(on_device, cache_dir,
               sweep=[MethodConfig("table", table_size=64)], sweep_f64=[],
               blur_sweep=[("direct", 1e-4)], gather_size=48)
     assert choice.load_choice_data(path).kernels.table_width in (1, 4, 8, 16)
+
+
+def test_kernel_shapes_measured_with_other_kernels_are_passed_over(on_device, cache_dir,
+                                                                   caplog, monkeypatch):
+    """A calibration records the kernel sources its widths and costs were measured with: a
+    later version's kernels (another digest) do not run on them (the per-platform defaults
+    then, with one note naming the file); the same kernels, or a file without a digest (written
+    by hand), do."""
+    from bdipole_cl.device.programs import kernels_digest
+    from bdipole_cl.ops.blur.dispatch import gather_width
+    from bdipole_cl.ops.inversion_kernel import TABLE_WIDTH_VARIABLE, table_width
+    from bdipole_cl.ops.blur.dispatch import GATHER_WIDTH_VARIABLE
+    monkeypatch.delenv(TABLE_WIDTH_VARIABLE, raising=False)     # (they force a width over all)
+    monkeypatch.delenv(GATHER_WIDTH_VARIABLE, raising=False)
+    here = DeviceKey.of(on_device.device)
+    path = calibration_path(here)
+    default = table_width(on_device)
+    tuned = 4 if default != 4 else 2
+    for digest, used in (("0123456789abcdef", False), (kernels_digest(), True), (None, True)):
+        kernels = choice.KernelTuning(tuned, 8, (0.01, 0.0, 0.04), digest)
+        write_choice_data(ChoiceData("here", (), (), here, kernels), path)
+        assert choice.load_choice_data(path).kernels == kernels       # read back as written
+        with caplog.at_level(logging.WARNING, logger="bdipole_cl"):
+            caplog.clear()
+            got = table_width(on_device), gather_width(on_device, 4096)
+        notes = [r.getMessage() for r in caplog.records if "other kernels" in r.getMessage()]
+        if used:
+            assert got == (tuned, 8) and not notes, (digest, got, notes)
+        else:
+            assert got[0] == default and len(notes) == 1 and str(path) in notes[0], notes
+            assert "--calibrate" in notes[0]

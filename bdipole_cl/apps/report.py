@@ -28,6 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from ..device import get_runtime
+from ..device.programs import kernels_digest
 from ..io.collisions import refusal
 from ..methods.choice import (ChoiceData, DeviceKey, KernelTuning, calibration_ignored,
                               calibration_path, is_choice_data, write_choice_data)
@@ -341,7 +342,7 @@ def kernel_tuning(n, gather_size, repeats, progress=print) -> KernelTuning:
         costs, _ = fitted_gather_costs(*gather_rows(gather_size, repeats=repeats))
     progress(f"  gather costs (cell, term, weight) in basis blurs: "
              f"{', '.join(f'{c:.3g}' for c in costs)}")
-    return KernelTuning(min(table, key=table.get), best, costs)
+    return KernelTuning(min(table, key=table.get), best, costs, kernels_digest())
 
 
 def calibrate(*, n=CALIBRATION["n"], blur_size=CALIBRATION["blur_size"],

@@ -10,6 +10,8 @@ dropped by ``bdipole_cl.clear_caches()``.
 """
 from __future__ import annotations
 
+import functools
+import hashlib
 from pathlib import Path
 
 import numpy as np
@@ -47,6 +49,18 @@ def kernel_dir() -> Path:
         if (candidate / HEADER).is_file():
             return candidate
     raise DeviceError(f"kernel sources not found next to {package} (looked for {HEADER})")
+
+
+@functools.lru_cache(maxsize=None)
+def kernels_digest() -> str:
+    """A digest of every kernel source (kernels/*.cl and *.h) and the generated layout: what a
+    device's measured kernel shapes (``report --calibrate``'s widths and costs) were measured
+    with, so that a later version's kernels do not run on shapes measured for other code."""
+    d = kernel_dir()
+    h = hashlib.sha256(layout.header().encode())
+    for path in sorted(d.glob("*.cl")) + sorted(d.glob("*.h")):
+        h.update(b"\0" + path.name.encode() + b"\0" + path.read_bytes())
+    return h.hexdigest()[:16]
 
 
 def kernel_source(name: str, body: str | None = None) -> str:

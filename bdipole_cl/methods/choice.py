@@ -72,15 +72,19 @@ class KernelTuning:
     """How the kernels run fastest on the device the data were measured on (``report
     --calibrate``): elements per work-item of kernels/invert_table.cl and texels per work-item
     of kernels/blur_textured.cl's gather, and the gather's costs (cell, term, weight: what
-    ``near_field.GatherCosts`` holds). None: not measured (the per-platform defaults)."""
+    ``near_field.GatherCosts`` holds). None: not measured (the per-platform defaults).
+    ``kernels_digest``: the kernel sources they were measured with
+    (``device.programs.kernels_digest``; None: not recorded, as in a file written by hand)."""
 
     table_width: int | None = None
     gather_width: int | None = None
     gather_costs: tuple | None = None
+    kernels_digest: str | None = None
 
     def fields(self) -> dict:
         return {"table_width": self.table_width, "gather_width": self.gather_width,
-                "gather_costs": None if self.gather_costs is None else list(self.gather_costs)}
+                "gather_costs": None if self.gather_costs is None else list(self.gather_costs),
+                "kernels_digest": self.kernels_digest}
 
     @classmethod
     def from_fields(cls, raw) -> "KernelTuning | None":
@@ -100,7 +104,11 @@ class KernelTuning:
                 and all(type(c) in (int, float) and 0 <= c < float("inf") for c in costs)):
             raise ValueError(f"kernels.gather_costs: {costs!r}, expected 3 finite numbers >= 0 "
                              f"(cell, term, weight)")
-        return cls(table, gather, None if costs is None else tuple(float(c) for c in costs))
+        digest = raw.get("kernels_digest")
+        if digest is not None and not isinstance(digest, str):
+            raise ValueError(f"kernels.kernels_digest: {digest!r}, expected a string")
+        return cls(table, gather, None if costs is None else tuple(float(c) for c in costs),
+                   digest)
 
 
 @dataclass(frozen=True)
@@ -174,13 +182,8 @@ def choice_for(key: DeviceKey | None = None) -> tuple:
     source = ChoiceSource(PACKAGED_CHOICE_DATA, "shipped", data.device,
                           key is not None and data.device_key == key)
     if key is not None and not source.this_device:
-        with _noted_lock:
-            first = key not in _noted
-            _noted.add(key)
-        if first:
-            logging.getLogger("bdipole_cl").warning(
-                "method='auto' on %s: choosing from data measured on %s; `bdipole-cl report "
-                "--calibrate` measures this device", key.describe(), data.device)
+        note_once(key, "method='auto' on %s: choosing from data measured on %s; `bdipole-cl "
+                  "report --calibrate` measures this device", key.describe(), data.device)
     return data, source
 
 
@@ -201,20 +204,40 @@ class calibration_ignored:
         return False
 
 
-def device_tuning(key: DeviceKey) -> KernelTuning | None:
+def device_tuning(key: DeviceKey, kernels_digest: str | None = None) -> KernelTuning | None:
     """The KernelTuning measured on the device ``key`` itself: from the file named by
     BDIPOLE_CL_CHOICE_DATA, else this device's calibration, where either is keyed by this
     very device (never data measured on another: widths and costs are the CPU's own). A file
     that cannot be read as choice data, or whose kernels are not valid, is passed over with a
-    one-line warning naming it (once per process): the per-platform defaults then."""
+    one-line warning naming it (once per process): the per-platform defaults then. So is a
+    tuning measured with other kernel sources than ``kernels_digest`` (the current ones: a
+    width that was fastest for one version of a kernel may be the slowest for the next), with
+    a one-line note."""
     if getattr(_measuring, "active", False):
         return None
     named = os.environ.get(CHOICE_DATA_VARIABLE)
     for path in ([Path(named)] if named else []) + [calibration_path(key)]:
         data = readable_data(path)
         if data is not None and data.device_key == key:
-            return data.kernels
+            tuned = data.kernels
+            if (tuned is not None and tuned.kernels_digest is not None
+                    and kernels_digest is not None and tuned.kernels_digest != kernels_digest):
+                note_once(("stale kernels", str(path)),
+                          "%s: kernel shapes measured with other kernels than these; passed "
+                          "over (`bdipole-cl report --calibrate` measures them again)", path)
+                return None
+            return tuned
     return None
+
+
+def note_once(key, message, *args):
+    """``message`` to the "bdipole_cl" logger as a warning, the first time ``key`` is noted in
+    this process."""
+    with _noted_lock:
+        first = key not in _noted
+        _noted.add(key)
+    if first:
+        logging.getLogger("bdipole_cl").warning(message, *args)
 
 
 def readable_data(path) -> ChoiceData | None:
@@ -225,12 +248,8 @@ def readable_data(path) -> ChoiceData | None:
     try:
         return load_choice_data(path)
     except (OSError, ValueError) as exc:
-        with _noted_lock:
-            first = ("unreadable", str(path)) not in _noted
-            _noted.add(("unreadable", str(path)))
-        if first:
-            logging.getLogger("bdipole_cl").warning(
-                "%s; passed over (`bdipole-cl report --calibrate` rewrites it)", exc)
+        note_once(("unreadable", str(path)),
+                  "%s; passed over (`bdipole-cl report --calibrate` rewrites it)", exc)
         return None
 
 

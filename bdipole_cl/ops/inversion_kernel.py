@@ -11,6 +11,7 @@ import pyopencl as cl
 
 from ..caches import ByteCache
 from ..device import build_options, get_program, get_runtime, real_dtype
+from ..device.programs import kernels_digest
 from ..device.launch import enqueue_items
 from ..device.layout import channel_params
 from ..device.runtime import device_kind, forced_width, platform_entry
@@ -63,7 +64,7 @@ def table_width(rt) -> int:
         return forced
     if device_kind(rt.device) != "cpu":
         return 1
-    tuned = device_tuning(DeviceKey.of(rt.device))
+    tuned = device_tuning(DeviceKey.of(rt.device), kernels_digest())
     if tuned is not None and tuned.table_width:
         return tuned.table_width
     widths = platform_entry(rt.device, TABLE_WIDTHS, {None: 8})

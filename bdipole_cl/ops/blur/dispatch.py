@@ -8,6 +8,7 @@ import pyopencl as cl
 
 from ...device import build_options, get_program
 from ...device.launch import enqueue_items
+from ...device.programs import kernels_digest
 from ...device.runtime import forced_width, platform_entry
 from ...device.transfer import aligned_empty
 from ...methods.choice import GATHER_WIDTHS_ALLOWED, DeviceKey, device_tuning
@@ -149,7 +150,7 @@ GATHER_WIDTH_VARIABLE = "BDIPOLE_CL_GATHER_WIDTH"
 
 def _tuning(rt):
     """The device's own KernelTuning (``report --calibrate``), or None."""
-    return device_tuning(DeviceKey.of(rt.device))
+    return device_tuning(DeviceKey.of(rt.device), kernels_digest())
 
 
 def gather_width(rt, n) -> int:

@@ -20,6 +20,10 @@ import importlib.abc
 import importlib.util
 import sys
 
+from .signals import quiet_startup
+
+quiet_startup()            # in the `bdipole-cl` command: a signal while it loads, one line
+
 #: modules that moved to ``jobs/`` (the job layer), importable by their old public paths
 MOVED_MODULES = {f"{__name__}.io.{name}": f"{__name__}.jobs.{name}"
                  for name in ("batch", "blur_file", "scene", "scene_records", "scene_stats")}

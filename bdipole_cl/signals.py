@@ -9,7 +9,9 @@ write.
 """
 from __future__ import annotations
 
+import os
 import signal
+import sys
 import threading
 
 #: set by SIGINT/SIGTERM (or ``request_stop``); every long loop checks it
@@ -102,3 +104,48 @@ class signals_deferred:
         if self._blocked:
             signal.pthread_sigmask(signal.SIG_UNBLOCK, self.SIGNALS)
         return False
+
+
+#: the command's name: under it, a signal while the library loads ends the process quietly
+COMMAND = "bdipole-cl"
+_startup_handlers: dict = {}
+
+
+def is_command(argv=None, orig_argv=None) -> bool:
+    """Whether this process is the ``bdipole-cl`` command (its script, or ``python -m
+    bdipole_cl``, whose ``sys.argv[0]`` is "-m" while the package loads)."""
+    argv = sys.argv if argv is None else argv
+    orig = getattr(sys, "orig_argv", []) if orig_argv is None else orig_argv
+    first = argv[0] if argv else ""
+    if first == "-m" or first.endswith(os.path.join("bdipole_cl", "__main__.py")):
+        return any(a == "-m" and b == "bdipole_cl" for a, b in zip(orig, orig[1:]))
+    return os.path.basename(first).split(".")[0] == COMMAND
+
+
+def quiet_startup():
+    """In the ``bdipole-cl`` command (``is_command``), SIGINT or SIGTERM while the library
+    loads (its imports take a few tenths of a second, before the command's own handling
+    exists) ends the process with 128 + the signal and one line, not a traceback: nothing has
+    been read or written yet. ``end_startup`` ends it."""
+    if _startup_handlers or not is_command():
+        return
+    if threading.current_thread() is not threading.main_thread():
+        return
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        _startup_handlers[sig] = signal.signal(sig, _startup_exit)
+
+
+def _startup_exit(signum, frame):
+    sys.stderr.write(f"{COMMAND}: interrupted by signal {signum} while starting: nothing "
+                     f"was read or written\n")
+    raise SystemExit(128 + signum)
+
+
+def end_startup():
+    """After ``quiet_startup``: SIGINT raises KeyboardInterrupt (which the command reports;
+    also where it was ignored when the command started, as in a shell script's background job:
+    the commands that install ``SignalStop`` obey it there too) and SIGTERM has its handler from
+    before."""
+    while _startup_handlers:
+        sig, handler = _startup_handlers.popitem()
+        signal.signal(sig, signal.default_int_handler if sig == signal.SIGINT else handler)

@@ -263,6 +263,60 @@ def test_signal_stops_the_batch_cleanly(tmp_path, sig, code):
         px, names = read_exr(out_dir / name)
         assert px.shape == (256, 512, 6) and np.all(np.isfinite(px))
 
+
+
+@pytest.mark.parametrize("sig, code", [(signal.SIGTERM, 143), (signal.SIGINT, 130)],
+                         ids=["SIGTERM", "SIGINT"])
+def test_a_signal_while_the_command_loads_is_one_line(sig, code):
+    """In the command (``signals.is_command``), a signal that lands while the library loads
+    (before the command's own handling exists) ends it with 128 + the signal and one line,
+    not a traceback. The signal is sent by the process to itself just before the package's
+    imports, so it lands among them every time."""
+    script = (f"import os, signal, sys; sys.argv[0] = 'bdipole-cl'; "
+              f"from bdipole_cl.signals import quiet_startup; quiet_startup(); "
+              f"os.kill(os.getpid(), {int(sig)}); import bdipole_cl.apps.cli; "
+              f"print('loaded')")
+    proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
+                          timeout=120)
+    assert proc.returncode == code and "loaded" not in proc.stdout, proc
+    assert proc.stderr.strip() == (f"bdipole-cl: interrupted by signal {int(sig)} while "
+                                   f"starting: nothing was read or written"), proc.stderr
+
+
+@pytest.mark.parametrize("argv, orig, expected", [
+    (["/venv/bin/bdipole-cl", "invert"], [], True),
+    (["-m"], ["python3", "-m", "bdipole_cl", "invert"], True),
+    (["-m"], ["python3", "-m", "pytest"], False),
+    (["/x/bdipole_cl/__main__.py", "blur"], ["python3", "-m", "bdipole_cl", "blur"], True),
+    (["script.py"], ["python3", "script.py"], False),
+    ([], [], False)])
+def test_is_command_knows_the_command_only(argv, orig, expected):
+    """The startup handling is the command's alone: a program that imports the library keeps
+    Python's own handling of SIGINT and SIGTERM."""
+    from bdipole_cl.signals import is_command
+    assert is_command(argv, orig) is expected
+
+
+def test_after_startup_sigint_is_a_keyboard_interrupt(monkeypatch):
+    """``end_startup``: SIGINT raises KeyboardInterrupt again (which the command reports as
+    one line), also where it was ignored when the command started (a script's background
+    job), and SIGTERM gets its handler from before."""
+    from bdipole_cl import signals as sg
+    before = signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)
+    monkeypatch.setattr(sg, "_startup_handlers", {})
+    monkeypatch.setattr(sg, "is_command", lambda: True)
+    try:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+        sg.quiet_startup()
+        assert signal.getsignal(signal.SIGINT) is sg._startup_exit
+        assert signal.getsignal(signal.SIGTERM) is sg._startup_exit
+        sg.end_startup()
+        assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+        assert signal.getsignal(signal.SIGTERM) is before[1]
+    finally:
+        signal.signal(signal.SIGINT, before[0])
+        signal.signal(signal.SIGTERM, before[1])
+
 # }}}
 
 

@@ -9,7 +9,7 @@ import warnings
 
 from ..errors import POLICIES
 from ..methods.registry import ALPHA_CHANNEL, BLUR_METHODS, BORDERS
-from ..signals import SignalStop, Terminated, terminate_raises
+from ..signals import SignalStop, Terminated, end_startup, terminate_raises
 from ..version import __version__
 from .cli_blur import cmd_blur
 from .cli_options import (add_global_args, add_method_args, add_scheduler_args, cluster_client,
@@ -406,6 +406,7 @@ def run_command(args) -> int:
     from ..device import DeviceError, use_device
     from ..io.images import TextureError
     try:
+        end_startup()                 # loaded: the command's own signal handling from here
         check_forced_widths()
         with terminate_raises():      # a command without its own stop checks (preview,
             if args.device and args.command != "devices":      # profile, demo, plan) ends

@@ -208,3 +208,43 @@ def test_intel_runtime_found_without_any_variable_and_user_vendors_kept(tmp_path
     assert got["vendors"] == str(user) and not any("Intel" in p for p in got["platforms"])
 
 # }}}
+
+
+FORK_SCRIPT = """
+import os, signal, sys
+import numpy as np
+import bdipole_cl as bd
+from bdipole_cl.device import runtime as device
+pocl = next(s for s in device.survey() if s.works and device.POCL_PLATFORM in s.platform.lower())
+others = [s for s in device.survey() if s.works and s.index != pocl.index
+          and device.POCL_PLATFORM not in s.platform.lower()]
+bd.use_device(pocl.index)
+bd.invert_albedo(np.full(10, 0.5, np.float32), 1.4)
+pid = os.fork()
+if pid == 0:
+    signal.alarm(60)                          # a hang is a failure, not a stuck test run
+    try:
+        bd.invert_albedo(np.full(1000, 0.5, np.float32), 1.4)
+        os._exit(10)
+    except bd.DeviceError as exc:
+        print(exc, flush=True)
+    if others:                                # another runtime still serves the child
+        got = bd.invert_albedo(np.float32([0.5]), 1.4, device=others[0].index)
+        assert np.isfinite(got).all()
+    os._exit(3)
+_, status = os.waitpid(pid, 0)
+sys.exit(os.waitstatus_to_exitcode(status))
+"""
+
+
+@pytest.mark.skipif(not hasattr(os, "fork"), reason="no fork() here")
+def test_pocl_in_a_forked_child_is_a_clear_error_not_a_hang():
+    """PoCL's threads do not survive fork(): a child of a process that had started PoCL would
+    hang on its first PoCL call (multiprocessing's default start method on Linux). It gets a
+    one-line DeviceError with the remedy instead; other runtimes still work there."""
+    if not any(s.works and device.POCL_PLATFORM in s.platform.lower() for s in device.survey()):
+        pytest.skip("no working PoCL device")
+    proc = subprocess.run([sys.executable, "-c", FORK_SCRIPT], capture_output=True, text=True,
+                          timeout=180)
+    assert proc.returncode == 3, proc
+    assert "forked" in proc.stdout and "'spawn'" in proc.stdout, proc.stdout

@@ -94,6 +94,37 @@ _default: Runtime | None = None
 _runtimes: dict = {}          # device int_ptr -> Runtime (one context per device and process)
 _probes: dict = {}            # device int_ptr -> reason ("" = works)
 
+#: PoCL's OpenCL platform (a case-insensitive part of its name). Its worker threads do not
+#: survive fork(): in a child of a process that had made a PoCL context, every PoCL call hangs
+#: (a new context included), so there PoCL is refused with the remedy instead (``_usable``)
+POCL_PLATFORM = "portable computing language"
+_pocl_started = False         # this process made a PoCL context
+_pocl_forked = False          # this process is a fork of one that had (``_after_fork``)
+
+
+def is_pocl(device) -> bool:
+    return POCL_PLATFORM in device.platform.name.strip().lower()
+
+
+def _after_fork():
+    global _pocl_forked
+    _pocl_forked = _pocl_forked or _pocl_started
+
+
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_after_fork)
+
+
+def _usable(device):
+    """``device``, or a DeviceError where this process cannot use it (PoCL after a fork)."""
+    if _pocl_forked and is_pocl(device):
+        raise DeviceError(
+            f"{device.name.strip()} (PoCL): this process was forked from one that had started "
+            f"PoCL, whose threads do not survive a fork (every call would hang); start worker "
+            f"processes with multiprocessing's 'spawn' or 'forkserver' method, or use another "
+            f"device in them (e.g. 'intel')")
+    return device
+
 
 PROBE_SOURCE = """
 __kernel void bdipole_probe(__global float *x)
@@ -145,12 +176,14 @@ def _one_line(text: str, limit: int = 200) -> str:
 
 
 def _runtime_of(device) -> Runtime:
-    key = device.int_ptr
+    global _pocl_started
+    key = _usable(device).int_ptr
     with _lock:
         rt = _runtimes.get(key)
         if rt is None:
             ctx = cl.Context([device])
             rt = _runtimes[key] = Runtime(ctx, cl.CommandQueue(ctx))
+            _pocl_started = _pocl_started or is_pocl(device)
         return rt
 
 
@@ -299,11 +332,13 @@ def get_runtime(device=None) -> Runtime:
     chosen on first use."""
     global _default
     if isinstance(device, Runtime):
+        _usable(device.device)
         return device
     if device is None:
         with _lock:
             if _default is None:
                 _default = _make_default()
+            _usable(_default.device)
             return _default
     if isinstance(device, str):
         return _from_string(device)

@@ -271,3 +271,24 @@ def test_prime_length_inverts_as_the_composite_one(runtime):
     part = invert_albedo(rd, 1.4, return_rho=True, device=runtime)
     for got, want in zip(part, whole):              # alpha', rho
         np.testing.assert_array_equal(got, want[:rd.size])
+
+
+@pytest.mark.parametrize("multiple, nchan", [(48, 3), (24, 3), (16, 1), (1, 1), (5, 5)])
+def test_every_host_chunk_starts_aligned(runtime, monkeypatch, multiple, nchan):
+    """In host memory, after the head every launch starts on the runtime's base alignment
+    and on a channel boundary, and all but the last hold a multiple of ``multiple`` elements
+    (chunks of a multiple of 48, a 3-channel width-16 kernel's, moved the second chunk off
+    the alignment: the runtime then copies it whole)."""
+    monkeypatch.setattr(transfer, "_max_chunk", lambda rt, itemsize: 5000)   # several chunks
+    align = transfer.base_alignment(runtime)
+    base = transfer.aligned_empty(60000, np.float32)
+    rd = base[5:5 + 3 * 17000]                        # an unaligned start: a head first
+    chunks = transfer._host_chunks(runtime, [rd], rd.size, 4, multiple, nchan)
+    assert chunks[0][0] == 0 and chunks[-1][1] == rd.size
+    assert all(a[1] == b[0] for a, b in zip(chunks, chunks[1:]))          # no gap, no overlap
+    head = transfer.aligned_head(rd, align, nchan)
+    body = chunks[1:] if head else chunks
+    assert len(body) > 2
+    for start, stop in body:
+        assert (rd.ctypes.data + 4 * start) % align == 0 and start % nchan == 0, (start, stop)
+    assert all((stop - start) % multiple == 0 for start, stop in body[:-1])

@@ -208,3 +208,17 @@ def test_plan_pickles_and_masks_by_texel(runtime):
     want = plan.apply(rd, 1.0).arrays["sigma_a"]
     assert np.all(got[0] == 0)
     np.testing.assert_array_equal(got[1:], want[1:])
+
+
+def test_out_of_the_inputs_size_in_another_shape_is_refused():
+    """out= arrays take the input's shape or are flat: a transposed image of the same size
+    would be filled in the input's layout (its rows would not be the image's rows)."""
+    rd = np.random.default_rng(5).uniform(0.05, 0.95, (11, 13, 3)).astype(np.float32)
+    want = invert_albedo(rd, (1.3, 1.4, 1.5))
+    for bad in ((13, 11, 3), (1, 11, 13, 3), (11, 39)):
+        with pytest.raises(ValueError, match=r"out\['alpha'\]: shape .* is not the input's"):
+            invert_albedo(rd, (1.3, 1.4, 1.5), out=np.zeros(bad, np.float32))
+    for good in (rd.shape, (rd.size,)):
+        got = np.zeros(good, np.float32)
+        invert_albedo(rd, (1.3, 1.4, 1.5), out=got)
+        np.testing.assert_array_equal(got.reshape(rd.shape), want)

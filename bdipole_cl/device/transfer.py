@@ -18,6 +18,7 @@
 """
 from __future__ import annotations
 
+import math
 import threading
 
 import numpy as np
@@ -71,10 +72,16 @@ def aligned_head(array: np.ndarray, alignment: int, multiple: int = 1) -> int:
     return 0
 
 
+#: elements per step of a chunk in host memory: 1024 keeps every chunk of an aligned array
+#: aligned (4 KiB of float32)
+ALIGNED_ELEMENTS = 1024
+
+
 def _max_chunk(rt: Runtime, itemsize: int) -> int:
-    """Elements per launch in host memory: the device's largest allocation, a multiple of 1024
-    elements (which keeps every chunk of an aligned array aligned)."""
-    return max(1024, min(int(rt.device.max_mem_alloc_size) // itemsize, 1 << 28) // 1024 * 1024)
+    """Elements per launch in host memory: the device's largest allocation, a multiple of
+    ALIGNED_ELEMENTS."""
+    return max(ALIGNED_ELEMENTS, min(int(rt.device.max_mem_alloc_size) // itemsize, 1 << 28)
+               // ALIGNED_ELEMENTS * ALIGNED_ELEMENTS)
 
 
 def _cached(rt: Runtime, role: str, nbytes: int, flags):
@@ -120,7 +127,10 @@ def _host_chunks(rt, inputs, n, itemsize, multiple, nchan):
     alignment = base_alignment(rt)
     heads = [aligned_head(a, alignment, nchan) for a in inputs] or [0]
     head = min(heads, key=lambda h: (-heads.count(h), h))
-    chunk = _max_chunk(rt, itemsize) // multiple * multiple
+    # a multiple of both ``multiple`` and 1024 elements, so every chunk starts aligned as the
+    # first (a 3-channel width-16 kernel's 48 alone moved the second chunk off alignment)
+    step = math.lcm(multiple, ALIGNED_ELEMENTS)
+    chunk = max(step, _max_chunk(rt, itemsize) // step * step)
     return ([(0, head)] if head else []) + [(start, min(start + chunk, n))
                                             for start in range(head, n, chunk)]
 

@@ -273,7 +273,7 @@ def output_array(out, name, n, dtype, like=None):
              "it is read-only" if not a.flags.writeable else None)
     if wrong:
         raise ValueError(f"out[{name!r}]: expected a writeable C-contiguous {np.dtype(dtype)} "
-                         f"array of {n} elements, shaped as the input; {wrong} (got "
+                         f"array of {n} elements (the input's shape, or flat); {wrong} (got "
                          f"{getattr(a, 'dtype', type(a).__name__)} shape {np.shape(a)})")
     return a.reshape(-1)
 

@@ -67,6 +67,17 @@ def kernel_outputs(outputs, mfp_kind):
     return tuple(k for k in ("alpha", "rho", "sigma_a", "sigma_s") if k in wanted)
 
 
+def check_out_shapes(out, shape):
+    """Each ``out`` array ({name: array}) shaped as the input (``shape``) or flat: one of the
+    input's size in another shape (a transposed image, say) would be filled in the input's
+    layout, which is not what its shape says (a ValueError naming it)."""
+    for name, a in (out or {}).items():
+        if isinstance(a, np.ndarray) and a.ndim != 1 and a.shape != tuple(shape):
+            raise ValueError(f"out[{name!r}]: shape {a.shape} is not the input's "
+                             f"{tuple(shape)} (give it the input's shape, or a flat array of "
+                             f"its size)")
+
+
 def extinction_coefficients(outs, mfp, outputs, out=None):
     """sigma_a = rho / mfp and sigma_s' = alpha' / mfp (sigma_t' = 1/mfp, docs/model.md
     "Mean free path"), added to ``outs`` in its precision (into ``out``'s arrays if given)."""
@@ -242,9 +253,9 @@ class InversionPlan:
         ``mask`` (broadcast against ``rd``): texels where it is 0 are left out, neither
         validated nor inverted, and come out as 0. ``out``: where to write the outputs, a
         {name: array} dict, a sequence in ``outputs`` order, or one array (the first output);
-        each C-contiguous, writeable, of the input's size and the plan's dtype (on a device
-        that shares host memory the kernel writes into them in place); outputs not given are
-        new arrays."""
+        each C-contiguous, writeable, of the input's shape (or flat, of its size) and the
+        plan's dtype (on a device that shares host memory the kernel writes into them in
+        place); outputs not given are new arrays."""
         out = self._out_dict(out)
         with self._lock:
             if self.mfp_kind is None:
@@ -259,6 +270,7 @@ class InversionPlan:
                 rd, mfp = (as_float(a) for a in np.broadcast_arrays(np.asarray(rd),
                                                                    np.asarray(mfp)))
             self._check_channels(rd.shape)
+            check_out_shapes(out, rd.shape)
             rd, mfp = apart_from(out, rd, mfp)
             keep = None if mask is None else self._keep(mask, rd.shape)
             if keep is not None:

@@ -46,6 +46,7 @@ from .jobs.scene import Plan, not_run, scene_job
 from .jobs.scene_records import finish_bake
 from .ops import invert as ops_invert
 from .ops.bands import band_rows, bands, halo_rows
+from .ops.inversion_plan import texel_broadcast
 from .ops.blur import Scattering, plan_blur
 from .ops.blur.params import checked_irradiance
 from .signals import STOP
@@ -364,14 +365,22 @@ def invert_albedo(rd, eta, method="table", *, return_rho=False, device=None, **k
 def albedo_to_coefficients(rd, mfp, eta, method="table", *, outputs=("sigma_a", "sigma_s"),
                            device=None, **kw):
     """``bdipole_cl.albedo_to_coefficients`` over dask arrays' blocks (lazy); ``mfp`` a
-    constant, per-channel tuple or a dask array of rd's chunks."""
+    constant, per-channel tuple, or an array of rd's shape (a dask array of its chunks) or of
+    its shape without the channel axis (one mfp per texel for every channel)."""
     import dask.array as da
 
     def fn(block, mfp_block):
         return ops_invert.albedo_to_coefficients(block, mfp_block, eta, method,
                                                  outputs=outputs, device=device, **kw)
-    mfp_arr = mfp if isinstance(mfp, da.Array) else da.broadcast_to(
-        np.asarray(mfp, np.float32), rd.shape, chunks=rd.chunks)
+    mfp_arr = mfp if isinstance(mfp, da.Array) else np.asarray(mfp, np.float32)
+    if not (isinstance(mfp_arr, da.Array) and mfp_arr.shape == rd.shape):
+        _, mfp_arr = texel_broadcast(rd, mfp_arr)
+        # chunked as rd along its axes, one chunk along those it is broadcast over
+        chunks = tuple(c if n > 1 else (1,) for c, n in
+                       zip(rd.chunks[rd.ndim - mfp_arr.ndim:], mfp_arr.shape))
+        mfp_arr = (mfp_arr.rechunk(chunks) if isinstance(mfp_arr, da.Array)
+                   else da.from_array(mfp_arr, chunks=chunks))
+        mfp_arr = da.broadcast_to(mfp_arr, rd.shape, chunks=rd.chunks)
     out = da.map_blocks(_stacked(fn), rd, mfp_arr, dtype=np.float32,
                         new_axis=rd.ndim, chunks=rd.chunks + ((len(outputs),),))
     result = tuple(out[..., i] for i in range(len(outputs)))

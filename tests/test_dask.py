@@ -146,6 +146,12 @@ def test_lazy_inversion_equals_the_in_memory_one(client):
     want = bdipole_cl.albedo_to_coefficients(rd, (1.0, 0.5, 0.25), 1.4)
     np.testing.assert_array_equal(sa.compute(), want[0])
     np.testing.assert_array_equal(ss.compute(), want[1])
+    mfp = np.random.default_rng(5).uniform(0.5, 4.0, (64, 48)).astype(np.float32)
+    want = bdipole_cl.albedo_to_coefficients(rd, mfp, 1.4)      # an HxW map: every channel
+    for given in (mfp, da.from_array(mfp, chunks=(20, 20))):
+        sa, ss = bdask.albedo_to_coefficients(arr, given, 1.4)
+        np.testing.assert_array_equal(sa.compute(), want[0])
+        np.testing.assert_array_equal(ss.compute(), want[1])
 
 
 def test_file_blur_on_the_cluster_equals_the_local_file_blur(client, tmp_path):

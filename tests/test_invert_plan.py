@@ -222,3 +222,24 @@ def test_out_of_the_inputs_size_in_another_shape_is_refused():
         got = np.zeros(good, np.float32)
         invert_albedo(rd, (1.3, 1.4, 1.5), out=got)
         np.testing.assert_array_equal(got.reshape(rd.shape), want)
+
+
+def test_an_hxw_mfp_map_serves_every_channel():
+    """An HxW mfp map beside HxWx3 albedos is one mfp per texel for every channel (as a mask
+    is); where NumPy's own broadcasting applies (one mfp per channel) it is kept; a shape that
+    fits neither is one ValueError naming both shapes."""
+    rng = np.random.default_rng(6)
+    rd = rng.uniform(0.05, 0.95, (5, 7, 3)).astype(np.float32)
+    mfp = rng.uniform(0.5, 4.0, (5, 7)).astype(np.float32)
+    got = albedo_to_coefficients(rd, mfp, 1.4)
+    want = albedo_to_coefficients(rd, np.repeat(mfp[..., None], 3, axis=-1), 1.4)
+    for g, w in zip(got, want):
+        np.testing.assert_array_equal(g, w)
+    square = rng.uniform(0.05, 0.95, (3, 3)).astype(np.float32)
+    per_column = np.float32([1.0, 2.0, 4.0])              # NumPy's rule: one per last-axis entry
+    got = albedo_to_coefficients(square, per_column, 1.4)
+    want = albedo_to_coefficients(square, np.tile(per_column, (3, 1)), 1.4)
+    for g, w in zip(got, want):
+        np.testing.assert_array_equal(g, w)
+    with pytest.raises(ValueError, match=r"mfp of shape \(7, 5\) does not fit albedo of shape"):
+        albedo_to_coefficients(rd, mfp.T, 1.4)

@@ -67,6 +67,21 @@ def kernel_outputs(outputs, mfp_kind):
     return tuple(k for k in ("alpha", "rho", "sigma_a", "sigma_s") if k in wanted)
 
 
+def texel_broadcast(rd, mfp):
+    """(rd, mfp) for broadcasting: NumPy's rule, and where it fails, an mfp shaped as rd
+    without its last axis (an HxW map beside HxWxC albedos) is one value per texel, for
+    every channel (as a mask is)."""
+    try:
+        np.broadcast_shapes(rd.shape, mfp.shape)
+    except ValueError:
+        if rd.ndim >= 2 and mfp.shape == rd.shape[:-1]:
+            return rd, mfp[..., None]
+        raise ValueError(f"mfp of shape {mfp.shape} does not fit albedo of shape {rd.shape}: "
+                         f"give one value, one per channel, an albedo-shaped map, or one map "
+                         f"of shape {rd.shape[:-1]} for every channel") from None
+    return rd, mfp
+
+
 def check_out_shapes(out, shape):
     """Each ``out`` array ({name: array}) shaped as the input (``shape``) or flat: one of the
     input's size in another shape (a transposed image, say) would be filled in the input's
@@ -267,8 +282,8 @@ class InversionPlan:
                     if self.mfp_const is None:
                         raise ValueError("this plan needs an mfp: apply(rd, mfp)")
                     mfp = np.asarray(self.mfp_const, np.float64)
-                rd, mfp = (as_float(a) for a in np.broadcast_arrays(np.asarray(rd),
-                                                                   np.asarray(mfp)))
+                rd, mfp = (as_float(a) for a in np.broadcast_arrays(
+                    *texel_broadcast(np.asarray(rd), np.asarray(mfp))))
             self._check_channels(rd.shape)
             check_out_shapes(out, rd.shape)
             rd, mfp = apart_from(out, rd, mfp)

@@ -11,7 +11,8 @@ import numpy as np
 from ..methods.registry import MethodConfig
 from .inversion_kernel import InversionKernel
 from .inversion_plan import (MFP_CLAMP_RANGE, OUTPUTS, RD_CLAMP_MAX, InversionPlan, Inverted,
-                             as_float, check_mfp_kind, check_outputs, plan_inversion)
+                             as_float, check_mfp_kind, check_outputs, plan_inversion,
+                             texel_broadcast)
 
 __all__ = ["CoefficientMapper", "InversionKernel", "InversionPlan", "Inverted",
            "MFP_CLAMP_RANGE", "OUTPUTS", "RD_CLAMP_MAX", "albedo_to_coefficients",
@@ -126,7 +127,8 @@ def albedo_to_coefficients(rd, mfp, eta, method="table", *, model="better", exac
     ``mfp_kind="extinction"``: mfp is the medium's mean free path, ``sigma_t' = 1/mfp`` (OpenPBR,
     Standard Surface; exact for isotropic scattering, docs/model.md says what anisotropy means).
 
-    ``rd`` and ``mfp`` are scalars, per-channel tuples or arrays, broadcast against each other;
+    ``rd`` and ``mfp`` are scalars, per-channel tuples or arrays, broadcast against each other
+    (an HxW mfp map beside HxWxC albedos serves every channel);
     ``eta`` a scalar or one per channel. Rd -> 1 drives sigma_t' -> infinity for a fixed ld, so
     here Rd >= 1 is invalid (as are NaN/inf albedo and mfp that is NaN, <= 0 or infinite);
     ``on_invalid="clamp"`` maps Rd >= 1 to the largest float32 below 1 (finite, very large
@@ -136,7 +138,7 @@ def albedo_to_coefficients(rd, mfp, eta, method="table", *, model="better", exac
     ``device``: where to run, as for ``invert_albedo``. ``out``: arrays to write the outputs
     into, one per output in order (as ``invert_albedo``'s ``out``); returned.
     """
-    rd, mfp = np.broadcast_arrays(as_float(rd), as_float(mfp))
+    rd, mfp = np.broadcast_arrays(*texel_broadcast(as_float(rd), as_float(mfp)))
     plan = plan_inversion(channel_etas(eta, rd.shape), method, outputs=check_outputs(outputs),
                           mfp_kind=check_mfp_kind(mfp_kind), model=model, exact=exact,
                           double=double, on_invalid=on_invalid, device=device, **knobs)

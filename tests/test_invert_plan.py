@@ -4,6 +4,8 @@ kernel in place whatever their offset from the device's alignment (``device.tran
 
 The plan does the same operations on the same values as one call on the whole array, so the
 comparisons are exact (no tolerance)."""
+import re
+
 import numpy as np
 import pyopencl as cl
 import pytest
@@ -243,3 +245,19 @@ def test_an_hxw_mfp_map_serves_every_channel():
         np.testing.assert_array_equal(g, w)
     with pytest.raises(ValueError, match=r"mfp of shape \(7, 5\) does not fit albedo of shape"):
         albedo_to_coefficients(rd, mfp.T, 1.4)
+
+
+@pytest.mark.parametrize("bad", [None, True, "1.4", (1.3, None, 1.5)])
+def test_eta_must_be_numbers(bad):
+    """eta (and the blur's constant parameters) are real numbers: None, a bool or a string
+    is one ValueError naming it, not NaN's range error or a silent 1.0 or parsed float."""
+    from bdipole_cl import blur
+    rd = np.full((2, 3), 0.5, np.float32)
+    shown = repr(None if isinstance(bad, tuple) else bad)
+    with pytest.raises(ValueError, match=rf"eta={re.escape(shown)}: expected a number"):
+        invert_albedo(rd, bad)
+    with pytest.raises(ValueError, match=rf"eta={re.escape(shown)}: expected a number"):
+        blur(np.ones((4, 4, 3), np.float32), albedo=0.5, mfp=1.0, eta=bad)
+    if bad is not None:                  # (albedo=None: not given, an error of its own)
+        with pytest.raises(ValueError, match=rf"albedo={re.escape(shown)}: expected a number"):
+            blur(np.ones((4, 4, 3), np.float32), albedo=bad, mfp=1.0)

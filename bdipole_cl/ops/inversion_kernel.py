@@ -236,12 +236,14 @@ class InversionKernel:
 
     def _run_checked(self, rd, mfp, want, out, check, mfp_channels):
         rt, dtype = self.rt, self.dtype
-        rd = np.ascontiguousarray(rd, dtype=dtype).reshape(-1)
+        with np.errstate(over="ignore"):   # float64 beyond float32's range is +-inf there,
+            rd = np.ascontiguousarray(rd, dtype=dtype).reshape(-1)  # which the rules judge
+            mfp = None if mfp is None else np.ascontiguousarray(mfp, dtype=dtype).reshape(-1)
         n = rd.size
         outs = {k: output_array(out, k, n, dtype, like=rd) for k in want}
         inputs = {"rd": rd}
         if mfp is not None:
-            inputs["mfp"] = np.ascontiguousarray(mfp, dtype=dtype).reshape(-1)
+            inputs["mfp"] = mfp
         const_mfp = None if mfp_channels is None else self._mfp_channels_buffer(mfp_channels)
         flag_buf = self._flag_buf if check else None
         if check:

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..errors import check_numbers
 from ..methods.registry import MethodConfig
 from .inversion_kernel import InversionKernel
 from .inversion_plan import (MFP_CLAMP_RANGE, OUTPUTS, RD_CLAMP_MAX, InversionPlan, Inverted,
@@ -22,8 +23,8 @@ __all__ = ["CoefficientMapper", "InversionKernel", "InversionPlan", "Inverted",
 
 def channel_etas(eta, shape):
     """Etas per channel: one eta (also when all are equal), or one per channel along the last
-    axis of ``shape``."""
-    etas = np.atleast_1d(np.asarray(eta, dtype=np.float64))
+    axis of ``shape``; real numbers (``errors.check_numbers``)."""
+    etas = np.atleast_1d(np.asarray(check_numbers(eta, "eta"), dtype=np.float64))
     if etas.ndim != 1 or etas.size == 0:
         raise ValueError(f"eta must be a scalar or one value per channel, got shape {etas.shape}")
     if etas.size == 1 or np.all(etas == etas[0]):

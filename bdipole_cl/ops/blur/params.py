@@ -14,7 +14,7 @@ from functools import lru_cache
 import numpy as np
 
 from ...device.transfer import ALIGNMENT, aligned_empty
-from ...errors import check_policy, find_invalid
+from ...errors import check_numbers, check_policy, find_invalid
 from ...physics import reference as ref
 from ..inversion_kernel import MFP_MIN
 from .fft import copy_rows, value_range
@@ -79,8 +79,9 @@ def parameter_pair(albedo, mfp, alpha, sigma_t) -> str:
 
 
 def channel_values(value, nchan, name):
-    """One value or one per channel, as a (nchan,) float64 array checked by CONSTANT_RULES."""
-    v = np.atleast_1d(np.asarray(value, np.float64))
+    """One value or one per channel (real numbers: ``errors.check_numbers``), as a (nchan,)
+    float64 array checked by CONSTANT_RULES."""
+    v = np.atleast_1d(np.asarray(check_numbers(value, name), np.float64))
     if v.ndim > 1:
         raise ValueError(f"{name}: one value or one per channel here; texture-varying "
                          f"parameters go to blur() (bdipole_cl.ops.blur.textured)")

@@ -85,9 +85,11 @@ def texel_broadcast(rd, mfp):
 def check_out_shapes(out, shape):
     """Each ``out`` array ({name: array}) shaped as the input (``shape``) or flat: one of the
     input's size in another shape (a transposed image, say) would be filled in the input's
-    layout, which is not what its shape says (a ValueError naming it)."""
+    layout, which is not what its shape says (a ValueError naming it; another size is
+    ``inversion_kernel.output_array``'s to name)."""
     for name, a in (out or {}).items():
-        if isinstance(a, np.ndarray) and a.ndim != 1 and a.shape != tuple(shape):
+        if (isinstance(a, np.ndarray) and a.ndim != 1 and a.shape != tuple(shape)
+                and a.size == int(np.prod(shape))):
             raise ValueError(f"out[{name!r}]: shape {a.shape} is not the input's "
                              f"{tuple(shape)} (give it the input's shape, or a flat array of "
                              f"its size)")

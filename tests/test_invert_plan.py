@@ -261,3 +261,38 @@ def test_eta_must_be_numbers(bad):
     if bad is not None:                  # (albedo=None: not given, an error of its own)
         with pytest.raises(ValueError, match=rf"albedo={re.escape(shown)}: expected a number"):
             blur(np.ones((4, 4, 3), np.float32), albedo=bad, mfp=1.0)
+
+
+@pytest.mark.parametrize("mfp_form", ["per texel", "per channel", "hxw"])
+def test_clamped_coefficients_are_those_of_the_clamped_inputs(mfp_form):
+    """With on_invalid="clamp", the texels with an invalid albedo or mfp (mapped again on
+    their own, all their channels) come out as the clamped inputs' coefficients, bit for bit,
+    and the others untouched; the counts are the invalid values'."""
+    from bdipole_cl.ops.inversion_plan import MFP_CLAMP_RANGE, RD_CLAMP_MAX
+    rng = np.random.default_rng(8)
+    rd = rng.uniform(0.05, 0.95, (7, 9, 3)).astype(np.float32)
+    mfp = {"per texel": rng.uniform(0.5, 4.0, (7, 9, 3)).astype(np.float32),
+           "per channel": np.float32([1.0, 2.0, 0.5]),
+           "hxw": rng.uniform(0.5, 4.0, (7, 9)).astype(np.float32)}[mfp_form]
+    rd[0, 0, 1], rd[3, 4, 2], rd[6, 8, 0], rd[2, 2, 0] = np.nan, 1.0, -np.inf, 7.0
+    fixed_rd = np.where(np.isnan(rd) | np.isneginf(rd), 0, np.minimum(rd, RD_CLAMP_MAX))
+    fixed_mfp = mfp
+    if mfp_form != "per channel":
+        mfp = mfp.copy()
+        mfp[(1, 1, 0) if mfp.ndim == 3 else (1, 1)] = 0.0
+        mfp[(5, 2, 2) if mfp.ndim == 3 else (5, 2)] = np.inf
+        lo, hi = MFP_CLAMP_RANGE
+        fixed_mfp = np.clip(np.nan_to_num(mfp, nan=hi, posinf=hi, neginf=lo), lo, hi)
+    got = albedo_to_coefficients(rd, mfp, (1.3, 1.4, 1.5), on_invalid="clamp",
+                                 outputs=("alpha", "sigma_a", "sigma_s"))
+    want = albedo_to_coefficients(fixed_rd.astype(np.float32), fixed_mfp.astype(np.float32),
+                                  (1.3, 1.4, 1.5), outputs=("alpha", "sigma_a", "sigma_s"))
+    for g, w in zip(got, want):
+        assert np.all(np.isfinite(g))
+        np.testing.assert_array_equal(g, w)
+    plan = plan_inversion((1.3, 1.4, 1.5), outputs=("sigma_a",), mfp_kind="diffuse",
+                          on_invalid="clamp")
+    done = plan.apply(rd, mfp)
+    assert done.invalid_albedo == 4
+    assert done.invalid_mfp == {"per channel": 0, "per texel": 2, "hxw": 6}[mfp_form]  # (hxw:
+    #                                                   each of its values counts per channel)

@@ -113,21 +113,33 @@ def as_kernel_dtype(values, dtype):
         return np.asarray(values).astype(dtype, copy=False)
 
 
+def invalid_albedo_count(rd, on_invalid) -> int:
+    """The invalid count of ``rd`` under invert_albedo's rule (NaN, infinite or > 1; raise:
+    the first named)."""
+    return find_invalid("albedo", rd, ~(rd <= 1.0) | (rd == -np.inf), "NaN, infinite or > 1",
+                        on_invalid)
+
+
 def checked_albedo(rd, on_invalid):
     """``rd`` and its invalid count under invert_albedo's rule: NaN, infinite or > 1 raise
     (count, first index) or, with "clamp", NaN and -inf become 0 and > 1 becomes 1."""
-    bad = ~(rd <= 1.0) | np.isinf(rd)
-    n = find_invalid("albedo", rd, bad, "NaN, infinite or > 1", on_invalid)
+    n = invalid_albedo_count(rd, on_invalid)
     if n:
         rd = np.where(np.isnan(rd) | np.isneginf(rd), 0.0, np.minimum(rd, 1.0))
     return rd, n
 
 
+def invalid_coefficient_albedos(rd):
+    """Where ``rd`` (in the kernel's precision) breaks the coefficients' rule: NaN, infinite
+    or >= 1."""
+    return ~(rd < 1.0) | (rd == -np.inf)
+
+
 def checked_albedo_for_coefficients(rd, on_invalid, dtype=np.float32):
     """``rd`` in the kernel's precision and its invalid count under the coefficients' rule
-    (NaN, infinite or >= 1 there); clamped: NaN, -inf -> 0 and >= 1 -> RD_CLAMP_MAX."""
+    (``invalid_coefficient_albedos``); clamped: NaN, -inf -> 0 and >= 1 -> RD_CLAMP_MAX."""
     given, rd = rd, as_kernel_dtype(rd, dtype)
-    n = find_invalid("albedo", given, ~(rd < 1.0) | np.isneginf(rd),
+    n = find_invalid("albedo", given, invalid_coefficient_albedos(rd),
                      f"NaN, infinite or >= 1 as {np.dtype(dtype).name}", on_invalid)
     if n:
         rd = np.where(np.isnan(rd) | np.isneginf(rd), 0.0,
@@ -374,7 +386,7 @@ class InversionPlan:
         if flagged:
             # the first invalid value named (raise); with "clamp" the kernel's results already
             # are those of the clamped input: NaN, -inf -> (0, 1) as Rd = 0, > 1 -> (1, 0)
-            n_rd = checked_albedo(rd, self.on_invalid)[1]
+            n_rd = invalid_albedo_count(rd, self.on_invalid)
         return outs, n_rd
 
     def _coefficients(self, rd, mfp, out):
@@ -407,10 +419,33 @@ class InversionPlan:
             rd, n_rd, mfp, n_mfp = host_checked(rd, mfp, n_mfp)
         outs, flagged = k.run_checked(rd, mfp, self.kernel_outputs, mfp_channels=per_channel,
                                       check=CHECK_COEFFICIENTS if in_kernel else 0, out=out)
-        if flagged:     # name the first (raise), or clamp and map again (rare)
-            rd, n_rd, mfp, n_mfp = host_checked(rd, mfp, n_mfp)
-            outs = k.run(rd, mfp, self.kernel_outputs, mfp_channels=per_channel, out=out)
+        if flagged and policy == "raise":          # the first named
+            host_checked(rd, mfp, n_mfp)
+        elif flagged:                               # the invalid texels clamped and mapped again
+            n_rd, n_mfp = self._clamped_texels(rd, mfp, per_channel, outs, n_mfp)
         return outs, n_rd, n_mfp, host_mfp if mfp is None else mfp
+
+    def _clamped_texels(self, rd, mfp, per_channel, outs, n_mfp):
+        """The texels (all their channels, so that each element keeps its channel) with an
+        invalid albedo or mfp, clamped (``checked_albedo_for_coefficients``, ``checked_mfp``)
+        and mapped again into ``outs``: one pass to find them, not a clamped copy of the whole
+        input mapped again. Returns the invalid albedo and mfp counts."""
+        k, nchan = self.kernel, self.kernel.nchan
+        rd = rd.reshape(-1)
+        mfp = None if mfp is None else mfp.reshape(-1)
+        bad = invalid_coefficient_albedos(rd)
+        if mfp is not None:
+            bad |= ~valid_mfp(mfp)
+        texels = np.unique(np.flatnonzero(bad) // nchan)
+        elements = (texels[:, None] * nchan + np.arange(nchan)).reshape(-1)
+        sub_rd, n_rd = checked_albedo_for_coefficients(rd[elements], "clamp", k.dtype)
+        sub_mfp = None
+        if mfp is not None:
+            sub_mfp, n_mfp = checked_mfp(mfp[elements], "clamp", k.dtype)
+        fixed = k.run(sub_rd, sub_mfp, self.kernel_outputs, mfp_channels=per_channel)
+        for name, values in fixed.items():
+            outs[name][elements] = values
+        return n_rd, n_mfp
 
 
 def plan_inversion(etas, method="table", *, outputs=("alpha",), mfp_kind=None,

@@ -26,9 +26,8 @@ def check_numbers(value, name: str):
     """``value`` (a number, a sequence of them or a numeric array) as given, or a ValueError
     naming ``name`` where an entry is not a real number: a bool, a string or None would
     otherwise pass as 1.0, a parsed float or NaN."""
-    a = np.asarray(value) if not isinstance(value, np.ndarray) else value
-    if a.dtype.kind in "iuf":
-        return value
+    if isinstance(value, (np.ndarray, np.generic)) and value.dtype.kind in "iuf":
+        return value                   # (a list's bools would pass as a float array's 1.0)
     for e in np.ravel(np.asarray(value, dtype=object)):
         if isinstance(e, (bool, np.bool_)) or not isinstance(e, (int, float, np.integer,
                                                                 np.floating)):

@@ -113,13 +113,17 @@ _startup_handlers: dict = {}
 
 def is_command(argv=None, orig_argv=None) -> bool:
     """Whether this process is the ``bdipole-cl`` command (its script, or ``python -m
-    bdipole_cl``, whose ``sys.argv[0]`` is "-m" while the package loads)."""
+    bdipole_cl``, whose ``sys.argv[0]`` is "-m" while the package loads), and not a worker
+    process a command started (multiprocessing gives a spawned one the command's argv)."""
+    mp = sys.modules.get("multiprocessing")
+    if mp is not None and mp.parent_process() is not None:
+        return False
     argv = sys.argv if argv is None else argv
     orig = getattr(sys, "orig_argv", []) if orig_argv is None else orig_argv
     first = argv[0] if argv else ""
     if first == "-m" or first.endswith(os.path.join("bdipole_cl", "__main__.py")):
         return any(a == "-m" and b == "bdipole_cl" for a, b in zip(orig, orig[1:]))
-    return os.path.basename(first).split(".")[0] == COMMAND
+    return os.path.basename(first) in (COMMAND, COMMAND + ".exe")   # the console script
 
 
 def quiet_startup():

@@ -289,12 +289,24 @@ def test_a_signal_while_the_command_loads_is_one_line(sig, code):
     (["-m"], ["python3", "-m", "pytest"], False),
     (["/x/bdipole_cl/__main__.py", "blur"], ["python3", "-m", "bdipole_cl", "blur"], True),
     (["script.py"], ["python3", "script.py"], False),
+    (["/home/me/bdipole-cl.py"], ["python3", "/home/me/bdipole-cl.py"], False),
+    (["bdipole-cl.test.py"], ["python3", "bdipole-cl.test.py"], False),
+    (["bdipole-cl-tools"], [], False),
     ([], [], False)])
 def test_is_command_knows_the_command_only(argv, orig, expected):
     """The startup handling is the command's alone: a program that imports the library keeps
     Python's own handling of SIGINT and SIGTERM."""
     from bdipole_cl.signals import is_command
     assert is_command(argv, orig) is expected
+
+
+def test_a_worker_the_command_spawned_is_not_the_command(monkeypatch):
+    """multiprocessing gives a spawned worker the command's argv: it keeps Python's own
+    signal handling (nothing would end its startup handling)."""
+    import multiprocessing
+    from bdipole_cl.signals import is_command
+    monkeypatch.setattr(multiprocessing, "parent_process", lambda: object())
+    assert not is_command(["/venv/bin/bdipole-cl", "invert"], [])
 
 
 def test_after_startup_sigint_is_a_keyboard_interrupt(monkeypatch):

@@ -237,6 +237,13 @@ def test_an_hxw_mfp_map_serves_every_channel():
     want = albedo_to_coefficients(rd, np.repeat(mfp[..., None], 3, axis=-1), 1.4)
     for g, w in zip(got, want):
         np.testing.assert_array_equal(g, w)
+    for h, w in ((3, 3), (1, 3), (3, 1)):    # where NumPy alone would read it per channel
+        small_rd, small_mfp = rd[:h, :w], mfp[:h, :w].copy()
+        got = albedo_to_coefficients(small_rd, small_mfp, 1.4)
+        want = albedo_to_coefficients(small_rd, np.repeat(small_mfp[..., None], 3, -1), 1.4)
+        for g, x in zip(got, want):
+            assert g.shape == small_rd.shape
+            np.testing.assert_array_equal(g, x)
     square = rng.uniform(0.05, 0.95, (3, 3)).astype(np.float32)
     per_column = np.float32([1.0, 2.0, 4.0])              # NumPy's rule: one per last-axis entry
     got = albedo_to_coefficients(square, per_column, 1.4)
@@ -247,13 +254,14 @@ def test_an_hxw_mfp_map_serves_every_channel():
         albedo_to_coefficients(rd, mfp.T, 1.4)
 
 
-@pytest.mark.parametrize("bad", [None, True, "1.4", (1.3, None, 1.5)])
+@pytest.mark.parametrize("bad", [None, True, "1.4", (1.3, None, 1.5), [True, 1.4, 1.4]])
 def test_eta_must_be_numbers(bad):
     """eta (and the blur's constant parameters) are real numbers: None, a bool or a string
     is one ValueError naming it, not NaN's range error or a silent 1.0 or parsed float."""
     from bdipole_cl import blur
     rd = np.full((2, 3), 0.5, np.float32)
-    shown = repr(None if isinstance(bad, tuple) else bad)
+    shown = repr(bad if not isinstance(bad, (tuple, list)) else next(
+        e for e in bad if not isinstance(e, float)))
     with pytest.raises(ValueError, match=rf"eta={re.escape(shown)}: expected a number"):
         invert_albedo(rd, bad)
     with pytest.raises(ValueError, match=rf"eta={re.escape(shown)}: expected a number"):

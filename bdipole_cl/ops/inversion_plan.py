@@ -68,9 +68,13 @@ def kernel_outputs(outputs, mfp_kind):
 
 
 def texel_broadcast(rd, mfp):
-    """(rd, mfp) for broadcasting: NumPy's rule, and where it fails, an mfp shaped as rd
-    without its last axis (an HxW map beside HxWxC albedos) is one value per texel, for
-    every channel (as a mask is)."""
+    """(rd, mfp) for broadcasting: an mfp map shaped as rd without its last axis (an HxW map
+    beside HxWxC albedos) is one value per texel, for every channel (as a mask is), also
+    where NumPy would broadcast it otherwise (a map 3 texels wide beside RGB albedos); else
+    NumPy's rule (one value, one per channel, rd's shape; a 1-D mfp beside 2-D albedos whose
+    last axis matches it is one per channel, as a tuple is)."""
+    if mfp.ndim >= 2 and mfp.ndim == rd.ndim - 1 and mfp.shape == rd.shape[:-1]:
+        return rd, mfp[..., None]
     try:
         np.broadcast_shapes(rd.shape, mfp.shape)
     except ValueError:

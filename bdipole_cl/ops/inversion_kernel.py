@@ -55,6 +55,12 @@ TABLE_WIDTHS = {"intel(r) opencl": {16: 1, None: 16},
 TABLE_WIDTH_VARIABLE = "BDIPOLE_CL_TABLE_WIDTH"
 
 
+def kernel_tuning(rt):
+    """The KernelTuning ``report --calibrate`` measured on ``rt``'s device for these kernels
+    (``methods.choice.device_tuning``), or None."""
+    return device_tuning(DeviceKey.of(rt.device), kernels_digest())
+
+
 def table_width(rt) -> int:
     """Elements per work-item of kernels/invert_table.cl on ``rt``'s device: forced by
     TABLE_WIDTH_VARIABLE, else the device's calibration (``report --calibrate``), else
@@ -64,7 +70,7 @@ def table_width(rt) -> int:
         return forced
     if device_kind(rt.device) != "cpu":
         return 1
-    tuned = device_tuning(DeviceKey.of(rt.device), kernels_digest())
+    tuned = kernel_tuning(rt)
     if tuned is not None and tuned.table_width:
         return tuned.table_width
     widths = platform_entry(rt.device, TABLE_WIDTHS, {None: 8})

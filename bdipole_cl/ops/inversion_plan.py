@@ -73,16 +73,17 @@ def texel_broadcast(rd, mfp):
     where NumPy would broadcast it otherwise (a map 3 texels wide beside RGB albedos); else
     NumPy's rule (one value, one per channel, rd's shape; a 1-D mfp beside 2-D albedos whose
     last axis matches it is one per channel, as a tuple is)."""
-    if mfp.ndim >= 2 and mfp.ndim == rd.ndim - 1 and mfp.shape == rd.shape[:-1]:
-        return rd, mfp[..., None]
     try:
         np.broadcast_shapes(rd.shape, mfp.shape)
+        broadcasts = True
     except ValueError:
-        if rd.ndim >= 2 and mfp.shape == rd.shape[:-1]:
-            return rd, mfp[..., None]
+        broadcasts = False
+    if rd.ndim >= 2 and mfp.shape == rd.shape[:-1] and (mfp.ndim >= 2 or not broadcasts):
+        return rd, mfp[..., None]
+    if not broadcasts:
         raise ValueError(f"mfp of shape {mfp.shape} does not fit albedo of shape {rd.shape}: "
                          f"give one value, one per channel, an albedo-shaped map, or one map "
-                         f"of shape {rd.shape[:-1]} for every channel") from None
+                         f"of shape {rd.shape[:-1]} for every channel")
     return rd, mfp
 
 

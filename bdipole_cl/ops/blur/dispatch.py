@@ -8,11 +8,11 @@ import pyopencl as cl
 
 from ...device import build_options, get_program
 from ...device.launch import enqueue_items
-from ...device.programs import kernels_digest
 from ...device.runtime import forced_width, platform_entry
 from ...device.transfer import aligned_empty
-from ...methods.choice import GATHER_WIDTHS_ALLOWED, DeviceKey, device_tuning
+from ...methods.choice import GATHER_WIDTHS_ALLOWED
 from ...signals import check_stop
+from ..inversion_kernel import kernel_tuning
 from .fit import gaussian_1d
 from .near_field import DEFAULT_GATHER_COSTS, GatherCosts
 from .textured_plan import RD_MAX, RD_MIN, fine_axis_map
@@ -148,18 +148,13 @@ GATHER_COSTS = {"intel(r) opencl": DEFAULT_GATHER_COSTS,
 GATHER_WIDTH_VARIABLE = "BDIPOLE_CL_GATHER_WIDTH"
 
 
-def _tuning(rt):
-    """The device's own KernelTuning (``report --calibrate``), or None."""
-    return device_tuning(DeviceKey.of(rt.device), kernels_digest())
-
-
 def gather_width(rt, n) -> int:
     """Texels per work-item of kernels/blur_textured.cl on ``rt``'s device for rows of n
     texels (a work-item's texels lie in one row: 1 for rows narrower than the width): forced
     by GATHER_WIDTH_VARIABLE, else the device's calibration, else GATHER_WIDTHS."""
     width = forced_width(GATHER_WIDTH_VARIABLE, GATHER_WIDTHS_ALLOWED)
     if not width:
-        tuned = _tuning(rt)
+        tuned = kernel_tuning(rt)
         width = (tuned.gather_width if tuned is not None and tuned.gather_width
                  else platform_entry(rt.device, GATHER_WIDTHS, 1))
     return width if n >= width else 1
@@ -168,7 +163,7 @@ def gather_width(rt, n) -> int:
 def gather_costs(rt) -> GatherCosts:
     """The gather's costs on ``rt``'s device: its calibration's, else GATHER_COSTS' (what
     chooses its near field)."""
-    tuned = _tuning(rt)
+    tuned = kernel_tuning(rt)
     if tuned is not None and tuned.gather_costs:
         return GatherCosts(*tuned.gather_costs)
     return platform_entry(rt.device, GATHER_COSTS, DEFAULT_GATHER_COSTS)

@@ -230,7 +230,8 @@ def file_runner(client, *, device=None, progress=True):
 
 def blur_band_task(path, band_path, y0, y1, plan, colorspace, working, device=None):
     """A cluster task: rows [y0, y1) of the blurred image (``blur_file``'s own band step,
-    ``blurred_band``, with the plan made once by the client), written to ``band_path``."""
+    ``blurred_band``, with the plan made once by the client), written to ``band_path``.
+    Returns (band_path, the irradiance values of its rows clamped by kind)."""
     remove_partial_files(band_path)
     plan = plan.on(get_runtime(device))
     reader = Reader(path, "irradiance")
@@ -242,8 +243,9 @@ def blur_band_task(path, band_path, y0, y1, plan, colorspace, working, device=No
         px = read_rows(reader, idx)
     finally:
         reader.close()
+    counts = {}
     out, _ = blurred_band(plan, px, colour, alpha, [spec.channelnames[c] for c in colour],
-                          route, idx, None, y0, y1)
+                          route, idx, None, y0, y1, counts=counts)
     band = oiio.ImageSpec(spec.width, y1 - y0, out.shape[-1], "float")
     writer = Writer(band_path, band)
     try:
@@ -252,7 +254,7 @@ def blur_band_task(path, band_path, y0, y1, plan, colorspace, working, device=No
     except Exception:
         writer.abort()
         raise
-    return band_path
+    return band_path, counts
 
 
 def band_folder_prefix(output) -> str:
@@ -296,7 +298,8 @@ def blur_file_on_cluster(path, output, client, *, colorspace="auto", working_spa
         reader.close()
     if texture_options(texture) is not None:
         check_texture_window(output, spec)   # before any band is sent
-    plan = file_plan(path, spec, len(colour), scattering, dict(options, device=device), {})
+    plan = file_plan(path, spec, [spec.channelnames[c] for c in colour], scattering,
+                     dict(options, device=device), {})
     halo = plan.halo
     rows = band_rows(spec.height, spec.width * spec.nchannels * 4 * FILE_ROW_FLOATS,
                      max_memory, halo=halo)
@@ -322,9 +325,13 @@ def blur_file_on_cluster(path, output, client, *, colorspace="auto", working_spa
             raise TextureError(f"{path}: {len(failed)} band(s) failed: {failed[0]}")
         writer = exitance_writer(path, output, spec, colour, alpha, route, plan, half=half,
                                  texture=texture)
+        counts = dict(plan.invalid)
+        for _, band_counts in done.values():
+            for kind, n in band_counts.items():
+                counts[kind] = counts.get(kind, 0) + n
         try:
             for (k, y0, y1) in sorted(done):       # one band in memory at a time
-                r = Reader(done[(k, y0, y1)], "band")
+                r = Reader(done[(k, y0, y1)][0], "band")
                 try:
                     writer.write_band(y0, y1, r.read_band(0, y1 - y0))
                 finally:
@@ -333,7 +340,7 @@ def blur_file_on_cluster(path, output, client, *, colorspace="auto", working_spa
         except Exception:
             writer.abort()
             raise
-        report_clamped(writer, output, clamped)
+        report_clamped(writer, output, clamped, counts)
         return len(futures)
     finally:
         shutil.rmtree(work, ignore_errors=True)

@@ -363,7 +363,7 @@ def test_bad_parameter_texture_is_named_with_its_texel(tmp_path, capsys):
                    "--mfp", "1", "-o", str(tmp_path / "out.exr")])
     line = one_line_error(capsys.readouterr().err)
     assert rc == 1 and line.startswith(f"bdipole-cl blur: error: {tmp_path / 'alb.exr'}:")
-    assert "x=5, y=3, channel 1: 1" in line and "np.float32" not in line
+    assert "x=5, y=3, channel G: 1" in line and "np.float32" not in line
     assert not (tmp_path / "out.exr").exists()
 
 

@@ -365,7 +365,7 @@ def test_cli_with_parameter_textures(tmp_path, capsys):
     assert cli_main(args[:3] + [str(tmp_path / "bad.exr")] + args[4:]) == 1
     err = capsys.readouterr().err
     # the parameter texture that holds the bad texel is named, not the irradiance
-    assert "albedo.exr: " in err and "x=7, y=4, channel 1: 1.5" in err
+    assert "albedo.exr: " in err and "x=7, y=4, channel G: 1.5" in err
     assert not (tmp_path / "bad.exr").exists()
 
 

@@ -257,4 +257,4 @@ def test_cluster_blur_refuses_a_texture_of_an_outside_window_first_and_counts_cl
     clamped = {}
     bdask.blur_file_on_cluster(tmp_path / "hot.exr", tmp_path / "h.exr", client, half=True,
                                on_invalid="clamp", clamped=clamped, **kw)
-    assert clamped.get("half range") == 16 * 16           # texels
+    assert clamped.get("half range") == 16 * 16 * 3       # values: every channel of each texel

@@ -1124,7 +1124,7 @@ def test_blur_values_clamped_to_the_half_range_are_counted_on_every_path(tmp_pat
                      "--half", "--on-invalid", "clamp", "--no-progress",
                      "-o", str(tmp_path / "b.exr")]) == 0
     out = capsys.readouterr().out
-    assert "texels clamped (half range)" in out, out
+    assert "invalid values clamped: half range 3" in out, out        # R, G and B
     assert np.nanmax(read(tmp_path / "b.exr")[0]) == 65504
     write(tmp_path / "alb.exr", np.full((16, 16, 3), 0.8, np.float32))
     path = scene(tmp_path, '[[material]]\nname = "m"\nalbedo = "alb.exr"\nmfp = 2.0\n'

@@ -10,7 +10,8 @@ ALPHA_NAMES = ("a", "alpha")
 
 
 #: a vector's component names: a named layer holding X or Z (any case) is a vector (P, N,
-#: motion); unlayered, Z is depth beside a luminance Y
+#: motion); unlayered, X marks one too (or CIE XYZ colour: X, Y, Z), while a Z alone is depth
+#: beside a luminance Y
 VECTOR_NAMES = ("x", "y", "z", "w")
 
 
@@ -27,9 +28,10 @@ def classify_channels(names, alpha_channel=-1):
     - colour: channels named R, G, B, Y (also red, green, blue, L, gray, grey), in file order,
       of one layer: the unlayered one (R, G, B) where it has colour, else the first layer
       that has (``albedo.R``...): other layers (AOVs: specular.R, N.R) are left out. Y only in
-      capitals, and not in a vector's layer (one that holds X or Z: P.X, P.Y, P.Z; a lower-
-      case y is a component too: N.y, motion.y, uv.y); a grey one only where the layer has no
-      R, G or B (beside them it is an extra luminance);
+      capitals, and not in a vector's layer (a named one that holds X or Z: P.X, P.Y, P.Z;
+      the unlayered channels when one is X: X, Y, Z is a vector or CIE XYZ colour, not a
+      luminance; a lower-case y is a component too: N.y, motion.y, uv.y); a grey one only
+      where the layer has no R, G or B (beside them it is an extra luminance);
     - a file whose channels have none of these names but exactly one non-alpha channel: that
       channel is grey (a 1-channel file of any name; 2 channels of which one is alpha);
     - everything else (Z, depth, masks, vectors, other layers, ...) is other: never inverted,
@@ -40,9 +42,11 @@ def classify_channels(names, alpha_channel=-1):
     last = [str(n).rsplit(".", 1)[-1].strip() for n in names]
     short = [n.lower() for n in last]
     layers = [layer_of(n) for n in names]
-    vectors = {layers[i] for i in range(len(names)) if short[i] in ("x", "z") and layers[i]}
+    vectors = {layers[i] for i in range(len(names))
+               if (short[i] in ("x", "z") and layers[i]) or (short[i] == "x" and not layers[i])}
     alpha = alpha_channel if 0 <= alpha_channel < len(names) else next(
-        (i for i, s in enumerate(short) if s in ALPHA_NAMES and layers[i] not in vectors), -1)
+        (i for i, s in enumerate(short)
+         if s in ALPHA_NAMES and (not layers[i] or layers[i] not in vectors)), -1)
     rest = [i for i in range(len(names)) if i != alpha]
     colour = [i for i in rest if short[i] in COLOUR_NAMES and last[i] != "y"
               and not (short[i] in VECTOR_NAMES and layers[i] in vectors)]

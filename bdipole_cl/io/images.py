@@ -185,8 +185,8 @@ class Reader:
         colour, alpha, _ = classify_channels(names, self.spec.alpha_channel)
         if not colour:
             raise TextureError(f"{self.path}: no colour channel among "
-                               f"{', '.join(names)} (colour is R, G, B or Y, "
-                               f"or a single channel that is not alpha)")
+                               f"{', '.join(names)} (colour is R, G, B or Y, a Y not in a "
+                               f"vector's X, Y, Z; or a single channel that is not alpha)")
         return colour, alpha
 
     def colour(self, colorspace="auto", working=None):
@@ -217,7 +217,7 @@ class Reader:
 def invalid_texels(exc, path, x, y, channel, rows=""):
     """TextureError for an InvalidInputError ``exc`` whose first texel is at image
     coordinates (x, y) (data window included), channel ``channel``."""
-    return TextureError(f"{path}: {exc.count} invalid {exc.name} texel(s) ({exc.why}){rows}; "
+    return TextureError(f"{path}: {exc.count} invalid {exc.name} value(s) ({exc.why}){rows}; "
                         f"first at x={x}, y={y}, channel {channel}: {float(exc.first_value):g} "
                         f"(--on-invalid clamp / on_invalid='clamp' clamps them)")
 
@@ -365,7 +365,7 @@ class Writer:
 
     @property
     def clamped(self) -> dict:
-        """{what: count} of the texels that could not be stored and were clamped
+        """{what: count} of the values that could not be stored and were clamped
         (``on_invalid="clamp"``): "half range" in a half output, else "not finite"."""
         return {("half range" if self.half else "not finite"): self.invalid} if self.invalid \
             else {}

@@ -49,12 +49,12 @@ def invalid_values(block, half):
 
 
 def finite_texels(block, half, on_invalid, where, names, x0, y0):
-    """``block`` made storable; returns (block, invalid texels). ``where`` names the file,
-    ``names`` the channels, (x0, y0) the image coordinates of ``block[0, 0]``."""
+    """``block`` made storable; returns (block, the invalid values' count: channel values, as
+    every invalid count). ``where`` names the file, ``names`` the channels, (x0, y0) the image
+    coordinates of ``block[0, 0]``."""
     block = np.asarray(block, np.float32)
     bad = invalid_values(block, half)
-    texels = bad.any(axis=-1)
-    n = int(np.count_nonzero(texels))
+    n = int(np.count_nonzero(bad))
     if n == 0:
         return block, 0
     if on_invalid != "clamp":
@@ -62,9 +62,9 @@ def finite_texels(block, half, on_invalid, where, names, x0, y0):
         what = (f"outside the half-float range [{HALF_TINY:.3g}, {HALF_MAX:g}] or not finite"
                 if half else "that are not finite")
         raise WriteCheckError(
-            f"{where}: {n} texel(s) with values {what}; first at x={x0 + xx}, y={y0 + yy}, "
+            f"{where}: {n} value(s) {what}; first at x={x0 + xx}, y={y0 + yy}, "
             f"channel {names[cc]}: {float(block[yy, xx, cc]):g} (--on-invalid clamp / "
-            f"on_invalid='clamp' clamps those texels"
+            f"on_invalid='clamp' clamps them"
             + ("; or write float instead of half)" if half else ")"))
     top = HALF_MAX if half else FLOAT_MAX
     fixed = np.where(np.isnan(block), 0.0, np.sign(block) * np.clip(

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import time
 import warnings
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -18,7 +19,7 @@ from ..io.images import (Cancelled, Reader, TextureError, Writer, check_output_f
                          read_rows)
 from ..ops.bands import band_rows, bands
 from ..ops.blur import BlurPlan, Scattering, plan_blur
-from ..ops.blur.params import checked_irradiance
+from ..ops.blur.params import add_count, checked_irradiance
 from ..ops.blur.planning import worse
 from ..ops.invert import invert_albedo
 from ..signals import Stopped
@@ -35,37 +36,46 @@ from .scene_stats import read_albedo
 FILE_ROW_FLOATS = 10
 
 
-def located(exc, path, sources, spec, idx):
+def located(exc, path, sources, spec, idx, names=None):
     """An InvalidInputError of one band as a TextureError naming the file it comes from and
     the texel in image coordinates: irradiance rows through the band's row indices ``idx``
-    (the halo included), parameter textures (whole images) as they are, data window added."""
+    (the halo included), parameter textures (whole images) as they are, data window added;
+    the channel by its name in ``names`` (the irradiance's colour channels, which each
+    parameter's channel serves), as ``invert`` names it."""
     yy, xx, cc = exc.first_index
     row = int(idx[yy]) if exc.name == "irradiance" else yy
     where = sources.get(exc.name, sources.get(exc.name.rstrip("'"), path))
-    return invalid_texels(exc, where, spec.x + xx, spec.y + row, cc)
+    channel = names[cc] if names is not None and 0 <= cc < len(names) else cc
+    return invalid_texels(exc, where, spec.x + xx, spec.y + row, channel)
 
 
-def file_plan(path, spec, ncolour, scattering, options, sources) -> BlurPlan:
-    """The plan of a file's blur, made once for all its bands (a parameter texture's bad texel
-    named in the file it comes from)."""
+def file_plan(path, spec, names, scattering, options, sources) -> BlurPlan:
+    """The plan of a file's blur (``names``: its colour channels'), made once for all its
+    bands (a parameter texture's bad texel named in the file it comes from)."""
     try:
-        return plan_blur((spec.height, spec.width, ncolour), scattering, **options)
+        return plan_blur((spec.height, spec.width, len(names)), scattering, **options)
     except InvalidInputError as exc:
-        raise located(exc, path, sources, spec, np.arange(spec.height)) from None
+        raise located(exc, path, sources, spec, np.arange(spec.height), names) from None
 
 
 def blurred_band(plan, px, colour, alpha_ch, names, route, idx, mask, y0, y1,
-                 max_memory=None):
+                 max_memory=None, counts=None):
     """Rows [y0, y1) of the output from the band ``px`` read at rows ``idx`` (the halo
-    included): the colour channels converted into the working space, masked texels unlit,
-    blurred by ``plan`` (a texture-varying plan reads its whole image at once: no halo);
-    bands with no light are not blurred (0); then the alpha channel ``alpha_ch`` (if >= 0)
-    as read. (output, BlurInfo or None)."""
+    included): the colour channels converted into the working space, masked texels unlit
+    (whatever they hold: a NaN there is no error), blurred by ``plan`` (a texture-varying plan
+    reads its whole image at once: no halo); bands with no light are not blurred (0); then
+    the alpha channel ``alpha_ch`` (if >= 0) as read. (output, BlurInfo or None).
+    ``counts``: a dict that gets the irradiance values of rows [y0, y1) that the plan's
+    ``on_invalid="clamp"`` makes unlit (NaN, infinite), under "irradiance" (the halo's rows
+    are some other band's)."""
     k = plan.halo if len(idx) > y1 - y0 else 0
     e = route.convert(px[..., colour], names)
     if mask is not None:
-        e = e * (np.asarray(mask)[np.maximum(idx, 0)] > 0)[..., None] \
-            * (idx >= 0)[:, None, None]
+        keep = (np.asarray(mask)[np.maximum(idx, 0)] > 0) & (idx >= 0)[:, None]
+        e = np.where(keep[..., None], e, np.float32(0))
+    if plan.on_invalid == "clamp":
+        own = e[k:k + y1 - y0]
+        add_count(counts, "irradiance", own.size - np.count_nonzero(np.isfinite(own)))
     if not np.any(e):                   # no light reaches this band: nothing to blur
         out, info = np.zeros((y1 - y0, px.shape[1], len(colour)), np.float32), None
     else:
@@ -128,9 +138,11 @@ def blur_file(path, output, *, colorspace="auto", working_space=None, half=False
     ``header``: more ``bdipole:*`` attributes for the output. ``progress``: a tqdm bar
     advanced by texels. ``texture`` (True or a TextureOptions): a tiled, mip-mapped EXR
     (``images.Writer``). ``force``: replace an existing ``output`` this tool did not write
-    (``io.collisions.foreign``). ``clamped``: a dict that gets the output texels that could
-    not be stored and were clamped (``on_invalid="clamp"``; ``images.Writer.clamped``), else
-    they are warned of. Returns the BlurInfo (None when every band was skipped)."""
+    (``io.collisions.foreign``). ``clamped``: a dict that gets, under ``on_invalid="clamp"``,
+    the invalid values clamped by kind: the irradiance's and the parameter textures'
+    (``BlurInfo.invalid``) and the output values that could not be stored
+    (``images.Writer.clamped``); without it they are warned of. Returns the BlurInfo (None
+    when every band was skipped)."""
     check_output_format(output)
     sources = dict(sources or {})
     check_claim(Claim(str(path), str(output), {"irradiance": str(path), **sources}), force)
@@ -141,7 +153,7 @@ def blur_file(path, output, *, colorspace="auto", working_space=None, half=False
         spec = reader.spec
         colour, alpha_ch = reader.channels()
         route = reader.colour(colorspace, resolve_working_space(working_space))
-        plan = file_plan(path, spec, len(colour), scattering,
+        plan = file_plan(path, spec, [spec.channelnames[c] for c in colour], scattering,
                          dict(options, device=get_runtime(device)), sources)
         if plan.textured:
             # parameter textures: one global plan, so the whole image is read and the plan
@@ -153,6 +165,7 @@ def blur_file(path, output, *, colorspace="auto", working_space=None, half=False
                              max_memory, halo=k, tile_height=spec.tile_height)
         names = [spec.channelnames[c] for c in colour]
         state = {"info": None, "writer": None}
+        counts = dict(plan.invalid)         # the parameter textures' values clamped
 
         def compute(band, px):
             y0, y1, idx = band
@@ -160,9 +173,9 @@ def blur_file(path, output, *, colorspace="auto", working_space=None, half=False
                 raise Cancelled(f"{path}: interrupted; nothing written")
             try:
                 out, band_info = blurred_band(plan, px, colour, alpha_ch, names, route, idx,
-                                              mask, y0, y1, max_memory)
+                                              mask, y0, y1, max_memory, counts)
             except InvalidInputError as exc:
-                raise located(exc, path, sources, spec, idx) from None
+                raise located(exc, path, sources, spec, idx, names) from None
             state["info"] = worse(state["info"], band_info)
             if state["writer"] is None:
                 state["writer"] = exitance_writer(path, output, spec, colour, alpha_ch, route,
@@ -182,9 +195,9 @@ def blur_file(path, output, *, colorspace="auto", working_space=None, half=False
         finally:
             writer, info = state["writer"], state["info"]
         writer.commit()
-        report_clamped(writer, output, clamped)
+        report_clamped(writer, output, clamped, counts)
         writer = None
-        return info
+        return info if info is None else replace(info, invalid=counts)
     except Stopped:
         raise Cancelled(f"{path}: interrupted; nothing written") from None
     except (OSError, ValueError) as exc:
@@ -196,18 +209,22 @@ def blur_file(path, output, *, colorspace="auto", working_space=None, half=False
         reader.close()
 
 
-def report_clamped(writer, output, clamped):
-    """The writer's clamped texels into ``clamped`` (a dict), or a warning naming the output
-    where the caller keeps no count: a clamped value is never silent."""
+def report_clamped(writer, output, clamped, inputs=None):
+    """The invalid input values clamped (``inputs``, by kind) and the writer's clamped values
+    into ``clamped`` (a dict), or a warning naming the output where the caller keeps no
+    count: a clamped value is never silent."""
+    counts = {k: n for k, n in {**(inputs or {}), **writer.clamped}.items() if n}
     if clamped is not None:
-        clamped.update(writer.clamped)
-    elif writer.clamped:
-        warnings.warn(f"{output}: {clamped_text(writer.clamped)}", stacklevel=3)
+        clamped.update(counts)
+    elif counts:
+        warnings.warn(f"{output}: {clamped_text(counts)}", stacklevel=3)
 
 
 def clamped_text(counts) -> str:
-    """Clamped-texel counts ({what: n}) as words: "5 texels clamped (half range)"."""
-    return ", ".join(f"{n} texels clamped ({k})" for k, n in counts.items() if n)
+    """Clamped-value counts ({what: n}) as words: "invalid values clamped: irradiance 2, half
+    range 5" ("" if none)."""
+    parts = [f"{k} {n}" for k, n in counts.items() if n]
+    return "invalid values clamped: " + ", ".join(parts) if parts else ""
 
 
 def masked_parameter(values, keep):

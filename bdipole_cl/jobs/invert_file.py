@@ -122,15 +122,22 @@ def inversion_plan(work, etas, inp, runtime) -> InversionPlan:
                          runtime=runtime)
 
 
-def non_negative_albedo(albedo, on_invalid):
+def non_negative_albedo(albedo, on_invalid, mask=None):
     """(albedo, count): a texture's albedo below 0 (outside the working space's gamut after
     the colour conversion, or painted so) is invalid: an InvalidInputError naming the first,
     or with "clamp" 0 and counted. (``invert_albedo``'s arrays map Rd <= 0 to alpha' = 0; a
-    file's texel below 0 is not an albedo, and is never silently changed.)"""
-    low = albedo.min() if albedo.size else 0.0
-    if not low < 0:                  # also NaN (the plan's own rule reports it)
-        return albedo, 0
+    file's texel below 0 is not an albedo, and is never silently changed.) Texels where
+    ``mask`` (HxWx1 or HxW, as the plan takes it) is not > 0 are neither checked nor counted,
+    as the plan leaves them out; a NaN is not below 0 (the plan's own rule reports it) and
+    hides no other texel."""
     bad = albedo < 0
+    if mask is not None:
+        keep = np.asarray(mask) > 0
+        if keep.ndim == albedo.ndim - 1:
+            keep = keep[..., None]
+        bad &= keep
+    if not bad.any():
+        return albedo, 0
     n = find_invalid("albedo", albedo, bad, "below 0 in the working space: outside its gamut, "
                      "or not an albedo", on_invalid, texels=True)
     return np.where(bad, albedo.dtype.type(0), albedo), n
@@ -156,7 +163,7 @@ def invert_bands(job, work, inp, route, plan, writer, result, lock, cancel, prog
             with np.errstate(over="ignore", under="ignore"):
                 mfp = m[..., inp.mfp_channels] * scale
         try:
-            albedo, negative = non_negative_albedo(albedo, work.on_invalid)
+            albedo, negative = non_negative_albedo(albedo, work.on_invalid, mask)
             with lock:
                 done = plan.apply(albedo, mfp, mask)
         except InvalidInputError as exc:
@@ -168,7 +175,10 @@ def invert_bands(job, work, inp, route, plan, writer, result, lock, cancel, prog
                           f"{float(np.ravel(scale)[cc % scale.size]):g})")
             raise invalid_texels(exc, job.source, spec.x + xx, spec.y + y0 + yy,
                                  inp.names[cc], f" in rows {y0}..{y1 - 1}{scaled}") from None
-        for key, n in (("albedo", done.invalid_albedo + negative), ("mfp", done.invalid_mfp)):
+        n_mfp = done.invalid_mfp
+        if m is not None and len(inp.mfp_channels) == 1 < len(inp.names):
+            n_mfp //= len(inp.names)      # one mfp value serves every channel: counted once
+        for key, n in (("albedo", done.invalid_albedo + negative), ("mfp", n_mfp)):
             result.invalid[key] = result.invalid.get(key, 0) + n
         parts = [done.arrays[o] for o in work.outputs]
         if inp.keep_alpha:

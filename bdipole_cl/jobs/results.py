@@ -38,7 +38,7 @@ class BatchReport:
         return 0 if self.ok else 1
 
     def summary(self):
-        rows = [("file", "status", "texels", "Mtexel/s", "invalid", "output / reason")]
+        rows = [("file", "status", "texels", "Mtexel/s", "invalid values", "output / reason")]
         for r in self.results:
             inv = ", ".join(f"{k} {v}" for k, v in r.invalid.items() if v) or "0"
             rows.append((r.path, r.status, f"{r.texels}", f"{r.mtexel_per_s:.3g}", inv,

@@ -39,6 +39,8 @@ HDR values are fine: weights sum to Rd <= 1.
 """
 from __future__ import annotations
 
+from dataclasses import replace
+
 from ...methods.registry import BLUR_METHODS, BORDERS
 from .fit import fit_gaussians
 from .params import PARAM_KEYS, channel_parameters, checked_irradiance
@@ -76,10 +78,12 @@ def blur(irradiance, *, albedo=None, mfp=None, eta=1.4, texel_size=1.0, alpha=No
     ``device``: where to run (None, a string such as ``"intel"``, a pyopencl Device or a
     Runtime; see ``bdipole_cl.device``).
     """
-    e = checked_irradiance(irradiance, on_invalid)
+    counts = {}
+    e = checked_irradiance(irradiance, on_invalid, counts)
     plan = plan_blur(e.shape, Scattering(albedo, mfp, eta, texel_size, alpha, sigma_t),
                      tol=tol, method=method, border=border, exact=exact,
                      on_invalid=on_invalid, device=device)
     out, info = plan.apply_checked(e, max_memory)
+    info = replace(info, invalid={**counts, **plan.invalid})
     out = as_given(out, irradiance)
     return (out, info) if return_info else out

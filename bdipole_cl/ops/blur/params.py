@@ -172,14 +172,22 @@ def texture_channel(value, shape, c, name):
     return v[..., c if v.shape[2] > 1 else 0]
 
 
-def checked_parameter(value, shape, c, name, on_invalid="raise", dtype=None, ranges=None):
+def add_count(counts, name, n):
+    """counts[name] += n (a dict of invalid values clamped, by kind; None: not kept)."""
+    if counts is not None and n:
+        counts[name] = counts.get(name, 0) + int(n)
+
+
+def checked_parameter(value, shape, c, name, on_invalid="raise", dtype=None, ranges=None,
+                      counts=None):
     """Channel c of a parameter as HxW (rounded to ``dtype`` first, if given: the check sees
     what the kernel will), every texel within ``RULES[name]``: else an InvalidInputError
     naming the count and the first bad texel, or, with ``on_invalid="clamp"``, the bad texels
     (only they) clamped into the range of the channel's valid texels (NaN to its bottom; the
     rule's range if no texel is valid). So a bad texel never widens the range the
     texture-varying plan is built for, and the valid texels' exitance is what it would be
-    without it. ``ranges``: a ``MapRanges`` that keeps the (min, max) the check found."""
+    without it. ``ranges``: a ``MapRanges`` that keeps the (min, max) the check found.
+    ``counts``: a dict that gets the clamped values' count under ``name`` (``add_count``)."""
     rule, ok, (lo, hi) = RULES[name]
     v = texture_channel(value, shape, c, name)
     if dtype is not None:
@@ -192,8 +200,10 @@ def checked_parameter(value, shape, c, name, on_invalid="raise", dtype=None, ran
             ranges.keep(v, extremes)
         return v
     bad = ~ok(v)
-    if find_invalid(name, v, bad, f"outside {rule}", check_policy(on_invalid), texels=True,
-                    channel=c):
+    n = find_invalid(name, v, bad, f"outside {rule}", check_policy(on_invalid), texels=True,
+                     channel=c)
+    if n:
+        add_count(counts, name, n)
         good = v[~bad]
         lo, hi = (good.min(), good.max()) if good.size else (lo, hi)
         v = np.where(bad, np.clip(np.nan_to_num(v, nan=lo, posinf=hi, neginf=lo), lo, hi),
@@ -249,40 +259,48 @@ def source_channel(value, c) -> int:
 
 
 def texel_parameters(shape, c, *, albedo=None, mfp=None, eta=1.4, texel_size=1.0, alpha=None,
-                     sigma_t=None, exact=False, on_invalid="raise", ld_maps=None, ranges=None):
+                     sigma_t=None, exact=False, on_invalid="raise", ld_maps=None, ranges=None,
+                     counts=None):
     """(Rd, ld in texels) HxW float32 maps of channel c, from albedo + mfp or alpha' + sigma_t'
     (the node coordinates, ``texel_coords``, are computed from these same float32 values).
     ``ld_maps``: a dict of the ld maps made so far by mfp channel, so that channels that read
     one mfp channel share its map (made and checked once). ``ranges``: a ``MapRanges`` that
-    keeps the extremes the checks found."""
+    keeps the extremes the checks found; ``counts``, a dict, the values clamped by kind (a map
+    that several channels share counted once)."""
+    def own(value):                     # counted where the channel reads its own values
+        return counts if source_channel(value, c) == c else None
     if parameter_pair(albedo, mfp, alpha, sigma_t) == "alpha":
-        a = checked_parameter(alpha, shape, c, "alpha", on_invalid).astype(np.float64)
-        st = checked_parameter(sigma_t, shape, c, "sigma_t", on_invalid).astype(np.float64)
+        a = checked_parameter(alpha, shape, c, "alpha", on_invalid,
+                              counts=own(alpha)).astype(np.float64)
+        st = checked_parameter(sigma_t, shape, c, "sigma_t", on_invalid,
+                               counts=own(sigma_t)).astype(np.float64)
         ld = 1.0 / (st * texel_size * ref.mu_tr_over_sigma_t(1.0 - a))
         return rd_map(ref.rd(a, eta, exact)), float32_map(ld)
     rd = float32_map(checked_parameter(albedo, shape, c, "albedo", on_invalid, np.float32,
-                                       ranges))
+                                       ranges, own(albedo)))
     source = source_channel(mfp, c)
     if ld_maps is not None and source in ld_maps:
         return rd, ld_maps[source]
     if texel_size != 1.0:               # ld in texels, checked as the kernel sees it
         mfp = texture_channel(mfp, shape, c, "mfp") / texel_size
-    ld = float32_map(checked_parameter(mfp, shape, c, "mfp", on_invalid, np.float32, ranges))
+    ld = float32_map(checked_parameter(mfp, shape, c, "mfp", on_invalid, np.float32, ranges,
+                                       counts))
     if ld_maps is not None:
         ld_maps[source] = ld
     return rd, ld
 
 
-def checked_irradiance(irradiance, on_invalid="raise"):
+def checked_irradiance(irradiance, on_invalid="raise", counts=None):
     """Irradiance as HxWxC float32. NaN and infinite texels are invalid: an InvalidInputError
     naming the first, or with ``on_invalid="clamp"`` unlit (0): irradiance has no upper bound
-    to clamp to, and an unlit texel neither adds nor removes light that is really there."""
+    to clamp to, and an unlit texel neither adds nor removes light that is really there.
+    ``counts``: a dict that gets the clamped values' count under "irradiance"."""
     e = plain_array(irradiance, "irradiance")
     if e.ndim == 2:
         e = e[..., None]
     if e.ndim != 3:
         raise ValueError(f"irradiance must be HxW or HxWxC, got shape {e.shape}")
-    e = float32_irradiance(e, on_invalid)
+    e = float32_irradiance(e, on_invalid, counts)
     if 0 in e.shape:
         raise ValueError(f"irradiance is empty (shape {e.shape}: no texels or no channels): "
                          f"nothing to blur")
@@ -290,12 +308,14 @@ def checked_irradiance(irradiance, on_invalid="raise"):
     if all_finite(e):
         return e
     bad = ~np.isfinite(e)
-    if find_invalid("irradiance", e, bad, "NaN or infinite", on_invalid, texels=True):
+    n = find_invalid("irradiance", e, bad, "NaN or infinite", on_invalid, texels=True)
+    if n:
+        add_count(counts, "irradiance", n)
         e = np.where(bad, np.float32(0), e)
     return e
 
 
-def float32_irradiance(e, on_invalid):
+def float32_irradiance(e, on_invalid, counts=None):
     """``e`` as contiguous float32. A wider float's finite value beyond float32's range (a
     1e39 highlight) is invalid as such (it would read as infinite): named, or with
     ``on_invalid="clamp"`` clamped to float32's largest, keeping its light."""
@@ -303,9 +323,10 @@ def float32_irradiance(e, on_invalid):
     if e.dtype.kind == "f" and e.dtype.itemsize > 4:
         with np.errstate(invalid="ignore"):
             beyond = np.isfinite(e) & (np.abs(e) > FLOAT32_MAX)
-        if beyond.any() and find_invalid("irradiance", e, beyond,
-                                         f"finite but beyond float32's range "
-                                         f"({FLOAT32_MAX:.3g})", on_invalid, texels=True):
+        n = find_invalid("irradiance", e, beyond, f"finite but beyond float32's range "
+                         f"({FLOAT32_MAX:.3g})", on_invalid, texels=True) if beyond.any() else 0
+        if n:
+            add_count(counts, "irradiance", n)
             e = np.where(beyond, np.clip(e, -FLOAT32_MAX, FLOAT32_MAX), e)
     with np.errstate(over="ignore"):
         return np.ascontiguousarray(e, dtype=np.float32)

@@ -86,6 +86,7 @@ class BlurPlan:
     channels: tuple = ()               # constant: planning.ChannelPlan per channel
     textured: tuple = ()               # texture-varying: (TexturedPlan, Rd map, ld map)
     textured_info: BlurInfo | None = None   # texture-varying: what each channel does
+    invalid: dict = field(default_factory=dict)   # parameter values clamped, by kind
     runtime: Runtime | None = field(default=None, compare=False, repr=False)
     kernels: BlurKernels | None = field(default=None, compare=False, repr=False)
 
@@ -144,10 +145,12 @@ class BlurPlan:
         """The whole image (HxW or HxWxC), in bands of rows within ``max_memory`` bytes if
         given (each band carries the halo, so the result is the one-piece result up to the
         float32 FFT's round-off, whose transform sizes differ by band): (M, BlurInfo), M of
-        the irradiance's shape."""
-        out, info = self.apply_checked(checked_irradiance(irradiance, self.on_invalid),
+        the irradiance's shape; the BlurInfo counts the irradiance values and (from planning)
+        the parameter values clamped."""
+        counts = dict(self.invalid)
+        out, info = self.apply_checked(checked_irradiance(irradiance, self.on_invalid, counts),
                                        max_memory)
-        return as_given(out, irradiance), info
+        return as_given(out, irradiance), replace(info, invalid=counts)
 
     def apply_checked(self, e, max_memory=None):
         """``apply`` of an irradiance ``params.checked_irradiance`` has already checked."""
@@ -201,10 +204,13 @@ def plan_blur(shape, scattering: Scattering, *, tol=1e-3, method="auto", border=
     rt = get_runtime(device)
     base = BlurPlan(scattering, shape, tol, method, border, exact, on_invalid, 0, runtime=rt)
     if scattering.textured:
+        counts = {}
         chans = textured_plans(shape, tol=tol, exact=exact, on_invalid=on_invalid,
-                               method=method, costs=gather_costs(rt), **scattering.keywords())
+                               method=method, costs=gather_costs(rt), counts=counts,
+                               **scattering.keywords())
         plan = replace(base, textured=tuple(chans), halo=max(ch.plan.radius for ch in chans),
-                       textured_info=textured_info(chans, textured_method(method), exact))
+                       textured_info=textured_info(chans, textured_method(method), exact),
+                       invalid=counts)
     else:
         params, plans = channel_plans(shape[2], method=method, tol=tol, exact=exact,
                                       device=rt, **scattering.keywords())

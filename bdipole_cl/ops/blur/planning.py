@@ -4,7 +4,7 @@ the typed record of what a blur did (``BlurInfo``); and one image (or band) blur
 from __future__ import annotations
 
 import warnings
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -75,9 +75,11 @@ class ChannelInfo:
 
 @dataclass(frozen=True)
 class BlurInfo:
-    """What ``blur`` did, per channel."""
+    """What ``blur`` did, per channel, and the invalid input values it clamped
+    (``on_invalid="clamp"``), by kind: {"irradiance": n, "albedo": n, ...}."""
 
     channels: tuple
+    invalid: dict = field(default_factory=dict)
 
 
 def worse(a: BlurInfo | None, b: BlurInfo | None) -> BlurInfo | None:

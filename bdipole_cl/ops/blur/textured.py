@@ -41,12 +41,14 @@ class TexturedChannel(NamedTuple):
 
 
 def textured_plans(shape, *, tol, exact=False, eta=1.4, method="auto", on_invalid="raise",
-                   costs=DEFAULT_GATHER_COSTS, **physical):
+                   costs=DEFAULT_GATHER_COSTS, counts=None, **physical):
     """Per channel a TexturedChannel (plan, Rd map, ld map, extremes) for an HxWxC image, for
     ``method`` (its basis: separable Gaussians for ``gaussians``, else eigen-kernels). Each
     channel has the plan of its own ranges (a union over channels would need more basis
     kernels per channel; the kernels' spectra are cheap, so sharing them saves little), its
-    near field chosen for gather costs ``costs`` (the device's: ``dispatch.gather_costs``)."""
+    near field chosen for gather costs ``costs`` (the device's: ``dispatch.gather_costs``).
+    ``counts``: a dict that gets the parameter values clamped (``on_invalid="clamp"``), by
+    kind."""
     basis = "gaussians" if textured_method(method) == "gaussians" else "svd"
     etas = np.broadcast_to(np.atleast_1d(np.asarray(eta, np.float64)), (shape[2],)) \
         if np.ndim(eta) <= 1 and np.size(eta) in (1, shape[2]) else None
@@ -57,7 +59,7 @@ def textured_plans(shape, *, tol, exact=False, eta=1.4, method="auto", on_invali
     for c in range(shape[2]):
         rd, ld = texel_parameters(shape, c, eta=float(etas[c]), exact=exact,
                                   on_invalid=on_invalid, ld_maps=ld_maps, ranges=ranges,
-                                  **physical)
+                                  counts=counts, **physical)
         ext = map_extremes(rd, ld, ranges)
         out.append(TexturedChannel(plan_for_ranges(*parameter_ranges(ext), float(etas[c]),
                                                    float(tol), exact, basis, costs=costs),

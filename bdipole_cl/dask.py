@@ -21,8 +21,8 @@ import logging
 import re
 import shutil
 import signal
+import sys
 import tempfile
-import threading
 import time
 import uuid
 from contextlib import contextmanager
@@ -80,6 +80,7 @@ def connect(scheduler: str, *, memory_limit=None):
                              f"{MIN_WORKER_MEMORY >> 20}M (its Python, OpenCL runtime and one "
                              f"band); give more, e.g. 1G")
         logging.getLogger("distributed").setLevel(logging.CRITICAL)
+        quiet_resource_tracker()
         with sigint_ignored_by_children():
             cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
                                    memory_limit=memory_limit or "auto",
@@ -94,21 +95,45 @@ def connect(scheduler: str, *, memory_limit=None):
             yield client
 
 
+#: the warning filter multiprocessing's resource tracker is started with (``-W``)
+RESOURCE_TRACKER_QUIET = "ignore::UserWarning:multiprocessing.resource_tracker"
+
+
+def quiet_resource_tracker():
+    """The resource tracker that this process's cluster starts says nothing at its end: a
+    stopped command ends at once (``apps.cli.console_main``), before multiprocessing unlinks
+    the cluster's semaphores, so the tracker, which unlinks them itself, would print two
+    lines of "leaked semaphore objects" after the command's one. (It takes its warning
+    filters from ``sys.warnoptions`` when started, as every process multiprocessing starts.)"""
+    if RESOURCE_TRACKER_QUIET not in sys.warnoptions:
+        sys.warnoptions.append(RESOURCE_TRACKER_QUIET)
+
+
 @contextmanager
 def sigint_ignored_by_children():
-    """Processes started inside ignore SIGINT (an ignored signal stays ignored across exec,
-    and Python then installs no KeyboardInterrupt handler): a Ctrl-C, which the terminal sends
-    to the whole process group, reaches only this process, which cancels the tasks and
-    closes the cluster; a worker interrupted mid-task could leave that close waiting on it.
-    SIGTERM still stops the workers. Outside the main thread, nothing changes."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    """Processes started inside never see SIGINT: each is spawned with SIGINT blocked (a
+    signal mask is kept across fork and exec, and nothing in a worker unblocks it), so a
+    Ctrl-C, which the terminal sends to the whole process group, reaches only this process,
+    which cancels the tasks and closes the cluster; a worker interrupted mid-task could leave
+    that close waiting on it. Only the spawning thread blocks it, and only while it spawns:
+    this process keeps its handler, so a Ctrl-C while the cluster starts stops the run (were
+    SIGINT ignored here for the whole start, it would be lost). SIGTERM still stops the
+    workers. Multiprocessing's spawn and forkserver start their processes through
+    ``multiprocessing.util.spawnv_passfds``."""
+    import multiprocessing.util as mp_util
+    spawn = mp_util.spawnv_passfds
+
+    def spawn_without_sigint(*args, **kwargs):
+        mask = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+        try:
+            return spawn(*args, **kwargs)
+        finally:
+            signal.pthread_sigmask(signal.SIG_SETMASK, mask)
+    mp_util.spawnv_passfds = spawn_without_sigint
     try:
         yield
     finally:
-        signal.signal(signal.SIGINT, previous)
+        mp_util.spawnv_passfds = spawn
 
 
 def _progress(total, desc, enabled):

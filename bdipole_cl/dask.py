@@ -39,7 +39,7 @@ from .io.images import (Cancelled, Reader, TextureError, Writer, check_texture_w
 from .io.mipmaps import texture_options
 from .jobs import runner
 from .jobs.blur_file import (FILE_ROW_FLOATS, blurred_band, exitance_writer, file_plan,
-                              report_clamped)
+                              located, report_clamped)
 from .jobs.job import Job
 from .jobs.results import BatchReport, FileResult
 from .jobs.scene import Plan, not_run, scene_job
@@ -49,6 +49,7 @@ from .ops.bands import band_rows, bands, halo_rows
 from .ops.inversion_plan import texel_broadcast
 from .ops.blur import Scattering, plan_blur
 from .ops.blur.params import checked_irradiance
+from .errors import InvalidInputError, moved_by
 from .signals import STOP
 
 #: a task that raised is tried again this many times (a worker that died is always replaced)
@@ -202,6 +203,8 @@ def bake_on_cluster(plan: Plan, client, *, device=None, progress=True,
     results, futures = {}, {}
     run_id = uuid.uuid4().hex[:12]       # a run's own task keys: never an earlier run's results
     for i, job in enumerate(plan.jobs):
+        if STOP.is_set():                # a stop request: nothing more is sent
+            break
         results[i] = not_run(job)
         if results[i] is None:
             del results[i]
@@ -256,7 +259,9 @@ def file_runner(client, *, device=None, progress=True):
 def blur_band_task(path, band_path, y0, y1, plan, colorspace, working, device=None):
     """A cluster task: rows [y0, y1) of the blurred image (``blur_file``'s own band step,
     ``blurred_band``, with the plan made once by the client), written to ``band_path``.
-    Returns (band_path, the irradiance values of its rows clamped by kind)."""
+    Returns (band_path, the irradiance values of its rows clamped by kind), or the
+    TextureError naming an invalid texel where it is in the image (returned, not raised: the
+    same input would fail every retry)."""
     remove_partial_files(band_path)
     plan = plan.on(get_runtime(device))
     reader = Reader(path, "irradiance")
@@ -269,8 +274,12 @@ def blur_band_task(path, band_path, y0, y1, plan, colorspace, working, device=No
     finally:
         reader.close()
     counts = {}
-    out, _ = blurred_band(plan, px, colour, alpha, [spec.channelnames[c] for c in colour],
-                          route, idx, None, y0, y1, counts=counts)
+    names = [spec.channelnames[c] for c in colour]
+    try:
+        out, _ = blurred_band(plan, px, colour, alpha, names, route, idx, None, y0, y1,
+                              counts=counts)
+    except InvalidInputError as exc:
+        return located(exc, path, {}, spec, idx, names)
     band = oiio.ImageSpec(spec.width, y1 - y0, out.shape[-1], "float")
     writer = Writer(band_path, band)
     try:
@@ -345,8 +354,10 @@ def blur_file_on_cluster(path, output, client, *, colorspace="auto", working_spa
             bar.close()
         if STOP.is_set() or len(done) < len(futures):
             raise Cancelled(f"{path}: interrupted; nothing written")
-        failed = [v for v in done.values() if isinstance(v, Exception)]
+        failed = [done[key] for key in sorted(done) if isinstance(done[key], Exception)]
         if failed:
+            if isinstance(failed[0], TextureError):      # an input's texel, named already
+                raise failed[0]                            # (in every band whose halo has it)
             raise TextureError(f"{path}: {len(failed)} band(s) failed: {failed[0]}")
         writer = exitance_writer(path, output, spec, colour, alpha, route, plan, half=half,
                                  texture=texture)
@@ -375,10 +386,19 @@ def blur_file_on_cluster(path, output, client, *, colorspace="auto", working_spa
 
 # {{{ lazy arrays
 
+def block_origin(block_info) -> tuple:
+    """The index of a block's first element in its array (map_blocks' ``block_info``)."""
+    return tuple(start for start, _ in block_info[0]["array-location"])
+
+
 def _stacked(fn):
-    """A block function returning its outputs stacked on a new last axis."""
-    def block(*arrays):
-        outs = fn(*arrays)
+    """A block function returning its outputs stacked on a new last axis; an invalid value
+    named where it is in the whole array, not in its block."""
+    def block(*arrays, block_info=None):
+        try:
+            outs = fn(*arrays)
+        except InvalidInputError as exc:
+            raise (moved_by(exc, block_origin(block_info)) if block_info else exc) from None
         outs = outs if isinstance(outs, tuple) else (outs,)
         return np.stack([np.asarray(o, np.float32) for o in outs], axis=-1)
     return block
@@ -434,8 +454,14 @@ def blur(irradiance, *, border="clamp", device=None, **kwargs):
     plan = plan_blur(arr.shape, scattering, border=border, device=device, **options)
     k = plan.halo
 
+    def checked(block, block_info=None):  # before the overlap: a bad texel named in place
+        try:
+            return checked_irradiance(block, plan.on_invalid)
+        except InvalidInputError as exc:
+            raise moved_by(exc, block_origin(block_info)) from None
+
     def fn(block):                     # the one plan, its device bound once per process
-        return plan.on(device).apply_band(checked_irradiance(block, plan.on_invalid))[0]
+        return plan.on(device).apply_band(np.ascontiguousarray(block, np.float32))[0]
 
     def whole(block):                  # the image in one block: the border rule applied there
         return plan.on(device).apply(block)[0]
@@ -444,6 +470,7 @@ def blur(irradiance, *, border="clamp", device=None, **kwargs):
         return out if irradiance.ndim == 3 else out[..., 0]
     # chunks thinner than the radius are merged by dask (allow_rechunk) so that every block's
     # overlap holds all the texels its kernels reach
+    arr = arr.map_blocks(checked, dtype=np.float32)
     out = arr.map_overlap(fn, depth={0: k, 1: k, 2: 0}, boundary=BOUNDARIES[border],
                           dtype=np.float32, allow_rechunk=True)
     return out if irradiance.ndim == 3 else out[..., 0]

@@ -61,7 +61,7 @@ class InvalidInputError(ValueError):
 
     def __init__(self, name, count, first_index, first_value, why, texels=False):
         self.name, self.count, self.first_index = name, count, tuple(first_index)
-        self.first_value, self.why = first_value, why
+        self.first_value, self.why, self.texels = first_value, why, texels
         if texels and len(self.first_index) == 3:
             y, x, c = self.first_index
             where = f"x={x}, y={y}, channel {c}"
@@ -86,6 +86,15 @@ def find_invalid(name, values, bad, why, on_invalid, texels=False, channel=None)
             first += (int(channel),)
         raise InvalidInputError(name, count, first, value, why, texels)
     return count
+
+
+def moved_by(exc: InvalidInputError, origin) -> InvalidInputError:
+    """``exc`` of a block of a larger array, its first index moved by the block's ``origin``
+    (its first element's index in the array, per leading axis): named where it is in the
+    array. The count stays the block's."""
+    index = tuple(int(i) + int(o) for i, o in zip(exc.first_index, origin)) \
+        + exc.first_index[len(origin):]
+    return InvalidInputError(exc.name, exc.count, index, exc.first_value, exc.why, exc.texels)
 
 
 def one_line(text) -> str:

@@ -258,3 +258,40 @@ def test_cluster_blur_refuses_a_texture_of_an_outside_window_first_and_counts_cl
     bdask.blur_file_on_cluster(tmp_path / "hot.exr", tmp_path / "h.exr", client, half=True,
                                on_invalid="clamp", clamped=clamped, **kw)
     assert clamped.get("half range") == 16 * 16 * 3       # values: every channel of each texel
+
+
+def test_lazy_functions_name_a_bad_value_where_it_is_in_the_array():
+    """Each block is checked on its own: the error names the value's index in the whole
+    array (the block's origin added), as the in-memory function does."""
+    import dask
+    rd = np.full((64, 64, 3), 0.5, np.float32)
+    rd[40, 50, 1] = np.nan
+    with dask.config.set(scheduler="synchronous"):
+        for call in (lambda a: bdask.invert_albedo(a, 1.4),
+                     lambda a: bdask.albedo_to_coefficients(a, 1.0, 1.4)[0]):
+            with pytest.raises(bdipole_cl.InvalidInputError, match=r"index \(40, 50, 1\)"):
+                call(da.from_array(rd, chunks=(16, 16, 3))).compute()
+        with pytest.raises(bdipole_cl.InvalidInputError, match="x=50, y=40, channel 1"):
+            bdask.blur(da.from_array(rd, chunks=(32, 32, 3)), albedo=0.8, mfp=2.0).compute()
+
+
+def test_workers_start_with_sigint_blocked_and_this_process_keeps_its_handler():
+    """A Ctrl-C reaches the whole process group: the workers must not see it (the command
+    cancels them itself), but this process must, also while the cluster starts (it was
+    ignored here for the whole start, so a Ctrl-C then was lost)."""
+    import multiprocessing
+    import signal
+    handler = signal.getsignal(signal.SIGINT)
+    with bdask.sigint_ignored_by_children():
+        assert signal.getsignal(signal.SIGINT) is handler
+        child = multiprocessing.get_context("spawn").Process(target=time.sleep, args=(5,))
+        child.start()
+    try:
+        with open(f"/proc/{child.pid}/status") as f:
+            blocked = int(next(line for line in f if line.startswith("SigBlk:")).split()[1],
+                          16)
+        assert blocked & (1 << (signal.SIGINT - 1)), hex(blocked)
+    finally:
+        child.terminate()
+        child.join()
+    assert not signal.pthread_sigmask(signal.SIG_BLOCK, []) & {signal.SIGINT}

@@ -192,7 +192,8 @@ def test_a_float_image_of_a_baked_input_is_refused_as_one_channel(tmp_path):
     (('value="1.4"', 'value="nan"'), "eta = [nan]"),
     (('value="1.4"', 'value="9"'), "eta=9.0 is outside"),
     (('value="RADIUS"', 'value="0"'), "mfp = "),
-], ids=["unit", "nan eta", "eta out of range", "zero radius"])
+    (('value="1.4"', 'value="glass"'), "= 'glass': expected a number"),
+], ids=["unit", "nan eta", "eta out of range", "zero radius", "no number"])
 def test_a_bad_value_in_the_document_leaves_that_material_out_and_the_rest_bake(tmp_path,
                                                                                 edit, why):
     """A value of one material that cannot be baked (a unit that is not a distance, a NaN or

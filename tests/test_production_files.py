@@ -99,7 +99,8 @@ def test_bake_previews_never_land_on_a_file_of_the_run(tmp_path, capsys):
     """A contact sheet goes beside its output (out.preview.png): where that is another
     material's albedo, bake --preview --force drew the sheet over it, and the next bake
     inverted the sheet. The pictures are outputs of the run's collision check, checked
-    before any work: refused, forced or not, and nothing is baked."""
+    before any work: the job whose sheet would land there does not run, forced or not (exit
+    1), and the others do."""
     tex = tmp_path / "tex"
     tex.mkdir()
     write(tex / "a.exr", ramp())
@@ -114,9 +115,12 @@ def test_bake_previews_never_land_on_a_file_of_the_run(tmp_path, capsys):
     for force in ([], ["--force"]):
         rc = cli_main(["bake", str(path), "--preview", "--no-progress", *force])
         err = capsys.readouterr().err
-        assert rc == 2 and "--preview: contact sheet of" in err and "would overwrite an input" \
+        # the job whose sheet would land on b's albedo does not run (exit 1); b does
+        assert rc == 1 and "--preview: contact sheet of" in err and "would overwrite an input" \
             in err and "albedo" in err, err
-        assert snapshot(tex) == before                        # nothing baked, nothing drawn
+        after = snapshot(tex)
+        assert {k: after[k] for k in before} == before        # no input touched
+        assert "paint.exr" not in after and "b_out.exr" in after, sorted(after)
 
 
 def test_a_stop_during_bake_previews_ends_them(tmp_path, monkeypatch, capsys):
@@ -140,6 +144,30 @@ def test_a_stop_during_bake_previews_ends_them(tmp_path, monkeypatch, capsys):
     assert rc == 130 and "during the previews" in err, err
     assert len(drawn) == 1 and not (tmp_path / "scene.preview.png").exists()
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
+
+
+def test_a_stop_while_a_bake_plans_ends_it_before_any_job(tmp_path, monkeypatch, capsys):
+    """Ctrl-C during bake's planning (its statistics pass over many tiles): the command ends
+    there (exit 130), nothing written; it went on planning every tile, then (on a cluster)
+    started the jobs."""
+    from bdipole_cl.jobs import scene as scene_jobs
+    for name in ("a", "b", "c"):
+        write(tmp_path / f"{name}.exr", ramp())
+    path = scene(tmp_path, "".join(f'[[material]]\nname = "{n}"\nalbedo = "{n}.exr"\n'
+                                   f'mfp = 1.0\noutput = "{n}_out.exr"\n' for n in "abc"))
+    real, planned = scene_jobs._plan_invert, []
+
+    def plan_then_ctrl_c(*a, **k):
+        planned.append(real(*a, **k))
+        os.kill(os.getpid(), signal.SIGINT)
+        return planned[-1]
+    monkeypatch.setattr(scene_jobs, "_plan_invert", plan_then_ctrl_c)
+    rc = cli_main(["bake", str(path), "--no-progress"])
+    err = capsys.readouterr().err
+    assert rc == 130 and "while planning: nothing written" in err, err
+    assert len(planned) == 1
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.exr", "b.exr", "c.exr",
+                                                          "scene.toml"]
 
 
 def test_skipped_jobs_inputs_are_still_inputs(tmp_path):

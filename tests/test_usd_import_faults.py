@@ -316,3 +316,92 @@ def test_the_records_layer_sublayered_over_its_stage_is_rewritten(tmp_path):
     assert report.exit_code == 0, report.summary()
     by_name, layer = records(tmp_path / "bdipole")
     assert by_name["paint"]["baked"] and "/Mat/paint" in baked_prims(layer)
+
+
+@pytest.mark.parametrize("arc", ["sublayer", "reference"])
+def test_a_layer_that_cannot_be_opened_refuses_the_stage_in_one_line(tmp_path, capsys, arc):
+    """USD composes what it can and warns (several lines, on stderr): a missing sublayer would
+    bake nothing as a success and rewrite the records empty. The stage is refused, naming the
+    layer, and an earlier bake's records are left as they are."""
+    from bdipole_cl.apps.cli import main as cli_main
+    texture(tmp_path / "tex" / "jade.exr")
+    looks = Usd.Stage.CreateNew(str(tmp_path / "looks.usda"))
+    material(looks, "jade", "tex/jade.exr")
+    looks.GetRootLayer().Save()
+    shot = Usd.Stage.CreateNew(str(tmp_path / "shot.usda"))
+    if arc == "sublayer":
+        shot.GetRootLayer().subLayerPaths.append("looks.usda")
+    else:
+        shot.DefinePrim("/Mat").GetReferences().AddReference("looks.usda", "/Mat")
+    shot.GetRootLayer().Save()
+    assert cli_main(["bake", str(tmp_path / "shot.usda"), "--no-progress"]) == 0
+    capsys.readouterr()
+    before = (tmp_path / "bdipole" / "bdipole_materials.json").read_bytes()
+    (tmp_path / "looks.usda").rename(tmp_path / "looks_moved.usda")
+    for command in ("plan", "bake"):
+        rc = cli_main([command, str(tmp_path / "shot.usda"), "--no-progress"][
+            :3 if command == "bake" else 2])
+        err = capsys.readouterr().err
+        assert rc == 2 and err.count("\n") == 1, err
+        assert "shot.usda: the stage does not compose whole" in err and "looks.usda" in err
+    assert (tmp_path / "bdipole" / "bdipole_materials.json").read_bytes() == before
+
+
+def test_a_material_of_an_instanced_asset_is_baked_once(tmp_path):
+    """Set dressing instances its assets: their materials are prims of a prototype, which a
+    plain traversal does not enter. Each is found, once however many instances show it."""
+    texture(tmp_path / "tex" / "skin.exr")
+    asset = Usd.Stage.CreateNew(str(tmp_path / "char.usda"))
+    material(asset, "skin", "tex/skin.exr")
+    asset.SetDefaultPrim(asset.GetPrimAtPath("/Mat"))
+    asset.GetRootLayer().Save()
+    shot = new_stage(tmp_path)
+    for k in range(3):
+        prim = shot.DefinePrim(f"/set/char{k}")
+        prim.GetReferences().AddReference("char.usda")
+        prim.SetInstanceable(True)
+    shot.GetRootLayer().Save()
+    plan = scenes.load(tmp_path / "asset.usda").plan()
+    assert [j.name for j in plan.jobs] == ["skin"], plan.describe()
+    report = plan.run()
+    assert report.exit_code == 0 and (tmp_path / "bdipole" / "skin.exr").is_file()
+
+
+def test_materials_whose_paths_join_to_one_name_get_their_own(tmp_path):
+    texture(tmp_path / "tex" / "a.exr")
+    stage = new_stage(tmp_path)
+    for path in ("/A/skin", "/A_skin", "/B/skin"):
+        m = UsdShade.Material.Define(stage, path)
+        s = UsdShade.Shader.Define(stage, f"{path}/s")
+        s.CreateIdAttr(OPENPBR)
+        m.CreateSurfaceOutput("mtlx").ConnectToSource(s.ConnectableAPI(), "out")
+        s.CreateInput("subsurface_weight", F).Set(1.0)
+        s.CreateInput("subsurface_color", C3).Set(Gf.Vec3f(0.5, 0.4, 0.3))
+    stage.GetRootLayer().Save()
+    plan = scenes.load(tmp_path / "asset.usda").plan()
+    names = sorted(j.name for j in plan.jobs)
+    assert len(set(names)) == 3 and not plan.missing, names
+
+
+def test_a_wrongly_typed_input_leaves_its_material_out_by_name(tmp_path):
+    """A texture file authored as a string, a colour as a string: that material is named as
+    not bakeable (its attribute, its value, what was expected); the others bake."""
+    texture(tmp_path / "tex" / "good.exr")
+    texture(tmp_path / "tex" / "b.exr")
+    stage = new_stage(tmp_path)
+    material(stage, "good", "tex/good.exr")
+    _, t = material(stage, "stringfile", "tex/b.exr")
+    t.GetPrim().RemoveProperty("inputs:file")
+    t.CreateInput("file", Sdf.ValueTypeNames.String).Set("tex/b.exr")
+    m = UsdShade.Material.Define(stage, "/Mat/red")
+    s = UsdShade.Shader.Define(stage, "/Mat/red/s")
+    s.CreateIdAttr(OPENPBR)
+    m.CreateSurfaceOutput("mtlx").ConnectToSource(s.ConnectableAPI(), "out")
+    s.CreateInput("subsurface_weight", F).Set(1.0)
+    s.CreateInput("subsurface_color", Sdf.ValueTypeNames.String).Set("red")
+    stage.GetRootLayer().Save()
+    report = scenes.load(tmp_path / "asset.usda").plan().run()
+    assert report.exit_code == 0 and (tmp_path / "bdipole" / "good.exr").is_file()
+    by_name, _ = records(tmp_path / "bdipole")
+    assert "a texture file is an asset path" in by_name["stringfile"]["left_out"]
+    assert "'red': expected a number or a colour" in by_name["red"]["left_out"]

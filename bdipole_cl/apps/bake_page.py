@@ -38,31 +38,45 @@ def page_path(plan, page=None) -> Path:
     return Path(page) if page is not None else Path(plan.scene.path).with_suffix(".preview.png")
 
 
-def check_preview_outputs(plan, page=None, force=False):
-    """ValueError (one line) where a contact sheet or the page of ``plan``'s bake would land
-    on any input or output of any of its jobs (never allowed, ``force`` or not), or replace a
-    file this tool did not write (unless ``force``): the run's collision check
-    (``io.collisions.collisions``) with the pictures as outputs of their own."""
-    jobs = [Claim(j.source, j.output, j.inputs) for j in plan.jobs
-            if j.output and j.kind != "constant"]          # a constant's output: the records
-    pictures = [Claim(f"contact sheet of {j.output}", str(sheet_path(j.output)), {})
-                for j in plan.jobs if j.output and j.kind != "constant"]
+def preview_clashes(plan, page=None, force=False):
+    """Where a contact sheet or the page of ``plan``'s bake would land on any input or output
+    of any of its jobs (never allowed, ``force`` or not), or replace a file this tool did not
+    write (unless ``force``): the run's collision check (``io.collisions.collisions``) with
+    the pictures as outputs of their own. ({job index: its sheet's one-line clash}, the
+    page's clash or None)."""
+    drawn = [i for i, j in enumerate(plan.jobs)          # a constant's output: the records
+             if j.output and j.kind != "constant"]
+    jobs = [Claim(plan.jobs[i].source, plan.jobs[i].output, plan.jobs[i].inputs) for i in drawn]
+    pictures = [Claim(f"contact sheet of {plan.jobs[i].output}",
+                      str(sheet_path(plan.jobs[i].output)), {}) for i in drawn]
     pictures.append(Claim("the bake's page", str(page_path(plan, page)), {}))
-    for clash in collisions(jobs + pictures, force)[len(jobs):]:
-        if clash:
-            raise ValueError(f"--preview: {clash}")
+    found = collisions(jobs + pictures, force)[len(jobs):]
+    sheets = {i: f"--preview: {clash}" for i, clash in zip(drawn, found[:-1]) if clash}
+    return sheets, (f"--preview: {found[-1]}" if found[-1] else None)
+
+
+def check_preview_outputs(plan, page=None, force=False):
+    """ValueError (one line) naming the first picture of ``plan``'s bake that would land on a
+    file of the run or replace a file this tool did not write (``preview_clashes``)."""
+    sheets, page_clash = preview_clashes(plan, page, force)
+    first = next(iter(sheets.values()), None) or page_clash
+    if first:
+        raise ValueError(first)
 
 
 def bake_preview(plan, report, page=None, force=False) -> BakePreview:
     """Contact sheets of every output the bake left (made now or up to date), and the page
     (default: beside the scene file, ``scene.preview.png``); none lands on a file of the run
-    (``check_preview_outputs``), nor replaces a file this tool did not write unless
-    ``force``."""
-    check_preview_outputs(plan, page, force)
+    (``preview_clashes``: a job's sheet that would is not drawn, a page that would is a
+    ValueError), nor replaces a file this tool did not write unless ``force``."""
+    clashes, page_clash = preview_clashes(plan, page, force)
+    if page_clash:
+        raise ValueError(page_clash)
     done = {r.output for r in report.results if r.status in ("ok", "skipped")}
     sheets = []
-    for j in plan.jobs:               # a stop request ends the pictures between two of them
-        if j.kind != "constant" and j.output in done and Path(j.output).is_file():   # (whole)
+    for i, j in enumerate(plan.jobs):     # a stop request ends the pictures between two
+        if (j.kind != "constant" and i not in clashes and j.output in done  # of them (whole)
+                and Path(j.output).is_file()):
             check_stop()
             sheets.append(contact_sheet(j.output, sheet_path(j.output), title=_job_title(j),
                                         force=force))

@@ -117,12 +117,26 @@ def _cmd_plan(args) -> int:
 
 def _cmd_bake(args) -> int:
     from ..jobs.scene import load
+    from ..signals import Stopped
     stop = SignalStop().install()
-    plan = load(args.scene, args.working_space).plan(force=args.force,
-                                                    max_memory=args.max_memory)
+    try:
+        plan = load(args.scene, args.working_space).plan(force=args.force,
+                                                        max_memory=args.max_memory)
+    except Stopped:
+        print(f"interrupted by signal {stop.signum} while planning: nothing written",
+              file=sys.stderr)
+        return stop.exit_code
+    if stop.exit_code:                  # stopped as the plan finished: nothing started
+        print(f"interrupted by signal {stop.signum} before any job: nothing written",
+              file=sys.stderr)
+        return stop.exit_code
     if args.preview:                        # its pictures land on no file of the run
-        from .bake_page import check_preview_outputs
-        check_preview_outputs(plan, force=args.force)
+        from .bake_page import preview_clashes
+        clashes, page_clash = preview_clashes(plan, force=args.force)
+        if page_clash:                      # the page is the run's own: a usage error
+            raise ValueError(page_clash)
+        for i, clash in clashes.items():    # a sheet: its job cannot run, the others do
+            plan.jobs[i].problem, plan.jobs[i].up_to_date = clash, False
     for problem in plan.missing:            # every missing input, before any work starts
         print(f"cannot run: {problem}", file=sys.stderr)
     bar = None
@@ -150,7 +164,6 @@ def _cmd_bake(args) -> int:
                 bar.close()
     code = _finish(report, stop)
     if args.preview and not stop.exit_code:
-        from ..signals import Stopped
         from .bake_page import bake_preview
         try:
             print(bake_preview(plan, report, force=args.force).describe())

@@ -30,12 +30,14 @@ USD_MATERIALS_SCOPE = "/MaterialX/Materials"
 
 def _values(inp) -> tuple | None:
     """An input's numbers as written in the document (its value string: 1.45, not the
-    float32 1.4500000477)."""
+    float32 1.4500000477); a value that is no number (value="red") a SceneError naming the
+    input, never its default in silence."""
     text = inp.getValueString()
     try:
         return tuple(float(v) for v in text.split(",")) if text else None
     except ValueError:
-        return None
+        raise SceneError(f"{inp.getNamePath()} = {text!r}: expected a number or a colour "
+                         f"(its type is {inp.getType()})") from None
 
 
 def _texture(node, base: str) -> Texture | str:

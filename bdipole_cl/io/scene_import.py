@@ -42,9 +42,9 @@ def source_files(path) -> set:
     files = {str(Path(path).resolve())}
     if Path(path).suffix.lower() in USD_SUFFIXES:
         try:
-            from pxr import Usd
-            stage = Usd.Stage.Open(str(path), Usd.Stage.LoadAll)
-        except Exception:                # pxr raises Tf.ErrorException; the import read it
+            from .usd_scene import open_stage
+            stage = open_stage(path)
+        except Exception:                # the import read it, and said what failed
             return files
         files |= {str(Path(layer.realPath).resolve()) for layer in stage.GetUsedLayers()
                   if layer.realPath}

@@ -292,7 +292,21 @@ def imported_material(name, path, shader_id, read, *, unit_m, out_dir, bound) ->
 
 def unique_names(paths) -> dict:
     """{prim path: material name}: the last path element, or the whole path joined by '_'
-    where two materials share a last element."""
+    where two materials share a last element; a name that is still not unique (/A/skin and
+    /A_skin both give A_skin) gets _2, _3, ... in path order after its first."""
     last = [p.rstrip("/").rsplit("/", 1)[-1] for p in paths]
-    return {p: (n if last.count(n) == 1 else p.strip("/").replace("/", "_"))
-            for p, n in zip(paths, last)}
+    names = [n if last.count(n) == 1 else p.strip("/").replace("/", "_")
+             for p, n in zip(paths, last)]
+    taken, out = set(names), {}
+    seen = {}
+    for p, n in sorted(zip(paths, names)):
+        seen[n] = seen.get(n, 0) + 1
+        name = n
+        if seen[n] > 1:
+            k = seen[n]
+            while f"{n}_{k}" in taken:
+                k += 1
+            name = f"{n}_{k}"
+            taken.add(name)
+        out[p] = name
+    return {p: out[p] for p in paths}

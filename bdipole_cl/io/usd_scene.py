@@ -17,9 +17,12 @@ from __future__ import annotations
 
 import math
 import os
+import sys
+import tempfile
+from contextlib import contextmanager
 
 import numpy as np
-from pxr import Usd, UsdGeom, UsdShade
+from pxr import Sdf, Usd, UsdGeom, UsdShade
 
 from .scene_file import SceneError
 from .shaders import (BY_ID, TEXTURE_NODES, Input, Texture, imported_material, one_channel,
@@ -46,11 +49,22 @@ def _decimal(v) -> float:
     return float(str(np.float32(v))) if float(np.float32(v)) == v else v
 
 
-def _values(value) -> tuple:
+def _values(value, where="") -> tuple:
+    """An authored number or vector as floats; anything else (a string, a token, a bool) a
+    SceneError naming ``where`` (the attribute) and the value."""
+    if isinstance(value, (str, bytes, bool)):
+        raise SceneError(f"{where} = {value!r}: expected a number or a colour "
+                         f"(a {type(value).__name__} is neither)")
     try:
         return tuple(_decimal(v) for v in value)
     except TypeError:
+        pass
+    except ValueError:
+        raise SceneError(f"{where} = {value!r}: expected a number or a colour") from None
+    try:
         return (_decimal(value),)
+    except (TypeError, ValueError):
+        raise SceneError(f"{where} = {value!r}: expected a number or a colour") from None
 
 
 def _asset_file(attr) -> str:
@@ -59,6 +73,9 @@ def _asset_file(attr) -> str:
     asset = attr.Get()
     if asset is None:
         return ""
+    if not isinstance(asset, Sdf.AssetPath):
+        raise SceneError(f"{attr.GetPath()} = {asset!r}: a texture file is an asset path "
+                         f"(asset inputs:file = @path@), not a {type(asset).__name__}")
     if asset.resolvedPath:
         return asset.resolvedPath
     path = asset.path
@@ -76,7 +93,8 @@ def _scale_bias(shader) -> tuple:
     found = []
     for key, default in (("scale", 1), ("bias", 0)):
         inp = shader.GetInput(key)
-        value = _values(inp.Get()) if inp and inp.Get() is not None else None
+        value = (_values(inp.Get(), str(inp.GetAttr().GetPath()))
+                 if inp and inp.Get() is not None else None)
         found.append(None if value is None or all(v == default for v in value[:3])
                      else value[:3])
     return tuple(found)
@@ -118,7 +136,7 @@ def read_input(shader, name: str) -> Input | None:
     attr = attrs[0]
     if UsdShade.Input.IsInput(attr):
         value = attr.Get()
-        return None if value is None else Input(name, value=_values(value))
+        return None if value is None else Input(name, value=_values(value, str(attr.GetPath())))
     source = UsdShade.Shader(attr.GetPrim())
     shader_id = source.GetShaderId() or ""
     kind = _node_kind(shader_id)
@@ -149,10 +167,16 @@ def surface_shader(material):
     return found[0] if found else (None, None)
 
 
+#: the prims a scene reads: every active, loaded, defined prim, inside instances too (a
+#: material of an instanced asset is a prim of its prototype, seen through each instance)
+PRIMS = Usd.TraverseInstanceProxies(Usd.PrimDefaultPredicate)
+
+
 def bound_materials(stage) -> set:
-    """Paths of the materials some prim binds directly (any purpose)."""
+    """Paths of the materials some prim binds directly (any purpose), as the material prims
+    are read (``stage_materials``: one of an instance's prototype by its prototype's path)."""
     bound = set()
-    for prim in stage.Traverse():
+    for prim in stage.Traverse(PRIMS):
         if not prim.HasAPI(UsdShade.MaterialBindingAPI):
             continue
         api = UsdShade.MaterialBindingAPI(prim)
@@ -161,33 +185,93 @@ def bound_materials(stage) -> set:
             path = api.GetDirectBinding(purpose).GetMaterialPath()
             if not path.isEmpty:
                 bound.add(str(path))
+                target = stage.GetPrimAtPath(path)
+                if target and target.IsInstanceProxy():
+                    bound.add(str(target.GetPrimInPrototype().GetPath()))
     return bound
 
 
-def read_stage(path):
-    """[ImportedMaterial] of every Material prim of the stage at ``path``."""
+def stage_materials(stage) -> list:
+    """The Material prims of ``stage``, inside instances too; a material of an instanced
+    asset once (its first instance's), however many instances show it: they are one prim,
+    its prototype's, with one set of inputs. (UsdShade.Material, the prototype's path or its
+    own) pairs, in traversal order."""
+    seen, found = set(), []
+    for prim in stage.Traverse(PRIMS):
+        if not prim.IsA(UsdShade.Material):
+            continue
+        key = str(prim.GetPrimInPrototype().GetPath() if prim.IsInstanceProxy()
+                  else prim.GetPath())
+        if key not in seen:
+            seen.add(key)
+            found.append((UsdShade.Material(prim), key))
+    return found
+
+
+@contextmanager
+def usd_diagnostics_kept(sink):
+    """USD's own warnings and errors (written by its C++ to the process's stderr, several lines
+    each) go to ``sink`` (a list that gets the text) instead: the scene reports what matters
+    in its one line. Outside the main thread, nothing is redirected."""
+    import threading
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    sys.stderr.flush()
+    saved = os.dup(2)
+    with tempfile.TemporaryFile() as tmp:
+        os.dup2(tmp.fileno(), 2)
+        try:
+            yield
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+            tmp.seek(0)
+            sink.append(tmp.read().decode("utf-8", "replace"))
+
+
+def open_stage(path):
+    """The USD stage at ``path``, composed whole: a SceneError (one line, naming the file and
+    the first problem) if it cannot be opened or any of its layers, references or payloads
+    cannot (USD would compose the rest and go on: a missing sublayer would bake nothing, or
+    less, as a success)."""
+    said = []
     try:
-        stage = Usd.Stage.Open(str(path), Usd.Stage.LoadAll)
+        with usd_diagnostics_kept(said):
+            stage = Usd.Stage.Open(str(path), Usd.Stage.LoadAll)
     except Exception as exc:            # pxr raises Tf.ErrorException
         text = " ".join(str(exc).split())
         raise SceneError(f"{path}: cannot open the USD stage: {text}") from None
     if stage is None:
-        raise SceneError(f"{path}: cannot open the USD stage")
+        raise SceneError(f"{path}: cannot open the USD stage"
+                         + (f": {' '.join(said[0].split())}" if said and said[0].strip() else ""))
+    errors = stage.GetCompositionErrors()
+    if errors:
+        first = " ".join(str(errors[0]).split())
+        raise SceneError(f"{path}: the stage does not compose whole ({len(errors)} error(s)): "
+                         f"{first}")
+    return stage
+
+
+def read_stage(path):
+    """[ImportedMaterial] of every Material prim of the stage at ``path`` (``stage_materials``:
+    inside instances too)."""
+    stage = open_stage(path)
     unit_m = UsdGeom.GetStageMetersPerUnit(stage)
     if not (math.isfinite(unit_m) and unit_m > 0):
         raise SceneError(f"{path}: metersPerUnit = {unit_m:g}: the stage's unit must be a "
                          f"positive, finite number of metres")
     out_dir = os.path.join(os.path.dirname(os.path.abspath(path)), "bdipole")
-    materials = [UsdShade.Material(p) for p in stage.Traverse() if p.IsA(UsdShade.Material)]
-    names = unique_names([str(m.GetPath()) for m in materials])
+    materials = stage_materials(stage)
+    names = unique_names([str(m.GetPath()) for m, _ in materials])
     bound = bound_materials(stage)
     result = []
-    for material in materials:
+    for material, key in materials:
         prim_path = str(material.GetPath())
         shader, shader_id = surface_shader(material)
         result.append(imported_material(
             names[prim_path], prim_path, shader_id,
             (lambda n, s=shader: read_input(s, n)) if shader else (lambda n: None),
-            unit_m=unit_m, out_dir=out_dir, bound=prim_path in bound))
+            unit_m=unit_m, out_dir=out_dir, bound=prim_path in bound or key in bound))
     return result
 

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import InvalidInputError, find_invalid
+from ..errors import InvalidInputError, check_policy, find_invalid
 from ..io.images import (Cancelled, Reader, TextureError, Writer, check_same_window,
                          classify_channels, invalid_texels, output_spec)
 from ..ops.bands import band_rows
@@ -122,15 +122,17 @@ def inversion_plan(work, etas, inp, runtime) -> InversionPlan:
                          runtime=runtime)
 
 
-def non_negative_albedo(albedo, on_invalid, mask=None):
+def non_negative_albedo(albedo, on_invalid, mask=None, one_valid=False):
     """(albedo, count): a texture's albedo below 0 (outside the working space's gamut after
     the colour conversion, or painted so) is invalid: an InvalidInputError naming the first,
     or with "clamp" 0 and counted. (``invert_albedo``'s arrays map Rd <= 0 to alpha' = 0; a
     file's texel below 0 is not an albedo, and is never silently changed.) Texels where
     ``mask`` (HxWx1 or HxW, as the plan takes it) is not > 0 are neither checked nor counted,
     as the plan leaves them out; a NaN is not below 0 (the plan's own rule reports it) and
-    hides no other texel."""
+    hides no other texel. Under "raise" the error counts and names, in array order, the plan's
+    invalid values too (NaN, infinite, above 1, or 1 itself unless ``one_valid``)."""
     bad = albedo < 0
+    keep = True
     if mask is not None:
         keep = np.asarray(mask) > 0
         if keep.ndim == albedo.ndim - 1:
@@ -138,8 +140,13 @@ def non_negative_albedo(albedo, on_invalid, mask=None):
         bad &= keep
     if not bad.any():
         return albedo, 0
-    n = find_invalid("albedo", albedo, bad, "below 0 in the working space: outside its gamut, "
-                     "or not an albedo", on_invalid, texels=True)
+    if check_policy(on_invalid) == "raise":
+        above = ~(albedo <= 1) if one_valid else ~(albedo < 1)
+        find_invalid("albedo", albedo, bad | (above & keep),
+                     f"below 0 in the working space (outside its gamut, or not an albedo), "
+                     f"NaN, infinite or {'> 1' if one_valid else '>= 1'}", on_invalid,
+                     texels=True)
+    n = find_invalid("albedo", albedo, bad, "below 0", on_invalid, texels=True)
     return np.where(bad, albedo.dtype.type(0), albedo), n
 
 
@@ -163,7 +170,8 @@ def invert_bands(job, work, inp, route, plan, writer, result, lock, cancel, prog
             with np.errstate(over="ignore", under="ignore"):
                 mfp = m[..., inp.mfp_channels] * scale
         try:
-            albedo, negative = non_negative_albedo(albedo, work.on_invalid, mask)
+            albedo, negative = non_negative_albedo(albedo, work.on_invalid, mask,
+                                                   one_valid=plan.mfp_kind is None)
             with lock:
                 done = plan.apply(albedo, mfp, mask)
         except InvalidInputError as exc:

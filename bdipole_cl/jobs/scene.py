@@ -47,6 +47,7 @@ from ..io.scene_values import number
 from ..io.tiles import TileError, is_pattern
 from ..methods.choice import DeviceKey, device_auto_note, resolve_method
 from ..methods.registry import OUTPUTS, MethodConfig
+from ..signals import check_stop
 from . import runner
 from .blur_file import colour_of
 from .invert_file import per_channel
@@ -309,13 +310,15 @@ def plan(scene: Scene, *, force=False, device=None, max_memory=DEFAULT_MEMORY) -
     patterns that cannot name a job's tile and collisions make jobs that cannot run (all are
     listed before any work; the others run). The statistics pass reads albedos in bands
     within ``max_memory`` bytes. A material without textures is one "constant" job (its
-    coefficients, no image)."""
+    coefficients, no image). A stop request (SIGINT/SIGTERM) raises ``Stopped`` between
+    files."""
     rt = get_runtime(device)
     jobs, problems = [], []
     textured = [m for m in scene.materials if not m.constant]
     for kind, entries in (("invert", textured), ("blur", scene.blurs)):
         for e in entries:
             for path, tile in expand_inputs([e.albedo if kind == "invert" else e.irradiance]):
+                check_stop()
                 try:
                     jobs.append(_plan_invert(e, path, tile, force, rt, problems, max_memory)
                                 if kind == "invert" else

@@ -153,7 +153,8 @@ def blur_file(path, output, *, colorspace="auto", working_space=None, half=False
         spec = reader.spec
         colour, alpha_ch = reader.channels()
         route = reader.colour(colorspace, resolve_working_space(working_space))
-        plan = file_plan(path, spec, [spec.channelnames[c] for c in colour], scattering,
+        names = [spec.channelnames[c] for c in colour]
+        plan = file_plan(path, spec, names, scattering,
                          dict(options, device=get_runtime(device)), sources)
         if plan.textured:
             # parameter textures: one global plan, so the whole image is read and the plan
@@ -163,7 +164,6 @@ def blur_file(path, output, *, colorspace="auto", working_space=None, half=False
             k = plan.halo
             rows = band_rows(spec.height, spec.width * spec.nchannels * 4 * FILE_ROW_FLOATS,
                              max_memory, halo=k, tile_height=spec.tile_height)
-        names = [spec.channelnames[c] for c in colour]
         state = {"info": None, "writer": None}
         counts = dict(plan.invalid)         # the parameter textures' values clamped
 

@@ -123,22 +123,33 @@ def test_bake_previews_never_land_on_a_file_of_the_run(tmp_path, capsys):
         assert "paint.exr" not in after and "b_out.exr" in after, sorted(after)
 
 
+def three_material_scene(tmp_path):
+    for name in ("a", "b", "c"):
+        write(tmp_path / f"{name}.exr", ramp())
+    return scene(tmp_path, "".join(f'[[material]]\nname = "{n}"\nalbedo = "{n}.exr"\n'
+                                   f'mfp = 1.0\noutput = "{n}_out.exr"\n' for n in "abc"))
+
+
+def ctrl_c_after(monkeypatch, owner, name):
+    """``owner.name`` replaced by itself followed by a SIGINT to this process; the list of
+    its results so far."""
+    real, done = getattr(owner, name), []
+
+    def then_ctrl_c(*a, **k):
+        done.append(real(*a, **k))
+        os.kill(os.getpid(), signal.SIGINT)
+        return done[-1]
+    monkeypatch.setattr(owner, name, then_ctrl_c)
+    return done
+
+
 def test_a_stop_during_bake_previews_ends_them(tmp_path, monkeypatch, capsys):
     """Ctrl-C while bake --preview draws its sheets: the pictures end there (the sheet being
     drawn whole, no page), and the command exits 130, not 0 after drawing everything."""
     pytest.importorskip("matplotlib")
     from bdipole_cl.apps import bake_page
-    for name in ("a", "b", "c"):
-        write(tmp_path / f"{name}.exr", ramp())
-    path = scene(tmp_path, "".join(f'[[material]]\nname = "{n}"\nalbedo = "{n}.exr"\n'
-                                   f'mfp = 1.0\noutput = "{n}_out.exr"\n' for n in "abc"))
-    real, drawn = bake_page.contact_sheet, []
-
-    def sheet_then_ctrl_c(*a, **k):
-        drawn.append(real(*a, **k))
-        os.kill(os.getpid(), signal.SIGINT)
-        return drawn[-1]
-    monkeypatch.setattr(bake_page, "contact_sheet", sheet_then_ctrl_c)
+    path = three_material_scene(tmp_path)
+    drawn = ctrl_c_after(monkeypatch, bake_page, "contact_sheet")
     rc = cli_main(["bake", str(path), "--preview", "--no-progress"])
     err = capsys.readouterr().err
     assert rc == 130 and "during the previews" in err, err
@@ -151,17 +162,8 @@ def test_a_stop_while_a_bake_plans_ends_it_before_any_job(tmp_path, monkeypatch,
     there (exit 130), nothing written; it went on planning every tile, then (on a cluster)
     started the jobs."""
     from bdipole_cl.jobs import scene as scene_jobs
-    for name in ("a", "b", "c"):
-        write(tmp_path / f"{name}.exr", ramp())
-    path = scene(tmp_path, "".join(f'[[material]]\nname = "{n}"\nalbedo = "{n}.exr"\n'
-                                   f'mfp = 1.0\noutput = "{n}_out.exr"\n' for n in "abc"))
-    real, planned = scene_jobs._plan_invert, []
-
-    def plan_then_ctrl_c(*a, **k):
-        planned.append(real(*a, **k))
-        os.kill(os.getpid(), signal.SIGINT)
-        return planned[-1]
-    monkeypatch.setattr(scene_jobs, "_plan_invert", plan_then_ctrl_c)
+    path = three_material_scene(tmp_path)
+    planned = ctrl_c_after(monkeypatch, scene_jobs, "_plan_invert")
     rc = cli_main(["bake", str(path), "--no-progress"])
     err = capsys.readouterr().err
     assert rc == 130 and "while planning: nothing written" in err, err

@@ -20,8 +20,6 @@ import glob
 import logging
 import re
 import shutil
-import signal
-import sys
 import tempfile
 import time
 import uuid
@@ -37,6 +35,7 @@ from .io.colour import resolve_working_space
 from .io.images import (Cancelled, Reader, TextureError, Writer, check_texture_window,
                         read_rows, remove_partial_files)
 from .io.mipmaps import texture_options
+from .io.verify import file_identity, replaced_since
 from .jobs import runner
 from .jobs.blur_file import (FILE_ROW_FLOATS, blurred_band, exitance_writer, file_plan,
                               located, report_clamped)
@@ -50,7 +49,7 @@ from .ops.inversion_plan import texel_broadcast
 from .ops.blur import Scattering, plan_blur
 from .ops.blur.params import checked_irradiance
 from .errors import InvalidInputError, moved_by
-from .signals import STOP
+from .signals import STOP, quiet_resource_tracker, sigint_ignored_by_children
 
 #: a task that raised is tried again this many times (a worker that died is always replaced)
 RETRIES = 2
@@ -96,47 +95,6 @@ def connect(scheduler: str, *, memory_limit=None):
             yield client
 
 
-#: the warning filter multiprocessing's resource tracker is started with (``-W``)
-RESOURCE_TRACKER_QUIET = "ignore::UserWarning:multiprocessing.resource_tracker"
-
-
-def quiet_resource_tracker():
-    """The resource tracker that this process's cluster starts says nothing at its end: a
-    stopped command ends at once (``apps.cli.console_main``), before multiprocessing unlinks
-    the cluster's semaphores, so the tracker, which unlinks them itself, would print two
-    lines of "leaked semaphore objects" after the command's one. (It takes its warning
-    filters from ``sys.warnoptions`` when started, as every process multiprocessing starts.)"""
-    if RESOURCE_TRACKER_QUIET not in sys.warnoptions:
-        sys.warnoptions.append(RESOURCE_TRACKER_QUIET)
-
-
-@contextmanager
-def sigint_ignored_by_children():
-    """Processes started inside never see SIGINT: each is spawned with SIGINT blocked (a
-    signal mask is kept across fork and exec, and nothing in a worker unblocks it), so a
-    Ctrl-C, which the terminal sends to the whole process group, reaches only this process,
-    which cancels the tasks and closes the cluster; a worker interrupted mid-task could leave
-    that close waiting on it. Only the spawning thread blocks it, and only while it spawns:
-    this process keeps its handler, so a Ctrl-C while the cluster starts stops the run (were
-    SIGINT ignored here for the whole start, it would be lost). SIGTERM still stops the
-    workers. Multiprocessing's spawn and forkserver start their processes through
-    ``multiprocessing.util.spawnv_passfds``."""
-    import multiprocessing.util as mp_util
-    spawn = mp_util.spawnv_passfds
-
-    def spawn_without_sigint(*args, **kwargs):
-        mask = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
-        try:
-            return spawn(*args, **kwargs)
-        finally:
-            signal.pthread_sigmask(signal.SIG_SETMASK, mask)
-    mp_util.spawnv_passfds = spawn_without_sigint
-    try:
-        yield
-    finally:
-        mp_util.spawnv_passfds = spawn
-
-
 def _progress(total, desc, enabled):
     if not enabled:
         return None
@@ -180,9 +138,18 @@ def _gather(client, futures, describe, progress=None):
     return results
 
 
-def _not_finished(source, output):
+def _not_finished(source, output, before=None):
+    """The result of a job whose task the run has no result of (cancelled by a stop): its
+    output, where it is a whole image that is not the file there before the run (``before``:
+    its ``file_identity`` then), was written by this run's task as the stop came (outputs are
+    written whole, then renamed into place): done, said so; else cancelled, nothing
+    written."""
+    if output and replaced_since(output, before):
+        return FileResult(source, output, status="ok",
+                          notes=["finished on the cluster as the run was stopped"])
     return FileResult(source, output, status="cancelled",
                       error="interrupted: cancelled on the cluster, nothing written")
+
 
 
 # {{{ scenes
@@ -201,6 +168,7 @@ def bake_on_cluster(plan: Plan, client, *, device=None, progress=True,
     in this process, before anything is sent): each planned job's ``scene_job`` is mapped
     over by ``run`` (the runner)."""
     results, futures = {}, {}
+    before = {i: file_identity(j.output) for i, j in enumerate(plan.jobs) if j.output}
     run_id = uuid.uuid4().hex[:12]       # a run's own task keys: never an earlier run's results
     for i, job in enumerate(plan.jobs):
         if STOP.is_set():                # a stop request: nothing more is sent
@@ -223,7 +191,7 @@ def bake_on_cluster(plan: Plan, client, *, device=None, progress=True,
     for job in plan.jobs:
         if job.output and job.kind != "constant":
             remove_partial_files(job.output)
-    return finish_bake(plan, [results.get(i) or _not_finished(j.source, j.output)
+    return finish_bake(plan, [results.get(i) or _not_finished(j.source, j.output, before.get(i))
                               for i, j in enumerate(plan.jobs)])
 
 # }}}
@@ -235,6 +203,7 @@ def file_runner(client, *, device=None, progress=True):
     """A ``run_files`` for ``process_textures``: each job a task on the cluster."""
     def run(jobs):
         run_id = uuid.uuid4().hex[:12]
+        before = [file_identity(job.output) for job in jobs]
         futures = {client.submit(run_on_worker, job, device, pure=False, retries=RETRIES,
                                  key=f"invert-{i}-{Path(job.source).name}-{run_id}"): i
                    for i, job in enumerate(jobs)}
@@ -247,7 +216,7 @@ def file_runner(client, *, device=None, progress=True):
                 bar.close()
         for job in jobs:
             remove_partial_files(job.output)
-        return [results.get(i) or _not_finished(j.source, j.output)
+        return [results.get(i) or _not_finished(j.source, j.output, before[i])
                 for i, j in enumerate(jobs)]
     return run
 
@@ -391,17 +360,28 @@ def block_origin(block_info) -> tuple:
     return tuple(start for start, _ in block_info[0]["array-location"])
 
 
-def _stacked(fn):
-    """A block function returning its outputs stacked on a new last axis; an invalid value
-    named where it is in the whole array, not in its block."""
+def _stacked(fn, dtype=np.float32):
+    """A block function returning its outputs stacked on a new last axis, in ``dtype``; an
+    invalid value named where it is in the whole array, not in its block."""
     def block(*arrays, block_info=None):
         try:
             outs = fn(*arrays)
         except InvalidInputError as exc:
             raise (moved_by(exc, block_origin(block_info)) if block_info else exc) from None
         outs = outs if isinstance(outs, tuple) else (outs,)
-        return np.stack([np.asarray(o, np.float32) for o in outs], axis=-1)
+        return np.stack([np.asarray(o, dtype) for o in outs], axis=-1)
     return block
+
+
+def output_dtype(kw):
+    """The lazy inversions' output dtype: the in-memory one's (float64 with ``double=True``)."""
+    return np.dtype(np.float64 if kw.get("double") else np.float32)
+
+
+def whole_channels(rd, eta):
+    """``rd`` with its channels (last axis) in one chunk where ``eta`` has one value per
+    channel: each block then holds every channel its etas are for."""
+    return rd.rechunk({rd.ndim - 1: -1}) if np.size(eta) > 1 and rd.ndim else rd
 
 
 def invert_albedo(rd, eta, method="table", *, return_rho=False, device=None, **kw):
@@ -409,7 +389,8 @@ def invert_albedo(rd, eta, method="table", *, return_rho=False, device=None, **k
     def fn(block):
         return ops_invert.invert_albedo(block, eta, method, return_rho=return_rho,
                                         device=device, **kw)
-    out = rd.map_blocks(_stacked(fn), dtype=np.float32, new_axis=rd.ndim,
+    rd, dtype = whole_channels(rd, eta), output_dtype(kw)
+    out = rd.map_blocks(_stacked(fn, dtype), dtype=dtype, new_axis=rd.ndim,
                         chunks=rd.chunks + ((2 if return_rho else 1,),))
     return (out[..., 0], out[..., 1]) if return_rho else out[..., 0]
 
@@ -424,6 +405,7 @@ def albedo_to_coefficients(rd, mfp, eta, method="table", *, outputs=("sigma_a", 
     def fn(block, mfp_block):
         return ops_invert.albedo_to_coefficients(block, mfp_block, eta, method,
                                                  outputs=outputs, device=device, **kw)
+    rd, dtype = whole_channels(rd, eta), output_dtype(kw)
     mfp_arr = mfp if isinstance(mfp, da.Array) else np.asarray(mfp, np.float32)
     if not (isinstance(mfp_arr, da.Array) and mfp_arr.shape == rd.shape):
         _, mfp_arr = texel_broadcast(rd, mfp_arr)
@@ -433,7 +415,9 @@ def albedo_to_coefficients(rd, mfp, eta, method="table", *, outputs=("sigma_a", 
         mfp_arr = (mfp_arr.rechunk(chunks) if isinstance(mfp_arr, da.Array)
                    else da.from_array(mfp_arr, chunks=chunks))
         mfp_arr = da.broadcast_to(mfp_arr, rd.shape, chunks=rd.chunks)
-    out = da.map_blocks(_stacked(fn), rd, mfp_arr, dtype=np.float32,
+    if isinstance(mfp_arr, da.Array) and mfp_arr.chunks != rd.chunks:
+        mfp_arr = mfp_arr.rechunk(rd.chunks)
+    out = da.map_blocks(_stacked(fn, dtype), rd, mfp_arr, dtype=dtype,
                         new_axis=rd.ndim, chunks=rd.chunks + ((len(outputs),),))
     result = tuple(out[..., i] for i in range(len(outputs)))
     return result if len(result) > 1 else result[0]

@@ -35,6 +35,22 @@ def check_numbers(value, name: str):
     return value
 
 
+def plain_array(value, name):
+    """``value`` as a NumPy array of real numbers; a masked array (numpy.ma) with masked
+    values, or a complex, object or string array, is a ValueError naming it (its mask, or
+    imaginary part, would be dropped silently)."""
+    if isinstance(value, np.ma.MaskedArray) and np.ma.getmaskarray(value).any():
+        raise ValueError(f"{name} is a masked array with {int(np.ma.count_masked(value))} "
+                         f"masked value(s): fill them (numpy.ma.filled) first (texels left out "
+                         f"are a mask: InversionPlan.apply's mask=, a scene's alpha or mask "
+                         f"texture)")
+    array = np.asarray(value)
+    if array.dtype.kind not in "biuf":   # complex (its imaginary part would be dropped),
+        raise ValueError(f"{name} has dtype {array.dtype}: expected real numbers (float, "
+                         f"int or bool)")  # objects, strings: refused, named
+    return array
+
+
 def check_policy(on_invalid: str) -> str:
     return POLICY.canonical(on_invalid)
 

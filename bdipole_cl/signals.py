@@ -13,6 +13,7 @@ import os
 import signal
 import sys
 import threading
+from contextlib import contextmanager
 
 #: set by SIGINT/SIGTERM (or ``request_stop``); every long loop checks it
 STOP = threading.Event()
@@ -104,6 +105,47 @@ class signals_deferred:
         if self._blocked:
             signal.pthread_sigmask(signal.SIG_UNBLOCK, self.SIGNALS)
         return False
+
+
+#: the warning filter multiprocessing's resource tracker is started with (``-W``)
+RESOURCE_TRACKER_QUIET = "ignore::UserWarning:multiprocessing.resource_tracker"
+
+
+def quiet_resource_tracker():
+    """The resource tracker that this process's cluster starts says nothing at its end: a
+    stopped command ends at once (``apps.cli.console_main``), before multiprocessing unlinks
+    the cluster's semaphores, so the tracker, which unlinks them itself, would print two
+    lines of "leaked semaphore objects" after the command's one. (It takes its warning
+    filters from ``sys.warnoptions`` when started, as every process multiprocessing starts.)"""
+    if RESOURCE_TRACKER_QUIET not in sys.warnoptions:
+        sys.warnoptions.append(RESOURCE_TRACKER_QUIET)
+
+
+@contextmanager
+def sigint_ignored_by_children():
+    """Processes started inside never see SIGINT: each is spawned with SIGINT blocked (a
+    signal mask is kept across fork and exec, and nothing in a worker unblocks it), so a
+    Ctrl-C, which the terminal sends to the whole process group, reaches only this process,
+    which cancels the tasks and closes the cluster; a worker interrupted mid-task could leave
+    that close waiting on it. Only the spawning thread blocks it, and only while it spawns:
+    this process keeps its handler, so a Ctrl-C while the cluster starts stops the run (were
+    SIGINT ignored here for the whole start, it would be lost). SIGTERM still stops the
+    workers. Multiprocessing's spawn and forkserver start their processes through
+    ``multiprocessing.util.spawnv_passfds``."""
+    import multiprocessing.util as mp_util
+    spawn = mp_util.spawnv_passfds
+
+    def spawn_without_sigint(*args, **kwargs):
+        mask = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+        try:
+            return spawn(*args, **kwargs)
+        finally:
+            signal.pthread_sigmask(signal.SIG_SETMASK, mask)
+    mp_util.spawnv_passfds = spawn_without_sigint
+    try:
+        yield
+    finally:
+        mp_util.spawnv_passfds = spawn
 
 
 #: the command's name: under it, a signal while the library loads ends the process quietly

@@ -295,3 +295,33 @@ def test_workers_start_with_sigint_blocked_and_this_process_keeps_its_handler():
         child.terminate()
         child.join()
     assert not signal.pthread_sigmask(signal.SIG_BLOCK, []) & {signal.SIGINT}
+
+
+def test_a_task_that_finished_as_the_run_stopped_is_reported_done(tmp_path):
+    """A stop can cancel the run just as a task's output is renamed into place: that output
+    is whole and new, so its row says done, not "nothing written"; the file that was there
+    before the run (or none) is still cancelled."""
+    from bdipole_cl.io.verify import file_identity
+    out = tmp_path / "a.exr"
+    assert bdask._not_finished("a", str(out), None).status == "cancelled"      # none
+    write_exr(out, np.ones((4, 4, 3), np.float32), ("R", "G", "B"))
+    before = file_identity(out)
+    assert bdask._not_finished("a", str(out), before).status == "cancelled"    # the old one
+    write_exr(tmp_path / "new.exr", np.zeros((4, 4, 3), np.float32), ("R", "G", "B"))
+    os.replace(tmp_path / "new.exr", out)                                      # as a writer
+    done = bdask._not_finished("a", str(out), before)
+    assert done.status == "ok" and "as the run was stopped" in done.notes[0]
+
+
+def test_lazy_inversions_keep_double_and_take_channel_chunks():
+    """double=True gives float64 (equal to the in-memory call), and per-channel etas work on
+    an array chunked one channel per block (its channels are merged into one chunk)."""
+    rd = np.random.default_rng(3).uniform(0.05, 0.95, (8, 6, 3))
+    arr = da.from_array(rd, chunks=(4, 3, 1))
+    etas = (1.3, 1.4, 1.5)
+    got = bdask.invert_albedo(arr, etas, double=True).compute()
+    assert got.dtype == np.float64
+    np.testing.assert_array_equal(got, bdipole_cl.invert_albedo(rd, etas, double=True))
+    sa, _ = bdask.albedo_to_coefficients(arr, 2.0, etas)
+    np.testing.assert_array_equal(sa.compute(), bdipole_cl.albedo_to_coefficients(rd, 2.0,
+                                                                                   etas)[0])

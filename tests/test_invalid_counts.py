@@ -167,3 +167,21 @@ def test_unlayered_y_beside_depth_z_is_still_a_luminance():
     assert classify_channels(("R", "G", "B", "A", "X"))[:2] == ([0, 1, 2], 3)
 
 # }}}
+
+
+# {{{ the API: a mask or an imaginary part is never dropped in silence
+
+@pytest.mark.parametrize("call", [
+    lambda rd: __import__("bdipole_cl").invert_albedo(rd, 1.4),
+    lambda rd: __import__("bdipole_cl").albedo_to_coefficients(rd, 1.0, 1.4),
+    lambda rd: blur(rd, albedo=0.5, mfp=1.0)])
+def test_masked_and_complex_arrays_are_refused_by_every_function(call):
+    masked = np.ma.array(np.full((4, 4, 3), 0.5), mask=np.zeros((4, 4, 3), bool))
+    masked.mask[1, 1, 0] = True
+    with pytest.raises(ValueError, match="masked array with 1 masked value"):
+        call(masked)
+    with pytest.raises(ValueError, match="dtype complex128: expected real numbers"):
+        call(np.full((4, 4, 3), 0.5 + 0.1j))
+    call(np.ma.array(np.full((4, 4, 3), 0.5)))     # nothing masked: as the plain array
+
+# }}}

@@ -143,10 +143,11 @@ def srgb_encode(x):
 def group_scale(values, may_log=True):
     """(log?, vmin, vmax) of a group's finite values: log when the middle 90% of its positive
     values spans more than LOG_DECADES decades (a few outliers do not make a scale log),
-    between the smallest positive value and the largest."""
+    between the smallest positive value and the largest; (False, nan, nan) where no value is
+    finite (no range is made up: the caption says so)."""
     finite = values[np.isfinite(values)]
     if finite.size == 0:
-        return False, 0.0, 1.0
+        return False, float("nan"), float("nan")
     pos = finite[finite > 0]
     spread = np.log10(np.percentile(pos, 95) / np.percentile(pos, 5)) if pos.size else 0.0
     if may_log and finite.min() >= 0 and spread > LOG_DECADES:
@@ -176,9 +177,25 @@ def thumbnail(px, group):
         t = srgb_encode(t)
     rgb = np.repeat(t[..., :1], 3, axis=-1) if t.shape[-1] == 1 else np.concatenate(
         [t, np.zeros(t.shape[:2] + (3 - t.shape[-1],))], -1)[..., :3]
-    sel = px[..., list(group.channels)]
-    varies = bool(np.any(np.nanmax(sel, axis=(0, 1)) != np.nanmin(sel, axis=(0, 1))))
+    varies = any(finite_spread(ch) for ch in np.moveaxis(px[..., list(group.channels)], -1, 0))
     return rgb, log, vmin, vmax, varies
+
+
+def finite_spread(channel) -> bool:
+    """Whether a channel's finite values are not all one value (False where none is)."""
+    finite = np.isfinite(channel)
+    if not finite.any():
+        return False
+    return bool(np.min(channel, where=finite, initial=np.inf)
+                != np.max(channel, where=finite, initial=-np.inf))
+
+
+def span_text(vmin, vmax, digits=3) -> str:
+    """A group's range as words: "a .. b", "constant a", or "no finite value"."""
+    if not np.isfinite(vmin):
+        return "no finite value"
+    return f"{vmin:.{digits}g} .. {vmax:.{digits}g}" if vmax > vmin else \
+        f"constant {vmin:.{digits + 1}g}"
 
 
 def group_unit(name, header):
@@ -217,14 +234,14 @@ def draw_group(fig, ax, cax, px, group, header):
     ax.set_yticks([])
     unit = group_unit(group.name, header)
     ax.set_title(GROUP_LABELS.get(group.name, group.name), fontsize=10)
-    span = (f"{vmin:.3g} .. {vmax:.3g}" if vmax > vmin else f"constant {vmin:.4g}") + (
-        f" {unit}" if unit else "")
+    span = span_text(vmin, vmax) + (f" {unit}" if unit else "")
     ax.set_xlabel(f"{', '.join(n.rsplit('.', 1)[-1] for n in group.names)}: {span}"
                   + (" (log)" if log else ""), fontsize=8)
     if log:
         norm, cmap = colors.LogNorm(vmin, vmax), "gray"
     else:
-        norm = colors.Normalize(vmin, vmax if vmax > vmin else vmin + 1.0)
+        low = vmin if np.isfinite(vmin) else 0.0
+        norm = colors.Normalize(low, vmax if vmax > low else low + 1.0)
         cmap = colors.ListedColormap(np.repeat(srgb_encode(np.linspace(0, 1, 256))[:, None],
                                                3, 1))
     bar = fig.colorbar(cm.ScalarMappable(norm=norm, cmap=cmap), cax=cax,
@@ -389,7 +406,7 @@ def _cmd_preview(args) -> int:
     sheet = contact_sheet(args.input, args.output, force=args.force)
     for t in sheet.tiles:
         scale = "log" if t.log else "linear"
-        print(f"{t.group.name}: {', '.join(t.group.names)}  {t.vmin:.4g} .. {t.vmax:.4g} "
+        print(f"{t.group.name}: {', '.join(t.group.names)}  {span_text(t.vmin, t.vmax, 4)} "
               f"({scale})")
     print(f"wrote {sheet.path} ({sheet.size[0]}x{sheet.size[1]})")
     return 0

@@ -193,14 +193,14 @@ def _range_rows(label, rd, got, want, bound, unit, err_fn, increasing):
             continue
         g, w, r = got[sel], want[sel], rd[sel]
         nan = int(np.count_nonzero(~np.isfinite(g)))
-        err = np.where(np.isfinite(g), err_fn(g, w), np.inf)
+        with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
+            err = np.where(np.isfinite(g), err_fn(g, w), np.inf)   # a NaN: an infinite error
         i = int(np.argmax(err))
         steps = np.diff(g[np.isfinite(g)])
         reversals = int(np.count_nonzero(steps < 0 if increasing else steps > 0))
         where = f"Rd={r[i]:.9g}; NaN {nan}; non-monotone steps {reversals}"
         worst = float(err[i]) if np.isfinite(err[i]) else float("inf")
-        rows.append(Row(f"{label}, Rd in [{lo:g}, {hi:g})", "f32", worst, unit,
-                        bound if nan == 0 else 0.0, where))
+        rows.append(Row(f"{label}, Rd in [{lo:g}, {hi:g})", "f32", worst, unit, bound, where))
     return rows
 
 

@@ -133,6 +133,23 @@ def read_back(path, digests: BandDigests, what, names):
         inp.close()
 
 
+def file_identity(path):
+    """(inode, mtime ns, size) of ``path``, or None where there is none: what tells a file
+    replaced since (this tool writes by renaming a new file into place) without a clock."""
+    try:
+        st = os.stat(path)
+    except OSError:
+        return None
+    return st.st_ino, st.st_mtime_ns, st.st_size
+
+
+def replaced_since(path, before) -> bool:
+    """``path`` is a whole image file (``is_complete``) that is not the one ``before`` (its
+    ``file_identity`` then) named: written since."""
+    now = file_identity(path)
+    return now is not None and now != before and is_complete(path)
+
+
 def is_complete(path, rows=64) -> bool:
     """Every pixel of the image file ``path`` reads (``rows`` rows at a time); a path that is
     not a regular file is not (and is never opened: a FIFO would block)."""

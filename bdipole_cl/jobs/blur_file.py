@@ -79,16 +79,37 @@ def blurred_band(plan, px, colour, alpha_ch, names, route, idx, mask, y0, y1,
     if not np.any(e):                   # no light reaches this band: nothing to blur
         out, info = np.zeros((y1 - y0, px.shape[1], len(colour)), np.float32), None
     else:
-        if plan.textured:
-            out, info = plan.apply(e, max_memory)
-        else:
-            out, info = plan.apply_band(checked_irradiance(e, plan.on_invalid), idx)
+        try:
+            if plan.textured:
+                out, info = plan.apply(e, max_memory)
+            else:
+                out, info = plan.apply_band(checked_irradiance(e, plan.on_invalid), idx)
+        except InvalidInputError as exc:
+            if exc.name == "irradiance":
+                check_band_rows(e, idx)     # counted once per image row, not per halo copy
+            raise
         out = out[k:k + y1 - y0]
         if mask is not None:
             out = out * (np.asarray(mask)[y0:y1] > 0)[..., None]
     if alpha_ch >= 0:
         out = np.concatenate([out, px[k:k + y1 - y0, :, alpha_ch:alpha_ch + 1]], axis=-1)
     return out, info
+
+
+def check_band_rows(e, idx):
+    """A band's irradiance ``e`` read at image rows ``idx`` (its halo
+    included: the border rule repeats rows, an edge row up to the halo's height) checked once
+    per image row: an InvalidInputError counts each bad value once, its first row given as a
+    row of ``e`` (``located`` maps it through ``idx``)."""
+    real = np.flatnonzero(idx >= 0)
+    _, first = np.unique(idx[real], return_index=True)
+    rows = real[np.sort(first)]
+    try:
+        checked_irradiance(e[rows], "raise")
+    except InvalidInputError as exc:
+        yy, xx, cc = exc.first_index
+        raise InvalidInputError(exc.name, exc.count, (int(rows[yy]), xx, cc), exc.first_value,
+                                exc.why, exc.texels) from None
 
 
 def exitance_writer(path, output, spec, colour, alpha_ch, route, plan, *, half=False,
@@ -213,11 +234,20 @@ def report_clamped(writer, output, clamped, inputs=None):
     """The invalid input values clamped (``inputs``, by kind) and the writer's clamped values
     into ``clamped`` (a dict), or a warning naming the output where the caller keeps no
     count: a clamped value is never silent."""
-    counts = {k: n for k, n in {**(inputs or {}), **writer.clamped}.items() if n}
+    given = {**(inputs or {}), **writer.clamped}
+    counts = {k: given[k] for k in sorted(given, key=count_order) if given[k]}
     if clamped is not None:
         clamped.update(counts)
     elif counts:
         warnings.warn(f"{output}: {clamped_text(counts)}", stacklevel=3)
+
+
+#: the order invalid counts are said in: the irradiance, the parameters, then the output's
+COUNT_ORDER = ("irradiance", "albedo", "mfp", "alpha", "sigma_t")
+
+
+def count_order(kind) -> int:
+    return COUNT_ORDER.index(kind) if kind in COUNT_ORDER else len(COUNT_ORDER)
 
 
 def clamped_text(counts) -> str:

@@ -176,17 +176,16 @@ def invert_bands(job, work, inp, route, plan, writer, result, lock, cancel, prog
                 done = plan.apply(albedo, mfp, mask)
         except InvalidInputError as exc:
             yy, xx, cc = exc.first_index
-            scaled = ""
-            if exc.name == "mfp" and m is not None and np.any(scale != 1):
+            scaled, where, channel = "", job.source, inp.names[cc]
+            if exc.name == "mfp" and m is not None:     # the mfp texture's own texel, named
                 ch = inp.mfp_channels[cc if len(inp.mfp_channels) > 1 else 0]
-                scaled = (f" (the mfp texture's {float(m[yy, xx, ch]):g} x --mfp-scale "
-                          f"{float(np.ravel(scale)[cc % scale.size]):g})")
-            raise invalid_texels(exc, job.source, spec.x + xx, spec.y + y0 + yy,
-                                 inp.names[cc], f" in rows {y0}..{y1 - 1}{scaled}") from None
-        n_mfp = done.invalid_mfp
-        if m is not None and len(inp.mfp_channels) == 1 < len(inp.names):
-            n_mfp //= len(inp.names)      # one mfp value serves every channel: counted once
-        for key, n in (("albedo", done.invalid_albedo + negative), ("mfp", n_mfp)):
+                where, channel = job.inputs["mfp"], inp.mfp.spec.channelnames[ch]
+                if np.any(scale != 1):
+                    scaled = (f" (the mfp texture's {float(m[yy, xx, ch]):g} x --mfp-scale "
+                              f"{float(np.ravel(scale)[cc % scale.size]):g})")
+            raise invalid_texels(exc, where, spec.x + xx, spec.y + y0 + yy,
+                                 channel, f" in rows {y0}..{y1 - 1}{scaled}") from None
+        for key, n in (("albedo", done.invalid_albedo + negative), ("mfp", done.invalid_mfp)):
             result.invalid[key] = result.invalid.get(key, 0) + n
         parts = [done.arrays[o] for o in work.outputs]
         if inp.keep_alpha:

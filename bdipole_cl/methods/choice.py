@@ -24,7 +24,7 @@ from pathlib import Path
 
 from ..durable import durable_replace
 from ..caches import CACHE_DIR_VARIABLE, ByteCache, user_cache_dir  # noqa: F401
-from .registry import BlurChoice, InversionChoice, MethodConfig
+from .registry import METHOD_OR_AUTO, BlurChoice, InversionChoice, MethodConfig
 
 #: the data shipped with the package
 PACKAGED_CHOICE_DATA = Path(__file__).resolve().parent.parent / "data" / "choice.json"
@@ -368,6 +368,7 @@ def resolve_method(method="table", double=False, device_key=None, **knobs) -> Me
     that decided are logged (logger "bdipole_cl")."""
     if isinstance(method, MethodConfig):
         return method
+    METHOD_OR_AUTO[method]              # an unknown name: the error lists auto too
     if method == "auto":
         tol = knobs.get("tol")
         tol = AUTO_DEFAULT_TOL if tol is None else tol

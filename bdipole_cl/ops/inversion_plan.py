@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..device import Runtime, get_runtime
-from ..errors import check_policy, find_invalid
+from ..errors import InvalidInputError, check_policy, find_invalid, plain_array
 from ..methods.choice import DeviceKey, resolve_method
 from ..methods.registry import MFP_KIND, MFP_KINDS, OUTPUTS, MethodConfig
 from ..physics.models import MODEL
@@ -192,10 +192,30 @@ def channel_values(values, nchan):
     return np.array(v[(0,) * (v.ndim - 1)], np.float64)
 
 
-def as_float(values):
-    """``values`` as an array, floating point (integers become float64)."""
-    values = np.asarray(values)
+def as_float(values, name="albedo"):
+    """``values`` as an array, floating point (integers become float64); a masked, complex or
+    non-numeric array a ValueError naming it (``errors.plain_array``)."""
+    values = plain_array(values, name)
     return values if values.dtype.kind == "f" else values.astype(np.float64)
+
+
+def shared_channels(rd, mfp) -> int:
+    """How many channels each value of ``mfp`` serves (``texel_broadcast``'s operands): C for
+    a map of one value per texel beside C-channel albedos, else 1 (a map of rd's shape; one
+    value, or one per channel, is a constant, not a map)."""
+    if mfp.ndim == rd.ndim >= 2 and mfp.shape[-1] == 1 < rd.shape[-1] and mfp.size > 1:
+        return rd.shape[-1]
+    return 1
+
+
+def invalid_map_values(mfp_map, keep, dtype) -> int:
+    """Invalid values (``valid_mfp`` in ``dtype``) of a per-texel mfp map (its last axis 1)
+    at texels some channel of which ``keep`` keeps (None: all): each value once, not once
+    per channel it serves."""
+    bad = ~valid_mfp(as_kernel_dtype(mfp_map, dtype))
+    if keep is not None:
+        bad &= keep.any(axis=-1, keepdims=True)
+    return int(np.count_nonzero(bad))
 
 
 @dataclass(frozen=True)
@@ -292,6 +312,7 @@ class InversionPlan:
         place); outputs not given are new arrays."""
         out = self._out_dict(out)
         with self._lock:
+            mfp_map, shared = None, 1
             if self.mfp_kind is None:
                 if mfp is not None:
                     raise ValueError("this plan has no mfp (mfp_kind=None): apply(rd) only")
@@ -301,8 +322,9 @@ class InversionPlan:
                     if self.mfp_const is None:
                         raise ValueError("this plan needs an mfp: apply(rd, mfp)")
                     mfp = np.asarray(self.mfp_const, np.float64)
-                rd, mfp = (as_float(a) for a in np.broadcast_arrays(
-                    *texel_broadcast(np.asarray(rd), np.asarray(mfp))))
+                rd, mfp_map = texel_broadcast(as_float(rd), as_float(mfp, "mfp"))
+                shared = shared_channels(rd, mfp_map)
+                rd, mfp = np.broadcast_arrays(rd, mfp_map)
             self._check_channels(rd.shape)
             check_out_shapes(out, rd.shape)
             rd, mfp = apart_from(out, rd, mfp)
@@ -317,7 +339,16 @@ class InversionPlan:
                 outs, n_rd = self._albedo(rd, out)
                 n_mfp = 0
             else:
-                outs, n_rd, n_mfp, mfp = self._coefficients(rd, mfp, out)
+                try:
+                    outs, n_rd, n_mfp, mfp = self._coefficients(rd, mfp, out)
+                except InvalidInputError as exc:
+                    if exc.name != "mfp" or shared == 1:
+                        raise
+                    raise InvalidInputError(        # counted once per value given
+                        "mfp", invalid_map_values(mfp_map, keep, self.dtype), exc.first_index,
+                        exc.first_value, exc.why, exc.texels) from None
+                if n_mfp and shared > 1:
+                    n_mfp = invalid_map_values(mfp_map, keep, self.dtype)
                 if self.extinction:
                     extinction_coefficients(outs, mfp.reshape(-1), self.outputs, out)
             if keep is not None:

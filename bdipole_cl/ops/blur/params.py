@@ -14,7 +14,8 @@ from functools import lru_cache
 import numpy as np
 
 from ...device.transfer import ALIGNMENT, aligned_empty
-from ...errors import check_numbers, check_policy, find_invalid
+from ...errors import (InvalidInputError, check_numbers, check_policy, find_invalid,
+                       plain_array)
 from ...physics import reference as ref
 from ..inversion_kernel import MFP_MIN
 from .fft import copy_rows, value_range
@@ -137,21 +138,6 @@ def channel_parameters(nchan, *, albedo=None, mfp=None, eta=1.4, texel_size=1.0,
     return [(float(a[c]), float(per_texel[c]), float(etas[c])) for c in range(nchan)]
 
 
-def plain_array(value, name):
-    """``value`` as a NumPy array of real numbers; a masked array (numpy.ma) with masked
-    values, or a complex, object or string array, is a ValueError naming it (its mask, or
-    imaginary part, would be dropped silently)."""
-    if isinstance(value, np.ma.MaskedArray) and np.ma.getmaskarray(value).any():
-        raise ValueError(f"{name} is a masked array with {int(np.ma.count_masked(value))} "
-                         f"masked value(s): fill them (numpy.ma.filled) first; blur's masked "
-                         f"texels are those of an alpha or mask texture in a scene")
-    array = np.asarray(value)
-    if array.dtype.kind not in "biuf":   # complex (its imaginary part would be dropped),
-        raise ValueError(f"{name} has dtype {array.dtype}: expected real numbers (float, "
-                         f"int or bool)")  # objects, strings: refused, named
-    return array
-
-
 def texture_channel(value, shape, c, name):
     """Channel c of a scalar, per-channel tuple, HxW or HxWxC parameter, as an HxW array (a
     texture keeps its float type: it is checked before it is rounded to float32)."""
@@ -178,6 +164,20 @@ def add_count(counts, name, n):
         counts[name] = counts.get(name, 0) + int(n)
 
 
+def texture_invalid_count(value, shape, name, ok, dtype=None) -> int:
+    """The values of a parameter (every channel of a texture) that break the rule ``ok``, as
+    the kernels see them (rounded to ``dtype``): what an error counts."""
+    v = np.asarray(value)
+    n = 0
+    for c in range(v.shape[2] if v.ndim == 3 else 1):
+        m = texture_channel(value, shape, c, name)
+        if dtype is not None:
+            with np.errstate(over="ignore"):
+                m = m.astype(dtype)
+        n += int(np.count_nonzero(~ok(m)))
+    return n
+
+
 def checked_parameter(value, shape, c, name, on_invalid="raise", dtype=None, ranges=None,
                       counts=None):
     """Channel c of a parameter as HxW (rounded to ``dtype`` first, if given: the check sees
@@ -200,8 +200,11 @@ def checked_parameter(value, shape, c, name, on_invalid="raise", dtype=None, ran
             ranges.keep(v, extremes)
         return v
     bad = ~ok(v)
-    n = find_invalid(name, v, bad, f"outside {rule}", check_policy(on_invalid), texels=True,
-                     channel=c)
+    if check_policy(on_invalid) == "raise":     # named here, counted over every channel
+        y, x = (int(i) for i in np.unravel_index(int(np.flatnonzero(bad)[0]), bad.shape))
+        raise InvalidInputError(name, texture_invalid_count(value, shape, name, ok, dtype),
+                                (y, x, c), v[y, x].item(), f"outside {rule}", texels=True)
+    n = find_invalid(name, v, bad, f"outside {rule}", on_invalid, texels=True, channel=c)
     if n:
         add_count(counts, name, n)
         good = v[~bad]

@@ -1,6 +1,7 @@
 """MethodConfig's labels, build options, resolved knobs and fields, per method and precision:
 the values the README, the report and the kernels' cache keys rely on, written down from the
 code as it was before the methods became registry objects (so the move cannot change them)."""
+import numpy as np
 import pytest
 
 from bdipole_cl.methods.registry import METHODS, MethodConfig
@@ -101,6 +102,9 @@ def test_memo_is_refused_in_float64_but_still_labelled(config):
     (dict(seed_size=1 << 17), "seed_size=131072: expected an integer from 1 to 65536"),
     (dict(tol=0.0), "tol=0.0: expected a finite number > 0"),
     (dict(tol=float("inf")), "tol=inf: expected a finite number > 0"),
+    (dict(table_size=True), "table_size=True: expected an integer"),      # not 1
+    (dict(polish=np.False_), "polish=np.False_: expected an integer"),     # not 0
+    (dict(tol=True), "tol=True: expected a finite number"),
 ])
 def test_method_config_refuses_bad_knobs(bad, message):
     with pytest.raises(ValueError, match=message):

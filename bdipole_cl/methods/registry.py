@@ -164,6 +164,12 @@ KNOB_RANGES = {"iterations": (1, 256), "table_size": (1, 1 << 16), "seed_size": 
                "polish": (0, 16)}
 
 
+def not_a_number(value) -> bool:
+    """A bool (Python's or NumPy's) or a string: True would pass as 1, "8" as a parse."""
+    return isinstance(value, (bool, str)) or getattr(getattr(value, "dtype", None), "kind",
+                                                     "") == "b"
+
+
 @dataclass(frozen=True)
 class MethodConfig:
     """One inversion configuration: a method and its cost knobs (what each means for the
@@ -180,9 +186,11 @@ class MethodConfig:
         object.__setattr__(self, "method", METHOD.canonical(self.method))
         for knob, (lo, hi) in KNOB_RANGES.items():
             value = getattr(self, knob)
-            if value is not None and (int(value) != value or not lo <= value <= hi):
+            if value is not None and (not_a_number(value) or int(value) != value
+                                      or not lo <= value <= hi):
                 raise ValueError(f"{knob}={value!r}: expected an integer from {lo} to {hi}")
-        if self.tol is not None and not 0 < self.tol < float("inf"):
+        if self.tol is not None and (not_a_number(self.tol)
+                                     or not 0 < self.tol < float("inf")):
             raise ValueError(f"tol={self.tol!r}: expected a finite number > 0")
 
     @property

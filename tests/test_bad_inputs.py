@@ -89,6 +89,16 @@ def test_output_that_is_another_files_mfp_input_is_refused(tmp_path):
     assert (tmp_path / "a_mfp.exr").read_bytes() == before
 
 
+@pytest.mark.parametrize("command", [["invert"], ["blur", "--albedo", "0.5", "--mfp", "1"]])
+def test_an_empty_output_path_is_named_as_such(tmp_path, capsys, command):
+    write_exr(tmp_path / "a.exr", albedo())
+    rc = cli_main([command[0], str(tmp_path / "a.exr"), *command[1:], "--no-progress",
+                   "-o", ""])
+    line = one_line_error(capsys.readouterr().err)
+    assert rc == 2 and "output '': an empty path; name an .exr file" in line, line
+    assert files_in(tmp_path) == ["a.exr"]
+
+
 @pytest.mark.parametrize("suffix", [".jpg", ".png", ".tif", ""])
 def test_formats_that_cannot_hold_the_result_are_refused(tmp_path, capsys, suffix):
     write_exr(tmp_path / "a.exr", albedo())

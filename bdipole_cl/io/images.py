@@ -59,7 +59,10 @@ TIFF_TEXTURES = (".tx", ".tif", ".tiff")
 def check_output_format(path):
     """Outputs are OpenEXR: only EXR holds float/half values in any number of named channels
     (``sigma_a.R``, ...). Any other extension would drop channels or quantise: refused, and a
-    ``.tx``/TIFF texture with its own reason (texture outputs are tiled, mip-mapped EXRs)."""
+    ``.tx``/TIFF texture with its own reason (texture outputs are tiled, mip-mapped EXRs); an
+    empty path is named as such."""
+    if not str(path).strip():
+        raise ValueError(f"output {str(path)!r}: an empty path; name an .exr file")
     suffix = Path(path).suffix.lower()
     if suffix in TIFF_TEXTURES:
         raise ValueError(f"{path}: output must be an OpenEXR file (.exr): a {suffix} (TIFF) "

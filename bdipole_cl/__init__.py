@@ -24,9 +24,11 @@ from .signals import quiet_startup
 
 quiet_startup()            # in the `bdipole-cl` command: a signal while it loads, one line
 
-#: modules that moved to ``jobs/`` (the job layer), importable by their old public paths
-MOVED_MODULES = {f"{__name__}.io.{name}": f"{__name__}.jobs.{name}"
-                 for name in ("batch", "blur_file", "scene", "scene_records", "scene_stats")}
+#: modules importable by a public path other than their own: those that moved to ``jobs/``
+#: (the job layer) by their old paths, and the float64 reference as ``bdipole_cl.reference``
+MOVED_MODULES = {**{f"{__name__}.io.{name}": f"{__name__}.jobs.{name}"
+                    for name in ("batch", "blur_file", "scene", "scene_records", "scene_stats")},
+                 f"{__name__}.reference": f"{__name__}.physics.reference"}
 
 
 class _MovedModuleFinder(importlib.abc.MetaPathFinder, importlib.abc.Loader):

@@ -174,3 +174,11 @@ def test_series_helpers_are_continuous_at_their_switch():
     for f in (ref.phi2, ref.psi):
         lo, hi = f(np.nextafter(0.5, 0)), f(0.5)
         assert abs(lo / hi - 1) < 1e-14
+
+
+def test_the_reference_is_importable_by_its_public_path():
+    """README and the package docstring name it ``bdipole_cl.reference``: both import forms
+    give the one module (physics/reference.py)."""
+    import bdipole_cl.reference as public
+    from bdipole_cl.physics import reference as own
+    assert public is own and hasattr(public, "invert_rd_rho")

@@ -103,7 +103,7 @@ def test_memo_is_refused_in_float64_but_still_labelled(config):
     (dict(tol=0.0), "tol=0.0: expected a finite number > 0"),
     (dict(tol=float("inf")), "tol=inf: expected a finite number > 0"),
     (dict(table_size=True), "table_size=True: expected an integer"),      # not 1
-    (dict(polish=np.False_), "polish=np.False_: expected an integer"),     # not 0
+    (dict(polish=np.False_), r"polish=.*False.*: expected an integer"),    # not 0
     (dict(tol=True), "tol=True: expected a finite number"),
 ])
 def test_method_config_refuses_bad_knobs(bad, message):

@@ -296,3 +296,46 @@ def test_partial_files_of_an_output_with_glob_characters_are_its_own(tmp_path):
     assert partial_files(tmp_path / "*.exr") == []
     assert remove_partial_files(tmp_path / "m[1].exr") == 1
     assert all(p.exists() for p in others)
+
+
+def test_mip_levels_that_overflow_fail_the_texture(tmp_path, capsys):
+    """Finite values above ~FLT_MAX / 4 overflow OpenImageIO's mip filter (it sums, then
+    divides): level 0 is finite, the levels below are not. Every level is checked: the file
+    fails, named, and nothing is written."""
+    e = np.random.default_rng(1).uniform(1e38, 3e38, (32, 32, 3)).astype(np.float32)
+    write_exr(tmp_path / "irr.exr", e, ("R", "G", "B"))
+    rc = cli_main(["blur", str(tmp_path / "irr.exr"), "--albedo", "0.8", "--mfp", "1",
+                   "--texture", "--no-progress", "-o", str(tmp_path / "t.exr")])
+    err = capsys.readouterr().err
+    assert rc == 1 and "values that are not finite (the mip filter overflows" in err, err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["irr.exr"]
+
+
+def test_a_texture_with_a_cut_off_mip_level_is_not_complete(tmp_path):
+    """--skip-existing and a scene's up-to-date check read every level: a texture whose last
+    bytes (its smallest levels) are gone is rebuilt, not skipped."""
+    from bdipole_cl.io.verify import is_complete
+    write_exr(tmp_path / "a.exr", albedo_rgba()[..., :3], ("R", "G", "B"))
+    out = tmp_path / "out.exr"
+    assert process_textures(str(tmp_path / "a.exr"), output=str(out), mfp=1.0,
+                            texture=True).exit_code == 0
+    assert is_complete(out)
+    data = out.read_bytes()
+    out.write_bytes(data[:-150])
+    assert not is_complete(out)
+    stamp = os.stat(tmp_path / "a.exr").st_mtime + 10
+    os.utime(out, (stamp, stamp))                  # newer than its input, as a skip needs
+    rep = process_textures(str(tmp_path / "a.exr"), output=str(out), mfp=1.0, texture=True,
+                           skip_existing=True)
+    assert rep.results[0].status == "ok" and is_complete(out), rep.summary()
+
+
+@pytest.mark.parametrize("border, wrap", [("wrap", "periodic"), ("clamp", "clamp"),
+                                          ("zero", "black")])
+def test_a_blur_texture_wraps_as_its_border_rule(tmp_path, border, wrap):
+    write_exr(tmp_path / "irr.exr", np.full((16, 24, 3), 0.5, np.float32), ("R", "G", "B"))
+    assert cli_main(["blur", str(tmp_path / "irr.exr"), "--albedo", "0.8", "--mfp", "1",
+                     "--border", border, "--texture", "--no-progress",
+                     "-o", str(tmp_path / "t.exr")]) == 0
+    assert oiio.ImageInput.open(str(tmp_path / "t.exr")).spec().getattribute(
+        "wrapmodes") == f"{wrap},{wrap}"

@@ -30,11 +30,15 @@ class TextureBuildError(RuntimeError):
 @dataclass(frozen=True)
 class TextureOptions:
     """A renderer-ready output: ``tile`` x ``tile`` tiles, a full mip chain of
-    ``mip_filter``-downsampled halvings down to 1x1, ``compression``."""
+    ``mip_filter``-downsampled halvings down to 1x1, ``compression``, and the wrap mode it
+    declares for lookups beyond its edges (``wrap``: OpenImageIO's "black", "clamp",
+    "periodic" or "mirror"; a blur's follows its border rule, ``Border.texture_wrap``)."""
 
     tile: int = 64
     mip_filter: str = "box"
     compression: str = "zip"
+    wrap: str = "black"
+
 
 
 def texture_options(texture) -> TextureOptions | None:
@@ -119,11 +123,14 @@ def build_texture(spec, px, texture, options: TextureOptions, cancelled=None):
     config.tile_width = config.tile_height = options.tile
     config.attribute("compression", options.compression)
     config.attribute("maketx:filtername", options.mip_filter)
+    config.attribute("wrapmodes", f"{options.wrap},{options.wrap}")
     config.set_format(spec.format)
     full = oiio.ImageBufAlgo.crop(src, src.roi_full)
-    if full.has_error or not _make_texture(full, texture, config, cancelled):
-        raise TextureBuildError(f"making the texture failed: "
-                                f"{full.geterror() or oiio.geterror()}")
+    if full.has_error:
+        raise TextureBuildError(f"making the texture failed: {full.geterror()}")
+    why = _make_texture(full, texture, config, cancelled)
+    if why is not None:
+        raise TextureBuildError(f"making the texture failed: {why}")
     problems = texture_problems(spec, px, texture, options)
     if problems:
         raise TextureBuildError(f"the texture does not verify: {'; '.join(problems)}")
@@ -152,14 +159,18 @@ def _remove_build(texture):
         p.unlink(missing_ok=True)
 
 
-def _make_texture(full, texture, config, cancelled) -> bool:
+def _make_texture(full, texture, config, cancelled) -> str | None:
     """OpenImageIO's make_texture of ``full`` to ``texture`` on a daemon thread (it releases
     the GIL), waited for in steps of 0.1 s so that ``cancelled()`` is heard: then the build is
     waited for ABANDON_WAIT more, left to its thread (``ABANDONED``: the process ends it),
-    and its files are removed."""
+    and its files are removed. None if it was made, else why not (OpenImageIO keeps an
+    error per thread: it is read on the build's own, one line)."""
     result = []
-    worker = threading.Thread(target=lambda: result.append(oiio.ImageBufAlgo.make_texture(
-        oiio.MakeTxTexture, full, str(texture), config)), daemon=True, name="bdipole-maketx")
+
+    def build():
+        made = oiio.ImageBufAlgo.make_texture(oiio.MakeTxTexture, full, str(texture), config)
+        result.append(None if made else " ".join(oiio.geterror().split()) or "unknown error")
+    worker = threading.Thread(target=build, daemon=True, name="bdipole-maketx")
     worker.start()
     while worker.is_alive():
         worker.join(0.1)
@@ -168,7 +179,7 @@ def _make_texture(full, texture, config, cancelled) -> bool:
             ABANDONED.append((worker, texture))
             _remove_build(texture)
             raise TextureBuildCancelled("interrupted during the texture build")
-    return bool(result and result[0])
+    return result[0] if result else "the build ended without a result"
 
 
 def build_files(texture) -> list:
@@ -178,31 +189,41 @@ def build_files(texture) -> list:
 
 
 def _read_texture(path):
-    """(level 0's spec, mip levels, level 0's pixels) of a texture, read afresh (ImageInput:
-    no image cache)."""
+    """(level 0's spec, mip levels, level 0's pixels, the problems of the smaller levels: one
+    that does not read, or holds a value that is not finite) of a texture, read afresh
+    (ImageInput: no image cache). OpenImageIO's mip filter sums before it divides, so finite
+    values above ~FLT_MAX / 4 make infinite ones in the levels below."""
     inp = oiio.ImageInput.open(str(path))
     if inp is None:
         raise TextureBuildError(f"the texture cannot be read back: {oiio.geterror()}")
     try:
         got = inp.spec()
-        levels = 1
-        while inp.seek_subimage(0, levels):
-            levels += 1
-        inp.seek_subimage(0, 0)
         px = inp.read_image(0, 0, 0, got.nchannels, oiio.FLOAT)
+        levels, problems, overflowed = 1, [], {}
+        while inp.seek_subimage(0, levels):
+            level = inp.read_image(0, levels, 0, inp.spec().nchannels, oiio.FLOAT)
+            if level is None:
+                problems.append(f"mip level {levels} does not read")
+            elif not np.all(np.isfinite(level)):
+                overflowed[levels] = int(np.count_nonzero(~np.isfinite(level)))
+            levels += 1
     finally:
         inp.close()
+    if overflowed:
+        problems.append(f"mip levels {', '.join(map(str, overflowed))} hold "
+                        f"{sum(overflowed.values())} values that are not finite (the mip "
+                        f"filter overflows on values above "
+                        f"{np.finfo(np.float32).max / 4:.2g}: write without --texture)")
     if px is None:
         raise TextureBuildError("the texture's level 0 cannot be read back")
-    return got, levels, np.asarray(px, np.float32).reshape(got.height, got.width, -1)
+    return got, levels, np.asarray(px, np.float32).reshape(got.height, got.width, -1), problems
 
 
 def texture_problems(want, px, texture, options) -> list:
     """What is wrong with ``texture`` as the texture of the plain output (``want``, ``px``):
     tiles, mip chain, channels and pixel type, header, level 0 (empty when it verifies)."""
-    got, levels, level0 = _read_texture(texture)
+    got, levels, level0, problems = _read_texture(texture)
     expected = mip_levels(want.full_width, want.full_height)
-    problems = []
     if (got.tile_width, got.tile_height) != (options.tile, options.tile):
         problems.append(f"tiles {got.tile_width}x{got.tile_height}")
     if levels != expected:

@@ -87,20 +87,21 @@ def _digest(array):
     return hashlib.blake2b(np.ascontiguousarray(array).tobytes(), digest_size=16).digest()
 
 
-def read_rows_of(inp, spec, y0, y1, fmt):
-    """Rows [y0, y1) (0-based in the data window) of an open file, any layout."""
+def read_rows_of(inp, spec, y0, y1, fmt, miplevel=0):
+    """Rows [y0, y1) (0-based in the data window) of an open file (of its mip level
+    ``miplevel``, whose spec ``spec`` is), any layout."""
     ya, yb = spec.y + y0, spec.y + y1
     if spec.tile_width:
         th = spec.tile_height
         ta = spec.y + (y0 // th) * th
         tb = min(spec.y + -(-y1 // th) * th, spec.y + spec.height)
-        px = inp.read_tiles(0, 0, spec.x, spec.x + spec.width, ta, tb, spec.z,
+        px = inp.read_tiles(0, miplevel, spec.x, spec.x + spec.width, ta, tb, spec.z,
                             spec.z + max(spec.depth, 1), 0, spec.nchannels, fmt)
         if px is None:
             return None
         px = np.asarray(px).reshape(tb - ta, spec.width, spec.nchannels)
         return px[ya - ta:yb - ta]
-    px = inp.read_scanlines(0, 0, ya, yb, spec.z, 0, spec.nchannels, fmt)
+    px = inp.read_scanlines(0, miplevel, ya, yb, spec.z, 0, spec.nchannels, fmt)
     return None if px is None else np.asarray(px).reshape(y1 - y0, spec.width, spec.nchannels)
 
 
@@ -151,8 +152,9 @@ def replaced_since(path, before) -> bool:
 
 
 def is_complete(path, rows=64) -> bool:
-    """Every pixel of the image file ``path`` reads (``rows`` rows at a time); a path that is
-    not a regular file is not (and is never opened: a FIFO would block)."""
+    """Every pixel of the image file ``path`` reads, of every mip level of a texture (``rows``
+    rows at a time); a path that is not a regular file is not (and is never opened: a FIFO
+    would block)."""
     try:
         if not stat.S_ISREG(os.stat(path).st_mode):
             return False
@@ -162,13 +164,17 @@ def is_complete(path, rows=64) -> bool:
     if inp is None:
         return False
     try:
-        spec = inp.spec()
-        if spec.deep:
+        if inp.spec().deep:
             return False
-        step = max(rows, spec.tile_height or 1)
-        for y0 in range(0, spec.height, step):
-            if read_rows_of(inp, spec, y0, min(y0 + step, spec.height), oiio.FLOAT) is None:
-                return False
+        level = 0
+        while level == 0 or inp.seek_subimage(0, level):
+            spec = inp.spec()
+            step = max(rows, spec.tile_height or 1)
+            for y0 in range(0, spec.height, step):
+                if read_rows_of(inp, spec, y0, min(y0 + step, spec.height), oiio.FLOAT,
+                                level) is None:
+                    return False
+            level += 1
         return True
     finally:
         inp.close()

@@ -17,6 +17,8 @@ from ..io.colour import resolve_working_space
 from ..io.images import (Cancelled, Reader, TextureError, Writer, check_output_format,
                          check_same_window, invalid_texels, output_spec, read_parameter_texture,
                          read_rows)
+from ..io.mipmaps import texture_options
+from ..methods.registry import BORDER
 from ..ops.bands import band_rows, bands
 from ..ops.blur import BlurPlan, Scattering, plan_blur
 from ..ops.blur.params import add_count, checked_irradiance
@@ -126,9 +128,12 @@ def exitance_writer(path, output, spec, colour, alpha_ch, route, plan, *, half=F
     meta["source"] = str(path)
     meta.update(route.header("irradiance"))
     Path(output).parent.mkdir(parents=True, exist_ok=True)
+    options = texture_options(texture)           # a texture wraps as the blur's border did
+    if options is not None:
+        options = replace(options, wrap=BORDER[plan.border].texture_wrap)
     return Writer(output, output_spec(spec, names, len(names) - 1 if alpha_ch >= 0 else -1,
                                       half, meta, working=route.working),
-                  plan.on_invalid, texture=texture, cancel=cancel)
+                  plan.on_invalid, texture=options, cancel=cancel)
 
 
 def planned_methods(plan):

@@ -124,9 +124,20 @@ TEXTURED_BLUR_METHODS = tuple(m.name for m in BLUR_METHOD if m.textured)
 #: the methods themselves, not the choice among them (the report and crosscheck sweep these)
 BLUR_KERNELS = tuple(m.name for m in BLUR_METHOD if not m.chooses)
 
-BORDER = Registry.of(
-    "border", clamp="texels beyond the image edge are the nearest edge texel",
-    zero="texels beyond the image edge are 0", wrap="the image repeats (tiling textures)")
+@dataclass(frozen=True)
+class Border(Option):
+    """A blur's border rule, and the wrap mode a texture of its result declares (OpenImageIO's
+    ``wrapmodes``): a lookup beyond the edges sees what the blur saw beyond them."""
+
+    texture_wrap: str = "black"
+
+
+BORDER = Registry("border", (
+    Border("clamp", "texels beyond the image edge are the nearest edge texel",
+           texture_wrap="clamp"),
+    Border("zero", "texels beyond the image edge are 0", texture_wrap="black"),
+    Border("wrap", "the image repeats (tiling textures)", texture_wrap="periodic"),
+))
 BORDERS = BORDER.names
 
 #: what a mean free path is (docs/model.md "Mean free path")

@@ -87,6 +87,13 @@ class InvalidInputError(ValueError):
                          f"{shortest(first_value)} (on_invalid='clamp' / --on-invalid clamp "
                          f"clamps them)")
 
+    def with_(self, *, count=None, first_index=None) -> "InvalidInputError":
+        """This error with another count or first index (the rest as it is): one counted
+        over more than the check saw, or named where it is in a larger image."""
+        return InvalidInputError(self.name, self.count if count is None else count,
+                                 self.first_index if first_index is None else first_index,
+                                 self.first_value, self.why, self.texels)
+
 
 def find_invalid(name, values, bad, why, on_invalid, texels=False, channel=None) -> int:
     """The count of ``bad`` elements of ``values``; with ``on_invalid="raise"`` and any bad,
@@ -108,9 +115,8 @@ def moved_by(exc: InvalidInputError, origin) -> InvalidInputError:
     """``exc`` of a block of a larger array, its first index moved by the block's ``origin``
     (its first element's index in the array, per leading axis): named where it is in the
     array. The count stays the block's."""
-    index = tuple(int(i) + int(o) for i, o in zip(exc.first_index, origin)) \
-        + exc.first_index[len(origin):]
-    return InvalidInputError(exc.name, exc.count, index, exc.first_value, exc.why, exc.texels)
+    return exc.with_(first_index=tuple(int(i) + int(o) for i, o in zip(exc.first_index, origin))
+                     + exc.first_index[len(origin):])
 
 
 def one_line(text) -> str:

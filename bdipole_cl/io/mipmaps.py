@@ -22,6 +22,8 @@ from pathlib import Path
 import numpy as np
 import OpenImageIO as oiio
 
+from ..errors import one_line
+
 
 class TextureBuildError(RuntimeError):
     """A texture that could not be made, or that does not verify (the message says how)."""
@@ -38,7 +40,6 @@ class TextureOptions:
     mip_filter: str = "box"
     compression: str = "zip"
     wrap: str = "black"
-
 
 
 def texture_options(texture) -> TextureOptions | None:
@@ -169,7 +170,7 @@ def _make_texture(full, texture, config, cancelled) -> str | None:
 
     def build():
         made = oiio.ImageBufAlgo.make_texture(oiio.MakeTxTexture, full, str(texture), config)
-        result.append(None if made else " ".join(oiio.geterror().split()) or "unknown error")
+        result.append(None if made else one_line(oiio.geterror()) or "unknown error")
     worker = threading.Thread(target=build, daemon=True, name="bdipole-maketx")
     worker.start()
     while worker.is_alive():

@@ -297,16 +297,11 @@ def unique_names(paths) -> dict:
     last = [p.rstrip("/").rsplit("/", 1)[-1] for p in paths]
     names = [n if last.count(n) == 1 else p.strip("/").replace("/", "_")
              for p, n in zip(paths, last)]
-    taken, out = set(names), {}
-    seen = {}
+    given, out = set(names), {}
     for p, n in sorted(zip(paths, names)):
-        seen[n] = seen.get(n, 0) + 1
-        name = n
-        if seen[n] > 1:
-            k = seen[n]
-            while f"{n}_{k}" in taken:
-                k += 1
+        name, k = n, 1                 # a suffixed name never takes another material's own
+        while name in out.values() or (k > 1 and name in given):
+            k += 1
             name = f"{n}_{k}"
-            taken.add(name)
         out[p] = name
     return {p: out[p] for p in paths}

@@ -24,6 +24,7 @@ from contextlib import contextmanager
 import numpy as np
 from pxr import Sdf, Usd, UsdGeom, UsdShade
 
+from ..errors import one_line
 from .scene_file import SceneError
 from .shaders import (BY_ID, TEXTURE_NODES, Input, Texture, imported_material, one_channel,
                       unique_names)
@@ -56,13 +57,7 @@ def _values(value, where="") -> tuple:
         raise SceneError(f"{where} = {value!r}: expected a number or a colour "
                          f"(a {type(value).__name__} is neither)")
     try:
-        return tuple(_decimal(v) for v in value)
-    except TypeError:
-        pass
-    except ValueError:
-        raise SceneError(f"{where} = {value!r}: expected a number or a colour") from None
-    try:
-        return (_decimal(value),)
+        return tuple(_decimal(v) for v in (value if np.iterable(value) else (value,)))
     except (TypeError, ValueError):
         raise SceneError(f"{where} = {value!r}: expected a number or a colour") from None
 
@@ -240,16 +235,14 @@ def open_stage(path):
         with usd_diagnostics_kept(said):
             stage = Usd.Stage.Open(str(path), Usd.Stage.LoadAll)
     except Exception as exc:            # pxr raises Tf.ErrorException
-        text = " ".join(str(exc).split())
-        raise SceneError(f"{path}: cannot open the USD stage: {text}") from None
+        raise SceneError(f"{path}: cannot open the USD stage: {one_line(exc)}") from None
     if stage is None:
         raise SceneError(f"{path}: cannot open the USD stage"
-                         + (f": {' '.join(said[0].split())}" if said and said[0].strip() else ""))
+                         + (f": {one_line(said[0])}" if said and said[0].strip() else ""))
     errors = stage.GetCompositionErrors()
     if errors:
-        first = " ".join(str(errors[0]).split())
         raise SceneError(f"{path}: the stage does not compose whole ({len(errors)} error(s)): "
-                         f"{first}")
+                         f"{one_line(errors[0])}")
     return stage
 
 

@@ -110,8 +110,7 @@ def check_band_rows(e, idx):
         checked_irradiance(e[rows], "raise")
     except InvalidInputError as exc:
         yy, xx, cc = exc.first_index
-        raise InvalidInputError(exc.name, exc.count, (int(rows[yy]), xx, cc), exc.first_value,
-                                exc.why, exc.texels) from None
+        raise exc.with_(first_index=(int(rows[yy]), xx, cc)) from None
 
 
 def exitance_writer(path, output, spec, colour, alpha_ch, route, plan, *, half=False,

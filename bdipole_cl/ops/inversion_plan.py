@@ -344,9 +344,8 @@ class InversionPlan:
                 except InvalidInputError as exc:
                     if exc.name != "mfp" or shared == 1:
                         raise
-                    raise InvalidInputError(        # counted once per value given
-                        "mfp", invalid_map_values(mfp_map, keep, self.dtype), exc.first_index,
-                        exc.first_value, exc.why, exc.texels) from None
+                    raise exc.with_(                # counted once per value given
+                        count=invalid_map_values(mfp_map, keep, self.dtype)) from None
                 if n_mfp and shared > 1:
                     n_mfp = invalid_map_values(mfp_map, keep, self.dtype)
                 if self.extinction:

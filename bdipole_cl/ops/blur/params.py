@@ -200,11 +200,11 @@ def checked_parameter(value, shape, c, name, on_invalid="raise", dtype=None, ran
             ranges.keep(v, extremes)
         return v
     bad = ~ok(v)
-    if check_policy(on_invalid) == "raise":     # named here, counted over every channel
-        y, x = (int(i) for i in np.unravel_index(int(np.flatnonzero(bad)[0]), bad.shape))
-        raise InvalidInputError(name, texture_invalid_count(value, shape, name, ok, dtype),
-                                (y, x, c), v[y, x].item(), f"outside {rule}", texels=True)
-    n = find_invalid(name, v, bad, f"outside {rule}", on_invalid, texels=True, channel=c)
+    try:
+        n = find_invalid(name, v, bad, f"outside {rule}", check_policy(on_invalid),
+                         texels=True, channel=c)
+    except InvalidInputError as exc:            # named in this channel, counted in every one
+        raise exc.with_(count=texture_invalid_count(value, shape, name, ok, dtype)) from None
     if n:
         add_count(counts, name, n)
         good = v[~bad]

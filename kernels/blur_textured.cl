@@ -177,15 +177,16 @@ __kernel void lattice_weights(__global const float *rd, __global const float *ld
 }
 
 // a gathered exitance m with the round-off of a zero result removed (fft.settled, the host's
-// rule, which the tests compare): |m| below floor = rd * scale is 0, and so is every m < 0 where
-// the irradiance is non-negative (nonneg)
+// rule, which the tests compare): |m| at or below floor = rd * scale is 0 (+0: an Rd of -0.0 makes
+// a floor and a product of -0.0), and so is every m < 0 where the irradiance is non-negative
+// (nonneg)
 inline vec settle(const vec m, const vec rd, const float scale, const int nonneg)
 {
     const vec floor = rd * scale;
 #if BD_WIDTH == 1
-    return (nonneg ? m < floor : fabs(m) < floor) ? 0.0f : m;
+    return (nonneg ? m <= floor : fabs(m) <= floor) ? 0.0f : m;
 #else
-    return select(m, (vec)0.0f, nonneg ? m < floor : fabs(m) < floor);
+    return select(m, (vec)0.0f, nonneg ? m <= floor : fabs(m) <= floor);
 #endif
 }
 

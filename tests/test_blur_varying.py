@@ -301,6 +301,19 @@ def test_zero_albedo_texels_give_zero_and_extremes_stay_finite():
     np.testing.assert_allclose(out[..., 0], albedo[..., 0], rtol=2e-5)
 
 
+@pytest.mark.parametrize("method", ["fft", "gaussians"])
+@pytest.mark.parametrize("sign", [1.0, -1.0])
+def test_negative_zero_albedo_gives_positive_zero(runtime, method, sign):
+    """An albedo texel of -0.0 (a valid Rd of 0) exits +0.0, under light of either sign: its
+    product and its settle floor are -0.0, and a zero's sign is no light a file should carry."""
+    albedo, mfp = gradient_maps()
+    albedo[2, 3] = -0.0
+    out = blur(np.full((H, W, 1), sign, np.float32), albedo=albedo, mfp=mfp, eta=1.4,
+               method=method, device=runtime)
+    assert out[2, 3, 0] == 0.0 and not np.signbit(out[2, 3, 0])
+    assert not np.signbit(out).any() if sign > 0 else np.all(out[albedo > 0] < 0)
+
+
 @pytest.mark.parametrize("name, value, what", [
     ("albedo", 1.0, "albedo"), ("albedo", np.nan, "albedo"), ("albedo", -0.1, "albedo"),
     ("mfp", 0.0, "mfp"), ("mfp", np.inf, "mfp")])

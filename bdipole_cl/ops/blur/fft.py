@@ -85,17 +85,17 @@ def settle_floor(e_range, ulps):
 
 def settled(m, e2d, rd, ulps=ROUNDOFF_ULPS, e_range=None):
     """One channel's exitance m (in place) with the round-off of a zero result removed: values
-    below ulps * eps32 * max|E| * Rd (Rd a scalar or a per-texel map) in magnitude are 0 (a
+    at or below ulps * eps32 * max|E| * Rd (Rd a scalar or a per-texel map) in magnitude are 0 (a
     dark texel's -1e-18 is neither light nor a value half floats hold), and where the
     irradiance is non-negative so is the result (R >= 0 and the truncated kernels are >= 0:
     clamping at 0 only reduces the error). ``e_range``: (min E, max E), where known."""
     scale, nonneg = settle_floor(e_range or (float(e2d.min()), float(e2d.max())), ulps)
     # a map's floor in float32 (a threshold: its own rounding is immaterial), a scalar's exact
     floor = rd * np.float32(scale) if np.ndim(rd) else scale * float(rd)
-    if nonneg:                        # |m| < floor to 0, and so is every m < 0: one pass
-        np.copyto(m, 0, where=m < floor)
+    if nonneg:                        # |m| <= floor to +0 (a zero's sign too), and so is every
+        np.copyto(m, 0, where=m <= floor)                         # m < 0: one pass
     else:
-        m[np.abs(m) < floor] = 0
+        m[np.abs(m) <= floor] = 0
     return m
 
 

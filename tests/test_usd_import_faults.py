@@ -405,3 +405,62 @@ def test_a_wrongly_typed_input_leaves_its_material_out_by_name(tmp_path):
     by_name, _ = records(tmp_path / "bdipole")
     assert "a texture file is an asset path" in by_name["stringfile"]["left_out"]
     assert "'red': expected a number or a colour" in by_name["red"]["left_out"]
+
+
+ANIMATED_STAGE = """#usda 1.0
+(
+    startTimeCode = 5
+    endTimeCode = 10
+)
+def Material "anim" {
+    token outputs:mtlx:surface.connect = </anim/pbr.outputs:out>
+    def Shader "pbr" {
+        uniform token info:id = "ND_open_pbr_surface_surfaceshader"
+        float inputs:subsurface_weight = 1
+        float inputs:subsurface_radius.timeSamples = { 1: 9, 5: 0.2, 10: 0.4 }
+        color3f inputs:subsurface_color.connect = </anim/img.outputs:out>
+        token outputs:out
+    }
+    def Shader "img" {
+        uniform token info:id = "ND_image_color3"
+        asset inputs:file.timeSamples = { 5: @tex/a.exr@ }
+        color3f outputs:out
+    }
+}
+def Material "iface" (
+    prepend apiSchemas = ["ColorSpaceAPI"]
+) {
+    uniform token colorSpace:name = "lin_ap1_scene"
+    asset inputs:albedo_file = @tex/a.exr@
+    token outputs:mtlx:surface.connect = </iface/pbr.outputs:out>
+    def Shader "pbr" {
+        uniform token info:id = "ND_open_pbr_surface_surfaceshader"
+        float inputs:subsurface_weight = 1
+        color3f inputs:subsurface_color.connect = </iface/img.outputs:rgb>
+        token outputs:out
+    }
+    def Shader "img" {
+        uniform token info:id = "UsdUVTexture"
+        asset inputs:file.connect = </iface.inputs:albedo_file>
+        float3 outputs:rgb
+    }
+}
+"""
+
+
+def test_animated_inputs_interface_files_and_inherited_colour_spaces(tmp_path):
+    """An input authored only as time samples is read at the stage's start time code and noted
+    (never its shader's default); a texture file that comes through the material's interface
+    input is read; a colour space a ColorSpaceAPI on an ancestor declares is the texture's."""
+    texture(tmp_path / "tex" / "a.exr")
+    (tmp_path / "asset.usda").write_text(ANIMATED_STAGE)
+    imports = {m.name: m for m in scenes.load(tmp_path / "asset.usda").imports}
+    anim = imports["anim"]
+    assert anim.left_out is None
+    assert anim.inputs["subsurface_radius"] == "subsurface_radius 0.2 (animated: at time " \
+                                                  "code 5)"
+    assert anim.facts["albedo"] == str(tmp_path / "tex" / "a.exr")
+    assert "subsurface_radius is animated: baked with its value at time code 5" in anim.notes
+    iface = imports["iface"]
+    assert iface.left_out is None and iface.facts["albedo"] == str(tmp_path / "tex" / "a.exr")
+    assert iface.facts["colorspace"] == "lin_ap1_scene"

@@ -125,17 +125,20 @@ class Input:
     refused: str | None = None
     unit: str | None = None
     authored: bool = True
+    animated: str | None = None      # animated (USD time samples): the time it was read at
 
     def describe(self) -> str:
         if self.texture is not None:
             t = self.texture
             return f"{self.name} <- {t.file} ({t.colorspace})" + (
-                f" x {', '.join(f'{v:g}' for v in t.scale)}" if t.scale else "")
+                f" x {', '.join(f'{v:g}' for v in t.scale)}" if t.scale else "") + (
+                f" (animated: at {self.animated})" if self.animated else "")
         if self.refused:
             return self.refused
         text = ", ".join(f"{v:g}" for v in self.value)
         return f"{self.name} {text}" + (f" {self.unit}" if self.unit else "") \
-            + ("" if self.authored else " (default)")
+            + ("" if self.authored else " (default)") \
+            + (f" (animated: at {self.animated})" if self.animated else "")
 
 
 def default_input(mapping: ShaderMapping, name: str) -> Input:
@@ -226,7 +229,8 @@ def _check_bakeable(mapping, inputs):
 
 def _notes(mapping, inputs) -> tuple:
     """What the plan should say about inputs that are read but not applied."""
-    notes = []
+    notes = [f"{i.name} is animated: baked with its value at {i.animated}"
+             for i in inputs.values() if i.animated]
     weight = inputs[mapping.weight]
     if weight.texture is not None:
         notes.append(f"{mapping.weight} is a texture ({weight.texture.file}): baked as a "

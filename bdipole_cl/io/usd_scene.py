@@ -7,9 +7,12 @@ that order; the first shader with a subsurface mapping is used. An input's value
 an authored value, or the output of a texture node (``UsdUVTexture``, MaterialX ``image`` /
 ``tiledimage``) whose ``inputs:file`` is the texture (``<UDIM>`` kept; a UsdUVTexture's
 output channel and ``inputs:scale`` / ``inputs:bias`` kept: ``shaders`` applies or refuses
-them). Its colour space is
-the file attribute's ``colorSpace`` metadata, else ``inputs:sourceColorSpace`` (``raw`` is
-linear, ``sRGB``; ``auto`` leaves it to the file). Any other node feeding an input is a
+them; the file, ``sourceColorSpace``, ``scale`` and ``bias`` may come through interface
+inputs too). Its colour space is the file attribute's ``colorSpace`` metadata, else the one a
+``ColorSpaceAPI`` on its prim or an ancestor declares, else ``inputs:sourceColorSpace``
+(``raw`` is linear, ``sRGB``; ``auto`` leaves it to the file). Values are read at the stage's
+start time code (``bake_time``; without a time range, an input's first time sample): an
+animated input is baked at that time and noted, never replaced by its shader's default. Any other node feeding an input is a
 procedural network: the material is named as not bakeable. Distances are in the stage's
 unit (``metersPerUnit``).
 """
@@ -62,10 +65,38 @@ def _values(value, where="") -> tuple:
         raise SceneError(f"{where} = {value!r}: expected a number or a colour") from None
 
 
-def _asset_file(attr) -> str:
-    """The absolute path (or <UDIM> pattern) of an asset-valued attribute, relative to the
-    layer that authored it."""
-    asset = attr.Get()
+def bake_time(stage) -> Usd.TimeCode:
+    """The time a bake reads inputs at: the stage's start time code where it has a time range,
+    else each attribute's earliest time sample (USD's ``EarliestTime``). A value that is not
+    animated is the same at any time; an animated one is noted (``Input.animated``), never
+    replaced by its shader's default."""
+    return (Usd.TimeCode(stage.GetStartTimeCode()) if stage.HasAuthoredTimeCodeRange()
+            else Usd.TimeCode.EarliestTime())
+
+
+def _animated(attr, time) -> str | None:
+    """Where an attribute's value is animated, the time it is read at, in words; else None."""
+    if not attr.ValueMightBeTimeVarying() and attr.GetNumTimeSamples() == 0:
+        return None
+    at = attr.GetTimeSamples()[0] if time.IsEarliestTime() else time.GetValue()
+    return f"time code {at:g}"
+
+
+def _value_attr(shader, name):
+    """The attribute that gives input ``name`` of ``shader`` its value: its own, or the
+    interface input it is connected to (``GetValueProducingAttributes``); None if neither
+    gives one."""
+    inp = shader.GetInput(name)
+    if not inp:
+        return None
+    return next((a for a in inp.GetValueProducingAttributes() if UsdShade.Input.IsInput(a)),
+                None)
+
+
+def _asset_file(attr, time) -> str:
+    """The absolute path (or <UDIM> pattern) of an asset-valued attribute at ``time``,
+    relative to the layer that authored it."""
+    asset = attr.Get(time)
     if asset is None:
         return ""
     if not isinstance(asset, Sdf.AssetPath):
@@ -74,8 +105,8 @@ def _asset_file(attr) -> str:
     if asset.resolvedPath:
         return asset.resolvedPath
     path = asset.path
-    for spec in attr.GetPropertyStack(Usd.TimeCode.Default()):
-        if spec.HasDefaultValue():
+    for spec in attr.GetPropertyStack(time):
+        if spec.HasDefaultValue() or spec.HasInfo("timeSamples"):
             layer_path = spec.layer.realPath
             if layer_path and not os.path.isabs(path):
                 return os.path.normpath(os.path.join(os.path.dirname(layer_path), path))
@@ -83,44 +114,58 @@ def _asset_file(attr) -> str:
     return path
 
 
-def _scale_bias(shader) -> tuple:
+def _scale_bias(shader, time) -> tuple:
     """A UsdUVTexture's per-channel (scale, bias) of its rgb (None: the default 1 or 0)."""
     found = []
     for key, default in (("scale", 1), ("bias", 0)):
-        inp = shader.GetInput(key)
-        value = (_values(inp.Get(), str(inp.GetAttr().GetPath()))
-                 if inp and inp.Get() is not None else None)
+        attr = _value_attr(shader, key)
+        raw = attr.Get(time) if attr else None
+        value = _values(raw, str(attr.GetPath())) if raw is not None else None
         found.append(None if value is None or all(v == default for v in value[:3])
                      else value[:3])
     return tuple(found)
 
 
-def _texture(shader, node_kind: str, output: str = "rgb") -> Texture | str:
-    """The texture a texture node reads (through its ``output``), or why it cannot be
-    baked."""
-    file_input = shader.GetInput("file")
-    if not file_input or file_input.Get() is None:
+def _declared_space(attr) -> str:
+    """The colour space USD declares for an attribute's texture: its own ``colorSpace``, else
+    the one a ``ColorSpaceAPI`` on it prim or an ancestor gives (inherited); "" if none."""
+    if attr.HasColorSpace():
+        return attr.GetColorSpace()
+    api = getattr(Usd, "ColorSpaceAPI", None)          # USD 25.05 and later
+    prim = attr.GetPrim()
+    while api is not None and prim and not prim.IsPseudoRoot():
+        if prim.HasAPI(api):
+            return api.ComputeColorSpaceName(attr, Usd.ColorSpaceHashCache())
+        prim = prim.GetParent()
+    return ""
+
+
+def _texture(shader, node_kind: str, output: str = "rgb",
+             time=Usd.TimeCode.EarliestTime()) -> Texture | str:
+    """The texture a texture node reads (through its ``output``) at ``time``, or why it
+    cannot be baked. Its file and settings may come through interface inputs."""
+    attr = _value_attr(shader, "file")
+    if attr is None or attr.Get(time) is None:
         return f"{node_kind} {shader.GetPath()} has no file"
-    attr = file_input.GetAttr()
-    path = _asset_file(attr)
+    path = _asset_file(attr, time)
     if ".usdz[" in path:
         return (f"{node_kind} {shader.GetPath()} reads {path}, inside a .usdz package: a bake "
                 f"reads files; unpack the package (it is a zip) and bake the unpacked stage")
-    space = attr.GetColorSpace() if attr.HasColorSpace() else ""
+    space = _declared_space(attr)
     if not space:
-        source = shader.GetInput("sourceColorSpace")
-        token = str(source.Get()) if source and source.Get() else "auto"
+        source = _value_attr(shader, "sourceColorSpace")
+        token = str(source.Get(time)) if source and source.Get(time) else "auto"
         space = {"raw": "raw", "sRGB": "sRGB"}.get(token, "auto")
     if node_kind != "UsdUVTexture":                  # ND_image_<type>
         return Texture(path, space, str(shader.GetPath()),
                        channel=one_channel((shader.GetShaderId() or "").split("_")[2]))
-    scale, bias = _scale_bias(shader)
+    scale, bias = _scale_bias(shader, time)
     return Texture(path, space, str(shader.GetPath()), scale, bias,
                    None if output == "rgb" else f"outputs:{output}")
 
 
-def read_input(shader, name: str) -> Input | None:
-    """One input of ``shader`` (None: not authored anywhere)."""
+def read_input(shader, name: str, time=Usd.TimeCode.EarliestTime()) -> Input | None:
+    """One input of ``shader`` at ``time`` (None: not authored anywhere)."""
     inp = shader.GetInput(name)
     if not inp:
         return None
@@ -130,16 +175,18 @@ def read_input(shader, name: str) -> Input | None:
             Input(name, refused=f"{name} is connected to nothing that gives a value")
     attr = attrs[0]
     if UsdShade.Input.IsInput(attr):
-        value = attr.Get()
-        return None if value is None else Input(name, value=_values(value, str(attr.GetPath())))
+        value = attr.Get(time)
+        return None if value is None else Input(name, value=_values(value, str(attr.GetPath())),
+                                                animated=_animated(attr, time))
     source = UsdShade.Shader(attr.GetPrim())
     shader_id = source.GetShaderId() or ""
     kind = _node_kind(shader_id)
     if kind in TEXTURE_NODES:
-        texture = _texture(source, kind, attr.GetBaseName())
+        texture = _texture(source, kind, attr.GetBaseName(), time)
         if isinstance(texture, str):
             return Input(name, refused=f"{name}: {texture}")
-        return Input(name, texture=texture)
+        file_attr = _value_attr(source, "file")
+        return Input(name, texture=texture, animated=_animated(file_attr, time))
     return Input(name, refused=f"{name} comes from {shader_id or 'a node'} "
                                f"({source.GetPath()}), a procedural network")
 
@@ -258,13 +305,14 @@ def read_stage(path):
     materials = stage_materials(stage)
     names = unique_names([str(m.GetPath()) for m, _ in materials])
     bound = bound_materials(stage)
+    time = bake_time(stage)
     result = []
     for material, key in materials:
         prim_path = str(material.GetPath())
         shader, shader_id = surface_shader(material)
         result.append(imported_material(
             names[prim_path], prim_path, shader_id,
-            (lambda n, s=shader: read_input(s, n)) if shader else (lambda n: None),
+            (lambda n, s=shader: read_input(s, n, time)) if shader else (lambda n: None),
             unit_m=unit_m, out_dir=out_dir, bound=prim_path in bound or key in bound))
     return result
 

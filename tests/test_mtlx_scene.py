@@ -209,3 +209,62 @@ def test_a_bad_value_in_the_document_leaves_that_material_out_and_the_rest_bake(
     records = json.loads((tmp_path / "bdipole" / "bdipole_materials.json").read_text())
     by_name = {e["name"]: e for e in records["materials"]}
     assert by_name["jade"]["baked"] and why in by_name["skin"]["left_out"]
+
+
+#: an included document with a namespace and a texture beside it, an image whose file comes
+#: through its node graph's interface, and a shader inside a node graph whose radius does
+LIBRARY = """<?xml version="1.0"?>
+<materialx version="1.39" namespace="lib">
+  <image name="img" type="color3"><input name="file" type="filename" value="tex/wax.exr" />
+  </image>
+  <open_pbr_surface name="pbr" type="surfaceshader">
+    <input name="subsurface_weight" type="float" value="1" />
+    <input name="subsurface_color" type="color3" nodename="lib:img" />
+  </open_pbr_surface>
+  <surfacematerial name="skin" type="material">
+    <input name="surfaceshader" type="surfaceshader" nodename="lib:pbr" />
+  </surfacematerial>
+</materialx>
+"""
+INCLUDING = """<?xml version="1.0"?>
+<materialx version="1.39">
+  <xi:include href="lib/library.mtlx" />
+  <nodegraph name="graph">
+    <input name="albedo_file" type="filename" value="tex/skin.<UDIM>.exr" />
+    <input name="radius" type="float" value="0.25" />
+    <image name="img" type="color3">
+      <input name="file" type="filename" interfacename="albedo_file" />
+    </image>
+    <open_pbr_surface name="pbr" type="surfaceshader">
+      <input name="subsurface_weight" type="float" value="1" />
+      <input name="subsurface_color" type="color3" nodename="img" />
+      <input name="subsurface_radius" type="float" interfacename="radius" />
+    </open_pbr_surface>
+    <output name="surface" type="surfaceshader" nodename="pbr" />
+  </nodegraph>
+  <surfacematerial name="skin" type="material">
+    <input name="surfaceshader" type="surfaceshader" nodegraph="graph" output="surface" />
+  </surfacematerial>
+</materialx>
+"""
+
+
+def test_includes_namespaces_and_interface_inputs(tmp_path):
+    """An included document's texture is relative to that document; its namespaced material
+    (lib:skin) is a valid prim and file name beside the root's skin, and both bake; a file and
+    a radius through a node graph's interface inputs are read."""
+    path = write_doc(tmp_path, INCLUDING)
+    albedo_texture(tmp_path / "lib" / "tex" / "wax.exr", 2)
+    (tmp_path / "lib" / "library.mtlx").write_text(LIBRARY)
+    imports = {m.name: m for m in import_materials(path)}
+    assert set(imports) == {"skin", "lib_skin"}
+    lib = imports["lib_skin"]
+    assert lib.path == "/MaterialX/Materials/lib_skin"
+    assert lib.facts["albedo"] == str(tmp_path / "lib" / "tex" / "wax.exr")
+    skin = imports["skin"]
+    assert skin.facts["albedo"] == str(tmp_path / "tex" / "skin.<UDIM>.exr")
+    np.testing.assert_allclose(skin.facts["mfp"], [0.25, 0.125, 0.0625])
+    report = scenes.load(path).plan().run()
+    assert report.exit_code == 0
+    assert (tmp_path / "bdipole" / "lib_skin.exr").is_file()
+    assert "lib_skin" in (tmp_path / "bdipole" / "bdipole.usda").read_text()

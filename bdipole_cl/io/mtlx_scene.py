@@ -5,22 +5,28 @@ MaterialX's reader upgrades older documents on read, so 1.37's ``<material>`` /
 ``<shaderref>`` / ``<bindinput>`` arrive as 1.38+ shader nodes and ``surfacematerial``s. An
 input's value is its ``value`` attribute; a connected input (``nodename``, or ``nodegraph`` +
 ``output``) must come from an ``image`` or ``tiledimage`` node, whose ``file`` (with
-``fileprefix`` applied, ``<UDIM>`` kept, relative to the document) is the texture and whose
+``fileprefix`` applied, ``<UDIM>`` kept, relative to the document that authored it: an
+``xi:include``d one's own folder; through node graphs' interface inputs) is the texture and
+whose
 active colour space (its ``colorspace`` attribute, else the enclosing elements', else the
 document's) goes to colour management (a ``float`` image, one channel of the file, is
 refused where its texels are baked). Any other node is a procedural network: the material
 is named as not bakeable. A distance input's ``unit`` (``unittype="distance"``) converts it to
 the scene unit: metres, MaterialX's default target distance unit (``GenOptions``), which a
-scene file's ``unit`` may change.
+scene file's ``unit`` may change. A material's name is a valid USD prim and file name
+(``valid_identifier``: an included document's namespace ``lib:skin`` is ``lib_skin``), unique.
 """
 from __future__ import annotations
 
 import os
+import re
 
 import MaterialX as mx
 
+from . import tiles
 from .scene_file import SceneError
-from .shaders import BY_ID, TEXTURE_NODES, Input, Texture, imported_material, one_channel
+from .shaders import (BY_ID, TEXTURE_NODES, Input, Texture, imported_material, one_channel,
+                      unique_names)
 
 #: metres per scene unit of a MaterialX document (MaterialX's default target distance unit)
 DOCUMENT_UNIT_M = 1.0
@@ -40,22 +46,53 @@ def _values(inp) -> tuple | None:
                          f"(its type is {inp.getType()})") from None
 
 
+def _interface_source(inp):
+    """The input that gives ``inp`` its value or connection: ``inp`` itself, or, through its
+    ``interfacename``, the enclosing node graph's input (and on through theirs)."""
+    seen = set()
+    while inp is not None and inp.getInterfaceName() and inp.getNamePath() not in seen:
+        seen.add(inp.getNamePath())
+        inp = inp.getInterfaceInput()
+    return inp
+
+
+def _relative_file(element, path: str, base: str) -> str:
+    """A relative ``path`` authored on ``element``: relative to the document that authored it
+    (an ``xi:include``d one's folder, which MaterialX names relative to the root document's,
+    ``base``), else, where nothing is there and the root document's folder has it, relative
+    to that (MaterialX's own viewer searches every source document's folder)."""
+    uri = element.getActiveSourceUri()
+    own = os.path.normpath(os.path.join(base, os.path.dirname(uri), path)) if uri else None
+    root = os.path.normpath(os.path.join(base, path))
+    if own is None or own == root or _exists(own) or not _exists(root):
+        return own or root
+    return root
+
+
+def _exists(path: str) -> bool:
+    """Whether a file, or a tile of a <UDIM> pattern, is there."""
+    return bool(tiles.expand(path)) if tiles.is_pattern(path) else os.path.exists(path)
+
+
 def _texture(node, base: str) -> Texture | str:
-    file_input = node.getInput("file")
+    """The texture an image node reads: its ``file`` (through interface inputs) relative to
+    the document that authored the value, or why it cannot be baked."""
+    file_input = _interface_source(node.getInput("file"))
     if file_input is None or not file_input.getValueString():
         return f"{node.getCategory()} {node.getNamePath()} has no file"
     path = file_input.getResolvedValueString()
     if not os.path.isabs(path):
-        path = os.path.normpath(os.path.join(base, path))
+        path = _relative_file(file_input, path, base)
     return Texture(path, file_input.getActiveColorSpace() or "auto", node.getNamePath(),
                    channel=one_channel(node.getType()))
 
 
 def read_input(shader, name: str, base: str) -> Input | None:
     """One input of the shader node (None: not authored)."""
-    inp = shader.getInput(name)
-    if inp is None:
+    own = shader.getInput(name)
+    if own is None:
         return None
+    inp = _interface_source(own) or own          # a shader in a node graph: its interface
     unit = inp.getUnit() if inp.getUnitType() == "distance" and inp.hasUnit() else None
     node = inp.getConnectedNode()
     if node is None and (inp.getNodeName() or inp.getNodeGraphString()
@@ -72,6 +109,14 @@ def read_input(shader, name: str, base: str) -> Input | None:
                                f"({node.getNamePath()}), a procedural network")
 
 
+def valid_identifier(name: str) -> str:
+    """A MaterialX element name as a USD prim name (and file name): a namespaced one's ``:``
+    and any other character outside [A-Za-z0-9_] become ``_``, a leading digit gets one
+    before it (what USD's ``TfMakeValidIdentifier`` does)."""
+    name = re.sub(r"[^A-Za-z0-9_]", "_", name) or "_"
+    return f"_{name}" if name[0].isdigit() else name
+
+
 def surface_shader(material):
     """The material node's surface shader with a subsurface mapping, else its first."""
     shaders = mx.getShaderNodes(material, "surfaceshader")
@@ -85,17 +130,19 @@ def read_document(path):
     """[ImportedMaterial] of every material node of the document at ``path``."""
     doc = mx.createDocument()
     try:
-        mx.readFromXmlFile(doc, str(path))
+        mx.readFromXmlFile(doc, os.path.abspath(path))
     except (mx.ExceptionFileMissing, mx.ExceptionParseError) as exc:
         raise SceneError(f"{path}: cannot read the MaterialX document: {exc}") from None
     base = os.path.dirname(os.path.abspath(path))
     out_dir = os.path.join(base, "bdipole")
+    materials = doc.getMaterialNodes()
+    paths = [f"{USD_MATERIALS_SCOPE}/{valid_identifier(m.getName())}" for m in materials]
+    names = unique_names(paths)
     result = []
-    for material in doc.getMaterialNodes():
+    for material, prim_path in zip(materials, paths):
         shader = surface_shader(material)
-        name = material.getName()
         result.append(imported_material(
-            name, f"{USD_MATERIALS_SCOPE}/{name}", shader.getCategory() if shader else None,
+            names[prim_path], prim_path, shader.getCategory() if shader else None,
             (lambda n, s=shader: read_input(s, n, base)) if shader else (lambda n: None),
             unit_m=DOCUMENT_UNIT_M, out_dir=out_dir, bound=None))
     return result

@@ -314,6 +314,25 @@ def test_negative_zero_albedo_gives_positive_zero(runtime, method, sign):
     assert not np.signbit(out).any() if sign > 0 else np.all(out[albedo > 0] < 0)
 
 
+@pytest.mark.parametrize("level", [1e37, 1e38, 3e38])
+def test_a_field_near_float32s_largest_blurs_finite(runtime, level):
+    """A finite irradiance up to float32's largest blurs to finite exitance (its basis planes
+    and near-field sums would pass 3.4e38: the channel is blurred in a power-of-two unit,
+    ``fft.hdr_unit``), Rd E on a constant field, and exactly 2^k times the blur of E 2^-k."""
+    albedo, mfp = gradient_maps()
+    e = np.full((H, W, 1), level, np.float32)
+    out = blur(e, albedo=albedo, mfp=mfp, eta=1.4, device=runtime)
+    assert np.all(np.isfinite(out))
+    np.testing.assert_allclose(out[..., 0], level * albedo[..., 0], rtol=2e-5)
+    lit = np.random.default_rng(2).uniform(0, 1, (H, W, 1)).astype(np.float32)
+    lit[4:9, 4:9] = 1.0
+    small = blur(lit, albedo=albedo, mfp=mfp, eta=1.4, device=runtime)
+    big = blur(lit * np.float32(level), albedo=albedo, mfp=mfp, eta=1.4, device=runtime)
+    # the big field is blurred in a unit that brings its peak to [0.5, 1): the small one's
+    # own scale but for a power of two, so the same floats up to its rounding of E * level
+    np.testing.assert_allclose(big / np.float32(level), small, rtol=1e-5, atol=1e-6)
+
+
 @pytest.mark.parametrize("name, value, what", [
     ("albedo", 1.0, "albedo"), ("albedo", np.nan, "albedo"), ("albedo", -0.1, "albedo"),
     ("mfp", 0.0, "mfp"), ("mfp", np.inf, "mfp")])

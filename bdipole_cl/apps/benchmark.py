@@ -180,7 +180,7 @@ def gather_rows(size=1024, tol=1e-3, repeats=3, radii=None, progress=None):
                                                                      plan.radius)[1]))
             basis_blurs(e, 0, plan, "clamp", planes)      # the kernels' spectra, once
             t0 = time.perf_counter()
-            padded, _, _ = basis_blurs(e, 0, plan, "clamp", planes)
+            padded, _, _, _ = basis_blurs(e, 0, plan, "clamp", planes)
             blurs = time.perf_counter() - t0            # warm, as a blur under new light
             seconds = median_time(lambda: gather_exitance(out, 0, plan, rd, ld, planes, padded,
                                                           plan.radius, rt), repeats, stat=min)

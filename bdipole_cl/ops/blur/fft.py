@@ -363,6 +363,21 @@ def times_spectrum(ks, spec, out):
     in_row_blocks(rows, n0)
 
 
+#: a texture-varying blur of a channel whose max|E| is above this blurs E times a power of two
+#: that brings it to [0.5, 1) (``hdr_unit``): its float32 basis planes (|B_j * E| up to the
+#: eigen-kernel's L1 norm times max|E|) and the gather's near-field class sums (8 cells) would
+#: pass float32's 3.4e38 from a field of ~1e37 up
+HDR_UNIT_ABOVE = 2.0 ** 100
+
+
+def hdr_unit(e_range) -> float:
+    """1, or the power of two 2^-e that brings max|E| of a channel of range (min E, max E) to
+    [0.5, 1) where it is above HDR_UNIT_ABOVE (exact in float32: the texels below 2^-126 of
+    the new unit, 1e-38 of the peak and far below its float32 resolution, lose bits)."""
+    top = peak(e_range)
+    return float(2.0 ** -np.frexp(top)[1]) if top > HDR_UNIT_ABOVE else 1.0
+
+
 def basis_blurs(e, c, plan, border, planes):
     """planes[j] = (B_j * E) for every basis kernel of the plan, E channel c of the (H, W, C)
     image, as (H, W + 2K) float32 rows whose columns [K, K + W) are the image's: one forward
@@ -374,18 +389,23 @@ def basis_blurs(e, c, plan, border, planes):
     (``fft_dtype``'s peak_to_mean at the plan's tol: then float64, the planes still float32,
     good to eps32 of each texel's own value). Returns the padded float32 channel (N0, N1) (the
     image at rows and columns [K, K + H), [K, K + W): the near field's irradiance), its
-    (min, max), and the transforms' dtype, for ``settle_floor``."""
+    (min, max), and the transforms' dtype, for ``settle_floor``, all in units of ``unit``
+    (``hdr_unit``: the planes and the channel are E times unit), and unit."""
     import scipy.fft as sfft
     k = plan.radius
     h, w = e.shape[:2]
     shape = fft_shape((h, w), k)
     sums = []
     padded, (e_range,) = padded_planes(e, [c], k, shape, np.float32, border, sums)
+    unit = hdr_unit(e_range)
+    if unit != 1.0:                    # exact: a power of two
+        padded *= np.float32(unit)
+        e_range, sums = (e_range[0] * unit, e_range[1] * unit), [sums[0] * unit]
     dtype = image_fft_dtype(0.0, plan.truncation_tol, e_range, sums[0], h * w, shape)
     if not len(plan.kernels):          # the near field holds the whole kernel
-        return padded[0], e_range, dtype
+        return padded[0], e_range, dtype, unit
     source = padded if dtype == np.float32 else padded_planes(e, [c], k, shape, dtype,
-                                                              border)[0]
+                                                              border)[0] * unit
     kspec = cached_spectra(plan, shape, dtype)
     spec = sfft.rfft2(source[0], workers=-1)
     del source
@@ -401,4 +421,4 @@ def basis_blurs(e, c, plan, border, planes):
             else:
                 plane[r0:r1] = np.fft.irfft(cols[k + r0:k + r1], shape[1], axis=-1)
         in_row_blocks(rows_of_plane, h)
-    return padded[0], e_range, dtype
+    return padded[0], e_range, dtype, unit

@@ -90,11 +90,14 @@ def blur_band(e, plans, rows, method, border, kernels, ranges=None):
         shape = fft_shape((h, w), plan.radius)
         if planes is None or planes.shape != (len(plan.kernels), h, shape[1]):
             planes = host_array((len(plan.kernels), h, shape[1]))
-        padded, e_range, dtype = basis_blurs(e, c, plan, border, planes)
-        ranges.append(e_range)
+        padded, e_range, dtype, unit = basis_blurs(e, c, plan, border, planes)
+        ranges.append((e_range[0] / unit, e_range[1] / unit))
         ulps = FFT32_ROUNDOFF_ULPS if dtype == np.float32 else ROUNDOFF_ULPS
         gather_exitance(out, c, plan, rd[rows], ld[rows], planes, padded, plan.radius, rt,
                         settle_floor(e_range, ulps))
+        if unit != 1.0:                # back from the HDR unit: exact, a power of two (whose
+            view = out[..., c]         # inverse, up to 2^128, float32 need not hold)
+            np.ldexp(view, -int(np.log2(unit)), out=view)
     return out
 
 

@@ -45,7 +45,7 @@ from .jobs.scene import Plan, not_run, scene_job
 from .jobs.scene_records import finish_bake
 from .ops import invert as ops_invert
 from .ops.bands import band_rows, bands, halo_rows
-from .ops.inversion_plan import texel_broadcast
+from .ops.host_arrays import texel_broadcast
 from .ops.blur import Scattering, plan_blur
 from .ops.blur.params import checked_irradiance
 from .errors import InvalidInputError, moved_by

@@ -304,3 +304,52 @@ def test_clamped_coefficients_are_those_of_the_clamped_inputs(mfp_form):
     assert done.invalid_albedo == 4
     # an HxW map's bad value counts once, though every channel reads it (values given)
     assert done.invalid_mfp == {"per channel": 0, "per texel": 2, "hxw": 2}[mfp_form]
+
+
+@pytest.mark.parametrize("outputs, alias", [(("sigma_a", "sigma_s"), 0),
+                                            (("sigma_a", "sigma_s"), 1), (("rho", "sigma_a"), 0)])
+def test_an_output_on_the_extinction_mfp_itself_gives_the_same_values(runtime, outputs, alias):
+    """out= on the mfp's own elements: an extinction mfp is read again after the kernel (the
+    division sigma = base / mfp), so it is copied first; the values are those of separate
+    arrays (they were 1.0, or base over an overwritten mfp)."""
+    rd = np.array([0.2, 0.5, 0.8, 0.95], np.float32)
+    mfp = np.array([0.5, 1.0, 2.0, 4.0], np.float32)
+    want = albedo_to_coefficients(rd, mfp, 1.4, outputs=outputs, mfp_kind="extinction",
+                                  device=runtime)
+    out = [np.empty_like(rd) for _ in outputs]
+    out[alias] = mfp
+    got = albedo_to_coefficients(rd, mfp, 1.4, outputs=outputs, mfp_kind="extinction",
+                                 out=tuple(out), device=runtime)
+    for g, w in zip(got, want):
+        np.testing.assert_array_equal(g, w)
+
+
+def test_a_plan_with_its_mfp_compiled_in_refuses_another(runtime):
+    """specialise=True with mfp_const: the kernel reads no mfp, so another one passed to apply
+    is a ValueError, not the compiled one used in silence; the compiled value itself is fine."""
+    rd = np.array([0.2, 0.5, 0.8], np.float32)
+    plan = plan_inversion(1.4, outputs=("sigma_a",), mfp_kind="diffuse", specialise=True,
+                          mfp_const=1.0, device=runtime)
+    want = plan.apply(rd).arrays["sigma_a"]
+    np.testing.assert_array_equal(plan.apply(rd, np.float32(1.0)).arrays["sigma_a"], want)
+    for other in (3.0, np.full(3, 3.0, np.float32)):
+        with pytest.raises(ValueError, match=r"compiled mfp_const=\[1\.0\]"):
+            plan.apply(rd, other)
+
+
+def test_a_one_channel_mfp_map_counts_each_value_once_and_matrix_outputs_fill(runtime):
+    """albedo_to_coefficients with an HxW mfp map beside HxWx3 albedos: 2 bad values are 2,
+    as plan.apply counts them (not 6, one per channel after a broadcast); an np.matrix out is
+    filled (a subclass's flat view is taken as an ndarray's)."""
+    rd = np.full((4, 5, 3), 0.5, np.float32)
+    mfp = np.ones((4, 5), np.float32)
+    mfp[1, 1] = mfp[2, 3] = np.nan
+    with pytest.raises(InvalidInputError, match=r"^2 invalid mfp value"):
+        albedo_to_coefficients(rd, mfp, 1.4, device=runtime)
+    rd2 = np.linspace(0.1, 0.9, 12, dtype=np.float32).reshape(3, 4)
+    sa = np.asmatrix(np.zeros((3, 4), np.float32))
+    ss = np.asmatrix(np.zeros((3, 4), np.float32))
+    want = albedo_to_coefficients(rd2, 1.0, 1.4, device=runtime)
+    albedo_to_coefficients(rd2, 1.0, 1.4, out=(sa, ss), device=runtime)
+    np.testing.assert_array_equal(np.asarray(sa), want[0])
+    np.testing.assert_array_equal(np.asarray(ss), want[1])

@@ -283,7 +283,7 @@ def output_array(out, name, n, dtype, like=None):
         raise ValueError(f"out[{name!r}]: expected a writeable C-contiguous {np.dtype(dtype)} "
                          f"array of {n} elements (the input's shape, or flat); {wrong} (got "
                          f"{getattr(a, 'dtype', type(a).__name__)} shape {np.shape(a)})")
-    return a.reshape(-1)
+    return a.view(np.ndarray).reshape(-1)      # a subclass (np.matrix) stays 2-D reshaped
 
 
 #: prepared kernels kept across calls (each holds its small constant buffers), per thread

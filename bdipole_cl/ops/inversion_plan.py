@@ -20,6 +20,8 @@ from ..errors import InvalidInputError, check_policy, find_invalid, plain_array
 from ..methods.choice import DeviceKey, resolve_method
 from ..methods.registry import MFP_KIND, MFP_KINDS, OUTPUTS, MethodConfig
 from ..physics.models import MODEL
+from .host_arrays import (apart_from, channel_values, check_out_shapes, shared_channels,
+                          texel_broadcast)
 from .inversion_kernel import (CHECK_ALBEDO, CHECK_COEFFICIENTS, MFP_MIN, InversionKernel,
                                inversion_kernel, output_array)
 
@@ -65,39 +67,6 @@ def kernel_outputs(outputs, mfp_kind):
         wanted |= {"alpha"} if "sigma_s" in wanted else set()
         wanted -= {"sigma_a", "sigma_s"}
     return tuple(k for k in ("alpha", "rho", "sigma_a", "sigma_s") if k in wanted)
-
-
-def texel_broadcast(rd, mfp):
-    """(rd, mfp) for broadcasting: an mfp map shaped as rd without its last axis (an HxW map
-    beside HxWxC albedos) is one value per texel, for every channel (as a mask is), also
-    where NumPy would broadcast it otherwise (a map 3 texels wide beside RGB albedos); else
-    NumPy's rule (one value, one per channel, rd's shape; a 1-D mfp beside 2-D albedos whose
-    last axis matches it is one per channel, as a tuple is)."""
-    try:
-        np.broadcast_shapes(rd.shape, mfp.shape)
-        broadcasts = True
-    except ValueError:
-        broadcasts = False
-    if rd.ndim >= 2 and mfp.shape == rd.shape[:-1] and (mfp.ndim >= 2 or not broadcasts):
-        return rd, mfp[..., None]
-    if not broadcasts:
-        raise ValueError(f"mfp of shape {mfp.shape} does not fit albedo of shape {rd.shape}: "
-                         f"give one value, one per channel, an albedo-shaped map, or one map "
-                         f"of shape {rd.shape[:-1]} for every channel")
-    return rd, mfp
-
-
-def check_out_shapes(out, shape):
-    """Each ``out`` array ({name: array}) shaped as the input (``shape``) or flat: one of the
-    input's size in another shape (a transposed image, say) would be filled in the input's
-    layout, which is not what its shape says (a ValueError naming it; another size is
-    ``inversion_kernel.output_array``'s to name)."""
-    for name, a in (out or {}).items():
-        if (isinstance(a, np.ndarray) and a.ndim != 1 and a.shape != tuple(shape)
-                and a.size == int(np.prod(shape))):
-            raise ValueError(f"out[{name!r}]: shape {a.shape} is not the input's "
-                             f"{tuple(shape)} (give it the input's shape, or a flat array of "
-                             f"its size)")
 
 
 def extinction_coefficients(outs, mfp, outputs, out=None):
@@ -165,47 +134,11 @@ def checked_mfp(mfp, on_invalid, dtype=np.float32):
     return mfp, n
 
 
-def apart_from(out, rd, mfp):
-    """(rd, mfp), each copied where an ``out`` array overlaps it other than as the very same
-    elements (out=rd is safe: each element is read before it is written; a shifted view is
-    not, as the kernel would read texels it has already overwritten)."""
-    def same(a, b):
-        return (a.__array_interface__["data"][0] == b.__array_interface__["data"][0]
-                and a.strides == b.strides and a.size == b.size)
-    for arr in (out or {}).values():
-        arr = np.asarray(arr)
-        if np.may_share_memory(arr, rd) and not same(arr, rd):
-            rd = rd.copy()
-        if mfp is not None and np.may_share_memory(arr, mfp) and not same(arr, mfp):
-            mfp = mfp.copy()
-    return rd, mfp
-
-
-def channel_values(values, nchan):
-    """``values`` (broadcast to the input's shape) as one float per channel when it holds no
-    more than that (a scalar or a per-channel tuple broadcast: zero strides), else None."""
-    v = np.asarray(values)
-    if v.ndim == 0 or all(st == 0 for st in v.strides):
-        return np.full(nchan, v.reshape(-1)[0] if v.size else 0.0, np.float64)
-    if any(st != 0 for st in v.strides[:-1]) or v.shape[-1] != nchan:
-        return None
-    return np.array(v[(0,) * (v.ndim - 1)], np.float64)
-
-
 def as_float(values, name="albedo"):
     """``values`` as an array, floating point (integers become float64); a masked, complex or
     non-numeric array a ValueError naming it (``errors.plain_array``)."""
     values = plain_array(values, name)
     return values if values.dtype.kind == "f" else values.astype(np.float64)
-
-
-def shared_channels(rd, mfp) -> int:
-    """How many channels each value of ``mfp`` serves (``texel_broadcast``'s operands): C for
-    a map of one value per texel beside C-channel albedos, else 1 (a map of rd's shape; one
-    value, or one per channel, is a constant, not a map)."""
-    if mfp.ndim == rd.ndim >= 2 and mfp.shape[-1] == 1 < rd.shape[-1] and mfp.size > 1:
-        return rd.shape[-1]
-    return 1
 
 
 def invalid_map_values(mfp_map, keep, dtype) -> int:
@@ -322,12 +255,17 @@ class InversionPlan:
                     if self.mfp_const is None:
                         raise ValueError("this plan needs an mfp: apply(rd, mfp)")
                     mfp = np.asarray(self.mfp_const, np.float64)
+                elif self.kernel.mfp_compiled and not self._is_compiled_mfp(mfp):
+                    raise ValueError(
+                        f"this plan compiled mfp_const={np.asarray(self.mfp_const).tolist()} "
+                        f"into its kernel, which reads no other mfp: apply(rd) uses it; "
+                        f"another mfp needs a plan without mfp_const (or specialise=False)")
                 rd, mfp_map = texel_broadcast(as_float(rd), as_float(mfp, "mfp"))
                 shared = shared_channels(rd, mfp_map)
                 rd, mfp = np.broadcast_arrays(rd, mfp_map)
             self._check_channels(rd.shape)
             check_out_shapes(out, rd.shape)
-            rd, mfp = apart_from(out, rd, mfp)
+            rd, mfp = apart_from(out, rd, mfp, mfp_after=self.mfp_kind == "extinction")
             keep = None if mask is None else self._keep(mask, rd.shape)
             if keep is not None:
                 if not keep.any():                 # nothing to invert: no device call at all
@@ -423,6 +361,14 @@ class InversionPlan:
             # are those of the clamped input: NaN, -inf -> (0, 1) as Rd = 0, > 1 -> (1, 0)
             n_rd = invalid_albedo_count(rd, self.on_invalid)
         return outs, n_rd
+
+    def _is_compiled_mfp(self, mfp) -> bool:
+        """Whether ``mfp`` is the plan's ``mfp_const`` at every texel and channel."""
+        try:
+            return bool(np.all(np.asarray(mfp, np.float64)
+                               == np.asarray(self.mfp_const, np.float64)))
+        except (ValueError, TypeError):                # does not broadcast: a map
+            return False
 
     def _coefficients(self, rd, mfp, out):
         """The kernel's outputs (1-D), the invalid albedo and mfp counts, and the mfp (checked,

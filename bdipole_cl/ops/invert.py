@@ -11,9 +11,9 @@ import numpy as np
 from ..errors import check_numbers
 from ..methods.registry import MethodConfig
 from .inversion_kernel import InversionKernel
+from .host_arrays import texel_broadcast
 from .inversion_plan import (MFP_CLAMP_RANGE, OUTPUTS, RD_CLAMP_MAX, InversionPlan, Inverted,
-                             as_float, check_mfp_kind, check_outputs, plan_inversion,
-                             texel_broadcast)
+                             as_float, check_mfp_kind, check_outputs, plan_inversion)
 
 __all__ = ["CoefficientMapper", "InversionKernel", "InversionPlan", "Inverted",
            "MFP_CLAMP_RANGE", "OUTPUTS", "RD_CLAMP_MAX", "albedo_to_coefficients",
@@ -139,7 +139,8 @@ def albedo_to_coefficients(rd, mfp, eta, method="table", *, model="better", exac
     ``device``: where to run, as for ``invert_albedo``. ``out``: arrays to write the outputs
     into, one per output in order (as ``invert_albedo``'s ``out``); returned.
     """
-    rd, mfp = np.broadcast_arrays(*texel_broadcast(as_float(rd), as_float(mfp)))
+    rd, mfp = texel_broadcast(as_float(rd), as_float(mfp))
+    rd = np.broadcast_to(rd, np.broadcast_shapes(rd.shape, mfp.shape))  # a one-value albedo
     plan = plan_inversion(channel_etas(eta, rd.shape), method, outputs=check_outputs(outputs),
                           mfp_kind=check_mfp_kind(mfp_kind), model=model, exact=exact,
                           double=double, on_invalid=on_invalid, device=device, **knobs)

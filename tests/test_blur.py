@@ -331,3 +331,30 @@ def test_plan_blur_names_a_bad_shape(shape):
     from bdipole_cl.ops.blur import Scattering, plan_blur
     with pytest.raises(ValueError, match=r"shape .*expected \(height, width\)"):
         plan_blur(shape, Scattering(albedo=0.5, mfp=2.0))
+
+
+@pytest.mark.parametrize("method", ["direct", "fft", "gaussians"])
+def test_a_tol_below_float32s_round_off_reports_the_round_off(runtime, method):
+    """tol 1e-9: float32 exitance cannot be within it, so the bound reports the method's
+    round-off (direct: sums of 33 taps, Neumaier over rows; fft: the float64 transform's
+    exitance in float32; gaussians: its separable sums, after its fit's L1 error) and warns;
+    the error against a float64 reference (the exact weights at tol 1e-12, whose truncation,
+    ~1e-12, is far below the round-off) is within it. Gaussians' fit could not converge at such
+    tols: it keeps the best basis that did and warns, not scipy's RuntimeError."""
+    import warnings
+
+    from bdipole_cl.ops.blur.fft import fft_blur_channel
+    from bdipole_cl.ops.blur.planning import BlurAccuracyWarning
+    albedo, mfp, eta = 0.5, 0.7, 1.4
+    e = np.random.default_rng(1).random((24, 24)).astype(np.float32)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        out, info = blur(e, albedo=albedo, mfp=mfp, eta=eta, tol=1e-9, method=method,
+                         return_info=True, device=runtime)
+    assert any(issubclass(w.category, BlurAccuracyWarning) for w in caught)
+    bound = info.channels[0].error_bound
+    assert 1e-7 < bound < 1e-4
+    (a, st, et), = channel_parameters(1, albedo=albedo, mfp=mfp, eta=eta)
+    exact = fft_blur_channel(e.astype(np.float64), channel_kernel(a, st, et, 1e-12).weights,
+                             "clamp")
+    assert np.abs(out - exact).max() / (e.max() * albedo) <= bound      # HxW in, HxW out

@@ -333,6 +333,33 @@ def test_a_field_near_float32s_largest_blurs_finite(runtime, level):
     np.testing.assert_allclose(big / np.float32(level), small, rtol=1e-5, atol=1e-6)
 
 
+@pytest.mark.parametrize("size", [0, -1.0, np.nan, np.inf, True, "2", (0.5, 1.0)])
+@pytest.mark.parametrize("pair", ["albedo", "alpha"])
+def test_a_bad_texel_size_is_named_with_texture_parameters(size, pair):
+    """texel_size is checked as for constant parameters (it was read into the mfp, counted as
+    invalid mfp texels or blurred nothing under clamp, or a raw conversion error)."""
+    albedo, mfp = gradient_maps()
+    maps = ({"albedo": albedo, "mfp": mfp} if pair == "albedo"
+            else {"alpha": np.full_like(albedo, 0.9), "sigma_t": np.full_like(mfp, 2.0)})
+    for policy in ("raise", "clamp"):
+        with pytest.raises(ValueError, match=r"texel_size=.* must be one finite number > 0"):
+            blur(np.ones((H, W, 1), np.float32), texel_size=size, on_invalid=policy, **maps)
+
+
+def test_extreme_sigma_t_texels_give_a_one_texel_kernel_or_a_named_error():
+    """sigma_t' of 1e300 (valid: (0, inf)) is a one-texel kernel (its ld, 1e-301 texels, was 0
+    in float32: the plan's SVD failed); one too small for any kernel is named."""
+    e = np.random.default_rng(3).uniform(0.5, 1, (H, W, 1)).astype(np.float32)
+    alpha = np.full((H, W, 1), 0.9, np.float64)
+    st = np.full((H, W, 1), 1e300, np.float64)
+    out = blur(e, alpha=alpha, sigma_t=st)
+    np.testing.assert_allclose(out, blur(e, alpha=alpha, sigma_t=np.full_like(st, 1e30)),
+                               rtol=1e-6)
+    st[2, 3] = 1e-320
+    with pytest.raises(ValueError, match=r"sigma_t at x=3, y=2, channel 0: .* beyond float32"):
+        blur(e, alpha=alpha, sigma_t=st)
+
+
 @pytest.mark.parametrize("name, value, what", [
     ("albedo", 1.0, "albedo"), ("albedo", np.nan, "albedo"), ("albedo", -0.1, "albedo"),
     ("mfp", 0.0, "mfp"), ("mfp", np.inf, "mfp")])

@@ -167,10 +167,26 @@ def fft_dtype(truncated, tol, peak_to_mean=1.0, peak_sum=0.0):
             and peak_sum <= FFT32_SUM_LIMIT else np.float64)
 
 
+#: float32's unit round-off: a float32 exitance is within U32 of its value, relative
+U32 = 2.0 ** -24
+#: the float64 constant FFT's round-off relative to max|E| * Rd: its exitance rounded to float32
+#: (U32), the settle floor (ROUNDOFF_ULPS eps32 = 2 U32) and the float64 transform's own
+#: (~1e-15 log2 n), with a margin
+FFT64_ROUNDOFF = 4 * U32
+
+
 def fft_bound(kernel, dtype):
-    """The error bound of the constant FFT in ``dtype``: float32, the energy its truncation
-    left out plus its round-off; float64, the kernel's truncation tol (round-off ~1e-15)."""
-    return float(kernel.truncated + FFT32_ROUNDOFF) if dtype == np.float32 else kernel.tol
+    """The error bound of the constant FFT in ``dtype``: the energy its truncation left out
+    plus its round-off (FFT32_ROUNDOFF or FFT64_ROUNDOFF), relative to max|E| * Rd."""
+    return float(kernel.truncated + (FFT32_ROUNDOFF if dtype == np.float32 else FFT64_ROUNDOFF))
+
+
+def summed_roundoff(terms) -> float:
+    """A bound on the round-off, relative to max|E| * Rd, of float32 sums of at most ``terms``
+    products of non-negative weights summing to <= Rd and texels of |E| <= max|E|, rounded
+    in sequence (gamma_n = n U32, Higham Thm. 3.1 / 4.4), then written as float32 (U32) and
+    settled (2 U32), the weights themselves rounded to float32 (U32), with one U32 to spare."""
+    return (terms + 5) * U32
 
 
 def row_blocks(h):

@@ -103,7 +103,11 @@ def fit_gaussians(alpha, sigma_t_texels, eta, tol, exact=False):
         kernels = basis_kernels(sigmas, k)
         radii = [(len(taps) - 1) // 2 for taps in kernels]
         cols = basis_columns(kernels, k)
-        coef, _ = nnls(cols * row_w[:, None], target.ravel() * row_w)
+        try:
+            coef, _ = nnls(cols * row_w[:, None], target.ravel() * row_w,
+                           maxiter=100 * cols.shape[1])
+        except RuntimeError:           # this basis did not converge (a very tight tol): the
+            continue                   # next, wider one may
         # each separable Gaussian sums to 1, so the fitted kernel sums to sum(coef): scaled to
         # 1, it keeps the energy (M = E Rd for constant E) however poorly the shape fits
         coef /= coef.sum()
@@ -118,6 +122,11 @@ def fit_gaussians(alpha, sigma_t_texels, eta, tol, exact=False):
             best, best_key = fit, key
         if key <= 1.0:
             break
+    if best is None:
+        raise ValueError(f"method='gaussians': no Gaussian basis of up to {MAX_GAUSSIANS} "
+                         f"converged at tol={tol:g} (alpha' {alpha:.6g}, sigma_t' "
+                         f"{sigma_t_texels:.6g} per texel): use method 'fft' or 'direct', or a "
+                         f"larger tol")
     return best
 
 

@@ -14,6 +14,7 @@ from functools import lru_cache
 import numpy as np
 
 from ...device.transfer import ALIGNMENT, aligned_empty
+from ...methods.registry import not_a_number
 from ...errors import (InvalidInputError, check_numbers, check_policy, find_invalid,
                        plain_array)
 from ...physics import reference as ref
@@ -102,6 +103,19 @@ def channel_coefficients(rd: float, ld: float, eta: float, exact: bool):
     return tuple(float(v) for v in ref.albedo_to_coefficients(rd, ld, eta, exact))
 
 
+def checked_texel_size(texel_size) -> float:
+    """``texel_size`` as a float: one finite number > 0 (a bool, string, sequence, NaN, 0 or
+    negative a ValueError naming it), for constant and texture-varying parameters alike."""
+    try:
+        size = float(texel_size) if not not_a_number(texel_size) else np.nan
+    except (TypeError, ValueError):
+        size = np.nan
+    if not (np.isfinite(size) and size > 0):
+        raise ValueError(f"texel_size={texel_size!r} must be one finite number > 0 (the texel's "
+                         f"width in the mfp's unit)")
+    return size
+
+
 def channel_parameters(nchan, *, albedo=None, mfp=None, eta=1.4, texel_size=1.0, alpha=None,
                        sigma_t=None, exact=False):
     """Per-channel (alpha', sigma_t' per texel, eta) from albedo + mfp (memo's mapping, float64)
@@ -120,8 +134,7 @@ def channel_parameters(nchan, *, albedo=None, mfp=None, eta=1.4, texel_size=1.0,
                                                 bool(exact))
         st = sa + ss
         a = ss / st
-    if not (np.all(texel_size > 0) and np.all(np.isfinite(texel_size))):
-        raise ValueError(f"texel_size={texel_size!r} must be a finite number > 0")
+    texel_size = checked_texel_size(texel_size)
     with np.errstate(over="ignore", under="ignore"):
         per_texel = st * texel_size
     if np.any(per_texel < MIN_SIGMA_T_PER_TEXEL):
@@ -270,6 +283,8 @@ def texel_parameters(shape, c, *, albedo=None, mfp=None, eta=1.4, texel_size=1.0
     one mfp channel share its map (made and checked once). ``ranges``: a ``MapRanges`` that
     keeps the extremes the checks found; ``counts``, a dict, the values clamped by kind (a map
     that several channels share counted once)."""
+    texel_size = checked_texel_size(texel_size)
+
     def own(value):                     # counted where the channel reads its own values
         return counts if source_channel(value, c) == c else None
     if parameter_pair(albedo, mfp, alpha, sigma_t) == "alpha":
@@ -277,8 +292,9 @@ def texel_parameters(shape, c, *, albedo=None, mfp=None, eta=1.4, texel_size=1.0
                               counts=own(alpha)).astype(np.float64)
         st = checked_parameter(sigma_t, shape, c, "sigma_t", on_invalid,
                                counts=own(sigma_t)).astype(np.float64)
-        ld = 1.0 / (st * texel_size * ref.mu_tr_over_sigma_t(1.0 - a))
-        return rd_map(ref.rd(a, eta, exact)), float32_map(ld)
+        with np.errstate(over="ignore", divide="ignore"):
+            ld = 1.0 / (st * texel_size * ref.mu_tr_over_sigma_t(1.0 - a))
+        return rd_map(ref.rd(a, eta, exact)), float32_map(ld_in_float32(ld, c))
     rd = float32_map(checked_parameter(albedo, shape, c, "albedo", on_invalid, np.float32,
                                        ranges, own(albedo)))
     source = source_channel(mfp, c)
@@ -291,6 +307,22 @@ def texel_parameters(shape, c, *, albedo=None, mfp=None, eta=1.4, texel_size=1.0
     if ld_maps is not None:
         ld_maps[source] = ld
     return rd, ld
+
+
+def ld_in_float32(ld, c):
+    """An ld map (texels, float64) from alpha' and sigma_t' maps as the float32 the kernels
+    read: below float32's smallest normal it is that (the kernel is one texel all the same: a
+    sigma_t' of 1e300 would round ld to 0), above float32's largest a ValueError naming the
+    channel's first such texel (sigma_t' too small for any kernel)."""
+    tiny = float(np.finfo(np.float32).tiny)
+    ld = np.maximum(ld, tiny)
+    wide = ~(ld <= FLOAT32_MAX)
+    if wide.any():
+        y, x = np.unravel_index(int(np.flatnonzero(wide)[0]), ld.shape)
+        raise ValueError(f"sigma_t at x={x}, y={y}, channel {c}: a diffusion length of "
+                         f"{ld[y, x]:.3g} texels, beyond float32 (sigma_t' times the texel size "
+                         f"is too small for any kernel): give sigma_t and texel_size in one unit")
+    return ld
 
 
 def checked_irradiance(irradiance, on_invalid="raise", counts=None):

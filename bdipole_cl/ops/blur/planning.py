@@ -14,7 +14,7 @@ from ...methods.choice import (AUTO_DIRECT_MAX_RADIUS, ChoiceData, DeviceKey, au
                                choice_for)
 from ...signals import check_stop
 from .dispatch import DeviceBlur
-from .fft import fft_blur_channels, fft_bound, fft_dtype, settled
+from .fft import fft_blur_channels, fft_bound, fft_dtype, settled, summed_roundoff
 from .fit import fit_gaussians
 from .params import channel_parameters
 from .weights import ChannelKernel, channel_kernel
@@ -127,6 +127,18 @@ def constant_row_bytes(width: int, nchan: int) -> int:
     return width * nchan * 4 * 8
 
 
+#: ``direct``'s round-off relative to max|E| * Rd (kernels/blur_direct.cl): each row of a
+#: block is a float32 sum of <= 33 taps, the rows added by Neumaier's compensated sum (2 U32)
+DIRECT_ROUNDOFF = summed_roundoff(33 + 2)
+
+
+def separable_roundoff(radii) -> float:
+    """A separable Gaussians blur's round-off relative to max|E| * Rd (kernels/
+    blur_separable.cl): per Gaussian a row sum and a column sum of 2r + 1 taps each, its
+    weighted result added into the exitance (one more per Gaussian)."""
+    return summed_roundoff(2 * (2 * max(radii, default=0) + 1) + len(radii))
+
+
 #: ``gaussians``: the share of tol its truncation takes; the fit's L1 error gets the rest, so
 #: that truncation + fit (the bound, docs/model.md "Blur error bound") is <= tol
 GAUSSIANS_TRUNCATION_SHARE = 0.5
@@ -142,8 +154,10 @@ def method_kernel(method, alpha, sigma_t, eta, tol, exact) -> ChannelKernel:
 
 
 def gaussians_bound(alpha, sigma_t, eta, ck, exact) -> float:
-    """truncation tol + the fit's L1 error: |M - exact| / (max E * Rd) for any irradiance."""
-    return ck.tol + fit_gaussians(alpha, sigma_t, eta, ck.tol, exact).l1_error
+    """truncation tol + the fit's L1 error + the round-off: |M - exact| / (max E * Rd) for any
+    irradiance."""
+    fit = fit_gaussians(alpha, sigma_t, eta, ck.tol, exact)
+    return ck.tol + fit.l1_error + separable_roundoff(fit.radii)
 
 
 def auto_choice(ck, alpha, sigma_t, eta, tol, exact, auto: AutoData) -> ChannelPlan:
@@ -205,11 +219,11 @@ def blur_whole(e, params, plans, border, exact, kernels):
         tol = plan.asked_tol
         if plan.method == "direct":
             device.run_direct(c, ck)
-            bound = ck.tol
+            bound = ck.truncated + DIRECT_ROUNDOFF
         elif plan.method == "gaussians":
             fit = fit_gaussians(a, st, et, ck.tol, exact)
             device.run_gaussians(c, fit)
-            bound = ck.tol + fit.l1_error
+            bound = gaussians_bound(a, st, et, ck, exact)
             if bound > tol:
                 warnings.warn(BlurAccuracyWarning(
                     f"channel {c}: the gaussians fit of this kernel (radius {ck.radius}, "

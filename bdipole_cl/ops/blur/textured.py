@@ -12,11 +12,11 @@ from ...device.transfer import aligned_empty
 from ...methods.registry import TEXTURED_BLUR_METHODS
 from ...signals import check_stop
 from .dispatch import DeviceBlur, device_weight_planes, gather_exitance
-from .fft import (FFT32_ROUNDOFF_ULPS, ROUNDOFF_ULPS, basis_blurs, fft_shape, settle_floor,
-                  settled)
+from .fft import (FFT32_ROUNDOFF, FFT32_ROUNDOFF_ULPS, ROUNDOFF_ULPS, basis_blurs, fft_shape,
+                  settle_floor, settled, summed_roundoff)
 from .params import MapRanges, texel_parameters
-from .planning import BlurAccuracyWarning, BlurInfo, ChannelInfo
-from .near_field import DEFAULT_GATHER_COSTS
+from .planning import BlurAccuracyWarning, BlurInfo, ChannelInfo, separable_roundoff
+from .near_field import DEFAULT_GATHER_COSTS, near_cells
 from .textured_plan import (RD_MAX, RD_MIN, MapExtremes, TexturedPlan, map_extremes,
                             parameter_ranges, plan_for_ranges, shape_clamp_error)
 
@@ -121,10 +121,21 @@ def textured_info(plans, method, exact) -> BlurInfo:
         ChannelInfo(c, f"{method} (texture-varying, {len(p.kernels)} {p.basis} basis kernels"
                        + (f", near field {p.near} with {len(p.near_values)} kernels"
                           if p.near >= 0 else "") + ")",
-                    p.radius, p.error_bound + clamp_bound(c, p, ext, exact),
+                    p.radius, p.error_bound + clamp_bound(c, p, ext, exact) + roundoff(p),
                     fit_error=p.fit_error, interp_error=p.interp_error,
                     nodes=int(np.prod(p.table.shape[:2])))
         for c, (p, _, _, ext) in enumerate(plans)))
+
+
+def roundoff(plan) -> float:
+    """The texture-varying blur's round-off relative to max|E| * Rd(x): separable Gaussians,
+    their row and column sums (``planning.separable_roundoff``); eigen-kernels, the float32
+    basis blurs' (FFT32_ROUNDOFF, the constant FFT's model) and the gather's float32 sums of
+    its near cells, near kernels and table weights."""
+    if plan.basis == "gaussians":
+        return separable_roundoff([(len(taps) - 1) // 2 for taps in plan.kernels])
+    terms = near_cells(plan.near) + len(plan.kernels) + len(plan.near_values)
+    return FFT32_ROUNDOFF + summed_roundoff(terms)
 
 
 def clamp_bound(c, plan, ext, exact) -> float:

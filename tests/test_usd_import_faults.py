@@ -365,6 +365,15 @@ def test_a_material_of_an_instanced_asset_is_baked_once(tmp_path):
     assert [j.name for j in plan.jobs] == ["skin"], plan.describe()
     report = plan.run()
     assert report.exit_code == 0 and (tmp_path / "bdipole" / "skin.exr").is_file()
+    # USD ignores an over on an instance proxy: the records are a prim of their own, found
+    # through the composed stage, whose relationship names the material
+    composed = Usd.Stage.CreateInMemory()
+    composed.GetRootLayer().subLayerPaths = [str(tmp_path / "bdipole" / "bdipole.usda"),
+                                             str(tmp_path / "asset.usda")]
+    record = composed.GetPrimAtPath("/bdipole_instanced/skin")
+    target, = record.GetRelationship("bdipole:material").GetTargets()
+    assert composed.GetPrimAtPath(target).IsInstanceProxy()
+    assert record.GetAttribute("bdipole:sigma_a").Get().path == "./skin.exr"
 
 
 def test_materials_whose_paths_join_to_one_name_get_their_own(tmp_path):
@@ -464,3 +473,40 @@ def test_animated_inputs_interface_files_and_inherited_colour_spaces(tmp_path):
     iface = imports["iface"]
     assert iface.left_out is None and iface.facts["albedo"] == str(tmp_path / "tex" / "a.exr")
     assert iface.facts["colorspace"] == "lin_ap1_scene"
+
+
+COLLECTION_STAGE = """#usda 1.0
+def Material "skin" {
+    token outputs:mtlx:surface.connect = </skin/pbr.outputs:out>
+    def Shader "pbr" {
+        uniform token info:id = "ND_open_pbr_surface_surfaceshader"
+        float inputs:subsurface_weight = 1
+        color3f inputs:subsurface_color.connect = </skin/img.outputs:out>
+        token outputs:out
+    }
+    def Shader "img" {
+        uniform token info:id = "ND_image_color3"
+        asset inputs:file = @tex/a.exr@ ( colorSpace = "identity" )
+        color3f outputs:out
+    }
+}
+def "World" (
+    prepend apiSchemas = ["CollectionAPI:skinGeo", "MaterialBindingAPI"]
+) {
+    prepend rel collection:skinGeo:includes = </World/head>
+    rel material:binding:collection:skinGeo = [</World.collection:skinGeo>, </skin>]
+    def Mesh "head" {}
+}
+"""
+
+
+def test_a_collection_binding_binds_and_usds_identity_space_is_raw(tmp_path):
+    """A material bound by a collection is bound to geometry (the plan said 'bound to no
+    geometry'); USD's ``identity`` colour space (no conversion) is read as raw, not refused as
+    a space OCIO does not know."""
+    texture(tmp_path / "tex" / "a.exr")
+    (tmp_path / "asset.usda").write_text(COLLECTION_STAGE)
+    skin, = scenes.load(tmp_path / "asset.usda").imports
+    assert skin.bound is True and skin.left_out is None
+    assert skin.facts["colorspace"] == "raw"
+    assert scenes.load(tmp_path / "asset.usda").plan().run().exit_code == 0

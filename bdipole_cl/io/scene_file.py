@@ -160,6 +160,8 @@ class ImportedMaterial:
     left_out: str | None = None
     notes: tuple = ()
     bound: bool | None = None        # bound to geometry (None: the source cannot say)
+    instanced: bool = False          # a prim of an instance's prototype (USD): no over of a
+    #                                  layer above reaches it
 
 
 @dataclass(frozen=True)

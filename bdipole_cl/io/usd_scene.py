@@ -23,6 +23,7 @@ import os
 import sys
 import tempfile
 from contextlib import contextmanager
+from dataclasses import replace
 
 import numpy as np
 from pxr import Sdf, Usd, UsdGeom, UsdShade
@@ -126,9 +127,19 @@ def _scale_bias(shader, time) -> tuple:
     return tuple(found)
 
 
+#: USD colour space names that are no OCIO space's: Gf's ``identity`` is no conversion
+USD_SPACES = {"identity": "raw"}
+
+
 def _declared_space(attr) -> str:
     """The colour space USD declares for an attribute's texture: its own ``colorSpace``, else
-    the one a ``ColorSpaceAPI`` on it prim or an ancestor gives (inherited); "" if none."""
+    the one a ``ColorSpaceAPI`` on its prim or an ancestor gives (inherited); "" if none
+    (``USD_SPACES`` as their OCIO names)."""
+    name = _declared_name(attr)
+    return USD_SPACES.get(name, name)
+
+
+def _declared_name(attr) -> str:
     if attr.HasColorSpace():
         return attr.GetColorSpace()
     api = getattr(Usd, "ColorSpaceAPI", None)          # USD 25.05 and later
@@ -215,8 +226,9 @@ PRIMS = Usd.TraverseInstanceProxies(Usd.PrimDefaultPredicate)
 
 
 def bound_materials(stage) -> set:
-    """Paths of the materials some prim binds directly (any purpose), as the material prims
-    are read (``stage_materials``: one of an instance's prototype by its prototype's path)."""
+    """Paths of the materials some prim binds, directly or by a collection (any purpose), as the
+    material prims are read (``stage_materials``: one of an instance's prototype by its
+    prototype's path)."""
     bound = set()
     for prim in stage.Traverse(PRIMS):
         if not prim.HasAPI(UsdShade.MaterialBindingAPI):
@@ -224,8 +236,9 @@ def bound_materials(stage) -> set:
         api = UsdShade.MaterialBindingAPI(prim)
         for purpose in (UsdShade.Tokens.allPurpose, UsdShade.Tokens.full,
                         UsdShade.Tokens.preview):
-            path = api.GetDirectBinding(purpose).GetMaterialPath()
-            if not path.isEmpty:
+            paths = [api.GetDirectBinding(purpose).GetMaterialPath()] + [
+                b.GetMaterialPath() for b in api.GetCollectionBindings(purpose)]
+            for path in (p for p in paths if not p.isEmpty):
                 bound.add(str(path))
                 target = stage.GetPrimAtPath(path)
                 if target and target.IsInstanceProxy():
@@ -310,9 +323,10 @@ def read_stage(path):
     for material, key in materials:
         prim_path = str(material.GetPath())
         shader, shader_id = surface_shader(material)
-        result.append(imported_material(
+        result.append(replace(imported_material(
             names[prim_path], prim_path, shader_id,
             (lambda n, s=shader: read_input(s, n, time)) if shader else (lambda n: None),
-            unit_m=unit_m, out_dir=out_dir, bound=prim_path in bound or key in bound))
+            unit_m=unit_m, out_dir=out_dir, bound=prim_path in bound or key in bound),
+            instanced=material.GetPrim().IsInstanceProxy()))
     return result
 

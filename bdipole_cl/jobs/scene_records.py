@@ -234,6 +234,33 @@ def _baked(m, jobs, results, coefficients, folder) -> dict:
     return entry
 
 
+#: where the records of a material inside an instance go: USD ignores an ``over`` on a prim
+#: of an instance's prototype (an instance proxy), so they are a prim of their own there, named
+#: as the material, whose ``bdipole:material`` relationship targets the material's path
+INSTANCED_RECORDS = "/bdipole_instanced"
+
+
+def record_prim(layer, imp):
+    """The records layer's prim spec for an imported material: an ``over`` on its prim (its
+    parents ``over`` too), or for one inside an instance (``imp.instanced``) a prim under
+    INSTANCED_RECORDS targeting it."""
+    from pxr import Sdf
+    if imp.instanced:
+        spec = Sdf.CreatePrimInLayer(layer, Sdf.Path(f"{INSTANCED_RECORDS}/{imp.name}"))
+        spec.specifier = Sdf.SpecifierDef
+        spec.nameParent.specifier = Sdf.SpecifierDef
+        rel = Sdf.RelationshipSpec(spec, "bdipole:material", custom=True)
+        rel.targetPathList.explicitItems = [Sdf.Path(imp.path)]
+        return spec
+    spec = Sdf.CreatePrimInLayer(layer, Sdf.Path(imp.path))
+    spec.specifier = Sdf.SpecifierOver
+    parent = spec.nameParent
+    while parent and parent.path != Sdf.Path.absoluteRootPath:
+        parent.specifier = Sdf.SpecifierOver
+        parent = parent.nameParent
+    return spec
+
+
 def usd_layer_text(scene, records: dict, folder) -> str:
     """bdipole.usda: an ``over`` on each baked imported material prim."""
     from pxr import Sdf, Vt
@@ -245,12 +272,7 @@ def usd_layer_text(scene, records: dict, folder) -> str:
         entry = by_name.get(imp.name)
         if not entry or not entry.get("baked"):
             continue
-        spec = Sdf.CreatePrimInLayer(layer, Sdf.Path(imp.path))
-        spec.specifier = Sdf.SpecifierOver
-        parent = spec.nameParent
-        while parent and parent.path != Sdf.Path.absoluteRootPath:
-            parent.specifier = Sdf.SpecifierOver
-            parent = parent.nameParent
+        spec = record_prim(layer, imp)
 
         def attr(name, type_name, value):
             a = Sdf.AttributeSpec(spec, f"bdipole:{name}", type_name)

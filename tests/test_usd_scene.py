@@ -342,9 +342,23 @@ def test_usdc_and_usdz_stages(stage_path):
     from pxr import UsdUtils
     usdz = stage_path.with_suffix(".usdz")
     assert UsdUtils.CreateNewUsdzPackage(Sdf.AssetPath(str(stage_path)), str(usdz))
-    imports = {m.name: m for m in import_materials(usdz)}
-    assert "inside a .usdz package" in imports["marble"].left_out
-    assert imports["jade"].left_out is None            # constants need no file
+    # the packaged textures are read from a copy in the cache (the package is a zip): the
+    # package's bake equals the stage's, <UDIM> sets too, and the package is left as it was
+    before = usdz.read_bytes()
+    packaged = {m.name: m for m in import_materials(usdz)}
+    plain = {m.name: m for m in import_materials(stage_path)}
+    assert packaged.keys() == plain.keys()
+    for name, m in packaged.items():
+        assert m.left_out == plain[name].left_out, name
+        if isinstance(m.facts.get("albedo"), str):
+            assert os.path.basename(m.facts["albedo"]) == os.path.basename(plain[name].facts[
+                "albedo"])
+            assert ".usdz[" not in m.facts["albedo"]
+    report = scenes.load(usdz).plan().run()
+    assert report.exit_code == 0, report.summary()
+    assert usdz.read_bytes() == before
+    first = scenes.load(usdz).plan()
+    assert all(j.up_to_date for j in first.jobs if j.kind != "records"), first.describe()
 
 
 def test_materials_from_a_missing_stage_names_the_scene_line(tmp_path):

@@ -5,7 +5,8 @@ A material's surface is looked for in the ``mtlx``, ``ri`` and universal render 
 that order; the first shader with a subsurface mapping is used. An input's value comes from
 ``UsdShadeInput.GetValueProducingAttributes`` (so through node graphs and interface inputs):
 an authored value, or the output of a texture node (``UsdUVTexture``, MaterialX ``image`` /
-``tiledimage``) whose ``inputs:file`` is the texture (``<UDIM>`` kept; a UsdUVTexture's
+``tiledimage``) whose ``inputs:file`` is the texture (``<UDIM>`` kept; one packaged in a
+``.usdz`` read from its copy in the cache, ``usdz``; a UsdUVTexture's
 output channel and ``inputs:scale`` / ``inputs:bias`` kept: ``shaders`` applies or refuses
 them; the file, ``sourceColorSpace``, ``scale`` and ``bias`` may come through interface
 inputs too). Its colour space is the file attribute's ``colorSpace`` metadata, else the one a
@@ -22,6 +23,7 @@ import math
 import os
 import sys
 import tempfile
+import zipfile
 from contextlib import contextmanager
 from dataclasses import replace
 
@@ -29,6 +31,7 @@ import numpy as np
 from pxr import Sdf, Usd, UsdGeom, UsdShade
 
 from ..errors import one_line
+from . import usdz
 from .scene_file import SceneError
 from .shaders import (BY_ID, TEXTURE_NODES, Input, Texture, imported_material, one_channel,
                       unique_names)
@@ -109,6 +112,8 @@ def _asset_file(attr, time) -> str:
     for spec in attr.GetPropertyStack(time):
         if spec.HasDefaultValue() or spec.HasInfo("timeSamples"):
             layer_path = spec.layer.realPath
+            if layer_path and not os.path.isabs(path) and usdz.in_package(layer_path):
+                return usdz.anchored(layer_path, path)
             if layer_path and not os.path.isabs(path):
                 return os.path.normpath(os.path.join(os.path.dirname(layer_path), path))
             break
@@ -159,9 +164,11 @@ def _texture(shader, node_kind: str, output: str = "rgb",
     if attr is None or attr.Get(time) is None:
         return f"{node_kind} {shader.GetPath()} has no file"
     path = _asset_file(attr, time)
-    if ".usdz[" in path:
-        return (f"{node_kind} {shader.GetPath()} reads {path}, inside a .usdz package: a bake "
-                f"reads files; unpack the package (it is a zip) and bake the unpacked stage")
+    if usdz.is_packaged(path):         # read from its copy in the cache
+        try:
+            path = usdz.extracted(path)
+        except (OSError, ValueError, zipfile.BadZipFile) as exc:
+            return f"{node_kind} {shader.GetPath()}: {one_line(exc)}"
     space = _declared_space(attr)
     if not space:
         source = _value_attr(shader, "sourceColorSpace")

@@ -510,3 +510,27 @@ def test_a_collection_binding_binds_and_usds_identity_space_is_raw(tmp_path):
     assert skin.bound is True and skin.left_out is None
     assert skin.facts["colorspace"] == "raw"
     assert scenes.load(tmp_path / "asset.usda").plan().run().exit_code == 0
+
+
+def test_an_output_whose_input_tile_is_gone_is_removed_at_the_next_bake(tmp_path):
+    """An albedo tile deleted since the last bake: its output tile, which the records' <UDIM>
+    pattern would still give a renderer, is removed (named in the report); the other tiles,
+    and every file the bake did not write, stay."""
+    for tile in ("1001", "1002"):
+        texture(tmp_path / "tex" / f"skin.{tile}.exr")
+    stage = new_stage(tmp_path)
+    material(stage, "skin", "tex/skin.<UDIM>.exr")
+    stage.GetRootLayer().Save()
+    out = tmp_path / "bdipole"
+    assert scenes.load(tmp_path / "asset.usda").plan().run().exit_code == 0
+    assert (out / "skin.1002.exr").is_file()
+    (out / "notes.txt").write_text("mine")
+    (tmp_path / "tex" / "skin.1002.exr").unlink()
+    report = scenes.load(tmp_path / "asset.usda").plan().run()
+    assert report.exit_code == 0
+    assert not (out / "skin.1002.exr").exists()
+    assert (out / "skin.1001.exr").is_file() and (out / "notes.txt").read_text() == "mine"
+    assert any("removed" in r.notes and r.path == str(out / "skin.1002.exr")
+               for r in report.results), report.summary()
+    by_name, _ = records(out)
+    assert by_name["skin"]["files"] == ["skin.1001.exr"]

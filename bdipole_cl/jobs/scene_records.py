@@ -392,7 +392,7 @@ def write_records(plan, results) -> list:
     if scene.source is not None:
         texts[os.path.join(folder, LAYER)] = usd_layer_text(scene, records, folder)
     inputs = plan.record_inputs              # taken by the plan (the stage opened once)
-    written = []
+    written = [(path, REMOVED) for path in remove_stale_outputs(old, plan.jobs, folder, inputs)]
     for path, text in texts.items():
         if os.path.realpath(path) in inputs:
             written.append((path, f"{path}: the bake's record would overwrite an input; "
@@ -444,6 +444,31 @@ def run_constant(job, runtime, *, cancel=None, lock=None, progress=None):
     return result
 
 
+#: write_records' mark of an earlier bake's output it removed (``remove_stale_outputs``)
+REMOVED = "removed"
+
+
+def remove_stale_outputs(old, jobs, folder, inputs) -> list:
+    """Remove, and return, the output files an earlier bake in ``folder`` wrote for a material
+    this bake makes again (its manifest ``old``'s ``files``) that no job of this bake makes: a
+    tile whose albedo tile is gone, say, which the records' <UDIM> pattern would still give a
+    renderer. Only regular files in the folder that this bake does not read."""
+    making = {os.path.normpath(j.output) for j in jobs if j.output}
+    names = {j.name for j in jobs if j.kind == "invert"}
+    root = os.path.realpath(folder)
+    removed = []
+    for name, entry in old.items():
+        for f in (entry.get("files") or []) if name in names else []:
+            path = os.path.normpath(os.path.join(folder, str(f)))
+            real = os.path.realpath(path)
+            if (path in making or real in inputs or not real.startswith(root + os.sep)
+                    or not is_regular_file(path)):
+                continue
+            os.unlink(path)
+            removed.append(path)
+    return removed
+
+
 def finish_bake(plan, results: list) -> BatchReport:
     """The records of a bake of ``plan`` (a scene Plan), each file written added to the report;
     each job's row names its material or blur (jobs may share an input file)."""
@@ -451,5 +476,7 @@ def finish_bake(plan, results: list) -> BatchReport:
         if job.kind != "constant":
             result.path = f"{job.name}: {job.source}"
     records = [FileResult(p, p, status="ok", notes=["records"]) if why is None else
+               FileResult(p, f"removed {p}: an earlier bake's output that no input makes now",
+                          status="ok", notes=["removed"]) if why == REMOVED else
                FileResult(p, p, error=why) for p, why in write_records(plan, results)]
     return BatchReport(results + records)

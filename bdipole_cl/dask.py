@@ -33,7 +33,8 @@ from .device import get_runtime
 from .io.collisions import Claim, check_claim
 from .io.colour import resolve_working_space
 from .io.images import (Cancelled, Reader, TextureError, Writer, check_texture_window,
-                        read_rows, remove_partial_files)
+                        read_rows)
+from .io.partials import remove_partial_files
 from .io.mipmaps import texture_options
 from .io.verify import file_identity, replaced_since
 from .jobs import runner

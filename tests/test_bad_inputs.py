@@ -498,3 +498,27 @@ def test_blur_refuses_arrays_that_are_not_real_numbers(dtype):
         blur(np.ones((4, 4, 3), np.float32), albedo=np.ones((4, 4, 3)).astype(dtype), mfp=1.0)
     for ok in (np.float16, np.int32, bool):
         assert np.all(np.isfinite(blur(np.ones((4, 4, 3)).astype(ok), albedo=0.5, mfp=1.0)))
+
+
+def test_a_bit_rotted_header_or_a_latin1_name_fails_only_its_file(tmp_path, capsys):
+    """A tile whose header has 4 flipped bytes (OpenImageIO's message then quotes bytes that
+    are not UTF-8, which its bindings could not decode) and a file whose name is Latin-1 (which
+    they refuse): each fails its own job, named, and the other files are inverted, exit 1 (a
+    codec error or TypeError stopped the whole batch, exit 2, no file named)."""
+    for tile in (1001, 1002, 1003):
+        write_exr(tmp_path / f"t.{tile}.exr", albedo())
+    data = bytearray((tmp_path / "t.1002.exr").read_bytes())
+    for offset, value in ((37, 243), (77, 102), (165, 154), (333, 121)):
+        data[offset] = value
+    (tmp_path / "t.1002.exr").write_bytes(bytes(data))
+    latin1 = os.path.join(os.fsencode(str(tmp_path)), b"caf\xe9.1004.exr")
+    with open(latin1, "wb") as f:
+        f.write((tmp_path / "t.1001.exr").read_bytes())
+    p = subprocess.run([sys.executable, "-m", "bdipole_cl", "invert", str(tmp_path / "*.exr"),
+                        "-o", str(tmp_path / "o" / "{stem}.exr"), "--no-progress"],
+                       capture_output=True, timeout=300, env=dict(os.environ, LC_ALL="C"))
+    out = p.stdout.decode("utf-8", "replace")
+    assert p.returncode == 1, out + p.stderr.decode("utf-8", "replace")
+    assert sorted(p.name for p in (tmp_path / "o").iterdir()) == ["t.1001.exr", "t.1003.exr"]
+    assert "t.1002.exr: cannot read albedo:" in out
+    assert "caf\\xe9.1004.exr: a file name that is not UTF-8" in out

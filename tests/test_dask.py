@@ -19,7 +19,7 @@ from bdipole_cl import dask as bdask
 from bdipole_cl import scene as scenes
 from bdipole_cl.apps.cli import main as cli_main
 from bdipole_cl.apps.demo import write_exr
-from bdipole_cl.io.images import partial_files
+from bdipole_cl.io.partials import partial_files
 
 
 @pytest.fixture(autouse=True)
@@ -94,8 +94,8 @@ def test_a_worker_killed_mid_job_and_a_job_failing_once_still_complete(client, t
             marker_kill.write_text("x")
             os.makedirs(os.path.dirname(job.output), exist_ok=True)
             stem = os.path.splitext(os.path.basename(job.output))[0]
-            open(os.path.join(os.path.dirname(job.output), f".{stem}.partial-1-2.exr"),
-                 "wb").close()
+            partial = f".{stem}.partial-{os.getpid()}-2.exr"       # this worker's, which dies
+            open(os.path.join(os.path.dirname(job.output), partial), "wb").close()
             os._exit(1)
         if job.name == "grey" and not marker_fail.exists():
             marker_fail.write_text("x")

@@ -218,17 +218,38 @@ def test_scene_texture_true_bakes_textures_that_stay_up_to_date(tmp_path):
 def test_what_a_killed_texture_write_leaves_is_recognised_as_partial(tmp_path):
     """SIGKILL cannot be caught: the texture's temporaries (the writer's and maketx's own)
     are what ``partial_files`` finds (the Dask runner removes them before a retry)."""
-    from bdipole_cl.io.images import partial_files, remove_partial_files
+    from bdipole_cl.io.mipmaps import build_files
+    from bdipole_cl.io.partials import alive, partial_files, remove_partial_files
+    dead = next(pid for pid in range(4_000_000, 4_100_000) if not alive(pid))
     target = tmp_path / "skin.1001.exr"
-    left = [tmp_path / ".skin.1001.partial-12-34.exr",
-            tmp_path / ".skin.1001.partial-12-34.tx.exr",
-            tmp_path / ".skin.1001.partial-12-34.tx.5e47e508.temp.exr"]
+    left = [tmp_path / f".skin.1001.partial-{dead}-34.exr",
+            tmp_path / f".skin.1001.partial-{dead}-34.tx.exr",
+            tmp_path / f".skin.1001.partial-{dead}-34.tx.5e47e508.temp.exr"]
     for p in left:
         p.write_bytes(b"")
+    live = tmp_path / f".skin.1001.partial-{os.getppid()}-34.exr"    # a running writer's
+    live.write_bytes(b"")
     (tmp_path / "skin.1002.exr").write_bytes(b"")
-    assert partial_files(target) == sorted(left)
+    assert partial_files(target) == sorted(left + [live])
+    assert build_files(left[1]) == [left[2]]           # OpenImageIO 3's {stem}.{hex}.temp{ext}
     assert remove_partial_files(target) == 3
-    assert os.listdir(tmp_path) == ["skin.1002.exr"]
+    assert sorted(os.listdir(tmp_path)) == sorted([live.name, "skin.1002.exr"])
+
+
+def test_a_write_removes_what_a_stopped_earlier_write_left(tmp_path):
+    """An earlier run stopped during a texture build (its thread still writing when the process
+    ended) leaves maketx's temporary: the next write of that output removes it, whatever the
+    path (it did only on the Dask path, and its glob missed OpenImageIO 3's name)."""
+    from bdipole_cl.io.partials import alive
+    dead = next(pid for pid in range(4_000_000, 4_100_000) if not alive(pid))
+    write_exr(tmp_path / "a.exr", albedo_rgba()[..., :3], ("R", "G", "B"))
+    out_dir = tmp_path / "out"
+    out_dir.mkdir()
+    left = out_dir / f".a.partial-{dead}-7.tx.0123abcd.temp.exr"
+    left.write_bytes(b"x" * 1000)
+    assert cli_main(["invert", str(tmp_path / "a.exr"), "--texture", "--no-progress",
+                     "-o", str(out_dir / "{stem}.exr")]) == 0
+    assert sorted(os.listdir(out_dir)) == ["a.exr"]
 
 
 def test_a_texture_without_the_space_for_it_fails_its_file_and_leaves_nothing(
@@ -286,10 +307,11 @@ def test_partial_files_of_an_output_with_glob_characters_are_its_own(tmp_path):
     """An output named m[1].exr or *.exr: only its own temporaries are found and removed (a
     glob of its raw name matched another output's, which a cluster job would have deleted
     from under a live writer)."""
-    from bdipole_cl.io.images import partial_files, remove_partial_files
-    others = [tmp_path / ".m1.partial-99-1.exr", tmp_path / ".other.partial-98-2.exr",
-              tmp_path / ".m1.partial-99-1.tx.exr"]
-    own = tmp_path / ".m[1].partial-5-6.exr"
+    from bdipole_cl.io.partials import alive, partial_files, remove_partial_files
+    dead = next(pid for pid in range(4_000_000, 4_100_000) if not alive(pid))
+    others = [tmp_path / f".m1.partial-{dead}-1.exr", tmp_path / f".other.partial-{dead}-2.exr",
+              tmp_path / f".m1.partial-{dead}-1.tx.exr"]
+    own = tmp_path / f".m[1].partial-{dead}-6.exr"
     for p in [*others, own]:
         p.write_bytes(b"")
     assert partial_files(tmp_path / "m[1].exr") == [own]

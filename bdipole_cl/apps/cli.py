@@ -466,6 +466,11 @@ def console_main() -> int:
     streams flushed): the interpreter's teardown would crash under the build, or wait on a
     worker thread the stop caught half-started."""
     from ..io.mipmaps import builds_running
+    for stream in (sys.stdout, sys.stderr):   # a file name that is not UTF-8 (Latin-1 from a
+        try:                                  # share), or any text the locale cannot encode,
+            stream.reconfigure(errors="backslashreplace")    # is printed escaped, not a
+        except (AttributeError, ValueError):                 # UnicodeEncodeError
+            pass
     rc = main()
     if builds_running() or rc in STOPPED_CODES:
         # a stop can land while a worker thread is being started (a pool's submit), and the

@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import OpenImageIO as oiio
 
+from ..io.oiio_text import oiio_error
 from ..signals import signals_deferred
 
 W, H = 256, 128
@@ -24,7 +25,7 @@ def write_exr(path, pixels, channels, half=False):
     spec.attribute("compression", "zip")
     out = oiio.ImageOutput.create(str(path))
     if out is None or not out.open(str(path), spec) or not out.write_image(pixels):
-        raise OSError(f"cannot write {path}: {oiio.geterror()}")
+        raise OSError(f"cannot write {path}: {oiio_error()}")
     out.close()
 
 

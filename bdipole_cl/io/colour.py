@@ -30,6 +30,8 @@ from dataclasses import dataclass
 import numpy as np
 import OpenImageIO as oiio
 
+from .oiio_text import oiio_error
+
 #: OpenColorIO's OPTIMIZATION_LOSSLESS (OpenColorTypes.h): no fast pow/log/exp approximations
 os.environ.setdefault("OCIO_OPTIMIZATION_FLAGS", "0x89c3fc3")
 
@@ -64,7 +66,7 @@ def _ocio(name) -> "oiio.ColorConfig":
         cfg = _configs.get(name)
         if cfg is None:
             cfg = oiio.ColorConfig(name)
-            err = cfg.geterror()
+            err = oiio_error(cfg)
             if err or cfg.configname() != name:
                 raise ValueError(f"OCIO config {name!r} cannot be used: "
                                  f"{' '.join((err or 'not found').split())}")
@@ -134,7 +136,7 @@ class ColourConfig:
             out = oiio.ImageBufAlgo.colorconvert(buf, source, target, False, "", "", self.name)
         if out.has_error:
             raise ValueError(f"colour conversion {source} -> {target} (OCIO config "
-                             f"{self.name}) failed: {out.geterror()}")
+                             f"{self.name}) failed: {oiio_error(out)}")
         return out.get_pixels(oiio.FLOAT).reshape(rows, width, nch)
 
 

@@ -17,9 +17,7 @@
 """
 from __future__ import annotations
 
-import glob
 import os
-import re
 import shutil
 import stat
 import threading
@@ -34,6 +32,8 @@ from .verify import BandDigests, WriteCheckError, finite_texels, read_back, read
 from .channels import (ALPHA_NAMES, COLOUR_NAMES, GREY_NAMES, NOT_RGB,  # noqa: F401
                        classify_channels)
 from .colour import COLOUR_ATTRIBS, colour_path, tag_output
+from .oiio_text import oiio_error
+from .partials import remove_partial_files
 from ..durable import durable_replace
 from ..errors import one_line
 from ..signals import STOP
@@ -90,12 +90,27 @@ def is_regular_file(path) -> bool:
         return False
 
 
+def oiio_path(path) -> str:
+    """``path``, or a TextureError naming it (caf\\xe9.exr) if OpenImageIO cannot take it: a
+    name that is not UTF-8."""
+    try:
+        return str(path).encode("utf-8") and str(path)
+    except UnicodeEncodeError:
+        shown = str(path).encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
+        raise TextureError(f"{shown}: a file name that is not UTF-8, which OpenImageIO cannot "
+                           f"open: rename it (convmv -f latin1 -t utf8)") from None
+
+
 def image_header(path):
     """The ImageSpec of the image file at ``path`` (its first part), None when it is not a
-    readable regular file (never opened then: a FIFO would block)."""
-    inp = oiio.ImageInput.open(str(path)) if is_regular_file(path) else None
+    readable regular file (never opened then: a FIFO would block) or has a name OpenImageIO
+    cannot take."""
+    try:
+        inp = oiio.ImageInput.open(oiio_path(path)) if is_regular_file(path) else None
+    except TextureError:
+        inp = None
     if inp is None:
-        oiio.geterror()                  # taken: OpenImageIO prints a pending one at exit
+        oiio_error()                     # taken: OpenImageIO prints a pending one at exit
         return None
     try:
         return inp.spec()
@@ -152,9 +167,9 @@ class Reader:
         self.path = path
         self.inp = None
         check_regular_file(path, what)
-        self.inp = oiio.ImageInput.open(str(path), open_config())
+        self.inp = oiio.ImageInput.open(oiio_path(path), open_config())
         if self.inp is None:
-            raise TextureError(f"{path}: cannot read {what}: {oiio.geterror() or 'unknown error'}")
+            raise TextureError(f"{path}: cannot read {what}: {oiio_error() or 'unknown error'}")
         self.spec = self.inp.spec()
         self.lock = threading.Lock()
         problem = None
@@ -207,7 +222,7 @@ class Reader:
         with self.lock:
             px = read_rows_of(self.inp, s, y0, y1, oiio.FLOAT)
         if px is None:
-            why = self.inp.geterror() or oiio.geterror() or "missing or corrupt data"
+            why = oiio_error(self.inp) or "missing or corrupt data"
             raise TextureError(f"{self.path}: read of rows {y0}..{y1 - 1} failed: {why}")
         return np.asarray(px, dtype=np.float32).reshape(y1 - y0, s.width, s.nchannels)
 
@@ -283,31 +298,6 @@ def output_spec(in_spec, channel_names, alpha_index, half, params, *, working):
     return spec
 
 
-def partial_files(path) -> list:
-    """Temporary files a Writer of ``path`` leaves only if its process is killed mid-write
-    (``.{stem}.partial-{pid}-{thread}{suffix}``, and a texture build's beside it, ``...tx``
-    and maketx's own ``....temp``), matched literally: an output named ``m[1]`` or ``*``
-    never matches another output's)."""
-    path = Path(path)
-    name = re.compile(rf"\.{re.escape(path.stem)}\.partial-\d+(-\d+)?(\.[^/]+)?"
-                      rf"{re.escape(path.suffix)}")
-    candidates = path.parent.glob(f".{glob.escape(path.stem)}.partial-*")
-    return sorted(p for p in candidates if name.fullmatch(p.name))
-
-
-def remove_partial_files(path) -> int:
-    """Remove what killed writers of ``path`` left (the one process that writes ``path`` calls
-    this before it starts: outputs never collide, so no live writer owns them)."""
-    n = 0
-    for p in partial_files(path):
-        try:
-            p.unlink()
-            n += 1
-        except FileNotFoundError:
-            pass
-    return n
-
-
 #: below this many free bytes a failed write names the disk's free space as its likely cause
 LOW_SPACE = 64 << 20
 
@@ -342,7 +332,8 @@ class Writer:
     steps of 0.1 s: ``mipmaps.build_texture``)."""
 
     def __init__(self, path, spec, on_invalid="raise", texture=None, cancel=None):
-        self.path = Path(path)
+        self.path = Path(oiio_path(path))
+        remove_partial_files(self.path)   # a stopped or killed earlier run's (``partials``)
         self.tmp = self.path.with_name(f".{self.path.stem}.partial-{os.getpid()}"
                                        f"-{threading.get_ident()}{self.path.suffix}")
         self.spec = spec
@@ -359,9 +350,9 @@ class Writer:
         self.cancel = cancel
         self.out = oiio.ImageOutput.create(str(self.tmp))
         if self.out is None:
-            raise TextureError(f"{path}: cannot create output: {oiio.geterror()}")
+            raise TextureError(f"{path}: cannot create output: {oiio_error()}")
         if not self.out.open(str(self.tmp), spec):
-            err = self.out.geterror() or oiio.geterror()
+            err = oiio_error(self.out)
             self.out = None
             self._remove_tmp()
             raise TextureError(f"{path}: cannot write output: {err}")
@@ -389,7 +380,7 @@ class Writer:
             ok = self.out.write_scanlines(s.y + y0, s.y + y1, s.z, pixels)
         if not ok:
             raise TextureError(f"{self.path}: write of rows {y0}..{y1 - 1} failed: "
-                               f"{self.out.geterror()}{low_space(self.path)}")
+                               f"{oiio_error(self.out)}{low_space(self.path)}")
         self.digests.add(y0, y1, pixels)
 
     def commit(self):
@@ -397,7 +388,7 @@ class Writer:
         self.out = None
         if not ok:
             self._remove_tmp()
-            raise TextureError(f"{self.path}: closing the output failed: {oiio.geterror()}"
+            raise TextureError(f"{self.path}: closing the output failed: {oiio_error()}"
                                f"{low_space(self.path)}")
         try:
             read_back(self.tmp, self.digests, str(self.path), list(self.spec.channelnames))

@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 import OpenImageIO as oiio
 
-from ..errors import one_line
+from .oiio_text import oiio_error
 
 
 class TextureBuildError(RuntimeError):
@@ -128,7 +128,7 @@ def build_texture(spec, px, texture, options: TextureOptions, cancelled=None):
     config.set_format(spec.format)
     full = oiio.ImageBufAlgo.crop(src, src.roi_full)
     if full.has_error:
-        raise TextureBuildError(f"making the texture failed: {full.geterror()}")
+        raise TextureBuildError(f"making the texture failed: {oiio_error(full)}")
     why = _make_texture(full, texture, config, cancelled)
     if why is not None:
         raise TextureBuildError(f"making the texture failed: {why}")
@@ -170,7 +170,7 @@ def _make_texture(full, texture, config, cancelled) -> str | None:
 
     def build():
         made = oiio.ImageBufAlgo.make_texture(oiio.MakeTxTexture, full, str(texture), config)
-        result.append(None if made else one_line(oiio.geterror()) or "unknown error")
+        result.append(None if made else oiio_error() or "unknown error")
     worker = threading.Thread(target=build, daemon=True, name="bdipole-maketx")
     worker.start()
     while worker.is_alive():
@@ -184,9 +184,13 @@ def _make_texture(full, texture, config, cancelled) -> str | None:
 
 
 def build_files(texture) -> list:
-    """The temporary files OpenImageIO's texture build writes beside ``texture``."""
+    """The temporary files OpenImageIO's texture build writes beside ``texture``:
+    ``{stem}.{hex}.temp{suffix}`` (OpenImageIO 3), ``{name}.{hex}.temp`` (earlier)."""
     texture = Path(texture)
-    return sorted(texture.parent.glob(f"{glob.escape(texture.name)}.*.temp*"))
+    found = set(texture.parent.glob(f"{glob.escape(texture.name)}.*.temp*"))
+    found |= set(texture.parent.glob(f"{glob.escape(texture.stem)}.*.temp"
+                                     f"{glob.escape(texture.suffix)}"))
+    return sorted(found)
 
 
 def _read_texture(path):
@@ -196,7 +200,7 @@ def _read_texture(path):
     values above ~FLT_MAX / 4 make infinite ones in the levels below."""
     inp = oiio.ImageInput.open(str(path))
     if inp is None:
-        raise TextureBuildError(f"the texture cannot be read back: {oiio.geterror()}")
+        raise TextureBuildError(f"the texture cannot be read back: {oiio_error()}")
     try:
         got = inp.spec()
         px = inp.read_image(0, 0, 0, got.nchannels, oiio.FLOAT)

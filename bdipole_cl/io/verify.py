@@ -23,6 +23,8 @@ import stat
 import numpy as np
 import OpenImageIO as oiio
 
+from .oiio_text import oiio_error
+
 #: what half floats hold: larger finite values become inf, smaller nonzero ones become 0
 HALF_MAX = float(np.finfo(np.float16).max)
 HALF_TINY = float(np.finfo(np.float16).smallest_subnormal)
@@ -111,7 +113,7 @@ def read_back(path, digests: BandDigests, what, names):
     inp = oiio.ImageInput.open(str(path))
     if inp is None:
         raise WriteCheckError(f"{what}: the written file does not read back: "
-                              f"{oiio.geterror() or 'unknown error'}")
+                              f"{oiio_error() or 'unknown error'}")
     try:
         spec = inp.spec()
         fmt = oiio.HALF if digests.half else oiio.FLOAT
@@ -125,7 +127,7 @@ def read_back(path, digests: BandDigests, what, names):
             px = None if px is None else px[..., order]
             if px is None or _digest(px.astype(np.float16 if digests.half else np.float32,
                                                copy=False)) != want:
-                why = (inp.geterror() or "missing or corrupt data") if px is None else \
+                why = (oiio_error(inp) or "missing or corrupt data") if px is None else \
                     "the values differ from those written"
                 raise WriteCheckError(f"{what}: rows {y0}..{y1 - 1} of the written file do not "
                                       f"read back ({why}); nothing written (disk full or a "

@@ -546,3 +546,74 @@ def test_grey_converted_as_neutral_and_two_channels_refused(tmp_path):
                               output=str(tmp_path / "rg_out.exr"))
     assert "channels R, G: a colour conversion from sRGB Encoded Rec.709 (sRGB) needs R, G " \
            "and B" in report.results[0].error, report.summary()
+
+
+def icc_profile(colorants, curve, description):
+    """A minimal ICC v2 matrix/TRC profile (ICC.1:2010 7.2, 10.2 'curv', 10.27 'XYZ '):
+    ``curve`` a gamma (one u8.8 value) or a table of code values (uint16)."""
+    import struct
+
+    def s15(v):
+        return struct.pack(">i", int(round(v * 65536)))
+
+    def xyz(v):
+        return b"XYZ " + b"\0" * 4 + b"".join(s15(c) for c in v)
+
+    def trc():
+        if np.ndim(curve) == 0:
+            return b"curv" + b"\0" * 4 + struct.pack(">IH", 1, int(round(curve * 256)))
+        table = np.round(np.asarray(curve) * 65535).astype(">u2").tobytes()
+        return b"curv" + b"\0" * 4 + struct.pack(">I", len(curve)) + table
+
+    text = description.encode() + b"\0"
+    desc = b"desc" + b"\0" * 4 + struct.pack(">I", len(text)) + text + b"\0" * 79
+    tags = [(b"desc", desc), (b"wtpt", xyz((0.9642, 1.0, 0.8249)))] + [
+        (k, xyz(v)) for k, v in zip((b"rXYZ", b"gXYZ", b"bXYZ"), colorants)] + [
+        (k, trc()) for k in (b"rTRC", b"gTRC", b"bTRC")]
+    table, data, offset = b"", b"", 128 + 4 + 12 * len(tags)
+    for sig, body in tags:
+        body += b"\0" * (-len(body) % 4)
+        table += sig + struct.pack(">II", offset + len(data), len(body))
+        data += body
+    body = struct.pack(">I", len(tags)) + table + data
+    head = (struct.pack(">I", 128 + len(body)) + b"none" + bytes([2, 0x10, 0, 0]) + b"mntr"
+            + b"RGB XYZ " + b"\0" * 12 + b"acsp" + b"\0" * 28 + s15(0.9642) + s15(1.0)
+            + s15(0.8249) + b"\0" * 48)
+    return head + body
+
+
+SRGB_TABLE = [float(v) for v in np.where(np.linspace(0, 1, 1024) <= 0.04045,
+                                         np.linspace(0, 1, 1024) / 12.92,
+                                         ((np.linspace(0, 1, 1024) + 0.055) / 1.055) ** 2.4)]
+ADOBE_RGB = ((0.6097, 0.3111, 0.0195), (0.2053, 0.6257, 0.0609), (0.1492, 0.0632, 0.7446))
+DISPLAY_P3 = ((0.5151, 0.2412, -0.0011), (0.2920, 0.6922, 0.0419), (0.1571, 0.0666, 0.7841))
+
+
+@pytest.mark.parametrize("colorants, curve, name, srgb", [
+    (None, None, "sRGB (littleCMS, parametric)", True),
+    (cm.icc.SRGB_COLORANTS, SRGB_TABLE, "sRGB IEC61966-2.1 (a 1024-entry table)", True),
+    (ADOBE_RGB, 563 / 256, "Adobe RGB (1998)", False),
+    (DISPLAY_P3, SRGB_TABLE, "Display P3", False),
+    (cm.icc.SRGB_COLORANTS, 1.0, "linear sRGB", False)])
+@pytest.mark.parametrize("suffix", [".png", ".tif", ".jpg"])
+def test_an_embedded_icc_profile_that_is_not_srgb_is_named(tmp_path, colorants, curve, name,
+                                                         srgb, suffix):
+    """OpenImageIO tags every 8-bit PNG and JPEG sRGB (a TIFF not at all) whatever ICC profile
+    it embeds: an Adobe RGB, P3 or linear one fails its file, named, unless its space is given
+    (it was converted as sRGB, exit 0); an sRGB one, parametric or a table, is sRGB."""
+    from PIL import Image, ImageCms
+    profile = (ImageCms.ImageCmsProfile(ImageCms.createProfile("sRGB")).tobytes()
+               if colorants is None else icc_profile(colorants, curve, name))
+    pixels = (np.linspace(0.1, 0.9, 8 * 8 * 3).reshape(8, 8, 3) * 255).astype(np.uint8)
+    path = tmp_path / f"albedo{suffix}"
+    Image.fromarray(pixels, "RGB").save(path, icc_profile=profile)
+    report = process_textures(str(path), output=str(tmp_path / "o" / "{stem}.exr"))
+    row, = report.results
+    if srgb:
+        assert row.status == "ok" and "sRGB" in row.colour, row
+    else:
+        assert row.status == "failed" and "which is not sRGB" in row.error, row
+        assert (cm.icc.parse(profile).description or name) in row.error
+        given = process_textures(str(path), output=str(tmp_path / "g" / "{stem}.exr"),
+                                 colorspace="srgb_rec709_scene")
+        assert given.exit_code == 0

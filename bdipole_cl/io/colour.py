@@ -24,12 +24,14 @@ so the decoding is exact to float32 (README: Colour).
 from __future__ import annotations
 
 import os
+import struct
 import threading
 from dataclasses import dataclass
 
 import numpy as np
 import OpenImageIO as oiio
 
+from . import icc
 from .oiio_text import oiio_error
 
 #: OpenColorIO's OPTIMIZATION_LOSSLESS (OpenColorTypes.h): no fast pow/log/exp approximations
@@ -290,11 +292,30 @@ def colour_path(spec, path, colorspace="auto", working=None, names=None) -> Colo
     return route
 
 
+def check_icc_profile(spec, path):
+    """A ValueError naming the file and its embedded ICC profile where that profile is not
+    sRGB's (``icc``): OpenImageIO's tag (sRGB for every 8-bit PNG and JPEG, none for a TIFF)
+    does not read the profile, so an Adobe RGB or P3 texture would pass as sRGB."""
+    data = spec.getattribute("ICCProfile")
+    if data is None or not len(data):
+        return
+    try:
+        profile = icc.parse(data)
+    except (ValueError, struct.error) as exc:
+        raise ValueError(f"{path}: embeds an ICC profile that cannot be read ({exc}): give "
+                         f"its space (--colorspace / colorspace =)") from None
+    if not profile.is_srgb:
+        raise ValueError(f"{path}: embeds the ICC profile {profile.description or '(unnamed)'!r},"
+                         f" which is not sRGB (its primaries or tone curves differ): give its "
+                         f"space (--colorspace / colorspace =)")
+
+
 def _colour_path(spec, path, colorspace, working) -> ColourPath:
     config = working.config
     enc = encoding(spec)
     if colorspace not in (None, "", "auto"):
         return ColourPath(resolve_colorspace(colorspace, config), "given", enc, working)
+    check_icc_profile(spec, path)
     xy = _declared_chromaticities(spec)
     declared = spec.getattribute("oiio:ColorSpace")
     if declared:

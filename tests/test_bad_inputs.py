@@ -522,3 +522,28 @@ def test_a_bit_rotted_header_or_a_latin1_name_fails_only_its_file(tmp_path, caps
     assert sorted(p.name for p in (tmp_path / "o").iterdir()) == ["t.1001.exr", "t.1003.exr"]
     assert "t.1002.exr: cannot read albedo:" in out
     assert "caf\\xe9.1004.exr: a file name that is not UTF-8" in out
+
+
+def test_skip_existing_sees_a_link_re_pointed_at_an_older_file(tmp_path):
+    """--skip-existing with alb.exr -> v1.exr baked, then re-pointed at v2.exr, an older file
+    (a "latest" link rolled back): the link is a new input, so the job runs again (it was
+    skipped: only the file's own times were compared with the output's)."""
+    write_exr(tmp_path / "v2.exr", albedo(value=0.2))
+    os.utime(tmp_path / "v2.exr", (1e9, 1e9))                   # 2001: older than any output
+    write_exr(tmp_path / "v1.exr", albedo(value=0.6))
+    link = tmp_path / "alb.exr"
+    link.symlink_to("v1.exr")
+    out = tmp_path / "out.exr"
+    argv = ["invert", str(link), "-o", str(out), "--skip-existing", "--no-progress"]
+    assert cli_main(argv) == 0
+    first = read_exr(out)[0]
+    time.sleep(0.01)
+    link.unlink()
+    link.symlink_to("v2.exr")
+    assert cli_main(argv) == 0
+    second = read_exr(out)[0]
+    assert cli_main(["invert", str(tmp_path / "v2.exr"), "-o", str(tmp_path / "v2_out.exr"),
+                     "--no-progress"]) == 0
+    assert np.array_equal(second, read_exr(tmp_path / "v2_out.exr")[0])    # v2's, not v1's
+    assert not np.array_equal(second, first)
+    assert cli_main(argv) == 0 and np.array_equal(read_exr(out)[0], second)

@@ -88,11 +88,25 @@ def newer_than_inputs(output, inputs):
     except OSError:
         return False
     for p in inputs:
-        if p and os.path.exists(p):
-            st = os.stat(p)
-            if max(st.st_mtime_ns, st.st_ctime_ns) > t:
-                return False
+        if p and os.path.exists(p) and last_change(p) > t:
+            return False
     return is_complete(output)
+
+
+def last_change(path) -> int:
+    """The latest change (ns) of a file as reached through ``path``: its content or inode, and
+    every symbolic link met on the way (a "latest" link re-pointed at an older version is a new
+    input, though the file it names is older than the output)."""
+    st = os.stat(path)
+    times = [st.st_mtime_ns, st.st_ctime_ns]
+    parts = os.path.abspath(path).split(os.sep)
+    for k in range(2, len(parts) + 1):
+        link, hops = os.sep.join(parts[:k]), 0
+        while os.path.islink(link) and hops < 40:     # a chain of links, each re-pointable
+            lst = os.lstat(link)
+            times += [lst.st_mtime_ns, lst.st_ctime_ns]
+            link, hops = os.path.join(os.path.dirname(link), os.readlink(link)), hops + 1
+    return max(times)
 
 
 def process_textures(inputs, *, mfp=1.0, eta=1.4, output=DEFAULT_OUTPUT,

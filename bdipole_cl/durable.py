@@ -5,6 +5,7 @@ empty or partial one (a rename alone can reach the disk before the data it names
 from __future__ import annotations
 
 import os
+import stat
 
 
 def fsync_path(path, directory=False):
@@ -27,7 +28,26 @@ def fsync_path(path, directory=False):
 
 
 def durable_replace(tmp, path):
-    """``os.replace(tmp, path)`` with ``tmp``'s data on the disk first and the rename after."""
+    """``os.replace(tmp, path)`` with ``tmp``'s data on the disk first and the rename after; a
+    file replaced keeps its permission bits and group (``keep_access``)."""
+    keep_access(tmp, path)
     fsync_path(tmp)
     os.replace(tmp, path)
     fsync_path(os.path.dirname(os.path.abspath(path)) or ".", directory=True)
+
+
+def keep_access(tmp, path):
+    """Give ``tmp`` the permission bits and group of the regular file at ``path`` it replaces
+    (a group-writable texture in a shared folder stays so, and its group: a new file has the
+    process's umask and primary group); the group only where this user may set it."""
+    try:
+        st = os.stat(path)
+    except OSError:
+        return
+    if not stat.S_ISREG(st.st_mode):
+        return
+    os.chmod(tmp, stat.S_IMODE(st.st_mode))
+    try:
+        os.chown(tmp, -1, st.st_gid)
+    except OSError:                  # not a group of this user's: the new file keeps its own
+        pass

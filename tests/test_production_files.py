@@ -1265,3 +1265,23 @@ def test_a_float64_highlight_beyond_float32_is_named_as_such_or_kept_bright():
     assert exc.value.first_value == 1e39
     out = blur(e, albedo=0.8, mfp=2.0, on_invalid="clamp")
     assert np.all(np.isfinite(out)) and out[8, 8, 0] == out[..., 0].max() > 1e37
+
+
+def test_a_replaced_output_keeps_its_permissions_and_group(tmp_path):
+    """An output rewritten in a shared folder keeps its permission bits (and its group, where
+    this user may set it): it was the umask's 644 and the user's group after a rerun."""
+    write(tmp_path / "a.exr", ramp())
+    out = tmp_path / "o.exr"
+    argv = ["invert", str(tmp_path / "a.exr"), "-o", str(out), "--no-progress"]
+    assert cli_main(argv) == 0
+    groups = [g for g in os.getgroups() if g != os.stat(out).st_gid] or [os.stat(out).st_gid]
+    os.chmod(out, 0o664)
+    try:
+        os.chown(out, -1, groups[0])
+    except PermissionError:
+        pass
+    before = os.stat(out)
+    assert cli_main(argv) == 0
+    after = os.stat(out)
+    assert after.st_ino != before.st_ino                      # replaced, not written in place
+    assert (after.st_mode & 0o7777, after.st_gid) == (0o664, before.st_gid)

@@ -547,3 +547,24 @@ def test_skip_existing_sees_a_link_re_pointed_at_an_older_file(tmp_path):
     assert np.array_equal(second, read_exr(tmp_path / "v2_out.exr")[0])    # v2's, not v1's
     assert not np.array_equal(second, first)
     assert cli_main(argv) == 0 and np.array_equal(read_exr(out)[0], second)
+
+
+def test_blur_says_which_channels_it_leaves_out_and_names_a_maps_own_channel(tmp_path, capsys):
+    """A blur of R, G, B, weird.x, Z says Z and weird.x are left out (as invert does; they were
+    dropped unsaid); a bad texel of a one-channel Y mfp map is named in channel Y, its own (it
+    was named by the irradiance's channel, R)."""
+    rng = np.random.default_rng(0)
+    write_exr(tmp_path / "five.exr", rng.uniform(0.1, 0.9, (8, 10, 5)),
+              ["R", "G", "B", "weird.x", "Z"])
+    with pytest.warns(UserWarning, match=r"five\.exr: not colour, left out: weird\.x, Z|"
+                                         r"five\.exr: not colour, left out: Z, weird\.x"):
+        assert cli_main(["blur", str(tmp_path / "five.exr"), "--albedo", "0.8", "--mfp", "1",
+                         "-o", str(tmp_path / "b.exr"), "--no-progress"]) == 0
+    mfp = np.ones((8, 10, 1), np.float32)
+    mfp[2, 3] = np.nan
+    write_exr(tmp_path / "mfp_y.exr", mfp, ["Y"])
+    assert cli_main(["blur", str(tmp_path / "five.exr"), "--albedo", "0.8", "--mfp",
+                     str(tmp_path / "mfp_y.exr"), "-o", str(tmp_path / "c.exr"),
+                     "--no-progress"]) == 1
+    err = capsys.readouterr().err
+    assert "mfp_y.exr: 1 invalid mfp value(s)" in err and "x=3, y=2, channel Y: nan" in err

@@ -12,11 +12,12 @@ import numpy as np
 
 from ..device import get_runtime
 from ..errors import InvalidInputError
+from ..io.channels import classify_channels
 from ..io.collisions import Claim, check_claim
 from ..io.colour import resolve_working_space
 from ..io.images import (Cancelled, Reader, TextureError, Writer, check_output_format,
-                         check_same_window, invalid_texels, output_spec, read_parameter_texture,
-                         read_rows)
+                         check_same_window, image_header, invalid_texels, output_spec,
+                         read_parameter_texture, read_rows)
 from ..io.mipmaps import texture_options
 from ..methods.registry import BORDER
 from ..ops.bands import band_rows, bands
@@ -47,8 +48,19 @@ def located(exc, path, sources, spec, idx, names=None):
     yy, xx, cc = exc.first_index
     row = int(idx[yy]) if exc.name == "irradiance" else yy
     where = sources.get(exc.name, sources.get(exc.name.rstrip("'"), path))
-    channel = names[cc] if names is not None and 0 <= cc < len(names) else cc
+    names = (texture_channel_names(where) or names) if where != path else names
+    channel = names[min(cc, len(names) - 1)] if names and cc >= 0 else cc
     return invalid_texels(exc, where, spec.x + xx, spec.y + row, channel)
+
+
+def texture_channel_names(path) -> list | None:
+    """The colour channels' names of a parameter texture file (a one-channel map serves every
+    channel: its one name), None where ``path`` is no image file."""
+    header = image_header(path) if isinstance(path, (str, Path)) else None
+    if header is None:
+        return None
+    colour, _, _ = classify_channels(header.channelnames, header.alpha_channel)
+    return [header.channelnames[c] for c in colour] or None
 
 
 def file_plan(path, spec, names, scattering, options, sources) -> BlurPlan:
@@ -179,6 +191,10 @@ def blur_file(path, output, *, colorspace="auto", working_space=None, half=False
         colour, alpha_ch = reader.channels()
         route = reader.colour(colorspace, resolve_working_space(working_space))
         names = [spec.channelnames[c] for c in colour]
+        _, _, other = classify_channels(spec.channelnames, spec.alpha_channel)
+        if other:                     # as ``invert`` says it: a channel is never lost unsaid
+            warnings.warn(f"{path}: not colour, left out: "
+                          f"{', '.join(spec.channelnames[c] for c in other)}", stacklevel=2)
         plan = file_plan(path, spec, names, scattering,
                          dict(options, device=get_runtime(device)), sources)
         if plan.textured:

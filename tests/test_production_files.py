@@ -1285,3 +1285,17 @@ def test_a_replaced_output_keeps_its_permissions_and_group(tmp_path):
     after = os.stat(out)
     assert after.st_ino != before.st_ino                      # replaced, not written in place
     assert (after.st_mode & 0o7777, after.st_gid) == (0o664, before.st_gid)
+
+
+def test_a_tile_whose_mfp_covers_other_texels_cannot_run_in_the_plan(tmp_path):
+    """The plan reads the headers: a tile whose mfp tile has another resolution is a job that
+    cannot run, named, before any bake (the plan listed it 'to run'; the bake failed it)."""
+    for tile, size in (("1001", 16), ("1002", 8)):
+        write(tmp_path / f"a.{tile}.exr", ramp())
+        write(tmp_path / f"m.{tile}.exr", np.ones((size, 12 if size == 16 else 6, 1)), ["Y"])
+    path = scene(tmp_path, '[[material]]\nname = "m"\nalbedo = "a.<UDIM>.exr"\n'
+                           'mfp = "m.<UDIM>.exr"\noutput = "out/o.<UDIM>.exr"\n')
+    plan = scenes.load(path).plan()
+    bad, = [j for j in plan.jobs if j.problem]
+    assert bad.udim == "1002" and "data windows and resolutions must match" in bad.problem
+    assert [j.udim for j in plan.jobs if not j.problem] == ["1001"]

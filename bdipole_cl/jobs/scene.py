@@ -37,7 +37,7 @@ from ..device import get_runtime
 from ..io.collisions import Claim, collisions
 from ..io.colour import WorkingSpace, resolve_working_space
 from ..io.freshness import header_fields, is_up_to_date, params_digest
-from ..io.images import TextureError
+from ..io.images import TextureError, check_same_window, image_header
 from ..io.mipmaps import texture_options
 from ..io.patterns import companion_path, expand_inputs, unmatched_pattern
 from ..io.scene_file import SceneData, SceneError, load_imported
@@ -146,14 +146,29 @@ def _exists(role, path, problems):
                                              else "is missing"))
 
 
+def _same_window(role, path, albedo, problems):
+    """A problem where the headers of texture ``path`` (mfp or mask) and of ``albedo`` cover
+    different texels (the bake would fail the job: the plan says so first)."""
+    if problems or not os.path.isfile(path):
+        return
+    mine, theirs = image_header(albedo), image_header(path)
+    if mine is not None and theirs is not None:
+        try:
+            check_same_window(mine, theirs, albedo, role, path)
+        except TextureError as exc:
+            problems.append(str(exc))
+
+
 def _textures(inputs, material, mask, path, tile, problems):
     """Add the job's mfp and mask textures (companions of ``path`` by tile) to ``inputs``."""
     if isinstance(material.mfp, str):
         inputs["mfp"] = companion_path(material.mfp, path, tile)
         _exists("mfp texture", inputs["mfp"], problems)
+        _same_window("mfp texture", inputs["mfp"], path, problems)
     if mask and mask != "alpha":
         inputs["mask"] = companion_path(mask, path, tile)
         _exists("mask", inputs["mask"], problems)
+        _same_window("mask", inputs["mask"], path, problems)
 
 
 def _new_job(kind, name, path, udim, out, inputs, fields, working_space, problems, force,

@@ -1,5 +1,7 @@
 """Error-vs-runtime report (bdipole_cl/apps/report.py) and method='auto'."""
 import logging
+import os
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -100,3 +102,19 @@ def test_copy_kernel_floor_copies_and_times():
     rt.queue.finish()
     np.testing.assert_array_equal(dst, src)
     assert time_copy(1 << 16, repeats=2) > 0
+
+
+def test_a_report_into_a_place_it_cannot_write_is_refused_before_measuring(tmp_path,
+                                                                           monkeypatch, capsys):
+    """-o in a read-only place (a read-only mount: os.access says so, for root too) is a usage
+    error before anything is measured (it measured ~25 s, then failed writing, exit 1)."""
+    from bdipole_cl.apps import report
+    from bdipole_cl.apps.cli import main as cli_main
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    real_access = os.access
+    monkeypatch.setattr(report.os, "access",
+                        lambda p, mode: False if Path(p) == ro else real_access(p, mode))
+    monkeypatch.setattr(report, "run_report", lambda *a, **k: pytest.fail("measured"))
+    assert cli_main(["report", "-o", str(ro / "sub")]) == 2
+    assert f"-o {ro / 'sub'}: {ro} cannot be written" in capsys.readouterr().err

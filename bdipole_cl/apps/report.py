@@ -221,7 +221,7 @@ def check_report_outputs(folder, choice_path=None, force=False):
     or the ``choice_path`` (``--write-choice``) would replace a file this tool did not write,
     or one it wrote that was changed since (unless ``force``), or is a directory or other
     non-regular file (always); where ``folder`` is a file, or ``choice_path`` is ``folder``
-    or one of its report files."""
+    or one of its report files; where either place cannot be written."""
     folder = Path(folder)
     if folder.exists() and not folder.is_dir():
         raise ValueError(f"-o {folder}: exists and is not a folder; the report is a folder of "
@@ -237,6 +237,12 @@ def check_report_outputs(folder, choice_path=None, force=False):
         why = refusal(path, force, is_ours)
         if why:
             raise ValueError(why)
+    for where, option in [(folder, "-o")] + ([(Path(choice_path).parent, "--write-choice")]
+                                              if choice_path else []):
+        place = next(p for p in [where, *where.absolute().parents] if p.exists())
+        if not os.access(place, os.W_OK | os.X_OK):
+            raise ValueError(f"{option} {where}: {place} cannot be written (read-only or not "
+                             f"this user's): nothing was measured")
 
 
 def write_outputs(points, folder, device, workloads):

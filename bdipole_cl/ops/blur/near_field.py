@@ -165,6 +165,21 @@ def near_cost(near, nbasis, nnear, costs: GatherCosts):
             + costs.term * len(near_classes(near)) * nnear + costs.weight * (nbasis + nnear))
 
 
+def far_parts(kernels, near, radius):
+    """The quadrants ``kernels`` with the cells of near field ``near`` zeroed: what the FFT
+    basis fits."""
+    mask = class_quadrants(near_classes(near), radius).sum(axis=0) > 0
+    return [np.where(mask, 0.0, t) for t in kernels]
+
+
+def far_rank(train, near, radius, tol) -> int:
+    """The fewest far eigen-kernels that fit every ``train`` kernel beyond near field ``near``
+    within L1 error tol: where ``_near_field_fit``'s ranks start (a lower bound on the FFT
+    blurs a channel of that range needs)."""
+    parts = far_parts(train, near, radius)
+    return EigenKernels.of(parts).project(parts).rank_within(tol)
+
+
 @dataclass(frozen=True)
 class NearFieldFit:
     """One near field's basis: the far (FFT) eigen-kernels' quadrants, the near kernels'
@@ -204,10 +219,9 @@ def near_field_basis(targets, train, tol, radius, measure, costs: GatherCosts):
 def _near_field_fit(targets, train, tol, radius, near, measure):
     """The NearFieldFit of near field ``near`` (``near_field_basis``)."""
     classes = near_classes(near)
-    mask = class_quadrants(classes, radius).sum(axis=0) > 0
 
     def far(kernels):
-        return [np.where(mask, 0.0, t) for t in kernels]
+        return far_parts(kernels, near, radius)
 
     def near_part(kernels):
         return [class_values(t, classes) for t in kernels]

@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import itertools
 from dataclasses import dataclass, field, replace
+from typing import NamedTuple
 
 import numpy as np
 
@@ -299,11 +300,21 @@ def check_plan_size(axes, radius, rd_range, ld_range):
         f"texel size")
 
 
-@PLAN_CACHE.memoize
-def plan_for_ranges(rd_range, ld_range, eta, tol, exact=False, basis="svd", max_radius=2048,
-                    costs: GatherCosts = DEFAULT_GATHER_COSTS):
-    """The TexturedPlan for logit(Rd) in rd_range and ln(ld texels) in ld_range, its near
-    field chosen for a device of gather costs ``costs``."""
+class LatticeKernels(NamedTuple):
+    """A range's lattice and its exact kernels: the axes, the common radius K, every node's
+    normalized quadrant (``targets``, Rd-major), the check points' ((t_rd, t_ld), quadrant)
+    (``range_kernels``), and per node whether it lies inside the range."""
+
+    axes: tuple
+    radius: int
+    targets: list
+    checks: list
+    inside: list
+
+
+def lattice_kernels(rd_range, ld_range, eta, tol, exact=False, max_radius=2048):
+    """The LatticeKernels of logit(Rd) in rd_range and ln(ld texels) in ld_range at tol
+    (ValueError where the radius exceeds max_radius or the plan would be too large)."""
     steps = lattice_steps(tol)
     axes = (_axis(*rd_range, steps[0], lambda t: min(max(sigmoid(t), RD_MIN), RD_MAX)),
             _axis(*ld_range, steps[1], np.exp))
@@ -314,12 +325,29 @@ def plan_for_ranges(rd_range, ld_range, eta, tol, exact=False, basis="svd", max_
     check_plan_size(axes, radius, rd_range, ld_range)
     targets = [node_kernel(a, b, eta, radius, exact) for a in axes[0].values
                for b in axes[1].values]
+    inside = [a and b for a in inside_range(axes[0], rd_range)
+              for b in inside_range(axes[1], ld_range)]
+    return LatticeKernels(axes, radius, targets,
+                          range_kernels(axes, rd_range, ld_range, eta, radius, exact), inside)
+
+
+def training_kernels(targets, checks, inside):
+    """The kernels of the range, which the eigen-kernels are fitted to: the nodes inside it and
+    the exact kernels at its check points (docs/model.md "What the eigen-kernels are fitted
+    to")."""
+    return [t for t, i in zip(targets, inside) if i] + [q for _, q in checks]
+
+
+@PLAN_CACHE.memoize
+def plan_for_ranges(rd_range, ld_range, eta, tol, exact=False, basis="svd", max_radius=2048,
+                    costs: GatherCosts = DEFAULT_GATHER_COSTS):
+    """The TexturedPlan for logit(Rd) in rd_range and ln(ld texels) in ld_range, its near
+    field chosen for a device of gather costs ``costs``."""
+    axes, radius, targets, checks, inside = lattice_kernels(rd_range, ld_range, eta, tol, exact,
+                                                            max_radius)
     shape_axes = tuple(len(a.values) for a in axes)
-    checks = range_kernels(axes, rd_range, ld_range, eta, radius, exact)
     if basis == "svd":
-        inside = [a and b for a in inside_range(axes[0], rd_range)
-                  for b in inside_range(axes[1], ld_range)]
-        train = [t for t, i in zip(targets, inside) if i] + [q for _, q in checks]
+        train = training_kernels(targets, checks, inside)
 
         def measure(quads, values, near, coef):
             table = coef.reshape(*shape_axes, -1).astype(np.float32)

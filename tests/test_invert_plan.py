@@ -353,3 +353,17 @@ def test_a_one_channel_mfp_map_counts_each_value_once_and_matrix_outputs_fill(ru
     albedo_to_coefficients(rd2, 1.0, 1.4, out=(sa, ss), device=runtime)
     np.testing.assert_array_equal(np.asarray(sa), want[0])
     np.testing.assert_array_equal(np.asarray(ss), want[1])
+
+
+def test_a_mask_that_does_not_fit_or_holds_nan_is_named(runtime):
+    """A mask of another shape is a ValueError naming both shapes (it was NumPy's broadcast
+    message); a NaN in a mask is neither 'left out' nor 'kept': named, not taken as 0."""
+    plan = plan_inversion(ETAS, device=runtime)
+    rd = albedo_map(4, 5)
+    with pytest.raises(ValueError, match=r"mask of shape \(3, 5\) does not fit albedo of shape "
+                                         r"\(4, 5, 3\)"):
+        plan.apply(rd, mask=np.ones((3, 5)))
+    mask = np.ones((4, 5))
+    mask[2, 1] = np.nan
+    with pytest.raises(ValueError, match=r"mask: NaN at index \(2, 1\)"):
+        plan.apply(rd, mask=mask)

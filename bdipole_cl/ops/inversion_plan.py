@@ -307,10 +307,19 @@ class InversionPlan:
     def _keep(self, mask, shape):
         """The mask as booleans of the input's shape: an HxW mask of an HxWxC input masks
         every channel of its texels."""
-        keep = np.asarray(mask) > 0
+        values = np.asarray(mask)
+        if values.dtype.kind == "f" and np.isnan(values).any():
+            first = tuple(int(i) for i in np.argwhere(np.isnan(values))[0])
+            raise ValueError(f"mask: NaN at index {first}: a mask is 0 (left out) or > 0 (kept)")
+        keep = values > 0
         if len(self.etas) > 1 and keep.ndim == len(shape) - 1:
             keep = keep[..., None]
-        return np.broadcast_to(keep, shape)
+        try:
+            return np.broadcast_to(keep, shape)
+        except ValueError:
+            raise ValueError(f"mask of shape {np.shape(mask)} does not fit albedo of shape "
+                             f"{tuple(shape)}: give one of its shape, or without its channel "
+                             f"axis") from None
 
     def __reduce__(self):
         """Pickled as its settings: unpickled, it builds its kernel on the default device

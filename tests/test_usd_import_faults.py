@@ -392,6 +392,25 @@ def test_materials_whose_paths_join_to_one_name_get_their_own(tmp_path):
     assert len(set(names)) == 3 and not plan.missing, names
 
 
+def test_names_that_differ_only_in_case_get_their_own_and_a_stray_override_is_named(
+        tmp_path):
+    """/A/Skin2 and /B/skin2 would be one file on a case-insensitive share: their names differ
+    in more than case; a [[material]] override whose name is none of the stage's (a renamed
+    one) says so, listing them (it said the material 'needs albedo')."""
+    from bdipole_cl.io.shaders import unique_names
+    names = unique_names(["/A/Skin2", "/B/skin2", "/Looks/Wax", "/Looks/wax"])
+    assert len({n.casefold() for n in names.values()}) == 4, names
+    texture(tmp_path / "tex" / "a.exr")
+    stage = new_stage(tmp_path)
+    material(stage, "skin", "tex/a.exr")
+    stage.GetRootLayer().Save()
+    (tmp_path / "scene.toml").write_text('materials_from = "asset.usda"\n'
+                                         '[[material]]\nname = "Skin"\nhalf = true\n')
+    with pytest.raises(scenes.SceneError, match=r"material 'Skin' is not a material of .*"
+                                                r"\(its materials: skin\)"):
+        scenes.load(tmp_path / "scene.toml")
+
+
 def test_a_wrongly_typed_input_leaves_its_material_out_by_name(tmp_path):
     """A texture file authored as a string, a colour as a string: that material is named as
     not bakeable (its attribute, its value, what was expected); the others bake."""

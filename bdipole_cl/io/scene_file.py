@@ -301,6 +301,11 @@ def load(path, importer=None, working_space=None) -> SceneData:
     for i, entry in enumerate(entries):
         if any(imp.name == entry.get("name") for imp in imports):
             continue
+        if imports and "albedo" not in entry:      # meant as an override, by another name
+            fail("material", i, "name", f"material '{entry.get('name')}' is not a material of "
+                                        f"{source} (its materials: "
+                                        f"{', '.join(imp.name for imp in imports)}); a new "
+                                        f"material needs 'albedo'")
         m = _entry(fail, "material", i, entry, defaults)
         check_material_eta(fail, i, entry, m)
         check_scaled_mfp(fail, i, entry, m)

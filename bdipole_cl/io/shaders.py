@@ -297,15 +297,17 @@ def imported_material(name, path, shader_id, read, *, unit_m, out_dir, bound) ->
 def unique_names(paths) -> dict:
     """{prim path: material name}: the last path element, or the whole path joined by '_'
     where two materials share a last element; a name that is still not unique (/A/skin and
-    /A_skin both give A_skin) gets _2, _3, ... in path order after its first."""
-    last = [p.rstrip("/").rsplit("/", 1)[-1] for p in paths]
-    names = [n if last.count(n) == 1 else p.strip("/").replace("/", "_")
-             for p, n in zip(paths, last)]
-    given, out = set(names), {}
+    /A_skin both give A_skin), also when only its case differs (Skin and skin: one file on a
+    case-insensitive share), gets _2, _3, ... in path order after its first."""
+    last = [p.rstrip("/").rsplit("/", 1)[-1].casefold() for p in paths]
+    names = [p.rstrip("/").rsplit("/", 1)[-1] if last.count(n) == 1
+             else p.strip("/").replace("/", "_") for p, n in zip(paths, last)]
+    given, out, taken = {n.casefold() for n in names}, {}, set()
     for p, n in sorted(zip(paths, names)):
         name, k = n, 1                 # a suffixed name never takes another material's own
-        while name in out.values() or (k > 1 and name in given):
+        while name.casefold() in taken or (k > 1 and name.casefold() in given):
             k += 1
             name = f"{n}_{k}"
         out[p] = name
+        taken.add(name.casefold())
     return {p: out[p] for p in paths}

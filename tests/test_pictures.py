@@ -1,5 +1,7 @@
 """Pictures: ``bdipole-cl preview`` (contact sheets), ``bdipole-cl profile`` and ``bake
 --preview``, checked against the files and the physics they were drawn from."""
+import os
+
 import numpy as np
 import OpenImageIO as oiio
 import pytest
@@ -205,3 +207,73 @@ def test_profile_constants_out_of_range_are_usage_errors(tmp_path, capsys, optio
     err = capsys.readouterr().err
     assert usage.value.code == 2 and option in err and repr(value) in err, err
     assert not (tmp_path / "p.png").exists()
+
+
+@pytest.mark.parametrize("shape, names", [((300, 1, 3), ("R", "G", "B")),
+                                          ((3, 4097, 3), ("R", "G", "B")),
+                                          ((40, 30, 4), ("P.x", "P.y", "P.z", "P.w")),
+                                          ((20, 20, 3), ("R", "G", "B"))])
+def test_strips_wide_groups_and_dollar_names_are_drawn(tmp_path, shape, names):
+    """A 300 x 1 or 3 x 4097 strip (a reshape of size 0 failed it), a group of 4 channels (its
+    first three drawn, the fourth named: a negative pad failed it), a name with '$' pairs
+    (parsed as mathtext: it failed) all draw; their edge texels are kept."""
+    px = np.linspace(0.1, 0.9, int(np.prod(shape)), dtype=np.float32).reshape(shape)
+    path = tmp_path / ("cost$_{x$.exr" if shape == (20, 20, 3) else "in.exr")
+    write_with_header(path, px, names, {})
+    sheet = contact_sheet(path, tmp_path / "in.png")
+    tile, = sheet.tiles
+    assert tile.vmin == pytest.approx(px[..., :len(tile.group.channels)].min(), rel=1e-6)
+    assert tile.vmax == pytest.approx(px[..., :len(tile.group.channels)].max(), rel=1e-6)
+    assert read_png(tmp_path / "in.png").shape[2] in (3, 4)
+
+
+def test_texels_that_are_not_finite_are_shown_and_counted(tmp_path):
+    """One NaN and one inf texel in a 1500^2 map: drawn magenta and counted in the caption
+    (they vanished into a caption of 'constant 0.5')."""
+    from bdipole_cl.apps.preview import NOT_FINITE_RGB
+    px = np.full((1500, 1500, 3), 0.5, np.float32)
+    px[10, 10, 0], px[1400, 700, 1] = np.nan, np.inf
+    write_with_header(tmp_path / "in.exr", px, ("R", "G", "B"), {})
+    sheet = contact_sheet(tmp_path / "in.exr", tmp_path / "in.png")
+    tile, = sheet.tiles
+    assert (tile.image == NOT_FINITE_RGB).all(axis=-1).sum() == 2
+    assert "2 texels not finite (magenta)" in tile.label
+
+
+def test_a_scene_materials_profile_is_its_bake_and_never_replaces_its_input(tmp_path, capsys,
+                                                                          monkeypatch, on_device):
+    """profile --scene draws the material as its bake reads it: mfp_scale applied, an
+    extinction mfp as 1/sigma_t', Jensen's dipole inverted as such (all four plotted the plain
+    material's sigma_t'); -o on its own albedo is refused, --force or not (it was replaced); a
+    material name that is a path is no path for the default output."""
+    from bdipole_cl.apps.profile import material_specs
+    from bdipole_cl.ops.invert import albedo_to_coefficients
+    px = np.full((8, 8, 3), 0.5, np.float32)
+    write_with_header(tmp_path / "a.exr", px, ("R", "G", "B"), {})
+    (tmp_path / "s.toml").write_text("".join(
+        f'[[material]]\nname = "{n}"\nalbedo = "a.exr"\nmfp = 1.0\n{extra}\n'
+        f'output = "out/{n}.exr"\n' for n, extra in (
+            ("plain", ""), ("scaled", "mfp_scale = 10"),
+            ("ext", 'mfp_kind = "extinction"'), ("jensen", 'model = "dipole"'))))
+    for name, kind, model, scale in (("plain", "diffuse", "better", 1), ("scaled", "diffuse",
+                                     "better", 10), ("ext", "extinction", "better", 1),
+                                     ("jensen", "diffuse", "dipole", 1)):
+        specs, _, _ = material_specs(tmp_path / "s.toml", name)
+        plot = profile_plot(specs, tmp_path / f"{name}.png")
+        sa, ss = albedo_to_coefficients(np.float32(0.5), 1.0 * scale, 1.4, mfp_kind=kind,
+                                        model=model)
+        assert plot.channels[0].sigma_t == pytest.approx(float(sa + ss), rel=1e-4), name
+    from PIL import Image
+    Image.fromarray(np.full((8, 8, 3), 128, np.uint8)).save(tmp_path / "albedo.png")
+    before = (tmp_path / "albedo.png").read_bytes()
+    (tmp_path / "t.toml").write_text('[[material]]\nname = "../m"\nalbedo = "albedo.png"\n'
+                                     'mfp = 1.0\noutput = "out/m.exr"\n')
+    for extra in ([], ["--force"]):
+        rc = cli_main(["profile", "--scene", str(tmp_path / "t.toml"), "--material", "../m",
+                       "-o", str(tmp_path / "albedo.png")] + extra)
+        assert rc == 2 and "would overwrite an input" in capsys.readouterr().err
+    assert (tmp_path / "albedo.png").read_bytes() == before
+    (tmp_path / "cwd").mkdir()
+    monkeypatch.chdir(tmp_path / "cwd")
+    assert cli_main(["profile", "--scene", str(tmp_path / "t.toml"), "--material", "../m"]) == 0
+    assert os.listdir(tmp_path / "cwd") == [".._m.profile.png"]

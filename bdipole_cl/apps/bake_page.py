@@ -5,7 +5,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
+from ..errors import one_line
 from ..io.collisions import Claim, collisions
+from ..io.images import TextureError
 from ..signals import check_stop
 
 from .preview import (ContactSheet, contact_sheet, draw_group, read_image, require_matplotlib,
@@ -21,10 +23,13 @@ class BakePreview:
     sheets: tuple                    # ContactSheet per job output
     page: str                        # the bake's page (PNG)
     materials: tuple                 # the materials on it, in order
+    failed: tuple = ()               # (output, why) of the sheets that could not be drawn
 
     def describe(self) -> str:
         return (f"previews: {len(self.sheets)} contact sheet(s) beside the outputs "
-                f"(*.preview.png); the bake's page: {self.page}")
+                f"(*.preview.png); the bake's page: {self.page}"
+                + "".join(f"\ncontact sheet of {out} not drawn: {why}"
+                          for out, why in self.failed))
 
 
 def sheet_path(output) -> Path:
@@ -73,19 +78,22 @@ def bake_preview(plan, report, page=None, force=False) -> BakePreview:
     if page_clash:
         raise ValueError(page_clash)
     done = {r.output for r in report.results if r.status in ("ok", "skipped")}
-    sheets = []
+    sheets, failed = [], []
     for i, j in enumerate(plan.jobs):     # a stop request ends the pictures between two
         if (j.kind != "constant" and i not in clashes and j.output in done  # of them (whole)
                 and Path(j.output).is_file()):
             check_stop()
-            sheets.append(contact_sheet(j.output, sheet_path(j.output), title=_job_title(j),
-                                        force=force))
+            try:                          # one sheet that cannot be drawn is that sheet's
+                sheets.append(contact_sheet(j.output, sheet_path(j.output),
+                                            title=_job_title(j), force=force))
+            except (ValueError, OSError, TextureError) as exc:
+                failed.append((j.output, one_line(exc)))
     scene = plan.scene
     page = page_path(plan, page)
     materials = tuple(m.name for m in scene.materials)
     check_stop()
     _bake_page(scene, plan, sheets, page, force)
-    return BakePreview(tuple(sheets), str(page), materials)
+    return BakePreview(tuple(sheets), str(page), materials, tuple(failed))
 
 
 def _job_title(job):

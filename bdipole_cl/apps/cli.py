@@ -166,7 +166,9 @@ def _cmd_bake(args) -> int:
     if args.preview and not stop.exit_code:
         from .bake_page import bake_preview
         try:
-            print(bake_preview(plan, report, force=args.force).describe())
+            pictures = bake_preview(plan, report, force=args.force)
+            print(pictures.describe())
+            code = code or int(bool(pictures.failed))     # a sheet not drawn fails the bake
         except Stopped:
             print(f"interrupted by signal {stop.signum} during the previews: the sheets "
                   f"written so far are whole, the others and the page not written",

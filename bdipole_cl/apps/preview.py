@@ -33,7 +33,8 @@ THUMB = 192
 TILE_IN, DPI = (3.0, 3.1), 100
 
 #: display names of bdipole's outputs (mathtext) and what their values are
-GROUP_LABELS = {"alpha": r"$\alpha'$ (reduced albedo)", "rho": r"$\rho$ (single-scattering)",
+GROUP_LABELS = {"alpha": r"$\alpha'$ (reduced albedo)",
+                "rho": r"$\rho = 1 - \alpha'$ (absorption)",
                 "sigma_a": r"$\sigma_a$ (absorption)", "sigma_s": r"$\sigma_s'$ (scattering)",
                 "sigma_t": r"$\sigma_t'$ (extinction)", "exitance": "exitance M",
                 "alpha channel": "alpha channel"}
@@ -72,6 +73,7 @@ class GroupTile:
     bbox: tuple
     bar_scale: str                   # "log" or "linear", read from the drawn bar
     bar_limits: tuple
+    label: str = ""                  # the caption under it, as drawn
 
 
 @dataclass(frozen=True)
@@ -126,12 +128,16 @@ def read_image(path):
 
 
 def shrink(px, longest=THUMB):
-    """Average ``px`` down in square blocks so its longest side is at most ``longest``."""
+    """Average ``px`` down in square blocks so its longest side is at most ``longest``: the
+    image's last rows and columns repeated to whole blocks (a strip 300 x 1 is one column of
+    blocks, not none; no edge texel is dropped). A block with a texel that is not finite is
+    not finite (``thumbnail`` shows it)."""
     k = int(np.ceil(max(px.shape[:2]) / longest))
     if k <= 1:
         return px
-    h, w = (px.shape[0] // k) * k, (px.shape[1] // k) * k
-    return px[:h, :w].reshape(h // k, k, w // k, k, -1).mean(axis=(1, 3))
+    h, w = -(-px.shape[0] // k) * k, -(-px.shape[1] // k) * k
+    whole = np.pad(px, ((0, h - px.shape[0]), (0, w - px.shape[1]), (0, 0)), mode="edge")
+    return whole.reshape(h // k, k, w // k, k, -1).mean(axis=(1, 3))
 
 
 def srgb_encode(x):
@@ -155,6 +161,10 @@ def group_scale(values, may_log=True):
     return False, float(finite.min()), float(finite.max())
 
 
+#: texels (thumbnail blocks) holding a value that is not finite are drawn in this colour
+NOT_FINITE_RGB = (1.0, 0.0, 1.0)
+
+
 def normalise(values, log, vmin, vmax):
     """Values -> [0, 1] on the group's scale (0 for texels at or below the log range)."""
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -175,8 +185,10 @@ def thumbnail(px, group):
     t = normalise(values, log, vmin, vmax)
     if not log:
         t = srgb_encode(t)
+    t = t[..., :3]                              # a group of 4 or more: its first three shown
     rgb = np.repeat(t[..., :1], 3, axis=-1) if t.shape[-1] == 1 else np.concatenate(
-        [t, np.zeros(t.shape[:2] + (3 - t.shape[-1],))], -1)[..., :3]
+        [t, np.zeros(t.shape[:2] + (3 - t.shape[-1],))], -1)
+    rgb[~np.all(np.isfinite(values), axis=-1)] = NOT_FINITE_RGB
     varies = any(finite_spread(ch) for ch in np.moveaxis(px[..., list(group.channels)], -1, 0))
     return rgb, log, vmin, vmax, varies
 
@@ -188,6 +200,12 @@ def finite_spread(channel) -> bool:
         return False
     return bool(np.min(channel, where=finite, initial=np.inf)
                 != np.max(channel, where=finite, initial=-np.inf))
+
+
+def plain(text: str) -> str:
+    """``text`` as matplotlib draws it verbatim: a file or channel name with ``$`` pairs is no
+    mathtext (it was parsed as one, and failed)."""
+    return text.replace("$", r"\$")
 
 
 def span_text(vmin, vmax, digits=3) -> str:
@@ -233,15 +251,21 @@ def draw_group(fig, ax, cax, px, group, header):
     ax.set_xticks([])
     ax.set_yticks([])
     unit = group_unit(group.name, header)
-    ax.set_title(GROUP_LABELS.get(group.name, group.name), fontsize=10)
+    ax.set_title(GROUP_LABELS.get(group.name, plain(group.name)), fontsize=10)
     span = span_text(vmin, vmax) + (f" {unit}" if unit else "")
-    ax.set_xlabel(f"{', '.join(n.rsplit('.', 1)[-1] for n in group.names)}: {span}"
-                  + (" (log)" if log else ""), fontsize=8)
+    bad = int(np.count_nonzero(~np.all(np.isfinite(px[..., list(group.channels)]), axis=-1)))
+    shown = group.names[:3] + ((f"(+{len(group.names) - 3} not shown)",)
+                               if len(group.names) > 3 else ())
+    ax.set_xlabel(plain(f"{', '.join(n.rsplit('.', 1)[-1] for n in shown)}: {span}"
+                        + (" (log)" if log else "")
+                        + (f"; {bad} texels not finite (magenta)" if bad else "")), fontsize=8)
     if log:
         norm, cmap = colors.LogNorm(vmin, vmax), "gray"
     else:
         low = vmin if np.isfinite(vmin) else 0.0
-        norm = colors.Normalize(low, vmax if vmax > low else low + 1.0)
+        # a constant group is drawn mid-grey: its value at the bar's middle
+        half = 0.5 * abs(low) if low != 0 else 0.5
+        norm = colors.Normalize(*((low, vmax) if vmax > low else (low - half, low + half)))
         cmap = colors.ListedColormap(np.repeat(srgb_encode(np.linspace(0, 1, 256))[:, None],
                                                3, 1))
     bar = fig.colorbar(cm.ScalarMappable(norm=norm, cmap=cmap), cax=cax,
@@ -285,8 +309,8 @@ def check_picture_output(path, inputs=(), force=False):
         raise ValueError(f"-o {path}: a picture is PNG or SVG (.png, .svg), got "
                          f"'{suffix or 'no extension'}'")
     job = str(next(iter(inputs))) if inputs else "picture"
-    check_claim(Claim(job, str(path), {"input": str(p) for p in inputs} if inputs else {}),
-                force)
+    check_claim(Claim(job, str(path), {f"input {k + 1}": str(p) for k, p in enumerate(inputs)}),
+                force)                    # every input by a role of its own (one key kept one)
 
 
 def replaced(path, write):
@@ -356,10 +380,10 @@ def contact_sheet(path, output=None, *, title=None, force=False) -> ContactSheet
     fig = Figure(figsize=(TILE_IN[0] * cols, TILE_IN[1] * rows + 0.9), dpi=DPI)
     top = 1.0 - 0.45 / fig.get_figheight()
     bottom = 0.45 / fig.get_figheight()
-    fig.text(0.5, 1.0 - 0.22 / fig.get_figheight(), title or Path(path).name, ha="center",
+    fig.text(0.5, 1.0 - 0.22 / fig.get_figheight(), plain(title or Path(path).name), ha="center",
              va="center", fontsize=11, weight="bold")
     caption = caption_text(header)
-    fig.text(0.5, 0.22 / fig.get_figheight(), _wrap(caption, 40 * cols), ha="center",
+    fig.text(0.5, 0.22 / fig.get_figheight(), plain(_wrap(caption, 40 * cols)), ha="center",
              va="center", fontsize=8)
     drawn = []
     cells = sheet_axes(fig, rows, cols, top, bottom)
@@ -373,7 +397,8 @@ def contact_sheet(path, output=None, *, title=None, force=False) -> ContactSheet
     for (ax, cax), _ in zip(cells, groups):
         hug_colour_bar(fig, ax, cax, 1.0 / cols)
     canvas.draw()
-    tiles = tuple(GroupTile(g, log, lo, hi, var, im, pixel_bbox(fig, ax), scale, lim)
+    tiles = tuple(GroupTile(g, log, lo, hi, var, im, pixel_bbox(fig, ax), scale, lim,
+                            ax.get_xlabel())
                   for ax, (g, log, lo, hi, var, im, scale, lim) in drawn)
     size = (int(round(fig.get_figwidth() * DPI)), int(round(fig.get_figheight() * DPI)))
     save_figure(fig, output, [path], force)
@@ -382,8 +407,11 @@ def contact_sheet(path, output=None, *, title=None, force=False) -> ContactSheet
 
 def _wrap(text, width):
     """Break a caption of '   '-separated entries into lines of about ``width`` characters."""
+    import textwrap
     lines, line = [], ""
-    for part in text.split("   "):
+    parts = [p for entry in text.split("   ")           # an entry longer than a line wraps
+             for p in (textwrap.wrap(entry, width) or [entry])]
+    for part in parts:
         if line and len(line) + len(part) + 3 > width:
             lines.append(line)
             line = part

@@ -11,6 +11,7 @@ artists hold it, so tests check the picture against R(r).
 """
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -26,8 +27,9 @@ from ..physics import reference as ref
 
 #: line colours by channel name (anything else: grey)
 CHANNEL_COLOURS = {"R": "tab:red", "G": "tab:green", "B": "tab:blue"}
-#: albedos are kept below 1 for the profile (Rd = 1 is an infinitely dense medium)
-RD_MAX = 0.999
+#: a texture's albedos are kept within these for the profile (Rd = 1 is an infinitely dense
+#: medium, invalid for the coefficients; the largest float32 below 1 is what the bake takes)
+RD_MIN, RD_MAX = 1e-6, float(np.nextafter(np.float32(1.0), np.float32(0.0)))
 #: the blur's usual truncation tol, for a material no blur of the scene uses
 DEFAULT_BLUR_TOL = 1e-3
 #: points of each R(r) curve (geometric in r), plus the marked radii themselves
@@ -40,9 +42,11 @@ class ChannelSpec:
 
     name: str
     albedo: float
-    mfp: float
+    mfp: float                       # the material's mfp, its mfp_scale applied
     eta: float
     albedo_range: tuple | None = None
+    mfp_kind: str = "diffuse"        # as the material's bake reads the mfp
+    model: str = "better"            # the inversion's model, as the bake's
 
 
 @dataclass(frozen=True)
@@ -72,15 +76,25 @@ class ProfilePlot:
     path: str | None = None
 
 
-def coefficients(albedo, mfp, eta):
-    """(alpha', sigma_t') of an albedo (Rd) and mfp, as the inversion computes them."""
-    sa, ss = ref.albedo_to_coefficients(min(albedo, RD_MAX), mfp, eta)
-    return float(ss / (sa + ss)), float(sa + ss)
+def coefficients(albedo, mfp, eta, mfp_kind="diffuse", model="better"):
+    """(alpha', sigma_t') of an albedo (Rd) and mfp, as the bake computes them: the model's
+    inversion, sigma_t' = 1/mfp for an extinction mfp, 1/(mfp mu_tr/sigma_t') for a diffuse
+    one (docs/model.md "Mean free path")."""
+    alpha, rho = ref.invert_rd_rho(albedo, eta, False, model)
+    sigma_t = (1.0 / mfp if mfp_kind == "extinction"
+               else 1.0 / (mfp * ref.mu_tr_over_sigma_t(rho, model)))
+    return float(alpha), float(sigma_t)
+
+
+def spec_coefficients(spec: ChannelSpec, albedo=None):
+    """``coefficients`` of a channel (at ``albedo`` instead of its own, where given)."""
+    return coefficients(spec.albedo if albedo is None else albedo, spec.mfp, spec.eta,
+                        spec.mfp_kind, spec.model)
 
 
 def channel_profile(spec: ChannelSpec, tol):
     """(alpha', sigma_t', truncation radius) of one channel."""
-    alpha, sigma_t = coefficients(spec.albedo, spec.mfp, spec.eta)
+    alpha, sigma_t = spec_coefficients(spec)
     return alpha, sigma_t, truncation_radius(alpha, sigma_t, spec.eta, tol)
 
 
@@ -103,8 +117,7 @@ def draw_profiles(ax, specs, unit, tol, band=True):
                           label=f"{s.name}: albedo {s.albedo:.3g}, mfp {s.mfp:.3g} {unit}")
         drawn_band = None
         if band and s.albedo_range is not None and s.albedo_range[0] < s.albedo_range[1]:
-            ends = [ref.profile(r, *coefficients(a, s.mfp, s.eta), s.eta)
-                    for a in s.albedo_range]
+            ends = [ref.profile(r, *spec_coefficients(s, a), s.eta) for a in s.albedo_range]
             ax.fill_between(r, ends[0], ends[1], color=colour, alpha=0.15, lw=0)
             drawn_band = tuple(ends)
         (mark,) = ax.plot([r_t], [ref.profile(r_t, alpha, sigma_t, s.eta)], "o", color=colour,
@@ -138,10 +151,14 @@ def draw_rd(ax, specs, profiles):
     # dense near alpha' = 1, where Rd rises steeply
     alpha = np.unique(np.concatenate([np.linspace(0.0, 1.0, 401),
                                       1.0 - np.geomspace(1e-7, 0.5, 400)]))
-    curves = {}
-    for eta in sorted({s.eta for s in specs}):
-        curves[eta] = ref.rd(alpha, eta)
-        ax.plot(alpha, curves[eta], color="0.2", lw=1.4, label=f"Rd($\\alpha'$), eta {eta:g}")
+    curves, etas = {}, sorted({s.eta for s in specs})
+    for eta in etas:
+        users = [s for s in specs if s.eta == eta]     # a curve in its channel's colour
+        colour = CHANNEL_COLOURS.get(users[0].name, "0.2") if len(users) == 1 else "0.2"
+        curves[eta] = ref.rd(alpha, eta, model=users[0].model)
+        which = f" ({', '.join(u.name for u in users)})" if len(etas) > 1 else ""
+        ax.plot(alpha, curves[eta], color=colour, lw=1.4,
+                label=f"Rd($\\alpha'$), eta {eta:g}{which}")
     ranges = [s.albedo_range for s in specs if s.albedo_range is not None]
     lo = min(r[0] for r in ranges) if ranges else min(s.albedo for s in specs)
     hi = max(r[1] for r in ranges) if ranges else max(s.albedo for s in specs)
@@ -150,15 +167,16 @@ def draw_rd(ax, specs, profiles):
         ax.axhspan(lo, hi, color="tab:orange", alpha=0.18, lw=0,
                    label="albedo range" + ("" if ranges else " of the channels"))
         shaded = (float(lo), float(hi))
-        ends = [coefficients(v, 1.0, specs[0].eta)[0] for v in (lo, hi)]
+        ends = [min(spec_coefficients(c, v)[0] for c in specs) if k == 0 else
+                max(spec_coefficients(c, v)[0] for c in specs) for k, v in enumerate((lo, hi))]
         ax.axvspan(*ends, color="tab:orange", alpha=0.10, lw=0)
     for s, p in zip(specs, profiles):
-        ax.plot([p.alpha], [min(s.albedo, RD_MAX)], "o",
+        ax.plot([p.alpha], [s.albedo], "o",
                 color=CHANNEL_COLOURS.get(s.name, "0.35"), ms=6,
                 label=f"{s.name}: $\\alpha'$ {p.alpha:.4g}, Rd {s.albedo:.3g}")
     # Rd rises steeply near alpha' = 1: from a margin below the lowest alpha' of the range
-    a_lo = min([p.alpha for p in profiles] + [coefficients(max(lo, 1e-4), 1.0,
-                                                             specs[0].eta)[0]])
+    a_lo = min([p.alpha for p in profiles] + [spec_coefficients(c, max(lo, 1e-4))[0]
+                                              for c in specs])
     ax.set_xlim(max(0.0, 1.0 - 2.0 * (1.0 - a_lo)), 1.0)
     ax.set_ylim(0, 1)
     ax.set_xlabel("$\\alpha'$ (reduced albedo, dimensionless)")
@@ -168,12 +186,13 @@ def draw_rd(ax, specs, profiles):
     return alpha, curves, shaded
 
 
-def profile_plot(specs, output, *, unit="mm", tol=1e-3, title=None, force=False) -> ProfilePlot:
+def profile_plot(specs, output, *, unit="mm", tol=1e-3, title=None, force=False,
+                 inputs=()) -> ProfilePlot:
     """Draw and save (PNG or SVG by extension) the profile page of ``specs`` (replacing no
-    file this tool did not write unless ``force``)."""
+    file this tool did not write unless ``force``, and never one of ``inputs``)."""
     from .preview import check_picture_output, require_matplotlib, save_figure
     require_matplotlib()
-    check_picture_output(output, (), force)             # before any work
+    check_picture_output(output, inputs, force)         # before any work
     from matplotlib.figure import Figure
     fig = Figure(figsize=(11.0, 4.6), dpi=100, layout="constrained")
     left, right = fig.subplots(1, 2, width_ratios=(1.35, 1.0))
@@ -183,7 +202,7 @@ def profile_plot(specs, output, *, unit="mm", tol=1e-3, title=None, force=False)
     right.set_title("Rd($\\alpha'$): the albedo the inversion matches", fontsize=10)
     title = title or "profile"
     fig.suptitle(title, fontsize=11, weight="bold")
-    save_figure(fig, output, (), force)
+    save_figure(fig, output, inputs, force)
     size = (int(round(fig.get_figwidth() * fig.dpi)), int(round(fig.get_figheight() * fig.dpi)))
     return ProfilePlot(title, unit, tol, tuple(profiles), alpha, curves, shaded, size,
                        str(output))
@@ -208,12 +227,15 @@ def _material(scene, name):
     return scene.materials[names.index(name)]
 
 
-def material_specs(scene, name):
+def material_specs(scene, name, inputs=None):
     """(ChannelSpecs, unit, tol) of a scene material: per channel the mean albedo over the
-    unmasked texels of all its tiles and their range, the mean mfp, eta; tol is its blur's
-    (else DEFAULT_BLUR_TOL)."""
+    unmasked, finite texels of all its tiles and their range, the mean mfp (its mfp_scale
+    applied, read as its mfp_kind), eta and model, as its bake takes them; tol is its blur's
+    (else DEFAULT_BLUR_TOL). ``inputs``: a list that gets the files read (a picture never
+    replaces one)."""
     scene = load(scene) if isinstance(scene, (str, Path)) else scene
     m = _material(scene, name)
+    inputs = [] if inputs is None else inputs
     albedos, mfps, names = [], [], None
     for path, tile in expand_inputs([m.albedo]):
         if not Path(path).is_file():
@@ -221,24 +243,29 @@ def material_specs(scene, name):
         mask_path = companion_path(m.mask, path, tile) if m.mask not in (None, "alpha") else None
         px, keep, names, *_ = read_albedo(path, m.mask, mask_path, m.colorspace,
                                           resolve_working_space(m.working_space))
+        inputs += [p for p in (path, mask_path) if p]
         keep = np.ones(px.shape[:2], bool) if keep is None else keep
         albedos.append(px[keep])
         if isinstance(m.mfp, str):
-            mfp = read_parameter_texture(companion_path(m.mfp, path, tile), "mfp")
+            inputs.append(companion_path(m.mfp, path, tile))
+            mfp = read_parameter_texture(inputs[-1], "mfp")
             mfps.append(np.broadcast_to(mfp, px.shape[:2] + (mfp.shape[-1],))[keep])
     if not albedos:
         raise ValueError(f"material {name!r}: no albedo file matches {m.albedo}")
     vals = np.concatenate(albedos)
-    vals = np.clip(vals[np.all(np.isfinite(vals), axis=-1)], 1e-4, RD_MAX)
-    if isinstance(m.mfp, str):
-        mfp = np.concatenate(mfps).mean(axis=0)
-    else:
-        mfp = np.asarray(m.mfp)
+    finite = np.all(np.isfinite(vals), axis=-1)
+    if not finite.any():
+        raise ValueError(f"material {name!r}: no albedo texel to plot (every one is masked "
+                         f"out or not finite)")
+    vals = np.clip(vals[finite], RD_MIN, RD_MAX)
+    mfp = np.concatenate(mfps)[finite].mean(axis=0) if mfps else np.asarray(m.mfp)
     n = vals.shape[-1]
     mfp = np.broadcast_to(mfp, (n,)) if mfp.size in (1, n) else mfp[:n]
+    scale = np.broadcast_to(np.asarray(m.mfp_scale, np.float64), (n,))
     eta = np.broadcast_to(np.asarray(m.eta), (n,))
-    specs = [ChannelSpec(names[c], float(vals[:, c].mean()), float(mfp[c]), float(eta[c]),
-                         (float(vals[:, c].min()), float(vals[:, c].max())))
+    specs = [ChannelSpec(names[c], float(vals[:, c].mean()), float(mfp[c] * scale[c]),
+                         float(eta[c]), (float(vals[:, c].min()), float(vals[:, c].max())),
+                         m.mfp_kind, m.model)
              for c in range(n)]
     tol = next((b.tol for b in scene.blurs if b.material.name == name), DEFAULT_BLUR_TOL)
     return specs, m.unit, tol
@@ -271,9 +298,11 @@ def _cmd_profile(args) -> int:
     if args.scene:
         if not args.material:
             raise ValueError("--scene needs --material NAME")
-        specs, unit, tol = material_specs(args.scene, args.material)
+        inputs = [args.scene]
+        specs, unit, tol = material_specs(args.scene, args.material, inputs)
         tol = args.tol or tol
-        output = args.output or f"{args.material}.profile.png"
+        # the default beside the command, named after the material: a name is no path
+        output = args.output or f"{re.sub(r'[^A-Za-z0-9_.-]', '_', args.material)}.profile.png"
         title = f"{args.material} ({args.scene})"
     else:
         if args.albedo is None or args.mfp is None:
@@ -281,8 +310,9 @@ def _cmd_profile(args) -> int:
         specs, unit = constant_specs(args.albedo, args.mfp, args.eta), args.unit
         tol = args.tol or DEFAULT_BLUR_TOL
         output = args.output or "profile.png"
-        title = None
-    plot = profile_plot(specs, output, unit=unit, tol=tol, title=title, force=args.force)
+        title, inputs = None, []
+    plot = profile_plot(specs, output, unit=unit, tol=tol, title=title, force=args.force,
+                        inputs=inputs)
     for c in plot.channels:
         print(f"channel {c.spec.name}: albedo {c.spec.albedo:.4g}, mfp {c.spec.mfp:.4g} {unit}: "
               f"alpha' {c.alpha:.4g}, sigma_t' {c.sigma_t:.4g} 1/{unit}, truncation radius "

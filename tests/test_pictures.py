@@ -277,3 +277,15 @@ def test_a_scene_materials_profile_is_its_bake_and_never_replaces_its_input(tmp_
     monkeypatch.chdir(tmp_path / "cwd")
     assert cli_main(["profile", "--scene", str(tmp_path / "t.toml"), "--material", "../m"]) == 0
     assert os.listdir(tmp_path / "cwd") == [".._m.profile.png"]
+
+
+def test_lab_channels_are_one_colour_group_not_alpha_and_blue(tmp_path):
+    """L, a, b (and Y, RY, BY) are one colour model: one group in that order (a was drawn as
+    the alpha channel and b as blue, the misreading the inverter refuses)."""
+    from bdipole_cl.apps.preview import channel_groups
+    groups = channel_groups(("L", "a", "b"))
+    assert [(g.name, g.names) for g in groups] == [("L/a/b", ("L", "a", "b"))]
+    groups = channel_groups(("BY", "RY", "Y"))
+    assert [(g.name, g.names) for g in groups] == [("Y/RY/BY", ("Y", "RY", "BY"))]
+    assert [g.names for g in channel_groups(("B", "G", "R", "A"), 3)] == [("R", "G", "B"),
+                                                                          ("A",)]

@@ -23,6 +23,7 @@ import numpy as np
 
 from ..durable import durable_replace
 from ..io.collisions import PICTURE_MARK, Claim, check_claim
+from ..io.channels import NOT_RGB
 from ..io.images import classify_channels, read_whole
 
 #: positive values spanning more than this many decades are shown on a log scale
@@ -95,15 +96,22 @@ def require_matplotlib():
     return matplotlib
 
 
+#: the order of the channels of the colour models that are not RGB (``NOT_RGB``) in a group
+MODEL_ORDER = {"L": 0, "a": 1, "b": 2, "Y": 0, "RY": 1, "BY": 2}
+
+
 def channel_groups(names, alpha_channel=-1, header=None) -> list:
     """The groups of an image's channels, in file order of first appearance: prefixes before
     the last '.', the unprefixed colour channels (``exitance`` in a bdipole blur output, else
     ``colour``), the alpha channel, then any other unprefixed channel on its own."""
     colour, alpha, _ = classify_channels(names, alpha_channel)
     blur = header is not None and header.get("bdipole:source") is not None
+    model = next((m for m in NOT_RGB if m <= {n.rsplit(".", 1)[-1] for n in names}), None)
     groups = {}
     for i, n in enumerate(names):
-        if i == alpha:
+        if model and n.rsplit(".", 1)[-1] in model:    # L, a, b: one colour, not alpha + blue
+            key = "/".join(sorted(model, key=MODEL_ORDER.get))
+        elif i == alpha:
             key = "alpha channel"
         elif "." in n:
             key = n.rsplit(".", 1)[0]
@@ -114,7 +122,9 @@ def channel_groups(names, alpha_channel=-1, header=None) -> list:
         groups.setdefault(key, []).append(i)
     out = []
     for k, v in groups.items():                 # R, G, B in that order (EXR sorts by name)
-        v = sorted(v, key=lambda i: (RGB_ORDER.get(names[i].rsplit(".", 1)[-1].lower(), 3), i))
+        v = sorted(v, key=lambda i: (MODEL_ORDER.get(names[i].rsplit(".", 1)[-1],
+                                                     RGB_ORDER.get(names[i].rsplit(".", 1)[-1]
+                                                                   .lower(), 3)), i))
         out.append(ChannelGroup(k, tuple(v), tuple(names[i] for i in v)))
     return out
 

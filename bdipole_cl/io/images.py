@@ -294,8 +294,19 @@ def output_spec(in_spec, channel_names, alpha_index, half, params, *, working):
     spec.attribute("Software", f"{SOFTWARE} {__version__}")
     tag_output(spec, working)
     for key, value in {"version": __version__, **params}.items():
-        spec.attribute(f"bdipole:{key}", str(value))
+        spec.attribute(f"bdipole:{key}", header_text(value))
     return spec
+
+
+def header_text(value) -> str:
+    """A parameter as an output's header holds it: numbers as '1.2,0.6,0.3' (a tuple, list or
+    array alike; one value alone), anything else as its text."""
+    if isinstance(value, (tuple, list, np.ndarray)):
+        values = np.ravel(np.asarray(value, dtype=object))
+        return ",".join(header_text(v) for v in values)
+    if isinstance(value, (float, np.floating)):
+        return f"{float(value):.10g}"
+    return str(value)
 
 
 #: below this many free bytes a failed write names the disk's free space as its likely cause

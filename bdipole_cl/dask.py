@@ -1,7 +1,8 @@
 """Beyond one machine: scene bakes, texture batches and huge blurs on a Dask cluster.
 
-``connect("local:N")`` starts a LocalCluster of N worker processes (one thread each);
-``connect("tcp://host:8786")`` joins a running scheduler. Jobs are plain functions of picklable
+``cluster.connect("local:N")`` starts a LocalCluster of N worker processes (one thread each);
+``cluster.connect("tcp://host:8786")`` joins a running scheduler (``cluster``: connecting,
+sending jobs with absolute paths, gathering, stopping). Jobs are plain functions of picklable
 data (file paths, dataclasses): each worker process opens its own OpenCL device once
 (``device``: a spec string such as ``"intel"``, or None for the automatic choice, which
 honours ``PYOPENCL_CTX``) and builds its kernels once; nothing OpenCL crosses processes.
@@ -17,13 +18,11 @@ on the whole array.
 from __future__ import annotations
 
 import glob
-import logging
+import os
 import re
 import shutil
 import tempfile
-import time
 import uuid
-from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -36,13 +35,14 @@ from .io.images import (Cancelled, Reader, TextureError, Writer, check_texture_w
                         read_rows)
 from .io.partials import remove_partial_files
 from .io.mipmaps import texture_options
-from .io.verify import file_identity, replaced_since
+from .io.verify import file_identity
 from .jobs import runner
 from .jobs.blur_file import (FILE_ROW_FLOATS, blurred_band, exitance_writer, file_plan,
                               located, report_clamped)
 from .jobs.job import Job
 from .jobs.results import BatchReport, FileResult
 from .jobs.scene import Plan, not_run, scene_job
+from .jobs.scene_stats import DEFAULT_MEMORY
 from .jobs.scene_records import finish_bake
 from .ops import invert as ops_invert
 from .ops.bands import band_rows, bands, halo_rows
@@ -50,111 +50,13 @@ from .ops.host_arrays import texel_broadcast
 from .ops.blur import Scattering, plan_blur
 from .ops.blur.params import checked_irradiance
 from .errors import InvalidInputError, moved_by
-from .signals import STOP, quiet_resource_tracker, sigint_ignored_by_children
-
-#: a task that raised is tried again this many times (a worker that died is always replaced)
-RETRIES = 2
-#: what one worker process takes before any job (Python, numpy, OpenImageIO, the OpenCL
-#: runtime and its compiler): a smaller --worker-memory can never run a job
-MIN_WORKER_MEMORY = 384 << 20
-#: seconds between checks of a stop request while waiting for the cluster
-POLL = 0.25
-#: seconds a run waits for a cluster without workers before failing its unfinished jobs
-NO_WORKER_TIMEOUT = 60.0
-
-
-@contextmanager
-def connect(scheduler: str, *, memory_limit=None):
-    """A ``distributed.Client``: ``local:N`` starts N worker processes on this machine (each
-    limited to ``memory_limit`` bytes if given), anything else is a scheduler address."""
-    from distributed import Client, LocalCluster
-    if scheduler.startswith("local:"):
-        try:
-            n = int(scheduler.split(":", 1)[1])
-        except ValueError:
-            n = 0
-        if n < 1:
-            raise ValueError(f"--scheduler {scheduler!r}: expected local:N with N >= 1 workers, "
-                             f"or a scheduler address such as tcp://host:8786")
-        if memory_limit is not None and memory_limit < MIN_WORKER_MEMORY:
-            raise ValueError(f"--worker-memory {memory_limit}: a worker needs at least "
-                             f"{MIN_WORKER_MEMORY >> 20}M (its Python, OpenCL runtime and one "
-                             f"band); give more, e.g. 1G")
-        logging.getLogger("distributed").setLevel(logging.CRITICAL)
-        quiet_resource_tracker()
-        with sigint_ignored_by_children():
-            cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
-                                   memory_limit=memory_limit or "auto",
-                                   dashboard_address=":0", silence_logs=logging.CRITICAL)
-        try:
-            with Client(cluster) as client:
-                yield client
-        finally:
-            cluster.close()
-    else:
-        with Client(scheduler) as client:
-            yield client
-
-
-def _progress(total, desc, enabled):
-    if not enabled:
-        return None
-    from tqdm import tqdm
-    return tqdm(total=total, desc=desc, unit="job")
-
-
-def _gather(client, futures, describe, progress=None):
-    """Results of ``futures`` ({future: index}) as they complete; a task that still fails after
-    its retries becomes a failed result described by ``describe(index, exc)``. A stop request
-    (SIGINT/SIGTERM) cancels every unfinished task, and a cluster with no worker for
-    NO_WORKER_TIMEOUT seconds fails them: both leave those indices out of the result (the
-    callers report them), within a POLL of the event."""
-    from distributed import wait
-    results, pending = {}, set(futures)
-    idle = time.monotonic()
-    while pending:
-        if STOP.is_set():
-            client.cancel(list(pending))
-            break
-        try:
-            done, pending = wait(pending, timeout=POLL, return_when="FIRST_COMPLETED")
-        except TimeoutError:
-            done = set()
-            if client.scheduler_info().get("workers"):
-                idle = time.monotonic()
-            elif time.monotonic() - idle > NO_WORKER_TIMEOUT:
-                for fut in pending:
-                    results[futures[fut]] = describe(futures[fut], RuntimeError(
-                        f"no worker on the cluster for {NO_WORKER_TIMEOUT:g} s; not run"))
-                client.cancel(list(pending))
-                break
-        for fut in done:
-            i = futures[fut]
-            try:
-                results[i] = fut.result()
-            except Exception as exc:  # the worker's exception, after RETRIES
-                results[i] = describe(i, " ".join(str(exc).split()) or type(exc).__name__)
-            if progress is not None:
-                progress.update(1)
-    return results
-
-
-def _not_finished(source, output, before=None):
-    """The result of a job whose task the run has no result of (cancelled by a stop): its
-    output, where it is a whole image that is not the file there before the run (``before``:
-    its ``file_identity`` then), was written by this run's task as the stop came (outputs are
-    written whole, then renamed into place): done, said so; else cancelled, nothing
-    written."""
-    if output and replaced_since(output, before):
-        return FileResult(source, output, status="ok",
-                          notes=["finished on the cluster as the run was stopped"])
-    return FileResult(source, output, status="cancelled",
-                      error="interrupted: cancelled on the cluster, nothing written")
-
-
+from .signals import STOP
+from .cluster import (RETRIES, absolute, counted, gather_results, not_finished, progress_bar,
+                      task_key)
 
 # {{{ scenes
 
+@counted
 def run_on_worker(job: Job, device=None) -> FileResult:
     """One job on a worker: ``runner.run_job`` on the worker's own device (opened once per
     process), after removing what a writer that died there before left of its output."""
@@ -164,7 +66,7 @@ def run_on_worker(job: Job, device=None) -> FileResult:
 
 
 def bake_on_cluster(plan: Plan, client, *, device=None, progress=True,
-                    run=run_on_worker) -> BatchReport:
+                    run=run_on_worker, max_memory=DEFAULT_MEMORY) -> BatchReport:
     """``Plan.run`` with the jobs on the cluster (up-to-date checks already done by the plan,
     in this process, before anything is sent): each planned job's ``scene_job`` is mapped
     over by ``run`` (the runner)."""
@@ -177,13 +79,14 @@ def bake_on_cluster(plan: Plan, client, *, device=None, progress=True,
         results[i] = not_run(job)
         if results[i] is None:
             del results[i]
-            fut = client.submit(run, scene_job(job, plan.scene), device, pure=False,
+            fut = client.submit(run, absolute(scene_job(job, plan.scene, max_memory)),
+                                device, pure=False,
                                 retries=RETRIES,
-                                key=f"bake-{i}-{job.kind}-{job.name}-{job.udim}-{run_id}")
+                                key=task_key("bake", i, job.kind, job.name, job.udim, run_id))
             futures[fut] = i
-    bar = _progress(len(futures), "bake", progress)
+    bar = progress_bar(len(futures), "bake", progress)
     try:
-        results.update(_gather(client, futures, lambda i, exc: FileResult(
+        results.update(gather_results(client, futures, lambda i, exc: FileResult(
             plan.jobs[i].source, plan.jobs[i].output, error=f"{plan.jobs[i].source}: {exc}"),
             bar))
     finally:
@@ -192,7 +95,7 @@ def bake_on_cluster(plan: Plan, client, *, device=None, progress=True,
     for job in plan.jobs:
         if job.output and job.kind != "constant":
             remove_partial_files(job.output)
-    return finish_bake(plan, [results.get(i) or _not_finished(j.source, j.output, before.get(i))
+    return finish_bake(plan, [results.get(i) or not_finished(j.source, j.output, before.get(i))
                               for i, j in enumerate(plan.jobs)])
 
 # }}}
@@ -205,19 +108,20 @@ def file_runner(client, *, device=None, progress=True):
     def run(jobs):
         run_id = uuid.uuid4().hex[:12]
         before = [file_identity(job.output) for job in jobs]
-        futures = {client.submit(run_on_worker, job, device, pure=False, retries=RETRIES,
-                                 key=f"invert-{i}-{Path(job.source).name}-{run_id}"): i
+        futures = {client.submit(run_on_worker, absolute(job), device, pure=False,
+                                 retries=RETRIES,
+                                 key=task_key("invert", i, Path(job.source).name, run_id)): i
                    for i, job in enumerate(jobs)}
-        bar = _progress(len(futures), "invert", progress)
+        bar = progress_bar(len(futures), "invert", progress)
         try:
-            results = _gather(client, futures, lambda i, exc: FileResult(
+            results = gather_results(client, futures, lambda i, exc: FileResult(
                 jobs[i].source, jobs[i].output, error=f"{jobs[i].source}: {exc}"), bar)
         finally:
             if bar is not None:
                 bar.close()
         for job in jobs:
             remove_partial_files(job.output)
-        return [results.get(i) or _not_finished(j.source, j.output, before[i])
+        return [results.get(i) or not_finished(j.source, j.output, before[i])
                 for i, j in enumerate(jobs)]
     return run
 
@@ -226,6 +130,7 @@ def file_runner(client, *, device=None, progress=True):
 
 # {{{ huge file-to-file blurs
 
+@counted
 def blur_band_task(path, band_path, y0, y1, plan, colorspace, working, device=None):
     """A cluster task: rows [y0, y1) of the blurred image (``blur_file``'s own band step,
     ``blurred_band``, with the plan made once by the client), written to ``band_path``.
@@ -307,7 +212,9 @@ def blur_file_on_cluster(path, output, client, *, colorspace="auto", working_spa
     halo = plan.halo
     rows = band_rows(spec.height, spec.width * spec.nchannels * 4 * FILE_ROW_FLOATS,
                      max_memory, halo=halo)
-    remove_band_folders(output)         # what a run of this output killed mid-way left
+    path, output = os.path.abspath(path), os.path.abspath(output)   # the workers' folder is
+    remove_band_folders(output)         # not ours; what a run of this output killed mid-way left
+    Path(output).parent.mkdir(parents=True, exist_ok=True)
     work = Path(tempfile.mkdtemp(prefix=band_folder_prefix(output), dir=Path(output).parent))
     try:
         futures, run_id = {}, uuid.uuid4().hex[:12]
@@ -316,10 +223,10 @@ def blur_file_on_cluster(path, output, client, *, colorspace="auto", working_spa
                                 y1, plan, colorspace, route.working, device,
                                 pure=False,
                                 retries=RETRIES,
-                                key=f"blur-band-{k}-{Path(path).name}-{run_id}")
+                                key=task_key("blur-band", k, Path(path).name, run_id))
             futures[fut] = (k, y0, y1)
-        bar = _progress(len(futures), "blur bands", progress)
-        done = _gather(client, futures, lambda i, why: RuntimeError(why), bar)
+        bar = progress_bar(len(futures), "blur bands", progress)
+        done = gather_results(client, futures, lambda i, why: RuntimeError(why), bar)
         if bar is not None:
             bar.close()
         if STOP.is_set() or len(done) < len(futures):

@@ -33,6 +33,11 @@ def request_stop():
     STOP.set()
 
 
+def clear_stop():
+    """Obey no earlier stop request (a long-lived cluster worker, before its next run)."""
+    STOP.clear()
+
+
 class SignalStop:
     """SIGINT/SIGTERM set ``STOP`` (``event``); the signal is kept for the exit code."""
 
@@ -156,12 +161,17 @@ _startup_handlers: dict = {}
 def is_command(argv=None, orig_argv=None) -> bool:
     """Whether this process is the ``bdipole-cl`` command (its script, or ``python -m
     bdipole_cl``, whose ``sys.argv[0]`` is "-m" while the package loads), and not a worker
-    process a command started (multiprocessing gives a spawned one the command's argv)."""
+    process a command started (multiprocessing gives a spawned one the command's argv, and
+    imports the command's script while its parent is not yet known: its interpreter's own
+    arguments say it is a spawned child)."""
     mp = sys.modules.get("multiprocessing")
     if mp is not None and mp.parent_process() is not None:
         return False
     argv = sys.argv if argv is None else argv
     orig = getattr(sys, "orig_argv", []) if orig_argv is None else orig_argv
+    if "--multiprocessing-fork" in orig or (
+            mp is not None and getattr(mp.current_process(), "_inheriting", False)):
+        return False
     first = argv[0] if argv else ""
     if first == "-m" or first.endswith(os.path.join("bdipole_cl", "__main__.py")):
         return any(a == "-m" and b == "bdipole_cl" for a, b in zip(orig, orig[1:]))

@@ -302,6 +302,12 @@ def test_a_signal_while_the_command_loads_is_one_line(sig, code):
     (["/home/me/bdipole-cl.py"], ["python3", "/home/me/bdipole-cl.py"], False),
     (["bdipole-cl.test.py"], ["python3", "bdipole-cl.test.py"], False),
     (["bdipole-cl-tools"], [], False),
+    # a worker spawned by the command, importing the command's script before it knows its
+    # parent: its startup handler stayed for its life (a memory-limit kill said "interrupted
+    # while starting")
+    (["/venv/bin/bdipole-cl", "invert"], ["python3", "-c", "from multiprocessing.spawn import "
+                                          "spawn_main; spawn_main(tracker_fd=5, pipe_handle=7)",
+                                          "--multiprocessing-fork"], False),
     ([], [], False)])
 def test_is_command_knows_the_command_only(argv, orig, expected):
     """The startup handling is the command's alone: a program that imports the library keeps

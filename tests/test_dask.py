@@ -16,6 +16,8 @@ from test_scene import SCENE, make_files
 
 import bdipole_cl
 from bdipole_cl import dask as bdask
+from bdipole_cl.cluster import not_finished
+from bdipole_cl.signals import sigint_ignored_by_children
 from bdipole_cl import scene as scenes
 from bdipole_cl.apps.cli import main as cli_main
 from bdipole_cl.apps.demo import write_exr
@@ -282,7 +284,7 @@ def test_workers_start_with_sigint_blocked_and_this_process_keeps_its_handler():
     import multiprocessing
     import signal
     handler = signal.getsignal(signal.SIGINT)
-    with bdask.sigint_ignored_by_children():
+    with sigint_ignored_by_children():
         assert signal.getsignal(signal.SIGINT) is handler
         child = multiprocessing.get_context("spawn").Process(target=time.sleep, args=(5,))
         child.start()
@@ -303,13 +305,13 @@ def test_a_task_that_finished_as_the_run_stopped_is_reported_done(tmp_path):
     before the run (or none) is still cancelled."""
     from bdipole_cl.io.verify import file_identity
     out = tmp_path / "a.exr"
-    assert bdask._not_finished("a", str(out), None).status == "cancelled"      # none
+    assert not_finished("a", str(out), None).status == "cancelled"      # none
     write_exr(out, np.ones((4, 4, 3), np.float32), ("R", "G", "B"))
     before = file_identity(out)
-    assert bdask._not_finished("a", str(out), before).status == "cancelled"    # the old one
+    assert not_finished("a", str(out), before).status == "cancelled"    # the old one
     write_exr(tmp_path / "new.exr", np.zeros((4, 4, 3), np.float32), ("R", "G", "B"))
     os.replace(tmp_path / "new.exr", out)                                      # as a writer
-    done = bdask._not_finished("a", str(out), before)
+    done = not_finished("a", str(out), before)
     assert done.status == "ok" and "as the run was stopped" in done.notes[0]
 
 
@@ -325,3 +327,21 @@ def test_lazy_inversions_keep_double_and_take_channel_chunks():
     sa, _ = bdask.albedo_to_coefficients(arr, 2.0, etas)
     np.testing.assert_array_equal(sa.compute(), bdipole_cl.albedo_to_coefficients(rd, 2.0,
                                                                                    etas)[0])
+
+
+def test_jobs_go_to_workers_with_absolute_paths_and_sendable_keys(tmp_path, monkeypatch):
+    """A worker's working folder is not the command's: every path of a job is made absolute
+    before it is sent (relative ones named another worker's files on a tcp cluster, and one
+    not written by this tool was replaced); a task key of a Latin-1 file name is text msgpack
+    can send (it lost the scheduler, and the batch)."""
+    from bdipole_cl.cluster import absolute, task_key
+    from bdipole_cl.jobs.job import Job
+    monkeypatch.chdir(tmp_path)
+    job = Job("invert", "in/a.exr", "out/a.exr", {"albedo": "in/a.exr", "mfp": "in/m.exr"},
+              None)
+    sent = absolute(job)
+    assert (sent.source, sent.output) == (str(tmp_path / "in/a.exr"), str(tmp_path / "out/a.exr"))
+    assert sent.inputs == {"albedo": str(tmp_path / "in/a.exr"),
+                           "mfp": str(tmp_path / "in/m.exr")}
+    key = task_key("invert", 3, os.fsdecode(b"caf\xe9.exr"), "run")
+    assert key == "invert-3-caf\\udce9.exr-run" and key.encode("utf-8")

@@ -19,7 +19,7 @@ LAYERS = {
     "io": 5,
     "jobs": 6,                                # job records, the one runner, batches, scenes
     "apps": 7, "__main__": 7, "scene": 7,     # bdipole_cl/scene.py: the scene API facade
-    "dask": 7,                                # bdipole_cl/dask.py: clusters
+    "dask": 7, "cluster": 7,                  # bdipole_cl/dask.py, cluster.py: clusters
     "": 8,                 # bdipole_cl/__init__.py: the public facade re-exports every layer
 }
 #: a module this long is a sign of two concerns in one file

@@ -17,6 +17,7 @@ import numpy as np
 import OpenImageIO as oiio
 
 from bdipole_cl import dask as bdask
+from bdipole_cl.cluster import connect
 from bdipole_cl import get_runtime
 from bdipole_cl import scene as scenes
 
@@ -81,7 +82,7 @@ def main(argv=None):
         assert scenes.load(root / "scene.toml").plan().run().exit_code == 0
         t_local = time.perf_counter() - t0
         shutil.rmtree(root / "out")
-        with bdask.connect(f"local:{args.workers}", memory_limit=args.worker_memory) as client:
+        with connect(f"local:{args.workers}", memory_limit=args.worker_memory) as client:
             client.run(lambda: get_runtime().describe())        # each worker opens its device
             t0 = time.perf_counter()
             report = bdask.bake_on_cluster(scenes.load(root / "scene.toml").plan(), client,

@@ -154,7 +154,8 @@ def _cmd_bake(args) -> int:
         from ..dask import bake_on_cluster
         with cluster_client(args) as client:
             report = bake_on_cluster(plan, client, device=args.device,
-                                     progress=not args.no_progress)
+                                     progress=not args.no_progress,
+                                     max_memory=args.max_memory)
     else:
         try:
             report = plan.run(cancel=stop.event, progress=progress,

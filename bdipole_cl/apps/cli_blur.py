@@ -6,7 +6,7 @@ from __future__ import annotations
 import contextlib
 import sys
 
-from ..signals import SignalStop
+from ..signals import SignalStop, Stopped
 from .cli_options import cluster_client
 from .cli_types import number_list
 
@@ -130,6 +130,9 @@ def blur_on_cluster(args, sources, stop) -> int:
     except TextureError as exc:
         print(f"bdipole-cl {args.command}: error: {exc}", file=sys.stderr)
         return (stop.exit_code or 1) if isinstance(exc, Cancelled) else 1
+    except Stopped:                     # while the cluster started or the blur was planned
+        print(f"bdipole-cl {args.command}: interrupted: nothing written", file=sys.stderr)
+        return stop.exit_code or 130
     clamped = clamped_text(clamped)
     print(f"{n} bands blurred on the cluster; wrote {args.output}"
           + (f", {clamped}" if clamped else ""))

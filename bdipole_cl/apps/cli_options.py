@@ -85,7 +85,7 @@ def add_scheduler_args(p):
 @contextlib.contextmanager
 def cluster_client(args):
     """The Dask client of ``--scheduler`` (its dashboard link printed)."""
-    from ..dask import connect
+    from ..cluster import connect
     with connect(args.scheduler, memory_limit=args.worker_memory) as client:
         print(f"dask dashboard: {client.dashboard_link}", flush=True)
         yield client

@@ -35,7 +35,11 @@ def connect(scheduler: str, *, memory_limit=None):
     """A ``distributed.Client``: ``local:N`` starts N worker processes on this machine (each
     limited to ``memory_limit`` bytes if given), anything else is a scheduler address."""
     from distributed import Client, LocalCluster
-    if scheduler.startswith("local:"):
+    if not scheduler.strip() or "://" not in scheduler and ":" not in scheduler:
+        raise ValueError(f"--scheduler {scheduler!r}: expected local:N (N worker processes "
+                         f"here) or a scheduler address such as tcp://host:8786")
+    logging.getLogger("distributed").setLevel(logging.CRITICAL)   # the run says what failed
+    if scheduler.lower().startswith("local:"):
         try:
             n = int(scheduler.split(":", 1)[1])
         except ValueError:
@@ -47,7 +51,6 @@ def connect(scheduler: str, *, memory_limit=None):
             raise ValueError(f"--worker-memory {memory_limit}: a worker needs at least "
                              f"{MIN_WORKER_MEMORY >> 20}M (its Python, OpenCL runtime and one "
                              f"band); give more, e.g. 1G")
-        logging.getLogger("distributed").setLevel(logging.CRITICAL)
         quiet_resource_tracker()
         with sigint_ignored_by_children():
             cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
@@ -59,7 +62,13 @@ def connect(scheduler: str, *, memory_limit=None):
         finally:
             cluster.close()
     else:
-        with Client(scheduler) as client:
+        try:
+            client = Client(scheduler)
+        except (ValueError, TypeError, KeyError) as exc:   # an address distributed cannot read
+            raise ValueError(f"--scheduler {scheduler!r}: not a scheduler address "
+                             f"({' '.join(str(exc).split())}): give tcp://host:8786 or "
+                             f"local:N") from None
+        with client:
             yield client
 
 
@@ -85,17 +94,24 @@ def gather_results(client, futures, describe, progress=None):
             stop_workers(client)
             break
         try:
-            done, pending = wait(pending, timeout=POLL, return_when="FIRST_COMPLETED")
-        except TimeoutError:
-            done = set()
-            if client.scheduler_info().get("workers"):
-                idle = time.monotonic()
-            elif time.monotonic() - idle > NO_WORKER_TIMEOUT:
-                for fut in pending:
-                    results[futures[fut]] = describe(futures[fut], RuntimeError(
-                        f"no worker on the cluster for {NO_WORKER_TIMEOUT:g} s; not run"))
-                client.cancel(list(pending))
-                break
+            try:
+                done, pending = wait(pending, timeout=POLL, return_when="FIRST_COMPLETED")
+            except TimeoutError:
+                done = set()
+                if client.scheduler_info().get("workers"):
+                    idle = time.monotonic()
+                elif time.monotonic() - idle > NO_WORKER_TIMEOUT:
+                    for fut in pending:
+                        results[futures[fut]] = describe(futures[fut], RuntimeError(
+                            f"no worker on the cluster for {NO_WORKER_TIMEOUT:g} s; not run"))
+                    client.cancel(list(pending))
+                    break
+        except Exception as exc:              # the scheduler lost: every job not done
+            for fut in pending:                # fails, named, and the run says the rest
+                results[futures[fut]] = describe(futures[fut], f"the cluster was lost "
+                                                               f"({type(exc).__name__}: "
+                                                               f"{' '.join(str(exc).split())})")
+            break
         for fut in done:
             i = futures[fut]
             try:

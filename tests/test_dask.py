@@ -1,4 +1,5 @@
 """Dask clusters (bdipole_cl/dask.py): a LocalCluster of 2 worker processes."""
+import contextlib
 import os
 import shutil
 import threading
@@ -182,6 +183,13 @@ def test_cli_bake_on_a_local_cluster(tmp_path, capsys):
     assert "dask dashboard: http" in out and "5 done, 0 failed, 0 skipped" in out
     assert cli_main(["bake", str(tmp_path / "scene.toml"), "--scheduler", "local:0"]) == 2
     assert "expected local:N with N >= 1" in capsys.readouterr().err
+    for value, said in (("", "expected local:N"), ("abc", "expected local:N"),
+                        ("inproc://x", "not a scheduler address")):
+        with pytest.raises(SystemExit) if not value else contextlib.nullcontext():
+            code = cli_main(["bake", str(tmp_path / "scene.toml"), "--scheduler", value])
+            assert code == 2          # an empty one ran in this process, unsaid
+        err = capsys.readouterr().err
+        assert said in err and len(err.strip().splitlines()) == 1, err
 
 
 def test_a_stop_request_cancels_the_unfinished_cluster_jobs(client, two_scenes):

@@ -75,11 +75,19 @@ def method_knobs(args):
 
 def add_scheduler_args(p):
     """``--scheduler`` and ``--worker-memory`` (the commands that run on a Dask cluster)."""
-    p.add_argument("--scheduler", metavar="ADDRESS",
+    p.add_argument("--scheduler", metavar="ADDRESS", type=scheduler_address,
                    help="run on a Dask cluster: tcp://host:8786 joins a running scheduler, "
                         "local:N starts N worker processes here (needs bdipole-cl[dask])")
     p.add_argument("--worker-memory", type=size, metavar="SIZE",
                    help="with --scheduler local:N, each worker's memory limit (e.g. 1G)")
+
+
+def scheduler_address(text: str) -> str:
+    """``--scheduler``'s value: not empty (an empty one ran in this process, unsaid)."""
+    if not text.strip():
+        raise argparse.ArgumentTypeError("expected local:N (N worker processes here) or a "
+                                         "scheduler address such as tcp://host:8786")
+    return text
 
 
 @contextlib.contextmanager

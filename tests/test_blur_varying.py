@@ -1,5 +1,6 @@
 """Texture-varying blur parameters (bdipole_cl/ops/blur/textured*.py, kernels/blur_textured.cl)."""
 import functools
+import warnings
 
 import numpy as np
 import pytest
@@ -10,6 +11,7 @@ from bdipole_cl import InvalidInputError
 from bdipole_cl.ops.blur import blur, channel_parameters
 from bdipole_cl.ops.blur import fft as blur_fft
 from bdipole_cl.ops.blur.dispatch import weight_planes
+from bdipole_cl.ops.blur.planning import BlurAccuracyWarning
 from bdipole_cl.ops.blur.fft import cached_spectra, kernel_spectra, times_spectrum
 from bdipole_cl.ops.blur.textured import textured_plans as channel_plans
 from bdipole_cl.ops.blur.textured_plan import (RD_MAX, RD_MIN, REFINE, interpolated_weights,
@@ -491,3 +493,18 @@ def test_a_plan_too_large_to_build_is_refused_first(monkeypatch):
         blur(np.ones((2, 2), np.float32), albedo=albedo, mfp=mfp)
     assert not built
     textured_plan.PLAN_CACHE.clear()
+
+
+def test_a_basis_that_cannot_fit_within_tol_is_warned_of():
+    """Separable Gaussians cannot fit albedo 0.9999's kernel within tol 1e-4 (6.6e-3): the
+    bound says so and BlurAccuracyWarning names it (it was reported, not warned of); the
+    eigen-kernels fit within tol, so the default warns of nothing."""
+    albedo = np.full((24, 24, 1), 0.5, np.float32)
+    albedo[:12, :12] = 0.9999
+    mfp = np.ones((24, 24), np.float32)
+    e = np.ones((24, 24, 1), np.float32)
+    with pytest.warns(BlurAccuracyWarning, match="gaussians basis fits the texture's kernels"):
+        blur(e, albedo=albedo, mfp=mfp, eta=1.4, tol=1e-4, method="gaussians")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", BlurAccuracyWarning)
+        blur(e, albedo=albedo, mfp=mfp, eta=1.4, tol=1e-4)

@@ -25,9 +25,9 @@ With constant parameters ``tol`` bounds the error relative to max|E| * Rd for an
 non-negative irradiance (docs/model.md "Blur error bound"; of both signs the truncation counts
 twice): ``error_bound`` reports the bound, and a bound above tol raises BlurAccuracyWarning.
 With textures the bound is tol (the truncation) plus the basis fit and the interpolation, each
-measured and <= tol, so it is above tol by construction: ``error_bound`` reports it (with no
-warning; one that would always fire says nothing), and only what else widens it (the albedo
-shape clamp, an irradiance of both signs) is warned of.
+measured and <= tol by design, so up to 2 tol: ``error_bound`` reports it (with no warning;
+one that would always fire says nothing), and what widens it beyond (a basis that cannot fit
+the kernels within tol, the albedo shape clamp, an irradiance of both signs) is warned of.
 
 Parameters are scalars, per-channel tuples or HxW / HxWxC textures. With textures each texel
 uses its own (the exit texel's) profile, through per-texel weights over a shared basis

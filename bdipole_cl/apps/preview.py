@@ -188,10 +188,11 @@ def normalise(values, log, vmin, vmax):
 
 
 def thumbnail(px, group):
-    """(image HxWx3 in [0, 1] as displayed, log?, vmin, vmax, varies) of one group."""
-    values = shrink(px[..., list(group.channels)].astype(np.float64))
-    log, vmin, vmax = group_scale(px[..., list(group.channels)],
-                                  may_log=group.name != "alpha channel")
+    """(image HxWx3 in [0, 1] as displayed, log?, vmin, vmax, varies, texels not finite) of
+    one group (its channels taken out of the image once: a copy of the whole image each)."""
+    group_px = px[..., list(group.channels)]
+    values = shrink(group_px.astype(np.float64))
+    log, vmin, vmax = group_scale(group_px, may_log=group.name != "alpha channel")
     t = normalise(values, log, vmin, vmax)
     if not log:
         t = srgb_encode(t)
@@ -199,8 +200,9 @@ def thumbnail(px, group):
     rgb = np.repeat(t[..., :1], 3, axis=-1) if t.shape[-1] == 1 else np.concatenate(
         [t, np.zeros(t.shape[:2] + (3 - t.shape[-1],))], -1)
     rgb[~np.all(np.isfinite(values), axis=-1)] = NOT_FINITE_RGB
-    varies = any(finite_spread(ch) for ch in np.moveaxis(px[..., list(group.channels)], -1, 0))
-    return rgb, log, vmin, vmax, varies
+    varies = any(finite_spread(ch) for ch in np.moveaxis(group_px, -1, 0))
+    not_finite = int(np.count_nonzero(~np.all(np.isfinite(group_px), axis=-1)))
+    return rgb, log, vmin, vmax, varies, not_finite
 
 
 def finite_spread(channel) -> bool:
@@ -256,14 +258,13 @@ def draw_group(fig, ax, cax, px, group, header):
     """Draw one group's thumbnail in ``ax`` and its colour bar in ``cax``; returns the
     pieces of a GroupTile (all but bbox)."""
     from matplotlib import cm, colors
-    image, log, vmin, vmax, varies = thumbnail(px, group)
+    image, log, vmin, vmax, varies, bad = thumbnail(px, group)
     ax.imshow(image, interpolation="nearest")
     ax.set_xticks([])
     ax.set_yticks([])
     unit = group_unit(group.name, header)
     ax.set_title(GROUP_LABELS.get(group.name, plain(group.name)), fontsize=10)
     span = span_text(vmin, vmax) + (f" {unit}" if unit else "")
-    bad = int(np.count_nonzero(~np.all(np.isfinite(px[..., list(group.channels)]), axis=-1)))
     shown = group.names[:3] + ((f"(+{len(group.names) - 3} not shown)",)
                                if len(group.names) > 3 else ())
     ax.set_xlabel(plain(f"{', '.join(n.rsplit('.', 1)[-1] for n in shown)}: {span}"

@@ -13,6 +13,7 @@ import time
 from contextlib import contextmanager
 from dataclasses import replace
 
+from .errors import one_line
 from .io.verify import replaced_since
 from .jobs.job import Job
 from .jobs.results import FileResult
@@ -35,7 +36,7 @@ def connect(scheduler: str, *, memory_limit=None):
     """A ``distributed.Client``: ``local:N`` starts N worker processes on this machine (each
     limited to ``memory_limit`` bytes if given), anything else is a scheduler address."""
     from distributed import Client, LocalCluster
-    if not scheduler.strip() or "://" not in scheduler and ":" not in scheduler:
+    if ":" not in scheduler:           # neither local:N nor an address (nor empty)
         raise ValueError(f"--scheduler {scheduler!r}: expected local:N (N worker processes "
                          f"here) or a scheduler address such as tcp://host:8786")
     logging.getLogger("distributed").setLevel(logging.CRITICAL)   # the run says what failed
@@ -66,7 +67,7 @@ def connect(scheduler: str, *, memory_limit=None):
             client = Client(scheduler)
         except (ValueError, TypeError, KeyError) as exc:   # an address distributed cannot read
             raise ValueError(f"--scheduler {scheduler!r}: not a scheduler address "
-                             f"({' '.join(str(exc).split())}): give tcp://host:8786 or "
+                             f"({one_line(exc)}): give tcp://host:8786 or "
                              f"local:N") from None
         with client:
             yield client
@@ -110,14 +111,14 @@ def gather_results(client, futures, describe, progress=None):
             for fut in pending:                # fails, named, and the run says the rest
                 results[futures[fut]] = describe(futures[fut], f"the cluster was lost "
                                                                f"({type(exc).__name__}: "
-                                                               f"{' '.join(str(exc).split())})")
+                                                               f"{one_line(exc)})")
             break
         for fut in done:
             i = futures[fut]
             try:
                 results[i] = fut.result()
             except Exception as exc:  # the worker's exception, after RETRIES
-                results[i] = describe(i, " ".join(str(exc).split()) or type(exc).__name__)
+                results[i] = describe(i, one_line(exc) or type(exc).__name__)
             if progress is not None:
                 progress.update(1)
     return results

@@ -7,9 +7,8 @@ input's value is its ``value`` attribute; a connected input (``nodename``, or ``
 ``output``) must come from an ``image`` or ``tiledimage`` node, whose ``file`` (with
 ``fileprefix`` applied, ``<UDIM>`` kept, relative to the document that authored it: an
 ``xi:include``d one's own folder; through node graphs' interface inputs) is the texture and
-whose
-active colour space (its ``colorspace`` attribute, else the enclosing elements', else the
-document's) goes to colour management (a ``float`` image, one channel of the file, is
+whose active colour space (its ``colorspace`` attribute, else the enclosing elements', else
+the document's) goes to colour management (a ``float`` image, one channel of the file, is
 refused where its texels are baked). Any other node is a procedural network: the material
 is named as not bakeable. A distance input's ``unit`` (``unittype="distance"``) converts it to
 the scene unit: metres, MaterialX's default target distance unit (``GenOptions``), which a

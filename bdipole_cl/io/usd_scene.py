@@ -13,9 +13,9 @@ inputs too). Its colour space is the file attribute's ``colorSpace`` metadata, e
 ``ColorSpaceAPI`` on its prim or an ancestor declares, else ``inputs:sourceColorSpace``
 (``raw`` is linear, ``sRGB``; ``auto`` leaves it to the file). Values are read at the stage's
 start time code (``bake_time``; without a time range, an input's first time sample): an
-animated input is baked at that time and noted, never replaced by its shader's default. Any other node feeding an input is a
-procedural network: the material is named as not bakeable. Distances are in the stage's
-unit (``metersPerUnit``).
+animated input is baked at that time and noted, never replaced by its shader's default. Any
+other node feeding an input is a procedural network: the material is named as not bakeable.
+Distances are in the stage's unit (``metersPerUnit``).
 """
 from __future__ import annotations
 

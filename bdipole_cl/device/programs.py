@@ -10,9 +10,6 @@ dropped by ``bdipole_cl.clear_caches()``.
 """
 from __future__ import annotations
 
-import functools
-import hashlib
-from pathlib import Path
 
 import numpy as np
 import pyopencl as cl
@@ -20,10 +17,11 @@ import pyopencl as cl
 from ..caches import ByteCache
 from ..physics.models import MODEL
 from . import layout
-from .runtime import DeviceError, Runtime, build_quietly
+from .isolation import config_name
+from .sources import HEADER, kernel_dir, kernels_digest  # noqa: F401 (kernels_digest: the
+#                                                        device layer's name for it)
+from .runtime import DeviceError, Runtime, build_quietly, known_verdict
 
-#: The header every kernel source is joined behind.
-HEADER = "bdipole.h"
 #: the explicit vector lanes (BD_WIDTH) of the kernels that take several elements a work-item
 LANES = "lanes.h"
 
@@ -40,27 +38,6 @@ def program_bytes(prg: cl.Program) -> int:
         return max(1, int(sum(prg.get_info(cl.program_info.BINARY_SIZES))))
     except cl.Error:
         return NOMINAL_PROGRAM_BYTES
-
-
-def kernel_dir() -> Path:
-    """``bdipole_cl/kernels`` in an installed wheel, else the source tree's ``kernels``."""
-    package = Path(__file__).resolve().parent.parent
-    for candidate in (package / "kernels", package.parent / "kernels"):
-        if (candidate / HEADER).is_file():
-            return candidate
-    raise DeviceError(f"kernel sources not found next to {package} (looked for {HEADER})")
-
-
-@functools.lru_cache(maxsize=None)
-def kernels_digest() -> str:
-    """A digest of every kernel source (kernels/*.cl and *.h) and the generated layout: what a
-    device's measured kernel shapes (``report --calibrate``'s widths and costs) were measured
-    with, so that a later version's kernels do not run on shapes measured for other code."""
-    d = kernel_dir()
-    h = hashlib.sha256(layout.header().encode())
-    for path in sorted(d.glob("*.cl")) + sorted(d.glob("*.h")):
-        h.update(b"\0" + path.name.encode() + b"\0" + path.read_bytes())
-    return h.hexdigest()[:16]
 
 
 def kernel_source(name: str, body: str | None = None) -> str:
@@ -96,6 +73,7 @@ def get_program(rt: Runtime, name: str, options=()) -> cl.Program:
     if prg is None:
         if any(o == "-DBD_DOUBLE" for o in options) and not rt.has_fp64:
             raise DeviceError(f"{rt.describe()} has no cl_khr_fp64: float64 is not available")
+        refuse_rejected(rt, name, options)
         try:
             prg = build_quietly(rt.context, kernel_source(name), options)
         except cl.RuntimeError as exc:
@@ -103,6 +81,20 @@ def get_program(rt: Runtime, name: str, options=()) -> cl.Program:
                               f"{exc}") from exc
         PROGRAM_CACHE.put(key, prg, program_bytes(prg))
     return prg
+
+
+def refuse_rejected(rt: Runtime, name: str, options) -> None:
+    """A DeviceError where the device's probe rejected this configuration (its runtime crashed
+    or failed building or running it): building it here could take the process down."""
+    known = known_verdict(rt.device)
+    if known is None:
+        return
+    config = config_name(name, options)
+    result = known.result(config)
+    if result is not None and not result.ok:
+        raise DeviceError(f"kernels/{name}.cl as {config} failed this device's probe on "
+                          f"{rt.describe()} ({result.reason}); not built here (`bdipole-cl "
+                          f"devices` lists what works)")
 
 
 def real_dtype(double: bool):

@@ -4,9 +4,12 @@ Devices come from every OpenCL runtime the ICD loader sees: system drivers, PoCL
 pyopencl's wheel, and the runtimes installed into the Python environment (``bdipole_cl.device.icd``
 registers Intel's CPU runtime from PyPI before the first platform query).
 
-Each device is *probed* once per process: a tiny kernel is built and run on it, and its result
-checked. A device that cannot build (the PyPI PoCL on CPUs its LLVM does not know fails with
-``unknown target CPU 'generic'``) or computes wrongly is *broken*, with a one-line reason.
+Each device is *probed* once per device, driver and kernel sources, in a child process
+(``isolation``): every kernel configuration the library may pick is built, run and checked
+there, so that a compiler that crashes takes down only the child. A configuration that fails
+is never used; a device on which none works (the PyPI PoCL on CPUs its LLVM does not know
+fails with ``unknown target CPU 'generic'``) is *broken*, with a one-line reason. The verdict
+is cached in the user's cache folder.
 
 The automatic choice (``device=None`` everywhere): ``PYOPENCL_CTX`` if set (pyopencl's syntax;
 the device it names must work), else the first working device in ``RANK`` order: GPUs, then
@@ -25,9 +28,9 @@ import threading
 import warnings
 from dataclasses import dataclass, field
 
-import numpy as np
 
-from . import icd
+from . import icd, isolation
+from .sources import kernels_digest
 
 icd.register_environment_runtimes()   # before pyopencl's first platform query
 
@@ -82,9 +85,12 @@ class DeviceState:
     works: bool
     reason: str                 # one line; "" when it works
     device: object = field(default=None, compare=False, repr=False)
+    rejected: str = ""          # the configurations its probe rejected, said in one line
 
     def describe(self) -> str:
         state = "works" if self.works else f"broken: {self.reason}"
+        if self.works and self.rejected:
+            state += f" ({self.rejected})"
         return (f"[{self.index}] {self.name} | {self.platform} | {self.version} | {self.kind} | "
                 f"fp64: {'yes' if self.fp64 else 'no'} | {state}")
 
@@ -126,13 +132,12 @@ def _usable(device):
     return device
 
 
-PROBE_SOURCE = """
-__kernel void bdipole_probe(__global float *x)
-{
-    int i = get_global_id(0);
-    x[i] = sqrt(exp(-x[i])) + (float)i;
-}
-"""
+#: set in the probe's child process: its devices are opened unprobed, its builds unguarded
+PROBE_CHILD_VARIABLE = "BDIPOLE_CL_PROBE_CHILD"
+
+
+def in_probe_child() -> bool:
+    return bool(os.environ.get(PROBE_CHILD_VARIABLE))
 
 
 def device_has_fp64(device) -> bool:
@@ -188,31 +193,57 @@ def _runtime_of(device) -> Runtime:
 
 
 def probe(device) -> str:
-    """Build and run ``PROBE_SOURCE`` on ``device`` (once per process): "" if it works, else the
-    one-line reason."""
+    """"" if ``device`` works, else the one-line reason: its verdict (``verdict``), once per
+    process."""
     key = device.int_ptr
     with _lock:
         if key in _probes:
             return _probes[key]
-    try:
-        rt = _runtime_of(device)
-        prg = build_quietly(rt.context, PROBE_SOURCE)
-        x = np.float32([0.0, 0.5, 2.0, 8.0])
-        buf = cl.Buffer(rt.context, cl.mem_flags.READ_WRITE | cl.mem_flags.COPY_HOST_PTR,
-                        hostbuf=x)
-        prg.bdipole_probe(rt.queue, x.shape, None, buf)
-        got = np.empty_like(x)
-        cl.enqueue_copy(rt.queue, got, buf)
-        rt.queue.finish()
-        want = np.sqrt(np.exp(-x.astype(np.float64))) + np.arange(4)
-        # a few ulp of each value: any working float32 sqrt/exp meets it, garbage does not
-        reason = "" if np.allclose(got, want, rtol=1e-5, atol=0) else (
-            f"probe kernel computed {got.tolist()}, expected {want.round(6).tolist()}")
-    except Exception as exc:  # every driver failure mode: context, build (log in the text), run
-        reason = _one_line(exc)
+    if in_probe_child():
+        reason = ""
+    else:
+        try:
+            reason = verdict(device).reason
+        except Exception as exc:  # a driver that fails even to describe its device
+            reason = _one_line(exc)
     with _lock:
         _probes[key] = reason
     return reason
+
+
+def device_index(device) -> str:
+    """The device's "P:D" (``bdipole-cl devices``, PYOPENCL_CTX)."""
+    for index, _platform, d in _candidates():
+        if d.int_ptr == device.int_ptr:
+            return index
+    raise DeviceError(f"{device.name.strip()} is not among the loader's devices")
+
+
+def _describe_device(device) -> str:
+    return f"{device.name.strip()} ({device.platform.name.strip()})"
+
+
+def verdict(device) -> "isolation.Verdict":
+    """Which kernel configurations build and run on ``device``: probed in a child process
+    once per device, driver and kernel sources, then cached (``isolation.device_verdict``)."""
+    return isolation.device_verdict(device, device_index(device), kernels_digest(),
+                                    _describe_device(device))
+
+
+def known_verdict(device):
+    """The device's verdict where one is at hand (this process's or the cache's), else None:
+    never starts a probe (None in the probe's own child)."""
+    if in_probe_child():
+        return None
+    return isolation.cached_verdict(device, kernels_digest())
+
+
+def runtime_at(index: str) -> Runtime:
+    """The Runtime of the device "P:D", unprobed (the probe's child opens its device so)."""
+    for i, _platform, d in _candidates():
+        if i == index:
+            return _runtime_of(d)
+    raise DeviceError(f"device {index!r}: no such device")
 
 
 def _candidates():
@@ -228,10 +259,14 @@ def _candidates():
 
 
 def _state(index, platform, device, reason=None) -> DeviceState:
-    reason = probe(device) if reason is None else reason
+    rejected = ""
+    if reason is None:
+        reason = probe(device)
+        known = known_verdict(device) if not reason else None
+        rejected = known.describe_rejected() if known is not None else ""
     return DeviceState(index, platform.name.strip(), device.name.strip(), device_kind(device),
                        device.version.strip(), device_has_fp64(device), not reason, reason,
-                       device)
+                       device, rejected)
 
 
 def survey() -> list[DeviceState]:

@@ -16,6 +16,7 @@ from ..device.launch import enqueue_items
 from ..device.layout import channel_params
 from ..device.runtime import device_kind, forced_width, platform_entry
 from ..device.transfer import aligned_empty, run_elementwise
+from .widths import WidthChoice, choose_width
 from ..methods.choice import TABLE_WIDTHS_ALLOWED, DeviceKey, device_tuning
 from ..methods.registry import MethodConfig
 from ..physics import reference as ref
@@ -62,19 +63,26 @@ def kernel_tuning(rt):
 
 
 def table_width(rt) -> int:
-    """Elements per work-item of kernels/invert_table.cl on ``rt``'s device: forced by
-    TABLE_WIDTH_VARIABLE, else the device's calibration (``report --calibrate``), else
-    TABLE_WIDTHS."""
+    """Elements per work-item of kernels/invert_table.cl on ``rt``'s device
+    (``table_width_choice``)."""
+    return table_width_choice(rt).width
+
+
+def table_width_choice(rt) -> WidthChoice:
+    """The width of kernels/invert_table.cl on ``rt``'s device and what decided it: forced by
+    TABLE_WIDTH_VARIABLE, else the device's calibration (``report --calibrate``), else the
+    fastest width its probe timed (``device.isolation``), else TABLE_WIDTHS; a width the probe
+    rejected is never chosen."""
     forced = forced_width(TABLE_WIDTH_VARIABLE, TABLE_WIDTHS_ALLOWED)
     if forced:
-        return forced
-    if device_kind(rt.device) != "cpu":
-        return 1
+        return WidthChoice(forced, f"forced by {TABLE_WIDTH_VARIABLE}")
     tuned = kernel_tuning(rt)
-    if tuned is not None and tuned.table_width:
-        return tuned.table_width
     widths = platform_entry(rt.device, TABLE_WIDTHS, {None: 8})
-    return widths.get(rt.device.native_vector_width_float, widths[None])
+    default = widths.get(rt.device.native_vector_width_float, widths[None])
+    if device_kind(rt.device) != "cpu":
+        default = 1
+    return choose_width(rt, "invert_table", TABLE_WIDTHS_ALLOWED,
+                        tuned.table_width if tuned is not None else None, default)
 
 
 def _literals(values, double):

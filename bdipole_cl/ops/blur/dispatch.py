@@ -11,6 +11,7 @@ from ...device.launch import enqueue_items
 from ...device.runtime import forced_width, platform_entry
 from ...device.transfer import aligned_empty
 from ...methods.choice import GATHER_WIDTHS_ALLOWED
+from ..widths import choose_width
 from ...signals import check_stop
 from ..inversion_kernel import kernel_tuning
 from .fit import gaussian_1d
@@ -151,12 +152,14 @@ GATHER_WIDTH_VARIABLE = "BDIPOLE_CL_GATHER_WIDTH"
 def gather_width(rt, n) -> int:
     """Texels per work-item of kernels/blur_textured.cl on ``rt``'s device for rows of n
     texels (a work-item's texels lie in one row: 1 for rows narrower than the width): forced
-    by GATHER_WIDTH_VARIABLE, else the device's calibration, else GATHER_WIDTHS."""
+    by GATHER_WIDTH_VARIABLE, else the device's calibration, else the fastest width its probe
+    timed, else GATHER_WIDTHS; never one the probe rejected (``ops.widths``)."""
     width = forced_width(GATHER_WIDTH_VARIABLE, GATHER_WIDTHS_ALLOWED)
     if not width:
         tuned = kernel_tuning(rt)
-        width = (tuned.gather_width if tuned is not None and tuned.gather_width
-                 else platform_entry(rt.device, GATHER_WIDTHS, 1))
+        width = choose_width(rt, "blur_textured", GATHER_WIDTHS_ALLOWED,
+                             tuned.gather_width if tuned is not None else None,
+                             platform_entry(rt.device, GATHER_WIDTHS, 1)).width
     return width if n >= width else 1
 
 

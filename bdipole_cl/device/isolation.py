@@ -1,0 +1,351 @@
+"""Kernel probes in a child process, and their verdicts cached on disk (the device layer).
+
+A runtime's compiler can crash inside the process that builds (PoCL's LLVM on some CPUs dies
+with SIGSEGV building a 16-lane kernel), and nothing in-process survives that. So a device's
+probe runs in a child process: ``python -m PROBE_MODULE`` builds and runs every kernel
+configuration the library may pick on that device (each width of the vectorised kernels, the
+blur kernels, float64 where the device claims it) and prints one JSON line as it begins and one
+as it ends each configuration. When the child dies, the configuration it was in is rejected
+with the signal or the runtime's last words, and a new child goes on with the rest. The
+verdict is cached per device identity (platform, device, driver) and kernel digest in the
+user's cache folder, so the probe costs seconds once per device and driver, not per process.
+
+A configuration's name is ``config_name(source, options)``: the kernel file's name, then
+``/w<BD_WIDTH>`` and ``/f64`` where those options are given. ``programs.get_program`` refuses
+to build a configuration the verdict rejected, so no caller (a forced width included) can
+take the process down on a known crash.
+
+``FAULT_VARIABLE`` makes the child fail one configuration on purpose (tests): ``NAME=segv``
+(killed by SIGSEGV), ``NAME=abort:TEXT`` (TEXT on stderr, then exit status 1), ``NAME=hang``.
+"""
+from __future__ import annotations
+
+import hashlib
+import importlib.util
+import json
+import logging
+import os
+import queue
+import signal
+import subprocess
+import sys
+import tempfile
+import threading
+from dataclasses import dataclass
+from pathlib import Path
+
+from ..caches import user_cache_dir
+from ..durable import durable_replace
+from ..version import __version__
+
+#: the module the child runs (the operations layer's checks: started by name, not imported)
+PROBE_MODULE = "bdipole_cl.ops.kernel_checks"
+#: raised whenever what a check does, or the verdict file's fields, change meaning
+PROBE_FORMAT = 1
+#: fails one configuration of the child on purpose: tests only (module docstring)
+FAULT_VARIABLE = "BDIPOLE_CL_PROBE_FAULT"
+#: seconds one configuration may take (a PoCL build of the largest blur kernel takes ~20 s
+#: on a loaded 2-core machine); past it the child is killed and the configuration rejected
+CONFIG_TIMEOUT_S = 240.0
+#: seconds a child may take to start and list its configurations (imports, the ICD loader)
+START_TIMEOUT_S = 120.0
+
+log = logging.getLogger("bdipole_cl")
+
+
+@dataclass(frozen=True)
+class ConfigResult:
+    """One kernel configuration on one device: whether it built, ran and computed right, and
+    its timing workload's best time (seconds; None where it has none)."""
+
+    name: str
+    ok: bool
+    reason: str = ""
+    seconds: float | None = None
+
+
+@dataclass(frozen=True)
+class Verdict:
+    """Every probed configuration of one device."""
+
+    device: str                         # the device, described
+    results: tuple = ()                 # ConfigResult, in the probe's order
+    error: str = ""                     # the probe itself failed (no child could start)
+    cached: bool = False                # read from the cache file
+
+    @property
+    def works(self) -> bool:
+        return not self.error and any(r.ok for r in self.results)
+
+    @property
+    def reason(self) -> str:
+        """"" where the device works, else one line saying why not."""
+        if self.works:
+            return ""
+        if self.error:
+            return self.error
+        if not self.results:
+            return "the probe ran no kernel"
+        first = self.results[0]
+        return f"no kernel configuration works ({first.name}: {first.reason})"
+
+    def result(self, name: str) -> ConfigResult | None:
+        return next((r for r in self.results if r.name == name), None)
+
+    def passed(self, name: str) -> bool | None:
+        """Whether configuration ``name`` passed (None: not probed)."""
+        r = self.result(name)
+        return None if r is None else r.ok
+
+    def rejected(self) -> tuple:
+        return tuple(r for r in self.results if not r.ok)
+
+    def describe_rejected(self) -> str:
+        """"" or '2 configurations rejected: a (reason); b (reason)'."""
+        bad = self.rejected()
+        if not bad:
+            return ""
+        items = "; ".join(f"{r.name} ({r.reason})" for r in bad)
+        return f"{len(bad)} configuration{'s' if len(bad) > 1 else ''} rejected: {items}"
+
+
+def config_name(source: str, options=()) -> str:
+    """The probe's name for kernels/<source>.cl built with ``options`` (-D strings)."""
+    name = source
+    for opt in options:
+        if opt.startswith("-DBD_WIDTH="):
+            name += f"/w{opt.split('=', 1)[1]}"
+    if "-DBD_DOUBLE" in options:
+        name += "/f64"
+    return name
+
+
+# {{{ identity and cache
+
+def identity(device) -> dict:
+    """What makes a device's verdict its own: platform, device and driver as the runtime
+    reports them (a new driver is a new compiler)."""
+    p = device.platform
+    return {"platform": p.name.strip(), "platform_version": p.version.strip(),
+            "vendor": device.vendor.strip(), "device": device.name.strip(),
+            "driver": device.driver_version.strip(), "version": device.version.strip()}
+
+
+def checks_digest() -> str:
+    """A digest of the checks' own source (PROBE_MODULE's file, found without importing it):
+    a changed check is a new verdict."""
+    spec = importlib.util.find_spec(PROBE_MODULE)
+    try:
+        return hashlib.sha256(Path(spec.origin).read_bytes()).hexdigest()[:16]
+    except (AttributeError, TypeError, OSError):
+        return ""
+
+
+def verdict_key(device, kernels_digest: str) -> str:
+    """The cache key: the device's identity, the kernels, the checks and this library's
+    version."""
+    text = json.dumps([identity(device), kernels_digest, checks_digest(), __version__,
+                       PROBE_FORMAT, os.environ.get(FAULT_VARIABLE, "")], sort_keys=True)
+    return hashlib.sha256(text.encode()).hexdigest()[:20]
+
+
+def verdict_dir() -> Path:
+    return user_cache_dir() / "probes"
+
+
+def verdict_path(device, kernels_digest: str) -> Path:
+    return verdict_dir() / f"{verdict_key(device, kernels_digest)}.json"
+
+
+def read_verdict(path: Path) -> Verdict | None:
+    """The verdict stored at ``path``; None where there is none or it cannot be read."""
+    try:
+        raw = json.loads(path.read_text())
+        results = tuple(ConfigResult(str(r["name"]), bool(r["ok"]), str(r.get("reason", "")),
+                                     None if r.get("seconds") is None else float(r["seconds"]))
+                        for r in raw["results"])
+        return Verdict(str(raw["device"]), results, str(raw.get("error", "")), cached=True)
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+
+
+def write_verdict(verdict: Verdict, path: Path) -> None:
+    """Store ``verdict`` (temporary file, then a rename: readers see the old or the new)."""
+    raw = {"device": verdict.device, "error": verdict.error,
+           "results": [{"name": r.name, "ok": r.ok, "reason": r.reason, "seconds": r.seconds}
+                       for r in verdict.results]}
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".probe-", suffix=".tmp")
+    with os.fdopen(fd, "w") as f:
+        json.dump(raw, f, indent=1)
+    durable_replace(tmp, path)
+
+# }}}
+
+
+# {{{ the child
+
+def _signal_name(status: int) -> str:
+    try:
+        return signal.Signals(-status).name
+    except ValueError:
+        return f"signal {-status}"
+
+
+def _last_words(stderr_text: str) -> str:
+    """The runtime's most telling line on stderr: one naming an error, else the last."""
+    lines = [ln.strip() for ln in stderr_text.splitlines() if ln.strip()]
+    pick = next((ln for ln in reversed(lines) if "error" in ln.lower() or "invalid" in ln.lower()
+                 or "fail" in ln.lower()), lines[-1] if lines else "")
+    return pick if len(pick) <= 160 else pick[:157] + "..."
+
+
+def _death(returncode: int, stderr_text: str) -> str:
+    how = (f"crashed ({_signal_name(returncode)})" if returncode < 0
+           else f"its process exited with status {returncode}")
+    words = _last_words(stderr_text)
+    return f"{how}: {words}" if words else how
+
+
+class _Child:
+    """One child process running the checks; its stdout is read by a thread into a queue, so
+    that every wait has a timeout."""
+
+    def __init__(self, device_index: str, skip):
+        cmd = [sys.executable, "-m", PROBE_MODULE, "--device", device_index]
+        if skip:
+            cmd += ["--skip", ",".join(skip)]
+        self.err = tempfile.TemporaryFile(mode="w+")
+        self.proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=self.err,
+                                     stdin=subprocess.DEVNULL, text=True,
+                                     start_new_session=True)   # a terminal's Ctrl-C is ours
+        self.lines: queue.Queue = queue.Queue()
+        threading.Thread(target=self._read, daemon=True).start()
+
+    def _read(self):
+        for text in self.proc.stdout:
+            self.lines.put(text)
+        self.lines.put(None)
+
+    def line(self, timeout: float):
+        """The next JSON line ({} for a line that is not JSON), None at the end of output,
+        or TIMED_OUT after ``timeout`` seconds."""
+        try:
+            text = self.lines.get(timeout=timeout)
+        except queue.Empty:
+            return TIMED_OUT
+        if text is None:
+            return None
+        try:
+            msg = json.loads(text)
+        except ValueError:
+            return {}                       # a runtime's own chatter on stdout: skipped
+        return msg if isinstance(msg, dict) else {}
+
+    def finish(self, kill=False) -> tuple:
+        """(returncode, stderr text) once the child has ended (killed first if ``kill``)."""
+        if kill and self.proc.poll() is None:
+            self.proc.kill()
+        try:
+            rc = self.proc.wait(timeout=30)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            rc = self.proc.wait()
+        self.err.seek(0)
+        text = self.err.read()
+        self.err.close()
+        return rc, text
+
+
+#: ``_Child.line``'s answer when nothing came in time
+TIMED_OUT = object()
+
+
+def run_probe(device_index: str, description: str) -> Verdict:
+    """Probe the device ``device_index`` ("P:D") in child processes: every configuration's
+    result, a crashed one rejected and the rest probed by a new child."""
+    results: dict = {}
+    for _attempt in range(64):                 # more than there are configurations
+        child = _Child(device_index, list(results))
+        current, timeout = None, START_TIMEOUT_S
+        finished = timed_out = False
+        while True:
+            msg = child.line(timeout)
+            if msg is None or msg is TIMED_OUT:
+                timed_out = msg is TIMED_OUT
+                break
+            if "begin" in msg:
+                current, timeout = str(msg["begin"]), CONFIG_TIMEOUT_S
+            elif "end" in msg:
+                r = ConfigResult(str(msg["end"]), bool(msg["ok"]), str(msg.get("reason", "")),
+                                 msg.get("seconds"))
+                results[r.name] = r
+                current, timeout = None, CONFIG_TIMEOUT_S
+            elif msg.get("done"):
+                finished = True
+                break
+            elif "error" in msg:               # the child could not open the device
+                child.finish(kill=True)
+                return Verdict(description, tuple(results.values()), str(msg["error"]))
+        rc, err = child.finish(kill=timed_out or not finished)
+        if finished and rc == 0:
+            return Verdict(description, tuple(results.values()))
+        if current is None:                     # died between configurations, or at start
+            why = (f"timed out after {START_TIMEOUT_S:.0f} s" if timed_out
+                   else _death(rc, err))
+            return Verdict(description, tuple(results.values()),
+                           f"the kernel probe's process failed outside any kernel ({why})")
+        results[current] = ConfigResult(
+            current, False, f"timed out after {CONFIG_TIMEOUT_S:.0f} s" if timed_out
+            else _death(rc, err))
+    return Verdict(description, tuple(results.values()), "the kernel probe did not finish")
+
+# }}}
+
+
+_lock = threading.Lock()
+_verdicts: dict = {}              # verdict path -> Verdict (this process)
+
+
+def device_verdict(device, device_index: str, kernels_digest: str, describe: str) -> Verdict:
+    """The device's verdict: this process's, else the cached one, else probed now (seconds
+    to a minute, once per device, driver and kernels) and cached. Says on stderr that it is
+    probing, and what it rejected when it probes."""
+    path = verdict_path(device, kernels_digest)
+    with _lock:
+        hit = _verdicts.get(path)
+        if hit is not None:
+            return hit
+        verdict = read_verdict(path)
+        if verdict is None:
+            print(f"bdipole-cl: probing {describe}: building its kernels once (cached in "
+                  f"{verdict_dir()})", file=sys.stderr, flush=True)
+            verdict = run_probe(device_index, describe)
+            if verdict.works and verdict.rejected():
+                log.warning("%s: %s; the library uses the configurations that passed "
+                            "(`bdipole-cl devices` lists them)", describe,
+                            verdict.describe_rejected())
+            try:
+                write_verdict(verdict, path)
+            except OSError as exc:              # an unwritable cache: probed again next time
+                log.warning("the probe's verdict for %s could not be cached: %s", describe, exc)
+        _verdicts[path] = verdict
+    return verdict
+
+
+def cached_verdict(device, kernels_digest: str) -> Verdict | None:
+    """This process's verdict of ``device``, else the cache file's, else None (no probe)."""
+    path = verdict_path(device, kernels_digest)
+    with _lock:
+        hit = _verdicts.get(path)
+        if hit is None:
+            hit = read_verdict(path)
+            if hit is not None:
+                _verdicts[path] = hit
+        return hit
+
+
+def forget_verdicts() -> None:
+    """Drop this process's verdicts (the cache files stay): tests."""
+    with _lock:
+        _verdicts.clear()

@@ -1,0 +1,250 @@
+"""Every kernel configuration the library may pick, built and run on one device: the probe's
+child process (``bdipole_cl.device.isolation``), ``python -m bdipole_cl.ops.kernel_checks
+--device P:D [--skip NAME,...]``.
+
+Each check builds its configuration through the library's own code (so the programs are the
+ones later built, and a runtime's on-disk kernel cache is warm for them), runs it on a small
+input and compares with the float64 reference loosely: the probe asks whether the runtime
+builds and runs the kernel, the crosscheck and the tests ask how accurately. The widths'
+checks also time a workload: the child's measurements are what picks the widths on this
+device (``ops.inversion_kernel.table_width``, ``ops.blur.dispatch.gather_width``).
+
+Output: one JSON line ``{"begin": NAME}`` before a check and ``{"end": NAME, "ok": ..., "reason":
+..., "seconds": ...}`` after it, then ``{"done": true}``.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import signal
+import sys
+import time
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+
+#: a probe's loose agreement with the float64 reference (relative, of rho and of the blur's
+#: exitance): a working float32 kernel is within ~1e-5 (docs/model.md "Accuracy"); a
+#: miscompiled one is off by orders of magnitude, or NaN
+PROBE_RTOL = 1e-3
+#: elements of the widths' timing workload: 16 MB of float32 in, 32 MB out, enough to be
+#: memory-bound as the real passes are, and a few milliseconds a run on a CPU
+TIMING_N = 1 << 22
+TIMING_REPEATS = 3
+
+
+@dataclass(frozen=True)
+class KernelCheck:
+    """One configuration: its name (``device.isolation.config_name`` of what it builds), the
+    function that builds, runs and checks it on a Runtime (returning its timing in seconds,
+    or None), and whether it needs float64."""
+
+    name: str
+    run: Callable
+    fp64: bool = False
+
+
+def _assert_close(got, want, what):
+    got = np.asarray(got, np.float64)
+    want = np.asarray(want, np.float64)
+    err = np.abs(got - want) / np.maximum(np.abs(want), 1e-30)
+    worst = float(np.nanmax(err)) if err.size else 0.0
+    if not np.all(np.isfinite(got)) or worst > PROBE_RTOL:
+        raise RuntimeError(f"{what} computed wrongly (max relative error {worst:.3g})")
+
+
+def _best_time(fn) -> float:
+    fn()                                    # first touch of the outputs, queued builds
+    best = float("inf")
+    for _ in range(TIMING_REPEATS):
+        t0 = time.perf_counter()
+        fn()
+        best = min(best, time.perf_counter() - t0)
+    return best
+
+
+def _forcing(variable, value):
+    """A context setting the environment variable ``variable`` to ``value`` while it runs."""
+    class _Force:
+        def __enter__(self):
+            self.old = os.environ.get(variable)
+            os.environ[variable] = str(value)
+
+        def __exit__(self, *exc):
+            if self.old is None:
+                os.environ.pop(variable, None)
+            else:
+                os.environ[variable] = self.old
+    return _Force()
+
+
+def _albedos(n, seed=0):
+    """``n`` albedos over the whole range, both stiff ends first."""
+    ends = np.float32([1e-6, 1e-3, 0.5, 0.9, 0.999])
+    rest = np.random.default_rng(seed).random(max(n - ends.size, 0), np.float32)
+    return np.concatenate([ends, rest])[:n].astype(np.float32)
+
+
+def table_check(width):
+    """kernels/invert_table.cl at ``width`` elements a work-item: 3 channels of albedos and
+    coefficients checked, then ``invert_albedo(..., return_rho=True)`` timed host to host."""
+    def run(rt):
+        from ..physics import reference as ref
+        from .inversion_kernel import TABLE_WIDTH_VARIABLE
+        from .invert import albedo_to_coefficients, invert_albedo
+        with _forcing(TABLE_WIDTH_VARIABLE, width):
+            rd = _albedos(3 * 4093).reshape(-1, 3)       # a count no width divides
+            etas = (1.3, 1.4, 1.5)
+            _alpha, rho = invert_albedo(rd, etas, return_rho=True, device=rt)
+            for c, eta in enumerate(etas):
+                want = ref.invert_rd_rho(rd[:, c].astype(np.float64), eta)[1]
+                _assert_close(rho[:, c], want, "rho")
+            valid = rd[rd[:, 1] < 1]
+            sigma_a, _ = albedo_to_coefficients(valid, 0.5, etas, device=rt)
+            want = ref.albedo_to_coefficients(valid[:, 1].astype(np.float64), 0.5, 1.4)[0]
+            _assert_close(sigma_a[:, 1], want, "sigma_a")
+            big = np.random.default_rng(1).random(TIMING_N, np.float32)
+            outs = (np.empty_like(big), np.empty_like(big))
+            return _best_time(lambda: invert_albedo(big, 1.4, return_rho=True, device=rt,
+                                                    out=outs))
+    return run
+
+
+def method_check(method, double):
+    """kernels/invert.cl (every method but the float32 table without polish)."""
+    def run(rt):
+        from ..physics import reference as ref
+        from .invert import invert_albedo
+        rd = _albedos(1021).astype(np.float64 if double else np.float32)
+        _alpha, rho = invert_albedo(rd, 1.4, method=method, return_rho=True, double=double,
+                                    device=rt)
+        _assert_close(rho, ref.invert_rd_rho(rd.astype(np.float64), 1.4)[1], "rho")
+        return None
+    return run
+
+
+def physics_check(double):
+    """kernels/physics_eval.cl: Rd(alpha') (the crosscheck's forward functions)."""
+    def run(rt):
+        from .physics_eval import evaluate, reference_value
+        alpha = np.linspace(0.01, 0.999, 257)
+        got = evaluate("rd", alpha, eta=1.4, double=double, device=rt)
+        _assert_close(got, reference_value("rd", alpha, eta=1.4), "Rd")
+        return None
+    return run
+
+
+def _impulse(size=48, channels=1):
+    e = np.zeros((size, size, channels), np.float32)
+    e[size // 2, size // 2] = 1.0
+    return e
+
+
+def blur_check(method):
+    """kernels/blur_direct.cl (``direct``) or kernels/blur_separable.cl (``gaussians``): an
+    impulse's exitance sums to Rd (the weights are renormalised to it)."""
+    def run(rt):
+        from .blur import blur
+        out = blur(_impulse(), albedo=0.6, mfp=2.0, method=method, border="zero", tol=1e-3,
+                   device=rt)
+        _assert_close(out.sum(dtype=np.float64), 0.6, f"{method} blur's energy")
+        return None
+    return run
+
+
+def gather_check(width):
+    """kernels/blur_textured.cl at ``width`` texels a work-item: a texture-varying blur of
+    constant textures matches the constant blur, then timed."""
+    def run(rt):
+        from .blur import blur
+        from .blur.dispatch import GATHER_WIDTH_VARIABLE
+        with _forcing(GATHER_WIDTH_VARIABLE, width):
+            e = np.random.default_rng(2).random((64, 64, 1), np.float32)
+            albedo = np.full((64, 64), 0.6, np.float32)
+            mfp = np.full((64, 64), 3.0, np.float32)
+            got = blur(e, albedo=albedo, mfp=mfp, method="fft", border="clamp", tol=1e-3,
+                       device=rt)
+            want = blur(e, albedo=0.6, mfp=3.0, method="fft", border="clamp", tol=1e-3,
+                        device=rt)
+            # both are within ~2 tol of the exact blur (ops/blur docstring): compare at 1e-2
+            err = float(np.max(np.abs(got - want)) / np.max(np.abs(want)))
+            if not np.isfinite(got).all() or err > 1e-2:
+                raise RuntimeError(f"texture-varying blur computed wrongly (error {err:.3g})")
+            return _best_time(lambda: blur(e, albedo=albedo, mfp=mfp, method="fft",
+                                           border="clamp", tol=1e-3, device=rt))
+    return run
+
+
+def checks(fp64: bool) -> list:
+    """The configurations probed on a device (with float64 ones where it has fp64)."""
+    from ..methods.choice import GATHER_WIDTHS_ALLOWED, TABLE_WIDTHS_ALLOWED
+    out = [KernelCheck(f"invert_table/w{w}", table_check(w)) for w in TABLE_WIDTHS_ALLOWED]
+    out += [KernelCheck("invert", method_check("bisection", False)),
+            KernelCheck("invert/f64", method_check("table", True), fp64=True),
+            KernelCheck("physics_eval", physics_check(False)),
+            KernelCheck("physics_eval/f64", physics_check(True), fp64=True),
+            KernelCheck("blur_direct", blur_check("direct")),
+            KernelCheck("blur_separable", blur_check("gaussians"))]
+    out += [KernelCheck(f"blur_textured/w{w}", gather_check(w)) for w in GATHER_WIDTHS_ALLOWED]
+    return [c for c in out if fp64 or not c.fp64]
+
+
+# {{{ the child's main
+
+def _inject_fault(name: str):
+    """The fault ``device.isolation.FAULT_VARIABLE`` asks for at check ``name`` (tests)."""
+    from ..device.isolation import FAULT_VARIABLE
+    spec = os.environ.get(FAULT_VARIABLE, "")
+    for item in filter(None, spec.split(";")):
+        target, _, what = item.partition("=")
+        if target != name:
+            continue
+        if what == "segv":              # the default action (a runtime may handle SIGSEGV)
+            signal.signal(signal.SIGSEGV, signal.SIG_DFL)
+            os.kill(os.getpid(), signal.SIGSEGV)
+        elif what.startswith("abort:"):
+            print(what[len("abort:"):], file=sys.stderr, flush=True)
+            os._exit(1)
+        elif what == "hang":
+            time.sleep(3600)
+
+
+def _emit(msg):
+    print(json.dumps(msg), flush=True)
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m bdipole_cl.ops.kernel_checks")
+    parser.add_argument("--device", required=True, help="P:D, as `bdipole-cl devices` lists")
+    parser.add_argument("--skip", default="", help="comma list of configurations done")
+    args = parser.parse_args(argv)
+    from ..device.runtime import PROBE_CHILD_VARIABLE, runtime_at
+    os.environ[PROBE_CHILD_VARIABLE] = "1"
+    try:
+        rt = runtime_at(args.device)
+    except Exception as exc:       # every driver failure: the device cannot be opened at all
+        _emit({"error": " ".join(str(exc).split())[:300]})
+        return 0
+    skip = set(filter(None, args.skip.split(",")))
+    for check in checks(rt.has_fp64):
+        if check.name in skip:
+            continue
+        _emit({"begin": check.name})
+        _inject_fault(check.name)
+        try:
+            seconds = check.run(rt)
+            _emit({"end": check.name, "ok": True, "reason": "", "seconds": seconds})
+        except Exception as exc:   # a build error, a driver error, a wrong result
+            text = " ".join(str(exc).split())
+            _emit({"end": check.name, "ok": False, "reason": text[:300] or type(exc).__name__,
+                   "seconds": None})
+    _emit({"done": True})
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
+
+# }}}

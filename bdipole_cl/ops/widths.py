@@ -1,0 +1,68 @@
+"""Elements per work-item of the vectorised kernels, chosen on the device in use (operations).
+
+The best width differs between CPUs and runtimes (Intel's runtime vectorises the one-element
+table kernel itself on one AVX-512 Xeon and is 25% slower so on an AVX2 EPYC; PoCL's LLVM
+crashes building 16 lanes on a Zen 4), so it is decided on the device: a calibration
+(``report --calibrate``) where there is one, else the widths the device's probe timed
+(``device.isolation``: each width's workload, run in the probe's child), else the shipped
+per-platform default. A width the probe rejected is never chosen.
+"""
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+from ..device.isolation import config_name
+from ..device.runtime import known_verdict
+
+log = logging.getLogger("bdipole_cl")
+
+
+@dataclass(frozen=True)
+class WidthChoice:
+    """A kernel's width on a device, and what decided it (one phrase)."""
+
+    width: int
+    source: str
+
+
+def passes(rt, source: str, width: int) -> bool:
+    """Whether the device's probe passed kernels/<source>.cl at ``width`` (True where it has
+    no verdict: the probe's own child, which is what measures it)."""
+    known = known_verdict(rt.device)
+    if known is None:
+        return True
+    ok = known.passed(config_name(source, (f"-DBD_WIDTH={width}",)))
+    return ok is not False
+
+
+def probed_times(rt, source: str, allowed) -> dict:
+    """{width: seconds} of the widths the device's probe passed and timed."""
+    known = known_verdict(rt.device)
+    if known is None:
+        return {}
+    out = {}
+    for w in allowed:
+        r = known.result(config_name(source, (f"-DBD_WIDTH={w}",)))
+        if r is not None and r.ok and r.seconds is not None:
+            out[w] = r.seconds
+    return out
+
+
+def choose_width(rt, source: str, allowed, calibrated, default) -> WidthChoice:
+    """The width of kernels/<source>.cl on ``rt``'s device: ``calibrated`` (a calibration's,
+    or None), else the fastest the probe timed, else ``default``; each only where the probe
+    passed it, else the fastest (or narrowest) width that passed."""
+    if calibrated and passes(rt, source, calibrated):
+        return WidthChoice(calibrated, "calibrated on this device (report --calibrate)")
+    times = probed_times(rt, source, allowed)
+    if times:
+        best = min(times, key=times.get)
+        return WidthChoice(best, "the fastest of the widths this device's probe timed")
+    if passes(rt, source, default):
+        return WidthChoice(default, "the runtime's default (not measured on this device)")
+    working = [w for w in allowed if passes(rt, source, w)]
+    if working:
+        return WidthChoice(working[0], f"the narrowest width that passed the probe "
+                                       f"({default} was rejected)")
+    return WidthChoice(default, "no width passed the probe")

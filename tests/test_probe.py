@@ -1,0 +1,137 @@
+"""The kernel probe in a child process (bdipole_cl/device/isolation.py,
+bdipole_cl/ops/kernel_checks.py): a runtime whose compiler crashes on one configuration costs
+that configuration, never the process; the verdict is cached and `bdipole-cl devices` says it.
+
+The crashes are simulated in the probe's real child (``isolation.FAULT_VARIABLE``): killed by
+SIGSEGV, or exiting with the runtime's INVALID_KERNEL_NAME message, as PoCL's LLVM does on a
+Zen 4 building kernels/invert_table.cl at 16 lanes."""
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+import bdipole_cl
+from bdipole_cl.caches import CACHE_DIR_VARIABLE
+from bdipole_cl.device import isolation
+from bdipole_cl.device import runtime as device
+from bdipole_cl.device.programs import kernels_digest
+from bdipole_cl.ops import inversion_kernel
+
+from conftest import RUNTIMES
+
+INVALID_KERNEL_NAME = ("pyopencl._cl.LogicError: clCreateKernel failed: INVALID_KERNEL_NAME\n"
+                       "still have references to IRs - refcount: 1")
+
+
+def _pick(platform_part):
+    """A device under test whose platform names ``platform_part``, else the first one."""
+    return next((rt for rt in RUNTIMES if platform_part in rt.device.platform.name.lower()),
+                RUNTIMES[0])
+
+
+@pytest.fixture
+def fresh_cache(tmp_path, monkeypatch):
+    """An empty verdict cache, this process's verdicts forgotten (and restored after)."""
+    monkeypatch.setenv(CACHE_DIR_VARIABLE, str(tmp_path))
+    saved = dict(isolation._verdicts)
+    isolation.forget_verdicts()
+    yield tmp_path
+    isolation.forget_verdicts()
+    isolation._verdicts.update(saved)
+
+
+def _probe_with_fault(monkeypatch, rt, fault):
+    monkeypatch.setenv(isolation.FAULT_VARIABLE, fault)
+    return device.verdict(rt.device)
+
+
+def test_a_crashing_compiler_costs_one_configuration(monkeypatch, fresh_cache):
+    rt = _pick("intel")
+    verdict = _probe_with_fault(monkeypatch, rt, "invert_table/w16=segv")
+    bad = verdict.result("invert_table/w16")
+    assert bad is not None and not bad.ok and "SIGSEGV" in bad.reason, verdict
+    # the child that died was replaced: every other configuration was probed, and passed
+    assert verdict.works and [r.name for r in verdict.rejected()] == ["invert_table/w16"]
+    assert verdict.passed("invert_table/w8") and verdict.passed("blur_direct"), verdict
+    # cached on disk: a new process reads it (no probe), under the same key
+    path = isolation.verdict_path(rt.device, kernels_digest())
+    assert path.is_file() and isolation.read_verdict(path).rejected()[0].name == bad.name
+
+    # the library never picks the rejected width, and still computes right
+    choice = inversion_kernel.table_width_choice(rt)
+    assert choice.width != 16, choice
+    rd = np.float32([1e-4, 0.3, 0.9])
+    want = bdipole_cl.reference.invert_rd(rd.astype(np.float64), 1.4)
+    np.testing.assert_allclose(bdipole_cl.invert_albedo(rd, 1.4, device=rt), want, rtol=1e-4)
+    # forcing it is a one-line DeviceError naming the reason, not a crash
+    monkeypatch.setenv(inversion_kernel.TABLE_WIDTH_VARIABLE, "16")
+    bdipole_cl.clear_caches()
+    with pytest.raises(bdipole_cl.DeviceError, match="invert_table/w16 failed this device's "
+                                                     "probe.*SIGSEGV"):
+        bdipole_cl.invert_albedo(np.float32([0.5, 0.6]), 1.3, device=rt)
+    monkeypatch.delenv(inversion_kernel.TABLE_WIDTH_VARIABLE)
+    bdipole_cl.clear_caches()
+
+    # `bdipole-cl devices` (a new process, reading the cached verdict) names the reason
+    env = dict(os.environ)
+    out = subprocess.run([sys.executable, "-m", "bdipole_cl", "devices"], env=env,
+                         capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr
+    line = next(ln for ln in out.stdout.splitlines() if rt.device.name.strip() in ln
+                and rt.device.platform.name.strip() in ln)
+    assert "works (1 configuration rejected: invert_table/w16 (crashed (SIGSEGV)" in line, line
+    described = f"{rt.device.name.strip()} ({rt.device.platform.name.strip()})"
+    assert f"probing {described}" not in out.stderr, out.stderr   # its cached verdict read
+
+
+def test_invalid_kernel_name_and_exit_is_rejected_with_the_runtimes_words(monkeypatch,
+                                                                          fresh_cache):
+    rt = _pick("portable")
+    verdict = _probe_with_fault(monkeypatch, rt, f"invert_table/w8=abort:{INVALID_KERNEL_NAME}")
+    bad = verdict.result("invert_table/w8")
+    assert not bad.ok and "INVALID_KERNEL_NAME" in bad.reason, bad
+    assert "exited with status 1" in bad.reason, bad
+    assert verdict.works and verdict.passed("invert_table/w4"), verdict
+    assert inversion_kernel.table_width_choice(rt).width != 8
+
+
+def test_a_hanging_build_times_out(monkeypatch, fresh_cache):
+    rt = _pick("intel")
+    monkeypatch.setattr(isolation, "CONFIG_TIMEOUT_S", 3.0)
+    verdict = _probe_with_fault(monkeypatch, rt, "blur_direct=hang")
+    bad = verdict.result("blur_direct")
+    assert not bad.ok and "timed out after 3 s" in bad.reason, bad
+    assert verdict.passed("blur_separable"), verdict
+
+
+def test_a_device_whose_child_cannot_start_is_broken_with_the_reason(monkeypatch, fresh_cache):
+    rt = _pick("intel")
+    monkeypatch.setattr(isolation, "PROBE_MODULE", "bdipole_cl.no_such_module")
+    verdict = device.verdict(rt.device)
+    assert not verdict.works
+    assert "failed outside any kernel" in verdict.reason and "No module named" in verdict.reason
+
+
+def test_verdict_key_follows_driver_and_kernels(fresh_cache):
+    rt = RUNTIMES[0]
+    a = isolation.verdict_key(rt.device, "digest-a")
+    assert a == isolation.verdict_key(rt.device, "digest-a")
+    assert a != isolation.verdict_key(rt.device, "digest-b")
+
+
+def test_config_names_match_what_get_program_builds():
+    assert isolation.config_name("invert_table", ("-DBD_NCHAN=3", "-DBD_WIDTH=16")) \
+        == "invert_table/w16"
+    assert isolation.config_name("invert", ("-DBD_DOUBLE", "-DBD_METHOD_TABLE")) == "invert/f64"
+    assert isolation.config_name("blur_direct", ("-DBD_TILE=16",)) == "blur_direct"
+
+
+def test_every_device_under_test_passed_its_own_probe():
+    """The machine at hand: each device's verdict, with what it rejected (none expected on a
+    CPU whose runtimes work; a rejection here is printed, not failed, as the library copes)."""
+    for rt in RUNTIMES:
+        v = device.verdict(rt.device)
+        assert v.works, v.reason
+        print(rt.describe(), v.describe_rejected() or "nothing rejected")

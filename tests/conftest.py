@@ -69,6 +69,18 @@ def has_fp64(runtime):
     return runtime.has_fp64
 
 
+def skip_if_rejected(rt, source, width=None):
+    """Skip where the device's probe rejected kernels/<source>.cl at ``width``: the library
+    never builds it there (building it could crash the process: bdipole_cl/device/isolation)."""
+    from bdipole_cl.device.isolation import config_name
+    options = () if width is None else (f"-DBD_WIDTH={width}",)
+    name = config_name(source, options)
+    known = device.runtime.known_verdict(rt.device)
+    result = None if known is None else known.result(name)
+    if result is not None and not result.ok:
+        pytest.skip(f"{name} was rejected by this device's probe: {result.reason}")
+
+
 def f32(x):
     """Round to float32 and back, so the float64 reference sees exactly the kernel's input."""
     return np.asarray(x, dtype=np.float32).astype(np.float64)
@@ -86,4 +98,4 @@ def rel_err(got, want):
     return np.abs(got - want) / np.abs(want)
 
 
-__all__ = ["EPS32", "EPS64", "f32", "stiff_albedos", "rel_err", "ref"]
+__all__ = ["EPS32", "EPS64", "f32", "skip_if_rejected", "stiff_albedos", "rel_err", "ref"]

@@ -45,7 +45,7 @@ import numpy as np
 from scipy.signal import fftconvolve
 
 from bdipole_cl import get_runtime, use_device
-from bdipole_cl.apps.benchmark import hdr_irradiance, varying_workload
+from bdipole_cl.apps.benchmark import hdr_irradiance, machine_lines, varying_workload
 from bdipole_cl.ops.blur import blur, channel_kernel, channel_parameters
 from bdipole_cl.ops.blur.fft import SPECTRA_CACHE
 
@@ -119,7 +119,7 @@ def main(argv=None):
         ap.error("--methods: the ratios are to auto's time; include auto")
     if args.device:
         use_device(args.device)
-    print(f"device: {get_runtime().describe()}")
+    print("\n".join(machine_lines(get_runtime())))
     if args.gather:
         return gather_costs(args)
     e = hdr_irradiance(args.size)                         # with a few HDR highlights

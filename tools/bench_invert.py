@@ -34,8 +34,8 @@ import numpy as np
 import pyopencl as cl
 
 from bdipole_cl import albedo_to_coefficients, get_runtime, invert_albedo, use_device
-from bdipole_cl.apps.benchmark import (inversion_workload, median_time, reference_inverse,
-                                       time_copy, time_inversion)
+from bdipole_cl.apps.benchmark import (inversion_workload, machine_lines, median_time,
+                                       reference_inverse, time_copy, time_inversion)
 from bdipole_cl.device import build_options, get_program
 from bdipole_cl.device.layout import P, channel_params
 from bdipole_cl.physics import tables
@@ -214,7 +214,7 @@ def main(argv=None):
     if args.device:
         use_device(args.device)
     rt = get_runtime()
-    print(f"device: {rt.describe()}")
+    print("\n".join(machine_lines(rt)))
     rd = inversion_workload(args.n)
     t0 = time.perf_counter()
     check = min(args.check, args.n)

@@ -21,6 +21,42 @@ from ..ops.invert import InversionKernel
 from ..physics import reference as ref
 
 
+def cpu_model() -> str:
+    """This machine's CPU: model name, family and model numbers, widest SIMD, logical cores
+    (/proc/cpuinfo where there is one; a VM's model name can be generic)."""
+    import os
+    import platform
+    fields = {}
+    try:
+        with open("/proc/cpuinfo") as f:
+            for ln in f:
+                key, _, value = ln.partition(":")
+                if not ln.strip():
+                    break                       # the first processor is enough
+                fields.setdefault(key.strip().lower(), value.strip())
+    except OSError:
+        pass
+    name = fields.get("model name") or platform.processor() or platform.machine()
+    flags = set(fields.get("flags", "").split())
+    simd = next((f for f in ("avx512f", "avx2", "avx", "sse4_2", "neon") if f in flags), "")
+    ident = (f"family {fields['cpu family']} model {fields['model']}"
+             if "cpu family" in fields and "model" in fields else "")
+    extra = ", ".join(x for x in (ident, simd) if x)
+    return f"{name}" + (f" ({extra})" if extra else "") + f", {os.cpu_count()} logical cores"
+
+
+def machine_lines(rt) -> list:
+    """What a benchmark's figures were measured on: the CPU, the OpenCL runtime and device,
+    and the kernel widths chosen there with what decided them."""
+    from ..ops.blur.dispatch import gather_width
+    from ..ops.inversion_kernel import table_width_choice
+    table = table_width_choice(rt)
+    return [f"CPU: {cpu_model()}",
+            f"OpenCL: {rt.describe()}, driver {rt.device.driver_version.strip()}",
+            f"widths: table kernel {table.width} ({table.source}); gather "
+            f"{gather_width(rt, 1 << 20)}"]
+
+
 def median_time(fn, repeats=5, warmup=1, queue=None, stat=statistics.median):
     """Median (or ``stat``: ``min`` for the best of a noisy machine) wall time of ``fn()``
     (which enqueues work) in seconds, queue drained each time."""

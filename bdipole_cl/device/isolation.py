@@ -20,6 +20,7 @@ take the process down on a known crash.
 """
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import importlib.util
 import json
@@ -211,10 +212,11 @@ class _Child:
     """One child process running the checks; its stdout is read by a thread into a queue, so
     that every wait has a timeout."""
 
-    def __init__(self, device_index: str, skip):
+    def __init__(self, device_index: str, results: dict):
         cmd = [sys.executable, "-m", PROBE_MODULE, "--device", device_index]
-        if skip:
-            cmd += ["--skip", ",".join(skip)]
+        if results:
+            cmd += ["--skip", ",".join(results),
+                    "--passed", ",".join(n for n, r in results.items() if r.ok)]
         self.err = tempfile.TemporaryFile(mode="w+")
         self.proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=self.err,
                                      stdin=subprocess.DEVNULL, text=True,
@@ -266,9 +268,9 @@ def run_probe(device_index: str, description: str) -> Verdict:
     result, a crashed one rejected and the rest probed by a new child."""
     results: dict = {}
     for _attempt in range(64):                 # more than there are configurations
-        child = _Child(device_index, list(results))
+        child = _Child(device_index, results)
         current, timeout = None, START_TIMEOUT_S
-        finished = timed_out = False
+        finished = timed_out = timing = False
         while True:
             msg = child.line(timeout)
             if msg is None or msg is TIMED_OUT:
@@ -277,10 +279,15 @@ def run_probe(device_index: str, description: str) -> Verdict:
             if "begin" in msg:
                 current, timeout = str(msg["begin"]), CONFIG_TIMEOUT_S
             elif "end" in msg:
-                r = ConfigResult(str(msg["end"]), bool(msg["ok"]), str(msg.get("reason", "")),
-                                 msg.get("seconds"))
+                r = ConfigResult(str(msg["end"]), bool(msg["ok"]), str(msg.get("reason", "")))
                 results[r.name] = r
                 current, timeout = None, CONFIG_TIMEOUT_S
+            elif "timing" in msg:
+                timing = True
+            elif "time" in msg and msg["time"] in results:
+                name = str(msg["time"])
+                results[name] = dataclasses.replace(results[name],
+                                                    seconds=float(msg["seconds"]))
             elif msg.get("done"):
                 finished = True
                 break
@@ -288,7 +295,7 @@ def run_probe(device_index: str, description: str) -> Verdict:
                 child.finish(kill=True)
                 return Verdict(description, tuple(results.values()), str(msg["error"]))
         rc, err = child.finish(kill=timed_out or not finished)
-        if finished and rc == 0:
+        if (finished and rc == 0) or timing:     # a failed timing costs the timings alone
             return Verdict(description, tuple(results.values()))
         if current is None:                     # died between configurations, or at start
             why = (f"timed out after {START_TIMEOUT_S:.0f} s" if timed_out

@@ -7,8 +7,8 @@ user's cache (``calibration_path``: ``$BDIPOLE_CL_CACHE_DIR``, else
 --write-choice PATH`` writes them to any file. Which data decide (``choice_for``):
 ``BDIPOLE_CL_CHOICE_DATA`` (a file named by the user) if set; else the calibration of the device
 in use if there is one; else the data shipped with the package (``bdipole_cl/data/choice.json``),
-with a one-line note (logger "bdipole_cl") when they were measured on another device.
-``ChoiceSource`` says which, for ``BlurInfo`` and scene plans. ``auto`` picks the cheapest
+``ChoiceSource`` says which, for ``BlurInfo``, ``plan`` and the INFO log; a warning is not
+printed on every command. ``auto`` picks the cheapest
 measured configuration whose measured error meets ``tol``.
 """
 from __future__ import annotations
@@ -165,7 +165,7 @@ _noted_lock = threading.Lock()
 def choice_for(key: DeviceKey | None = None) -> tuple:
     """(ChoiceData, ChoiceSource) for the device ``key`` (None: unknown): the named file, else
     this device's calibration (only if it is keyed by this very device), else the shipped
-    data, noted once per process and device when they were measured elsewhere."""
+    data; the ChoiceSource says which (``describe``: "measured on another device ...")."""
     named = os.environ.get(CHOICE_DATA_VARIABLE)
     if named:
         if not Path(named).is_file():
@@ -181,9 +181,8 @@ def choice_for(key: DeviceKey | None = None) -> tuple:
     data = load_choice_data(PACKAGED_CHOICE_DATA)
     source = ChoiceSource(PACKAGED_CHOICE_DATA, "shipped", data.device,
                           key is not None and data.device_key == key)
-    if key is not None and not source.this_device:
-        note_once(key, "method='auto' on %s: choosing from data measured on %s; `bdipole-cl "
-                  "report --calibrate` measures this device", key.describe(), data.device)
+    # said where a user looks for it (a plan's lines, BlurInfo.data, the INFO log of
+    # resolve_method), not as a warning on every command's stderr
     return data, source
 
 

@@ -135,3 +135,29 @@ def test_every_device_under_test_passed_its_own_probe():
         v = device.verdict(rt.device)
         assert v.works, v.reason
         print(rt.describe(), v.describe_rejected() or "nothing rejected")
+
+
+def test_blur_crossovers_follow_this_devices_timings():
+    """The shipped blur timings are another CPU's: rescaled by what each (method, radius) took
+    on this device, ``auto`` picks by this device's costs (errors unchanged)."""
+    from bdipole_cl.methods import choice
+    data = choice.load_choice_data(choice.PACKAGED_CHOICE_DATA)
+    refs = choice.timing_references(data)
+    assert {(r.method, r.radius) for r in refs} == {(b.method, b.radius) for b in data.blur}
+    assert choice.rescaled_blur(data, {}) is None                 # nothing timed: unchanged
+    radius = max(r.radius for r in refs)
+    for fast in ("direct", "fft"):
+        # a device where ``fast`` costs a thousandth of the others at every radius
+        seconds = {(r.method, r.radius): (1e-6 if r.method == fast else 1e-3) for r in refs}
+        scaled = choice.rescaled_blur(data, seconds)
+        assert [b.max_error for b in scaled.blur] == [b.max_error for b in data.blur]
+        pick = choice.auto_blur_config(radius, 1e-2, scaled)
+        assert pick.method == fast, (fast, pick)
+
+
+def test_auto_says_its_timings_are_this_devices(runtime):
+    from bdipole_cl.ops.blur.planning import auto_data
+    auto = auto_data(runtime)
+    if "calibrated" not in auto.source:
+        assert "rescaled by this device's probe" in auto.source, auto.source
+        assert auto.methods is None

@@ -61,10 +61,11 @@ def test_small_report_run_writes_table_csv_plot(tmp_path):
 def test_blur_auto_picks_a_measured_config_meeting_tol(tol):
     from bdipole_cl.ops.blur import blur, channel_kernel, channel_parameters
     from bdipole_cl.ops.blur.fft import fft_blur_channel
+    from bdipole_cl.ops.blur.planning import auto_data
     e = np.random.default_rng(4).uniform(0, 1, (40, 40, 1)).astype(np.float32)
     out, info = blur(e, albedo=0.8, mfp=3.0, tol=tol, method="auto", return_info=True)
     picked = info.channels[0].auto
-    data = load_choice_data().blur
+    data = auto_data().data.blur      # the timings auto decides from on this device
     # only truncations no looser than tol are candidates (docs/model.md "Blur error bound"):
     # below every measured truncation, the radius rule at truncation tol
     assert picked.truncation_tol <= tol and info.channels[0].error_bound <= tol, picked

@@ -284,10 +284,10 @@ def run_probe(device_index: str, description: str) -> Verdict:
                 current, timeout = None, CONFIG_TIMEOUT_S
             elif "timing" in msg:
                 timing = True
-            elif "time" in msg and msg["time"] in results:
+            elif "time" in msg:                # a width's, or a workload's of its own
                 name = str(msg["time"])
-                results[name] = dataclasses.replace(results[name],
-                                                    seconds=float(msg["seconds"]))
+                r = results.get(name, ConfigResult(name, True))
+                results[name] = dataclasses.replace(r, seconds=float(msg["seconds"]))
             elif msg.get("done"):
                 finished = True
                 break

@@ -13,6 +13,7 @@ measured configuration whose measured error meets ``tol``.
 """
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import logging
@@ -391,6 +392,37 @@ def resolve_method(method="table", double=False, device_key=None, **knobs) -> Me
             source.describe())
         return choice.config
     return MethodConfig(method, **{k: v for k, v in knobs.items() if v is not None})
+
+
+#: the tol whose timing stands for a (method, radius) when timings are rescaled
+#: (``timing_references``, ``rescaled_blur``): the middle one measured
+TIMING_TOL = 1e-3
+
+
+def timing_references(data: ChoiceData) -> list:
+    """One BlurChoice per (method, radius) of ``data``: the one at TIMING_TOL, else its
+    tightest tol measured."""
+    refs = {}
+    for b in data.blur:
+        key = (b.method, b.radius)
+        held = refs.get(key)
+        if held is None or b.tol == TIMING_TOL or (held.tol != TIMING_TOL and b.tol < held.tol):
+            refs[key] = b
+    return list(refs.values())
+
+
+def rescaled_blur(data: ChoiceData, seconds: dict) -> ChoiceData | None:
+    """``data`` with each blur timing scaled by what its (method, radius) reference took on
+    another device (``seconds``: {(method, radius): seconds}): the choices' relative costs
+    at each radius become that device's, their errors stay (they do not depend on the
+    device). None unless every (method, radius) was timed."""
+    refs = {(b.method, b.radius): b for b in timing_references(data)}
+    if not refs or any(k not in seconds or not seconds[k] > 0 for k in refs):
+        return None
+    blur = tuple(dataclasses.replace(b, median_s=b.median_s * seconds[(b.method, b.radius)]
+                                     / refs[(b.method, b.radius)].median_s)
+                 for b in data.blur)
+    return dataclasses.replace(data, blur=blur)
 
 
 def auto_blur_config(radius: int, tol: float, data: ChoiceData | None = None,

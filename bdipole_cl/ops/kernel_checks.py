@@ -5,14 +5,15 @@ child process (``bdipole_cl.device.isolation``), ``python -m bdipole_cl.ops.kern
 Each check builds its configuration through the library's own code (so the programs are the
 ones later built, and a runtime's on-disk kernel cache is warm for them), runs it on a small
 input and compares with the float64 reference loosely: the probe asks whether the runtime
-builds and runs the kernel, the crosscheck and the tests ask how accurately. Then the widths
-that passed are timed: the child's measurements pick the widths on this device
-(``ops.widths``, used by ``ops.inversion_kernel.table_width`` and
-``ops.blur.dispatch.gather_width``).
+builds and runs the kernel, the crosscheck and the tests ask how accurately. Then what differs
+between CPUs is timed: each width that passed (``ops.widths`` picks the fastest for
+``ops.inversion_kernel.table_width`` and ``ops.blur.dispatch.gather_width``) and each blur
+method at each radius of the shipped choice data (``ops.blur.planning.auto_data`` rescales
+those data's timings with them, so ``auto``'s crossovers are this device's).
 
 Output: one JSON line ``{"begin": NAME}`` before a check and ``{"end": NAME, "ok": ..., "reason":
 ...}`` after it; then ``{"timing": true}``, a ``{"time": NAME, "seconds": ...}`` line for each
-width timed (``time_widths``), and ``{"done": true}``.
+workload timed (``timed_runs``: the widths, the blur's methods), and ``{"done": true}``.
 """
 from __future__ import annotations
 
@@ -26,6 +27,8 @@ from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
+
+from .widths import blur_timing_name
 
 #: a probe's loose agreement with the float64 reference (relative, of rho and of the blur's
 #: exitance): a working float32 kernel is within ~1e-5 (docs/model.md "Accuracy"); a
@@ -208,27 +211,53 @@ def gather_timer(rt, width):
 
 #: (kernel source, widths, timer): the widths whose best differs between CPUs and runtimes
 TIMED_WIDTHS = (("invert_table", "TABLE", table_timer), ("blur_textured", "GATHER", gather_timer))
-#: rounds of the interleaved timing: every width once a round, its best round kept, so that a
-#: busy moment of a shared machine slows one round of every width rather than one width
+#: rounds of the interleaved timing: every workload once a round, its best round kept, so that
+#: a busy moment of a shared machine slows one round of every workload rather than one of them
 TIMING_ROUNDS = 5
+#: the side of the blur timings' image: the shipped data's workload is 512^2; a quarter of it
+#: keeps the probe to seconds, and ``auto`` compares the methods at one radius, whose costs
+#: scale alike with the area
+BLUR_TIMING_SIZE = 256
+def blur_timers(rt) -> dict:
+    """{name: one blur}: each (method, kernel radius) of the shipped choice data, on its
+    workload's mfp at its reference tol (``methods.choice.timing_references``): what decides
+    the crossovers of ``blur(method="auto")`` between methods on this device."""
+    from ..methods.choice import PACKAGED_CHOICE_DATA, load_choice_data, timing_references
+    from .blur import blur
+    e = np.random.default_rng(3).random((BLUR_TIMING_SIZE, BLUR_TIMING_SIZE, 1), np.float32)
+    timers = {}
+    for ref in timing_references(load_choice_data(PACKAGED_CHOICE_DATA)):
+        timers[blur_timing_name(ref.method, ref.radius)] = (
+            lambda ref=ref: blur(e, albedo=0.8, mfp=ref.mfp, method=ref.method, tol=ref.tol,
+                                 border="clamp", device=rt))
+    return timers
 
 
-def time_widths(rt, passed) -> dict:
-    """{configuration name: best seconds} of each width that ``passed`` (names), timed in
-    interleaved rounds."""
+def timed_runs(rt, passed) -> dict:
+    """{name: one run} of every workload timed on the device: each width that ``passed``
+    (names) of each kernel in TIMED_WIDTHS, and the blur's methods (``blur_timers``)."""
     from ..methods.choice import GATHER_WIDTHS_ALLOWED, TABLE_WIDTHS_ALLOWED
     allowed = {"TABLE": TABLE_WIDTHS_ALLOWED, "GATHER": GATHER_WIDTHS_ALLOWED}
-    best = {}
+    runs = {}
     for source, kind, make in TIMED_WIDTHS:
-        runs = {f"{source}/w{w}": make(rt, w) for w in allowed[kind]
-                if f"{source}/w{w}" in passed}
-        for run in runs.values():
-            run()                           # builds, first touches
-        for _ in range(TIMING_ROUNDS):
-            for name, run in runs.items():
-                t0 = time.perf_counter()
-                run()
-                best[name] = min(best.get(name, float("inf")), time.perf_counter() - t0)
+        runs.update({f"{source}/w{w}": make(rt, w) for w in allowed[kind]
+                     if f"{source}/w{w}" in passed})
+    if {"blur_direct", "blur_separable"} <= passed:
+        runs.update(blur_timers(rt))
+    return runs
+
+
+def time_runs(runs: dict) -> dict:
+    """{name: best seconds} of ``runs``, timed in TIMING_ROUNDS interleaved rounds (after one
+    untimed run each: builds, first touches)."""
+    for run in runs.values():
+        run()
+    best = {}
+    for _ in range(TIMING_ROUNDS):
+        for name, run in runs.items():
+            t0 = time.perf_counter()
+            run()
+            best[name] = min(best.get(name, float("inf")), time.perf_counter() - t0)
     return best
 
 # }}}
@@ -300,7 +329,7 @@ def main(argv=None) -> int:
             text = " ".join(str(exc).split())
             _emit({"end": check.name, "ok": False, "reason": text[:300] or type(exc).__name__})
     _emit({"timing": True})
-    for name, seconds in time_widths(rt, passed).items():
+    for name, seconds in time_runs(timed_runs(rt, passed)).items():
         _emit({"time": name, "seconds": seconds})
     _emit({"done": True})
     return 0

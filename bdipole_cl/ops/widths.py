@@ -66,3 +66,26 @@ def choose_width(rt, source: str, allowed, calibrated, default) -> WidthChoice:
         return WidthChoice(working[0], f"the narrowest width that passed the probe "
                                        f"({default} was rejected)")
     return WidthChoice(default, "no width passed the probe")
+
+
+#: the probe's blur timings' name prefix (``blur_timing_name``; ``ops.kernel_checks`` writes
+#: them, ``ops.blur.planning.probed_blur_data`` reads them)
+BLUR_TIMING = "blur-timing"
+
+
+def blur_timing_name(method: str, radius: int) -> str:
+    return f"{BLUR_TIMING}/{method}/r{radius}"
+
+
+def blur_timings(rt) -> dict:
+    """{(method, radius): seconds} of the blur timings of ``rt``'s device's probe."""
+    known = known_verdict(rt.device)
+    if known is None:
+        return {}
+    prefix = BLUR_TIMING + "/"
+    out = {}
+    for r in known.results:
+        if r.ok and r.seconds is not None and r.name.startswith(prefix):
+            method, radius = r.name[len(prefix):].rsplit("/r", 1)
+            out[(method, int(radius))] = r.seconds
+    return out

@@ -11,7 +11,8 @@ import numpy as np
 from ...device import get_runtime
 from ...device.runtime import device_kind
 from ...methods.choice import (AUTO_DIRECT_MAX_RADIUS, ChoiceData, DeviceKey, auto_blur_config,
-                               choice_for)
+                               choice_for, rescaled_blur)
+from ..widths import blur_timings
 from ...signals import check_stop
 from .dispatch import DeviceBlur
 from .fft import fft_blur_channels, fft_bound, fft_dtype, settled, summed_roundoff
@@ -49,11 +50,24 @@ class AutoData:
 
 
 def auto_data(rt=None) -> AutoData:
-    """The AutoData of ``rt``'s device (None: the default device)."""
+    """The AutoData of ``rt``'s device (None: the default device): data measured on another
+    device have their blur timings rescaled by this device's probe (``probed_blur_data``)."""
     rt = get_runtime(rt)
     data, source = choice_for(DeviceKey.of(rt.device))
+    described = source.describe()
+    if not source.this_device:
+        probed = probed_blur_data(rt, data)
+        if probed is not None:
+            return AutoData(probed, described + "; blur timings rescaled by this device's "
+                                                "probe", None)
     foreign = not source.this_device and device_kind(rt.device) != "cpu"
-    return AutoData(data, source.describe(), ("direct", "gaussians") if foreign else None)
+    return AutoData(data, described, ("direct", "gaussians") if foreign else None)
+
+
+def probed_blur_data(rt, data: ChoiceData) -> ChoiceData | None:
+    """``data`` with the blur timings this device's probe measured (``ops.kernel_checks``'
+    blur timings), or None where it has none for every (method, radius)."""
+    return rescaled_blur(data, blur_timings(rt))
 
 
 @dataclass(frozen=True)

@@ -263,47 +263,70 @@ class _Child:
 TIMED_OUT = object()
 
 
+@dataclass
+class _Run:
+    """What one child reported before it ended."""
+
+    current: str | None = None          # the configuration it was in
+    finished: bool = False              # it said "done"
+    timed_out: bool = False
+    timing: bool = False                # it had begun timing (every check had ended)
+    error: str = ""                     # it could not open the device
+
+
+def _read(child: _Child, results: dict) -> _Run:
+    """Read ``child``'s lines into ``results`` until it ends, says done, or times out."""
+    run, timeout = _Run(), START_TIMEOUT_S
+    while True:
+        msg = child.line(timeout)
+        if msg is None or msg is TIMED_OUT:
+            run.timed_out = msg is TIMED_OUT
+            return run
+        timeout = CONFIG_TIMEOUT_S
+        if "begin" in msg:
+            run.current = str(msg["begin"])
+        elif "end" in msg:
+            r = ConfigResult(str(msg["end"]), bool(msg["ok"]), str(msg.get("reason", "")))
+            results[r.name] = r
+            run.current = None
+        elif "timing" in msg:
+            run.timing = True
+        elif "time" in msg:                     # a width's, or a workload's of its own
+            name = str(msg["time"])
+            r = results.get(name, ConfigResult(name, True))
+            results[name] = dataclasses.replace(r, seconds=float(msg["seconds"]))
+        elif msg.get("done"):
+            run.finished = True
+            return run
+        elif "error" in msg:
+            run.error = str(msg["error"])
+            return run
+
+
 def run_probe(device_index: str, description: str) -> Verdict:
     """Probe the device ``device_index`` ("P:D") in child processes: every configuration's
-    result, a crashed one rejected and the rest probed by a new child."""
+    result, a crashed one rejected and the rest probed by a new child. An interrupt (or any
+    error here) kills the child and propagates: nothing is cached."""
     results: dict = {}
     for _attempt in range(64):                 # more than there are configurations
         child = _Child(device_index, results)
-        current, timeout = None, START_TIMEOUT_S
-        finished = timed_out = timing = False
-        while True:
-            msg = child.line(timeout)
-            if msg is None or msg is TIMED_OUT:
-                timed_out = msg is TIMED_OUT
-                break
-            if "begin" in msg:
-                current, timeout = str(msg["begin"]), CONFIG_TIMEOUT_S
-            elif "end" in msg:
-                r = ConfigResult(str(msg["end"]), bool(msg["ok"]), str(msg.get("reason", "")))
-                results[r.name] = r
-                current, timeout = None, CONFIG_TIMEOUT_S
-            elif "timing" in msg:
-                timing = True
-            elif "time" in msg:                # a width's, or a workload's of its own
-                name = str(msg["time"])
-                r = results.get(name, ConfigResult(name, True))
-                results[name] = dataclasses.replace(r, seconds=float(msg["seconds"]))
-            elif msg.get("done"):
-                finished = True
-                break
-            elif "error" in msg:               # the child could not open the device
-                child.finish(kill=True)
-                return Verdict(description, tuple(results.values()), str(msg["error"]))
-        rc, err = child.finish(kill=timed_out or not finished)
-        if (finished and rc == 0) or timing:     # a failed timing costs the timings alone
+        try:
+            run = _read(child, results)
+        except BaseException:
+            child.finish(kill=True)
+            raise
+        rc, err = child.finish(kill=run.timed_out or not run.finished)
+        if run.error:
+            return Verdict(description, tuple(results.values()), run.error)
+        if (run.finished and rc == 0) or run.timing:   # a failed timing costs the timings
             return Verdict(description, tuple(results.values()))
-        if current is None:                     # died between configurations, or at start
-            why = (f"timed out after {START_TIMEOUT_S:.0f} s" if timed_out
+        if run.current is None:                 # died between configurations, or at start
+            why = (f"timed out after {START_TIMEOUT_S:.0f} s" if run.timed_out
                    else _death(rc, err))
             return Verdict(description, tuple(results.values()),
                            f"the kernel probe's process failed outside any kernel ({why})")
-        results[current] = ConfigResult(
-            current, False, f"timed out after {CONFIG_TIMEOUT_S:.0f} s" if timed_out
+        results[run.current] = ConfigResult(
+            run.current, False, f"timed out after {CONFIG_TIMEOUT_S:.0f} s" if run.timed_out
             else _death(rc, err))
     return Verdict(description, tuple(results.values()), "the kernel probe did not finish")
 

@@ -288,9 +288,10 @@ def build_parser() -> argparse.ArgumentParser:
     add_scheduler_args(p)
     p.set_defaults(func=_cmd_bake)
 
-    from . import preview, profile
+    from . import cache, preview, profile
     preview.add_command(command)
     profile.add_command(command)
+    cache.add_command(command)
 
     p = command("report", help="error against run time for every method (md, csv, png)")
     p.add_argument("-o", "--output", default="report_out", help="folder for the report")

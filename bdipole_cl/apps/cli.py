@@ -265,7 +265,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--against", choices=tuple(SIGNATURES),
                    help="what it computes: rd(alpha', 2C1, 3C2), profile(r, alpha', sigma_t', "
                         "2C1, 3C2), invert(Rd, 2C1, 3C2) -> alpha', invert-rho -> rho, or "
-                        "invert-both(Rd, 2C1, 3C2, float *alpha', float *rho)")
+                        "invert-both(Rd, 2C1, 3C2) -> alpha' and rho through two float "
+                        "pointers")
     p.add_argument("--timeout", type=positive_float, default=120.0,
                    help="seconds a user kernel's run may take before it is stopped")
     p.set_defaults(func=_cmd_crosscheck)

@@ -58,7 +58,7 @@ def auto_data(rt=None) -> AutoData:
 
 @dataclass(frozen=True)
 class ChannelInfo:
-    """What ``blur`` did in one channel. ``error_bound`` bounds |M - exact| / (max E * Rd):
+    """What ``blur`` did in one channel. ``error_bound`` bounds ``|M - exact| / (max E * Rd)``:
     the truncation tol for exact weights, plus the fit's L1 error for gaussians, or the
     measured kernel error of a texture-varying plan."""
 

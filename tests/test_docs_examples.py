@@ -170,6 +170,17 @@ def test_example_runs(example, in_example_folder, capsys):
         assert rc == 0, (example.id, argv, rc, captured.err[-1500:])
 
 
+def test_the_demos_next_steps_run(in_example_folder, capsys):
+    """The three commands the demo prints last run as printed, on files named as they say."""
+    from bdipole_cl.apps.demo import NEXT_STEPS
+    for command, _ in NEXT_STEPS:
+        words = shlex.split(command)
+        assert words[0] == "bdipole-cl", command
+        rc = cli_main(words[1:])
+        assert rc == 0, (command, capsys.readouterr().err[-1500:])
+    assert (in_example_folder / "out" / "albedo.1001_sss.preview.png").is_file()
+
+
 def test_examples_are_found():
     # the runner means nothing if the parser finds no block: the README alone has five
     readme = [e for e in RUNNABLE if e.page.name == "README.md"]

@@ -88,6 +88,16 @@ def test_clear_removes_only_the_tools_own_entries(home, tmp_path, capsys):
     assert "~/.cache/pocl/kcache" in info and "PoCL's, shared" in info, info
 
 
+def test_the_readme_and_the_install_page_name_every_folders_variable(home):
+    """The README's and docs/install.md's tables of folders name each variable that moves one
+    (a folder added to ``cache_folders`` without its line in the docs fails here)."""
+    for page in (ROOT / "README.md", ROOT / "docs" / "install.md"):
+        text = page.read_text()
+        for f in cache.cache_folders():
+            variable = f.moved_by.split()[0]
+            assert f"`{variable}`" in text, (page.name, f.what, variable)
+
+
 @pytest.mark.slow
 def test_demo_in_an_empty_home_writes_only_listed_folders(home, tmp_path):
     """A fresh user's demo: it ends with its pictures and the next steps, and every folder that

@@ -1,7 +1,7 @@
 """bdipole_cl: the Better Dipole (d'Eon 2012) and its texture-mapping inversion (Hery, Pixar
 TM 12-11) as OpenCL batch kernels with a thin NumPy host layer.
 
-Layers, each importing only those below it (README "Layout"):
+Layers, each importing only those below it (docs/layout.md):
 
     applications   apps/      cli, report, crosscheck, demo, benchmark; dask.py, scene.py
     jobs           jobs/      job records, the one runner, batches, file blur, scenes
@@ -11,7 +11,7 @@ Layers, each importing only those below it (README "Layout"):
     device         device/    runtimes and probing, programs, kernel sources, parameter layout
     physics        physics/   reference (float64 truth), fresnel, models, tables
     foundation                errors (invalid input, on_invalid), caches, vocabulary (option
-                              kinds: one registry each, README "Vocabulary")
+                              kinds: one registry each, docs/python.md "Vocabulary")
 
 Float64 reference of every function: ``bdipole_cl.reference``.
 """

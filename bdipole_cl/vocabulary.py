@@ -1,7 +1,7 @@
 """Option kinds as objects (the foundation layer): each allowed value of an option is an
 ``Option`` (its canonical name, what it means, the other spellings accepted for it), and each
 kind of option has one ``Registry`` of them, defined once and imported by the API, the CLI,
-scene files and the docs' checks (README "Vocabulary").
+scene files and the docs' checks (docs/python.md "Vocabulary").
 
 The registries themselves live with what they name: the invalid-input policies in
 ``errors``, the models in ``physics.models``, the inversion and blur methods, borders, mfp

@@ -1,6 +1,6 @@
 """Colour management (bdipole_cl/io/colour.py): the albedo inverted is the file's colour in the
 working space, as an independent colour library (colour-science) converts it, and every output
-is tagged with the working space. README: Colour; docs/model.md "Colour"."""
+is tagged with the working space. docs/colour.md; docs/model.md "Colour"."""
 import os
 import subprocess
 import sys
@@ -221,7 +221,7 @@ def test_default_working_space_and_config():
         assert cm.resolve_working_space(alias) == ws, alias
     assert cm.resolve_working_space("lin_ap1_scene").name == "ACEScg"
     assert cm.resolve_working_space("scene_linear").name == "ACEScg"   # the config's role
-    # README's example: one sRGB texel in two working spaces (and colour-science agrees)
+    # docs/colour.md's example: one sRGB texel in two working spaces (and colour-science agrees)
     texel = np.array([[[0.8, 0.2, 0.1]]], np.float32)
     spec = oiio.ImageSpec(1, 1, 3, "uint8")
     for space, want in (("lin_rec709_scene", (0.604, 0.033, 0.010)),

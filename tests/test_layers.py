@@ -1,4 +1,4 @@
-"""The package's shape (README "Layout"): layers that import only downwards, no import cycle
+"""The package's shape (docs/layout.md): layers that import only downwards, no import cycle
 (imports inside functions included), no private name imported across modules, no module much
 past 500 lines. Read from the source with ``ast``: nothing is imported to check it."""
 import ast

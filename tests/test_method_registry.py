@@ -1,5 +1,5 @@
 """MethodConfig's labels, build options, resolved knobs and fields, per method and precision:
-the values the README, the report and the kernels' cache keys rely on, written down from the
+the values the docs, the report and the kernels' cache keys rely on, written down from the
 code as it was before the methods became registry objects (so the move cannot change them)."""
 import numpy as np
 import pytest

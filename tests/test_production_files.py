@@ -1,5 +1,5 @@
 """A production's files, as a hostile new user brings them: every input format, every output
-checked, every signal obeyed (README "Safety"). Each test writes its own real files (tiled
+checked, every signal obeyed (docs/safety.md). Each test writes its own real files (tiled
 mip-mapped EXRs by ``make_texture``, RGBA PNGs with unassociated alpha, multi-part and deep
 EXRs, a FIFO, a file size limit for the full disk) and asserts the exit code, the message and
 what happened to the files."""

@@ -177,7 +177,7 @@ def test_series_helpers_are_continuous_at_their_switch():
 
 
 def test_the_reference_is_importable_by_its_public_path():
-    """README and the package docstring name it ``bdipole_cl.reference``: both import forms
+    """docs/python.md and the package docstring name it ``bdipole_cl.reference``: both import forms
     give the one module (physics/reference.py)."""
     import bdipole_cl.reference as public
     from bdipole_cl.physics import reference as own

@@ -299,7 +299,7 @@ def test_a_copied_or_renamed_asset_folder_bakes_as_its_own(tmp_path):
 
 
 def test_the_records_layer_sublayered_over_its_stage_is_rewritten(tmp_path):
-    """The README's use of bdipole.usda: sublayer it over the stage. It is then one of the
+    """docs/scenes.md's use of bdipole.usda: sublayer it over the stage. It is then one of the
     stage's layers, but the tool's own: a rebake after a change rewrites it (it was refused
     as an input, and left stale beside a new manifest)."""
     texture(tmp_path / "tex" / "paint.exr")

@@ -1,5 +1,5 @@
 """One vocabulary: every option kind's registry is what the CLI offers, what scene files
-accept, what the Python checks accept and what README "Vocabulary" lists. No device needed
+accept, what the Python checks accept and what docs/python.md "Vocabulary" lists. No device needed
 but for the last test (once per working device)."""
 import argparse
 import ast
@@ -21,7 +21,8 @@ from bdipole_cl.physics import models
 from bdipole_cl.physics import reference as ref
 from bdipole_cl.vocabulary import Option, Registry
 
-README = Path(__file__).resolve().parent.parent / "README.md"
+#: the page that holds the Vocabulary and Methods tables
+PYTHON_DOCS = Path(__file__).resolve().parent.parent / "docs" / "python.md"
 #: the modules that define registries (a registry defined elsewhere is a test failure below)
 REGISTRY_MODULES = ("bdipole_cl.errors", "bdipole_cl.physics.models",
                     "bdipole_cl.methods.registry")
@@ -29,9 +30,9 @@ PACKAGE = Path(__file__).resolve().parent.parent / "bdipole_cl"
 
 
 def vocabulary_rows():
-    """README "Vocabulary"'s table: one dict per row, keyed by the header."""
-    text = README.read_text()
-    section = text.split("### Vocabulary", 1)[1].split("\n## ", 1)[0]
+    """docs/python.md "Vocabulary"'s table: one dict per row, keyed by the header."""
+    text = PYTHON_DOCS.read_text()
+    section = text.split("\n## Vocabulary", 1)[1].split("\n## ", 1)[0]
     lines = [ln for ln in section.splitlines() if ln.startswith("|")]
     header = [c.strip() for c in lines[0].strip("|").split("|")]
     return [dict(zip(header, (c.strip() for c in ln.strip("|").split("|"))))
@@ -249,15 +250,15 @@ def test_a_model_alias_runs_the_canonical_models_kernels(alias):
 
 
 def methods_table():
-    """README "Python API"'s table of inversion methods: {method: its knobs cell}."""
-    text = README.read_text()
+    """docs/python.md "Methods"' table of inversion methods: {method: its knobs cell}."""
+    text = PYTHON_DOCS.read_text()
     section = text.split("Methods (`method=`) and their knobs:", 1)[1].split("\n\n", 2)[1]
     rows = [[c.strip() for c in ln.strip("|").split("|")] for ln in section.splitlines()[2:]]
     return {re.match(r"`(\w+)`", r[0]).group(1): r[2] for r in rows}
 
 
 def test_the_docs_give_each_methods_defaults():
-    # the README's methods and their knobs' defaults (float32; float64 where it differs) are
+    # the docs' methods and their knobs' defaults (float32; float64 where it differs) are
     # the registry's, and MethodConfig's own defaults (table_size, seed_size) too
     table = methods_table()
     assert tuple(table) == registry.METHOD_OR_AUTO.names

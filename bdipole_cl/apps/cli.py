@@ -33,7 +33,7 @@ EPILOG = """examples:
   bdipole-cl invert diffuse.<UDIM>.exr --mfp mfp.<UDIM>.exr --eta 1.4 -o out/{stem}_coeffs.exr
   bdipole-cl invert skin_<UVTILE>.exr --mfp 1.2,0.6,0.3 --texture -o out/skin.<UDIM>.exr
   bdipole-cl invert 'textures/*.tif' --mfp 1.2,0.6,0.3 --unit mm --half --jobs 2
-  bdipole-cl --working-space ACEScg invert albedo.png --mfp 1.2,0.6,0.3   # README: Colour
+  bdipole-cl --working-space ACEScg invert albedo.png --mfp 1.2,0.6,0.3   # docs/colour.md
   bdipole-cl crosscheck                             # every kernel vs the float64 reference
   bdipole-cl crosscheck --user-kernel mine.cl --function computeRd --against rd
   bdipole-cl blur irradiance.exr --albedo 0.8,0.6,0.4 --mfp 1.2,0.6,0.3 --texel-size 0.1 -o sss.exr
@@ -259,13 +259,14 @@ def build_parser() -> argparse.ArgumentParser:
                    help="points per sweep segment (user kernels: per Rd range)")
     p.add_argument("--user-kernel", help="an OpenCL C file with your function")
     p.add_argument("--function",
-                   help="its name (signatures: bdipole_cl/apps/user_kernel.py, README)")
+                   help="its name (signatures: bdipole_cl/apps/user_kernel.py, docs/cli.md)")
     p.add_argument("--all-devices", action="store_true",
                    help="run the built-in checks on every working device, in one table")
     p.add_argument("--against", choices=tuple(SIGNATURES),
                    help="what it computes: rd(alpha', 2C1, 3C2), profile(r, alpha', sigma_t', "
                         "2C1, 3C2), invert(Rd, 2C1, 3C2) -> alpha', invert-rho -> rho, or "
-                        "invert-both(Rd, 2C1, 3C2, float *alpha', float *rho)")
+                        "invert-both(Rd, 2C1, 3C2) -> alpha' and rho through two float "
+                        "pointers")
     p.add_argument("--timeout", type=positive_float, default=120.0,
                    help="seconds a user kernel's run may take before it is stopped")
     p.set_defaults(func=_cmd_crosscheck)
@@ -288,9 +289,10 @@ def build_parser() -> argparse.ArgumentParser:
     add_scheduler_args(p)
     p.set_defaults(func=_cmd_bake)
 
-    from . import preview, profile
+    from . import cache, preview, profile
     preview.add_command(command)
     profile.add_command(command)
+    cache.add_command(command)
 
     p = command("report", help="error against run time for every method (md, csv, png)")
     p.add_argument("-o", "--output", default="report_out", help="folder for the report")

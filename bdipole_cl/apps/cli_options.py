@@ -1,6 +1,6 @@
 """The option groups of ``bdipole-cl`` (applications layer): the global options every command
 takes before or after it (``--device``, ``--working-space``, ``--debug``), the colour-name
-argument types (README: Colour), and the groups several commands share (inversion method,
+argument types (docs/colour.md), and the groups several commands share (inversion method,
 cluster). Every choice comes from its registry, never retyped."""
 from __future__ import annotations
 

@@ -1,4 +1,5 @@
-"""``bdipole-cl demo``: a small built-in example, made procedurally, and the main jobs on it."""
+"""``bdipole-cl demo``: a small built-in example, made procedurally, the main jobs on it, two
+pictures of the results, and the commands a user runs next on their own files."""
 from __future__ import annotations
 
 import hashlib
@@ -125,34 +126,90 @@ def run_demo(folder="bdipole_demo", progress=True) -> int:
             record_folder(folder, complete=True)   # second signal waits for the record
 
 
+#: the demo's pictures: (file name in the demo folder, what it shows)
+PICTURES = (("coefficients.preview.png", "contact sheet of step 1's coefficients"),
+            ("profile.png", "R(r) per channel and Rd(alpha') of step 2's material"))
+
+#: what a user runs next on their own files, printed last (each line: command, what it does)
+NEXT_STEPS = (
+    ("bdipole-cl invert 'albedo.<UDIM>.exr' --mfp 1.2,0.6,0.3 -o 'out/{stem}_sss.exr'",
+     "your albedo tiles -> sigma_a, sigma_s' (mfp in mm, per channel)"),
+    ("bdipole-cl preview out/albedo.1001_sss.exr",
+     "a contact sheet of one output, beside it"),
+    ("bdipole-cl bake scene.toml --preview",
+     "a whole scene: copy {scene} beside your textures, edit its paths"),
+)
+
+#: the blur step's material: Rd and mfp (mm) per channel, eta; its texel (mm) and tol
+BLUR_ALBEDO, BLUR_MFP, BLUR_ETA = (0.8, 0.6, 0.4), (4.0, 2.0, 1.0), 1.4
+BLUR_TEXEL, BLUR_TOL = 0.5, 1e-3
+
+
+def shown(path) -> str:
+    """``path`` as the user typed it: relative to the working folder when below it."""
+    path = Path(path)
+    try:
+        return str(path.resolve().relative_to(Path.cwd().resolve()))
+    except ValueError:
+        return str(path)
+
+
+def tally(report) -> str:
+    """The last line of a report's summary: 'N done, N failed, N skipped'."""
+    return report.summary().splitlines()[-1]
+
+
 def _run_demo(folder, progress) -> int:
     from ..device import get_runtime
     from ..jobs.batch import process_textures
+    from ..jobs.blur_file import blur_file
+    from .preview import contact_sheet
+    from .profile import constant_specs, profile_plot
+    folder = Path(folder)
     rt = get_runtime()
+    print(f"bdipole-cl demo: a small made-up example in {shown(folder)}/")
     print(f"device: {rt.describe()}")
     paths = make_inputs(folder)
-    print(f"made {paths['albedo']} ({W}x{H} RGB, albedo ramp 0..1), {paths['mfp']} "
-          f"(mfp 0.5..4 mm) and {paths['irradiance']}")
-    print("\n1. albedo + mfp -> sigma_a, sigma_s' (Better Dipole, eta 1.4, table inversion).")
-    print("   The ramp reaches Rd = 1 (infinitely dense for a finite mfp): --on-invalid clamp "
-          "maps it to the largest float below 1 and counts it.")
+
+    print(f"\n1. invert: albedo ramp 0..1 + mfp 0.5..4 mm ({W}x{H}) -> sigma_a, sigma_s'")
     report = process_textures(paths["albedo"], mfp=str(paths["mfp"]), eta=1.4,
-                              output=str(Path(folder) / "coefficients.exr"),
+                              output=str(folder / "coefficients.exr"),
                               outputs=("alpha", "rho", "sigma_a", "sigma_s"),
                               on_invalid="clamp", progress=progress)
-    print(report.summary())
-    from ..jobs.blur_file import blur_file
-    out = Path(folder) / "exitance.exr"
-    print("\n2. irradiance -> exitance: blur with R(r), albedo (0.8, 0.6, 0.4), mfp (4, 2, 1) mm, "
-          "texel 0.5 mm, tol 1e-3.")
-    info = blur_file(paths["irradiance"], out, albedo=(0.8, 0.6, 0.4), mfp=(4.0, 2.0, 1.0),
-                     eta=1.4, texel_size=0.5, tol=1e-3)
-    for c in info.channels:
-        print(f"   channel {c.channel}: {c.method}, radius {c.radius} texels, Rd {c.rd:.3f}")
-    print(f"   wrote {out}")
-    print("\n3. a scene (scene.toml): two materials on UDIM tiles with masks, and a blur; "
-          "planned, baked, and baked again (nothing to do).")
-    scene_rc = run_scene(Path(folder) / "scene")
+    if report.exit_code:                       # the full table only where something failed
+        print(report.summary())
+    else:
+        clamped = sum(report.results[0].invalid.values())
+        print(f"   {tally(report)}: wrote {shown(report.results[0].output)}")
+        print(f"   {clamped} albedo texels are 1 (no finite medium has Rd = 1): "
+              f"--on-invalid clamp clamped and counted them")
+
+    out = folder / "exitance.exr"
+    print(f"\n2. blur: irradiance lines -> exitance with R(r), albedo {BLUR_ALBEDO}, "
+          f"mfp {BLUR_MFP} mm, texel {BLUR_TEXEL} mm")
+    info = blur_file(paths["irradiance"], out, albedo=BLUR_ALBEDO, mfp=BLUR_MFP, eta=BLUR_ETA,
+                     texel_size=BLUR_TEXEL, tol=BLUR_TOL)
+    methods = ", ".join(f"{'RGB'[c.channel]}: {c.method} r={c.radius}" for c in info.channels)
+    print(f"   wrote {shown(out)} ({methods} texels)")
+
+    print("\n3. bake: a scene file, two materials on UDIM tiles with masks, and a blur")
+    scene_rc = run_scene(folder / "scene")
+
+    print("\npictures:")
+    sheet = contact_sheet(folder / "coefficients.exr", folder / PICTURES[0][0],
+                          title="bdipole-cl demo: coefficients.exr")
+    plot = profile_plot(constant_specs(BLUR_ALBEDO, BLUR_MFP, (BLUR_ETA,)),
+                        folder / PICTURES[1][0], unit="mm", tol=BLUR_TOL,
+                        title="bdipole-cl demo: the blur's material")
+    for path, (_, what) in zip((sheet.path, plot.path), PICTURES):
+        print(f"   {shown(path):<40} {what}")
+    print("   (no throughput: these textures are tiny, so the time is start-up and kernel "
+          "compiles; `bdipole-cl report` measures it)")
+
+    scene = shown(folder / "scene" / "scene.toml")
+    print("\nnext, on your own files:")
+    for cmd, what in NEXT_STEPS:
+        print(f"   {cmd}\n      # {what.format(scene=scene)}")
     return max(report.exit_code, scene_rc)
 
 
@@ -210,13 +267,21 @@ def make_scene(folder, size=64):
 
 
 def run_scene(folder) -> int:
+    """Plan, bake and plan again the demo scene in ``folder``; its exit code."""
     from ..jobs.scene import load
     path = make_scene(folder)
     plan = load(path).plan()
-    print(plan.describe())
+    print(f"   plan: {len(plan.jobs)} jobs (`bdipole-cl plan {shown(path)}` says what each "
+          f"computes and leaves out)")
     report = plan.run()
-    print(report.summary())
+    if report.exit_code:
+        print(report.summary())
+    else:
+        print(f"   {tally(report)}: wrote {shown(Path(folder) / 'out')}/ "
+              f"({len(report.results)} EXRs)")
     again = load(path).plan()
-    print(f"   baked again: {sum(j.up_to_date for j in again.jobs)} of {len(again.jobs)} jobs "
-          f"up to date, nothing rewritten")
+    fresh = sum(j.up_to_date for j in again.jobs)
+    print(f"   baked again: {fresh} of {len(again.jobs)} jobs up to date"
+          + (" (nothing to do: a bake reruns only what changed)"
+             if fresh == len(again.jobs) else ""))
     return report.exit_code

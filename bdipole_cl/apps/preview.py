@@ -11,7 +11,8 @@ that scale and its range in the caption; texels at 0 (masked) or below the log r
 black. The header's parameters (model, eta, mfp, working space, method, tol) are the sheet's
 caption. Everything drawn is returned (``ContactSheet``), so tests read the picture back.
 
-matplotlib draws (the ``report`` and ``test`` extras install it); OpenImageIO reads.
+matplotlib draws (a dependency: ``pip install .`` is enough for the demo's pictures);
+OpenImageIO reads.
 """
 from __future__ import annotations
 
@@ -87,11 +88,12 @@ class ContactSheet:
 
 
 def require_matplotlib():
-    """matplotlib, or an ImportError saying which install brings it."""
+    """matplotlib, or an ImportError saying how to bring it back (it is a dependency, so only a
+    broken or hand-pruned environment lacks it)."""
     try:
         import matplotlib
     except ImportError:
-        raise ImportError("the pictures need matplotlib: pip install 'bdipole-cl[report]'") \
+        raise ImportError("the pictures need matplotlib: pip install 'matplotlib>=3.6'") \
             from None
     return matplotlib
 

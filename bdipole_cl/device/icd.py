@@ -94,11 +94,17 @@ def existing_icd_entries(vendors: str | None) -> dict[str, str]:
     return entries
 
 
+def vendors_roots() -> tuple[Path, Path]:
+    """Where vendors directories (``icd-*``) are written: the user's cache, else a folder of
+    this user's in the temporary directory."""
+    return user_cache_dir(), Path(tempfile.gettempdir()) / f"bdipole_cl-{os.getuid()}"
+
+
 def vendors_directory(entries: dict[str, str]) -> Path:
     """A directory holding exactly ``entries``, named by their content so that processes with
     the same set share it; written atomically (each file via a temporary name)."""
     digest = hashlib.sha256(repr(sorted(entries.items())).encode()).hexdigest()[:16]
-    for root in (user_cache_dir(), Path(tempfile.gettempdir()) / f"bdipole_cl-{os.getuid()}"):
+    for root in vendors_roots():
         target = root / f"icd-{digest}"
         try:
             target.mkdir(parents=True, exist_ok=True)

@@ -14,7 +14,7 @@ is cached in the user's cache folder.
 The automatic choice (``device=None`` everywhere): ``PYOPENCL_CTX`` if set (pyopencl's syntax;
 the device it names must work), else the first working device in ``RANK`` order: GPUs, then
 accelerators, then CPUs, and among CPUs Intel's runtime before PoCL (faster in every benchmark
-in README.md), ties in the loader's order. ``device=`` also takes a ``Runtime``, a pyopencl
+in docs/runtimes.md), ties in the loader's order. ``device=`` also takes a ``Runtime``, a pyopencl
 ``Device``, or a string: ``"P:D"`` (platform and device index as in ``bdipole-cl devices``) or a
 case-insensitive part of "platform device" (``"intel"``, ``"pocl"``, ``"portable"``).
 

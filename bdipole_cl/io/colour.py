@@ -19,7 +19,7 @@ converted (docs/model.md "Colour").
 
 OpenColorIO's default CPU processors evaluate powers with a fast approximation (2.4e-5 off at
 sRGB white); ``OCIO_OPTIMIZATION_FLAGS`` is set to its lossless level unless the user set it,
-so the decoding is exact to float32 (README: Colour).
+so the decoding is exact to float32 (docs/colour.md).
 """
 from __future__ import annotations
 

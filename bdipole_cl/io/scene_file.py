@@ -4,8 +4,8 @@
     eta = 1.4
     unit = "mm"
     tol = 1e-4
-    model = "better"                  # or "dipole" (README "Vocabulary")
-    working_space = "ACEScg"          # the renderer's rendering space (README: Colour)
+    model = "better"                  # or "dipole" (docs/python.md "Vocabulary")
+    working_space = "ACEScg"          # the renderer's rendering space (docs/colour.md)
 
     [[material]]
     name = "skin"

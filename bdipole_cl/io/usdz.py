@@ -16,6 +16,11 @@ from ..caches import user_cache_dir
 from ..durable import durable_replace
 from . import tiles
 
+#: the folder of the user's cache (``caches.user_cache_dir``) that holds extracted packages,
+#: one subfolder per package content, named by EXTRACTED_NAME
+EXTRACTED_FOLDER = "usdz"
+EXTRACTED_NAME = re.compile(r"^[0-9a-f]{20}$")
+
 #: ``package.usdz[member]``: a file inside a package, as USD's resolver names it
 PACKAGED = re.compile(r"^(?P<package>.+?\.usdz)\[(?P<member>.+)\]$", re.IGNORECASE)
 
@@ -69,7 +74,7 @@ def package_folder(package: str) -> str:
     st = os.stat(package)
     key = f"{os.path.realpath(package)}\0{st.st_size}\0{st.st_mtime_ns}\0{st.st_ino}"
     digest = hashlib.sha256(key.encode()).hexdigest()[:20]
-    return os.path.join(str(user_cache_dir()), "usdz", digest)
+    return os.path.join(str(user_cache_dir()), EXTRACTED_FOLDER, digest)
 
 
 def members(names, member: str) -> list:

@@ -146,7 +146,7 @@ def process_textures(inputs, *, mfp=1.0, eta=1.4, output=DEFAULT_OUTPUT,
     colorspace, working_space : str
         The albedo files' colour space ("auto": as each declares, else 8-bit sRGB, 16-bit and
         float in the working space) and the space they are inverted in and outputs are
-        tagged with (None: ``$OCIO``'s scene_linear, else lin_rec709_scene); README: Colour.
+        tagged with (None: ``$OCIO``'s scene_linear, else lin_rec709_scene); docs/colour.md.
     alpha : {"keep", "drop"}
         What to do with an alpha channel (never inverted).
     on_invalid : {"raise", "clamp"}

@@ -356,7 +356,7 @@ def records_over_input(scene, folder, inputs) -> str | None:
 
 def own_layers(folder) -> set:
     """{the records layer's real path} where the file there is this tool's (its comment
-    carries LAYER_MARK: the README's way to use it is to sublayer it over the stage, which
+    carries LAYER_MARK: docs/scenes.md's way to use it is to sublayer it over the stage, which
     makes it one of the stage's layers), else {} (a user's layer there is an input)."""
     path = os.path.join(folder, LAYER)
     try:

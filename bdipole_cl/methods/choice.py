@@ -154,9 +154,13 @@ def calibration_dir() -> Path:
     return user_cache_dir()
 
 
+#: the calibration files' names in ``calibration_dir()`` (``calibration_path``)
+CALIBRATION_GLOB = "choice-*.json"
+
+
 def calibration_path(key: DeviceKey) -> Path:
     """Where ``bdipole-cl report --calibrate`` stores the data of the device ``key``."""
-    return calibration_dir() / f"choice-{key.slug()}.json"
+    return calibration_dir() / CALIBRATION_GLOB.replace("*", key.slug())
 
 
 _noted: set = set()

@@ -1,6 +1,6 @@
 """Methods and their knobs: the registry the API, the CLI and the report share.
 
-Each kind of option is one ``vocabulary.Registry`` of objects (README "Vocabulary"):
+Each kind of option is one ``vocabulary.Registry`` of objects (docs/python.md "Vocabulary"):
 
 - ``METHOD``: the inversion methods, each a specialization of kernels/invert.cl by build
   options (``InversionMethod``: what it is, its knobs and their defaults per precision, its

@@ -6,7 +6,7 @@ Fresnel moments and the eta ranges are in ``physics.fresnel``, the models' names
 ``physics.models``; both are re-exported here.
 
 Notation (as in docs/model.md and the memo)
------------------------------------------
+-------------------------------------------
 ``alpha``  reduced albedo alpha' = sigma_s' / sigma_t'            [1]
 ``rho``    1 - alpha' = sigma_a / sigma_t' (the well-conditioned unknown near alpha' = 1) [1]
 ``q``      sqrt(rho)                                               [1]

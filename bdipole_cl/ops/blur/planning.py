@@ -72,7 +72,7 @@ def probed_blur_data(rt, data: ChoiceData) -> ChoiceData | None:
 
 @dataclass(frozen=True)
 class ChannelInfo:
-    """What ``blur`` did in one channel. ``error_bound`` bounds |M - exact| / (max E * Rd):
+    """What ``blur`` did in one channel. ``error_bound`` bounds ``|M - exact| / (max E * Rd)``:
     the truncation tol for exact weights, plus the fit's L1 error for gaussians, or the
     measured kernel error of a texture-varying plan."""
 

@@ -1,0 +1,216 @@
+"""``bdipole-cl cache``: the folders the tool writes outside the user's outputs, their sizes and
+the variable that moves each (``--info``), and ``--clear`` of the entries bdipole_cl itself made.
+
+bdipole_cl's own entries (docs/guide.md, "Where it writes") live in its cache folder
+(``caches.user_cache_dir``): the OpenCL runtime registration (``icd-*``, else in a folder of the
+temporary directory), the device calibrations (``choice-*.json``) and the textures extracted
+from ``.usdz`` packages (``usdz/<digest>``). The other folders belong to the libraries it runs
+(PoCL, pyopencl, pytools, matplotlib, Dask) and are shared with every other program using them:
+they are shown, never removed. A clear removes only names the tool makes, by their exact shape,
+so a user's file in a folder they pointed a variable at is never touched.
+"""
+from __future__ import annotations
+
+import os
+import re
+import shutil
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+from ..caches import CACHE_DIR_VARIABLE, user_cache_dir
+from ..device.icd import vendors_roots
+from ..io.usdz import EXTRACTED_FOLDER, EXTRACTED_NAME
+from ..methods.choice import CALIBRATION_GLOB
+
+#: a runtime registration's folder: ``icd-`` and 16 hex digits (``icd.vendors_directory``)
+ICD_NAME = re.compile(r"^icd-[0-9a-f]{16}$")
+
+
+@dataclass(frozen=True)
+class CacheFolder:
+    """One folder the tool (or a library it runs) writes outside the user's outputs."""
+
+    what: str                 # what it holds
+    path: Path
+    moved_by: str             # the variable that moves it (or turns it off)
+    owner: str                # "bdipole_cl", or the library whose folder it is (shared)
+
+    @property
+    def ours(self) -> bool:
+        return self.owner == "bdipole_cl"
+
+
+@dataclass(frozen=True)
+class OwnEntry:
+    """A file or folder that bdipole_cl made in its own folders, which ``--clear`` removes."""
+
+    what: str
+    path: Path
+
+
+def xdg(variable: str, default: str) -> Path:
+    """$variable, else ~/default (the XDG base folders)."""
+    return Path(os.environ.get(variable) or Path.home() / default)
+
+
+def pyopencl_cache() -> Path:
+    """pyopencl's compiler cache folder, found as pyopencl finds it."""
+    named = os.environ.get("XDG_CACHE_HOME")
+    if named:
+        return Path(named) / "pyopencl"
+    try:
+        import platformdirs
+        return Path(platformdirs.user_cache_dir("pyopencl", "pyopencl"))
+    except ImportError:               # pyopencl's dependency: absent only in odd installs
+        return xdg("XDG_CACHE_HOME", ".cache") / "pyopencl"
+
+
+def matplotlib_folders() -> tuple[Path, Path]:
+    """matplotlib's (cache, configuration) folders, found without creating them."""
+    named = os.environ.get("MPLCONFIGDIR")
+    if named:
+        return Path(named), Path(named)
+    return (xdg("XDG_CACHE_HOME", ".cache") / "matplotlib",
+            xdg("XDG_CONFIG_HOME", ".config") / "matplotlib")
+
+
+def cache_folders() -> list[CacheFolder]:
+    """Every folder written outside the user's outputs, bdipole_cl's own first."""
+    own, fallback = vendors_roots()
+    mpl_cache, mpl_config = matplotlib_folders()
+    cache_home = xdg("XDG_CACHE_HOME", ".cache")
+    return [
+        CacheFolder("runtime registration, calibrations, extracted .usdz textures", own,
+                    f"{CACHE_DIR_VARIABLE} (else XDG_CACHE_HOME)", "bdipole_cl"),
+        CacheFolder("runtime registration where the cache folder is not writable", fallback,
+                    "TMPDIR", "bdipole_cl"),
+        CacheFolder("PoCL's compiled kernels", Path(os.environ.get("POCL_CACHE_DIR")
+                                                    or cache_home / "pocl" / "kcache"),
+                    "POCL_CACHE_DIR", "PoCL"),
+        CacheFolder("pyopencl's compiled programs", pyopencl_cache(),
+                    "XDG_CACHE_HOME (PYOPENCL_NO_CACHE=1: none)", "pyopencl"),
+        CacheFolder("pyopencl's kernel invokers", cache_home / "pytools",
+                    "XDG_CACHE_HOME (PYOPENCL_NO_CACHE=1: none)", "pytools"),
+        CacheFolder("matplotlib's font list (pictures)", mpl_cache, "MPLCONFIGDIR", "matplotlib"),
+        CacheFolder("matplotlib's settings folder (made empty)", mpl_config, "MPLCONFIGDIR",
+                    "matplotlib"),
+        CacheFolder("Dask's scratch space (--scheduler local:N)",
+                    Path(tempfile.gettempdir()) / "dask-scratch-space",
+                    "DASK_TEMPORARY_DIRECTORY", "Dask"),
+    ]
+
+
+def own_entries() -> list[OwnEntry]:
+    """The entries bdipole_cl made in its folders, recognised by their exact names; a link is
+    never one (it would lead out of the folder)."""
+    entries = []
+    for root in vendors_roots():
+        if root.is_dir():
+            entries += [OwnEntry("runtime registration", p) for p in sorted(root.iterdir())
+                        if ICD_NAME.match(p.name) and p.is_dir() and not p.is_symlink()]
+    root = user_cache_dir()
+    if root.is_dir():
+        entries += [OwnEntry("calibration", p) for p in sorted(root.glob(CALIBRATION_GLOB))
+                    if p.is_file() and not p.is_symlink()]
+        packages = root / EXTRACTED_FOLDER
+        if packages.is_dir() and not packages.is_symlink():
+            entries += [OwnEntry("extracted .usdz textures", p)
+                        for p in sorted(packages.iterdir())
+                        if EXTRACTED_NAME.match(p.name) and p.is_dir() and not p.is_symlink()]
+    return entries
+
+
+def size_of(path: Path) -> tuple[int, int]:
+    """(bytes, files) below ``path`` (a file: itself), links not followed; (0, 0) if absent."""
+    if path.is_symlink() or path.is_file():
+        return (path.lstat().st_size, 1) if path.exists() else (0, 0)
+    total = files = 0
+    for folder, _, names in os.walk(path):
+        for name in names:
+            try:
+                total += os.lstat(os.path.join(folder, name)).st_size
+                files += 1
+            except OSError:           # removed while we walked: not there
+                continue
+    return total, files
+
+
+def human(nbytes: int) -> str:
+    for unit in ("B", "KB", "MB", "GB"):
+        if nbytes < 1024 or unit == "GB":
+            return f"{nbytes:.0f} {unit}" if unit == "B" else f"{nbytes:.1f} {unit}"
+        nbytes /= 1024
+    return ""                                          # pragma: no cover
+
+
+def shown(path: Path) -> str:
+    """``path`` with the home folder as ``~``."""
+    home = str(Path.home())
+    text = str(path)
+    return "~" + text[len(home):] if home != "/" and text.startswith(home + os.sep) else text
+
+
+def info_lines() -> list[str]:
+    """``--info``: each folder, its size (or absent), the variable that moves it, whose it is;
+    then bdipole_cl's own entries."""
+    lines = ["folders written outside your outputs (set the variable to move one):"]
+    for f in cache_folders():
+        nbytes, files = size_of(f.path)
+        size = (f"{human(nbytes)} in {files} file{'s' * (files != 1)}" if f.path.is_dir()
+                else "absent")
+        whose = "bdipole_cl's" if f.ours else f"{f.owner}'s, shared"
+        lines.append(f"  {shown(f.path)}  ({size}; {whose})")
+        lines.append(f"      {f.what}; moved by {f.moved_by}")
+    entries = own_entries()
+    lines.append(f"bdipole_cl's own entries ({len(entries)}), removed by `bdipole-cl cache "
+                 f"--clear`:")
+    for e in entries:
+        nbytes, files = size_of(e.path)
+        lines.append(f"  {e.what}: {shown(e.path)} ({human(nbytes)})")
+    lines.append("the shared folders are the libraries' own: other programs use them too, so "
+                 "--clear leaves them (remove one yourself while nothing runs)")
+    return lines
+
+
+def clear() -> list[str]:
+    """Remove bdipole_cl's own entries (never a shared folder, never a file it did not name);
+    one line per entry removed or not, and a total."""
+    lines, freed, removed = [], 0, 0
+    for e in own_entries():
+        nbytes, _ = size_of(e.path)
+        try:
+            if e.path.is_dir():
+                shutil.rmtree(e.path)
+            else:
+                e.path.unlink()
+        except OSError as exc:
+            lines.append(f"  not removed: {e.what}: {shown(e.path)}: {exc.strerror or exc}")
+            continue
+        freed, removed = freed + nbytes, removed + 1
+        lines.append(f"  removed {e.what}: {shown(e.path)} ({human(nbytes)})")
+    lines.append(f"removed {removed} entries ({human(freed)}); every command makes its runtime "
+                 f"registration again as it starts, `bdipole-cl report --calibrate` a "
+                 f"calibration"
+                 if removed else "nothing to remove: bdipole_cl's folders hold none of its "
+                                 "entries")
+    return lines
+
+
+def add_command(command):
+    """Add the command to the CLI (``command``: the subparsers' add_parser)."""
+    p = command("cache", help="show (--info) or clear (--clear) the folders the tool writes "
+                              "outside your outputs")
+    action = p.add_mutually_exclusive_group()
+    action.add_argument("--info", action="store_true",
+                        help="every folder, its size, whose it is and the variable that moves "
+                             "it (the default)")
+    action.add_argument("--clear", action="store_true",
+                        help="remove bdipole_cl's own entries (registration, calibrations, "
+                             "extracted .usdz textures); shared library caches are left")
+    p.set_defaults(func=_cmd_cache)
+
+
+def _cmd_cache(args) -> int:
+    print("\n".join(clear() if args.clear else info_lines()))
+    return 0

@@ -1,0 +1,124 @@
+"""``bdipole-cl cache``: every folder the tool writes outside the user's outputs is listed with
+the variable that moves it, and ``--clear`` removes bdipole_cl's own entries and nothing else.
+The demo, run with an empty home folder, is the measurement: whatever appears there must be a
+listed folder (a new cache in the code, unlisted, fails it)."""
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from bdipole_cl.apps import cache
+from bdipole_cl.apps.cli import main as cli_main
+
+ROOT = Path(__file__).resolve().parents[1]
+
+#: the variables that move the folders: cleared, so that a test sees only what it sets
+MOVING = ("BDIPOLE_CL_CACHE_DIR", "XDG_CACHE_HOME", "XDG_CONFIG_HOME", "POCL_CACHE_DIR",
+          "MPLCONFIGDIR", "DASK_TEMPORARY_DIRECTORY")
+
+
+@pytest.fixture
+def home(tmp_path, monkeypatch):
+    """An empty home folder, every moving variable unset, the temporary folder inside it."""
+    folder = tmp_path / "home"
+    folder.mkdir()
+    monkeypatch.setenv("HOME", str(folder))
+    for name in MOVING:
+        monkeypatch.delenv(name, raising=False)
+    tmp = tmp_path / "tmp"
+    tmp.mkdir()
+    monkeypatch.setenv("TMPDIR", str(tmp))
+    monkeypatch.setattr("tempfile.tempdir", None)      # gettempdir() reads TMPDIR again
+    return folder
+
+
+def make_own_entries(root: Path):
+    """One entry of each kind bdipole_cl makes in its cache folder, as the code names them."""
+    (root / "icd-0123456789abcdef").mkdir(parents=True)
+    (root / "icd-0123456789abcdef" / "bdipole_cl-intel-cpu.icd").write_text("/x/libintelocl.so\n")
+    (root / "choice-intel-cpu.json").write_text("{}")
+    (root / "usdz" / "0123456789abcdef0123").mkdir(parents=True)
+    (root / "usdz" / "0123456789abcdef0123" / "a.exr").write_bytes(b"x" * 100)
+
+
+def test_every_folder_names_the_variable_that_moves_it(home, monkeypatch, tmp_path):
+    moved = {name: tmp_path / name.lower() for name in
+             ("BDIPOLE_CL_CACHE_DIR", "POCL_CACHE_DIR", "MPLCONFIGDIR",
+              "XDG_CACHE_HOME")}
+    for name, path in moved.items():
+        monkeypatch.setenv(name, str(path))
+    folders = {f.path: f for f in cache.cache_folders()}
+    # each variable set moves its folder there (the XDG one: pyopencl's and pytools')
+    assert moved["BDIPOLE_CL_CACHE_DIR"] in folders
+    assert moved["POCL_CACHE_DIR"] in folders
+    assert moved["MPLCONFIGDIR"] in folders
+    assert moved["XDG_CACHE_HOME"] / "pyopencl" in folders
+    assert moved["XDG_CACHE_HOME"] / "pytools" in folders
+    for f in folders.values():
+        assert f.moved_by and f.what, f
+
+
+def test_clear_removes_only_the_tools_own_entries(home, tmp_path, capsys):
+    root = home / ".cache" / "bdipole_cl"
+    make_own_entries(root)
+    mine = [root / "notes.txt", root / "choice.json", root / "usdz" / "my_textures" / "a.exr",
+            root / "icd-mine" / "x.icd"]
+    for path in mine:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text("the user's")
+    elsewhere = tmp_path / "precious"
+    elsewhere.mkdir()
+    (elsewhere / "keep.txt").write_text("the user's")
+    (root / "icd-fedcba9876543210").symlink_to(elsewhere)     # a link: never followed
+    pocl = home / ".cache" / "pocl" / "kcache" / "k.bin"
+    pocl.parent.mkdir(parents=True)
+    pocl.write_bytes(b"shared")
+    assert cli_main(["cache", "--clear"]) == 0
+    out = capsys.readouterr().out
+    for gone in ("icd-0123456789abcdef", "choice-intel-cpu.json", "usdz/0123456789abcdef0123"):
+        assert not (root / gone).exists(), (gone, out)
+        assert gone.split("/")[-1] in out, (gone, out)
+    for path in mine + [elsewhere / "keep.txt", pocl]:
+        assert path.read_text(errors="replace") in ("the user's", "shared"), path
+    assert (root / "icd-fedcba9876543210").is_symlink()
+    assert cli_main(["cache", "--info"]) == 0
+    info = capsys.readouterr().out
+    assert "~/.cache/pocl/kcache" in info and "PoCL's, shared" in info, info
+
+
+def test_the_readme_and_the_install_page_name_every_folders_variable(home):
+    """The README's and docs/install.md's tables of folders name each variable that moves one
+    (a folder added to ``cache_folders`` without its line in the docs fails here)."""
+    for page in (ROOT / "README.md", ROOT / "docs" / "install.md"):
+        text = page.read_text()
+        for f in cache.cache_folders():
+            variable = f.moved_by.split()[0]
+            assert f"`{variable}`" in text, (page.name, f.what, variable)
+
+
+@pytest.mark.slow
+def test_demo_in_an_empty_home_writes_only_listed_folders(home, tmp_path):
+    """A fresh user's demo: it ends with its pictures and the next steps, and every folder that
+    appears in the empty home or temporary folder is one ``cache --info`` lists."""
+    env = {**os.environ, "PYTHONPATH": str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", "")}
+    work = tmp_path / "work"
+    work.mkdir()
+    done = subprocess.run([sys.executable, "-m", "bdipole_cl", "demo", "--no-progress"],
+                          cwd=work, env=env, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr[-2000:]
+    out = done.stdout
+    from bdipole_cl.apps.demo import NEXT_STEPS, PICTURES
+    for name, _ in PICTURES:
+        picture = work / "bdipole_demo" / name
+        assert picture.stat().st_size > 10_000, picture      # a drawn page, not an empty file
+        assert f"bdipole_demo/{name}" in out, (name, out)
+    assert out.rstrip().splitlines()[-2].strip() == NEXT_STEPS[-1][0], out[-800:]
+    assert "Mtexel/s" not in out, out                  # no start-up-dominated throughput
+    listed = [f.path for f in cache.cache_folders()]
+    written = [p for top in (home, Path(os.environ["TMPDIR"]))
+               for p in top.rglob("*") if p.is_file()]
+    assert written, "the demo wrote no cache at all: the check would be empty"
+    unlisted = [p for p in written if not any(p.is_relative_to(f) for f in listed)]
+    assert not unlisted, unlisted[:5]

@@ -3,7 +3,8 @@ the variable that moves each (``--info``), and ``--clear`` of the entries bdipol
 
 bdipole_cl's own entries (docs/guide.md, "Where it writes") live in its cache folder
 (``caches.user_cache_dir``): the OpenCL runtime registration (``icd-*``, else in a folder of the
-temporary directory), the device calibrations (``choice-*.json``) and the textures extracted
+temporary directory), the device probes' verdicts (``probes/<digest>.json``:
+``device.isolation``), the device calibrations (``choice-*.json``) and the textures extracted
 from ``.usdz`` packages (``usdz/<digest>``). The other folders belong to the libraries it runs
 (PoCL, pyopencl, pytools, matplotlib, Dask) and are shared with every other program using them:
 they are shown, never removed. A clear removes only names the tool makes, by their exact shape,
@@ -20,6 +21,7 @@ from pathlib import Path
 
 from ..caches import CACHE_DIR_VARIABLE, user_cache_dir
 from ..device.icd import vendors_roots
+from ..device.isolation import VERDICT_FOLDER, VERDICT_NAME
 from ..io.usdz import EXTRACTED_FOLDER, EXTRACTED_NAME
 from ..methods.choice import CALIBRATION_GLOB
 
@@ -81,7 +83,8 @@ def cache_folders() -> list[CacheFolder]:
     mpl_cache, mpl_config = matplotlib_folders()
     cache_home = xdg("XDG_CACHE_HOME", ".cache")
     return [
-        CacheFolder("runtime registration, calibrations, extracted .usdz textures", own,
+        CacheFolder("runtime registration, device probe verdicts, calibrations, extracted "
+                    ".usdz textures", own,
                     f"{CACHE_DIR_VARIABLE} (else XDG_CACHE_HOME)", "bdipole_cl"),
         CacheFolder("runtime registration where the cache folder is not writable", fallback,
                     "TMPDIR", "bdipole_cl"),
@@ -113,6 +116,10 @@ def own_entries() -> list[OwnEntry]:
     if root.is_dir():
         entries += [OwnEntry("calibration", p) for p in sorted(root.glob(CALIBRATION_GLOB))
                     if p.is_file() and not p.is_symlink()]
+        probes = root / VERDICT_FOLDER
+        if probes.is_dir() and not probes.is_symlink():
+            entries += [OwnEntry("device probe verdict", p) for p in sorted(probes.iterdir())
+                        if VERDICT_NAME.match(p.name) and p.is_file() and not p.is_symlink()]
         packages = root / EXTRACTED_FOLDER
         if packages.is_dir() and not packages.is_symlink():
             entries += [OwnEntry("extracted .usdz textures", p)

@@ -27,6 +27,7 @@ import json
 import logging
 import os
 import queue
+import re
 import signal
 import subprocess
 import sys
@@ -150,8 +151,13 @@ def verdict_key(device, kernels_digest: str) -> str:
     return hashlib.sha256(text.encode()).hexdigest()[:20]
 
 
+#: the verdicts' folder in the user's cache folder, and their file names (a key's 20 hex digits)
+VERDICT_FOLDER = "probes"
+VERDICT_NAME = re.compile(r"^[0-9a-f]{20}\.json$")
+
+
 def verdict_dir() -> Path:
-    return user_cache_dir() / "probes"
+    return user_cache_dir() / VERDICT_FOLDER
 
 
 def verdict_path(device, kernels_digest: str) -> Path:

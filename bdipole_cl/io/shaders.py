@@ -287,8 +287,10 @@ def imported_material(name, path, shader_id, read, *, unit_m, out_dir, bound) ->
              "mfp_kind": mapping.mfp_kind, "unit": unit_name(unit_m)}
     if albedo.texture is not None:
         facts["colorspace"] = albedo.texture.colorspace
+    # <UDIM> whatever the albedo's tile token: it is the one USD and MaterialX resolve, so the
+    # records name the files (a <UVTILE> output's record resolved to nothing)
     tile = tiles.token_of(albedo.texture.file) if albedo.texture is not None else None
-    output = f"{out_dir}/{name}.{tile.token}.exr" if tile else f"{out_dir}/{name}.exr"
+    output = f"{out_dir}/{name}.<UDIM>.exr" if tile else f"{out_dir}/{name}.exr"
     return ImportedMaterial(name, path, mapping.name, mapping.mfp_kind, facts,
                             {"output": output}, described, unit_m, None,
                             _notes(mapping, inputs), bound=bound)

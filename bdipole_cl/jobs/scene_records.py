@@ -17,7 +17,8 @@ import time
 import numpy as np
 
 from ..durable import durable_replace
-from ..io.images import is_regular_file
+from ..io import tiles
+from ..io.images import image_header, is_regular_file
 from ..io.scene_import import source_files
 from ..io.shaders import SHADERS
 from ..methods.choice import resolve_method
@@ -231,7 +232,35 @@ def _baked(m, jobs, results, coefficients, folder) -> dict:
     else:
         entry["output"] = _relative(m.output, folder)
         entry["files"] = files
+        entry["channels"], entry["first_channel"] = output_channels(written, m.outputs)
     return entry
+
+
+def output_channels(files, outputs) -> tuple:
+    """({output: its channel names}, {output: the index of its first channel}) in the files
+    of one material as OpenImageIO reads them (the first file's header: every tile of a
+    material has the same channels). One file holds every output, each as an EXR layer
+    (``sigma_a.R``...): a reader of the file's first colour channels gets the first output,
+    so each record names its own ({}, {} when no file was written)."""
+    spec = next((h for h in (image_header(f) for f in files) if h is not None), None)
+    if spec is None:
+        return {}, {}
+    names = list(spec.channelnames)
+    channels = {o: [n for n in names if n.startswith(f"{o}.")] for o in outputs}
+    return channels, {o: names.index(c[0]) for o, c in channels.items() if c}
+
+
+def usd_asset_records(output: str, files: list) -> tuple:
+    """(the ``<UDIM>`` asset path or file a USD record names for an output pattern relative
+    to the layer, None) where USD resolves that pattern itself (``UsdShade.UdimUtils`` knows
+    ``<UDIM>`` only: Houdini's ``%(UDIM)d`` names the same files and is written as it), else
+    (None, [each tile file]) for the UV tile conventions, which USD cannot resolve."""
+    conv = tiles.token_of(output)
+    if conv is None:
+        return output, None
+    if conv.is_udim():
+        return output.replace(conv.token, "<UDIM>"), None
+    return None, ["./" + f.replace(os.sep, "/") for f in files]
 
 
 #: where the records of a material inside an instance go: USD ignores an ``over`` on a prim
@@ -285,8 +314,20 @@ def usd_layer_text(scene, records: dict, folder) -> str:
             if "coefficients" in entry:
                 values = (entry["coefficients"] or {}).get(output, [])
                 attr(output, Sdf.ValueTypeNames.FloatArray, Vt.FloatArray(values))
+                continue
+            pattern, tile_files = usd_asset_records(entry["output"], entry["files"])
+            if pattern is not None:
+                attr(output, Sdf.ValueTypeNames.Asset, Sdf.AssetPath(pattern))
             else:
-                attr(output, Sdf.ValueTypeNames.Asset, Sdf.AssetPath(entry["output"]))
+                attr(f"{output}:tiles", Sdf.ValueTypeNames.AssetArray,
+                     Sdf.AssetPathArray([Sdf.AssetPath(f) for f in tile_files]))
+            channels = entry.get("channels", {}).get(output)
+            if channels:               # which of the file's channels are this output's
+                attr(f"{output}:layer", Sdf.ValueTypeNames.String, output)
+                attr(f"{output}:channels", Sdf.ValueTypeNames.StringArray,
+                     Vt.StringArray(channels))
+                attr(f"{output}:firstChannel", Sdf.ValueTypeNames.Int,
+                     entry["first_channel"][output])
     return layer.ExportToString()
 
 
@@ -393,6 +434,7 @@ def write_records(plan, results) -> list:
         texts[os.path.join(folder, LAYER)] = usd_layer_text(scene, records, folder)
     inputs = plan.record_inputs              # taken by the plan (the stage opened once)
     written = [(path, REMOVED) for path in remove_stale_outputs(old, plan.jobs, folder, inputs)]
+    written += [(line, DROPPED) for line in dropped_records(old, records)]
     for path, text in texts.items():
         if os.path.realpath(path) in inputs:
             written.append((path, f"{path}: the bake's record would overwrite an input; "
@@ -446,6 +488,26 @@ def run_constant(job, runtime, *, cancel=None, lock=None, progress=None):
 
 #: write_records' mark of an earlier bake's output it removed (``remove_stale_outputs``)
 REMOVED = "removed"
+#: write_records' mark of a material whose records the new ones no longer hold
+DROPPED = "records removed"
+
+
+def dropped_records(old: dict, records: dict) -> list:
+    """One line per material the last bake recorded as baked (``old``: its manifest) that
+    these ``records`` do not: its inputs vanished, it failed, or it left the scene; its
+    ``over`` (and so its records and material networks) is gone from the layer, which a
+    pipeline reading the layer would otherwise not know."""
+    now = {e["name"]: e for e in records["materials"]}
+    lines = []
+    for name, entry in sorted(old.items()):
+        new = now.get(name)
+        if not entry.get("baked") or (new is not None and new.get("baked")):
+            continue
+        why = ("no longer in the scene" if new is None else
+               new.get("not_baked") or new.get("left_out") or "not baked")
+        lines.append(f"material {name} ({entry.get('prim') or 'scene file'}): its records "
+                     f"are removed: {why}")
+    return lines
 
 
 def remove_stale_outputs(old, jobs, folder, inputs) -> list:
@@ -478,5 +540,6 @@ def finish_bake(plan, results: list) -> BatchReport:
     records = [FileResult(p, p, status="ok", notes=["records"]) if why is None else
                FileResult(p, f"removed {p}: an earlier bake's output that no input makes now",
                           status="ok", notes=["removed"]) if why == REMOVED else
+               FileResult("records", p, status="ok", notes=[DROPPED]) if why == DROPPED else
                FileResult(p, p, error=why) for p, why in write_records(plan, results)]
     return BatchReport(results + records)

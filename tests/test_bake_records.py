@@ -13,17 +13,17 @@ from pxr import Sdf, Usd, UsdShade  # noqa: E402
 
 from bdipole_cl import scene as scenes  # noqa: E402
 from bdipole_cl.io.images import image_header  # noqa: E402
-from test_scene import read  # noqa: E402
 from test_usd_scene import write_stage  # noqa: E402
 
 pytestmark = pytest.mark.usefixtures("on_device")
 
 
 def composed(stage_path, layer_path):
-    """The stage with the bake's layer sublayered over it, as docs/materials.md says."""
-    stage = Usd.Stage.Open(str(stage_path))
-    stage.GetRootLayer().subLayerPaths.insert(0, str(layer_path))
-    return stage
+    """The stage with the bake's layer over it, as docs/materials.md says: a root whose
+    sublayers are the bake's layer, then the stage (the first is the stronger)."""
+    root = Sdf.Layer.CreateAnonymous(".usda")
+    root.subLayerPaths = [str(layer_path), str(stage_path)]
+    return Usd.Stage.Open(root)
 
 
 def output_files(prim, output) -> list:
@@ -68,7 +68,6 @@ def test_each_output_names_its_files_and_its_own_channels(tmp_path):
     a = check_record(skin, "sigma_a", 2)
     s = check_record(skin, "sigma_s", 2)
     assert a == s                                     # one file per tile, two layers
-    px, names = read(a[0])
     first_a = skin.GetAttribute("bdipole:sigma_a:firstChannel").Get()
     first_s = skin.GetAttribute("bdipole:sigma_s:firstChannel").Get()
     assert first_a != first_s

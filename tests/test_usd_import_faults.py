@@ -62,8 +62,9 @@ def baked_prims(layer):
     def visit(path):
         spec = layer.GetPrimAtPath(path)
         assets = {a.name: a.default.path for a in spec.attributes
-                  if isinstance(a.default, Sdf.AssetPath)}
-        if spec.attributes:
+                  if isinstance(a.default, Sdf.AssetPath) and a.name.startswith("bdipole:")}
+        if any(a.name.startswith("bdipole:") for a in spec.attributes):   # the records, not
+            #                                                   the material networks' shaders
             out[str(path)] = assets
     layer.Traverse(Sdf.Path.absoluteRootPath, lambda p: visit(p) if p.IsPrimPath() else None)
     return out

@@ -83,7 +83,9 @@ SHADERS = (
 BY_ID = {i: s for s in SHADERS for i in s.ids}
 
 #: USD and MaterialX nodes whose file is a texture a scene can bake from
-TEXTURE_NODES = ("UsdUVTexture", "image", "tiledimage")
+TEXTURE_NODES = ("UsdUVTexture", "image", "tiledimage", "PxrTexture")
+#: each texture node's file input (RenderMan's PxrTexture names it ``filename``)
+FILE_INPUT = {"PxrTexture": "filename"}
 
 SHORT_UNITS = ("m", "cm", "mm", "um", "nm", "km", "in", "ft", "yd", "mi")
 

@@ -17,22 +17,22 @@ import time
 import numpy as np
 
 from ..durable import durable_replace
-from ..io import tiles
-from ..io.images import image_header, is_regular_file
+from ..io.images import is_regular_file
+from ..io.networks import networks
+from ..io.scene_file import UNIT_METERS
 from ..io.scene_import import source_files
 from ..io.shaders import SHADERS
 from ..methods.choice import resolve_method
 from ..methods.registry import MethodConfig
 from ..ops.invert import albedo_to_coefficients
 from .results import BatchReport, FileResult
+from .scene_layer import LAYER_MARK, baked_material, output_channels, usd_layer_text
 
 #: where each shader's distance convention is defined
 SOURCES = {s.name: s.source for s in SHADERS}
 
 MANIFEST = "bdipole_materials.json"
 LAYER = "bdipole.usda"
-#: the first words of the records layer's comment: the mark of this tool's own layer
-LAYER_MARK = "bdipole-cl bake of "
 #: what a scene's mfp_kind means, for the plan
 MFP_MEANING = {"diffuse": "mfp = ld = 1/mu_tr", "extinction": "sigma_t' = 1/mfp"}
 
@@ -189,11 +189,13 @@ def manifest(scene, jobs, coefficients, folder, results=None) -> dict:
         if imp.notes:
             entry["notes"] = list(imp.notes)
         if imp.name in by_name:
-            entry.update(_baked(by_name[imp.name], jobs, results, coefficients, folder))
+            entry.update(_baked(by_name[imp.name], jobs, results, coefficients, folder,
+                                imp.unit_m))
         entries.append(entry)
     for m in scene.materials:
         if m.name not in seen:
-            entries.append({"name": m.name} | _baked(m, jobs, results, coefficients, folder))
+            entries.append({"name": m.name} | _baked(m, jobs, results, coefficients, folder,
+                                                     UNIT_METERS[m.unit]))
     return {"source": scene.source, "scene": str(scene.path),
             "scene_relative": os.path.relpath(str(scene.path), folder), "materials": entries}
 
@@ -214,7 +216,7 @@ def _outcome(m, jobs, results) -> tuple:
     return files, failed
 
 
-def _baked(m, jobs, results, coefficients, folder) -> dict:
+def _baked(m, jobs, results, coefficients, folder, stage_unit_m) -> dict:
     written, failed = _outcome(m, jobs, results)
     if m.constant and not coefficients.get(m.name) and not failed:
         failed.append("no coefficients computed")
@@ -233,102 +235,12 @@ def _baked(m, jobs, results, coefficients, folder) -> dict:
         entry["output"] = _relative(m.output, folder)
         entry["files"] = files
         entry["channels"], entry["first_channel"] = output_channels(written, m.outputs)
+    entry["stage_unit_m"] = stage_unit_m
+    if not failed:
+        written_networks, why = networks(baked_material(m, entry, stage_unit_m), folder)
+        entry["targets"] = {n.target.name: "written" for n in written_networks} | {
+            t: f"not written: {w}" for t, w in why.items()}
     return entry
-
-
-def output_channels(files, outputs) -> tuple:
-    """({output: its channel names}, {output: the index of its first channel}) in the files
-    of one material as OpenImageIO reads them (the first file's header: every tile of a
-    material has the same channels). One file holds every output, each as an EXR layer
-    (``sigma_a.R``...): a reader of the file's first colour channels gets the first output,
-    so each record names its own ({}, {} when no file was written)."""
-    spec = next((h for h in (image_header(f) for f in files) if h is not None), None)
-    if spec is None:
-        return {}, {}
-    names = list(spec.channelnames)
-    channels = {o: [n for n in names if n.startswith(f"{o}.")] for o in outputs}
-    return channels, {o: names.index(c[0]) for o, c in channels.items() if c}
-
-
-def usd_asset_records(output: str, files: list) -> tuple:
-    """(the ``<UDIM>`` asset path or file a USD record names for an output pattern relative
-    to the layer, None) where USD resolves that pattern itself (``UsdShade.UdimUtils`` knows
-    ``<UDIM>`` only: Houdini's ``%(UDIM)d`` names the same files and is written as it), else
-    (None, [each tile file]) for the UV tile conventions, which USD cannot resolve."""
-    conv = tiles.token_of(output)
-    if conv is None:
-        return output, None
-    if conv.is_udim():
-        return output.replace(conv.token, "<UDIM>"), None
-    return None, ["./" + f.replace(os.sep, "/") for f in files]
-
-
-#: where the records of a material inside an instance go: USD ignores an ``over`` on a prim
-#: of an instance's prototype (an instance proxy), so they are a prim of their own there, named
-#: as the material, whose ``bdipole:material`` relationship targets the material's path
-INSTANCED_RECORDS = "/bdipole_instanced"
-
-
-def record_prim(layer, imp):
-    """The records layer's prim spec for an imported material: an ``over`` on its prim (its
-    parents ``over`` too), or for one inside an instance (``imp.instanced``) a prim under
-    INSTANCED_RECORDS targeting it."""
-    from pxr import Sdf
-    if imp.instanced:
-        spec = Sdf.CreatePrimInLayer(layer, Sdf.Path(f"{INSTANCED_RECORDS}/{imp.name}"))
-        spec.specifier = Sdf.SpecifierDef
-        spec.nameParent.specifier = Sdf.SpecifierDef
-        rel = Sdf.RelationshipSpec(spec, "bdipole:material", custom=True)
-        rel.targetPathList.explicitItems = [Sdf.Path(imp.path)]
-        return spec
-    spec = Sdf.CreatePrimInLayer(layer, Sdf.Path(imp.path))
-    spec.specifier = Sdf.SpecifierOver
-    parent = spec.nameParent
-    while parent and parent.path != Sdf.Path.absoluteRootPath:
-        parent.specifier = Sdf.SpecifierOver
-        parent = parent.nameParent
-    return spec
-
-
-def usd_layer_text(scene, records: dict, folder) -> str:
-    """bdipole.usda: an ``over`` on each baked imported material prim."""
-    from pxr import Sdf, Vt
-    layer = Sdf.Layer.CreateAnonymous(".usda")
-    layer.comment = (f"{LAYER_MARK}{os.path.basename(str(scene.source))}: sublayer it "
-                     f"to find each material's coefficients (bdipole: attributes)")
-    by_name = {e["name"]: e for e in records["materials"]}
-    for imp in scene.imports:
-        entry = by_name.get(imp.name)
-        if not entry or not entry.get("baked"):
-            continue
-        spec = record_prim(layer, imp)
-
-        def attr(name, type_name, value):
-            a = Sdf.AttributeSpec(spec, f"bdipole:{name}", type_name)
-            a.default = value
-
-        attr("mfp_kind", Sdf.ValueTypeNames.Token, entry["mfp_kind"])
-        attr("unit", Sdf.ValueTypeNames.String, entry["coefficient_unit"])
-        attr("eta", Sdf.ValueTypeNames.FloatArray, Vt.FloatArray(entry["eta"]))
-        for output in entry["outputs"]:
-            if "coefficients" in entry:
-                values = (entry["coefficients"] or {}).get(output, [])
-                attr(output, Sdf.ValueTypeNames.FloatArray, Vt.FloatArray(values))
-                continue
-            pattern, tile_files = usd_asset_records(entry["output"], entry["files"])
-            if pattern is not None:
-                attr(output, Sdf.ValueTypeNames.Asset, Sdf.AssetPath(pattern))
-            else:
-                attr(f"{output}:tiles", Sdf.ValueTypeNames.AssetArray,
-                     Sdf.AssetPathArray([Sdf.AssetPath(f) for f in tile_files]))
-            channels = entry.get("channels", {}).get(output)
-            if channels:               # which of the file's channels are this output's
-                attr(f"{output}:layer", Sdf.ValueTypeNames.String, output)
-                attr(f"{output}:channels", Sdf.ValueTypeNames.StringArray,
-                     Vt.StringArray(channels))
-                attr(f"{output}:firstChannel", Sdf.ValueTypeNames.Int,
-                     entry["first_channel"][output])
-    return layer.ExportToString()
 
 
 def default_mode() -> int:

@@ -1,0 +1,210 @@
+"""The material networks a bake writes for its render targets (I/O): one typed description
+per material and target (``Network``: the shader's inputs, each a constant or a
+``TextureRead``), which ``usd_networks`` authors as UsdShade prims and ``mtlx_networks`` as a
+MaterialX document: the same network in both (docs/materials.md).
+
+A texture read names everything a renderer needs to read the texels a bake means: the file
+relative to the records folder, with ``<UDIM>`` as its tile token (the one USD and MaterialX
+resolve; Houdini's ``%(UDIM)d`` names the same files), its colour space (``raw`` for data:
+every coefficient and distance), and the EXR layer or first channel it reads (one file holds
+every output of a material, ``sigma_a.R``...). A target whose inputs are in another
+convention than the bake's needs ``convert`` (``physics.conventions``); until then it is
+not written, and the manifest and plan say why.
+"""
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import dataclass, field
+
+from . import tiles
+from .scene_file import UNIT_METERS
+from .targets import TARGET, Target
+
+
+@dataclass(frozen=True)
+class TextureRead:
+    """One texture a network reads: ``file`` relative to the records folder (``./a.<UDIM>.exr``,
+    or absolute where it is on another drive), ``colorspace`` (a declared name, ``raw`` for
+    data, ``auto``: as the file declares), ``layer`` (the EXR layer, None: the file's first
+    channels) and ``first_channel`` (where it starts in the file as OpenImageIO reads it)."""
+
+    role: str                        # albedo, mfp, or an output's name
+    file: str
+    colorspace: str
+    layer: str | None = None
+    first_channel: int = 0
+    channels: int = 3
+
+    @property
+    def tiled(self) -> bool:
+        return "<UDIM>" in self.file
+
+    @property
+    def is_data(self) -> bool:
+        return self.colorspace == "raw"
+
+
+@dataclass(frozen=True)
+class Network:
+    """A target's shader for one material: its inputs (name -> floats or TextureRead)."""
+
+    target: Target
+    material: str
+    inputs: dict
+    notes: tuple = ()
+
+    @property
+    def textures(self) -> tuple:
+        return tuple(v for v in self.inputs.values() if isinstance(v, TextureRead))
+
+
+@dataclass(frozen=True)
+class BakedMaterial:
+    """What a bake knows of one baked material, as networks need it. Paths are absolute
+    (patterns with their own tile token); distances in ``unit_m`` metres (the material's
+    unit), which ``stage_unit_m`` (the unit of the stage the networks go into) may differ
+    from."""
+
+    name: str
+    albedo: str | tuple
+    colorspace: str
+    mfp: str | tuple
+    mfp_scale: tuple
+    mfp_kind: str
+    model: str
+    eta: tuple
+    unit: str
+    stage_unit_m: float
+    targets: tuple
+    output: str | None = None        # the coefficient files' pattern (None: constants)
+    outputs: tuple = ()
+    channels: dict = field(default_factory=dict)
+    first_channel: dict = field(default_factory=dict)
+
+    @property
+    def unit_m(self) -> float:
+        return UNIT_METERS[self.unit]
+
+
+class NotWritten(Exception):
+    """Why a target's network is not written for a material (one line)."""
+
+
+def relative_file(path: str, folder: str) -> str:
+    """``path`` (a pattern or file) relative to ``folder`` as ``./...`` with ``/``, its tile
+    token as ``<UDIM>`` (NotWritten for a UV-tile token: USD cannot resolve it)."""
+    conv = tiles.token_of(path)
+    if conv is not None and not conv.is_udim():
+        raise NotWritten(f"{path}: {conv.token} names tiles as {conv.convention}, which USD "
+                         f"and MaterialX texture nodes do not resolve; name the files with "
+                         f"<UDIM>")
+    if conv is not None:
+        path = path.replace(conv.token, "<UDIM>")
+    try:
+        rel = os.path.relpath(path, folder)
+    except ValueError:                 # another drive: as it is
+        return path.replace(os.sep, "/")
+    return "./" + rel.replace(os.sep, "/")
+
+
+def texture_space(colorspace: str) -> str:
+    """A texture's colour space as a network names it: as declared, ``raw`` for data."""
+    return "raw" if colorspace.casefold() == "raw" else colorspace or "auto"
+
+
+def colour(values) -> tuple:
+    """Three floats of a constant (one value: grey)."""
+    v = tuple(float(x) for x in values)
+    return v * 3 if len(v) == 1 else v[:3]
+
+
+def one_eta(b: BakedMaterial) -> float:
+    """The material's one index of refraction (a shader's IOR is one number)."""
+    if len(set(b.eta)) > 1:
+        raise NotWritten(f"eta differs per channel ({', '.join(f'{e:g}' for e in b.eta)}); "
+                         f"the shader's IOR is one number")
+    return float(b.eta[0])
+
+
+def albedo_input(b: BakedMaterial, folder: str):
+    if isinstance(b.albedo, str):
+        return TextureRead("albedo", relative_file(b.albedo, folder), texture_space(
+            b.colorspace))
+    return colour(b.albedo)
+
+
+def preview_network(target, b: BakedMaterial, folder) -> Network:
+    """UsdPreviewSurface: the painted albedo as the diffuse colour (it has no subsurface)."""
+    return Network(target, b.name, {"diffuseColor": albedo_input(b, folder),
+                                    "ior": (one_eta(b),)},
+                   ("UsdPreviewSurface has no subsurface: the albedo is shown as its diffuse "
+                    "colour",))
+
+
+def pxrsurface_network(target, b: BakedMaterial, folder) -> Network:
+    """PxrSurface: the painted colour and the diffuse mean free path, which is this library's
+    convention (Better Dipole, mfp = ld = 1/mu_tr) as PxrSurface's inputs read it; the whole
+    distance in the stage's unit in ``subsurfaceDmfpColor`` x ``subsurfaceDmfp``, with
+    ``unitLength`` 1 (RenderMan's default 0.1 would scale it)."""
+    if b.mfp_kind != "diffuse" or b.model != "better":
+        raise NotWritten(f"its colour and distance are in the {b.model} model's "
+                         f"{b.mfp_kind} convention; PxrSurface's are a diffuse mean free path "
+                         f"(needs bdipole_cl.convert, physics.conventions)")
+    to_stage = b.unit_m / b.stage_unit_m          # a distance in the material's unit, in
+    scale = [s * to_stage for s in b.mfp_scale]   # the stage's
+    inputs = {"subsurfaceGain": (1.0,), "subsurfaceColor": albedo_input(b, folder),
+              "subsurfaceIor": (one_eta(b),), "unitLength": (1.0,)}
+    if isinstance(b.mfp, str):
+        if len(set(scale)) > 1:
+            raise NotWritten(f"the dmfp texture has a scale per channel "
+                             f"({', '.join(f'{s:g}' for s in scale)}); subsurfaceDmfp is one "
+                             f"number")
+        inputs["subsurfaceDmfpColor"] = TextureRead("mfp", relative_file(b.mfp, folder), "raw")
+        inputs["subsurfaceDmfp"] = (scale[0],)
+    else:
+        mfp = colour(b.mfp)
+        scale3 = colour(scale)
+        inputs["subsurfaceDmfpColor"] = tuple(m * s for m, s in zip(mfp, scale3))
+        inputs["subsurfaceDmfp"] = (1.0,)
+    if not all(math.isfinite(v) for k, vs in inputs.items() if not isinstance(vs, TextureRead)
+               for v in vs):
+        raise NotWritten("a distance or IOR that is not finite")
+    return Network(target, b.name, inputs)
+
+
+def converted_network(target, b: BakedMaterial, folder) -> Network:
+    """OpenPBR and Standard Surface: colour and radius in the van de Hulst convention, from
+    this library's through ``bdipole_cl.convert`` (``physics.conventions``)."""
+    raise NotWritten(f"its subsurface inputs are in the {target.convention} convention: "
+                     f"needs bdipole_cl.convert (physics.conventions), not in this build")
+
+
+BUILDERS = {"preview": preview_network, "pxrsurface": pxrsurface_network,
+            "openpbr": converted_network, "standard-surface": converted_network}
+
+
+def networks(b: BakedMaterial, folder: str) -> tuple:
+    """([Network] written, {target: why not}) of a baked material's targets."""
+    written, why = [], {}
+    for name in b.targets:
+        target = TARGET[name]
+        try:
+            written.append(BUILDERS[target.name](target, b, folder))
+        except NotWritten as exc:
+            why[target.name] = str(exc)
+    return written, why
+
+
+def coefficient_reads(b: BakedMaterial, folder: str) -> tuple:
+    """A TextureRead of each output of a textured material (its layer of the coefficient
+    files, data), () for a constant one or an output pattern USD cannot resolve."""
+    if b.output is None:
+        return ()
+    try:
+        file = relative_file(b.output, folder)
+    except NotWritten:
+        return ()
+    return tuple(TextureRead(o, file, "raw", o, b.first_channel.get(o, 0),
+                             len(b.channels.get(o, ())) or 3)
+                 for o in b.outputs if b.channels.get(o))

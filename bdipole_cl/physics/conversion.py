@@ -1,0 +1,126 @@
+"""``convert``: a painted colour and radius from one renderer's convention to another's, so
+that both renderers produce the same diffuse reflectance and the same spread
+(docs/conventions.md "Conversion").
+
+Per texel: the source's renderer produces (rd, median) (``conventions.rendered``); the
+target's colour is the one its renderer produces rd with (``conventions.colour_for``), and
+its radius the one that puts half the reflected energy within the same median (every
+convention's median is proportional to its radius). Float64, vectorised.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import check_numbers, check_policy, find_invalid, plain_array
+from .conventions import (CONVENTION, Medium, colour_for, medium, rd_range, rendered,
+                          unit_median)
+
+#: the colour below which the spread is taken at this colour (a texel of colour 0 reflects
+#: nothing, so its spread is undefined: its radius is converted as at this colour's)
+COLOUR_FLOOR = 1e-4
+#: the radius range every convention takes (errors' mfp rule)
+RADIUS_RANGE = (1e-20, 1e20)
+
+
+@dataclass(frozen=True)
+class Conversion:
+    """The target's ``colour`` and ``radius`` (in its own units, the source's length unit),
+    what both render (``rd``, ``median``), and the counts of invalid inputs clamped
+    (``invalid``: colour, radius, reflectance out of the target's reach)."""
+
+    colour: np.ndarray
+    radius: np.ndarray
+    rd: np.ndarray
+    median: np.ndarray
+    source: str
+    target: str
+    eta: float
+    g: float
+    invalid: dict
+
+    def medium(self) -> Medium:
+        """The medium the target's renderer walks (target a walk convention; for
+        ``random-walk``: sigma_a, sigma_s and g of a dielectric-bounded path tracer)."""
+        return medium(self.target, self.colour, self.radius, self.eta, self.g)
+
+
+def _scalar(value, name):
+    check_numbers(value, name)
+    v = np.asarray(value, np.float64)
+    if v.ndim or not np.isfinite(v):
+        raise ValueError(f"{name}={value!r}: expected one finite number")
+    return float(v)
+
+
+def check_colour(colour, on_invalid, name="colour", texels=False):
+    """(colour in [0, 1], count): NaN, infinite or outside [0, 1] is invalid (clamped into
+    [0, 1]; NaN to 0)."""
+    bad = ~((colour >= 0.0) & (colour <= 1.0))
+    n = find_invalid(name, colour, bad, "NaN, infinite or outside [0, 1]", on_invalid,
+                     texels=texels)
+    return (np.clip(np.nan_to_num(colour, nan=0.0), 0.0, 1.0) if n else colour), n
+
+
+def check_radius(radius, on_invalid, name="radius", texels=False):
+    """(radius in RADIUS_RANGE, count): NaN, infinite or not > 0 is invalid."""
+    lo, hi = RADIUS_RANGE
+    bad = ~((radius >= lo) & (radius <= hi))
+    n = find_invalid(name, radius, bad, f"NaN, infinite or outside [{lo:g}, {hi:g}]",
+                     on_invalid, texels=texels)
+    return (np.clip(np.nan_to_num(radius, nan=1.0), lo, hi) if n else radius), n
+
+
+def convert(colour, radius, source="better-dipole", target="van-de-hulst", eta=1.4, g=0.0,
+            on_invalid="raise", texels=False) -> Conversion:
+    """Colour and radius of ``target``'s convention that render as ``source``'s do.
+
+    Parameters
+    ----------
+    colour, radius : array_like
+        The painted colour [0, 1] and radius (> 0, any length unit), broadcast together.
+    source, target : str
+        ``conventions.CONVENTION`` names (``bdipole-cl conventions`` lists them).
+    eta, g : float
+        The surface's relative index and the walk's HG mean cosine (one each).
+    on_invalid : {"raise", "clamp"}
+        Out-of-range colour or radius, or a reflectance the target cannot render (Cycles'
+        walk loses the entry's Fresnel part: at eta 1.4 it renders at most ~0.91):
+        InvalidInputError naming the first, or clamped into range and counted.
+    texels : bool
+        Name the first invalid element as a texel (x, y, channel) of HxWxC data.
+    """
+    src, tgt = CONVENTION[source], CONVENTION[target]
+    check_policy(on_invalid)
+    eta, g = _scalar(eta, "eta"), _scalar(g, "g")
+    if not (1.0 <= eta <= 3.0):
+        raise ValueError(f"eta={eta!r}: expected a relative index in [1, 3]")
+    if not (-0.9 <= g <= 0.9):
+        raise ValueError(f"g={g!r}: expected an HG mean cosine in [-0.9, 0.9]")
+    colour = plain_array(colour, "colour").astype(np.float64)
+    radius = plain_array(radius, "radius").astype(np.float64)
+    colour, radius = np.broadcast_arrays(colour, radius)
+    colour, n_colour = check_colour(colour, on_invalid, texels=texels)
+    radius, n_radius = check_radius(radius, on_invalid, texels=texels)
+    flat_c, inverse = np.unique(colour, return_inverse=True)
+    rd = rendered(src.name, flat_c, 1.0, eta, g).rd
+    lo, hi = rd_range(tgt.name, eta, g)
+    n_rd = find_invalid("colour", colour, (rd > hi)[inverse.reshape(colour.shape)],
+                        f"renders a reflectance above {hi:.6g}, the most {tgt.name} renders "
+                        f"at eta {eta:g}", on_invalid, texels=texels)
+    rd = np.clip(rd, lo, hi)
+    floor = np.maximum(flat_c, COLOUR_FLOOR)
+    rd_floor = np.where(flat_c < COLOUR_FLOOR, np.clip(
+        rendered(src.name, floor, 1.0, eta, g).rd, lo, hi), rd)
+    out_c = colour_for(tgt.name, rd, eta, g)
+    # radius ratio: source median per unit radius over the target's at its colour
+    ratio = unit_median(src, floor, eta, g) / unit_median(tgt, colour_for(tgt.name, rd_floor,
+                                                                          eta, g), eta, g)
+    shape = colour.shape
+    inv = inverse.reshape(shape)
+    out_colour = out_c[inv]
+    out_radius = radius * ratio[inv]
+    median = radius * unit_median(src, floor, eta, g)[inv]
+    return Conversion(out_colour, out_radius, rd[inv], median, src.name, tgt.name, eta, g,
+                      {"colour": n_colour + n_rd, "radius": n_radius})

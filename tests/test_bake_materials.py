@@ -222,3 +222,52 @@ def test_the_written_pxrsurface_reads_back_as_the_material_that_was_baked(tmp_pa
         b, names_b = read(tmp_path / "again" / f"wax.{tile}.exr")
         assert names_a == names_b
         np.testing.assert_array_equal(a, b)
+
+
+def generated(doc, element):
+    """GLSL and OSL source MaterialX's own generators write for ``element``."""
+    import MaterialX as mx
+    import MaterialX.PyMaterialXGenGlsl as glsl
+    import MaterialX.PyMaterialXGenOsl as osl
+    import MaterialX.PyMaterialXGenShader as gen_shader
+    from bdipole_cl.io.mtlx_networks import library
+    out = {}
+    for lang, cls, stage in (("glsl", glsl.GlslShaderGenerator, gen_shader.PIXEL_STAGE),
+                             ("osl", osl.OslShaderGenerator, gen_shader.PIXEL_STAGE)):
+        gen = cls.create()
+        context = gen_shader.GenContext(gen)
+        context.registerSourceCodeSearchPath(mx.getDefaultDataSearchPath())
+        cms = gen_shader.DefaultColorManagementSystem.create(gen.getTarget())
+        cms.loadLibrary(library())
+        gen.setColorManagementSystem(cms)
+        out[lang] = gen.generate(element.getName(), element, context).getSourceCode(stage)
+    return out
+
+
+def test_the_materialx_document_validates_and_generates_glsl_and_osl(tmp_path):
+    mx = pytest.importorskip("MaterialX")
+    from bdipole_cl.io.mtlx_networks import library
+    baked(tmp_path)
+    doc = mx.createDocument()
+    mx.readFromXmlFile(doc, str(tmp_path / "bdipole" / "bdipole.mtlx"))
+    doc.importLibrary(library())
+    ok, message = doc.validate()
+    assert ok, message
+    materials = {m.getName(): m for m in doc.getMaterialNodes()}
+    assert set(materials) == {"skin", "jade", "marble"}
+    for name, material in materials.items():
+        code = generated(doc, material)
+        assert all(len(c) > 1000 for c in code.values()), name
+    # the skin's albedo file and the coefficients' layers, as written, in the generated code's
+    # uniforms (GLSL binds the file by name; the layer is part of the image's identity)
+    skin = mx.getShaderNodes(materials["skin"])[0]
+    image = skin.getInput("diffuseColor").getConnectedNode()
+    assert image.getInputValue("file") == "./../tex/skin.<UDIM>.exr"
+    assert image.getInput("file").getColorSpace() == "lin_rec709"
+    graph = doc.getNodeGraph("skin_coefficients")
+    for output in ("sigma_a", "sigma_s"):
+        node = graph.getOutput(output).getConnectedNode()
+        assert node.getInputValue("layer") == output and node.getType() == "vector3"
+        assert node.getInputValue("file") == "./skin.<UDIM>.exr"
+        code = generated(doc, graph.getOutput(output))
+        assert all("texture" in c for c in code.values())

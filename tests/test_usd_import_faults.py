@@ -132,7 +132,7 @@ def test_the_records_have_the_umask_mode_of_the_images(tmp_path):
     finally:
         os.umask(old)
     modes = {p.name: stat.S_IMODE(p.stat().st_mode) for p in (tmp_path / "bdipole").iterdir()}
-    assert modes == {"jade.exr": 0o640, "bdipole.usda": 0o640,
+    assert modes == {"jade.exr": 0o640, "bdipole.usda": 0o640, "bdipole.mtlx": 0o640,
                      "bdipole_materials.json": 0o640}
 
 

@@ -18,6 +18,7 @@ import os
 from dataclasses import dataclass, field
 
 from . import tiles
+from .colour import active_config
 from .scene_file import UNIT_METERS
 from .targets import TARGET, Target
 
@@ -108,9 +109,33 @@ def relative_file(path: str, folder: str) -> str:
     return "./" + rel.replace(os.sep, "/")
 
 
+#: MaterialX's colour space names (its default colour management system's)
+MTLX_SPACES = ("srgb_texture", "lin_rec709", "g22_rec709", "g18_rec709", "acescg", "lin_ap1",
+               "g22_ap1", "g18_ap1", "lin_srgb", "adobergb", "lin_adobergb", "srgb_displayp3",
+               "lin_displayp3")
+#: USD's colour space names (``colorSpace`` metadata, USD 25.05's GfColorSpace names)
+USD_SPACES = ("lin_rec709_scene", "srgb_rec709_scene", "g22_rec709_scene", "lin_ap1_scene",
+              "lin_ap0_scene", "srgb_ap1_scene", "g22_ap1_scene", "lin_p3d65_scene",
+              "srgb_p3d65_scene", "g22_adobergb_scene", "identity", "raw")
+
+
 def texture_space(colorspace: str) -> str:
-    """A texture's colour space as a network names it: as declared, ``raw`` for data."""
-    return "raw" if colorspace.casefold() == "raw" else colorspace or "auto"
+    """A texture's colour space as a network names it: ``raw`` for data (a space the config
+    calls data), ``auto`` where nothing is declared, else the config's name."""
+    if not colorspace or colorspace == "auto":
+        return "auto"
+    config = active_config()
+    space = config.space(colorspace)
+    return "raw" if colorspace.casefold() == "raw" or (space and config.is_data(space)) \
+        else colorspace
+
+
+def space_name(colorspace: str, vocabulary) -> str:
+    """The name another system knows a config's colour space by (MTLX_SPACES, USD_SPACES:
+    the first alias there), else the config's own name (an OCIO-managed renderer reads it)."""
+    if colorspace in ("auto", "raw"):
+        return colorspace
+    return active_config().alias_in(colorspace, vocabulary) or colorspace
 
 
 def colour(values) -> tuple:

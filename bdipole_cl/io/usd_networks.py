@@ -10,8 +10,8 @@ preview            ``bdipole_preview`` (UsdPreviewSurface)      UsdUVTexture + p
                                                                 reader ``st``
 pxrsurface         ``bdipole_pxrsurface`` (PxrSurface)          PxrTexture (atlasStyle 1:
                                                                 UDIM)
-(every bake)       ``bdipole_coefficients`` (NodeGraph)         ND_image_* per output, its
-                                                                ``layer``
+(every bake)       ``bdipole_coefficients`` (NodeGraph)         ND_image_vector3 (data)
+                                                                per output, its ``layer``
 =================  ===========================================  ==========================
 
 Inputs are authored with the types their shader declares: USD's own Sdr definitions for the
@@ -22,7 +22,7 @@ from __future__ import annotations
 
 from pxr import Gf, Sdf, Sdr, UsdShade
 
-from .networks import Network, TextureRead
+from .networks import USD_SPACES, Network, TextureRead, space_name
 
 #: RenderMan's declared types of the PxrSurface and PxrTexture parameters a network uses
 #: (PxrSurface.args, PxrTexture.args)
@@ -100,7 +100,7 @@ def _file_input(shader, shader_id, name, read: TextureRead):
     """The texture's file (its <UDIM> pattern) with its colour space as USD declares one."""
     inp = _input(shader, shader_id, name, Sdf.AssetPath(read.file))
     if read.colorspace != "auto":
-        inp.GetAttr().SetColorSpace(read.colorspace)
+        inp.GetAttr().SetColorSpace(space_name(read.colorspace, USD_SPACES))
     return inp
 
 
@@ -164,7 +164,7 @@ def author_coefficients(stage, material_path: str, reads) -> None:
         return
     graph = UsdShade.NodeGraph.Define(stage, f"{material_path}/bdipole_coefficients")
     for read in reads:
-        shader_id = "ND_image_color3" if read.channels >= 3 else "ND_image_float"
+        shader_id = "ND_image_vector3" if read.channels >= 3 else "ND_image_float"
         node = _shader(stage, f"{graph.GetPath()}/{read.role}", shader_id)
         _file_input(node, shader_id, "file", read)
         _input(node, shader_id, "layer", read.layer)

@@ -149,3 +149,20 @@ def record_prim_over(spec):
     while spec and spec.path != Sdf.Path.absoluteRootPath:
         spec.specifier = Sdf.SpecifierOver
         spec = spec.nameParent
+
+
+def mtlx_text(scene, records: dict, folder) -> str:
+    """bdipole.mtlx: each baked imported material's MaterialX networks and coefficients graph
+    (``io.mtlx_networks``), the same as the layer's."""
+    from ..io.mtlx_networks import document_text
+    by_name = {e["name"]: e for e in records["materials"]}
+    materials = {m.name: m for m in scene.materials}
+    found = []
+    for imp in scene.imports:
+        entry = by_name.get(imp.name)
+        if entry and entry.get("baked"):
+            baked = baked_material(materials[imp.name], entry, imp.unit_m)
+            found.append((imp.name, networks(baked, folder)[0],
+                          coefficient_reads(baked, folder)))
+    return document_text(found, f"{LAYER_MARK}{os.path.basename(str(scene.source))}: the "
+                                f"materials of bdipole.usda as MaterialX (docs/materials.md)")

@@ -26,13 +26,15 @@ from ..methods.choice import resolve_method
 from ..methods.registry import MethodConfig
 from ..ops.invert import albedo_to_coefficients
 from .results import BatchReport, FileResult
-from .scene_layer import LAYER_MARK, baked_material, output_channels, usd_layer_text
+from .scene_layer import (LAYER_MARK, baked_material, mtlx_text, output_channels,
+                          usd_layer_text)
 
 #: where each shader's distance convention is defined
 SOURCES = {s.name: s.source for s in SHADERS}
 
 MANIFEST = "bdipole_materials.json"
 LAYER = "bdipole.usda"
+DOCUMENT = "bdipole.mtlx"
 #: what a scene's mfp_kind means, for the plan
 MFP_MEANING = {"diffuse": "mfp = ld = 1/mu_tr", "extinction": "sigma_t' = 1/mfp"}
 
@@ -112,7 +114,8 @@ def read_manifest(folder) -> dict:
 def record_paths(scene, folder) -> list:
     """The records' paths in ``folder``: the manifest, and for a stage or document the layer."""
     return [os.path.join(folder, MANIFEST)] + (
-        [os.path.join(folder, LAYER)] if scene.source is not None else [])
+        [os.path.join(folder, LAYER), os.path.join(folder, DOCUMENT)]
+        if scene.source is not None else [])
 
 
 def records_refusal(scene, folder, inputs, force=False) -> str | None:
@@ -130,8 +133,8 @@ def records_refusal(scene, folder, inputs, force=False) -> str | None:
         if not is_regular_file(path):
             return (f"{path} is not a regular file (a directory, FIFO or link to none); the "
                     f"bake's records go there: move it")
-        ours = manifest_record(folder) is not None if path.endswith(MANIFEST) else \
-            bool(own_layers(folder))
+        ours = (manifest_record(folder) is not None if path.endswith(MANIFEST) else
+                own_document(path) if path.endswith(DOCUMENT) else bool(own_layers(folder)))
         if not ours and not force:
             return (f"{path} exists and was not written by bdipole-cl (or was changed since); "
                     f"the bake's records go there: move it, or pass --force to replace it")
@@ -307,6 +310,16 @@ def records_over_input(scene, folder, inputs) -> str | None:
     return None
 
 
+def own_document(path) -> bool:
+    """Whether the MaterialX document at ``path`` is this tool's (its first comment carries
+    LAYER_MARK)."""
+    try:
+        with open(path, errors="replace") as f:
+            return f"<!--{LAYER_MARK}" in f.read(400).replace("<!-- ", "<!--")
+    except OSError:
+        return False
+
+
 def own_layers(folder) -> set:
     """{the records layer's real path} where the file there is this tool's (its comment
     carries LAYER_MARK: the README's way to use it is to sublayer it over the stage, which
@@ -344,6 +357,7 @@ def write_records(plan, results) -> list:
              + "\n"}
     if scene.source is not None:
         texts[os.path.join(folder, LAYER)] = usd_layer_text(scene, records, folder)
+        texts[os.path.join(folder, DOCUMENT)] = mtlx_text(scene, records, folder)
     inputs = plan.record_inputs              # taken by the plan (the stage opened once)
     written = [(path, REMOVED) for path in remove_stale_outputs(old, plan.jobs, folder, inputs)]
     written += [(line, DROPPED) for line in dropped_records(old, records)]

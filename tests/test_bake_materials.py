@@ -271,3 +271,25 @@ def test_the_materialx_document_validates_and_generates_glsl_and_osl(tmp_path):
         assert node.getInputValue("file") == "./skin.<UDIM>.exr"
         code = generated(doc, graph.getOutput(output))
         assert all("texture" in c for c in code.values())
+
+
+def test_the_cli_and_scene_files_choose_targets_in_one_vocabulary(tmp_path, capsys):
+    from bdipole_cl.apps.cli import main as cli_main
+    stage_path = write_stage(tmp_path)
+    assert cli_main(["plan", str(stage_path), "--target", "PxrSurface"]) == 0
+    out = capsys.readouterr().out
+    assert "  targets: pxrsurface (bdipole.usda)" in out
+    assert "target preview" not in out
+    with pytest.raises(SystemExit) as exit_:
+        cli_main(["plan", str(stage_path), "--target", "openpbr,standard_surface"])
+    assert exit_.value.code == 2
+    assert "both write the mtlx render context" in capsys.readouterr().err
+    (tmp_path / "scene.toml").write_text('materials_from = "asset.usda"\n[[material]]\n'
+                                         'name = "marble"\ntargets = ["usdpreviewsurface"]\n')
+    materials = {m.name: m for m in scenes.load(tmp_path / "scene.toml").materials}
+    assert materials["marble"].targets == ("preview",)
+    assert materials["skin"].targets == ("preview", "pxrsurface")        # the default
+    (tmp_path / "bad.toml").write_text('materials_from = "asset.usda"\n[[material]]\n'
+                                       'name = "marble"\ntargets = ["arnold"]\n')
+    with pytest.raises(scenes.SceneError, match=r"bad.toml:4: targets = .*\"preview\", "):
+        scenes.load(tmp_path / "bad.toml")

@@ -391,7 +391,18 @@ def imported_lines(scene) -> list:
                      f"{', '.join(f'{e:g}' for e in m.eta)}, coefficients in 1/{m.unit}")
         lines += [f"  input {d}" for d in imp.inputs.values()]
         lines += [f"  note: {n}" for n in imp.notes]
+        lines += target_lines(m, imp.unit_m, records_dir(scene))
     return lines
+
+
+def target_lines(m, stage_unit_m, folder) -> list:
+    """What the plan says of a material's render targets: the networks the bake writes, and
+    why any other is not written."""
+    written, why = networks(baked_material(m, {}, stage_unit_m), folder)
+    lines = [f"  targets: {', '.join(n.target.name for n in written)} (bdipole.usda"
+             + (", bdipole.mtlx" if any(n.target.mtlx for n in written) else "") + ")"] \
+        if written else []
+    return lines + [f"  target {t}: not written: {w}" for t, w in why.items()]
 
 
 

@@ -293,7 +293,8 @@ def build_parser() -> argparse.ArgumentParser:
     add_scheduler_args(p)
     p.set_defaults(func=_cmd_bake)
 
-    from . import preview, profile
+    from . import convert, preview, profile
+    convert.add_command(command)
     preview.add_command(command)
     profile.add_command(command)
 

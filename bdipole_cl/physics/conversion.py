@@ -17,9 +17,10 @@ from ..errors import check_numbers, check_policy, find_invalid, plain_array
 from .conventions import (CONVENTION, Medium, colour_for, medium, rd_range, rendered,
                           unit_median)
 
-#: the colour below which the spread is taken at this colour (a texel of colour 0 reflects
-#: nothing, so its spread is undefined: its radius is converted as at this colour's)
-COLOUR_FLOOR = 1e-4
+#: the colours outside which the spread is taken at the nearest of them (a texel of colour 0
+#: reflects nothing and one of colour 1 has an infinite extinction in the dipoles: their
+#: spread is undefined, so their radius is converted as at these colours')
+COLOUR_FLOOR, COLOUR_CEILING = 1e-4, 1.0 - 1e-7
 #: the radius range every convention takes (errors' mfp rule)
 RADIUS_RANGE = (1e-20, 1e20)
 
@@ -110,8 +111,8 @@ def convert(colour, radius, source="better-dipole", target="van-de-hulst", eta=1
                         f"renders a reflectance above {hi:.6g}, the most {tgt.name} renders "
                         f"at eta {eta:g}", on_invalid, texels=texels)
     rd = np.clip(rd, lo, hi)
-    floor = np.maximum(flat_c, COLOUR_FLOOR)
-    rd_floor = np.where(flat_c < COLOUR_FLOOR, np.clip(
+    floor = np.clip(flat_c, COLOUR_FLOOR, COLOUR_CEILING)
+    rd_floor = np.where(floor != flat_c, np.clip(
         rendered(src.name, floor, 1.0, eta, g).rd, lo, hi), rd)
     out_c = colour_for(tgt.name, rd, eta, g)
     # radius ratio: source median per unit radius over the target's at its colour

@@ -1,0 +1,145 @@
+"""``convert`` (docs/conventions.md "Conversion"): round trips and monotone sweeps for every
+pair of conventions, what both sides render, invalid texels, and the CLI on a small texture
+set. Pairs that involve a random walk need physics.transport (the walk reference)."""
+import itertools
+
+import numpy as np
+import pytest
+
+import bdipole_cl
+from bdipole_cl.errors import InvalidInputError
+from bdipole_cl.physics.conventions import CONVENTION, rendered
+
+PROFILES = [c.name for c in CONVENTION if not c.walk]
+ALL = [c.name for c in CONVENTION]
+#: round trips A -> B -> A: the brief's 1e-5 (each inverse is a 64-step float64 bisection,
+#: ~1e-16; the walk reference's own inverse sets the floor for walks)
+ROUND_TRIP = 1e-5
+#: colours of the sweeps: inside every convention's range at eta 1.4 (Cycles' walks render
+#: at most ~0.91 of a colour 1 there: higher colours are out of their reach)
+COLOURS = np.linspace(0.05, 0.85, 17)
+
+
+def _needs_walk(*names):
+    if any(CONVENTION[n].walk for n in names):
+        pytest.importorskip("bdipole_cl.physics.transport",
+                            reason="physics.transport (the walk reference) not there")
+
+
+def _pairs(names):
+    return [pytest.param(a, b, id=f"{a}->{b}") for a, b in itertools.permutations(names, 2)]
+
+
+@pytest.mark.parametrize("source,target", _pairs(ALL))
+def test_round_trip_and_monotone(source, target):
+    _needs_walk(source, target)
+    radius = np.linspace(0.5, 2.0, COLOURS.size)
+    there = bdipole_cl.convert(COLOURS, radius, source, target, eta=1.4)
+    back = bdipole_cl.convert(there.colour, there.radius, target, source, eta=1.4)
+    assert np.max(np.abs(back.colour - COLOURS)) <= ROUND_TRIP, (source, target)
+    assert np.max(np.abs(back.radius / radius - 1.0)) <= ROUND_TRIP, (source, target)
+    # the target's colour increases with the source's (a reflectance map is monotone)
+    assert np.all(np.diff(there.colour) > 0.0), (source, target, there.colour)
+
+
+@pytest.mark.parametrize("source,target", _pairs(["better-dipole", "burley", "van-de-hulst",
+                                                   "cycles-skin", "random-walk"]))
+def test_both_sides_render_the_same(source, target):
+    # what the target renders from the converted values (computed afresh) is what the source
+    # renders: reflectance to 1e-9 (bisection), median radius to 1e-7 (a bisection in log r)
+    _needs_walk(source, target)
+    there = bdipole_cl.convert(COLOURS, 1.3, source, target, eta=1.33)
+    a = rendered(source, COLOURS, 1.3, eta=1.33)
+    b = rendered(target, there.colour, there.radius, eta=1.33)
+    assert np.max(np.abs(a.rd - b.rd)) < 1e-9
+    assert np.max(np.abs(b.median / a.median - 1.0)) < 1e-7
+
+
+def test_profile_conventions_keep_the_colour():
+    # a diffusion profile's total is its colour: only the radius changes between them
+    there = bdipole_cl.convert(COLOURS, 1.0, "better-dipole", "burley", eta=1.4)
+    np.testing.assert_array_equal(there.colour, COLOURS)
+    assert np.all(there.radius > 0)
+
+
+def test_shapes_broadcast_and_invalid_values_named():
+    colour = np.full((2, 3, 3), 0.5)
+    colour[1, 2, 0] = 1.5
+    with pytest.raises(InvalidInputError) as info:
+        bdipole_cl.convert(colour, 1.0, "better-dipole", "burley", texels=True)
+    assert info.value.first_index == (1, 2, 0) and info.value.count == 1
+    done = bdipole_cl.convert(colour, np.ones(3), "better-dipole", "burley",
+                              on_invalid="clamp")
+    assert done.colour.shape == (2, 3, 3) and done.invalid["colour"] == 1
+    assert done.colour[1, 2, 0] == 1.0
+    with pytest.raises(InvalidInputError):
+        bdipole_cl.convert(0.5, -1.0, "better-dipole", "burley")
+    with pytest.raises(ValueError, match="convention"):
+        bdipole_cl.convert(0.5, 1.0, "better-dipole", "no-such")
+
+
+def test_cycles_cannot_render_a_high_albedo_at_ior_1_4():
+    # the walk loses the entry's Fresnel part: a painted 0.95 is beyond Cycles' reach
+    _needs_walk("cycles-random-walk")
+    with pytest.raises(InvalidInputError, match="above"):
+        bdipole_cl.convert(0.95, 1.0, "better-dipole", "cycles-random-walk", eta=1.4)
+
+
+def test_random_walk_target_gives_the_medium():
+    _needs_walk("random-walk")
+    from bdipole_cl.physics import transport
+    done = bdipole_cl.convert(np.array([0.3, 0.6, 0.9]), 1.0, "better-dipole", "random-walk",
+                              eta=1.4)
+    m = done.medium()
+    alpha = m.sigma_s / (m.sigma_a + m.sigma_s)
+    rd = transport.walk_reflectance(alpha, g=0.0, eta=1.4)
+    assert np.max(np.abs(rd - [0.3, 0.6, 0.9])) < 1e-8
+
+
+def _write(path, pixels):
+    import OpenImageIO as oiio
+    spec = oiio.ImageSpec(pixels.shape[1], pixels.shape[0], pixels.shape[2], "float")
+    out = oiio.ImageOutput.create(str(path))
+    assert out.open(str(path), spec)
+    out.write_image(pixels.astype(np.float32))
+    out.close()
+
+
+def _read(path):
+    import OpenImageIO as oiio
+    buf = oiio.ImageBuf(str(path))
+    return buf.spec().channelnames, buf.get_pixels(oiio.FLOAT)
+
+
+def test_cli_converts_a_texture_set(tmp_path, capsys):
+    from bdipole_cl.apps.cli import main
+    rng = np.random.default_rng(3)
+    colour = rng.uniform(0.1, 0.9, (4, 5, 3))
+    for udim in (1001, 1002):
+        _write(tmp_path / f"skin.{udim}.exr", colour)
+        _write(tmp_path / f"skin.{udim}_dmfp.exr", np.full((4, 5, 1), 0.7))
+    rc = main(["convert", str(tmp_path / "skin.<UDIM>.exr"), "--radius",
+               str(tmp_path / "skin.<UDIM>_dmfp.exr"), "--source", "pxrsurface",
+               "--target", "burley", "--eta", "1.4"])
+    assert rc == 0, capsys.readouterr()
+    names, px = _read(tmp_path / "skin.1002.burley.exr")
+    assert names == ("colour.R", "colour.G", "colour.B", "radius.R", "radius.G", "radius.B")
+    want = bdipole_cl.convert(colour.astype(np.float32), np.float32(0.7), "better-dipole",
+                              "burley", eta=1.4)
+    # written as float32: a float32 ulp of each value
+    np.testing.assert_allclose(px[..., :3], want.colour, rtol=1.2e-7)
+    np.testing.assert_allclose(px[..., 3:], want.radius, rtol=1.2e-7)
+
+
+def test_cli_names_an_invalid_texel(tmp_path, capsys):
+    from bdipole_cl.apps.cli import main
+    colour = np.full((3, 4, 3), 0.5)
+    colour[2, 1, 1] = 1.25
+    _write(tmp_path / "bad.exr", colour)
+    _write(tmp_path / "good.exr", np.full((3, 4, 3), 0.5))
+    rc = main(["convert", str(tmp_path / "bad.exr"), str(tmp_path / "good.exr"),
+               "--radius", "1", "--target", "burley"])
+    out = capsys.readouterr().out
+    assert rc == 1
+    assert "x=1, y=2, channel G" in out, out
+    assert (tmp_path / "good.burley.exr").exists() and not (tmp_path / "bad.burley.exr").exists()

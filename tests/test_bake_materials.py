@@ -81,7 +81,7 @@ def check_tiles(material, want):
 
 
 def test_geometry_binds_the_bakes_networks_per_render_context(tmp_path):
-    stage_path, stage = baked(tmp_path)
+    stage_path, stage = baked(tmp_path, targets="preview,pxrsurface")
     bound = {}
     for geom in ("head", "table"):
         prim = stage.GetPrimAtPath(f"/World/{geom}")
@@ -92,11 +92,12 @@ def test_geometry_binds_the_bakes_networks_per_render_context(tmp_path):
     assert surface["ri"].GetShaderId() == "PxrSurface"
     assert surface["ri"].GetPath().name == "bdipole_pxrsurface"
     assert surface[""].GetShaderId() == "UsdPreviewSurface"
-    # the skin's (OpenPBR, extinction) PxrSurface needs convert: its own network is kept
+    # the user's own OpenPBR network is kept (no openpbr target); the skin's PxrSurface
+    # reads maps (its radius is an extinction mean free path: test below)
     assert skin.ComputeSurfaceSource("mtlx")[0].GetShaderId() == \
         "ND_open_pbr_surface_surfaceshader"
     assert skin.ComputeSurfaceSource("")[0].GetPath().name == "bdipole_preview"
-    assert not skin.GetPrim().GetChild("bdipole_pxrsurface")
+    assert skin.ComputeSurfaceSource("ri")[0].GetPath().name == "bdipole_pxrsurface"
     # the PxrSurface reads the painted colour and the dmfp in the stage's unit (cm), all of
     # the distance in the colour (unitLength 1: RenderMan's default 0.1 would scale it)
     pxr_surface = surface["ri"]
@@ -166,11 +167,13 @@ def test_only_the_chosen_targets_are_written_and_said(tmp_path):
     records = json.loads((tmp_path / "bdipole" / "bdipole_materials.json").read_text())
     entries = {e["name"]: e for e in records["materials"]}
     assert entries["marble"]["targets"] == {"preview": "written"}
-    stage_path, stage = baked(tmp_path / "both", targets="pxrsurface,preview")
+    stage_path, stage = baked(tmp_path / "both", targets="pxrsurface,openpbr")
     records = json.loads((tmp_path / "both" / "bdipole" / "bdipole_materials.json").read_text())
     entries = {e["name"]: e for e in records["materials"]}
-    assert entries["skin"]["targets"]["pxrsurface"].startswith("not written: its colour and "
-                                                               "distance are in the better")
+    assert entries["skin"]["targets"]["pxrsurface"] == "written"
+    # openpbr: written where this build converts to van de Hulst, else said why not
+    assert entries["skin"]["targets"]["openpbr"] == "written" or \
+        entries["skin"]["targets"]["openpbr"].startswith("not written: its van-de-hulst maps")
 
 
 def painted_pxr_stage(root):
@@ -288,8 +291,122 @@ def test_the_cli_and_scene_files_choose_targets_in_one_vocabulary(tmp_path, caps
                                          'name = "marble"\ntargets = ["usdpreviewsurface"]\n')
     materials = {m.name: m for m in scenes.load(tmp_path / "scene.toml").materials}
     assert materials["marble"].targets == ("preview",)
-    assert materials["skin"].targets == ("preview", "pxrsurface")        # the default
+    assert materials["skin"].targets == ("preview",)                     # the default
     (tmp_path / "bad.toml").write_text('materials_from = "asset.usda"\n[[material]]\n'
                                        'name = "marble"\ntargets = ["arnold"]\n')
     with pytest.raises(scenes.SceneError, match=r"bad.toml:4: targets = .*\"preview\", "):
         scenes.load(tmp_path / "bad.toml")
+
+
+def test_pxrsurface_of_an_extinction_material_reads_maps_that_invert_to_its_coefficients(
+        tmp_path):
+    """The skin (OpenPBR: its radius is 1/sigma_t') for PxrSurface: the bake writes its colour
+    and diffuse mean free path in the Better Dipole's convention, and those maps, inverted as
+    a diffuse mfp (a second, independent route through albedo_to_coefficients), give back
+    the baked coefficients. The jade (constants) gets the same as numbers."""
+    import bdipole_cl as bd
+    _, stage = baked(tmp_path, targets="pxrsurface")
+    skin = UsdShade.Material(stage.GetPrimAtPath("/Looks/skin"))
+    surface = skin.ComputeSurfaceSource("ri")[0]
+    assert surface.GetPath().name == "bdipole_pxrsurface"
+    reads = {}
+    for name in ("subsurfaceColor", "subsurfaceDmfpColor"):
+        tex = UsdShade.Shader(surface.GetInput(name).GetConnectedSources()[0][0].source
+                              .GetPrim())
+        asset = tex.GetInput("filename").Get()
+        assert asset.path == "./skin.<UDIM>.better-dipole.exr"
+        reads[name] = tex.GetInput("firstChannel").Get()
+    assert reads == {"subsurfaceColor": 0, "subsurfaceDmfpColor": 3}
+    assert surface.GetInput("subsurfaceDmfp").Get() == pytest.approx(1.0)   # cm on a cm stage
+    check_connections(skin)
+    check_tiles(skin, 2)
+    for tile in ("1001", "1002"):
+        maps, names = read(tmp_path / "bdipole" / f"skin.{tile}.better-dipole.exr")
+        coef, cnames = read(tmp_path / "bdipole" / f"skin.{tile}.exr")
+        assert names == [f"{layer}.{c}" for layer in ("colour", "radius") for c in "RGB"]
+        sa, ss = bd.albedo_to_coefficients(maps[..., :3].astype(np.float64),
+                                           maps[..., 3:].astype(np.float64), 1.4,
+                                           mfp_kind="diffuse", double=True)
+        # two inversions at tol 1e-4 in rho (the bake's and this one), float32 maps
+        np.testing.assert_allclose(sa, coef[..., :3], rtol=3e-4)
+        np.testing.assert_allclose(ss, coef[..., 3:], rtol=3e-4)
+    jade = UsdShade.Material(stage.GetPrimAtPath("/Looks/jade")).ComputeSurfaceSource("ri")[0]
+    np.testing.assert_allclose(jade.GetInput("subsurfaceColor").Get(), (0.7, 0.5, 0.3),
+                               rtol=1e-6)
+    want = bd.albedo_to_coefficients((0.7, 0.5, 0.3), 0.5 * np.array([1, 0.6, 0.3]), 1.5,
+                                     mfp_kind="extinction", double=True)
+    back = bd.albedo_to_coefficients((0.7, 0.5, 0.3),
+                                     np.asarray(jade.GetInput("subsurfaceDmfpColor").Get()),
+                                     1.5, mfp_kind="diffuse", double=True)
+    np.testing.assert_allclose(back, want, rtol=3e-4)
+
+
+def converted_material(tmp_path, targets):
+    """A BakedMaterial whose maps are given (the networks need no conversion to be built)."""
+    from bdipole_cl.io.networks import BakedMaterial
+    maps = {"van-de-hulst": {"output": "./wax.<UDIM>.van-de-hulst.exr",
+                             "first_channel": {"colour": 0, "radius": 3}}}
+    for tile in ("1001", "1002"):
+        albedo_texture(tmp_path / f"wax.{tile}.van-de-hulst.exr")
+    return BakedMaterial("wax", str(tmp_path / "tex" / "wax.<UDIM>.exr"), "lin_rec709", (1.0,),
+                         (1.0,), "diffuse", "better", (1.4,), "mm", 0.01, targets,
+                         str(tmp_path / "wax.<UDIM>.exr"), ("sigma_a",),
+                         {"sigma_a": ["sigma_a.R", "sigma_a.G", "sigma_a.B"]},
+                         {"sigma_a": 0}, maps, "Linear Rec.709 (sRGB)")
+
+
+@pytest.mark.parametrize("target, colour, radius", [
+    ("openpbr", "subsurface_color", "subsurface_radius_scale"),
+    ("standard-surface", "subsurface_color", "subsurface_radius")])
+def test_openpbr_and_standard_surface_networks_read_the_converted_maps(tmp_path, target,
+                                                                       colour, radius):
+    """The MaterialX targets' networks (given maps: the conversion itself is conventions'):
+    declared types, a colour map in its space and a radius map as data, the mm radius on a cm
+    stage scaled by 0.1; the .mtlx validates and generates GLSL and OSL."""
+    mx = pytest.importorskip("MaterialX")
+    from bdipole_cl.io import usd_networks
+    from bdipole_cl.io.mtlx_networks import document_text, library
+    from bdipole_cl.io.networks import networks
+    b = converted_material(tmp_path, (target,))
+    written, why = networks(b, str(tmp_path))
+    assert why == {} and [n.target.name for n in written] == [target]
+    stage = Usd.Stage.CreateInMemory()
+    UsdShade.Material.Define(stage, "/wax")
+    usd_networks.author(stage, "/wax", written[0])
+    material = UsdShade.Material(stage.GetPrimAtPath("/wax"))
+    surface = material.ComputeSurfaceSource("mtlx")[0]
+    assert surface.GetShaderId() == TARGET[target].shader_id
+    check_connections(material)
+    scale = [i for i in surface.GetInputs() if i.GetBaseName() in (
+        "subsurface_radius", "subsurface_scale") and not i.HasConnectedSource()][0]
+    assert scale.Get() == pytest.approx(0.1)                 # mm maps on a cm stage
+    files = {}
+    for name in (colour, radius):
+        node = UsdShade.Shader(surface.GetInput(name).GetConnectedSources()[0][0].source
+                               .GetPrim())
+        files[name] = (node.GetInput("layer").Get(),
+                       node.GetInput("file").GetAttr().GetColorSpace())
+    assert files == {colour: ("colour", "lin_rec709_scene"), radius: ("radius", "raw")}
+    path = tmp_path / "wax.mtlx"
+    path.write_text(document_text([("wax", written, ())], "test"))
+    doc = mx.createDocument()
+    mx.readFromXmlFile(doc, str(path))
+    doc.importLibrary(library())
+    ok, message = doc.validate()
+    assert ok, message
+    node = doc.getNode("wax")
+    code = generated(doc, node)
+    assert all(len(c) > 1000 for c in code.values())
+    shader = mx.getShaderNodes(node)[0]
+    image = shader.getInput(colour).getConnectedNode()
+    assert image.getInput("file").getColorSpace() == "lin_rec709"
+    assert image.getInputValue("layer") == "colour"
+    # the radius map is data: a vector3 image MaterialX never colour-converts
+    data = shader.getInput(radius).getConnectedNode()
+    data = data.getInput("in").getConnectedNode() if data.getCategory() == "convert" else data
+    assert data.getType() == "vector3" and data.getInputValue("layer") == "radius"
+    layer = Sdf.Layer.CreateNew(str(tmp_path / "wax.usda"))
+    layer.TransferContent(stage.GetRootLayer())
+    layer.Save()
+    saved = Usd.Stage.Open(str(tmp_path / "wax.usda"))
+    check_tiles(UsdShade.Material(saved.GetPrimAtPath("/wax")), 2)

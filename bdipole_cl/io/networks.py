@@ -18,6 +18,7 @@ import os
 from dataclasses import dataclass, field
 
 from . import tiles
+from ..physics.conventions import CONVENTION
 from .colour import active_config
 from .scene_file import UNIT_METERS
 from .targets import TARGET, Target
@@ -82,6 +83,8 @@ class BakedMaterial:
     outputs: tuple = ()
     channels: dict = field(default_factory=dict)
     first_channel: dict = field(default_factory=dict)
+    maps: dict | None = None         # {convention: the manifest's maps entry}; None: planned
+    working_space: str = "auto"      # the colour maps' space (the bake's working space)
 
     @property
     def unit_m(self) -> float:
@@ -167,19 +170,50 @@ def preview_network(target, b: BakedMaterial, folder) -> Network:
                     "colour",))
 
 
+def painted_directly(b: BakedMaterial, convention: str) -> bool:
+    """Whether ``b``'s painted colour and distance are already in ``convention``."""
+    return b.mfp_kind == "diffuse" and CONVENTION.canonical(b.model) == convention
+
+
+def converted_inputs(b: BakedMaterial, convention: str, folder: str) -> tuple:
+    """(colour, radius) of ``b`` in ``convention``: TextureReads of the maps the bake wrote
+    (layers ``colour``, ``radius``) or a constant material's numbers (radius in the
+    material's unit); NotWritten where the maps could not be made."""
+    maps = b.maps
+    if maps is None:                     # the plan: the maps the bake will write
+        entry = {"output": relative_file(f"{b.output[:-4]}.{convention}.exr", folder)} \
+            if b.output else {"constants": {"colour": [0.0], "radius": [1.0]}}
+    else:
+        entry = maps.get(convention)
+    if not entry or entry.get("error"):
+        raise NotWritten(entry.get("error") if entry else f"no {convention} maps were made")
+    if "constants" in entry:
+        return colour(entry["constants"]["colour"]), colour(entry["constants"]["radius"])
+    file = relative_file(os.path.join(folder, entry["output"]), folder)
+    first = entry.get("first_channel", {})
+    return (TextureRead("colour", file, texture_space(b.working_space), "colour",
+                        first.get("colour", 0)),
+            TextureRead("radius", file, "raw", "radius", first.get("radius", 3)))
+
+
 def pxrsurface_network(target, b: BakedMaterial, folder) -> Network:
     """PxrSurface: the painted colour and the diffuse mean free path, which is this library's
     convention (Better Dipole, mfp = ld = 1/mu_tr) as PxrSurface's inputs read it; the whole
     distance in the stage's unit in ``subsurfaceDmfpColor`` x ``subsurfaceDmfp``, with
     ``unitLength`` 1 (RenderMan's default 0.1 would scale it)."""
-    if b.mfp_kind != "diffuse" or b.model != "better":
-        raise NotWritten(f"its colour and distance are in the {b.model} model's "
-                         f"{b.mfp_kind} convention; PxrSurface's are a diffuse mean free path "
-                         f"(needs bdipole_cl.convert, physics.conventions)")
     to_stage = b.unit_m / b.stage_unit_m          # a distance in the material's unit, in
     scale = [s * to_stage for s in b.mfp_scale]   # the stage's
     inputs = {"subsurfaceGain": (1.0,), "subsurfaceColor": albedo_input(b, folder),
               "subsurfaceIor": (one_eta(b),), "unitLength": (1.0,)}
+    if not painted_directly(b, target.convention):     # the maps in its convention
+        col, radius = converted_inputs(b, target.convention, folder)
+        inputs["subsurfaceColor"] = col
+        if isinstance(radius, TextureRead):
+            inputs["subsurfaceDmfpColor"], inputs["subsurfaceDmfp"] = radius, (to_stage,)
+        else:
+            inputs["subsurfaceDmfpColor"] = tuple(r * to_stage for r in radius)
+            inputs["subsurfaceDmfp"] = (1.0,)
+        return Network(target, b.name, inputs)
     if isinstance(b.mfp, str):
         if len(set(scale)) > 1:
             raise NotWritten(f"the dmfp texture has a scale per channel "
@@ -198,11 +232,27 @@ def pxrsurface_network(target, b: BakedMaterial, folder) -> Network:
     return Network(target, b.name, inputs)
 
 
+#: per MaterialX target: weight, colour, (radius float, radius colour: which one is the map),
+#: IOR input names
+MTLX_INPUTS = {
+    "openpbr": ("subsurface_weight", "subsurface_color", "subsurface_radius",
+                "subsurface_radius_scale", "specular_ior"),
+    "standard-surface": ("subsurface", "subsurface_color", "subsurface_scale",
+                         "subsurface_radius", "specular_IOR"),
+}
+
+
 def converted_network(target, b: BakedMaterial, folder) -> Network:
-    """OpenPBR and Standard Surface: colour and radius in the van de Hulst convention, from
-    this library's through ``bdipole_cl.convert`` (``physics.conventions``)."""
-    raise NotWritten(f"its subsurface inputs are in the {target.convention} convention: "
-                     f"needs bdipole_cl.convert (physics.conventions), not in this build")
+    """OpenPBR and Standard Surface: colour and radius in the target's convention (van de
+    Hulst), from this library's through ``bdipole_cl.convert``: the colour map, the radius
+    map (data) times the stage's unit."""
+    weight, col_name, scale_name, radius_name, ior = MTLX_INPUTS[target.name]
+    col, radius = converted_inputs(b, target.convention, folder)
+    to_stage = b.unit_m / b.stage_unit_m
+    if not isinstance(radius, TextureRead):
+        radius, to_stage = tuple(r * to_stage for r in radius), 1.0
+    return Network(target, b.name, {weight: (1.0,), col_name: col, scale_name: (to_stage,),
+                                    radius_name: radius, ior: (one_eta(b),)})
 
 
 BUILDERS = {"preview": preview_network, "pxrsurface": pxrsurface_network,

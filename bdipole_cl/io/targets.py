@@ -54,7 +54,9 @@ TARGET = Registry("target", (
 ))
 
 #: what a bake writes when neither ``--target`` nor ``targets`` says
-DEFAULT_TARGETS = ("preview", "pxrsurface")
+#: (the viewers' preview only: a target in another convention than the painted one makes maps
+#: per texel, which ``--target`` asks for)
+DEFAULT_TARGETS = ("preview",)
 
 
 def parse_targets(spellings) -> tuple:

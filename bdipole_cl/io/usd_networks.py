@@ -133,9 +133,21 @@ def pxr_texture(stage, base, read: TextureRead):
     return _output(tex, "PxrTexture", "resultRGB")
 
 
+def mtlx_texture(stage, base, read: TextureRead):
+    """MaterialX ``image`` (ND_image_color3) of ``read``: its file, EXR layer and colour space
+    (raw for data, which MaterialX does not convert)."""
+    tex = _shader(stage, f"{base}_{read.role}", "ND_image_color3")
+    _file_input(tex, "ND_image_color3", "file", read)
+    if read.layer:
+        _input(tex, "ND_image_color3", "layer", read.layer)
+    return _output(tex, "ND_image_color3", "out")
+
+
 #: per target: (the shader's name under the material, its surface output, the texture node)
 SHADERS = {"preview": ("bdipole_preview", "surface", preview_texture),
-           "pxrsurface": ("bdipole_pxrsurface", "out", pxr_texture)}
+           "pxrsurface": ("bdipole_pxrsurface", "out", pxr_texture),
+           "openpbr": ("bdipole_openpbr", "out", mtlx_texture),
+           "standard-surface": ("bdipole_standard_surface", "out", mtlx_texture)}
 
 
 def author(stage, material_path: str, network: Network):

@@ -9,6 +9,7 @@ from __future__ import annotations
 import os
 
 from ..io import tiles
+from ..io.colour import resolve_working_space
 from ..io.images import image_header
 from ..io.networks import BakedMaterial, coefficient_reads, networks
 
@@ -22,7 +23,8 @@ def baked_material(m, entry: dict, stage_unit_m: float) -> BakedMaterial:
         m.name, m.albedo, m.colorspace, m.mfp, tuple(m.mfp_scale), m.mfp_kind, m.model,
         tuple(m.eta), m.unit, stage_unit_m, tuple(m.targets),
         None if m.constant else m.output, tuple(m.outputs), entry.get("channels", {}),
-        entry.get("first_channel", {}))
+        entry.get("first_channel", {}), entry.get("maps", {}),
+        resolve_working_space(m.working_space).name)
 
 
 

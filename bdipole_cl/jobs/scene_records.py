@@ -26,6 +26,7 @@ from ..methods.choice import resolve_method
 from ..methods.registry import MethodConfig
 from ..ops.invert import albedo_to_coefficients
 from .results import BatchReport, FileResult
+from .scene_maps import maps_entry, remove_stale_maps, target_maps
 from .scene_layer import (LAYER_MARK, baked_material, mtlx_text, output_channels,
                           usd_layer_text)
 
@@ -175,7 +176,7 @@ def _relative(path, folder):
     return "./" + os.path.relpath(path, folder).replace(os.sep, "/")
 
 
-def manifest(scene, jobs, coefficients, folder, results=None) -> dict:
+def manifest(scene, jobs, coefficients, folder, results=None, maps=None) -> dict:
     """The manifest's content: every material of the scene (imported ones first, left-out
     ones with their reason); a material is baked when every one of its jobs wrote its
     output or found it up to date (``results``, in the order of ``jobs``; None: all did)."""
@@ -193,12 +194,13 @@ def manifest(scene, jobs, coefficients, folder, results=None) -> dict:
             entry["notes"] = list(imp.notes)
         if imp.name in by_name:
             entry.update(_baked(by_name[imp.name], jobs, results, coefficients, folder,
-                                imp.unit_m))
+                                imp.unit_m, (maps or {}).get(imp.name)))
         entries.append(entry)
     for m in scene.materials:
         if m.name not in seen:
             entries.append({"name": m.name} | _baked(m, jobs, results, coefficients, folder,
-                                                     UNIT_METERS[m.unit]))
+                                                     UNIT_METERS[m.unit],
+                                                     (maps or {}).get(m.name)))
     return {"source": scene.source, "scene": str(scene.path),
             "scene_relative": os.path.relpath(str(scene.path), folder), "materials": entries}
 
@@ -219,7 +221,7 @@ def _outcome(m, jobs, results) -> tuple:
     return files, failed
 
 
-def _baked(m, jobs, results, coefficients, folder, stage_unit_m) -> dict:
+def _baked(m, jobs, results, coefficients, folder, stage_unit_m, maps=None) -> dict:
     written, failed = _outcome(m, jobs, results)
     if m.constant and not coefficients.get(m.name) and not failed:
         failed.append("no coefficients computed")
@@ -239,6 +241,8 @@ def _baked(m, jobs, results, coefficients, folder, stage_unit_m) -> dict:
         entry["files"] = files
         entry["channels"], entry["first_channel"] = output_channels(written, m.outputs)
     entry["stage_unit_m"] = stage_unit_m
+    if maps:
+        entry["maps"] = maps_entry(maps, folder)
     if not failed:
         written_networks, why = networks(baked_material(m, entry, stage_unit_m), folder)
         entry["targets"] = {n.target.name: "written" for n in written_networks} | {
@@ -352,7 +356,8 @@ def write_records(plan, results) -> list:
             coefficients[job.name] = result.values
         elif job.up_to_date and old.get(job.name, {}).get("coefficients"):
             coefficients[job.name] = old[job.name]["coefficients"]
-    records = manifest(scene, plan.jobs, coefficients, folder, results)
+    maps = target_maps(scene, plan.jobs, results, coefficients, _outcome)
+    records = manifest(scene, plan.jobs, coefficients, folder, results, maps)
     texts = {os.path.join(folder, MANIFEST): json.dumps(records, indent=1, sort_keys=True)
              + "\n"}
     if scene.source is not None:
@@ -360,6 +365,10 @@ def write_records(plan, results) -> list:
         texts[os.path.join(folder, DOCUMENT)] = mtlx_text(scene, records, folder)
     inputs = plan.record_inputs              # taken by the plan (the stage opened once)
     written = [(path, REMOVED) for path in remove_stale_outputs(old, plan.jobs, folder, inputs)]
+    written += [(path, REMOVED) for path in remove_stale_maps(
+        [f for e in old.values() for m in (e.get("maps") or {}).values()
+         if isinstance(m, dict) for f in m.get("files") or []],
+        [f for ms in maps.values() for m in ms.values() for f in m.files], folder, inputs)]
     written += [(line, DROPPED) for line in dropped_records(old, records)]
     for path, text in texts.items():
         if os.path.realpath(path) in inputs:

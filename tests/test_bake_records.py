@@ -162,3 +162,39 @@ def test_a_materialx_documents_records_resolve_where_usdmtlx_puts_its_materials(
     stage = Usd.Stage.Open(str(tmp_path / "bdipole" / "bdipole.usda"))
     files = check_record(stage.GetPrimAtPath("/MaterialX/Materials/skin"), "sigma_a", 2)
     assert sorted(f.rsplit("/", 1)[-1] for f in files) == ["skin.1001.exr", "skin.1002.exr"]
+
+
+def test_a_texture_node_reading_an_exr_layer_is_refused_not_read_as_its_first_channels(
+        tmp_path):
+    """An image node's ``layer`` (USD ND_image_*, MaterialX image) names other texels than the
+    file's R, G, B, which a bake reads: it was ignored, and the material baked from the
+    wrong channels, exit 0."""
+    from pxr import UsdGeom
+    from test_usd_scene import C3, F, albedo_texture, shader, texture_node
+    albedo_texture(tmp_path / "tex" / "skin.exr")
+    stage = Usd.Stage.CreateNew(str(tmp_path / "asset.usda"))
+    UsdGeom.SetStageMetersPerUnit(stage, 0.01)
+    skin = UsdShade.Material.Define(stage, "/Looks/skin")
+    s = shader(stage, skin, "/Looks/skin/pbr", "ND_open_pbr_surface_surfaceshader", "mtlx",
+               {"subsurface_weight": (F, 1.0)})
+    out = texture_node(stage, "/Looks/skin/image", "ND_image_color3", "tex/skin.exr", "out")
+    UsdShade.Shader(out.GetPrim()).CreateInput("layer", Sdf.ValueTypeNames.String).Set(
+        "diffuse")
+    s.CreateInput("subsurface_color", C3).ConnectToSource(out)
+    stage.GetRootLayer().Save()
+    imp = {m.name: m for m in scenes.load(tmp_path / "asset.usda").imports}["skin"]
+    assert imp.left_out and "layer 'diffuse'" in imp.left_out, imp.left_out
+    pytest.importorskip("MaterialX")
+    (tmp_path / "look.mtlx").write_text(
+        '<?xml version="1.0"?>\n<materialx version="1.39">\n'
+        '  <image name="alb" type="color3">\n'
+        '    <input name="file" type="filename" value="tex/skin.exr" />\n'
+        '    <input name="layer" type="string" value="diffuse" />\n  </image>\n'
+        '  <open_pbr_surface name="pbr" type="surfaceshader">\n'
+        '    <input name="subsurface_weight" type="float" value="1" />\n'
+        '    <input name="subsurface_color" type="color3" nodename="alb" />\n'
+        '  </open_pbr_surface>\n  <surfacematerial name="skin" type="material">\n'
+        '    <input name="surfaceshader" type="surfaceshader" nodename="pbr" />\n'
+        '  </surfacematerial>\n</materialx>\n')
+    imp = {m.name: m for m in scenes.load(tmp_path / "look.mtlx").imports}["skin"]
+    assert imp.left_out and "layer 'diffuse'" in imp.left_out, imp.left_out

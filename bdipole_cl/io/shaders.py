@@ -147,6 +147,13 @@ def default_input(mapping: ShaderMapping, name: str) -> Input:
     return Input(name, value=mapping.defaults[name], authored=False)
 
 
+def other_texels(node_type: str, layer: str | None) -> str | None:
+    """What a MaterialX image node (USD ``ND_image_*``) reads when that is not its file's R,
+    G, B: one channel (a ``float`` image), or an EXR ``layer`` (never ignored: the bake
+    would read the file's own R, G, B instead); else None."""
+    return f"layer {layer!r}" if layer else one_channel(node_type)
+
+
 def one_channel(node_type: str) -> str | None:
     """What a MaterialX image node of ``node_type`` reads when that is one channel of its
     file (a ``float`` image: the first), else None."""
@@ -200,7 +207,9 @@ def _texel_refusals(inp, is_albedo) -> list:
         return []
     why = []
     if t.channel is not None:
-        why.append(f"{inp.name} reads {t.channel} of {t.node}, one channel: a bake reads a "
+        what = "other texels than its R, G, B" if t.channel.startswith(("layer", "channels")) \
+            else "one channel"
+        why.append(f"{inp.name} reads {t.channel} of {t.node}, {what}: a bake reads a "
                    f"texture's colour channels (UsdUVTexture outputs:rgb, a color3 image)")
     for what, values in (("bias", t.bias), ("scale", t.scale if is_albedo else None)):
         if values is not None:

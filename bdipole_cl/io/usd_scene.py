@@ -35,7 +35,7 @@ from ..errors import one_line
 from . import usdz
 from .scene_file import SceneError
 from .shaders import (BY_ID, FILE_INPUT, TEXTURE_NODES, Input, Texture, imported_material,
-                      one_channel, unique_names)
+                      other_texels, unique_names)
 
 #: render contexts searched for a material's surface, in order
 CONTEXTS = ("mtlx", "ri", "")
@@ -178,8 +178,9 @@ def _texture(shader, node_kind: str, output: str = "rgb",
         token = str(source.Get(time)) if source and source.Get(time) else "auto"
         space = {"raw": "raw", "sRGB": "sRGB"}.get(token, "auto")
     if node_kind != "UsdUVTexture":                  # ND_image_<type>
-        return Texture(path, space, str(shader.GetPath()),
-                       channel=one_channel((shader.GetShaderId() or "").split("_")[2]))
+        layer = _value_attr(shader, "layer")
+        return Texture(path, space, str(shader.GetPath()), channel=other_texels(
+            (shader.GetShaderId() or "").split("_")[2], layer.Get(time) if layer else None))
     scale, bias = _scale_bias(shader, time)
     return Texture(path, space, str(shader.GetPath()), scale, bias,
                    None if output == "rgb" else f"outputs:{output}")

@@ -410,3 +410,42 @@ def test_openpbr_and_standard_surface_networks_read_the_converted_maps(tmp_path,
     layer.Save()
     saved = Usd.Stage.Open(str(tmp_path / "wax.usda"))
     check_tiles(UsdShade.Material(saved.GetPrimAtPath("/wax")), 2)
+
+
+def test_a_scene_file_with_targets_writes_its_materials_as_new_ones(tmp_path):
+    """A TOML scene's materials (no prim of a stage): with targets, each is a Material of its
+    own in the bake's layer (/bdipole_materials/{name}) and document, reading its files; a
+    grey albedo's coefficients are one channel (ND_image_float); without targets, no layer."""
+    mx = pytest.importorskip("MaterialX")
+    from bdipole_cl.io.mtlx_networks import library
+    from test_scene import SCENE, make_files
+    make_files(tmp_path)
+    text = SCENE.replace("METHOD", 'method = "table"')
+    (tmp_path / "plain.toml").write_text(text)
+    assert scenes.load(tmp_path / "plain.toml").plan().run().exit_code == 0
+    assert not (tmp_path / "out" / "bdipole.usda").exists()
+    (tmp_path / "scene.toml").write_text(text.replace(
+        'mfp = [1.2, 0.6, 0.3]', 'mfp = [1.2, 0.6, 0.3]\ntargets = ["preview", "pxrsurface"]')
+        .replace('mfp = 2.0', 'mfp = 2.0\ntargets = ["preview"]'))
+    report = scenes.load(tmp_path / "scene.toml").plan().run()
+    assert report.exit_code == 0, report.summary()
+    stage = Usd.Stage.Open(str(tmp_path / "out" / "bdipole.usda"))
+    skin = UsdShade.Material(stage.GetPrimAtPath("/bdipole_materials/skin"))
+    assert skin and skin.ComputeSurfaceSource("ri")[0].GetShaderId() == "PxrSurface"
+    pxr_surface = skin.ComputeSurfaceSource("ri")[0]
+    # a scene file's mm on its own mm stage: the dmfp as given
+    np.testing.assert_allclose(pxr_surface.GetInput("subsurfaceDmfpColor").Get(),
+                               (1.2, 0.6, 0.3), rtol=1e-6)
+    assert skin.ComputeSurfaceSource("")[0].GetShaderId() == "UsdPreviewSurface"
+    check_connections(skin)
+    check_tiles(skin, 2)
+    grey = UsdShade.Material(stage.GetPrimAtPath("/bdipole_materials/grey"))
+    check_tiles(grey, 1)
+    graph = grey.GetPrim().GetChild("bdipole_coefficients")
+    ids = sorted(UsdShade.Shader(p).GetShaderId() for p in graph.GetChildren())
+    assert ids == ["ND_image_float", "ND_image_float"]
+    doc = mx.createDocument()
+    mx.readFromXmlFile(doc, str(tmp_path / "out" / "bdipole.mtlx"))
+    doc.importLibrary(library())
+    assert doc.validate()[0]
+    assert {m.getName() for m in doc.getMaterialNodes()} == {"skin", "grey"}

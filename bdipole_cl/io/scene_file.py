@@ -53,7 +53,7 @@ from ..methods.registry import BLUR_METHOD, BORDER, METHOD_OR_AUTO, MFP_KIND, OU
 from ..ops.blur.params import CONSTANT_RULES
 from ..physics.models import MODEL
 from .colour import resolve_colorspace, resolve_working_space
-from .targets import DEFAULT_TARGETS, TARGET, parse_targets
+from .targets import TARGET, parse_targets
 from .scene_values import (as_list, check_material_eta, check_scaled_mfp, floats, mfp_constants,
                            number, numbers_or_number, positive)
 
@@ -120,8 +120,7 @@ DEFAULTS = {"eta": 1.4, "unit": "mm", "model": "better", "mfp": 1.0, "half": Fal
             "texture": False,
             "outputs": ["sigma_a", "sigma_s"], "method": "auto", "blur_method": "auto",
             "border": "clamp", "exact": False, "double": False, "on_invalid": "raise",
-            "colorspace": "auto", "mfp_kind": "diffuse", "mfp_scale": 1.0,
-            "targets": list(DEFAULT_TARGETS)}
+            "colorspace": "auto", "mfp_kind": "diffuse", "mfp_scale": 1.0}
 #: tol when neither the entry nor [defaults] gives one: the inversion's accuracy contract, the
 #: blur's usual truncation
 DEFAULT_TOL = {"material": 1e-4, "blur": 1e-3}
@@ -149,7 +148,8 @@ class Material:
     mfp_kind: str = "diffuse"        # methods.registry.MFP_KIND
     mfp_scale: tuple = (1.0,)        # multiplies the mfp (one or per channel)
     texture: bool = False            # tiled, mip-mapped EXR outputs
-    targets: tuple = DEFAULT_TARGETS  # io.targets.TARGET: the material networks a bake writes
+    targets: tuple = ()               # io.targets.TARGET: the material networks a bake writes
+    #                                   (a stage's or document's materials: DEFAULT_TARGETS)
 
     @property
     def constant(self) -> bool:
@@ -386,7 +386,7 @@ def _material(m, resolve, colour) -> Material:
         resolve(m.get("mask")), m["half"], m["unit"], float(m["tol"]),
         MODEL.canonical(m["model"]),
         m["method"], m["exact"], m["double"], m["on_invalid"], *colour, m["mfp_kind"],
-        floats(m["mfp_scale"]), m["texture"], parse_targets(m["targets"]))
+        floats(m["mfp_scale"]), m["texture"], parse_targets(m.get("targets", [])))
 
 
 def _imported(fail, index, entry, imp, defaults, resolve, working_space) -> Material:

@@ -35,6 +35,7 @@ import numpy as np
 
 from . import tiles
 from .scene_file import UNIT_METERS, ImportedMaterial, SceneError
+from .targets import DEFAULT_TARGETS
 
 
 @dataclass(frozen=True)
@@ -303,7 +304,8 @@ def imported_material(name, path, shader_id, read, *, unit_m, out_dir, bound) ->
     tile = tiles.token_of(albedo.texture.file) if albedo.texture is not None else None
     output = f"{out_dir}/{name}.<UDIM>.exr" if tile else f"{out_dir}/{name}.exr"
     return ImportedMaterial(name, path, mapping.name, mapping.mfp_kind, facts,
-                            {"output": output}, described, unit_m, None,
+                            {"output": output, "targets": list(DEFAULT_TARGETS)}, described,
+                            unit_m, None,
                             _notes(mapping, inputs), bound=bound)
 
 

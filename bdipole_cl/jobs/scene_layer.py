@@ -7,11 +7,13 @@ material's coefficients) and its material networks for the bake's render targets
 from __future__ import annotations
 
 import os
+from dataclasses import dataclass
 
 from ..io import tiles
 from ..io.colour import resolve_working_space
 from ..io.images import image_header
 from ..io.networks import BakedMaterial, coefficient_reads, networks
+from ..io.scene_file import UNIT_METERS
 
 #: the first words of the records layer's comment: the mark of this tool's own layer
 LAYER_MARK = "bdipole-cl bake of "
@@ -62,21 +64,67 @@ def usd_asset_records(output: str, files: list) -> tuple:
 INSTANCED_RECORDS = "/bdipole_instanced"
 
 
-def record_prim(layer, imp):
+#: where a scene file's own materials (no prim of a stage) are defined, as materials
+FILE_MATERIALS = "/bdipole_materials"
+
+
+@dataclass(frozen=True)
+class Recorded:
+    """Where a baked material's records and networks go: an ``over`` on its prim (``kind``
+    "over"), a prim of its own that targets it (``"instanced"``), or a new material of a
+    scene file (``"def"``); ``unit_m`` the metres per unit of the stage its networks are for."""
+
+    name: str
+    path: str
+    kind: str
+    unit_m: float
+    target: str | None = None
+
+
+def recorded(scene, records: dict) -> list:
+    """[(Recorded, manifest entry, Material)] of every baked material with records: each
+    imported one, and a scene file's own ones with targets."""
+    from pxr import Tf
+    by_name = {e["name"]: e for e in records["materials"]}
+    materials = {m.name: m for m in scene.materials}
+    found, taken = [], set()
+    for imp in scene.imports:
+        entry = by_name.get(imp.name)
+        if entry and entry.get("baked"):
+            where = (Recorded(imp.name, f"{INSTANCED_RECORDS}/{imp.name}", "instanced",
+                              imp.unit_m, imp.path) if imp.instanced else
+                     Recorded(imp.name, imp.path, "over", imp.unit_m))
+            found.append((where, entry, materials[imp.name]))
+    imported = {imp.name for imp in scene.imports}
+    for m in scene.materials:
+        entry = by_name.get(m.name)
+        if m.name in imported or not m.targets or not entry or not entry.get("baked"):
+            continue
+        ident, k = Tf.MakeValidIdentifier(m.name), 1
+        while ident.casefold() in taken:      # two names one identifier (a-b, a_b)
+            k += 1
+            ident = f"{Tf.MakeValidIdentifier(m.name)}_{k}"
+        taken.add(ident.casefold())
+        found.append((Recorded(m.name, f"{FILE_MATERIALS}/{ident}", "def",
+                               UNIT_METERS[m.unit]), entry, m))
+    return found
+
+
+def record_prim(layer, where: Recorded):
     """The records layer's prim spec for an imported material: an ``over`` on its prim (its
     parents ``over`` too), or for one inside an instance (``imp.instanced``) a prim under
     INSTANCED_RECORDS targeting it."""
     from pxr import Sdf
-    if imp.instanced:
-        spec = Sdf.CreatePrimInLayer(layer, Sdf.Path(f"{INSTANCED_RECORDS}/{imp.name}"))
-        spec.specifier = Sdf.SpecifierDef
-        spec.typeName = "Material"         # its networks are a material of their own
-        spec.nameParent.specifier = Sdf.SpecifierDef
-        rel = Sdf.RelationshipSpec(spec, "bdipole:material", custom=True)
-        rel.targetPathList.explicitItems = [Sdf.Path(imp.path)]
+    spec = Sdf.CreatePrimInLayer(layer, Sdf.Path(where.path))
+    if where.kind == "over":
+        record_prim_over(spec)
         return spec
-    spec = Sdf.CreatePrimInLayer(layer, Sdf.Path(imp.path))
-    record_prim_over(spec)
+    spec.specifier = Sdf.SpecifierDef
+    spec.typeName = "Material"             # its networks are a material of their own
+    spec.nameParent.specifier = Sdf.SpecifierDef
+    if where.target:
+        rel = Sdf.RelationshipSpec(spec, "bdipole:material", custom=True)
+        rel.targetPathList.explicitItems = [Sdf.Path(where.target)]
     return spec
 
 
@@ -84,18 +132,15 @@ def usd_layer_text(scene, records: dict, folder) -> str:
     """bdipole.usda: an ``over`` on each baked imported material prim."""
     from pxr import Sdf, Vt
     layer = Sdf.Layer.CreateAnonymous(".usda")
-    layer.comment = (f"{LAYER_MARK}{os.path.basename(str(scene.source))}: sublayer it "
-                     f"to find each material's coefficients (bdipole: attributes)")
-    by_name = {e["name"]: e for e in records["materials"]}
-    materials = {m.name: m for m in scene.materials}
+    layer.comment = (f"{LAYER_MARK}{os.path.basename(str(scene.source or scene.path))}: "
+                     f"put it over the stage (the first of a root layer's sublayers, then the "
+                     f"stage) to find each material's coefficients (bdipole: attributes) and "
+                     f"its networks for the bake's targets (docs/materials.md)")
     wired = []
-    for imp in scene.imports:
-        entry = by_name.get(imp.name)
-        if not entry or not entry.get("baked"):
-            continue
-        spec = record_prim(layer, imp)
-        wired.append((str(spec.path), baked_material(materials[imp.name], entry,
-                                                     imp.unit_m), imp.instanced))
+    for where, entry, m in recorded(scene, records):
+        spec = record_prim(layer, where)
+        wired.append((str(spec.path), baked_material(m, entry, where.unit_m),
+                      where.kind != "over"))
 
         def attr(name, type_name, value):
             a = Sdf.AttributeSpec(spec, f"bdipole:{name}", type_name)
@@ -157,14 +202,10 @@ def mtlx_text(scene, records: dict, folder) -> str:
     """bdipole.mtlx: each baked imported material's MaterialX networks and coefficients graph
     (``io.mtlx_networks``), the same as the layer's."""
     from ..io.mtlx_networks import document_text
-    by_name = {e["name"]: e for e in records["materials"]}
-    materials = {m.name: m for m in scene.materials}
     found = []
-    for imp in scene.imports:
-        entry = by_name.get(imp.name)
-        if entry and entry.get("baked"):
-            baked = baked_material(materials[imp.name], entry, imp.unit_m)
-            found.append((imp.name, networks(baked, folder)[0],
-                          coefficient_reads(baked, folder)))
-    return document_text(found, f"{LAYER_MARK}{os.path.basename(str(scene.source))}: the "
-                                f"materials of bdipole.usda as MaterialX (docs/materials.md)")
+    for where, entry, m in recorded(scene, records):
+        baked = baked_material(m, entry, where.unit_m)
+        found.append((where.name, networks(baked, folder)[0], coefficient_reads(baked, folder)))
+    return document_text(found, f"{LAYER_MARK}{os.path.basename(str(scene.source or scene.path))}"
+                                f": the materials of bdipole.usda as MaterialX "
+                                f"(docs/materials.md)")

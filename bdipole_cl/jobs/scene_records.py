@@ -43,7 +43,7 @@ MFP_MEANING = {"diffuse": "mfp = ld = 1/mu_tr", "extinction": "sigma_t' = 1/mfp"
 def records_dir(scene) -> str | None:
     """The folder of the records: beside the first material's outputs (None: a scene with
     neither imported nor constant materials writes none)."""
-    if scene.source is None and not any(m.constant for m in scene.materials):
+    if scene.source is None and not any(m.constant or m.targets for m in scene.materials):
         return None
     if scene.materials:
         return os.path.dirname(scene.materials[0].output)
@@ -116,7 +116,13 @@ def record_paths(scene, folder) -> list:
     """The records' paths in ``folder``: the manifest, and for a stage or document the layer."""
     return [os.path.join(folder, MANIFEST)] + (
         [os.path.join(folder, LAYER), os.path.join(folder, DOCUMENT)]
-        if scene.source is not None else [])
+        if writes_materials(scene) else [])
+
+
+def writes_materials(scene) -> bool:
+    """Whether a bake writes the USD layer and MaterialX document: a stage's or document's
+    (its records), or a scene file's with targets."""
+    return scene.source is not None or any(m.targets for m in scene.materials)
 
 
 def records_refusal(scene, folder, inputs, force=False) -> str | None:
@@ -360,7 +366,7 @@ def write_records(plan, results) -> list:
     records = manifest(scene, plan.jobs, coefficients, folder, results, maps)
     texts = {os.path.join(folder, MANIFEST): json.dumps(records, indent=1, sort_keys=True)
              + "\n"}
-    if scene.source is not None:
+    if writes_materials(scene):
         texts[os.path.join(folder, LAYER)] = usd_layer_text(scene, records, folder)
         texts[os.path.join(folder, DOCUMENT)] = mtlx_text(scene, records, folder)
     inputs = plan.record_inputs              # taken by the plan (the stage opened once)

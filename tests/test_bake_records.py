@@ -104,7 +104,9 @@ def test_a_uvtile_albedo_bakes_to_a_record_usd_resolves(tmp_path):
     ("out/{material}.%(UDIM)d.exr", ["skin.1001.exr", "skin.1002.exr"]),
     ("out/{material}_<UVTILE>.exr", ["skin_u1_v1.exr", "skin_u2_v1.exr"]),
     ("out/{material}_<UVTILE0>.exr", ["skin_u0_v0.exr", "skin_u1_v0.exr"]),
-], ids=["houdini-udim", "uvtile", "uvtile0"])
+    ("out/{stem}.sss.exr", ["skin.1001.sss.exr", "skin.1002.sss.exr"]),
+    ("out/{material}_{udim}.exr", ["skin_1001.exr", "skin_1002.exr"]),
+], ids=["houdini-udim", "uvtile", "uvtile0", "stem-field", "udim-field"])
 def test_every_output_tile_convention_gives_a_record_usd_resolves(tmp_path, pattern, names):
     """A scene file's output in any tile convention: the record resolves to the tiles written
     (the Houdini token and the UV tiles were recorded verbatim, resolving to nothing)."""

@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 from . import tiles
 from ..physics.conventions import CONVENTION
 from .colour import active_config
+from .patterns import PATTERN_FIELDS
 from .scene_file import UNIT_METERS
 from .targets import TARGET, Target
 
@@ -95,9 +96,20 @@ class NotWritten(Exception):
     """Why a target's network is not written for a material (one line)."""
 
 
+def has_fields(path: str) -> bool:
+    """Whether an output pattern holds fields filled per input file (``{stem}``, ``{udim}``,
+    ...: ``patterns.PATTERN_FIELDS``), which no USD or MaterialX resolver fills."""
+    return any(f"{{{f}}}" in path for f in PATTERN_FIELDS)
+
+
 def relative_file(path: str, folder: str) -> str:
     """``path`` (a pattern or file) relative to ``folder`` as ``./...`` with ``/``, its tile
-    token as ``<UDIM>`` (NotWritten for a UV-tile token: USD cannot resolve it)."""
+    token as ``<UDIM>`` (NotWritten for a UV-tile token or a per-file field: USD cannot
+    resolve them)."""
+    if has_fields(path):
+        raise NotWritten(f"{path}: its fields ({', '.join(PATTERN_FIELDS)}) are filled per "
+                         f"file; a texture node needs one pattern: name the outputs with "
+                         f"<UDIM>")
     conv = tiles.token_of(path)
     if conv is not None and not conv.is_udim():
         raise NotWritten(f"{path}: {conv.token} names tiles as {conv.convention}, which USD "

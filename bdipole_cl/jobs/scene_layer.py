@@ -12,7 +12,7 @@ from dataclasses import dataclass
 from ..io import tiles
 from ..io.colour import resolve_working_space
 from ..io.images import image_header
-from ..io.networks import BakedMaterial, coefficient_reads, networks
+from ..io.networks import BakedMaterial, coefficient_reads, has_fields, networks
 from ..io.scene_file import UNIT_METERS
 
 #: the first words of the records layer's comment: the mark of this tool's own layer
@@ -48,7 +48,10 @@ def usd_asset_records(output: str, files: list) -> tuple:
     """(the ``<UDIM>`` asset path or file a USD record names for an output pattern relative
     to the layer, None) where USD resolves that pattern itself (``UsdShade.UdimUtils`` knows
     ``<UDIM>`` only: Houdini's ``%(UDIM)d`` names the same files and is written as it), else
-    (None, [each tile file]) for the UV tile conventions, which USD cannot resolve."""
+    (None, [each tile file]) for the UV tile conventions and the fields a pattern fills per
+    file (``{stem}``, ``{udim}``...), which USD cannot resolve."""
+    if has_fields(output):              # {stem}, {udim}...: filled per file, no pattern
+        return None, ["./" + f.replace(os.sep, "/") for f in files]   # USD can resolve
     conv = tiles.token_of(output)
     if conv is None:
         return output, None

@@ -449,3 +449,24 @@ def test_a_scene_file_with_targets_writes_its_materials_as_new_ones(tmp_path):
     doc.importLibrary(library())
     assert doc.validate()[0]
     assert {m.getName() for m in doc.getMaterialNodes()} == {"skin", "grey"}
+
+
+def test_maps_are_reported_once_and_rebuilt_only_when_their_coefficients_change(tmp_path):
+    """Re-baking is idempotent (the same bytes, no row); a changed tile rebuilds its map only;
+    a tile gone takes its map with it."""
+    stage_path, _ = baked(tmp_path, targets="pxrsurface")
+    folder = tmp_path / "bdipole"
+    maps = sorted(p.name for p in folder.glob("*.better-dipole.exr"))
+    assert maps == ["skin.1001.better-dipole.exr", "skin.1002.better-dipole.exr"]
+    before = {p.name: p.read_bytes() for p in folder.iterdir()}
+    again = scenes.load(stage_path, targets="pxrsurface").plan().run()
+    assert not [r for r in again.results if r.notes and r.notes[0] in ("maps", "records")]
+    assert {p.name: p.read_bytes() for p in folder.iterdir()} == before
+    albedo_texture(tmp_path / "tex" / "skin.1002.exr", 7)
+    third = scenes.load(stage_path, targets="pxrsurface").plan().run()
+    rows = [r.path for r in third.results if r.notes == ["maps"]]
+    assert rows == [str(folder / "skin.1002.better-dipole.exr")], third.summary()
+    (tmp_path / "tex" / "skin.1002.exr").unlink()
+    fourth = scenes.load(stage_path, targets="pxrsurface").plan().run()
+    assert not (folder / "skin.1002.better-dipole.exr").exists(), fourth.summary()
+    assert (folder / "skin.1001.better-dipole.exr").exists()

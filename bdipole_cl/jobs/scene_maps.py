@@ -45,6 +45,7 @@ class Maps:
     first_channel: dict = field(default_factory=dict)
     constants: dict | None = None
     error: str | None = None
+    written: list = field(default_factory=list)   # the files this bake wrote (not up to date)
 
 
 def painted_convention(model: str) -> str:
@@ -109,15 +110,16 @@ def _etas(m, n):
     return list(m.eta) * n if len(m.eta) == 1 else list(m.eta)
 
 
-def write_map(m, coefficients: str, convention: str) -> str:
-    """The map of one coefficients file (written unless up to date); TextureError, ValueError
-    on failure."""
+def write_map(m, coefficients: str, convention: str, written: list) -> str:
+    """The map of one coefficients file (written unless up to date: then added to
+    ``written``); TextureError, ValueError on failure."""
     out = map_path(coefficients, convention)
     inputs = {"coefficients": coefficients}
     digest = params_digest({"kind": "map", "convention": convention, "model": m.model,
                             "eta": list(m.eta), "source": painted_convention(m.model)})
     if is_up_to_date(out, inputs, digest):
         return out
+    written.append(out)
     spec, px = read_whole(coefficients, "coefficients")
     names = list(spec.channelnames)
     values = {}
@@ -155,7 +157,7 @@ def material_maps(m, files: list, coefficients: dict | None) -> dict:
                                   "radius": [float(v) for v in radius[0]]}
             else:
                 maps.pattern = map_path(m.output, convention)
-                maps.files = [write_map(m, f, convention) for f in files]
+                maps.files = [write_map(m, f, convention, maps.written) for f in files]
                 header = image_header(maps.files[0]) if maps.files else None
                 names = list(header.channelnames) if header is not None else []
                 maps.channels = {layer: [n for n in names if n.startswith(f"{layer}.")]

@@ -376,6 +376,8 @@ def write_records(plan, results) -> list:
          if isinstance(m, dict) for f in m.get("files") or []],
         [f for ms in maps.values() for m in ms.values() for f in m.files], folder, inputs)]
     written += [(line, DROPPED) for line in dropped_records(old, records)]
+    written += [(path, MAPPED) for ms in maps.values() for mp in ms.values()
+                for path in mp.written]
     for path, text in texts.items():
         if os.path.realpath(path) in inputs:
             written.append((path, f"{path}: the bake's record would overwrite an input; "
@@ -442,6 +444,8 @@ def run_constant(job, runtime, *, cancel=None, lock=None, progress=None):
 REMOVED = "removed"
 #: write_records' mark of a material whose records the new ones no longer hold
 DROPPED = "records removed"
+#: write_records' mark of a map of colour and radius in a target's convention it wrote
+MAPPED = "maps"
 
 
 def dropped_records(old: dict, records: dict) -> list:
@@ -493,5 +497,6 @@ def finish_bake(plan, results: list) -> BatchReport:
                FileResult(p, f"removed {p}: an earlier bake's output that no input makes now",
                           status="ok", notes=["removed"]) if why == REMOVED else
                FileResult("records", p, status="ok", notes=[DROPPED]) if why == DROPPED else
+               FileResult(p, p, status="ok", notes=[MAPPED]) if why == MAPPED else
                FileResult(p, p, error=why) for p, why in write_records(plan, results)]
     return BatchReport(results + records)

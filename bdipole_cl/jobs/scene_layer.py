@@ -212,3 +212,13 @@ def mtlx_text(scene, records: dict, folder) -> str:
     return document_text(found, f"{LAYER_MARK}{os.path.basename(str(scene.source or scene.path))}"
                                 f": the materials of bdipole.usda as MaterialX "
                                 f"(docs/materials.md)")
+
+
+def target_lines(m, stage_unit_m, folder) -> list:
+    """What the plan says of a material's render targets: the networks the bake writes, and
+    why any other is not written."""
+    written, why = networks(baked_material(m, {}, stage_unit_m), folder)
+    lines = [f"  targets: {', '.join(n.target.name for n in written)} (bdipole.usda"
+             + (", bdipole.mtlx" if any(n.target.mtlx for n in written) else "") + ")"] \
+        if written else []
+    return lines + [f"  target {t}: not written: {w}" for t, w in why.items()]

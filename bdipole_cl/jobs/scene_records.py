@@ -28,7 +28,7 @@ from ..ops.invert import albedo_to_coefficients
 from .results import BatchReport, FileResult
 from .scene_maps import maps_entry, remove_stale_maps, target_maps
 from .scene_layer import (LAYER_MARK, baked_material, mtlx_text, output_channels,
-                          usd_layer_text)
+                          target_lines, usd_layer_text)
 
 #: where each shader's distance convention is defined
 SOURCES = {s.name: s.source for s in SHADERS}
@@ -411,15 +411,6 @@ def imported_lines(scene) -> list:
         lines += target_lines(m, imp.unit_m, records_dir(scene))
     return lines
 
-
-def target_lines(m, stage_unit_m, folder) -> list:
-    """What the plan says of a material's render targets: the networks the bake writes, and
-    why any other is not written."""
-    written, why = networks(baked_material(m, {}, stage_unit_m), folder)
-    lines = [f"  targets: {', '.join(n.target.name for n in written)} (bdipole.usda"
-             + (", bdipole.mtlx" if any(n.target.mtlx for n in written) else "") + ")"] \
-        if written else []
-    return lines + [f"  target {t}: not written: {w}" for t, w in why.items()]
 
 
 

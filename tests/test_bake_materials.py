@@ -470,3 +470,33 @@ def test_maps_are_reported_once_and_rebuilt_only_when_their_coefficients_change(
     fourth = scenes.load(stage_path, targets="pxrsurface").plan().run()
     assert not (folder / "skin.1002.better-dipole.exr").exists(), fourth.summary()
     assert (folder / "skin.1001.better-dipole.exr").exists()
+
+
+def test_blenders_usd_importer_puts_the_textures_on_the_materials_inputs(tmp_path):
+    """Blender's own USD importer (bpy, where installed) reads the bake's preview network:
+    the painted albedo arrives on the Principled BSDF's Base Color through an Image Texture
+    (a tiled image of both UDIM tiles for the skin)."""
+    bpy = pytest.importorskip("bpy")
+    stage_path, _ = baked(tmp_path, targets="preview")
+    quad = ("point3f[] points = [(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0)]\n"
+            "        int[] faceVertexCounts = [4]\n        int[] faceVertexIndices = [0, 1, 2, 3]\n"
+            "        texCoord2f[] primvars:st = [(0, 0), (1, 0), (1, 1), (0, 1)] "
+            "(interpolation = \"vertex\")\n")
+    root = tmp_path / "shot.usda"
+    root.write_text("#usda 1.0\n(\n    subLayers = [@bdipole/bdipole.usda@, @asset.usda@]\n)\n"
+                    "over \"World\"\n{\n" + "".join(
+                        f"    over \"{g}\"\n    {{\n        {quad}    }}\n"
+                        for g in ("head", "table")) + "}\n")
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    assert "FINISHED" in bpy.ops.wm.usd_import(filepath=str(root))
+    for name, tiles_wanted, file in (("skin", 2, "skin.<UDIM>.exr"),
+                                     ("marble", 1, "marble.exr")):
+        material = bpy.data.materials[name]
+        bsdf = next(n for n in material.node_tree.nodes if n.type == "BSDF_PRINCIPLED")
+        links = bsdf.inputs["Base Color"].links
+        assert links and links[0].from_node.type == "TEX_IMAGE", name
+        image = links[0].from_node.image
+        assert image is not None and bpy.path.abspath(image.filepath).replace(
+            "1001", "<UDIM>").endswith(file), (name, image.filepath)
+        if tiles_wanted > 1:
+            assert image.source == "TILED" and len(image.tiles) == tiles_wanted

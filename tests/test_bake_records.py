@@ -200,3 +200,25 @@ def test_a_texture_node_reading_an_exr_layer_is_refused_not_read_as_its_first_ch
         '  </surfacematerial>\n</materialx>\n')
     imp = {m.name: m for m in scenes.load(tmp_path / "look.mtlx").imports}["skin"]
     assert imp.left_out and "layer 'diffuse'" in imp.left_out, imp.left_out
+
+
+def test_a_glob_albedo_is_never_a_texture_nodes_file(tmp_path):
+    """A scene file's albedo given as a glob (tex/skin.*.exr) bakes per file; a texture node
+    naming the glob resolves to nothing (it was written so): the network is not written,
+    said, and the records name each output file."""
+    from test_scene import make_files
+    make_files(tmp_path)
+    (tmp_path / "scene.toml").write_text(
+        '[[material]]\nname = "skin"\nalbedo = "tex/skin.*.exr"\nmfp = 1.0\n'
+        'output = "out/{stem}_sss.exr"\nmask = "alpha"\ntargets = ["preview"]\n')
+    report = scenes.load(tmp_path / "scene.toml").plan().run()
+    assert report.exit_code == 0, report.summary()
+    manifest = json.loads((tmp_path / "out" / "bdipole_materials.json").read_text())
+    entry = manifest["materials"][0]
+    assert entry["targets"]["preview"].startswith("not written: "), entry["targets"]
+    assert "glob" in entry["targets"]["preview"]
+    stage = Usd.Stage.Open(str(tmp_path / "out" / "bdipole.usda"))
+    prim = stage.GetPrimAtPath("/bdipole_materials/skin")
+    files = check_record(prim, "sigma_a", 2)
+    assert sorted(f.rsplit("/", 1)[-1] for f in files) == ["skin.1001_sss.exr",
+                                                           "skin.1002_sss.exr"]

@@ -13,6 +13,7 @@ not written, and the manifest and plan say why.
 """
 from __future__ import annotations
 
+import glob
 import math
 import os
 from dataclasses import dataclass, field
@@ -102,6 +103,15 @@ def has_fields(path: str) -> bool:
     return any(f"{{{f}}}" in path for f in PATTERN_FIELDS)
 
 
+def is_literal(path: str, conv) -> bool:
+    """Whether a path with glob characters names files literally (``tex[v2]/a.exr``, as
+    ``tiles.expand`` tries first): it exists, or its tiles do under its literal prefix."""
+    if conv is None:
+        return os.path.exists(path)
+    prefix = path.split(conv.token)[0]
+    return any(f.startswith(prefix) for f, _ in tiles.expand(path))
+
+
 def relative_file(path: str, folder: str) -> str:
     """``path`` (a pattern or file) relative to ``folder`` as ``./...`` with ``/``, its tile
     token as ``<UDIM>`` (NotWritten for a UV-tile token or a per-file field: USD cannot
@@ -111,6 +121,10 @@ def relative_file(path: str, folder: str) -> str:
                          f"file; a texture node needs one pattern: name the outputs with "
                          f"<UDIM>")
     conv = tiles.token_of(path)
+    literal = path.replace(conv.token, "") if conv else path
+    if glob.has_magic(literal) and not is_literal(path, conv):
+        raise NotWritten(f"{path}: a glob names several files; a texture node needs one file "
+                         f"or a <UDIM> set")
     if conv is not None and not conv.is_udim():
         raise NotWritten(f"{path}: {conv.token} names tiles as {conv.convention}, which USD "
                          f"and MaterialX texture nodes do not resolve; name the files with "

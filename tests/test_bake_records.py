@@ -222,3 +222,24 @@ def test_a_glob_albedo_is_never_a_texture_nodes_file(tmp_path):
     files = check_record(prim, "sigma_a", 2)
     assert sorted(f.rsplit("/", 1)[-1] for f in files) == ["skin.1001_sss.exr",
                                                            "skin.1002_sss.exr"]
+
+
+def test_a_packaged_texture_is_named_in_its_package_not_in_the_users_cache(tmp_path):
+    """A .usdz's texture is baked from a copy in the user's cache; a texture node naming that
+    copy breaks when the cache is cleaned or the asset moves: it names the package's member
+    (``asset.usdz[.../skin.<UDIM>.exr]``), which USD resolves (UdimUtils inside packages)."""
+    from pxr import UsdUtils
+    from test_bake_materials import check_connections, check_tiles
+    stage_path = write_stage(tmp_path)
+    usdz = tmp_path / "asset.usdz"
+    assert UsdUtils.CreateNewUsdzPackage(Sdf.AssetPath(str(stage_path)), str(usdz))
+    report = scenes.load(usdz, targets="preview").plan().run()
+    assert report.exit_code == 0, report.summary()
+    stage = composed(usdz, tmp_path / "bdipole" / "bdipole.usda")
+    skin = UsdShade.Material(stage.GetPrimAtPath("/Looks/skin"))
+    tex = skin.GetPrim().GetChild("bdipole_preview_albedo")
+    asset = tex.GetAttribute("inputs:file").Get()
+    assert asset.path.startswith("./../asset.usdz[") and asset.path.endswith(
+        "skin.<UDIM>.exr]"), asset.path
+    check_connections(skin)
+    check_tiles(skin, 2)

@@ -18,7 +18,7 @@ import math
 import os
 from dataclasses import dataclass, field
 
-from . import tiles
+from . import tiles, usdz
 from ..physics.conventions import CONVENTION
 from .colour import active_config
 from .patterns import PATTERN_FIELDS
@@ -131,6 +131,11 @@ def relative_file(path: str, folder: str) -> str:
                          f"<UDIM>")
     if conv is not None:
         path = path.replace(conv.token, "<UDIM>")
+    packaged = usdz.origin(path.replace("<UDIM>", conv.token) if conv else path)
+    if packaged is not None:           # the package's member, not the cache's copy
+        match = usdz.PACKAGED.match(packaged)
+        member = match["member"].replace(conv.token, "<UDIM>") if conv else match["member"]
+        return f"{relative_file(match['package'], folder)}[{member}]"
     try:
         rel = os.path.relpath(path, folder)
     except ValueError:                 # another drive: as it is

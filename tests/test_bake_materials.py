@@ -309,24 +309,22 @@ def test_pxrsurface_of_an_extinction_material_reads_maps_that_invert_to_its_coef
     skin = UsdShade.Material(stage.GetPrimAtPath("/Looks/skin"))
     surface = skin.ComputeSurfaceSource("ri")[0]
     assert surface.GetPath().name == "bdipole_pxrsurface"
-    reads = {}
-    for name in ("subsurfaceColor", "subsurfaceDmfpColor"):
+    for name, layer in (("subsurfaceColor", "colour"), ("subsurfaceDmfpColor", "radius")):
         tex = UsdShade.Shader(surface.GetInput(name).GetConnectedSources()[0][0].source
                               .GetPrim())
         asset = tex.GetInput("filename").Get()
-        assert asset.path == "./skin.<UDIM>.better-dipole.exr"
-        reads[name] = tex.GetInput("firstChannel").Get()
-    assert reads == {"subsurfaceColor": 0, "subsurfaceDmfpColor": 3}
+        assert asset.path == f"./skin.<UDIM>.better-dipole.{layer}.exr"
+        assert tex.GetInput("firstChannel").Get() == 0      # a plain R, G, B file
     assert surface.GetInput("subsurfaceDmfp").Get() == pytest.approx(1.0)   # cm on a cm stage
     check_connections(skin)
     check_tiles(skin, 2)
     for tile in ("1001", "1002"):
-        maps, names = read(tmp_path / "bdipole" / f"skin.{tile}.better-dipole.exr")
+        col, names = read(tmp_path / "bdipole" / f"skin.{tile}.better-dipole.colour.exr")
+        radius, rnames = read(tmp_path / "bdipole" / f"skin.{tile}.better-dipole.radius.exr")
         coef, cnames = read(tmp_path / "bdipole" / f"skin.{tile}.exr")
-        assert names == [f"{layer}.{c}" for layer in ("colour", "radius") for c in "RGB"]
-        sa, ss = bd.albedo_to_coefficients(maps[..., :3].astype(np.float64),
-                                           maps[..., 3:].astype(np.float64), 1.4,
-                                           mfp_kind="diffuse", double=True)
+        assert names == rnames == ["R", "G", "B"]
+        sa, ss = bd.albedo_to_coefficients(col.astype(np.float64), radius.astype(np.float64),
+                                           1.4, mfp_kind="diffuse", double=True)
         # two inversions at tol 1e-4 in rho (the bake's and this one), float32 maps
         np.testing.assert_allclose(sa, coef[..., :3], rtol=3e-4)
         np.testing.assert_allclose(ss, coef[..., 3:], rtol=3e-4)
@@ -344,10 +342,11 @@ def test_pxrsurface_of_an_extinction_material_reads_maps_that_invert_to_its_coef
 def converted_material(tmp_path, targets):
     """A BakedMaterial whose maps are given (the networks need no conversion to be built)."""
     from bdipole_cl.io.networks import BakedMaterial
-    maps = {"van-de-hulst": {"output": "./wax.<UDIM>.van-de-hulst.exr",
-                             "first_channel": {"colour": 0, "radius": 3}}}
+    maps = {"van-de-hulst": {layer: f"./wax.<UDIM>.van-de-hulst.{layer}.exr"
+                             for layer in ("colour", "radius")}}
     for tile in ("1001", "1002"):
-        albedo_texture(tmp_path / f"wax.{tile}.van-de-hulst.exr")
+        for layer in ("colour", "radius"):
+            albedo_texture(tmp_path / f"wax.{tile}.van-de-hulst.{layer}.exr")
     return BakedMaterial("wax", str(tmp_path / "tex" / "wax.<UDIM>.exr"), "lin_rec709", (1.0,),
                          (1.0,), "diffuse", "better", (1.4,), "mm", 0.01, targets,
                          str(tmp_path / "wax.<UDIM>.exr"), ("sigma_a",),
@@ -384,9 +383,10 @@ def test_openpbr_and_standard_surface_networks_read_the_converted_maps(tmp_path,
     for name in (colour, radius):
         node = UsdShade.Shader(surface.GetInput(name).GetConnectedSources()[0][0].source
                                .GetPrim())
-        files[name] = (node.GetInput("layer").Get(),
+        files[name] = (node.GetInput("file").Get().path,
                        node.GetInput("file").GetAttr().GetColorSpace())
-    assert files == {colour: ("colour", "lin_rec709_scene"), radius: ("radius", "raw")}
+    assert files == {colour: ("./wax.<UDIM>.van-de-hulst.colour.exr", "lin_rec709_scene"),
+                     radius: ("./wax.<UDIM>.van-de-hulst.radius.exr", "raw")}
     path = tmp_path / "wax.mtlx"
     path.write_text(document_text([("wax", written, ())], "test"))
     doc = mx.createDocument()
@@ -400,11 +400,12 @@ def test_openpbr_and_standard_surface_networks_read_the_converted_maps(tmp_path,
     shader = mx.getShaderNodes(node)[0]
     image = shader.getInput(colour).getConnectedNode()
     assert image.getInput("file").getColorSpace() == "lin_rec709"
-    assert image.getInputValue("layer") == "colour"
+    assert image.getInputValue("file") == "./wax.<UDIM>.van-de-hulst.colour.exr"
     # the radius map is data: a vector3 image MaterialX never colour-converts
     data = shader.getInput(radius).getConnectedNode()
     data = data.getInput("in").getConnectedNode() if data.getCategory() == "convert" else data
-    assert data.getType() == "vector3" and data.getInputValue("layer") == "radius"
+    assert data.getType() == "vector3"
+    assert data.getInputValue("file") == "./wax.<UDIM>.van-de-hulst.radius.exr"
     layer = Sdf.Layer.CreateNew(str(tmp_path / "wax.usda"))
     layer.TransferContent(stage.GetRootLayer())
     layer.Save()
@@ -456,8 +457,9 @@ def test_maps_are_reported_once_and_rebuilt_only_when_their_coefficients_change(
     a tile gone takes its map with it."""
     stage_path, _ = baked(tmp_path, targets="pxrsurface")
     folder = tmp_path / "bdipole"
-    maps = sorted(p.name for p in folder.glob("*.better-dipole.exr"))
-    assert maps == ["skin.1001.better-dipole.exr", "skin.1002.better-dipole.exr"]
+    maps = sorted(p.name for p in folder.glob("*.better-dipole.*.exr"))
+    assert maps == [f"skin.{t}.better-dipole.{layer}.exr" for t in ("1001", "1002")
+                    for layer in ("colour", "radius")]
     before = {p.name: p.read_bytes() for p in folder.iterdir()}
     again = scenes.load(stage_path, targets="pxrsurface").plan().run()
     assert not [r for r in again.results if r.notes and r.notes[0] in ("maps", "records")]
@@ -465,11 +467,12 @@ def test_maps_are_reported_once_and_rebuilt_only_when_their_coefficients_change(
     albedo_texture(tmp_path / "tex" / "skin.1002.exr", 7)
     third = scenes.load(stage_path, targets="pxrsurface").plan().run()
     rows = [r.path for r in third.results if r.notes == ["maps"]]
-    assert rows == [str(folder / "skin.1002.better-dipole.exr")], third.summary()
+    assert rows == [str(folder / f"skin.1002.better-dipole.{layer}.exr")
+                    for layer in ("colour", "radius")], third.summary()
     (tmp_path / "tex" / "skin.1002.exr").unlink()
     fourth = scenes.load(stage_path, targets="pxrsurface").plan().run()
-    assert not (folder / "skin.1002.better-dipole.exr").exists(), fourth.summary()
-    assert (folder / "skin.1001.better-dipole.exr").exists()
+    assert not list(folder.glob("skin.1002.better-dipole.*")), fourth.summary()
+    assert (folder / "skin.1001.better-dipole.colour.exr").exists()
 
 
 def test_blenders_usd_importer_puts_the_textures_on_the_materials_inputs(tmp_path):
@@ -500,3 +503,34 @@ def test_blenders_usd_importer_puts_the_textures_on_the_materials_inputs(tmp_pat
             "1001", "<UDIM>").endswith(file), (name, image.filepath)
         if tiles_wanted > 1:
             assert image.source == "TILED" and len(image.tiles) == tiles_wanted
+
+
+def test_an_openpbr_stage_baked_reads_back_from_the_written_material_as_the_same_medium(
+        tmp_path):
+    """Round trip: the stage's OpenPBR skin (painted <UDIM> colour, an extinction radius)
+    baked for PxrSurface; the stage with the bake's layer over it and the user's own OpenPBR
+    surface disconnected, read by the library's own reader from the written material (its
+    PxrSurface and PxrTexture maps), bakes the same coefficients."""
+    import bdipole_cl as bd  # noqa: F401  (the device fixture's default)
+    stage_path, _ = baked(tmp_path, targets="pxrsurface")
+    root = tmp_path / "shot.usda"
+    root.write_text('#usda 1.0\n(\n    subLayers = [@bdipole/bdipole.usda@, @asset.usda@]\n)\n'
+                    'over "Looks"\n{\n    over "skin"\n    {\n'
+                    '        token outputs:mtlx:surface.connect = None\n    }\n}\n')
+    imports = {m.name: m for m in scenes.load(root).imports}
+    skin = imports["skin"]
+    assert skin.shader == "PxrSurface" and skin.mfp_kind == "diffuse", skin
+    assert "better-dipole.colour.exr" in skin.inputs["subsurfaceColor"]
+    assert "better-dipole.radius.exr" in skin.inputs["subsurfaceDmfpColor"]
+    (tmp_path / "again.toml").write_text('materials_from = "shot.usda"\n[defaults]\n'
+                                         'output = "again/{material}.<UDIM>.exr"\n'
+                                         '[[material]]\nname = "marble"\n'
+                                         'output = "again/marble.exr"\n')
+    report = scenes.load(tmp_path / "again.toml").plan().run()
+    assert report.exit_code == 0, report.summary()
+    for tile in ("1001", "1002"):
+        first, names = read(tmp_path / "bdipole" / f"skin.{tile}.exr")
+        second, names2 = read(tmp_path / "again" / f"skin.{tile}.exr")
+        assert names == names2
+        # two inversions at tol 1e-4 in rho and float32 maps between them
+        np.testing.assert_allclose(second, first, rtol=3e-4)

@@ -208,23 +208,23 @@ def painted_directly(b: BakedMaterial, convention: str) -> bool:
 
 def converted_inputs(b: BakedMaterial, convention: str, folder: str) -> tuple:
     """(colour, radius) of ``b`` in ``convention``: TextureReads of the maps the bake wrote
-    (layers ``colour``, ``radius``) or a constant material's numbers (radius in the
+    (one file per layer, ``colour`` and ``radius``) or a constant material's numbers (radius in the
     material's unit); NotWritten where the maps could not be made."""
     maps = b.maps
     if maps is None:                     # the plan: the maps the bake will write
-        entry = {"output": relative_file(f"{b.output[:-4]}.{convention}.exr", folder)} \
-            if b.output else {"constants": {"colour": [0.0], "radius": [1.0]}}
+        entry = {layer: f"{b.output[:-4]}.{convention}.{layer}.exr"
+                 for layer in ("colour", "radius")} if b.output else \
+            {"constants": {"colour": [0.0], "radius": [1.0]}}
     else:
         entry = maps.get(convention)
     if not entry or entry.get("error"):
         raise NotWritten(entry.get("error") if entry else f"no {convention} maps were made")
     if "constants" in entry:
         return colour(entry["constants"]["colour"]), colour(entry["constants"]["radius"])
-    file = relative_file(os.path.join(folder, entry["output"]), folder)
-    first = entry.get("first_channel", {})
-    return (TextureRead("colour", file, texture_space(b.working_space), "colour",
-                        first.get("colour", 0)),
-            TextureRead("radius", file, "raw", "radius", first.get("radius", 3)))
+    return tuple(TextureRead(layer, relative_file(os.path.join(folder, entry[layer]), folder),
+                             space) for layer, space in (
+                                 ("colour", texture_space(b.working_space)),
+                                 ("radius", "raw")))
 
 
 def pxrsurface_network(target, b: BakedMaterial, folder) -> Network:

@@ -4,7 +4,8 @@ layer; written by ``scene_records`` before the networks that read them).
 A target whose subsurface inputs are in another convention than the painted ones (OpenPBR,
 Standard Surface: van de Hulst; PxrSurface when the material's distance is an extinction mean
 free path or its model Jensen's dipole) reads maps the bake writes beside the coefficients:
-``{output}.{convention}.exr`` per tile, layers ``colour`` and ``radius``. Per texel: the
+``{output}.{convention}.colour.exr`` and ``.radius.exr`` per tile (plain R, G, B: every
+texture node reads them as they are). Per texel: the
 medium the bake found (rho = sigma_a/sigma_t', sigma_t') is the painted colour and diffuse
 mean free path of the material's own model (``Rd = rd_of_rho``, ``ld = 1/(sigma_t'
 mu_tr/sigma_t')``: the Better Dipole's, or Jensen's dipole's), and ``convert`` (the
@@ -22,8 +23,8 @@ import numpy as np
 from ..errors import one_line
 from ..io.colour import resolve_working_space
 from ..io.freshness import header_fields, is_up_to_date, params_digest
-from ..io.images import TextureError, Writer, image_header, is_regular_file, output_spec, \
-    read_whole
+from ..io.patterns import PAINTED_MARK
+from ..io.images import TextureError, Writer, is_regular_file, output_spec, read_whole
 from ..io.targets import TARGET
 from ..physics.conventions import CONVENTION
 from ..physics.reference import mu_tr_over_sigma_t, rd_of_rho
@@ -34,15 +35,12 @@ LAYERS = ("colour", "radius")
 
 @dataclass
 class Maps:
-    """A material's maps of one convention: the files' pattern, the files, each layer's
-    channels and where each starts; or ``constants`` {layer: floats} for a constant
-    material; ``error``: why none are there."""
+    """A material's maps of one convention: each layer's pattern and the files; or
+    ``constants`` {layer: floats} for a constant material; ``error``: why none are there."""
 
     convention: str
-    pattern: str | None = None
+    patterns: dict = field(default_factory=dict)    # {layer: its files' pattern}
     files: list = field(default_factory=list)
-    channels: dict = field(default_factory=dict)
-    first_channel: dict = field(default_factory=dict)
     constants: dict | None = None
     error: str | None = None
     written: list = field(default_factory=list)   # the files this bake wrote (not up to date)
@@ -101,25 +99,25 @@ def converted(values: dict, etas, model: str, convention: str) -> tuple:
     return colour, radius
 
 
-def map_path(coefficients: str, convention: str) -> str:
-    """The map of ``convention`` beside a coefficients file or pattern."""
-    return f"{coefficients[:-4]}.{convention}.exr"
+def map_path(coefficients: str, convention: str, layer: str) -> str:
+    """The ``layer`` (colour, radius) map of ``convention`` beside a coefficients file or
+    pattern: one plain file per layer (R, G, B), which every texture node reads as it is."""
+    return f"{coefficients[:-4]}.{convention}.{layer}.exr"
 
 
 def _etas(m, n):
     return list(m.eta) * n if len(m.eta) == 1 else list(m.eta)
 
 
-def write_map(m, coefficients: str, convention: str, written: list) -> str:
-    """The map of one coefficients file (written unless up to date: then added to
-    ``written``); TextureError, ValueError on failure."""
-    out = map_path(coefficients, convention)
+def write_maps(m, coefficients: str, convention: str, written: list) -> dict:
+    """{layer: its map} of one coefficients file (written unless both are up to date: then
+    added to ``written``); TextureError, ValueError on failure."""
+    outs = {layer: map_path(coefficients, convention, layer) for layer in LAYERS}
     inputs = {"coefficients": coefficients}
     digest = params_digest({"kind": "map", "convention": convention, "model": m.model,
                             "eta": list(m.eta), "source": painted_convention(m.model)})
-    if is_up_to_date(out, inputs, digest):
-        return out
-    written.append(out)
+    if all(is_up_to_date(out, inputs, digest) for out in outs.values()):
+        return outs
     spec, px = read_whole(coefficients, "coefficients")
     names = list(spec.channelnames)
     values = {}
@@ -127,18 +125,20 @@ def write_map(m, coefficients: str, convention: str, written: list) -> str:
         idx = [i for i, n in enumerate(names) if n.startswith(f"{o}.")]
         values[o] = px[..., idx].astype(np.float64)
     suffixes = [n.split(".", 1)[1] for n in names if n.startswith(f"{m.outputs[0]}.")]
-    colour, radius = converted(values, _etas(m, len(suffixes)), m.model, convention)
-    out_names = [f"{layer}.{s}" for layer in LAYERS for s in suffixes]
-    out_spec = output_spec(spec, out_names, -1, False, header_fields(inputs, digest),
-                           working=resolve_working_space(m.working_space))
-    writer = Writer(out, out_spec)
-    try:
-        writer.write_band(0, spec.height, np.concatenate([colour, radius], -1))
-        writer.commit()
-    except BaseException:
-        writer.abort()
-        raise
-    return out
+    maps = dict(zip(LAYERS, converted(values, _etas(m, len(suffixes)), m.model, convention)))
+    working = resolve_working_space(m.working_space)
+    for layer, out in outs.items():
+        header = header_fields(inputs, digest) | {PAINTED_MARK.split(":")[1]: f"{convention} "
+                                                  f"{layer}"}
+        writer = Writer(out, output_spec(spec, suffixes, -1, False, header, working=working))
+        try:
+            writer.write_band(0, spec.height, maps[layer])
+            writer.commit()
+        except BaseException:
+            writer.abort()
+            raise
+        written.append(out)
+    return outs
 
 
 def material_maps(m, files: list, coefficients: dict | None) -> dict:
@@ -156,14 +156,10 @@ def material_maps(m, files: list, coefficients: dict | None) -> dict:
                 maps.constants = {"colour": [float(v) for v in colour[0]],
                                   "radius": [float(v) for v in radius[0]]}
             else:
-                maps.pattern = map_path(m.output, convention)
-                maps.files = [write_map(m, f, convention, maps.written) for f in files]
-                header = image_header(maps.files[0]) if maps.files else None
-                names = list(header.channelnames) if header is not None else []
-                maps.channels = {layer: [n for n in names if n.startswith(f"{layer}.")]
+                maps.patterns = {layer: map_path(m.output, convention, layer)
                                  for layer in LAYERS}
-                maps.first_channel = {layer: names.index(c[0]) for layer, c in
-                                      maps.channels.items() if c}
+                for f in files:
+                    maps.files += list(write_maps(m, f, convention, maps.written).values())
         except ImportError as exc:       # a convention whose conversion this build lacks
             maps.error = (f"its {convention} maps: converting to {convention} needs "
                           f"{exc.name or 'a module'}, which this build lacks")
@@ -211,8 +207,8 @@ def maps_entry(maps, folder) -> dict:
         if mp.constants is not None:
             entry["constants"] = mp.constants
         elif not mp.error:
-            entry |= {"output": "./" + os.path.relpath(mp.pattern, folder).replace(os.sep, "/"),
-                      "files": sorted(os.path.relpath(f, folder) for f in mp.files),
-                      "channels": mp.channels, "first_channel": mp.first_channel}
+            entry |= {layer: "./" + os.path.relpath(p, folder).replace(os.sep, "/")
+                      for layer, p in mp.patterns.items()}
+            entry["files"] = sorted(os.path.relpath(f, folder) for f in mp.files)
         out[conv] = entry
     return out

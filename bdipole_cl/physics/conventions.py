@@ -22,7 +22,7 @@ from typing import Callable, NamedTuple
 import numpy as np
 
 from ..vocabulary import Option, Registry
-from . import reference
+from . import half_space, reference
 from . import renderer_fits as fits
 
 #: how a walk meets the surface (docs/conventions.md "Boundaries")
@@ -243,23 +243,26 @@ def _walk_eta(conv, eta):
     return eta if conv.boundary == "dielectric" else 1.0
 
 
-def _entry(conv, eta):
-    """The fraction of diffuse light a walk's entry lets in: 1 - F (the surface's specular
-    lobe keeps F) for "entry"; the dielectric boundary's walk counts it itself."""
-    if conv.boundary != "entry":
-        return 1.0
-    return 1.0 - _transport().specular_reflectance(eta, incidence="diffuse")
+def _walked(conv, alpha, eta, g):
+    """The walk's own reflectance under the convention's boundary (no Cycles floor)."""
+    if conv.boundary == "entry":
+        if g != 0.0:
+            raise ValueError(f"convention {conv.name!r}: its walk leaves at the first surface "
+                             f"crossing, which is modelled for g = 0 only (got g={g:g}); "
+                             f"docs/conventions.md \"Boundaries\"")
+        return half_space.entry_reflectance_fast(alpha, eta)
+    return _transport().walk_reflectance(alpha, g=g, eta=_walk_eta(conv, eta))
 
 
 def walk_rd(conv, alpha, eta, g):
-    """The diffuse reflectance a walk convention renders for single-scattering ``alpha``."""
-    t = _transport()
+    """The diffuse reflectance a walk convention renders for single-scattering ``alpha``:
+    the walk under its boundary; Cycles' floor raises alpha to ``min_alpha`` and scales the
+    throughput by alpha/min_alpha."""
     a = np.asarray(alpha, np.float64)
-    walked = np.maximum(a, conv.min_alpha)
-    rd = t.walk_reflectance(walked, g=g, eta=_walk_eta(conv, eta))
+    rd = _walked(conv, np.maximum(a, conv.min_alpha), eta, g)
     if conv.min_alpha:
         rd = rd * np.where(a < conv.min_alpha, a / conv.min_alpha, 1.0)
-    return _entry(conv, eta) * rd
+    return rd
 
 
 def rendered(convention, colour, radius, eta=1.4, g=0.0) -> Rendered:
@@ -275,6 +278,16 @@ def rendered(convention, colour, radius, eta=1.4, g=0.0) -> Rendered:
     spread = _transport().walk_spread(np.maximum(alpha, conv.min_alpha), g=g,
                                       eta=_walk_eta(conv, eta), fraction=SPREAD_FRACTION)
     return Rendered(walk_rd(conv, alpha, eta, g), spread / sigma_t)
+
+
+def rendered_rd(convention, colour, eta=1.4, g=0.0):
+    """The diffuse reflectance alone (``rendered(...).rd``, no spread computed)."""
+    conv = lookup(convention)
+    colour = np.asarray(colour, np.float64)
+    if not conv.walk:
+        return colour
+    alpha = np.clip(conv.alpha_fit(colour, g), 0.0, conv.alpha_max)
+    return walk_rd(conv, alpha, eta, g)
 
 
 def unit_median(conv, colour, eta, g=0.0):
@@ -351,16 +364,23 @@ def colour_for(convention, rd, eta=1.4, g=0.0):
     inside = (rd >= lo) & (rd <= hi)
     if not conv.walk:
         return np.where(inside, rd, np.nan)
-    t = _transport()
-    r = np.where(inside, rd, 0.5 * (lo + hi)) / _entry(conv, eta)
-    eta_w = _walk_eta(conv, eta)
-    alpha = t.walk_alpha(r, g=g, eta=eta_w)
-    if conv.min_alpha:
-        r_min = t.walk_reflectance(conv.min_alpha, g=g, eta=eta_w)
-        alpha = np.where(r < r_min, conv.min_alpha * r / r_min, alpha)
+    r = np.where(inside, rd, 0.5 * (lo + hi))
+    alpha = single_scattering_albedo(conv, r, eta, g)
     colour = increasing_inverse(lambda c: np.clip(conv.alpha_fit(c, g), 0.0, conv.alpha_max),
                                 alpha)
     return np.where(inside, colour, np.nan)
+
+
+def single_scattering_albedo(conv, rd, eta, g):
+    """The alpha whose walk renders ``rd`` under the convention's boundary (and floor)."""
+    if conv.boundary == "entry":
+        return increasing_inverse(lambda a: walk_rd(conv, a, eta, g), rd)
+    t = _transport()
+    alpha = t.walk_alpha(rd, g=g, eta=_walk_eta(conv, eta))
+    if conv.min_alpha:        # below the floor's reflectance, rd = alpha/min_alpha R(min_alpha)
+        r_min = t.walk_reflectance(conv.min_alpha, g=g, eta=_walk_eta(conv, eta))
+        alpha = np.where(rd < r_min, conv.min_alpha * rd / r_min, alpha)
+    return alpha
 
 
 def rd_range(convention, eta=1.4, g=0.0):

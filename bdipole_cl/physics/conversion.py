@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import check_numbers, check_policy, find_invalid, plain_array
-from .conventions import (CONVENTION, Medium, colour_for, medium, rd_range, rendered,
+from .conventions import (CONVENTION, Medium, colour_for, medium, rd_range, rendered_rd,
                           unit_median)
 
 #: the colours outside which the spread is taken at the nearest of them (a texel of colour 0
@@ -105,7 +105,7 @@ def convert(colour, radius, source="better-dipole", target="van-de-hulst", eta=1
     colour, n_colour = check_colour(colour, on_invalid, texels=texels)
     radius, n_radius = check_radius(radius, on_invalid, texels=texels)
     flat_c, inverse = np.unique(colour, return_inverse=True)
-    rd = rendered(src.name, flat_c, 1.0, eta, g).rd
+    rd = rendered_rd(src, flat_c, eta, g)
     lo, hi = rd_range(tgt.name, eta, g)
     n_rd = find_invalid("colour", colour, (rd > hi)[inverse.reshape(colour.shape)],
                         f"renders a reflectance above {hi:.6g}, the most {tgt.name} renders "
@@ -113,7 +113,7 @@ def convert(colour, radius, source="better-dipole", target="van-de-hulst", eta=1
     rd = np.clip(rd, lo, hi)
     floor = np.clip(flat_c, COLOUR_FLOOR, COLOUR_CEILING)
     rd_floor = np.where(floor != flat_c, np.clip(
-        rendered(src.name, floor, 1.0, eta, g).rd, lo, hi), rd)
+        rendered_rd(src, floor, eta, g), lo, hi), rd)
     out_c = colour_for(tgt.name, rd, eta, g)
     # radius ratio: source median per unit radius over the target's at its colour
     ratio = unit_median(src, floor, eta, g) / unit_median(tgt, colour_for(tgt.name, rd_floor,

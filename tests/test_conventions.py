@@ -8,7 +8,7 @@ from scipy import integrate
 
 from bdipole_cl.physics import reference
 from bdipole_cl.physics import renderer_fits as fits
-from bdipole_cl.physics.conventions import (BOUNDARY, CONVENTION, CONVENTIONS, dipole_tail,
+from bdipole_cl.physics.conventions import (BOUNDARIES, CONVENTION, CONVENTIONS, dipole_tail,
                                             profile_median)
 
 _X, _W = np.polynomial.legendre.leggauss(160)
@@ -157,7 +157,7 @@ def test_registry_names_every_required_convention():
                  "random-walk"):
         assert name in CONVENTION, name
     for conv in CONVENTION:
-        assert conv.boundary in BOUNDARY, conv.name
+        assert conv.boundary in BOUNDARIES, conv.name
         assert (conv.profile is None) == (conv.alpha_fit is not None), conv.name
         assert conv.colour and conv.radius and conv.source, conv.name
     assert CONVENTION["openpbr"].name == "van-de-hulst"

@@ -24,7 +24,7 @@ from bdipole_cl.vocabulary import Option, Registry
 README = Path(__file__).resolve().parent.parent / "README.md"
 #: the modules that define registries (a registry defined elsewhere is a test failure below)
 REGISTRY_MODULES = ("bdipole_cl.errors", "bdipole_cl.physics.models",
-                    "bdipole_cl.methods.registry")
+                    "bdipole_cl.physics.conventions", "bdipole_cl.methods.registry")
 PACKAGE = Path(__file__).resolve().parent.parent / "bdipole_cl"
 
 
@@ -89,7 +89,8 @@ def test_registries_are_defined_only_where_expected():
     # a Registry(...) anywhere else in the package would be a second vocabulary
     found = sorted(str(p.relative_to(PACKAGE)) for p in PACKAGE.rglob("*.py")
                    if re.search(r"\bRegistry\(", p.read_text()))
-    assert found == ["errors.py", "methods/registry.py", "physics/models.py", "vocabulary.py"]
+    assert found == ["errors.py", "methods/registry.py", "physics/conventions.py",
+                     "physics/models.py", "vocabulary.py"]
 
 
 def cli_actions(option: str):

@@ -117,8 +117,8 @@ def listing() -> str:
 
 
 def _boundary_words(name):
-    from ..physics.conventions import BOUNDARY
-    return BOUNDARY[name].summary
+    from ..physics.conventions import BOUNDARIES
+    return BOUNDARIES[name]
 
 
 def add_command(command):

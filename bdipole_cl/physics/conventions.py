@@ -25,9 +25,9 @@ from ..vocabulary import Option, Registry
 from . import half_space, reference
 from . import renderer_fits as fits
 
-#: how a walk meets the surface (docs/conventions.md "Boundaries")
-BOUNDARY = Registry.of(
-    "boundary",
+#: how a walk meets the surface (docs/conventions.md "Boundaries"): a property of each
+#: convention, not an option (so a table, not a registry)
+BOUNDARIES = dict(
     dielectric="a smooth dielectric at eta bounds the walk: refraction in, Fresnel and total "
                "internal reflection at every exit (Mitsuba, pbrt, Hyperion 2018)",
     entry="refracted in (the surface's specular lobe keeps the Fresnel part), then the walk "
@@ -60,7 +60,7 @@ class Medium(NamedTuple):
 @dataclass(frozen=True)
 class Convention(Option):
     """One renderer convention. ``colour``, ``radius``: what the two inputs mean (``unit``:
-    the radius' kind); ``boundary``: a ``BOUNDARY`` name; ``renderers``, ``source``: who uses
+    the radius' kind); ``boundary``: a ``BOUNDARIES`` name; ``renderers``, ``source``: who uses
     it and where the formula is read from.
 
     Walks: ``alpha_fit(colour, g)`` the single-scattering albedo, ``extinction(colour,

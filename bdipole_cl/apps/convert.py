@@ -29,10 +29,10 @@ def add_command(command):
                         "path/pattern ({stem}, {dir}, <UDIM>)")
     p.add_argument("--radius-scale", type=positive_float, default=1.0,
                    help="multiplies radius values")
-    p.add_argument("--source", default="better-dipole", type=spelling_of(CONVENTION), choices=CONVENTION.names,
-                   metavar="CONVENTION", help=f"the textures' convention: {names}")
-    p.add_argument("--target", default="van-de-hulst", type=spelling_of(CONVENTION), choices=CONVENTION.names,
-                   metavar="CONVENTION", help="the convention to write (random-walk: the "
+    p.add_argument("--source", default="better-dipole", type=spelling_of(CONVENTION),
+                   choices=CONVENTION.names, metavar="CONVENTION", help=f"the textures' convention: {names}")
+    p.add_argument("--target", default="van-de-hulst", type=spelling_of(CONVENTION),
+                   choices=CONVENTION.names, metavar="CONVENTION", help="the convention to write (random-walk: the "
                    "medium's single-scattering albedo and mean free path 1/sigma_t)")
     p.add_argument("--eta", type=floats, default=(1.4,),
                    help="relative IOR of the surface, one or per channel 'r,g,b'")

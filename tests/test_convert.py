@@ -166,3 +166,21 @@ def test_round_trip_through_the_medium_for_any_spread_curve(name, monkeypatch):
     assert np.max(np.abs(back.colour - COLOURS)) <= ROUND_TRIP, name
     assert np.max(np.abs(back.radius / radius - 1.0)) <= ROUND_TRIP, name
     assert np.all(np.diff(there.colour) > 0.0), name
+
+
+def test_cli_pxrsurface_to_openpbr_matches_the_arrays(tmp_path, capsys):
+    # the brief's case: a PxrSurface set (colour + dmfp constants) to OpenPBR, as the API does
+    _needs_walk("van-de-hulst")
+    from bdipole_cl.apps.cli import main
+    colour = np.random.default_rng(5).uniform(0.1, 0.8, (3, 4, 3))
+    _write(tmp_path / "skin.exr", colour)
+    rc = main(["convert", str(tmp_path / "skin.exr"), "--radius", "1.2,0.6,0.3",
+               "--source", "pxrsurface", "--target", "openpbr", "--eta", "1.4"])
+    assert rc == 0, capsys.readouterr()
+    _, px = _read(tmp_path / "skin.van-de-hulst.exr")
+    c32 = colour.astype(np.float32)
+    for k, dmfp in enumerate((1.2, 0.6, 0.3)):
+        want = bdipole_cl.convert(c32[..., k], np.float32(dmfp), "better-dipole",
+                                  "van-de-hulst", eta=1.4)
+        np.testing.assert_allclose(px[..., k], want.colour, rtol=1.2e-7)
+        np.testing.assert_allclose(px[..., 3 + k], want.radius, rtol=1.2e-7)

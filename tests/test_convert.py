@@ -184,3 +184,32 @@ def test_cli_pxrsurface_to_openpbr_matches_the_arrays(tmp_path, capsys):
                                   "van-de-hulst", eta=1.4)
         np.testing.assert_allclose(px[..., k], want.colour, rtol=1.2e-7)
         np.testing.assert_allclose(px[..., 3 + k], want.radius, rtol=1.2e-7)
+
+
+@pytest.mark.parametrize("source,target", [("better-dipole", "burley"),
+                                           ("burley-perpendicular", "dipole"),
+                                           ("better-dipole", "van-de-hulst"),
+                                           ("cycles-random-walk", "hyperion-2018")])
+def test_texture_path_interpolates_within_float32(source, target, monkeypatch):
+    # arrays of more than EXACT_MAX distinct colours go through the maps on a grid: within
+    # 5e-7 relative of the exact maps (a few float32 ulps; measured 1.8e-7)
+    from bdipole_cl.physics import conversion
+    from bdipole_cl.physics.conventions import CONVENTION
+    if any(CONVENTION[n].walk for n in (source, target)):
+        transport = pytest.importorskip("bdipole_cl.physics.transport")
+        monkeypatch.setattr(transport, "walk_spread", lambda a, g=0.0, eta=1.0, fraction=0.5:
+                            0.7 + 1.0 / np.sqrt(3 * (1 - np.asarray(a)) + 1e-3))
+        conversion._grid_maps.cache_clear()
+    colour = np.random.default_rng(2).uniform(0.02, 0.8, conversion.EXACT_MAX + 100)
+    done = conversion.convert(colour, 1.0, source, target, eta=1.4)
+    exact = conversion.colour_maps(CONVENTION[source], CONVENTION[target], colour[:500],
+                                   1.4, 0.0)
+    assert np.max(np.abs(done.colour[:500] / exact[0] - 1)) < 5e-7
+    assert np.max(np.abs(done.radius[:500] / exact[1] - 1)) < 5e-7
+    conversion._grid_maps.cache_clear()        # the stand-in spread stays in this test
+
+
+def test_cycles_skin_is_converted_texel_by_texel():
+    # its radius jumps with the colour (12 float bisection steps): never interpolated
+    assert CONVENTION["cycles-skin"].stepwise
+    assert not any(c.stepwise for c in CONVENTION if c.name != "cycles-skin")

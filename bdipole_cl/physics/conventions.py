@@ -67,7 +67,8 @@ class Convention(Option):
     radius, eta, g)`` sigma_t; ``alpha_max`` the renderer's clamp; ``min_alpha`` Cycles'
     floor (alpha raised to it, the throughput scaled by alpha/min_alpha). Profiles:
     ``profile`` ("better-dipole", "dipole" or "burley") and, for burley, ``burley_s`` (d =
-    radius/s)."""
+    radius/s). ``stepwise``: its maps jump with the colour (Cycles Skin's 12-step float
+    bisection), so a conversion never interpolates them."""
 
     renderers: str = ""
     colour: str = ""
@@ -81,6 +82,7 @@ class Convention(Option):
     min_alpha: float = 0.0
     profile: str | None = None
     burley_s: Callable | None = None
+    stepwise: bool = False
 
     @property
     def walk(self) -> bool:
@@ -182,7 +184,7 @@ CONVENTION = Registry("convention", (
                colour="Subsurface colour", radius=_DMFP + " (Jensen's)", unit="dmfp",
                boundary="entry", source="Cycles bssrdf.h bssrdf_setup_radius",
                alpha_fit=fits.wvh_alpha, extinction=_sigma_t_cycles_skin,
-               alpha_max=0.999999, min_alpha=0.2),
+               alpha_max=0.999999, min_alpha=0.2, stepwise=True),
     Convention("moonray-walk", "MoonRay random walk: its refit albedo, Chiang's s, radius x "
                "0.3333", renderers="MoonRay VolumeSubsurface", colour="scattering colour",
                radius="scattering radius (a dmfp-like radius, in 'shrekles' = 3 cm)",

@@ -8,7 +8,7 @@ from scipy import integrate
 
 from bdipole_cl.physics import reference
 from bdipole_cl.physics import renderer_fits as fits
-from bdipole_cl.physics.conventions import (BOUNDARY, CONVENTION, CONVENTIONS, dipole_tail,
+from bdipole_cl.physics.conventions import (BOUNDARIES, CONVENTION, CONVENTIONS, dipole_tail,
                                             profile_median)
 
 _X, _W = np.polynomial.legendre.leggauss(160)
@@ -157,7 +157,7 @@ def test_registry_names_every_required_convention():
                  "random-walk"):
         assert name in CONVENTION, name
     for conv in CONVENTION:
-        assert conv.boundary in BOUNDARY, conv.name
+        assert conv.boundary in BOUNDARIES, conv.name
         assert (conv.profile is None) == (conv.alpha_fit is not None), conv.name
         assert conv.colour and conv.radius and conv.source, conv.name
     assert CONVENTION["openpbr"].name == "van-de-hulst"
@@ -173,3 +173,36 @@ def test_walk_fits_increase_with_colour(name):
     c = np.linspace(1e-3, 1.0, 20001)
     a = np.clip(conv.alpha_fit(c, 0.0), 0.0, conv.alpha_max)
     assert np.all(np.diff(a) >= 0.0), name
+
+
+@pytest.mark.parametrize("c", [0.3, 0.9, 0.999])
+def test_half_space_integral_form_matches_the_fixed_point(c):
+    # two forms of Chandrasekhar's H: the integral representation (physics.half_space) and
+    # the fixed point of the H-equation (this file): 1e-12 apart
+    from bdipole_cl.physics import half_space
+    assert abs(float(half_space.matched_reflectance(c)) - half_space_albedo(c)) < 1e-12
+
+
+def test_entry_boundary_limits():
+    # at eta -> 1 the entry walk is the index-matched one; at alpha = 1 it returns all that
+    # the surface let in (1 - the diffuse Fresnel reflectance, by quadrature here)
+    from bdipole_cl.physics import half_space
+    from bdipole_cl.physics.fresnel import fresnel_reflectance
+    a = np.array([0.3, 0.9])
+    np.testing.assert_allclose(half_space.entry_reflectance(a, 1.0 + 1e-12),
+                               half_space.matched_reflectance(a), rtol=1e-9)
+    f_dr, _ = integrate.quad(lambda m: 2 * m * fresnel_reflectance(m, 1 / 1.4), 0, 1,
+                             epsabs=1e-13)
+    assert abs(float(half_space.entry_reflectance_fast(1.0, 1.4)) - (1 - f_dr)) < 1e-9
+    np.testing.assert_allclose(half_space.entry_reflectance_fast(a, 1.4),
+                               half_space.entry_reflectance(a, 1.4), atol=1e-12)
+
+
+def test_walk_reference_agrees_with_the_h_function():
+    # physics.transport (a discrete-ordinates solver) and Chandrasekhar's H (an integral):
+    # two independent methods for the index-matched isotropic half-space (measured 1.2e-13)
+    transport = pytest.importorskip("bdipole_cl.physics.transport")
+    from bdipole_cl.physics import half_space
+    a = np.array([0.3, 0.6, 0.9, 0.99, 0.999])
+    np.testing.assert_allclose(transport.walk_reflectance(a, g=0.0, eta=1.0),
+                               half_space.matched_reflectance(a), atol=1e-10)

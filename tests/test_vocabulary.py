@@ -24,7 +24,7 @@ from bdipole_cl.vocabulary import Option, Registry
 README = Path(__file__).resolve().parent.parent / "README.md"
 #: the modules that define registries (a registry defined elsewhere is a test failure below)
 REGISTRY_MODULES = ("bdipole_cl.errors", "bdipole_cl.physics.models",
-                    "bdipole_cl.methods.registry")
+                    "bdipole_cl.physics.conventions", "bdipole_cl.methods.registry")
 PACKAGE = Path(__file__).resolve().parent.parent / "bdipole_cl"
 
 

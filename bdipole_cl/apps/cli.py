@@ -293,8 +293,9 @@ def build_parser() -> argparse.ArgumentParser:
     add_scheduler_args(p)
     p.set_defaults(func=_cmd_bake)
 
-    from . import convert, preview, profile
+    from . import conventions_report, convert, preview, profile
     convert.add_command(command)
+    conventions_report.add_command(command)
     preview.add_command(command)
     profile.add_command(command)
 

@@ -6,8 +6,8 @@ from ..errors import POLICIES
 from ..methods.registry import ALPHA_CHANNEL
 from ..physics.conventions import CONVENTION
 from .cli_options import colorspace_arg
-from .cli_types import add_texture_arg, constant_or_texture, floats, positive_float, \
-    positive_int, size
+from .cli_types import (add_texture_arg, constant_or_texture, floats, positive_float,
+                        positive_int, size, spelling_of)
 
 EPILOG = """examples:
   bdipole-cl convert skin.<UDIM>.exr --radius 1.2,0.6,0.3 --source pxrsurface --target openpbr
@@ -29,10 +29,10 @@ def add_command(command):
                         "path/pattern ({stem}, {dir}, <UDIM>)")
     p.add_argument("--radius-scale", type=positive_float, default=1.0,
                    help="multiplies radius values")
-    p.add_argument("--source", default="better-dipole", choices=CONVENTION.spellings,
-                   metavar="CONVENTION", help=f"the textures' convention: {names}")
-    p.add_argument("--target", default="van-de-hulst", choices=CONVENTION.spellings,
-                   metavar="CONVENTION", help="the convention to write (random-walk: the "
+    p.add_argument("--source", default="better-dipole", type=spelling_of(CONVENTION),
+                   choices=CONVENTION.names, metavar="CONVENTION", help=f"the textures' convention: {names}")
+    p.add_argument("--target", default="van-de-hulst", type=spelling_of(CONVENTION),
+                   choices=CONVENTION.names, metavar="CONVENTION", help="the convention to write (random-walk: the "
                    "medium's single-scattering albedo and mean free path 1/sigma_t)")
     p.add_argument("--eta", type=floats, default=(1.4,),
                    help="relative IOR of the surface, one or per channel 'r,g,b'")
@@ -64,8 +64,7 @@ def _cmd_convert(args) -> int:
     from ..signals import SignalStop
     stop = SignalStop().install()
     report = convert_textures(
-        args.inputs, radius=args.radius, source=CONVENTION.canonical(args.source),
-        target=CONVENTION.canonical(args.target),
+        args.inputs, radius=args.radius, source=args.source, target=args.target,
         eta=args.eta, g=args.g, output=args.output, half=args.half,
         colorspace=args.colorspace, working_space=args.working_space, alpha=args.alpha,
         on_invalid=args.on_invalid, max_memory=args.max_memory, jobs=args.jobs,

@@ -22,12 +22,12 @@ from typing import Callable, NamedTuple
 import numpy as np
 
 from ..vocabulary import Option, Registry
-from . import reference
+from . import half_space, reference
 from . import renderer_fits as fits
 
-#: how a walk meets the surface (docs/conventions.md "Boundaries")
-BOUNDARY = Registry.of(
-    "boundary",
+#: how a walk meets the surface (docs/conventions.md "Boundaries"): a property of each
+#: convention, not an option (so a table, not a registry)
+BOUNDARIES = dict(
     dielectric="a smooth dielectric at eta bounds the walk: refraction in, Fresnel and total "
                "internal reflection at every exit (Mitsuba, pbrt, Hyperion 2018)",
     entry="refracted in (the surface's specular lobe keeps the Fresnel part), then the walk "
@@ -60,14 +60,15 @@ class Medium(NamedTuple):
 @dataclass(frozen=True)
 class Convention(Option):
     """One renderer convention. ``colour``, ``radius``: what the two inputs mean (``unit``:
-    the radius' kind); ``boundary``: a ``BOUNDARY`` name; ``renderers``, ``source``: who uses
+    the radius' kind); ``boundary``: a ``BOUNDARIES`` name; ``renderers``, ``source``: who uses
     it and where the formula is read from.
 
     Walks: ``alpha_fit(colour, g)`` the single-scattering albedo, ``extinction(colour,
     radius, eta, g)`` sigma_t; ``alpha_max`` the renderer's clamp; ``min_alpha`` Cycles'
     floor (alpha raised to it, the throughput scaled by alpha/min_alpha). Profiles:
     ``profile`` ("better-dipole", "dipole" or "burley") and, for burley, ``burley_s`` (d =
-    radius/s)."""
+    radius/s). ``stepwise``: its maps jump with the colour (Cycles Skin's 12-step float
+    bisection), so a conversion never interpolates them."""
 
     renderers: str = ""
     colour: str = ""
@@ -81,6 +82,7 @@ class Convention(Option):
     min_alpha: float = 0.0
     profile: str | None = None
     burley_s: Callable | None = None
+    stepwise: bool = False
 
     @property
     def walk(self) -> bool:
@@ -182,7 +184,7 @@ CONVENTION = Registry("convention", (
                colour="Subsurface colour", radius=_DMFP + " (Jensen's)", unit="dmfp",
                boundary="entry", source="Cycles bssrdf.h bssrdf_setup_radius",
                alpha_fit=fits.wvh_alpha, extinction=_sigma_t_cycles_skin,
-               alpha_max=0.999999, min_alpha=0.2),
+               alpha_max=0.999999, min_alpha=0.2, stepwise=True),
     Convention("moonray-walk", "MoonRay random walk: its refit albedo, Chiang's s, radius x "
                "0.3333", renderers="MoonRay VolumeSubsurface", colour="scattering colour",
                radius="scattering radius (a dmfp-like radius, in 'shrekles' = 3 cm)",
@@ -243,23 +245,26 @@ def _walk_eta(conv, eta):
     return eta if conv.boundary == "dielectric" else 1.0
 
 
-def _entry(conv, eta):
-    """The fraction of diffuse light a walk's entry lets in: 1 - F (the surface's specular
-    lobe keeps F) for "entry"; the dielectric boundary's walk counts it itself."""
-    if conv.boundary != "entry":
-        return 1.0
-    return 1.0 - _transport().specular_reflectance(eta, incidence="diffuse")
+def _walked(conv, alpha, eta, g):
+    """The walk's own reflectance under the convention's boundary (no Cycles floor)."""
+    if conv.boundary == "entry":
+        if g != 0.0:
+            raise ValueError(f"convention {conv.name!r}: its walk leaves at the first surface "
+                             f"crossing, which is modelled for g = 0 only (got g={g:g}); "
+                             f"docs/conventions.md \"Boundaries\"")
+        return half_space.entry_reflectance_fast(alpha, eta)
+    return _transport().walk_reflectance(alpha, g=g, eta=_walk_eta(conv, eta))
 
 
 def walk_rd(conv, alpha, eta, g):
-    """The diffuse reflectance a walk convention renders for single-scattering ``alpha``."""
-    t = _transport()
+    """The diffuse reflectance a walk convention renders for single-scattering ``alpha``:
+    the walk under its boundary; Cycles' floor raises alpha to ``min_alpha`` and scales the
+    throughput by alpha/min_alpha."""
     a = np.asarray(alpha, np.float64)
-    walked = np.maximum(a, conv.min_alpha)
-    rd = t.walk_reflectance(walked, g=g, eta=_walk_eta(conv, eta))
+    rd = _walked(conv, np.maximum(a, conv.min_alpha), eta, g)
     if conv.min_alpha:
         rd = rd * np.where(a < conv.min_alpha, a / conv.min_alpha, 1.0)
-    return _entry(conv, eta) * rd
+    return rd
 
 
 def rendered(convention, colour, radius, eta=1.4, g=0.0) -> Rendered:
@@ -275,6 +280,16 @@ def rendered(convention, colour, radius, eta=1.4, g=0.0) -> Rendered:
     spread = _transport().walk_spread(np.maximum(alpha, conv.min_alpha), g=g,
                                       eta=_walk_eta(conv, eta), fraction=SPREAD_FRACTION)
     return Rendered(walk_rd(conv, alpha, eta, g), spread / sigma_t)
+
+
+def rendered_rd(convention, colour, eta=1.4, g=0.0):
+    """The diffuse reflectance alone (``rendered(...).rd``, no spread computed)."""
+    conv = lookup(convention)
+    colour = np.asarray(colour, np.float64)
+    if not conv.walk:
+        return colour
+    alpha = np.clip(conv.alpha_fit(colour, g), 0.0, conv.alpha_max)
+    return walk_rd(conv, alpha, eta, g)
 
 
 def unit_median(conv, colour, eta, g=0.0):
@@ -351,16 +366,23 @@ def colour_for(convention, rd, eta=1.4, g=0.0):
     inside = (rd >= lo) & (rd <= hi)
     if not conv.walk:
         return np.where(inside, rd, np.nan)
-    t = _transport()
-    r = np.where(inside, rd, 0.5 * (lo + hi)) / _entry(conv, eta)
-    eta_w = _walk_eta(conv, eta)
-    alpha = t.walk_alpha(r, g=g, eta=eta_w)
-    if conv.min_alpha:
-        r_min = t.walk_reflectance(conv.min_alpha, g=g, eta=eta_w)
-        alpha = np.where(r < r_min, conv.min_alpha * r / r_min, alpha)
+    r = np.where(inside, rd, 0.5 * (lo + hi))
+    alpha = single_scattering_albedo(conv, r, eta, g)
     colour = increasing_inverse(lambda c: np.clip(conv.alpha_fit(c, g), 0.0, conv.alpha_max),
                                 alpha)
     return np.where(inside, colour, np.nan)
+
+
+def single_scattering_albedo(conv, rd, eta, g):
+    """The alpha whose walk renders ``rd`` under the convention's boundary (and floor)."""
+    if conv.boundary == "entry":
+        return increasing_inverse(lambda a: walk_rd(conv, a, eta, g), rd)
+    t = _transport()
+    alpha = t.walk_alpha(rd, g=g, eta=_walk_eta(conv, eta))
+    if conv.min_alpha:        # below the floor's reflectance, rd = alpha/min_alpha R(min_alpha)
+        r_min = t.walk_reflectance(conv.min_alpha, g=g, eta=_walk_eta(conv, eta))
+        alpha = np.where(rd < r_min, conv.min_alpha * rd / r_min, alpha)
+    return alpha
 
 
 def rd_range(convention, eta=1.4, g=0.0):

@@ -10,17 +10,23 @@ convention's median is proportional to its radius). Float64, vectorised.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 
 from ..errors import check_numbers, check_policy, find_invalid, plain_array
-from .conventions import (CONVENTION, Medium, colour_for, medium, rd_range, rendered,
+from .conventions import (CONVENTION, Medium, colour_for, medium, rd_range, rendered_rd,
                           unit_median)
 
 #: the colours outside which the spread is taken at the nearest of them (a texel of colour 0
 #: reflects nothing and one of colour 1 has an infinite extinction in the dipoles: their
 #: spread is undefined, so their radius is converted as at these colours')
 COLOUR_FLOOR, COLOUR_CEILING = 1e-4, 1.0 - 1e-7
+#: arrays with up to this many distinct colours are converted exactly, texel by texel; more
+#: (a texture), through the maps on GRID_SIZE colours, interpolated linearly: measured within
+#: 2e-7 relative of the exact maps (docs/conventions.md "Conversion"); a stepwise convention
+#: (Cycles Skin: 18% radius jumps) is always converted exactly
+EXACT_MAX, GRID_SIZE = 4096, 16385
 #: the radius range every convention takes (errors' mfp rule)
 RADIUS_RANGE = (1e-20, 1e20)
 
@@ -105,23 +111,41 @@ def convert(colour, radius, source="better-dipole", target="van-de-hulst", eta=1
     colour, n_colour = check_colour(colour, on_invalid, texels=texels)
     radius, n_radius = check_radius(radius, on_invalid, texels=texels)
     flat_c, inverse = np.unique(colour, return_inverse=True)
-    rd = rendered(src.name, flat_c, 1.0, eta, g).rd
     lo, hi = rd_range(tgt.name, eta, g)
+    rd = rendered_rd(src, flat_c, eta, g)
     n_rd = find_invalid("colour", colour, (rd > hi)[inverse.reshape(colour.shape)],
                         f"renders a reflectance above {hi:.6g}, the most {tgt.name} renders "
                         f"at eta {eta:g}", on_invalid, texels=texels)
-    rd = np.clip(rd, lo, hi)
-    floor = np.clip(flat_c, COLOUR_FLOOR, COLOUR_CEILING)
-    rd_floor = np.where(floor != flat_c, np.clip(
-        rendered(src.name, floor, 1.0, eta, g).rd, lo, hi), rd)
-    out_c = colour_for(tgt.name, rd, eta, g)
-    # radius ratio: source median per unit radius over the target's at its colour
-    ratio = unit_median(src, floor, eta, g) / unit_median(tgt, colour_for(tgt.name, rd_floor,
-                                                                          eta, g), eta, g)
-    shape = colour.shape
-    inv = inverse.reshape(shape)
-    out_colour = out_c[inv]
-    out_radius = radius * ratio[inv]
-    median = radius * unit_median(src, floor, eta, g)[inv]
-    return Conversion(out_colour, out_radius, rd[inv], median, src.name, tgt.name, eta, g,
+    if flat_c.size <= EXACT_MAX or src.stepwise or tgt.stepwise:
+        out_c, ratio, src_median = colour_maps(src, tgt, flat_c, eta, g)
+    else:                     # a texture: the maps on a fine grid of colours, interpolated
+        grid = _grid_maps(src.name, tgt.name, eta, g)
+        out_c, ratio, src_median = (np.interp(flat_c, grid[0], m) for m in grid[1:])
+    inv = inverse.reshape(colour.shape)
+    return Conversion(out_c[inv], radius * ratio[inv], np.clip(rd, lo, hi)[inv],
+                      radius * src_median[inv], src.name, tgt.name, eta, g,
                       {"colour": n_colour + n_rd, "radius": n_radius})
+
+
+def colour_maps(src, tgt, colour, eta, g):
+    """Per colour in [0, 1] (exact, float64): the target's colour, the radius ratio (the
+    source's median per unit radius over the target's at its colour) and the source's median
+    per unit radius. Reflectances beyond the target's reach are taken at its edge."""
+    lo, hi = rd_range(tgt.name, eta, g)
+    rd = np.clip(rendered_rd(src, colour, eta, g), lo, hi)
+    floor = np.clip(colour, COLOUR_FLOOR, COLOUR_CEILING)
+    rd_floor = np.where(floor != colour, np.clip(rendered_rd(src, floor, eta, g), lo, hi), rd)
+    out_c = colour_for(tgt.name, rd, eta, g)
+    src_median = unit_median(src, floor, eta, g)
+    ratio = src_median / unit_median(tgt, colour_for(tgt.name, rd_floor, eta, g), eta, g)
+    return out_c, ratio, src_median
+
+
+@lru_cache(maxsize=16)
+def _grid_maps(source, target, eta, g):
+    """``colour_maps`` on GRID_SIZE colours spanning [0, 1], read-only (cached per pair)."""
+    grid = np.linspace(0.0, 1.0, GRID_SIZE)
+    maps = (grid, *colour_maps(CONVENTION[source], CONVENTION[target], grid, eta, g))
+    for m in maps:
+        m.setflags(write=False)
+    return maps

@@ -85,7 +85,7 @@ class BakedMaterial:
     outputs: tuple = ()
     channels: dict = field(default_factory=dict)
     first_channel: dict = field(default_factory=dict)
-    maps: dict | None = None         # {convention: the manifest's maps entry}; None: planned
+    maps: dict | None = None         # {convention: the manifest's maps entry}; absent: planned
     working_space: str = "auto"      # the colour maps' space (the bake's working space)
 
     @property
@@ -210,13 +210,11 @@ def converted_inputs(b: BakedMaterial, convention: str, folder: str) -> tuple:
     """(colour, radius) of ``b`` in ``convention``: TextureReads of the maps the bake wrote
     (one file per layer, ``colour`` and ``radius``) or a constant material's numbers (radius in the
     material's unit); NotWritten where the maps could not be made."""
-    maps = b.maps
-    if maps is None:                     # the plan: the maps the bake will write
-        entry = {layer: f"{b.output[:-4]}.{convention}.{layer}.exr"
+    entry = (b.maps or {}).get(convention)
+    if entry is None:                    # the plan: the maps the bake will write (a bake
+        entry = {layer: f"{b.output[:-4]}.{convention}.{layer}.exr"   # records every one
                  for layer in ("colour", "radius")} if b.output else \
-            {"constants": {"colour": [0.0], "radius": [1.0]}}
-    else:
-        entry = maps.get(convention)
+            {"constants": {"colour": [0.0], "radius": [1.0]}}         # it made, or why not)
     if not entry or entry.get("error"):
         raise NotWritten(entry.get("error") if entry else f"no {convention} maps were made")
     if "constants" in entry:

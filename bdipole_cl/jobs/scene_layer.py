@@ -25,7 +25,7 @@ def baked_material(m, entry: dict, stage_unit_m: float) -> BakedMaterial:
         m.name, m.albedo, m.colorspace, m.mfp, tuple(m.mfp_scale), m.mfp_kind, m.model,
         tuple(m.eta), m.unit, stage_unit_m, tuple(m.targets),
         None if m.constant else m.output, tuple(m.outputs), entry.get("channels", {}),
-        entry.get("first_channel", {}), entry.get("maps", {}),
+        entry.get("first_channel", {}), entry.get("maps"),
         resolve_working_space(m.working_space).name)
 
 
@@ -217,7 +217,11 @@ def mtlx_text(scene, records: dict, folder) -> str:
 def target_lines(m, stage_unit_m, folder) -> list:
     """What the plan says of a material's render targets: the networks the bake writes, and
     why any other is not written."""
-    written, why = networks(baked_material(m, {}, stage_unit_m), folder)
+    from .scene_maps import conventions_needed, conversion_problem
+    problems = {c: {"error": f"its {c} maps: {p}"} for c in conventions_needed(m)
+                if (p := conversion_problem(m.model, c, m.eta[0]))}
+    written, why = networks(baked_material(m, {"maps": problems} if problems else {},
+                                           stage_unit_m), folder)
     lines = [f"  targets: {', '.join(n.target.name for n in written)} (bdipole.usda"
              + (", bdipole.mtlx" if any(n.target.mtlx for n in written) else "") + ")"] \
         if written else []

@@ -141,12 +141,32 @@ def write_maps(m, coefficients: str, convention: str, written: list) -> dict:
     return outs
 
 
+def conversion_problem(model: str, convention: str, eta: float) -> str | None:
+    """Why this build cannot convert ``model``'s painted inputs to ``convention`` at ``eta``
+    (one value tried, as ``convert`` itself fails fast), else None: the plan says it before
+    any texel is converted."""
+    from ..physics.conversion import convert
+    try:
+        convert(0.5, 1.0, source=painted_convention(model), target=convention, eta=eta)
+    except ImportError as exc:
+        return (f"converting to {convention} needs {exc.name or 'a module'}, which this "
+                f"build lacks")
+    except (ValueError, NotImplementedError) as exc:
+        return f"converting to {convention}: {one_line(exc)}"
+    return None
+
+
 def material_maps(m, files: list, coefficients: dict | None) -> dict:
     """{convention: Maps} of a baked material: its coefficient ``files``' maps, or a constant
     material's ``coefficients`` converted."""
     found = {}
     for convention in conventions_needed(m):
         maps = Maps(convention)
+        problem = conversion_problem(m.model, convention, m.eta[0])
+        if problem:
+            maps.error = f"its {convention} maps: {problem}"
+            found[convention] = maps
+            continue
         try:
             if m.constant:
                 values = {o: np.asarray(v, np.float64)[None] for o, v in
@@ -163,8 +183,8 @@ def material_maps(m, files: list, coefficients: dict | None) -> dict:
         except ImportError as exc:       # a convention whose conversion this build lacks
             maps.error = (f"its {convention} maps: converting to {convention} needs "
                           f"{exc.name or 'a module'}, which this build lacks")
-        except (TextureError, ValueError, OSError) as exc:
-            maps.error = f"its {convention} maps: {one_line(exc)}"
+        except (TextureError, ValueError, OSError, NotImplementedError) as exc:
+            maps.error = f"its {convention} maps: {one_line(exc)}"   # (a conversion not built)
         found[convention] = maps
     return found
 

@@ -534,3 +534,32 @@ def test_an_openpbr_stage_baked_reads_back_from_the_written_material_as_the_same
         assert names == names2
         # two inversions at tol 1e-4 in rho and float32 maps between them
         np.testing.assert_allclose(second, first, rtol=3e-4)
+
+
+def test_a_material_of_an_instanced_asset_gets_a_material_of_its_own(tmp_path):
+    """USD ignores an over on an instance proxy: the networks of a material inside an instance
+    are on its records prim, a Material (/bdipole_instanced/{name}) whose preview reads the
+    asset's texture; its relationship names the material it stands for."""
+    from test_usd_import_faults import material, new_stage, texture
+    texture(tmp_path / "tex" / "skin.exr")
+    asset = Usd.Stage.CreateNew(str(tmp_path / "char.usda"))
+    material(asset, "skin", "tex/skin.exr")
+    asset.SetDefaultPrim(asset.GetPrimAtPath("/Mat"))
+    asset.GetRootLayer().Save()
+    shot = new_stage(tmp_path)
+    for k in range(2):
+        prim = shot.DefinePrim(f"/set/char{k}")
+        prim.GetReferences().AddReference("char.usda")
+        prim.SetInstanceable(True)
+    shot.GetRootLayer().Save()
+    report = scenes.load(tmp_path / "asset.usda").plan().run()
+    assert report.exit_code == 0, report.summary()
+    stage = composed(tmp_path / "asset.usda", tmp_path / "bdipole" / "bdipole.usda")
+    record = UsdShade.Material(stage.GetPrimAtPath("/bdipole_instanced/skin"))
+    assert record, "the records prim is a Material"
+    surface = record.ComputeSurfaceSource("")[0]
+    assert surface.GetShaderId() == "UsdPreviewSurface"
+    check_connections(record)
+    check_tiles(record, 1)
+    target, = record.GetPrim().GetRelationship("bdipole:material").GetTargets()
+    assert stage.GetPrimAtPath(target).IsInstanceProxy()

@@ -563,3 +563,36 @@ def test_a_material_of_an_instanced_asset_gets_a_material_of_its_own(tmp_path):
     check_tiles(record, 1)
     target, = record.GetPrim().GetRelationship("bdipole:material").GetTargets()
     assert stage.GetPrimAtPath(target).IsInstanceProxy()
+
+
+def test_convert_writes_the_materials_of_its_outputs(tmp_path, capsys):
+    """``bdipole-cl convert`` to a convention a render target reads (Jensen's dipole to the
+    Better Dipole: PxrSurface): a Material per texture set reading the converted file's
+    colour and radius layers (PxrTexture firstChannel), every tile resolving; again: the
+    same bytes."""
+    from bdipole_cl.apps.cli import main as cli_main
+    for k, tile in enumerate(("1001", "1002")):
+        albedo_texture(tmp_path / "tex" / f"skin.{tile}.exr", k)
+    args = ["convert", str(tmp_path / "tex" / "skin.<UDIM>.exr"), "--radius", "1.2,0.6,0.3",
+            "--source", "dipole", "--target", "pxrsurface", "--eta", "1.4", "--unit", "cm"]
+    assert cli_main(args) == 0, capsys.readouterr()
+    layer = tmp_path / "tex" / "bdipole_convert.usda"
+    stage = Usd.Stage.Open(str(layer))
+    skin = UsdShade.Material(stage.GetPrimAtPath("/bdipole_materials/skin"))
+    surface = skin.ComputeSurfaceSource("ri")[0]
+    assert surface.GetShaderId() == "PxrSurface"
+    first = {}
+    for name in ("subsurfaceColor", "subsurfaceDmfpColor"):
+        tex = UsdShade.Shader(surface.GetInput(name).GetConnectedSources()[0][0].source
+                              .GetPrim())
+        assert tex.GetInput("filename").Get().path == "./skin.<UDIM>.better-dipole.exr"
+        first[name] = tex.GetInput("firstChannel").Get()
+    _, names = read(tmp_path / "tex" / "skin.1001.better-dipole.exr")
+    assert names[first["subsurfaceColor"]] == "colour.R"
+    assert names[first["subsurfaceDmfpColor"]] == "radius.R"
+    check_connections(skin)
+    check_tiles(skin, 2)
+    before = layer.read_bytes()
+    assert cli_main(args) == 0
+    assert layer.read_bytes() == before
+    assert (tmp_path / "tex" / "bdipole_convert.mtlx").is_file()

@@ -60,7 +60,10 @@ def add_command(command):
 
 
 def _cmd_convert(args) -> int:
+    from ..io.colour import resolve_working_space
     from ..jobs.convert_file import convert_textures
+    from ..jobs.convert_materials import convert_materials
+    from ..jobs.results import BatchReport
     from ..signals import SignalStop
     stop = SignalStop().install()
     report = convert_textures(
@@ -70,6 +73,9 @@ def _cmd_convert(args) -> int:
         on_invalid=args.on_invalid, max_memory=args.max_memory, jobs=args.jobs,
         unit=args.unit, radius_scale=args.radius_scale, texture=args.texture,
         force=args.force, cancel=stop.event)
+    report = BatchReport(report.results + convert_materials(
+        args.inputs, args.output, CONVENTION.canonical(args.target), args.eta, args.unit,
+        resolve_working_space(args.working_space).name, report.results))
     print(report.summary())
     if stop.exit_code:
         return stop.exit_code

@@ -219,6 +219,8 @@ def converted_inputs(b: BakedMaterial, convention: str, folder: str) -> tuple:
         raise NotWritten(entry.get("error") if entry else f"no {convention} maps were made")
     if "constants" in entry:
         return colour(entry["constants"]["colour"]), colour(entry["constants"]["radius"])
+    if "layers" in entry:                # one file of both layers (bdipole-cl convert's)
+        return entry["layers"]
     return tuple(TextureRead(layer, relative_file(os.path.join(folder, entry[layer]), folder),
                              space) for layer, space in (
                                  ("colour", texture_space(b.working_space)),
@@ -234,7 +236,7 @@ def pxrsurface_network(target, b: BakedMaterial, folder) -> Network:
     scale = [s * to_stage for s in b.mfp_scale]   # the stage's
     inputs = {"subsurfaceGain": (1.0,), "subsurfaceColor": albedo_input(b, folder),
               "subsurfaceIor": (one_eta(b),), "unitLength": (1.0,)}
-    if not painted_directly(b, target.convention):     # the maps in its convention
+    if target.convention in (b.maps or {}) or not painted_directly(b, target.convention):
         col, radius = converted_inputs(b, target.convention, folder)
         inputs["subsurfaceColor"] = col
         if isinstance(radius, TextureRead):

@@ -596,3 +596,12 @@ def test_convert_writes_the_materials_of_its_outputs(tmp_path, capsys):
     assert cli_main(args) == 0
     assert layer.read_bytes() == before
     assert (tmp_path / "tex" / "bdipole_convert.mtlx").is_file()
+
+
+def test_every_targets_convention_is_one_of_the_conventions_registry():
+    from bdipole_cl.physics.conventions import CONVENTION
+    for target in TARGET:
+        assert target.convention is None or target.convention in CONVENTION.names, target
+        # a target's own name, where the conventions registry knows it, means the same
+        if target.name in CONVENTION:
+            assert CONVENTION.canonical(target.name) == target.convention, target

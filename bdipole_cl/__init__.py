@@ -64,10 +64,13 @@ from .ops.blur import BlurInfo, BlurPlan, ChannelInfo, Scattering, blur, plan_bl
 from .ops.invert import (OUTPUTS, InversionPlan, albedo_to_coefficients, invert_albedo,
                          plan_inversion)
 from .physics import reference
+from .physics.conventions import CONVENTIONS
+from .physics.conversion import Conversion, convert
 from .physics.models import MODELS
 from .version import __version__
 
 __all__ = [
+    "CONVENTIONS",
     "METHODS",
     "MODELS",
     "OUTPUTS",
@@ -75,6 +78,7 @@ __all__ = [
     "BlurInfo",
     "BlurPlan",
     "ChannelInfo",
+    "Conversion",
     "DeviceError",
     "DeviceState",
     "InvalidInputError",
@@ -86,6 +90,7 @@ __all__ = [
     "albedo_to_coefficients",
     "blur",
     "clear_caches",
+    "convert",
     "get_runtime",
     "invert_albedo",
     "plan_blur",

@@ -227,7 +227,7 @@ def test_a_usd_stage_bakes_on_the_cluster_with_the_same_records(client, tmp_path
         np.testing.assert_array_equal(read(cluster.parent / "bdipole" / name),
                                       read(local.parent / "bdipole" / name))
     # the constant material's coefficients and the layer: the same (paths are relative)
-    for name in ("bdipole.usda",):
+    for name in ("bdipole.usda", "bdipole.mtlx"):
         assert (cluster.parent / "bdipole" / name).read_text() == \
             (local.parent / "bdipole" / name).read_text()
     again = bdask.bake_on_cluster(scenes.load(cluster).plan(), client, progress=False)

@@ -62,8 +62,9 @@ def baked_prims(layer):
     def visit(path):
         spec = layer.GetPrimAtPath(path)
         assets = {a.name: a.default.path for a in spec.attributes
-                  if isinstance(a.default, Sdf.AssetPath)}
-        if spec.attributes:
+                  if isinstance(a.default, Sdf.AssetPath) and a.name.startswith("bdipole:")}
+        if any(a.name.startswith("bdipole:") for a in spec.attributes):   # the records, not
+            #                                                   the material networks' shaders
             out[str(path)] = assets
     layer.Traverse(Sdf.Path.absoluteRootPath, lambda p: visit(p) if p.IsPrimPath() else None)
     return out
@@ -131,7 +132,7 @@ def test_the_records_have_the_umask_mode_of_the_images(tmp_path):
     finally:
         os.umask(old)
     modes = {p.name: stat.S_IMODE(p.stat().st_mode) for p in (tmp_path / "bdipole").iterdir()}
-    assert modes == {"jade.exr": 0o640, "bdipole.usda": 0o640,
+    assert modes == {"jade.exr": 0o640, "bdipole.usda": 0o640, "bdipole.mtlx": 0o640,
                      "bdipole_materials.json": 0o640}
 
 

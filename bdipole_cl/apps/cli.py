@@ -8,6 +8,7 @@ import sys
 import warnings
 
 from ..errors import POLICIES
+from ..io.targets import DEFAULT_TARGETS, TARGET
 from ..methods.registry import ALPHA_CHANNEL, BLUR_METHODS, BORDERS
 from ..signals import SignalStop, Terminated, end_startup, terminate_raises
 from ..version import __version__
@@ -15,7 +16,7 @@ from .cli_blur import cmd_blur
 from .cli_options import (add_global_args, add_method_args, add_scheduler_args, cluster_client,
                           colorspace_arg, method_knobs)
 from .cli_types import (Parser, add_texture_arg, constant_or_texture, floats, fraction,
-                        output_list, positive_float, positive_int, size)
+                        output_list, positive_float, positive_int, size, target_list)
 from .user_kernel import SIGNATURES
 
 DESCRIPTION = """\
@@ -109,8 +110,8 @@ def _cmd_crosscheck(args) -> int:
 
 def _cmd_plan(args) -> int:
     from ..jobs.scene import load
-    plan = load(args.scene, args.working_space).plan(force=args.force,
-                                                    max_memory=args.max_memory)
+    plan = load(args.scene, args.working_space, args.target).plan(
+        force=args.force, max_memory=args.max_memory)
     print(plan.to_json() if args.json else plan.describe())
     return 0
 
@@ -120,8 +121,8 @@ def _cmd_bake(args) -> int:
     from ..signals import Stopped
     stop = SignalStop().install()
     try:
-        plan = load(args.scene, args.working_space).plan(force=args.force,
-                                                        max_memory=args.max_memory)
+        plan = load(args.scene, args.working_space, args.target).plan(
+            force=args.force, max_memory=args.max_memory)
     except Stopped:
         print(f"interrupted by signal {stop.signum} while planning: nothing written",
               file=sys.stderr)
@@ -232,6 +233,10 @@ def _scene_command(command, name, text, force_help, memory_help):
                                  "MaterialX document (.mtlx)")
     p.add_argument("--force", action="store_true", help=force_help)
     p.add_argument("--max-memory", type=size, default="256M", help=memory_help)
+    p.add_argument("--target", type=target_list, default=None,
+                   help=f"material networks to write, a comma list of "
+                        f"{', '.join(TARGET.names)} (default: each material's targets, else "
+                        f"{','.join(DEFAULT_TARGETS)}; docs/materials.md)")
     return p
 
 
@@ -289,7 +294,9 @@ def build_parser() -> argparse.ArgumentParser:
     add_scheduler_args(p)
     p.set_defaults(func=_cmd_bake)
 
-    from . import cache, preview, profile
+    from . import cache, conventions_report, convert, preview, profile
+    convert.add_command(command)
+    conventions_report.add_command(command)
     preview.add_command(command)
     profile.add_command(command)
     cache.add_command(command)

@@ -153,3 +153,13 @@ def add_texture_arg(p):
     p.add_argument("--texture", action="store_true",
                    help="write renderer-ready textures: tiled 64x64, mip-mapped EXRs (as maketx "
                         "makes; a .tx/TIFF output is refused: it drops channel names)")
+
+
+def target_list(text):
+    """``--target``: a comma list of render targets (``io.targets.TARGET``), one per render
+    context."""
+    from ..io.targets import parse_targets
+    try:
+        return parse_targets(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None

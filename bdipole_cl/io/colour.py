@@ -101,6 +101,15 @@ class ColourConfig:
     def names(self) -> tuple:
         return tuple(self._cfg.getColorSpaceNames())
 
+    def alias_in(self, space, vocabulary) -> str | None:
+        """The first of the colour space's own name and aliases that ``vocabulary`` (another
+        system's names: MaterialX's, USD's) holds, or None."""
+        resolved = self.space(space)
+        if resolved is None:
+            return None
+        names = (resolved, *self._cfg.getAliases(resolved))
+        return next((n for n in names if n in vocabulary), None)
+
     def is_data(self, space) -> bool:
         return bool(self._cfg.isData(space))
 

@@ -24,7 +24,7 @@ import MaterialX as mx
 
 from . import tiles
 from .scene_file import SceneError
-from .shaders import (BY_ID, TEXTURE_NODES, Input, Texture, imported_material, one_channel,
+from .shaders import (BY_ID, TEXTURE_NODES, Input, Texture, imported_material, other_texels,
                       unique_names)
 
 #: metres per scene unit of a MaterialX document (MaterialX's default target distance unit)
@@ -82,8 +82,10 @@ def _texture(node, base: str) -> Texture | str:
     path = file_input.getResolvedValueString()
     if not os.path.isabs(path):
         path = _relative_file(file_input, path, base)
+    layer = _interface_source(node.getInput("layer")) if node.getInput("layer") else None
     return Texture(path, file_input.getActiveColorSpace() or "auto", node.getNamePath(),
-                   channel=one_channel(node.getType()))
+                   channel=other_texels(node.getType(),
+                                        layer.getValueString() if layer else None))
 
 
 def read_input(shader, name: str, base: str) -> Input | None:

@@ -11,11 +11,18 @@ from . import tiles
 from .images import TextureError, image_header
 
 
+#: the header mark of a texture this tool writes for others to read as painted (a target's
+#: colour and radius maps, jobs.scene_maps): an input like any other when a pattern names it
+PAINTED_MARK = "bdipole:painted"
+
+
 def written_by_us(path) -> bool:
     """An EXR whose header says bdipole-cl wrote it (``bdipole:version``): one of this tool's
-    own outputs, never picked up again by a glob."""
+    own outputs, never picked up again by a glob; but a painted map (PAINTED_MARK), which a
+    stage's material reads as its textures."""
     spec = image_header(path) if str(path).lower().endswith(".exr") else None
-    return spec is not None and bool(spec.getattribute("bdipole:version"))
+    return spec is not None and bool(spec.getattribute("bdipole:version")) and \
+        not spec.getattribute(PAINTED_MARK)
 
 
 def expand_inputs(patterns):

@@ -53,6 +53,7 @@ from ..methods.registry import BLUR_METHOD, BORDER, METHOD_OR_AUTO, MFP_KIND, OU
 from ..ops.blur.params import CONSTANT_RULES
 from ..physics.models import MODEL
 from .colour import resolve_colorspace, resolve_working_space
+from .targets import TARGET, parse_targets
 from .scene_values import (as_list, check_material_eta, check_scaled_mfp, floats, mfp_constants,
                            number, numbers_or_number, positive)
 
@@ -101,7 +102,18 @@ KEYS = {
     "material": ({"blur"}, lambda v: isinstance(v, str) and v, "a material's name"),
     "irradiance": ({"blur"}, lambda v: isinstance(v, str) and v, "a texture path or pattern"),
     "texel_size": ({"blur"}, positive, "a finite number > 0 (in the unit of mfp)"),
+    "targets": ({"material"}, lambda v: isinstance(v, list) and _targets_ok(v),
+                f"a list from {TARGET.listing(chr(34))}, one per render context"),
 }
+
+
+def _targets_ok(value) -> bool:
+    try:
+        parse_targets([str(v) for v in value])
+    except ValueError:
+        return False
+    return all(isinstance(v, str) for v in value)
+
 REQUIRED = {"material": ("name", "albedo", "output"),
             "blur": ("name", "material", "irradiance", "texel_size", "output")}
 DEFAULTS = {"eta": 1.4, "unit": "mm", "model": "better", "mfp": 1.0, "half": False,
@@ -136,6 +148,8 @@ class Material:
     mfp_kind: str = "diffuse"        # methods.registry.MFP_KIND
     mfp_scale: tuple = (1.0,)        # multiplies the mfp (one or per channel)
     texture: bool = False            # tiled, mip-mapped EXR outputs
+    targets: tuple = ()               # io.targets.TARGET: the material networks a bake writes
+    #                                   (a stage's or document's materials: DEFAULT_TARGETS)
 
     @property
     def constant(self) -> bool:
@@ -372,7 +386,7 @@ def _material(m, resolve, colour) -> Material:
         resolve(m.get("mask")), m["half"], m["unit"], float(m["tol"]),
         MODEL.canonical(m["model"]),
         m["method"], m["exact"], m["double"], m["on_invalid"], *colour, m["mfp_kind"],
-        floats(m["mfp_scale"]), m["texture"])
+        floats(m["mfp_scale"]), m["texture"], parse_targets(m.get("targets", [])))
 
 
 def _imported(fail, index, entry, imp, defaults, resolve, working_space) -> Material:

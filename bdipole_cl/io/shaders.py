@@ -35,6 +35,7 @@ import numpy as np
 
 from . import tiles
 from .scene_file import UNIT_METERS, ImportedMaterial, SceneError
+from .targets import DEFAULT_TARGETS
 
 
 @dataclass(frozen=True)
@@ -83,7 +84,9 @@ SHADERS = (
 BY_ID = {i: s for s in SHADERS for i in s.ids}
 
 #: USD and MaterialX nodes whose file is a texture a scene can bake from
-TEXTURE_NODES = ("UsdUVTexture", "image", "tiledimage")
+TEXTURE_NODES = ("UsdUVTexture", "image", "tiledimage", "PxrTexture")
+#: each texture node's file input (RenderMan's PxrTexture names it ``filename``)
+FILE_INPUT = {"PxrTexture": "filename"}
 
 SHORT_UNITS = ("m", "cm", "mm", "um", "nm", "km", "in", "ft", "yd", "mi")
 
@@ -145,6 +148,13 @@ def default_input(mapping: ShaderMapping, name: str) -> Input:
     return Input(name, value=mapping.defaults[name], authored=False)
 
 
+def other_texels(node_type: str, layer: str | None) -> str | None:
+    """What a MaterialX image node (USD ``ND_image_*``) reads when that is not its file's R,
+    G, B: one channel (a ``float`` image), or an EXR ``layer`` (never ignored: the bake
+    would read the file's own R, G, B instead); else None."""
+    return f"layer {layer!r}" if layer else one_channel(node_type)
+
+
 def one_channel(node_type: str) -> str | None:
     """What a MaterialX image node of ``node_type`` reads when that is one channel of its
     file (a ``float`` image: the first), else None."""
@@ -198,7 +208,9 @@ def _texel_refusals(inp, is_albedo) -> list:
         return []
     why = []
     if t.channel is not None:
-        why.append(f"{inp.name} reads {t.channel} of {t.node}, one channel: a bake reads a "
+        what = "other texels than its R, G, B" if t.channel.startswith(("layer", "channels")) \
+            else "one channel"
+        why.append(f"{inp.name} reads {t.channel} of {t.node}, {what}: a bake reads a "
                    f"texture's colour channels (UsdUVTexture outputs:rgb, a color3 image)")
     for what, values in (("bias", t.bias), ("scale", t.scale if is_albedo else None)):
         if values is not None:
@@ -287,10 +299,13 @@ def imported_material(name, path, shader_id, read, *, unit_m, out_dir, bound) ->
              "mfp_kind": mapping.mfp_kind, "unit": unit_name(unit_m)}
     if albedo.texture is not None:
         facts["colorspace"] = albedo.texture.colorspace
+    # <UDIM> whatever the albedo's tile token: it is the one USD and MaterialX resolve, so the
+    # records name the files (a <UVTILE> output's record resolved to nothing)
     tile = tiles.token_of(albedo.texture.file) if albedo.texture is not None else None
-    output = f"{out_dir}/{name}.{tile.token}.exr" if tile else f"{out_dir}/{name}.exr"
+    output = f"{out_dir}/{name}.<UDIM>.exr" if tile else f"{out_dir}/{name}.exr"
     return ImportedMaterial(name, path, mapping.name, mapping.mfp_kind, facts,
-                            {"output": output}, described, unit_m, None,
+                            {"output": output, "targets": list(DEFAULT_TARGETS)}, described,
+                            unit_m, None,
                             _notes(mapping, inputs), bound=bound)
 
 

@@ -5,7 +5,8 @@ A material's surface is looked for in the ``mtlx``, ``ri`` and universal render 
 that order; the first shader with a subsurface mapping is used. An input's value comes from
 ``UsdShadeInput.GetValueProducingAttributes`` (so through node graphs and interface inputs):
 an authored value, or the output of a texture node (``UsdUVTexture``, MaterialX ``image`` /
-``tiledimage``) whose ``inputs:file`` is the texture (``<UDIM>`` kept; one packaged in a
+``tiledimage``, RenderMan's ``PxrTexture``) whose ``inputs:file`` (PxrTexture:
+``inputs:filename``) is the texture (``<UDIM>`` kept; one packaged in a
 ``.usdz`` read from its copy in the cache, ``usdz``; a UsdUVTexture's
 output channel and ``inputs:scale`` / ``inputs:bias`` kept: ``shaders`` applies or refuses
 them; the file, ``sourceColorSpace``, ``scale`` and ``bias`` may come through interface
@@ -33,8 +34,8 @@ from pxr import Sdf, Usd, UsdGeom, UsdShade
 from ..errors import one_line
 from . import usdz
 from .scene_file import SceneError
-from .shaders import (BY_ID, TEXTURE_NODES, Input, Texture, imported_material, one_channel,
-                      unique_names)
+from .shaders import (BY_ID, FILE_INPUT, TEXTURE_NODES, Input, Texture, imported_material,
+                      other_texels, unique_names)
 
 #: render contexts searched for a material's surface, in order
 CONTEXTS = ("mtlx", "ri", "")
@@ -160,7 +161,7 @@ def _texture(shader, node_kind: str, output: str = "rgb",
              time=Usd.TimeCode.EarliestTime()) -> Texture | str:
     """The texture a texture node reads (through its ``output``) at ``time``, or why it
     cannot be baked. Its file and settings may come through interface inputs."""
-    attr = _value_attr(shader, "file")
+    attr = _value_attr(shader, FILE_INPUT.get(node_kind, "file"))
     if attr is None or attr.Get(time) is None:
         return f"{node_kind} {shader.GetPath()} has no file"
     path = _asset_file(attr, time)
@@ -170,16 +171,36 @@ def _texture(shader, node_kind: str, output: str = "rgb",
         except (OSError, ValueError, zipfile.BadZipFile) as exc:
             return f"{node_kind} {shader.GetPath()}: {one_line(exc)}"
     space = _declared_space(attr)
+    if node_kind == "PxrTexture":
+        return _pxr_texture(shader, path, space, output, time)
     if not space:
         source = _value_attr(shader, "sourceColorSpace")
         token = str(source.Get(time)) if source and source.Get(time) else "auto"
         space = {"raw": "raw", "sRGB": "sRGB"}.get(token, "auto")
     if node_kind != "UsdUVTexture":                  # ND_image_<type>
-        return Texture(path, space, str(shader.GetPath()),
-                       channel=one_channel((shader.GetShaderId() or "").split("_")[2]))
+        layer = _value_attr(shader, "layer")
+        return Texture(path, space, str(shader.GetPath()), channel=other_texels(
+            (shader.GetShaderId() or "").split("_")[2], layer.Get(time) if layer else None))
     scale, bias = _scale_bias(shader, time)
     return Texture(path, space, str(shader.GetPath()), scale, bias,
                    None if output == "rgb" else f"outputs:{output}")
+
+
+def _pxr_texture(shader, path, space, output, time) -> Texture:
+    """RenderMan's PxrTexture: its colour space as declared, else sRGB where it
+    ``linearize``s; read through ``resultRGB`` from its ``firstChannel`` (another output, or
+    channels from another index, are kept for ``shaders`` to refuse)."""
+    def number(key):
+        attr = _value_attr(shader, key)
+        value = attr.Get(time) if attr else None
+        return int(value) if value is not None else 0
+
+    if not space:
+        space = "sRGB" if number("linearize") else "auto"
+    first = number("firstChannel")
+    channel = (f"outputs:{output}" if output != "resultRGB" else
+               f"channels from firstChannel {first}" if first else None)
+    return Texture(path, space, str(shader.GetPath()), channel=channel)
 
 
 def read_input(shader, name: str, time=Usd.TimeCode.EarliestTime()) -> Input | None:
@@ -203,7 +224,7 @@ def read_input(shader, name: str, time=Usd.TimeCode.EarliestTime()) -> Input | N
         texture = _texture(source, kind, attr.GetBaseName(), time)
         if isinstance(texture, str):
             return Input(name, refused=f"{name}: {texture}")
-        file_attr = _value_attr(source, "file")
+        file_attr = _value_attr(source, FILE_INPUT.get(kind, "file"))
         return Input(name, texture=texture, animated=_animated(file_attr, time))
     return Input(name, refused=f"{name} comes from {shader_id or 'a node'} "
                                f"({source.GetPath()}), a procedural network")

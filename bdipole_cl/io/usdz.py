@@ -66,7 +66,20 @@ def extracted(path: str) -> str:
                                  f"folder (..): not read")
             if not os.path.isfile(target):
                 extract(archive, name, target)
-    return os.path.join(root, member)
+    copy = os.path.join(root, member)
+    ORIGINS[copy] = str(path)
+    return copy
+
+
+#: {a copy's path (or pattern): the packaged path it was extracted from}, of this process:
+#: what a bake writes names the package's member (``origin``), never the user's cache
+ORIGINS = {}
+
+
+def origin(path: str) -> str | None:
+    """The packaged path (``package.usdz[member]``) a cache copy was extracted from, else
+    None."""
+    return ORIGINS.get(str(path))
 
 
 def package_folder(package: str) -> str:

@@ -29,7 +29,7 @@ from __future__ import annotations
 
 import json
 import os
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 
 import numpy as np
 
@@ -44,6 +44,7 @@ from ..io.scene_file import SceneData, SceneError, load_imported
 from ..io.scene_file import load as load_scene_file
 from ..io.scene_import import import_materials, is_imported
 from ..io.scene_values import number
+from ..io.targets import parse_targets
 from ..io.tiles import TileError, is_pattern
 from ..methods.choice import DeviceKey, device_auto_note, resolve_method
 from ..methods.registry import OUTPUTS, MethodConfig
@@ -136,8 +137,13 @@ class Plan:
 
 # {{{ the plan
 
+#: material keys that are not a job's parameters: the networks a bake writes for its targets
+#: change no texel (a new target rewrites the records, never an image)
+NOT_PARAMETERS = ("name", "albedo", "output", "targets")
+
+
 def _material_fields(m) -> dict:
-    return {k: v for k, v in asdict(m).items() if k not in ("name", "albedo", "output")}
+    return {k: v for k, v in asdict(m).items() if k not in NOT_PARAMETERS}
 
 
 def _exists(role, path, problems):
@@ -270,6 +276,7 @@ def _plan_blur(b, path, tile, force, problems_all):
     _exists("albedo", inputs["albedo"], problems)
     _textures(inputs, m, b.mask, path, tile, problems)
     fields = {k: v for k, v in asdict(b).items() if k not in ("name", "irradiance", "output")}
+    fields["material"].pop("targets", None)
     job, todo = _new_job("blur", b.name, path, udim, out, inputs, fields, b.working_space,
                          problems, force, problems_all)
     working = job.working
@@ -418,15 +425,20 @@ def bake(plan: Plan, *, cancel=None, device=None, progress=None,
     return finish_bake(plan, results)
 
 
-def load(path, working_space=None) -> Scene:
+def load(path, working_space=None, targets=None) -> Scene:
     """Read and check a scene file, USD stage or MaterialX document (``SceneError``: one
     line with the file, line and key); ``working_space``: that of the entries that give none
-    (None: the default)."""
+    (None: the default); ``targets``: the render targets of every material (``io.targets``;
+    None: each material's own, else the default)."""
     if is_imported(path):
         data = load_imported(path, import_materials, working_space)
     else:
         data = load_scene_file(path, import_materials, working_space)
-    return Scene(data.path, data.materials, data.blurs, data.source, data.imports)
+    materials = data.materials
+    if targets is not None:
+        chosen = parse_targets(targets)
+        materials = tuple(replace(m, targets=chosen) for m in materials)
+    return Scene(data.path, materials, data.blurs, data.source, data.imports)
 
 
 __all__ = ["Plan", "PlannedJob", "Scene", "SceneError", "bake", "load", "plan"]

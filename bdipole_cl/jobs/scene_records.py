@@ -18,20 +18,24 @@ import numpy as np
 
 from ..durable import durable_replace
 from ..io.images import is_regular_file
+from ..io.networks import networks
+from ..io.scene_file import UNIT_METERS
 from ..io.scene_import import source_files
 from ..io.shaders import SHADERS
 from ..methods.choice import resolve_method
 from ..methods.registry import MethodConfig
 from ..ops.invert import albedo_to_coefficients
 from .results import BatchReport, FileResult
+from .scene_maps import maps_entry, remove_stale_maps, target_maps
+from .scene_layer import (LAYER_MARK, baked_material, mtlx_text, output_channels,
+                          target_lines, usd_layer_text)
 
 #: where each shader's distance convention is defined
 SOURCES = {s.name: s.source for s in SHADERS}
 
 MANIFEST = "bdipole_materials.json"
 LAYER = "bdipole.usda"
-#: the first words of the records layer's comment: the mark of this tool's own layer
-LAYER_MARK = "bdipole-cl bake of "
+DOCUMENT = "bdipole.mtlx"
 #: what a scene's mfp_kind means, for the plan
 MFP_MEANING = {"diffuse": "mfp = ld = 1/mu_tr", "extinction": "sigma_t' = 1/mfp"}
 
@@ -39,7 +43,7 @@ MFP_MEANING = {"diffuse": "mfp = ld = 1/mu_tr", "extinction": "sigma_t' = 1/mfp"
 def records_dir(scene) -> str | None:
     """The folder of the records: beside the first material's outputs (None: a scene with
     neither imported nor constant materials writes none)."""
-    if scene.source is None and not any(m.constant for m in scene.materials):
+    if scene.source is None and not any(m.constant or m.targets for m in scene.materials):
         return None
     if scene.materials:
         return os.path.dirname(scene.materials[0].output)
@@ -111,7 +115,14 @@ def read_manifest(folder) -> dict:
 def record_paths(scene, folder) -> list:
     """The records' paths in ``folder``: the manifest, and for a stage or document the layer."""
     return [os.path.join(folder, MANIFEST)] + (
-        [os.path.join(folder, LAYER)] if scene.source is not None else [])
+        [os.path.join(folder, LAYER), os.path.join(folder, DOCUMENT)]
+        if writes_materials(scene) else [])
+
+
+def writes_materials(scene) -> bool:
+    """Whether a bake writes the USD layer and MaterialX document: a stage's or document's
+    (its records), or a scene file's with targets."""
+    return scene.source is not None or any(m.targets for m in scene.materials)
 
 
 def records_refusal(scene, folder, inputs, force=False) -> str | None:
@@ -129,8 +140,8 @@ def records_refusal(scene, folder, inputs, force=False) -> str | None:
         if not is_regular_file(path):
             return (f"{path} is not a regular file (a directory, FIFO or link to none); the "
                     f"bake's records go there: move it")
-        ours = manifest_record(folder) is not None if path.endswith(MANIFEST) else \
-            bool(own_layers(folder))
+        ours = (manifest_record(folder) is not None if path.endswith(MANIFEST) else
+                own_document(path) if path.endswith(DOCUMENT) else bool(own_layers(folder)))
         if not ours and not force:
             return (f"{path} exists and was not written by bdipole-cl (or was changed since); "
                     f"the bake's records go there: move it, or pass --force to replace it")
@@ -171,7 +182,7 @@ def _relative(path, folder):
     return "./" + os.path.relpath(path, folder).replace(os.sep, "/")
 
 
-def manifest(scene, jobs, coefficients, folder, results=None) -> dict:
+def manifest(scene, jobs, coefficients, folder, results=None, maps=None) -> dict:
     """The manifest's content: every material of the scene (imported ones first, left-out
     ones with their reason); a material is baked when every one of its jobs wrote its
     output or found it up to date (``results``, in the order of ``jobs``; None: all did)."""
@@ -188,11 +199,14 @@ def manifest(scene, jobs, coefficients, folder, results=None) -> dict:
         if imp.notes:
             entry["notes"] = list(imp.notes)
         if imp.name in by_name:
-            entry.update(_baked(by_name[imp.name], jobs, results, coefficients, folder))
+            entry.update(_baked(by_name[imp.name], jobs, results, coefficients, folder,
+                                imp.unit_m, (maps or {}).get(imp.name)))
         entries.append(entry)
     for m in scene.materials:
         if m.name not in seen:
-            entries.append({"name": m.name} | _baked(m, jobs, results, coefficients, folder))
+            entries.append({"name": m.name} | _baked(m, jobs, results, coefficients, folder,
+                                                     UNIT_METERS[m.unit],
+                                                     (maps or {}).get(m.name)))
     return {"source": scene.source, "scene": str(scene.path),
             "scene_relative": os.path.relpath(str(scene.path), folder), "materials": entries}
 
@@ -213,7 +227,7 @@ def _outcome(m, jobs, results) -> tuple:
     return files, failed
 
 
-def _baked(m, jobs, results, coefficients, folder) -> dict:
+def _baked(m, jobs, results, coefficients, folder, stage_unit_m, maps=None) -> dict:
     written, failed = _outcome(m, jobs, results)
     if m.constant and not coefficients.get(m.name) and not failed:
         failed.append("no coefficients computed")
@@ -231,63 +245,15 @@ def _baked(m, jobs, results, coefficients, folder) -> dict:
     else:
         entry["output"] = _relative(m.output, folder)
         entry["files"] = files
+        entry["channels"], entry["first_channel"] = output_channels(written, m.outputs)
+    entry["stage_unit_m"] = stage_unit_m
+    if maps:
+        entry["maps"] = maps_entry(maps, folder)
+    if not failed:
+        written_networks, why = networks(baked_material(m, entry, stage_unit_m), folder)
+        entry["targets"] = {n.target.name: "written" for n in written_networks} | {
+            t: f"not written: {w}" for t, w in why.items()}
     return entry
-
-
-#: where the records of a material inside an instance go: USD ignores an ``over`` on a prim
-#: of an instance's prototype (an instance proxy), so they are a prim of their own there, named
-#: as the material, whose ``bdipole:material`` relationship targets the material's path
-INSTANCED_RECORDS = "/bdipole_instanced"
-
-
-def record_prim(layer, imp):
-    """The records layer's prim spec for an imported material: an ``over`` on its prim (its
-    parents ``over`` too), or for one inside an instance (``imp.instanced``) a prim under
-    INSTANCED_RECORDS targeting it."""
-    from pxr import Sdf
-    if imp.instanced:
-        spec = Sdf.CreatePrimInLayer(layer, Sdf.Path(f"{INSTANCED_RECORDS}/{imp.name}"))
-        spec.specifier = Sdf.SpecifierDef
-        spec.nameParent.specifier = Sdf.SpecifierDef
-        rel = Sdf.RelationshipSpec(spec, "bdipole:material", custom=True)
-        rel.targetPathList.explicitItems = [Sdf.Path(imp.path)]
-        return spec
-    spec = Sdf.CreatePrimInLayer(layer, Sdf.Path(imp.path))
-    spec.specifier = Sdf.SpecifierOver
-    parent = spec.nameParent
-    while parent and parent.path != Sdf.Path.absoluteRootPath:
-        parent.specifier = Sdf.SpecifierOver
-        parent = parent.nameParent
-    return spec
-
-
-def usd_layer_text(scene, records: dict, folder) -> str:
-    """bdipole.usda: an ``over`` on each baked imported material prim."""
-    from pxr import Sdf, Vt
-    layer = Sdf.Layer.CreateAnonymous(".usda")
-    layer.comment = (f"{LAYER_MARK}{os.path.basename(str(scene.source))}: sublayer it "
-                     f"to find each material's coefficients (bdipole: attributes)")
-    by_name = {e["name"]: e for e in records["materials"]}
-    for imp in scene.imports:
-        entry = by_name.get(imp.name)
-        if not entry or not entry.get("baked"):
-            continue
-        spec = record_prim(layer, imp)
-
-        def attr(name, type_name, value):
-            a = Sdf.AttributeSpec(spec, f"bdipole:{name}", type_name)
-            a.default = value
-
-        attr("mfp_kind", Sdf.ValueTypeNames.Token, entry["mfp_kind"])
-        attr("unit", Sdf.ValueTypeNames.String, entry["coefficient_unit"])
-        attr("eta", Sdf.ValueTypeNames.FloatArray, Vt.FloatArray(entry["eta"]))
-        for output in entry["outputs"]:
-            if "coefficients" in entry:
-                values = (entry["coefficients"] or {}).get(output, [])
-                attr(output, Sdf.ValueTypeNames.FloatArray, Vt.FloatArray(values))
-            else:
-                attr(output, Sdf.ValueTypeNames.Asset, Sdf.AssetPath(entry["output"]))
-    return layer.ExportToString()
 
 
 def default_mode() -> int:
@@ -354,6 +320,16 @@ def records_over_input(scene, folder, inputs) -> str | None:
     return None
 
 
+def own_document(path) -> bool:
+    """Whether the MaterialX document at ``path`` is this tool's (its first comment carries
+    LAYER_MARK)."""
+    try:
+        with open(path, errors="replace") as f:
+            return f"<!--{LAYER_MARK}" in f.read(400).replace("<!-- ", "<!--")
+    except OSError:
+        return False
+
+
 def own_layers(folder) -> set:
     """{the records layer's real path} where the file there is this tool's (its comment
     carries LAYER_MARK: docs/scenes.md's way to use it is to sublayer it over the stage, which
@@ -386,13 +362,22 @@ def write_records(plan, results) -> list:
             coefficients[job.name] = result.values
         elif job.up_to_date and old.get(job.name, {}).get("coefficients"):
             coefficients[job.name] = old[job.name]["coefficients"]
-    records = manifest(scene, plan.jobs, coefficients, folder, results)
+    maps = target_maps(scene, plan.jobs, results, coefficients, _outcome)
+    records = manifest(scene, plan.jobs, coefficients, folder, results, maps)
     texts = {os.path.join(folder, MANIFEST): json.dumps(records, indent=1, sort_keys=True)
              + "\n"}
-    if scene.source is not None:
+    if writes_materials(scene):
         texts[os.path.join(folder, LAYER)] = usd_layer_text(scene, records, folder)
+        texts[os.path.join(folder, DOCUMENT)] = mtlx_text(scene, records, folder)
     inputs = plan.record_inputs              # taken by the plan (the stage opened once)
     written = [(path, REMOVED) for path in remove_stale_outputs(old, plan.jobs, folder, inputs)]
+    written += [(path, REMOVED) for path in remove_stale_maps(
+        [f for e in old.values() for m in (e.get("maps") or {}).values()
+         if isinstance(m, dict) for f in m.get("files") or []],
+        [f for ms in maps.values() for m in ms.values() for f in m.files], folder, inputs)]
+    written += [(line, DROPPED) for line in dropped_records(old, records)]
+    written += [(path, MAPPED) for ms in maps.values() for mp in ms.values()
+                for path in mp.written]
     for path, text in texts.items():
         if os.path.realpath(path) in inputs:
             written.append((path, f"{path}: the bake's record would overwrite an input; "
@@ -423,7 +408,9 @@ def imported_lines(scene) -> list:
                      f"{', '.join(f'{e:g}' for e in m.eta)}, coefficients in 1/{m.unit}")
         lines += [f"  input {d}" for d in imp.inputs.values()]
         lines += [f"  note: {n}" for n in imp.notes]
+        lines += target_lines(m, imp.unit_m, records_dir(scene))
     return lines
+
 
 
 
@@ -446,6 +433,28 @@ def run_constant(job, runtime, *, cancel=None, lock=None, progress=None):
 
 #: write_records' mark of an earlier bake's output it removed (``remove_stale_outputs``)
 REMOVED = "removed"
+#: write_records' mark of a material whose records the new ones no longer hold
+DROPPED = "records removed"
+#: write_records' mark of a map of colour and radius in a target's convention it wrote
+MAPPED = "maps"
+
+
+def dropped_records(old: dict, records: dict) -> list:
+    """One line per material the last bake recorded as baked (``old``: its manifest) that
+    these ``records`` do not: its inputs vanished, it failed, or it left the scene; its
+    ``over`` (and so its records and material networks) is gone from the layer, which a
+    pipeline reading the layer would otherwise not know."""
+    now = {e["name"]: e for e in records["materials"]}
+    lines = []
+    for name, entry in sorted(old.items()):
+        new = now.get(name)
+        if not entry.get("baked") or (new is not None and new.get("baked")):
+            continue
+        why = ("no longer in the scene" if new is None else
+               new.get("not_baked") or new.get("left_out") or "not baked")
+        lines.append(f"material {name} ({entry.get('prim') or 'scene file'}): its records "
+                     f"are removed: {why}")
+    return lines
 
 
 def remove_stale_outputs(old, jobs, folder, inputs) -> list:
@@ -478,5 +487,7 @@ def finish_bake(plan, results: list) -> BatchReport:
     records = [FileResult(p, p, status="ok", notes=["records"]) if why is None else
                FileResult(p, f"removed {p}: an earlier bake's output that no input makes now",
                           status="ok", notes=["removed"]) if why == REMOVED else
+               FileResult("records", p, status="ok", notes=[DROPPED]) if why == DROPPED else
+               FileResult(p, p, status="ok", notes=[MAPPED]) if why == MAPPED else
                FileResult(p, p, error=why) for p, why in write_records(plan, results)]
     return BatchReport(results + records)

@@ -1,0 +1,111 @@
+"""A bake's material networks as a MaterialX document, ``bdipole.mtlx`` beside its USD layer
+(I/O; needs ``MaterialX``): the same networks as ``usd_networks`` writes, for the targets
+MaterialX's standard libraries define (``Target.mtlx``: UsdPreviewSurface, OpenPBR,
+Standard Surface; RenderMan's PxrSurface has no standard nodedef and stays in USD only).
+
+Per material: a ``surfacematerial`` named as the material (its shader: the first of its
+MaterialX targets that is not ``preview``, else the preview; each other target a
+``surfacematerial`` ``{material}_{target}``), ``image`` nodes that name the file with
+``<UDIM>``, the EXR ``layer`` and the colour space (``colorspace`` on a colour file; data is
+read through ``vector3`` / ``float`` images, which MaterialX never colour-converts), and a
+node graph ``{material}_coefficients`` with one output per baked coefficient.
+"""
+from __future__ import annotations
+
+import MaterialX as mx
+
+from .mtlx_scene import valid_identifier
+from .networks import MTLX_SPACES, Network, TextureRead, space_name
+
+#: MaterialX's nodes of each target's shader
+CATEGORY = {"preview": "UsdPreviewSurface", "openpbr": "open_pbr_surface",
+            "standard-surface": "standard_surface"}
+
+_LIBRARY = []
+
+
+def library():
+    """MaterialX's standard data libraries (loaded once)."""
+    if not _LIBRARY:
+        lib = mx.createDocument()
+        mx.loadLibraries(mx.getDefaultDataLibraryFolders(), mx.getDefaultDataSearchPath(), lib)
+        _LIBRARY.append(lib)
+    return _LIBRARY[0]
+
+
+def input_type(category: str, name: str) -> str:
+    """The type the node's nodedef gives its input ``name``."""
+    nodedef = library().getNodeDef(f"ND_{category}_surfaceshader")
+    return nodedef.getActiveInput(name).getType()
+
+
+def _image(parent, name: str, read: TextureRead, type_name: str):
+    """An ``image`` node reading ``read``: colour files of a colour input as ``color3`` with
+    their ``colorspace``; data as ``vector3`` (or ``float``): never colour-converted."""
+    if read.is_data and type_name == "color3":
+        type_name = "vector3"
+    node = parent.addNode("image", name, type_name)
+    file = node.addInput("file", "filename")
+    file.setValueString(read.file)
+    if type_name.startswith("color") and read.colorspace not in ("auto", "raw"):
+        file.setColorSpace(space_name(read.colorspace, MTLX_SPACES))
+    if read.layer:
+        node.setInputValue("layer", read.layer, "string")
+    return node
+
+
+def _connect(inp, node, want: str):
+    """Connect ``inp`` to ``node``, through a ``convert`` where a data image (vector3) feeds a
+    colour input."""
+    if node.getType() != want:
+        conv = node.getParent().addNode("convert", f"{node.getName()}_{want}", want)
+        conv.addInput("in", node.getType()).setConnectedNode(node)
+        node = conv
+    inp.setConnectedNode(node)
+
+
+def add_network(doc, name: str, network: Network, material_name: str):
+    """The target's shader node for one material and its surfacematerial."""
+    category = CATEGORY[network.target.name]
+    shader = doc.addNode(category, f"{name}_{network.target.name.replace('-', '_')}",
+                         "surfaceshader")
+    for key, value in network.inputs.items():
+        type_name = input_type(category, key)
+        inp = shader.addInput(key, type_name)
+        if isinstance(value, TextureRead):
+            _connect(inp, _image(doc, f"{shader.getName()}_{value.role}", value, type_name),
+                     type_name)
+        elif type_name == "color3":
+            inp.setValue(mx.Color3(*value))
+        elif type_name == "integer":
+            inp.setValue(int(value[0]))
+        else:
+            inp.setValue(float(value[0]))
+    doc.addMaterialNode(material_name, shader)
+
+
+def add_coefficients(doc, name: str, reads):
+    """``{name}_coefficients``: one output per baked coefficient, each an image of its layer."""
+    if not reads:
+        return
+    graph = doc.addNodeGraph(f"{name}_coefficients")
+    for read in reads:
+        type_name = "vector3" if read.channels >= 3 else "float"
+        node = _image(graph, f"{read.role}_image", read, type_name)
+        graph.addOutput(read.role, type_name).setConnectedNode(node)
+
+
+def document_text(materials, comment: str) -> str:
+    """The document of ``materials`` ([(name, [Network], [coefficient TextureRead])]): each
+    MaterialX target's material and the coefficients graph; ``comment`` its first line."""
+    doc = mx.createDocument()
+    doc.addChildOfCategory("comment").setDocString(comment)
+    for name, networks, reads in materials:
+        ident = valid_identifier(name)
+        mtlx = [n for n in networks if n.target.mtlx]
+        main = next((n for n in mtlx if n.target.name != "preview"), mtlx[0] if mtlx else None)
+        for network in mtlx:
+            add_network(doc, ident, network, ident if network is main else
+                        f"{ident}_{network.target.name.replace('-', '_')}")
+        add_coefficients(doc, ident, reads)
+    return mx.writeToXmlString(doc)

@@ -1,0 +1,218 @@
+"""Texture sets from one renderer's subsurface convention to another's (``bdipole-cl
+convert``; docs/conventions.md "Conversion"): a colour texture (+ a radius texture or
+constants) in, one EXR out with the target's ``colour.*`` and ``radius.*`` channels.
+
+The machinery is the inversion batch's (``batch``, ``invert_file``): the same inputs (globs,
+UDIM and UV-tile patterns, ``{stem}`` companions), colour management, bands of rows, collision
+checks and verified atomic writes; only the per-band computation differs
+(``physics.conversion.convert``, per colour channel).
+"""
+from __future__ import annotations
+
+import os
+import time
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field, fields, replace
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InvalidInputError, check_policy
+from ..io import tiles
+from ..io.collisions import collisions
+from ..io.colour import WorkingSpace, check_colorspace, resolve_working_space
+from ..io.freshness import params_digest
+from ..io.images import (Cancelled, TextureError, Writer, check_output_format,
+                         classify_channels, invalid_texels, output_spec)
+from ..io.mipmaps import TextureOptions, texture_options
+from ..io.patterns import companion_path, expand_inputs, unmatched_pattern
+from ..ops.bands import band_rows
+from ..physics.conventions import CONVENTION
+from ..physics.conversion import convert
+from ..version import __version__
+from .batch import job_claims, parse_constant
+from .invert_file import non_negative_albedo, open_inputs, per_channel
+from .pipeline import stream_bands
+from .results import BatchReport, FileResult
+
+DEFAULT_OUTPUT = "{dir}/{stem}.{target}.exr"
+
+
+@dataclass(frozen=True)
+class ConvertJob:
+    """One file's conversion: its colour texture (``source``), output, every input by role
+    ("albedo", "mfp": the radius texture) and the batch's work."""
+
+    source: str
+    output: str
+    inputs: dict
+    work: "ConvertWork"
+    udim: str | None = None
+
+
+@dataclass(frozen=True)
+class ConvertWork:
+    """What a conversion job computes, the same for every file of a batch. ``mfp`` and
+    ``mfp_scale`` are the radius (named as the inversion's readers name them), ``mask``
+    and ``alpha_channel`` as there."""
+
+    source: str
+    target: str
+    eta: tuple
+    g: float
+    mfp: tuple | None             # radius constants per channel, or None: the job's texture
+    mfp_scale: float
+    half: bool
+    colorspace: str
+    on_invalid: str
+    max_memory: int
+    unit: str
+    alpha_channel: str = "keep"
+    mask: str | None = None
+    working: WorkingSpace | None = None
+    texture: TextureOptions | None = None
+    header: dict = field(default_factory=dict)
+
+
+def convert_textures(inputs, *, radius=1.0, source="better-dipole", target="van-de-hulst",
+                     eta=1.4, g=0.0, output=DEFAULT_OUTPUT, half=False, colorspace="auto",
+                     working_space=None, alpha="keep", on_invalid="raise",
+                     max_memory=256 << 20, jobs=1, unit="mm", radius_scale=1.0,
+                     texture=False, force=False, cancel=None) -> BatchReport:
+    """Convert colour textures (+ radius) from ``source``'s convention to ``target``'s.
+
+    ``inputs``: colour files, globs or tile patterns; ``radius``: constants (one or per
+    channel, or ``"1,0.5,0.25"``) or a texture path/pattern (``{stem}``, ``<UDIM>``), times
+    ``radius_scale``; ``output``: a path pattern (``{dir}``, ``{stem}``, ``{target}``, a tile
+    token). The rest as ``batch.process_textures``. A failing file is reported and the batch
+    goes on."""
+    check_output_format(output.replace("{target}", "x"))
+    working = resolve_working_space(working_space)
+    check_colorspace(colorspace, working.config)
+    if isinstance(inputs, (str, os.PathLike)):
+        inputs = [inputs]
+    src, tgt = CONVENTION[source], CONVENTION[target]
+    constant = parse_constant(radius, "radius")
+    work = ConvertWork(src.name, tgt.name,
+                       tuple(np.atleast_1d(np.asarray(eta, np.float64)).tolist()), float(g),
+                       constant, float(radius_scale), bool(half), colorspace,
+                       check_policy(on_invalid), int(max_memory), unit, alpha,
+                       working=working, texture=texture_options(texture))
+    digest = params_digest({f.name: getattr(work, f.name) for f in fields(work)
+                            if f.name not in ("max_memory", "header")})
+    work = replace(work, header={"params_digest": digest})
+    convert(0.5, 1.0, src.name, tgt.name, work.eta[0], work.g)   # fail fast on bad settings
+    jobs_list, results = [], []
+    for path, tile in expand_inputs(inputs):
+        if tiles.is_pattern(path) and not os.path.exists(path):
+            results.append(FileResult(path, error=unmatched_pattern(path)))
+            continue
+        try:
+            out = companion_path(output.replace("{target}", tgt.name), path, tile)
+            radius_path = None if constant is not None else companion_path(radius, path, tile)
+        except (TextureError, tiles.TileError) as exc:
+            results.append(FileResult(path, error=str(exc)))
+            continue
+        inputs_by_role = {"albedo": path} | ({"mfp": radius_path} if radius_path else {})
+        jobs_list.append(ConvertJob(path, out, inputs_by_role, work,
+                                    tile.label if tile else None))
+    clashes = collisions(job_claims(jobs_list), force)
+    results += [FileResult(j.source, j.output, error=c) for j, c in zip(jobs_list, clashes) if c]
+    todo = [j for j, c in zip(jobs_list, clashes) if not c]
+    with ThreadPoolExecutor(max(1, int(jobs))) as pool:
+        results += list(pool.map(lambda j: run_convert(j, cancel=cancel), todo))
+    return BatchReport(results)
+
+
+def convert_band(work, inp, route, colour_in, radius, mask, etas, job, y0):
+    """One band's target colour and radius (HxWxC each) and invalid counts, per channel."""
+    colour, negative = non_negative_albedo(route.convert(colour_in, inp.names),
+                                           work.on_invalid, mask, one_valid=True)
+    radius = np.broadcast_to(radius, colour.shape)
+    out_c, out_r = np.empty(colour.shape, np.float32), np.empty(colour.shape, np.float32)
+    invalid = {"colour": negative, "radius": 0}
+    for c, eta in enumerate(etas):
+        try:
+            done = convert(colour[..., c], radius[..., c], work.source, work.target, eta,
+                           work.g, on_invalid=work.on_invalid, texels=True)
+        except InvalidInputError as exc:
+            yy, xx = exc.first_index[:2]
+            where = job.inputs.get("mfp", job.source) if exc.name == "radius" else job.source
+            spec = inp.albedo.spec
+            raise invalid_texels(exc.with_(first_index=(yy, xx, c)), where, spec.x + xx,
+                                 spec.y + y0 + yy, inp.names[c],
+                                 f" in rows {y0}..") from None
+        out_c[..., c], out_r[..., c] = done.colour, done.radius
+        for key, n in done.invalid.items():
+            invalid[key] += n
+    return out_c, out_r, invalid
+
+
+def run_convert(job, *, cancel=None) -> FileResult:
+    """Run one conversion job: its FileResult (the output verified and renamed into place,
+    or nothing written)."""
+    work = job.work
+    result = FileResult(job.source, job.output)
+    t0 = time.perf_counter()
+    readers, writer = [], None
+    try:
+        inp = open_inputs(job, work, readers)
+        spec = inp.albedo.spec
+        _, _, other = classify_channels(spec.channelnames, spec.alpha_channel)
+        if other:
+            result.notes.append("not colour, left out: "
+                                + ", ".join(spec.channelnames[c] for c in other))
+        etas = per_channel(work.eta, len(inp.names), "eta", job.source)
+        route = inp.albedo.colour(work.colorspace, work.working)
+        result.colour = route.describe()
+        names = [f"{g}.{n}" for g in ("colour", "radius") for n in inp.names]
+        if inp.keep_alpha:
+            names.append(spec.channelnames[inp.alpha])
+        header = {"version": __version__, "source": work.source, "target": work.target,
+                  "eta": ",".join(f"{e:g}" for e in etas), "g": f"{work.g:g}",
+                  "unit": work.unit, "albedo": job.source,
+                  "radius": job.inputs.get("mfp") or ",".join(f"{m:g}" for m in inp.mfp_const),
+                  **route.header("albedo"), **work.header}
+        out_spec = output_spec(spec, names, len(names) - 1 if inp.keep_alpha else -1,
+                               work.half, header, working=route.working)
+        Path(job.output).parent.mkdir(parents=True, exist_ok=True)
+        writer = Writer(job.output, out_spec, work.on_invalid, texture=work.texture,
+                        cancel=cancel)
+        per_texel = 8 * 6 * (spec.nchannels + 4 * len(inp.names))
+        rows = band_rows(spec.height, spec.width * per_texel, work.max_memory,
+                         tile_height=spec.tile_height if spec.tile_width else 0)
+
+        def compute(band, data):
+            (y0, _), (a, m, mask) = band, data
+            radius = (inp.mfp_const if m is None
+                      else m[..., inp.mfp_channels] * np.float32(work.mfp_scale))
+            out_c, out_r, invalid = convert_band(work, inp, route, a[..., inp.colour],
+                                                 radius, mask, etas, job, y0)
+            for key, n in invalid.items():
+                result.invalid[key] = result.invalid.get(key, 0) + n
+            parts = [out_c, out_r] + ([a[..., inp.alpha:inp.alpha + 1]] if inp.keep_alpha
+                                      else [])
+            if cancel is not None and cancel.is_set():
+                raise Cancelled(f"{job.source}: interrupted; nothing written")
+            return np.concatenate(parts, axis=-1)
+
+        stream_bands([(y, min(y + rows, spec.height)) for y in range(0, spec.height, rows)],
+                     lambda band: inp.read(band, work), compute,
+                     lambda band, block: writer.write_band(*band, block))
+        writer.commit()
+        writer = None
+        result.status = "ok"
+        result.texels = spec.width * spec.height
+    except Cancelled as exc:
+        result.status, result.error = "cancelled", str(exc)
+    except TextureError as exc:
+        result.error = str(exc)
+    except (OSError, ValueError) as exc:
+        result.error = f"{job.source}: {exc}"
+    finally:
+        if writer is not None:
+            writer.abort()
+        for r in readers:
+            r.close()
+        result.seconds = time.perf_counter() - t0
+    return result

@@ -1,0 +1,347 @@
+"""What a random walk renders: the diffuse reflectance of a semi-infinite medium under a smooth
+dielectric boundary, by a deterministic transport solver (docs/transport.md).
+
+A float64 reference, vectorised over alpha, written for accuracy first:
+
+* the azimuthally averaged Henyey-Greenstein phase function on a composite Gauss quadrature
+  (split at the critical cosine, where the Fresnel reflectance has its kink; the last interval
+  is Gauss-Radau, so mu = 1 is a node and normal incidence is a column of the matrices);
+* a thin layer from the diamond (trapezoidal) scheme, doubled to an optical depth where its
+  transmission is below 1e-18 (the semi-infinite medium, to rounding);
+* the Fresnel interface added in the quadrature: refraction into the medium (n^2 law), total
+  internal reflection, the light escaping through the Fresnel transmission.
+
+The reflectance excludes the surface's own (specular) reflection, set apart as
+``specular_reflectance``. ``walk_reflectance`` evaluates a Chebyshev interpolant in
+``q = sqrt(1 - alpha)`` (``Rd`` is analytic in q on [0, 1]) built once per (g, eta, incidence)
+from ``solve_reflectance``, the direct solver; ``walk_alpha`` inverts it
+(``transport_tables``); ``walk_spread`` reads the Monte Carlo table of radii
+(``transport_tables``).
+
+Notation: ``alpha`` single-scattering albedo sigma_s/sigma_t [1]; ``rho = 1 - alpha``;
+``q = sqrt(rho)``; ``g`` Henyey-Greenstein mean cosine [1]; ``eta`` relative index of
+refraction, medium over outside [1]; ``mu`` cosine to the normal [1]; ``tau`` optical depth
+(mean free paths, 1/sigma_t) [1].
+"""
+from __future__ import annotations
+
+import numpy as np
+from numpy.polynomial import chebyshev, legendre
+from scipy.special import ellipe
+
+from ..caches import ByteCache
+from . import transport_tables as tables
+from .fresnel import fresnel_moments_exact, fresnel_reflectance
+
+#: the two incidences the reflectance is defined for (docs/transport.md "Incidence")
+INCIDENCES = ("diffuse", "normal")
+#: g interval: the quadrature orders below are measured to keep Rd within ~1e-9 there
+G_RANGE = (-0.9, 0.9)
+#: eta interval (medium over outside)
+ETA_RANGE = (0.5, 2.5)
+#: below this cosine the quadrature splits once more when no critical cosine is above it
+#: (a node-dense interval near mu = 1, where a forward-peaked phase function is sharpest)
+MU_SPLIT = 0.5
+#: the thin layer's optical depth (diamond scheme: error O(tau0^2) per unit depth)
+TAU0 = 2.0 ** -20
+#: doubling stops once every transmission entry is below this (semi-infinite to rounding)
+T_STOP = 1e-18
+#: doubling steps at most (2^-20 doubled 100 times: 1e24 mean free paths)
+MAX_DOUBLINGS = 100
+#: Chebyshev degree of the interpolant Rd(q) (docs/transport.md "Interpolant": measured)
+CHEB_DEGREE = 32
+
+CURVES = ByteCache("transport reflectance curves", 4 << 20)
+
+
+def check_arguments(g, eta, incidence):
+    """Raise ValueError naming the first bad argument."""
+    if incidence not in INCIDENCES:
+        raise ValueError(f"incidence={incidence!r}: expected one of {', '.join(INCIDENCES)}")
+    if not G_RANGE[0] <= g <= G_RANGE[1]:
+        raise ValueError(f"g={g!r} is outside [{G_RANGE[0]}, {G_RANGE[1]}], the range the "
+                         f"transport solver's quadrature is measured on")
+    if not ETA_RANGE[0] <= eta <= ETA_RANGE[1]:
+        raise ValueError(f"eta={eta!r} is outside [{ETA_RANGE[0]}, {ETA_RANGE[1]}]")
+
+
+def quadrature_order(g: float) -> int:
+    """Gauss nodes per interval for a mean cosine g (measured: docs/transport.md)."""
+    a = abs(g)
+    return 16 if a <= 0.5 else 24 if a <= 0.8 else 40
+
+
+# {{{ quadrature
+
+def critical_cosine(eta: float) -> float:
+    """Cosine (inside) of total internal reflection, 0 when eta <= 1."""
+    return float(np.sqrt(max(1.0 - 1.0 / eta**2, 0.0)))
+
+
+def gauss_radau_right(n: int):
+    """Gauss-Radau nodes and weights on [0, 1] with the node 1 fixed (exact to degree 2n-2).
+
+    Nodes of the rule fixed at -1 on [-1, 1] are the roots of (P_{n-1} + P_n)/(1 + x), weights
+    (1 - x)/(n P_{n-1}(x))^2 and 2/n^2 at -1 (Abramowitz & Stegun 25.4.31); mirrored here."""
+    c = np.zeros(n + 1)
+    c[n - 1:] = 1.0
+    x = np.sort(np.real(legendre.legroots(c)))
+    x[0] = -1.0
+    p = legendre.legval(x, np.eye(n)[n - 1])
+    w = (1.0 - x) / (n * p) ** 2
+    w[0] = 2.0 / n**2
+    t = 0.5 * (1.0 - x[::-1])
+    t[-1] = 1.0
+    return t, 0.5 * w[::-1]
+
+
+def quadrature(eta: float, n: int):
+    """Nodes mu in (0, 1] and weights of the hemisphere: n nodes on each of the intervals cut
+    at 0, the critical cosine mu_c (eta > 1), MU_SPLIT (when mu_c is below it) and 1.
+
+    The first interval and the one starting at mu_c are graded at their start (mu = a + (b-a)
+    u^2): it smooths the Fresnel kink sqrt(mu - mu_c) and the mu log mu of the reflection
+    function at grazing. The last interval is Gauss-Radau (mu = 1 a node, for normal
+    incidence)."""
+    mu_c = critical_cosine(eta)
+    cuts = [0.0] + ([mu_c] if mu_c > 0.0 else []) + ([MU_SPLIT] if mu_c < MU_SPLIT else [])
+    cuts.append(1.0)
+    x, wx = legendre.leggauss(n)
+    gauss = (0.5 * (x + 1.0), 0.5 * wx)
+    mus, weights = [], []
+    for k, (a, b) in enumerate(zip(cuts[:-1], cuts[1:])):
+        u, wu = gauss_radau_right(n) if k == len(cuts) - 2 else gauss
+        if a == 0.0 or a == mu_c:
+            mus.append(a + (b - a) * u**2)
+            weights.append(wu * 2.0 * (b - a) * u)
+        else:
+            mus.append(a + (b - a) * u)
+            weights.append(wu * (b - a))
+    return np.concatenate(mus), np.concatenate(weights)
+
+# }}}
+
+
+# {{{ phase function and layer operators
+
+def hg_azimuthal(mu_i, mu_j, g: float):
+    """Azimuthal mean of the Henyey-Greenstein phase function (normalised to 1 over the
+    sphere's 4 pi), between directions of cosines mu_i and mu_j:
+
+    p0 = (1 - g^2)/pi Int_0^pi (a - b cos phi)^(-3/2) dphi = 2 (1 - g^2) E(m) / (pi (a - b)
+    sqrt(a + b)), a = 1 + g^2 - 2 g mu_i mu_j, b = 2 |g| sin_i sin_j, m = 2b/(a + b)
+    (Gradshteyn & Ryzhik 2.571; E the complete elliptic integral of the second kind)."""
+    mu_i, mu_j = np.asarray(mu_i, np.float64), np.asarray(mu_j, np.float64)
+    if g == 0.0:
+        return np.ones(np.broadcast(mu_i, mu_j).shape)
+    sin_i = np.sqrt(np.clip((1.0 - mu_i) * (1.0 + mu_i), 0.0, None))
+    sin_j = np.sqrt(np.clip((1.0 - mu_j) * (1.0 + mu_j), 0.0, None))
+    a = 1.0 + g * g - 2.0 * g * mu_i * mu_j
+    b = 2.0 * abs(g) * sin_i * sin_j
+    return 2.0 * (1.0 - g * g) * ellipe(2.0 * b / (a + b)) / (np.pi * (a - b) * np.sqrt(a + b))
+
+
+def phase_matrices(mu, w, g: float):
+    """``(P++, P+-)``: p0(mu_i, mu_j) and p0(mu_i, -mu_j) on the nodes, scaled symmetrically
+    (d_i P_ij d_j) so that each row conserves energy in the quadrature,
+    (1/2) sum_j w_j (P++ + P+-)_ij = 1, and stays symmetric (reciprocity)."""
+    pp = hg_azimuthal(mu[:, None], mu[None, :], g)
+    pm = hg_azimuthal(mu[:, None], -mu[None, :], g)
+    total = pp + pm
+    d = np.ones_like(mu)
+    for _ in range(200):
+        s = 0.5 * d * (total @ (w * d))
+        d = d / np.sqrt(s)
+        if np.max(np.abs(s - 1.0)) <= 2e-16:
+            break
+    scale = np.outer(d, d)
+    return pp * scale, pm * scale
+
+
+def layer_operators(mu, w, g: float, rho):
+    """``(Gamma, Sigma)`` of d/dtau I+ = -Gamma I+ + Sigma I-, batched over rho:
+    Gamma = M^-1 (I - alpha/2 P++ W), Sigma = M^-1 alpha/2 P+- W, with 1 - alpha/2 P++ written
+    as (1 - P++/2) + rho P++/2 so that a small rho keeps its digits."""
+    rho = np.asarray(rho, np.float64)[..., None, None]
+    pp, pm = phase_matrices(mu, w, g)
+    half_pp, half_pm = 0.5 * pp * w, 0.5 * pm * w
+    gamma = ((np.eye(len(mu)) - half_pp) + rho * half_pp) / mu[:, None]
+    sigma = (1.0 - rho) * half_pm / mu[:, None]
+    return gamma, sigma
+
+# }}}
+
+
+# {{{ doubling
+
+def thin_layer(gamma, sigma, tau0: float):
+    """``(R, E = 1 - T)`` of a layer of depth tau0 by the diamond scheme (Wiscombe 1976):
+    A = 1 + h Gamma, B = h Sigma, h = tau0/2, S = A - B A^-1 B,
+    R = 2 A^-1 B S^-1, E = 2 S^-1 (h Gamma - B A^-1 B) (no cancellation in 1 - T)."""
+    h = 0.5 * tau0
+    a = np.eye(gamma.shape[-1]) + h * gamma
+    b = h * sigma
+    a_inv_b = np.linalg.solve(a, b)
+    bab = b @ a_inv_b
+    s = a - bab
+    r = 2.0 * np.swapaxes(np.linalg.solve(np.swapaxes(s, -1, -2),
+                                          np.swapaxes(a_inv_b, -1, -2)), -1, -2)
+    e = 2.0 * np.linalg.solve(s, h * gamma - bab)
+    return r, e
+
+
+def double(r, e, t_stop=T_STOP, max_doublings=MAX_DOUBLINGS):
+    """Double a homogeneous layer until its transmission is below ``t_stop``:
+    G = (1 - R R)^-1, R' = R + T R G T, T' = T G T, written for E = 1 - T as
+    E' = 2E - E E - T R R G T (the thin layers' T = 1 - E keeps its digits).
+    Returns ``(R, doublings)``."""
+    eye = np.eye(r.shape[-1])
+    for k in range(max_doublings):
+        t = eye - e
+        if np.max(np.abs(t)) < t_stop:
+            return r, k
+        rr = r @ r
+        x = np.linalg.solve(eye - rr, t)
+        r, e = r + t @ r @ x, 2.0 * e - e @ e - t @ rr @ x
+    return r, max_doublings
+
+
+def semi_infinite_reflection(rho, g: float, eta: float, n: int | None = None,
+                             tau0: float = TAU0):
+    """``(mu, w, R)``: the quadrature and the reflection matrix (radiance to radiance) of the
+    semi-infinite medium without boundary, batched over rho."""
+    mu, w = quadrature(eta, n or quadrature_order(g))
+    gamma, sigma = layer_operators(mu, w, g, rho)
+    r, e = thin_layer(gamma, sigma, tau0)
+    r, _ = double(r, e)
+    return mu, w, r
+
+# }}}
+
+
+# {{{ the Fresnel interface
+
+def incident_radiance(mu, w, eta: float, incidence: str):
+    """Radiance just inside the surface for unit outside irradiance over pi (radiance 1 for
+    diffuse; a beam of flux pi along the normal, on the Radau node mu = 1, for normal)."""
+    transmit = 1.0 - fresnel_reflectance(mu, eta)
+    if incidence == "diffuse":
+        return eta**2 * transmit                     # n^2 law of radiance
+    beam = np.zeros_like(mu)
+    k = int(np.argmax(mu))
+    beam[k] = transmit[k] / (2.0 * w[k] * mu[k])     # 2 pi sum w mu D = pi (1 - F(1))
+    return beam
+
+
+def boundary_reflectance(mu, w, r, eta: float, incidence: str):
+    """Diffuse reflectance with the interface added: U = (1 - R F)^-1 R D0 below the surface,
+    Rd = 2 sum_i w_i mu_i (1 - F_i) U_i (etendue: eta^2 mu dmu inside = mu_o dmu_o outside)."""
+    f = fresnel_reflectance(mu, eta)
+    d0 = incident_radiance(mu, w, eta, incidence)
+    eye = np.eye(len(mu))
+    u = np.linalg.solve(eye - r * f, (r @ d0)[..., None])[..., 0]
+    return 2.0 * np.sum(w * mu * (1.0 - f) * u, axis=-1)
+
+
+def specular_reflectance(eta: float, incidence: str = "diffuse") -> float:
+    """The surface's own Fresnel reflectance for light from outside: 2 Int F(mu_o) mu_o dmu_o
+    (diffuse) or ((eta - 1)/(eta + 1))^2 (normal). What walk_reflectance sets apart."""
+    if incidence not in INCIDENCES:
+        raise ValueError(f"incidence={incidence!r}: expected one of {', '.join(INCIDENCES)}")
+    if incidence == "normal":
+        return float(((eta - 1.0) / (eta + 1.0)) ** 2)
+    return float(2.0 * fresnel_moments_exact(1.0 / eta)[0])
+
+
+def solve_reflectance(alpha=None, g: float = 0.0, eta: float = 1.0, incidence="diffuse",
+                      n: int | None = None, tau0: float = TAU0, rho=None):
+    """The direct solver: Rd of each alpha (or of rho = 1 - alpha when given, the precise
+    argument near alpha = 1). Slow (one doubling per value); walk_reflectance interpolates it."""
+    check_arguments(g, eta, incidence)
+    rho = np.asarray(1.0 - np.asarray(alpha, np.float64) if rho is None else rho, np.float64)
+    mu, w, r = semi_infinite_reflection(rho.reshape(-1), g, eta, n, tau0)
+    return boundary_reflectance(mu, w, r, eta, incidence).reshape(rho.shape)
+
+# }}}
+
+
+# {{{ the interpolant and the public functions
+
+def similarity_s(alpha, g: float):
+    """van de Hulst's similarity parameter s = sqrt((1 - alpha)/(1 - alpha g)) [1]: Rd is
+    analytic in s on [0, 1] (in q = sqrt(1 - alpha) it has a branch point at
+    rho = -(1 - g)/g, close to the interval for large g)."""
+    a = np.asarray(alpha, np.float64)
+    return np.sqrt((1.0 - a) / (1.0 - a * g))
+
+
+def rho_of_s(s, g: float):
+    """1 - alpha of s, without cancellation: rho = s^2 (1 - g)/(1 - g s^2)."""
+    s2 = np.asarray(s, np.float64) ** 2
+    return s2 * (1.0 - g) / (1.0 - g * s2)
+
+
+def alpha_of_s(s, g: float):
+    """alpha = (1 - s^2)/(1 - g s^2) (the inverse of similarity_s)."""
+    s2 = np.asarray(s, np.float64) ** 2
+    return (1.0 - s2) / (1.0 - g * s2)
+
+
+def chebyshev_nodes(degree: int = CHEB_DEGREE):
+    """Chebyshev-Lobatto points on [0, 1] (0 first)."""
+    return 0.5 * (1.0 - np.cos(np.pi * np.arange(degree + 1) / degree))
+
+
+@CURVES.memoize
+def reflectance_curve(g: float, eta: float, incidence: str, degree: int = CHEB_DEGREE):
+    """Chebyshev coefficients (in x = 2s - 1) of Rd(s), read-only. At s = 0 (alpha = 1) the
+    value is exact by energy conservation, Rd = 1 - specular; elsewhere solve_reflectance."""
+    s = chebyshev_nodes(degree)
+    rd = np.empty_like(s)
+    rd[0] = 1.0 - specular_reflectance(eta, incidence)
+    rd[1:] = solve_reflectance(g=g, eta=eta, incidence=incidence, rho=rho_of_s(s[1:], g))
+    coefs = chebyshev.chebfit(2.0 * s - 1.0, rd, degree)
+    coefs.setflags(write=False)
+    return coefs
+
+
+def reflectance_of_s(s, g: float, eta: float, incidence: str):
+    """Rd of the similarity parameter s from the cached interpolant."""
+    check_arguments(g, eta, incidence)
+    coefs = reflectance_curve(float(g), float(eta), incidence)
+    return chebyshev.chebval(2.0 * np.asarray(s, np.float64) - 1.0, coefs)
+
+
+def walk_reflectance(alpha, g: float = 0.0, eta: float = 1.0, incidence: str = "diffuse"):
+    """Total diffuse reflectance [1] of a semi-infinite medium of single-scattering albedo
+    alpha, HG mean cosine g, under a smooth dielectric boundary of relative index eta,
+    specular reflection excluded; incidence "diffuse" (uniform environment) or "normal".
+    alpha outside [0, 1] is an error; NaN gives NaN."""
+    a = np.asarray(alpha, np.float64)
+    bad = (a < 0.0) | (a > 1.0)
+    if np.any(bad):
+        raise ValueError(f"alpha={float(a[bad].flat[0])!r} is outside [0, 1]")
+    return reflectance_of_s(similarity_s(a, g), g, eta, incidence)
+
+
+def walk_alpha(rd, g: float = 0.0, eta: float = 1.0, incidence: str = "diffuse"):
+    """The single-scattering albedo alpha whose walk_reflectance is rd (docs/transport.md
+    "Inversion": rd <= 0 gives 0, rd >= the reflectance of alpha = 1 gives 1, NaN stays NaN)."""
+    s = tables.evaluate_inverse(inverse_table(float(g), float(eta), incidence), rd)
+    return alpha_of_s(s, g)
+
+
+@tables.INVERSE_TABLES.memoize
+def inverse_table(g: float, eta: float, incidence: str) -> tables.InverseTable:
+    """The monotone table of s over Rd of one (g, eta, incidence), checked when built."""
+    check_arguments(g, eta, incidence)
+    return tables.build_inverse_table(reflectance_curve(g, eta, incidence))
+
+
+def walk_spread(alpha, g: float = 0.0, eta: float = 1.0, fraction: float = 0.5):
+    """Radius [mean free paths, 1/sigma_t] of the disk around a normally incident pencil beam
+    that holds ``fraction`` of the diffusely reflected energy (Monte Carlo table:
+    docs/transport.md "Spread")."""
+    raise NotImplementedError("walk_spread: the Monte Carlo spread table is not built yet")
+
+# }}}

@@ -99,6 +99,13 @@ def bake_on_cluster(plan: Plan, client, *, device=None, progress=True,
     return finish_bake(plan, [results.get(i) or not_finished(j.source, j.output, before.get(i))
                               for i, j in enumerate(plan.jobs)])
 
+def not_started(plan: Plan, why: str) -> BatchReport:
+    """The report of a bake whose cluster did not start (``cluster.ClusterStartError``):
+    every job that was to run fails, named with ``why``; the rest as the plan has them."""
+    return finish_bake(plan, [not_run(j) or FileResult(j.source, j.output,
+                                                       error=f"{j.source}: not run: {why}")
+                              for j in plan.jobs])
+
 # }}}
 
 
@@ -124,6 +131,13 @@ def file_runner(client, *, device=None, progress=True):
             remove_partial_files(job.output)
         return [results.get(i) or not_finished(j.source, j.output, before[i])
                 for i, j in enumerate(jobs)]
+    return run
+
+def not_started_runner(why: str):
+    """A ``run_files`` for a batch whose cluster did not start: each job fails, named."""
+    def run(jobs):
+        return [FileResult(j.source, j.output, error=f"{j.source}: not run: {why}")
+                for j in jobs]
     return run
 
 # }}}

@@ -56,10 +56,15 @@ def _cmd_invert(args) -> int:
     # constant is the user's option, no texel: the API's on_invalid="clamp" clamps it)
     check_scaled_mfp(parse_constant(args.mfp, "mfp"), float(args.mfp_scale))
     if args.scheduler:
-        from ..dask import file_runner
-        with cluster_client(args) as client:
-            return _invert(args, file_runner(client, device=args.device,
-                                             progress=not args.no_progress))
+        from ..cluster import ClusterStartError
+        from ..dask import file_runner, not_started_runner
+        try:
+            with cluster_client(args) as client:
+                return _invert(args, file_runner(client, device=args.device,
+                                                 progress=not args.no_progress))
+        except ClusterStartError as exc:     # every file fails, named, in the summary
+            print(f"bdipole-cl {args.command}: error: {exc}", file=sys.stderr)
+            return _invert(args, not_started_runner(exc.short))
     return _invert(args, None)
 
 
@@ -151,11 +156,16 @@ def _cmd_bake(args) -> int:
             bar.update(1)
 
     if args.scheduler:
-        from ..dask import bake_on_cluster
-        with cluster_client(args) as client:
-            report = bake_on_cluster(plan, client, device=args.device,
-                                     progress=not args.no_progress,
-                                     max_memory=args.max_memory)
+        from ..cluster import ClusterStartError
+        from ..dask import bake_on_cluster, not_started
+        try:
+            with cluster_client(args) as client:
+                report = bake_on_cluster(plan, client, device=args.device,
+                                         progress=not args.no_progress,
+                                         max_memory=args.max_memory)
+        except ClusterStartError as exc:     # every job to run fails, named, in the summary
+            print(f"bdipole-cl {args.command}: error: {exc}", file=sys.stderr)
+            report = not_started(plan, exc.short)
     else:
         try:
             report = plan.run(cancel=stop.event, progress=progress,

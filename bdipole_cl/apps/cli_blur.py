@@ -107,6 +107,7 @@ def stopped_after_writing(stop, output) -> int:
 
 def blur_on_cluster(args, sources, stop) -> int:
     """``bdipole-cl blur --scheduler``: the bands of one blur as cluster tasks."""
+    from ..cluster import ClusterStartError
     from ..dask import blur_file_on_cluster
     from ..io.images import Cancelled, TextureError
     from ..jobs.blur_file import clamped_text
@@ -133,6 +134,10 @@ def blur_on_cluster(args, sources, stop) -> int:
     except TextureError as exc:
         print(f"bdipole-cl {args.command}: error: {exc}", file=sys.stderr)
         return (stop.exit_code or 1) if isinstance(exc, Cancelled) else 1
+    except ClusterStartError as exc:    # the one job, named: nothing written
+        print(f"bdipole-cl {args.command}: error: {args.input}: not blurred, nothing written: "
+              f"{exc}", file=sys.stderr)
+        return 1
     except Stopped:                     # while the cluster started or the blur was planned
         print(f"bdipole-cl {args.command}: interrupted: nothing written", file=sys.stderr)
         return stop.exit_code or 130

@@ -119,7 +119,7 @@ def connect(scheduler: str, *, memory_limit=None):
                                        dashboard_address=":0", silence_logs=logging.CRITICAL)
         except Stopped:
             raise
-        except Exception as exc:       # distributed: "Nanny failed to start", a TimeoutError
+        except Exception as exc:       # noqa: BLE001 (distributed: "Nanny failed to start")
             raise start_failure(scheduler, exc, exits.lines) from None
         try:
             with Client(cluster) as client:

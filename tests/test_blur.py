@@ -368,7 +368,9 @@ def test_a_tiny_irradiance_stays_within_the_reported_bound(method, peak):
     blurred scaled to a peak near 1 and the bound takes float32's absolute floor (2^-150 /
     (max E Rd)), against a float64 convolution with the exact weights to radius 40."""
     import warnings
+
     from scipy.signal import fftconvolve
+
     from bdipole_cl.ops.blur.weights import quadrant_weights, unfold_quadrant
     e = np.zeros((40, 40))
     e[20, 20], e[10, 25], e[30, 8] = 1.0, 0.5, 0.25

@@ -10,7 +10,6 @@ import pytest
 
 from bdipole_cl import scene as scenes
 from bdipole_cl.apps.cli import main as cli_main
-from bdipole_cl.apps.demo import write_exr
 from bdipole_cl.io import images
 from bdipole_cl.io.freshness import InputChanged, input_identities
 
@@ -155,8 +154,8 @@ def test_dask_tasks_check_the_identity_the_client_first_read(tmp_path):
     blur band with the client's, fail when the file on the worker is another (no cluster
     started: the worker functions are called here)."""
     from bdipole_cl.dask import blur_band_task, run_on_worker
-    from bdipole_cl.jobs.scene import scene_job
     from bdipole_cl.jobs.blur_file import file_plan
+    from bdipole_cl.jobs.scene import scene_job
     from bdipole_cl.ops.blur import Scattering
     (tmp_path / "tex").mkdir()
     write_plain(tmp_path / "tex" / "a.1001.exr", 1.0)

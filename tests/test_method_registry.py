@@ -117,6 +117,7 @@ def test_the_documented_float32_auto_floor_is_the_codes():
     refused). The figure is the code's, tol at it is taken, 1% below it refused naming it."""
     import re
     from pathlib import Path
+
     from bdipole_cl.methods.choice import auto_inversion_floor, choice_for, resolve_method
     data, _ = choice_for(None)
     floor = auto_inversion_floor(False, data)

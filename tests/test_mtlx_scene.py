@@ -7,10 +7,9 @@ import pytest
 
 pytest.importorskip("MaterialX")
 
+import bdipole_cl as bd  # noqa: E402
 from bdipole_cl import scene as scenes  # noqa: E402
 from bdipole_cl.io.scene_import import import_materials  # noqa: E402
-
-import bdipole_cl as bd  # noqa: E402
 from test_scene import read  # noqa: E402
 from test_usd_scene import albedo_texture, check_texture_bake  # noqa: E402
 

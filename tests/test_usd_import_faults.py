@@ -652,7 +652,8 @@ def test_a_reader_fault_in_one_material_leaves_only_that_one_out(tmp_path, monke
     stage.GetRootLayer().Save()
     real = usd_scene.read_input
 
-    def faulty(shader, name, time=Usd.TimeCode.EarliestTime()):
+    def faulty(shader, name, time=None):
+        time = Usd.TimeCode.EarliestTime() if time is None else time
         if "/bad/" in str(shader.GetPath()) and name == "specular_ior":
             raise IndexError("list index out of range")
         return real(shader, name, time)

@@ -85,6 +85,35 @@ def test_cli_invert_fails_an_input_changed_during_its_read_and_skip_existing_red
     assert np.array_equal(got, want)
 
 
+def test_cli_invert_fails_when_its_mfp_texture_changes_between_bands(tmp_path, monkeypatch,
+                                                                    capsys):
+    """Every input of a job is watched, not only the file it is named by: an mfp texture
+    overwritten between two of its band reads fails the job, named as the mfp."""
+    a, mfp, out = tmp_path / "a.exr", tmp_path / "mfp.exr", tmp_path / "o.exr"
+    write_plain(a, 1.0)
+    write_plain(mfp, 2.0)
+    change_during_read(monkeypatch, mfp, "overwrite")
+    assert cli_main(["invert", str(a), "--mfp", str(mfp), "-o", str(out), "--no-progress",
+                     "--max-memory", SMALL]) == 1
+    captured = capsys.readouterr()
+    assert f"{mfp}: the mfp changed while the job read it (it was rewritten)" in \
+        captured.out + captured.err
+    assert not out.exists()
+
+
+def test_a_texture_output_is_not_put_in_place_over_a_changed_input(tmp_path, monkeypatch,
+                                                                   capsys):
+    """--texture builds the mip-mapped file after the bands: the check runs after that build,
+    just before the rename, so that path is guarded too."""
+    a, out = tmp_path / "a.exr", tmp_path / "o.exr"
+    write_plain(a, 1.0)
+    change_during_read(monkeypatch, a, "re-export")
+    assert cli_main(["invert", str(a), "-o", str(out), "--texture", "--no-progress"]) == 1
+    captured = capsys.readouterr()
+    assert f"{a}: the albedo changed while the job read it" in captured.out + captured.err
+    assert not out.exists() and not list(tmp_path.glob(".o.partial-*"))
+
+
 def test_cli_blur_fails_when_its_irradiance_or_a_parameter_texture_changes(
         tmp_path, monkeypatch, capsys):
     """The irradiance overwritten between two bands, or the albedo texture re-exported after

@@ -705,3 +705,22 @@ def test_a_stage_referencing_a_materialx_document_says_why_and_what_to_do(tmp_pa
     assert err.count("\n") == 1, err
     assert "no MaterialX file-format plugin" in err and \
         f"bdipole_cl bake {tmp_path / 'look.mtlx'}" in err, err
+
+
+def test_a_shader_implemented_by_a_source_asset_is_known_by_its_sub_identifier(tmp_path):
+    """A shader authored as a MaterialX library node (info:implementationSource sourceAsset,
+    info:mtlx:sourceAsset:subIdentifier = the nodedef) has no info:id: it was 'no surface
+    shader'. Its sub-identifier names it, for the surface and for an image node."""
+    texture(tmp_path / "tex" / "a.exr")
+    stage = new_stage(tmp_path)
+    s, t = material(stage, "skin", "tex/a.exr")
+    for shader, nodedef in ((s, "ND_standard_surface_surfaceshader_100"),
+                            (t, "ND_image_color3")):
+        shader.GetImplementationSourceAttr().Set(UsdShade.Tokens.sourceAsset)
+        shader.SetSourceAsset(Sdf.AssetPath("stdlib_defs.mtlx"), "mtlx")
+        shader.SetSourceAssetSubIdentifier(nodedef, "mtlx")
+    s.CreateInput("subsurface", F).Set(1.0)
+    stage.GetRootLayer().Save()
+    (skin,) = scenes.load(tmp_path / "asset.usda").imports
+    assert skin.shader == "Standard Surface" and skin.left_out is None, skin.left_out
+    assert skin.facts["albedo"] == str(tmp_path / "tex" / "a.exr")

@@ -46,6 +46,21 @@ from .shaders import (TEXTURE_NODES, Input, Texture, imported_material, one_chan
 CONTEXTS = ("mtlx", "ri", "arnold", "")
 
 
+def shader_id_of(shader) -> str:
+    """A shader's identifier: its ``info:id``, else, for one implemented by a source asset
+    (``info:implementationSource = "sourceAsset"``, as a MaterialX library's node), the
+    asset's sub-identifier (``info:mtlx:sourceAsset:subIdentifier``: the nodedef's name);
+    "" if neither."""
+    found = shader.GetShaderId()
+    if found:
+        return found
+    for source_type in shader.GetSourceTypes():
+        sub = shader.GetSourceAssetSubIdentifier(source_type)
+        if sub:
+            return sub
+    return ""
+
+
 def _node_kind(shader_id: str) -> str:
     """'UsdUVTexture', 'image', 'tiledimage', 'PxrTexture' or 'arnold:image' for texture
     nodes (MaterialX ids are ND_<node>_<type>), else the id."""
@@ -227,7 +242,7 @@ def _texture(shader, node_kind: str, output: str = "rgb",
     space = _space(shader, node_kind, attr, time)
     where = str(shader.GetPath())
     if node_kind in ("image", "tiledimage"):        # ND_image_<type>
-        channel = one_channel((shader.GetShaderId() or "").split("_")[2])
+        channel = one_channel(shader_id_of(shader).split("_")[2])
         layer = str(_token(shader, "layer", time, "")) or None
         return Texture(path, space, where, channel=channel,
                        channel_index=0 if channel else None, layer=layer)
@@ -253,7 +268,7 @@ def read_input(shader, name: str, time=Usd.TimeCode.EarliestTime()) -> Input | N
         return None if value is None else Input(name, value=_values(value, str(attr.GetPath())),
                                                 animated=_animated(attr, time))
     source = UsdShade.Shader(attr.GetPrim())
-    shader_id = source.GetShaderId() or ""
+    shader_id = shader_id_of(source)
     kind = _node_kind(shader_id)
     if kind in TEXTURE_NODES:
         texture = _texture(source, kind, attr.GetBaseName(), time)
@@ -284,7 +299,7 @@ def surface_shader(material):
         for attr in output.GetValueProducingAttributes():
             if UsdShade.Output.IsOutput(attr):
                 shader = UsdShade.Shader(attr.GetPrim())
-                found.append((shader, shader.GetShaderId() or ""))
+                found.append((shader, shader_id_of(shader)))
     for shader, shader_id in found:
         if shader_mapping(shader_id) is not None:
             return shader, shader_id

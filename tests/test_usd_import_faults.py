@@ -582,8 +582,8 @@ def test_production_shader_ids_contexts_and_texture_nodes_are_read(tmp_path):
     (ND_standard_surface_surfaceshader_100) was 'no subsurface'; the arnold render context was
     not read ('no surface shader'); a PxrTexture feeding PxrSurface was 'a procedural
     network', as was an Arnold image. Each is read: a PxrTexture's file (its _MAPID_ the
-    <UDIM> of atlasStyle 1) and linearize, an Arnold image's filename, color_space and
-    multiply (a scale: refused on the albedo, as UsdUVTexture's)."""
+    <UDIM> of atlasStyle 1) and linearize, an Arnold image's filename (its <udim> token),
+    color_space and multiply (a scale: refused on the albedo, as UsdUVTexture's)."""
     for tile in ("1001", "1002"):
         texture(tmp_path / "tex" / f"skin.{tile}.exr")
     texture(tmp_path / "tex" / "a.exr")
@@ -598,6 +598,9 @@ def test_production_shader_ids_contexts_and_texture_nodes_are_read(tmp_path):
     s.CreateInput("subsurface_color", C3).ConnectToSource(file_node(
         stage, "/Mat/arn/img", "arnold:image", "filename", "tex/a.exr", "out",
         color_space=(Sdf.ValueTypeNames.String, "linear")))
+    s = surface(stage, "arnu", "arnold:standard_surface", "arnold", subsurface=1.0)
+    s.CreateInput("subsurface_color", C3).ConnectToSource(file_node(
+        stage, "/Mat/arnu/img", "arnold:image", "filename", "tex/skin.<udim>.exr", "out"))
     s = surface(stage, "arnx", "arnold:standard_surface", "arnold", subsurface=1.0)
     s.CreateInput("subsurface_color", C3).ConnectToSource(file_node(
         stage, "/Mat/arnx/img", "arnold:image", "filename", "tex/a.exr", "out",
@@ -610,6 +613,7 @@ def test_production_shader_ids_contexts_and_texture_nodes_are_read(tmp_path):
     assert pxr_facts["albedo"] == str(tmp_path / "tex" / "skin.<UDIM>.exr")
     assert imports["arn"].left_out is None and imports["arn"].shader == "Standard Surface"
     assert imports["arn"].facts["colorspace"] == "lin_rec709"
+    assert imports["arnu"].facts["albedo"] == str(tmp_path / "tex" / "skin.<UDIM>.exr")
     assert "/Mat/arnx/img has scale 0.5, 0.5, 0.5, on the albedo" in imports["arnx"].left_out
     report = scenes.load(tmp_path / "asset.usda").plan().run()
     assert report.exit_code == 0, report.summary()

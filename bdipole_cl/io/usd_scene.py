@@ -234,6 +234,8 @@ def _texture(shader, node_kind: str, output: str = "rgb",
     path = _asset_file(attr, time)
     if node_kind == "PxrTexture":
         path = _atlas_file(shader, path, time)
+    if node_kind == "arnold:image":                 # Arnold's tile token is lower case
+        path = path.replace("<udim>", "<UDIM>")
     if usdz.is_packaged(path):         # read from its copy in the cache
         try:
             path = usdz.extracted(path)

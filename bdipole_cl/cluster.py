@@ -17,7 +17,7 @@ from .errors import one_line
 from .io.verify import replaced_since
 from .jobs.job import Job
 from .jobs.results import FileResult
-from .signals import (STOP, clear_stop, quiet_resource_tracker, request_stop,
+from .signals import (STOP, Stopped, clear_stop, quiet_resource_tracker, request_stop,
                       sigint_ignored_by_children)
 
 #: a task that raised is tried again this many times (a worker that died is always replaced)
@@ -29,6 +29,65 @@ MIN_WORKER_MEMORY = 384 << 20
 POLL = 0.25
 #: seconds a run waits for a cluster without workers before failing its unfinished jobs
 NO_WORKER_TIMEOUT = 60.0
+
+
+class ClusterStartError(RuntimeError):
+    """The cluster could not be started (a worker process ended as it started) or its
+    scheduler reached: no job ran. One line (what, why, what to try); ``short``: what and why,
+    for each job's row (the commands fail every job with it, named, and print their summary:
+    ``dask.not_started``)."""
+
+    def __init__(self, message, short):
+        super().__init__(message)
+        self.short = short
+
+
+class _WorkerExits(logging.Handler):
+    """The nannies' "Worker process N exited with status S" lines, kept (they log at INFO,
+    which the run keeps quiet)."""
+
+    def __init__(self):
+        super().__init__(logging.INFO)
+        self.lines = []
+
+    def emit(self, record):
+        text = record.getMessage()
+        if "exited with status" in text:
+            self.lines.append(text)
+
+
+@contextmanager
+def worker_exits():
+    """A ``_WorkerExits`` that hears the nannies of this process while a local cluster
+    starts (only them: their lines go nowhere else)."""
+    log = logging.getLogger("distributed.nanny")
+    handler, saved = _WorkerExits(), (log.level, log.propagate)
+    log.setLevel(logging.INFO)
+    log.propagate = False
+    log.addHandler(handler)
+    try:
+        yield handler
+    finally:
+        log.removeHandler(handler)
+        log.setLevel(saved[0])
+        log.propagate = saved[1]
+
+
+def start_failure(scheduler, exc, exits) -> ClusterStartError:
+    """The ClusterStartError of a ``--scheduler local:N`` that did not start: the workers'
+    exit statuses, what distributed said (and its cause), and what to try."""
+    said = one_line(exc).rstrip(".") or type(exc).__name__
+    cause = exc.__cause__ or exc.__context__
+    if cause is not None and one_line(cause) and not one_line(cause).startswith(said):
+        said += f" ({one_line(cause)})"
+    statuses = sorted({line.rsplit(" ", 1)[-1] for line in exits})
+    died = (f"a worker process exited as it started (status {', '.join(statuses)})"
+            if statuses else said)
+    short = f"--scheduler {scheduler}: the local cluster did not start: {died}"
+    return ClusterStartError(
+        f"{short}{': ' + said if statuses else ''}; no job ran: check that a worker can "
+        f"start here (its memory limit, --worker-memory; its Python environment and Dask "
+        f"preloads), or run without --scheduler", short)
 
 
 @contextmanager
@@ -53,10 +112,15 @@ def connect(scheduler: str, *, memory_limit=None):
                              f"{MIN_WORKER_MEMORY >> 20}M (its Python, OpenCL runtime and one "
                              f"band); give more, e.g. 1G")
         quiet_resource_tracker()
-        with sigint_ignored_by_children():
-            cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
-                                   memory_limit=memory_limit or "auto",
-                                   dashboard_address=":0", silence_logs=logging.CRITICAL)
+        try:
+            with sigint_ignored_by_children(), worker_exits() as exits:
+                cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
+                                       memory_limit=memory_limit or "auto",
+                                       dashboard_address=":0", silence_logs=logging.CRITICAL)
+        except Stopped:
+            raise
+        except Exception as exc:       # noqa: BLE001 (distributed: "Nanny failed to start")
+            raise start_failure(scheduler, exc, exits.lines) from None
         try:
             with Client(cluster) as client:
                 yield client
@@ -69,6 +133,12 @@ def connect(scheduler: str, *, memory_limit=None):
             raise ValueError(f"--scheduler {scheduler!r}: not a scheduler address "
                              f"({one_line(exc)}): give tcp://host:8786 or "
                              f"local:N") from None
+        except (OSError, TimeoutError) as exc:   # nothing there, or it did not answer
+            short = (f"--scheduler {scheduler}: cannot reach the scheduler "
+                     f"({one_line(exc) or type(exc).__name__})")
+            raise ClusterStartError(f"{short}; no job ran: start it (dask scheduler) or give "
+                                    f"its address, or run without --scheduler", short) \
+                from None
         with client:
             yield client
 

@@ -33,6 +33,7 @@ from .io.collisions import Claim, check_claim
 from .io.colour import resolve_working_space
 from .io.images import (Cancelled, Reader, TextureError, Writer, check_texture_window,
                         read_rows)
+from .io.freshness import InputChanged, InputGuard
 from .io.partials import remove_partial_files
 from .io.mipmaps import texture_options
 from .io.verify import file_identity
@@ -98,6 +99,13 @@ def bake_on_cluster(plan: Plan, client, *, device=None, progress=True,
     return finish_bake(plan, [results.get(i) or not_finished(j.source, j.output, before.get(i))
                               for i, j in enumerate(plan.jobs)])
 
+def not_started(plan: Plan, why: str) -> BatchReport:
+    """The report of a bake whose cluster did not start (``cluster.ClusterStartError``):
+    every job that was to run fails, named with ``why``; the rest as the plan has them."""
+    return finish_bake(plan, [not_run(j) or FileResult(j.source, j.output,
+                                                       error=f"{j.source}: not run: {why}")
+                              for j in plan.jobs])
+
 # }}}
 
 
@@ -125,29 +133,46 @@ def file_runner(client, *, device=None, progress=True):
                 for i, j in enumerate(jobs)]
     return run
 
+def not_started_runner(why: str):
+    """A ``run_files`` for a batch whose cluster did not start: each job fails, named."""
+    def run(jobs):
+        return [FileResult(j.source, j.output, error=f"{j.source}: not run: {why}")
+                for j in jobs]
+    return run
+
 # }}}
 
 
 # {{{ huge file-to-file blurs
 
 @counted
-def blur_band_task(path, band_path, y0, y1, plan, colorspace, working, device=None):
+def blur_band_task(path, band_path, y0, y1, plan, colorspace, working, device=None,
+                   identity=None):
     """A cluster task: rows [y0, y1) of the blurred image (``blur_file``'s own band step,
     ``blurred_band``, with the plan made once by the client), written to ``band_path``.
     Returns (band_path, the irradiance values of its rows clamped by kind), or the
-    TextureError naming an invalid texel where it is in the image (returned, not raised: the
-    same input would fail every retry)."""
+    TextureError naming an invalid texel where it is in the image, or the InputChanged of an
+    irradiance whose identity is not ``identity`` (the client's, as it first read it) before
+    or after the rows are read (returned, not raised: the same input would fail every
+    retry)."""
     remove_partial_files(band_path)
     plan = plan.on(get_runtime(device))
-    reader = Reader(path, "irradiance")
+    guard = InputGuard({"irradiance": path}, {"irradiance": identity} if identity else None)
+    reader = None
     try:
+        guard.check()
+        reader = Reader(path, "irradiance")
         spec = reader.spec
         colour, alpha = reader.channels()
         route = reader.colour(colorspace, working)
         idx = halo_rows(y0, y1, plan.halo, spec.height, plan.border)
         px = read_rows(reader, idx)
+        guard.check()
+    except InputChanged as exc:
+        return exc
     finally:
-        reader.close()
+        if reader is not None:
+            reader.close()
     counts = {}
     names = [spec.channelnames[c] for c in colour]
     try:
@@ -184,13 +209,16 @@ def remove_band_folders(output) -> int:
 
 def blur_file_on_cluster(path, output, client, *, colorspace="auto", working_space=None,
                          half=False, max_memory=256 << 20, device=None, progress=True,
-                         texture=False, force=False, clamped=None,
+                         texture=False, force=False, clamped=None, identities=None,
                          **kwargs):
     """``blur_file`` with its bands as tasks: each worker reads its rows and the halo of the
     truncation radius from ``path``, blurs them within ``max_memory`` bytes, and writes them
     to a band file; this process then streams the bands into ``output`` (one band in memory
     at a time) and removes them. Constant parameters only (a texture-varying plan is global).
-    ``clamped``: as ``blur_file``'s. Returns the number of bands."""
+    ``clamped``: as ``blur_file``'s; ``identities``: the irradiance's as first read
+    (``freshness.input_identities``; default: now): each band and the output check it, and an
+    irradiance changed before the output is in place fails the blur, nothing written.
+    Returns the number of bands."""
     from .io.images import check_output_format
     check_output_format(output)
     check_claim(Claim(str(path), str(output), {"irradiance": str(path)}), force)
@@ -198,6 +226,7 @@ def blur_file_on_cluster(path, output, client, *, colorspace="auto", working_spa
     if scattering.textured:
         raise ValueError("a blur on a cluster takes constant parameters (one value or one per "
                          "channel); with parameter textures, blur in one process")
+    guard = InputGuard({"irradiance": os.path.abspath(path)}, identities)
     reader = Reader(path, "irradiance")
     try:
         spec = reader.spec
@@ -221,7 +250,7 @@ def blur_file_on_cluster(path, output, client, *, colorspace="auto", working_spa
         for k, (y0, y1, _) in enumerate(bands(spec.height, rows)):
             fut = client.submit(blur_band_task, str(path), str(work / f"band{k:05d}.exr"), y0,
                                 y1, plan, colorspace, route.working, device,
-                                pure=False,
+                                guard.before["irradiance"], pure=False,
                                 retries=RETRIES,
                                 key=task_key("blur-band", k, Path(path).name, run_id))
             futures[fut] = (k, y0, y1)
@@ -249,7 +278,7 @@ def blur_file_on_cluster(path, output, client, *, colorspace="auto", working_spa
                     writer.write_band(y0, y1, r.read_band(0, y1 - y0))
                 finally:
                     r.close()
-            writer.commit()
+            writer.commit(check=guard.check)
         except Exception:
             writer.abort()
             raise

@@ -358,3 +358,58 @@ def test_a_tol_below_float32s_round_off_reports_the_round_off(runtime, method):
     exact = fft_blur_channel(e.astype(np.float64), channel_kernel(a, st, et, 1e-12).weights,
                              "clamp")
     assert np.abs(out - exact).max() / (e.max() * albedo) <= bound      # HxW in, HxW out
+
+
+@pytest.mark.parametrize("peak", [1e-44, 3e-39, 1e-25], ids=lambda p: f"{p:g}")
+@pytest.mark.parametrize("method", METHODS + ["texture"])
+def test_a_tiny_irradiance_stays_within_the_reported_bound(method, peak):
+    """docs/model.md: the bound holds "for any irradiance". A 1e-44 peak lost every bit of its
+    exitance to float32 underflow (gaussians 370x its bound, auto 1470x); now the channel is
+    blurred scaled to a peak near 1 and the bound takes float32's absolute floor (2^-150 /
+    (max E Rd)), against a float64 convolution with the exact weights to radius 40."""
+    import warnings
+
+    from scipy.signal import fftconvolve
+
+    from bdipole_cl.ops.blur.weights import quadrant_weights, unfold_quadrant
+    e = np.zeros((40, 40))
+    e[20, 20], e[10, 25], e[30, 8] = 1.0, 0.5, 0.25
+    e = (e * peak).astype(np.float32)          # the irradiance as given: float32 (subnormal)
+    peak = float(e.max())
+    mfp = np.full((40, 40), 1.5, np.float32) if method == "texture" else 1.5
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")          # the floor above tol is warned of
+        out, info = blur(e, albedo=0.8, mfp=mfp, tol=1e-3,
+                         method="fft" if method == "texture" else method, border="zero",
+                         return_info=True)
+    (a, st, et), = channel_parameters(1, albedo=0.8, mfp=1.5, eta=1.4)
+    w = unfold_quadrant(quadrant_weights(a, st, et, 40))
+    unit = e.astype(np.float64) / peak             # float64, exact weights
+    want = fftconvolve(unit, w, mode="same") * peak
+    rd = float(ref.rd(a, et))
+    err = np.abs(out.astype(np.float64) - want).max() / (peak * rd)
+    assert err <= info.channels[0].error_bound, (method, peak, err, info.channels[0])
+    if peak < 1e-38:                             # the floor is there, and only there
+        assert info.channels[0].error_bound >= 2.0 ** -150 / (peak * rd)
+
+
+def test_auto_passes_over_a_measured_truncation_wider_than_max_radius(monkeypatch):
+    """mfp 500 texels at tol 1e-2: ``auto``'s data pick fft at truncation 1e-4, a kernel of
+    radius 3727 > max_radius 2048, and it raised where ``method="fft"`` (radius 1757) meets
+    tol. It now passes over that configuration for one that fits, within tol. Made small
+    here (a 2048-texel kernel takes 20 s to build): max_radius 40 and mfp 8 texels, whose
+    kernel is 28 texels at 1e-2, 44 at 1e-3 and 60 at the data's 1e-4."""
+    from bdipole_cl.ops.blur import planning, weights
+    monkeypatch.setattr(planning, "channel_kernel",
+                        lambda *a, **k: weights.channel_kernel(*a, **k, max_radius=40))
+    e = impulse(h=16, w=16)
+    with pytest.raises(ValueError, match="exceeds max_radius=40"):
+        blur(e, albedo=0.5, mfp=8.0, tol=1e-4, method="fft")      # the data's pick: too wide
+    got, info = blur(e, albedo=0.5, mfp=8.0, tol=1e-2, method="auto", return_info=True)
+    want, fft = blur(e, albedo=0.5, mfp=8.0, tol=1e-2, method="fft", return_info=True)
+    ch = info.channels[0]
+    assert ch.radius <= 40 and ch.error_bound <= 1e-2, ch
+    assert ch.auto is not None and ch.auto.truncation_tol <= 1e-2
+    # both exitances within their bounds of the exact one: within the sum of each other
+    scale = float(e.max()) * ch.rd
+    assert np.abs(got - want).max() <= (ch.error_bound + fft.channels[0].error_bound) * scale

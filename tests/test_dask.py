@@ -353,3 +353,56 @@ def test_jobs_go_to_workers_with_absolute_paths_and_sendable_keys(tmp_path, monk
                            "mfp": str(tmp_path / "in/m.exr")}
     key = task_key("invert", 3, os.fsdecode(b"caf\xe9.exr"), "run")
     assert key == "invert-3-caf\\udce9.exr-run" and key.encode("utf-8")
+
+
+def test_a_worker_dying_at_start_up_fails_every_job_named_with_the_summary(tmp_path, capsys):
+    """A worker process that dies as ``--scheduler local:1`` starts (here a Dask preload that
+    exits with status 3) gave 'RuntimeError: Nanny failed to start (an unexpected error)', no
+    summary, no job named; an unreachable scheduler the same. Now the error line says what
+    and what to try, and every job fails in the summary, named (exit 1)."""
+    import dask
+    make_files(tmp_path, tiles=("1001",))
+    (tmp_path / "scene.toml").write_text(SCENE.replace("METHOD", ""))
+    (tmp_path / "die.py").write_text("import os\n\n\ndef dask_setup(worker):\n    os._exit(3)\n")
+    argv = ["bake", str(tmp_path / "scene.toml"), "--no-progress", "--scheduler"]
+    with dask.config.set({"distributed.worker.preload": [str(tmp_path / "die.py")]}):
+        assert cli_main(argv + ["local:1"]) == 1
+    out, err = capsys.readouterr()
+    assert "the local cluster did not start: a worker process exited as it started " \
+        "(status 3)" in err and len(err.strip().splitlines()) == 1, err
+    assert "0 done, 3 failed, 0 skipped" in out
+    assert f"{tmp_path / 'tex' / 'skin.1001.exr'}: not run: --scheduler local:1: the local " \
+        f"cluster did not start" in out
+    with dask.config.set({"distributed.comm.timeouts.connect": "1s"}):
+        assert cli_main(argv + ["tcp://127.0.0.1:9"]) == 1
+    out, err = capsys.readouterr()
+    assert "cannot reach the scheduler" in err and "0 done, 3 failed" in out, (out, err)
+
+
+def test_invert_and_blur_name_their_files_when_the_cluster_does_not_start(tmp_path, capsys,
+                                                                          monkeypatch):
+    """The file batch and the cluster blur: the same start-up failure fails each file, named
+    (no cluster is started here: ``connect`` raises as a dead start does)."""
+    from bdipole_cl import cluster
+    from bdipole_cl.cluster import ClusterStartError
+
+    @contextlib.contextmanager
+    def dead(scheduler, memory_limit=None):
+        raise ClusterStartError(f"--scheduler {scheduler}: the local cluster did not start: "
+                                f"a worker process exited as it started (status 3); ...",
+                                f"--scheduler {scheduler}: the local cluster did not start")
+        yield
+    monkeypatch.setattr(cluster, "connect", dead)
+    make_files(tmp_path, tiles=("1001",))
+    a = tmp_path / "tex" / "skin.1001.exr"
+    assert cli_main(["invert", str(a), "-o", str(tmp_path / "o.exr"), "--no-progress",
+                     "--scheduler", "local:1"]) == 1
+    out, err = capsys.readouterr()
+    assert f"{a}: not run: --scheduler local:1: the local cluster did not start" in out
+    assert "0 done, 1 failed" in out and not (tmp_path / "o.exr").exists()
+    e = tmp_path / "light" / "irr.1001.exr"
+    assert cli_main(["blur", str(e), "-o", str(tmp_path / "m.exr"), "--albedo", "0.5",
+                     "--mfp", "2", "--no-progress", "--scheduler", "local:1"]) == 1
+    err = capsys.readouterr().err
+    assert f"{e}: not blurred, nothing written: --scheduler local:1: the local cluster did " \
+        f"not start" in err and not (tmp_path / "m.exr").exists()

@@ -109,3 +109,21 @@ def test_memo_is_refused_in_float64_but_still_labelled(config):
 def test_method_config_refuses_bad_knobs(bad, message):
     with pytest.raises(ValueError, match=message):
         MethodConfig(**bad)
+
+
+def test_the_documented_float32_auto_floor_is_the_codes():
+    """docs/numerics.md gives the smallest float32 tol ``auto`` takes with the shipped data
+    (the README's 8.4e-7 was the bare measurement, from before the 1.15 margin: tol 9e-7 was
+    refused). The figure is the code's, tol at it is taken, 1% below it refused naming it."""
+    import re
+    from pathlib import Path
+
+    from bdipole_cl.methods.choice import auto_inversion_floor, choice_for, resolve_method
+    data, _ = choice_for(None)
+    floor = auto_inversion_floor(False, data)
+    text = (Path(__file__).parent.parent / "docs" / "numerics.md").read_text()
+    documented = float(re.search(r"it is \*\*([0-9.e-]+)\*\*", text)[1])
+    assert documented == float(f"{floor:.3g}"), (documented, floor)
+    assert resolve_method("auto", tol=float(f"{floor:.3g}") * 1.0001).method == "table"
+    with pytest.raises(ValueError, match=f"taken for tol >= {floor:.3g}"):
+        resolve_method("auto", tol=floor * 0.99)

@@ -7,9 +7,10 @@ import pytest
 
 pytest.importorskip("MaterialX")
 
+import bdipole_cl as bd  # noqa: E402
 from bdipole_cl import scene as scenes  # noqa: E402
 from bdipole_cl.io.scene_import import import_materials  # noqa: E402
-
+from test_scene import read  # noqa: E402
 from test_usd_scene import albedo_texture, check_texture_bake  # noqa: E402
 
 pytestmark = pytest.mark.usefixtures("on_device")
@@ -268,3 +269,100 @@ def test_includes_namespaces_and_interface_inputs(tmp_path):
     assert report.exit_code == 0
     assert (tmp_path / "bdipole" / "lib_skin.exr").is_file()
     assert "lib_skin" in (tmp_path / "bdipole" / "bdipole.usda").read_text()
+
+
+def image_doc(path, layer=None, node_type="color3", target="subsurface_color",
+              shader="open_pbr_surface", version=None, file="tex/wax.exr", albedo=None):
+    """A document authored with MaterialX's own API: one material whose ``target`` input
+    comes from an image node (of ``layer``), its colour from an image of ``albedo`` where
+    ``target`` is not the colour."""
+    import MaterialX as mx
+    doc = mx.createDocument()
+    img = doc.addNode("image", "img", node_type)
+    img.setInputValue("file", file, "filename")
+    if layer is not None:
+        img.setInputValue("layer", layer, "string")
+    s = doc.addNode(shader, "s", "surfaceshader")
+    if version:
+        s.setVersionString(version)
+    weight = "subsurface_weight" if shader == "open_pbr_surface" else "subsurface"
+    s.setInputValue(weight, 1.0)
+    s.addInput(target, node_type).setNodeName("img")
+    if albedo:
+        alb = doc.addNode("image", "alb", "color3")
+        alb.setInputValue("file", albedo, "filename")
+        s.addInput("subsurface_color", "color3").setNodeName("alb")
+    doc.addMaterialNode("m", s)
+    mx.writeToXmlFile(doc, str(path))
+    return path
+
+
+def layered_exr(path, layers):
+    """An EXR of R, G, B per layer name ('' unlayered): {layer: (r, g, b)}."""
+    from bdipole_cl.apps.demo import write_exr
+    names = [f"{lay}.{c}" if lay else c for lay in layers for c in "RGB"]
+    px = np.concatenate([np.broadcast_to(np.float32(v), (4, 4, 3)) for v in layers.values()],
+                        -1)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    write_exr(path, px, names)
+
+
+def test_an_image_layer_is_read_or_refused_never_replaced_by_the_files_rgb(tmp_path):
+    """An image's ``layer`` names the file's layer to read: where the file also has unlayered
+    R, G, B (what a bake reads) it was baked from those (other coefficients, exit 0); it is
+    refused, named, with a command that makes the layer a file of its own. Where the layer
+    is the file's only colour, it is what the bake reads, and it bakes."""
+    layered_exr(tmp_path / "tex" / "both.exr", {"": (0.2, 0.2, 0.2), "diffuse": (0.8, 0.6, 0.4)})
+    layered_exr(tmp_path / "tex" / "only.exr", {"diffuse": (0.8, 0.6, 0.4)})
+    (imp,) = import_materials(image_doc(tmp_path / "both.mtlx", "diffuse",
+                                        file="tex/both.exr"))
+    assert imp.left_out and "subsurface_color reads layer 'diffuse' of" in imp.left_out \
+        and "--ch R=diffuse.R,G=diffuse.G,B=diffuse.B" in imp.left_out, imp.left_out
+    (imp,) = import_materials(image_doc(tmp_path / "none.mtlx", "spec", file="tex/only.exr"))
+    assert imp.left_out and "it has no layer 'spec'" in imp.left_out, imp.left_out
+    path = image_doc(tmp_path / "only.mtlx", "diffuse", file="tex/only.exr")
+    (imp,) = import_materials(path)
+    assert imp.left_out is None, imp.left_out
+    report = scenes.load(path).plan().run()
+    assert report.exit_code == 0, report.summary()
+    px, names = read(tmp_path / "bdipole" / "m.exr")     # channels keep the layer's name
+    want_a, _ = bd.albedo_to_coefficients(np.float32([0.8, 0.6, 0.4]), np.float32([1, 0.5, 0.25]),
+                                          1.5, mfp_kind="extinction")
+    got = [px[..., names.index(f"sigma_a.diffuse.{ch}")] for ch in "RGB"]
+    # the scene's accuracy contract: 1e-4 relative (tests/test_usd_scene.py TOL)
+    np.testing.assert_allclose(np.moveaxis(got, 0, -1), np.broadcast_to(want_a, (4, 4, 3)),
+                               rtol=1e-4)
+
+
+def test_a_one_channel_radius_map_on_openpbrs_float_radius_bakes(tmp_path):
+    """OpenPBR's subsurface_radius is a float: a float image of a one-channel file is the mfp
+    texture, times subsurface_radius_scale per channel (it was refused, with advice to use a
+    color3 image, which a float input cannot take). A float image of an RGB file reads its
+    first channel: refused with a command that makes that channel a file."""
+    from bdipole_cl.apps.demo import write_exr
+    albedo = albedo_texture(tmp_path / "tex" / "wax.exr", 4)
+    radius = np.linspace(0.5, 2.0, 64, dtype=np.float32).reshape(8, 8)
+    write_exr(tmp_path / "tex" / "radius.exr", radius, ("Y",))
+    layered_exr(tmp_path / "tex" / "rgb.exr", {"": (1.0, 2.0, 3.0)})
+    path = image_doc(tmp_path / "one.mtlx", None, "float", "subsurface_radius",
+                     file="tex/radius.exr", albedo="tex/wax.exr")
+    (imp,) = import_materials(path)
+    assert imp.left_out is None, imp.left_out
+    report = scenes.load(path).plan().run()
+    assert report.exit_code == 0, report.summary()
+    mfp = radius[..., None] * np.float32([1.0, 0.5, 0.25])    # OpenPBR's radius_scale
+    check_texture_bake(tmp_path / "bdipole" / "m.exr", albedo, mfp, 1.5, "extinction")
+    path = image_doc(tmp_path / "rgb.mtlx", None, "float", "subsurface_radius",
+                     file="tex/rgb.exr", albedo="tex/wax.exr")
+    (imp,) = import_materials(path)
+    assert imp.left_out and "whose colour is R, G, B" in imp.left_out \
+        and "--ch R -o" in imp.left_out, imp.left_out
+
+
+def test_standard_surface_1_0_0_is_standard_surface(tmp_path):
+    """A document pinning Standard Surface 1.0.0 (version="1.0.0": its nodedef
+    ND_standard_surface_surfaceshader_100) is read as Standard Surface, as 1.0.1 is."""
+    albedo_texture(tmp_path / "tex" / "wax.exr", 4)
+    path = image_doc(tmp_path / "old.mtlx", shader="standard_surface", version="1.0.0")
+    (imp,) = import_materials(path)
+    assert imp.shader == "Standard Surface" and imp.left_out is None, imp.left_out

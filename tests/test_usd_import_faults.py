@@ -554,3 +554,178 @@ def test_an_output_whose_input_tile_is_gone_is_removed_at_the_next_bake(tmp_path
                for r in report.results), report.summary()
     by_name, _ = records(out)
     assert by_name["skin"]["files"] == ["skin.1001.exr"]
+
+
+def surface(stage, name, sid, context, **values):
+    """A material whose surface (render context ``context``) is shader ``sid`` with float
+    ``values``: the shader."""
+    m = UsdShade.Material.Define(stage, f"/Mat/{name}")
+    s = UsdShade.Shader.Define(stage, f"/Mat/{name}/s")
+    s.CreateIdAttr(sid)
+    m.CreateSurfaceOutput(context).ConnectToSource(s.ConnectableAPI(), "out")
+    for key, value in values.items():
+        s.CreateInput(key, F).Set(value)
+    return s
+
+
+def file_node(stage, path, sid, file_input, file, output, type_name=C3, **inputs):
+    """A texture node ``sid`` reading ``file`` through ``file_input``: its ``output``."""
+    t = UsdShade.Shader.Define(stage, path)
+    t.CreateIdAttr(sid)
+    t.CreateInput(file_input, Sdf.ValueTypeNames.Asset).Set(file)
+    for key, (value_type, value) in inputs.items():
+        t.CreateInput(key, value_type).Set(value)
+    return t.CreateOutput(output, type_name)
+
+
+def test_production_shader_ids_contexts_and_texture_nodes_are_read(tmp_path):
+    """As productions author them: MaterialX's Standard Surface 1.0.0 nodedef
+    (ND_standard_surface_surfaceshader_100) was 'no subsurface'; the arnold render context was
+    not read ('no surface shader'); a PxrTexture feeding PxrSurface was 'a procedural
+    network', as was an Arnold image. Each is read: a PxrTexture's file (its _MAPID_ the
+    <UDIM> of atlasStyle 1) and linearize, an Arnold image's filename (its <udim> token),
+    color_space and multiply (a scale: refused on the albedo, as UsdUVTexture's)."""
+    for tile in ("1001", "1002"):
+        texture(tmp_path / "tex" / f"skin.{tile}.exr")
+    texture(tmp_path / "tex" / "a.exr")
+    stage = new_stage(tmp_path)
+    surface(stage, "old", "ND_standard_surface_surfaceshader_100", "mtlx", subsurface=1.0
+            ).CreateInput("subsurface_color", C3).Set(Gf.Vec3f(0.6, 0.5, 0.4))
+    s = surface(stage, "pxr", "PxrSurface", "ri", subsurfaceGain=1.0)
+    s.CreateInput("subsurfaceColor", C3).ConnectToSource(file_node(
+        stage, "/Mat/pxr/tex", "PxrTexture", "filename", "tex/skin._MAPID_.exr", "resultRGB",
+        atlasStyle=(Sdf.ValueTypeNames.Int, 1), linearize=(Sdf.ValueTypeNames.Int, 1)))
+    s = surface(stage, "arn", "arnold:standard_surface", "arnold", subsurface=1.0)
+    s.CreateInput("subsurface_color", C3).ConnectToSource(file_node(
+        stage, "/Mat/arn/img", "arnold:image", "filename", "tex/a.exr", "out",
+        color_space=(Sdf.ValueTypeNames.String, "linear")))
+    s = surface(stage, "arnu", "arnold:standard_surface", "arnold", subsurface=1.0)
+    s.CreateInput("subsurface_color", C3).ConnectToSource(file_node(
+        stage, "/Mat/arnu/img", "arnold:image", "filename", "tex/skin.<udim>.exr", "out"))
+    s = surface(stage, "arnx", "arnold:standard_surface", "arnold", subsurface=1.0)
+    s.CreateInput("subsurface_color", C3).ConnectToSource(file_node(
+        stage, "/Mat/arnx/img", "arnold:image", "filename", "tex/a.exr", "out",
+        multiply=(C3, Gf.Vec3f(0.5, 0.5, 0.5))))
+    stage.GetRootLayer().Save()
+    imports = {m.name: m for m in scenes.load(tmp_path / "asset.usda").imports}
+    assert imports["old"].shader == "Standard Surface" and imports["old"].left_out is None
+    pxr_facts = imports["pxr"].facts
+    assert imports["pxr"].left_out is None and pxr_facts["colorspace"] == "sRGB"
+    assert pxr_facts["albedo"] == str(tmp_path / "tex" / "skin.<UDIM>.exr")
+    assert imports["arn"].left_out is None and imports["arn"].shader == "Standard Surface"
+    assert imports["arn"].facts["colorspace"] == "lin_rec709"
+    assert imports["arnu"].facts["albedo"] == str(tmp_path / "tex" / "skin.<UDIM>.exr")
+    assert "/Mat/arnx/img has scale 0.5, 0.5, 0.5, on the albedo" in imports["arnx"].left_out
+    report = scenes.load(tmp_path / "asset.usda").plan().run()
+    assert report.exit_code == 0, report.summary()
+    assert {r.status for r in report.results} == {"ok"}
+
+
+def test_a_spline_animated_input_without_a_time_range_is_read_at_its_first_knot(tmp_path):
+    """USD splines have no time samples: on a stage with no time range the first sample of an
+    empty list was an IndexError that stopped the whole plan, other materials included. The
+    input is read at its first knot and noted, and the other material is read too."""
+    from pxr import Ts
+    texture(tmp_path / "tex" / "a.exr")
+    stage = new_stage(tmp_path)
+    s, _ = material(stage, "anim", "tex/a.exr")
+    spline = Ts.Spline("float")
+    for time, value in ((3.0, 0.25), (10.0, 1.0)):
+        knot = Ts.Knot("float")
+        knot.SetTime(time)
+        knot.SetValue(value)
+        spline.SetKnot(knot)
+    assert s.CreateInput("subsurface_radius", F).GetAttr().SetSpline(spline)
+    material(stage, "still", "tex/a.exr")
+    stage.GetRootLayer().Save()
+    imports = {m.name: m for m in scenes.load(tmp_path / "asset.usda").imports}
+    anim = imports["anim"]
+    assert anim.left_out is None and imports["still"].left_out is None
+    assert anim.inputs["subsurface_radius"] == \
+        "subsurface_radius 0.25 (animated: at time code 3)"
+    np.testing.assert_allclose(anim.facts["mfp"], [0.25, 0.125, 0.0625], rtol=1e-7)
+
+
+def test_a_reader_fault_in_one_material_leaves_only_that_one_out(tmp_path, monkeypatch):
+    """Whatever a stage's reader trips on in one material's inputs (a value USD cannot give)
+    is that material's refusal, named; the others are read."""
+    from bdipole_cl.io import usd_scene
+    texture(tmp_path / "tex" / "a.exr")
+    stage = new_stage(tmp_path)
+    material(stage, "bad", "tex/a.exr")
+    material(stage, "good", "tex/a.exr")
+    stage.GetRootLayer().Save()
+    real = usd_scene.read_input
+
+    def faulty(shader, name, time=None):
+        time = Usd.TimeCode.EarliestTime() if time is None else time
+        if "/bad/" in str(shader.GetPath()) and name == "specular_ior":
+            raise IndexError("list index out of range")
+        return real(shader, name, time)
+    monkeypatch.setattr(usd_scene, "read_input", faulty)
+    imports = {m.name: m for m in scenes.load(tmp_path / "asset.usda").imports}
+    assert imports["bad"].left_out == ("not bakeable: specular_ior cannot be read: IndexError: "
+                                       "list index out of range")
+    assert imports["good"].left_out is None
+
+
+def test_a_one_channel_radius_map_and_an_image_layer_in_a_stage(tmp_path):
+    """OpenPBR's float subsurface_radius from a float image of a one-channel file bakes (the
+    mfp texture times radius_scale); a MaterialX image's ``layer`` that is not what a bake
+    reads of the file is refused, named (it was read from the file's R, G, B, exit 0)."""
+    from bdipole_cl.apps.demo import write_exr
+    texture(tmp_path / "tex" / "a.exr")
+    radius = np.linspace(0.5, 2.0, N * N, dtype=np.float32).reshape(N, N)
+    write_exr(tmp_path / "tex" / "radius.exr", radius, ("Y",))
+    stage = new_stage(tmp_path)
+    s, _ = material(stage, "mapped", "tex/a.exr")
+    s.CreateInput("subsurface_radius", F).ConnectToSource(file_node(
+        stage, "/Mat/mapped/r", "ND_image_float", "file", "tex/radius.exr", "out", F))
+    s, t = material(stage, "layered", "tex/a.exr")
+    t.GetIdAttr().Set("ND_image_color3")
+    t.CreateInput("layer", Sdf.ValueTypeNames.String).Set("diffuse")
+    stage.GetRootLayer().Save()
+    scene = scenes.load(tmp_path / "asset.usda")
+    left = {m.name: m.left_out for m in scene.imports}
+    assert left["mapped"] is None
+    assert "subsurface_color reads layer 'diffuse' of" in left["layered"], left
+    m, = scene.materials
+    assert m.mfp == str(tmp_path / "tex" / "radius.exr")
+    np.testing.assert_allclose(m.mfp_scale, [1.0, 0.5, 0.25], rtol=1e-7)   # radius_scale
+
+
+def test_a_stage_referencing_a_materialx_document_says_why_and_what_to_do(tmp_path, capsys):
+    """The usd-core wheel has no MaterialX file-format plugin: a stage referencing look.mtlx
+    failed with 'Could not open asset', no word of why. The refusal says so and names the
+    ways that work (bake the document itself)."""
+    from bdipole_cl.apps.cli import main as cli_main
+    (tmp_path / "look.mtlx").write_text('<?xml version="1.0"?>\n<materialx version="1.39" />\n')
+    shot = Usd.Stage.CreateNew(str(tmp_path / "shot.usda"))
+    shot.DefinePrim("/MaterialX").GetReferences().AddReference("look.mtlx", "/MaterialX")
+    shot.GetRootLayer().Save()
+    if Sdf.FileFormat.FindByExtension("mtlx") is not None:
+        pytest.skip("this USD reads .mtlx layers")
+    assert cli_main(["plan", str(tmp_path / "shot.usda")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1, err
+    assert "no MaterialX file-format plugin" in err and \
+        f"bdipole_cl bake {tmp_path / 'look.mtlx'}" in err, err
+
+
+def test_a_shader_implemented_by_a_source_asset_is_known_by_its_sub_identifier(tmp_path):
+    """A shader authored as a MaterialX library node (info:implementationSource sourceAsset,
+    info:mtlx:sourceAsset:subIdentifier = the nodedef) has no info:id: it was 'no surface
+    shader'. Its sub-identifier names it, for the surface and for an image node."""
+    texture(tmp_path / "tex" / "a.exr")
+    stage = new_stage(tmp_path)
+    s, t = material(stage, "skin", "tex/a.exr")
+    for shader, nodedef in ((s, "ND_standard_surface_surfaceshader_100"),
+                            (t, "ND_image_color3")):
+        shader.GetImplementationSourceAttr().Set(UsdShade.Tokens.sourceAsset)
+        shader.SetSourceAsset(Sdf.AssetPath("stdlib_defs.mtlx"), "mtlx")
+        shader.SetSourceAssetSubIdentifier(nodedef, "mtlx")
+    s.CreateInput("subsurface", F).Set(1.0)
+    stage.GetRootLayer().Save()
+    (skin,) = scenes.load(tmp_path / "asset.usda").imports
+    assert skin.shader == "Standard Surface" and skin.left_out is None, skin.left_out
+    assert skin.facts["albedo"] == str(tmp_path / "tex" / "a.exr")

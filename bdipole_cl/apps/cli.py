@@ -57,10 +57,15 @@ def _cmd_invert(args) -> int:
     # constant is the user's option, no texel: the API's on_invalid="clamp" clamps it)
     check_scaled_mfp(parse_constant(args.mfp, "mfp"), float(args.mfp_scale))
     if args.scheduler:
-        from ..dask import file_runner
-        with cluster_client(args) as client:
-            return _invert(args, file_runner(client, device=args.device,
-                                             progress=not args.no_progress))
+        from ..cluster import ClusterStartError
+        from ..dask import file_runner, not_started_runner
+        try:
+            with cluster_client(args) as client:
+                return _invert(args, file_runner(client, device=args.device,
+                                                 progress=not args.no_progress))
+        except ClusterStartError as exc:     # every file fails, named, in the summary
+            print(f"bdipole-cl {args.command}: error: {exc}", file=sys.stderr)
+            return _invert(args, not_started_runner(exc.short))
     return _invert(args, None)
 
 
@@ -152,11 +157,16 @@ def _cmd_bake(args) -> int:
             bar.update(1)
 
     if args.scheduler:
-        from ..dask import bake_on_cluster
-        with cluster_client(args) as client:
-            report = bake_on_cluster(plan, client, device=args.device,
-                                     progress=not args.no_progress,
-                                     max_memory=args.max_memory)
+        from ..cluster import ClusterStartError
+        from ..dask import bake_on_cluster, not_started
+        try:
+            with cluster_client(args) as client:
+                report = bake_on_cluster(plan, client, device=args.device,
+                                         progress=not args.no_progress,
+                                         max_memory=args.max_memory)
+        except ClusterStartError as exc:     # every job to run fails, named, in the summary
+            print(f"bdipole-cl {args.command}: error: {exc}", file=sys.stderr)
+            report = not_started(plan, exc.short)
     else:
         try:
             report = plan.run(cancel=stop.event, progress=progress,
@@ -201,31 +211,6 @@ def _cmd_demo(args) -> int:
     return run_demo(args.dir, progress=not args.no_progress)
 
 
-def _cmd_devices(args) -> int:
-    from ..device import REMEDIES, DeviceError, get_runtime, survey
-    from ..device.icd import register_environment_runtimes
-    states = survey()
-    try:
-        chosen = get_runtime(args.device).device.int_ptr
-    except DeviceError as exc:
-        chosen = None
-        problem = str(exc)
-    for s in states:
-        mark = "*" if s.device.int_ptr == chosen else " "
-        print(f"{mark} {s.describe()}")
-    for r in register_environment_runtimes():
-        how = "registered" if r.registered else "not registered"
-        print(f"  environment runtime: {r.name} at {r.library} ({how}"
-              + (f"; {r.note}" if r.note else "") + ")")
-    if chosen is None:
-        print(f"bdipole-cl devices: error: {problem}", file=sys.stderr)
-        return 1
-    print("* = the device bdipole-cl uses (--device or PYOPENCL_CTX choose another)")
-    if not any(s.works for s in states):
-        print(REMEDIES)
-    return 0
-
-
 def _scene_command(command, name, text, force_help, memory_help):
     """A command on a scene: its file, --force and --max-memory."""
     p = command(name, help=text)
@@ -248,8 +233,8 @@ def build_parser() -> argparse.ArgumentParser:
     add_global_args(common, argparse.SUPPRESS)   # after the command too, not overriding
     sub = parser.add_subparsers(dest="command", required=True)
     command = functools.partial(sub.add_parser, parents=[common])
-    p = command("devices", help="list OpenCL devices and the one in use")
-    p.set_defaults(func=_cmd_devices)
+    from . import devices
+    devices.add_command(command)
 
     p = command("demo", help="make a built-in example and run the main jobs on it")
     p.add_argument("--dir", default="bdipole_demo", help="folder for inputs and results")

@@ -24,8 +24,11 @@ def parameter(text, what, **colour):
 
 def blur_job(args, sources):
     """The CLI blur's job: its parameters (constants, or textures read here) and options."""
+    from ..io.freshness import input_identities
     from ..jobs.job import BlurWork, Job
     from ..ops.blur import Scattering
+    inputs = {"irradiance": args.input, **sources}
+    identities = input_identities(inputs)      # before the first read (of a parameter)
     if args.alpha_prime is not None:
         scattering = Scattering(alpha_prime=parameter(args.alpha_prime, "alpha'"),
                                 sigma_t=parameter(args.sigma_t, "sigma_t'"), eta=args.eta,
@@ -38,7 +41,7 @@ def blur_job(args, sources):
                     exact=args.exact, on_invalid=args.on_invalid, half=args.half,
                     texture=args.texture, colorspace=args.colorspace,
                     working=args.working_space, max_memory=args.max_memory)
-    return Job("blur", args.input, args.output, {"irradiance": args.input, **sources}, work)
+    return Job("blur", args.input, args.output, inputs, work, identities=identities)
 
 
 def cmd_blur(args) -> int:
@@ -104,6 +107,7 @@ def stopped_after_writing(stop, output) -> int:
 
 def blur_on_cluster(args, sources, stop) -> int:
     """``bdipole-cl blur --scheduler``: the bands of one blur as cluster tasks."""
+    from ..cluster import ClusterStartError
     from ..dask import blur_file_on_cluster
     from ..io.images import Cancelled, TextureError
     from ..jobs.blur_file import clamped_text
@@ -118,7 +122,7 @@ def blur_on_cluster(args, sources, stop) -> int:
     try:
         with cluster_client(args) as client:
             n = blur_file_on_cluster(args.input, args.output, client, half=args.half,
-                                     clamped=clamped,
+                                     clamped=clamped, identities=job.identities,
                                      max_memory=args.max_memory, device=args.device,
                                      texture=args.texture, colorspace=args.colorspace,
                                      working_space=args.working_space, albedo=s.albedo,
@@ -130,6 +134,10 @@ def blur_on_cluster(args, sources, stop) -> int:
     except TextureError as exc:
         print(f"bdipole-cl {args.command}: error: {exc}", file=sys.stderr)
         return (stop.exit_code or 1) if isinstance(exc, Cancelled) else 1
+    except ClusterStartError as exc:    # the one job, named: nothing written
+        print(f"bdipole-cl {args.command}: error: {args.input}: not blurred, nothing written: "
+              f"{exc}", file=sys.stderr)
+        return 1
     except Stopped:                     # while the cluster started or the blur was planned
         print(f"bdipole-cl {args.command}: interrupted: nothing written", file=sys.stderr)
         return stop.exit_code or 130

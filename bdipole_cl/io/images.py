@@ -394,7 +394,11 @@ class Writer:
                                f"{oiio_error(self.out)}{low_space(self.path)}")
         self.digests.add(y0, y1, pixels)
 
-    def commit(self):
+    def commit(self, check=None):
+        """Close, verify and put the output in place. ``check`` (a callable that raises a
+        TextureError, e.g. ``freshness.InputGuard.check``) runs last, after every write of
+        the file to be renamed (so an input changed after it is older than the output's
+        time, never newer), and a raise discards it."""
         ok = self.out.close()
         self.out = None
         if not ok:
@@ -407,11 +411,17 @@ class Writer:
             self._remove_tmp()
             raise TextureError(str(exc)) from None
         if self.texture is not None:
-            self._commit_texture()
+            self._commit_texture(check)
             return
+        if check is not None:
+            try:
+                check()
+            except TextureError:
+                self._remove_tmp()
+                raise
         durable_replace(self.tmp, self.path)
 
-    def _commit_texture(self):
+    def _commit_texture(self, check=None):
         tex = self.tmp.with_name(f"{self.tmp.stem}.tx{self.tmp.suffix}")
         try:
             spec, px = read_whole(self.tmp, "plain output")
@@ -423,6 +433,8 @@ class Writer:
                 raise TextureError(f"{self.path}: {exc}") from None
             if self.cancel is not None and self.cancel.is_set():
                 raise Cancelled(f"{self.path}: interrupted; nothing written")
+            if check is not None:
+                check()
             durable_replace(tex, self.path)
         finally:
             for p in (tex, self.tmp):

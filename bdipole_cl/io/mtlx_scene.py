@@ -9,7 +9,8 @@ input's value is its ``value`` attribute; a connected input (``nodename``, or ``
 ``xi:include``d one's own folder; through node graphs' interface inputs) is the texture and
 whose active colour space (its ``colorspace`` attribute, else the enclosing elements', else
 the document's) goes to colour management (a ``float`` image, one channel of the file, is
-refused where its texels are baked). Any other node is a procedural network: the material
+refused where its texels are baked, but as a distance from a one-channel file; a ``layer``
+is read where it is the file's layer a bake reads, else refused: ``shaders``). Any other node is a procedural network: the material
 is named as not bakeable. A distance input's ``unit`` (``unittype="distance"``) converts it to
 the scene unit: metres, MaterialX's default target distance unit (``GenOptions``), which a
 scene file's ``unit`` may change. A material's name is a valid USD prim and file name
@@ -24,8 +25,8 @@ import MaterialX as mx
 
 from . import tiles
 from .scene_file import SceneError
-from .shaders import (BY_ID, TEXTURE_NODES, Input, Texture, imported_material, other_texels,
-                      unique_names)
+from .shaders import (TEXTURE_NODES, Input, Texture, imported_material, one_channel,
+                      shader_mapping, unique_names)
 
 #: metres per scene unit of a MaterialX document (MaterialX's default target distance unit)
 DOCUMENT_UNIT_M = 1.0
@@ -82,10 +83,11 @@ def _texture(node, base: str) -> Texture | str:
     path = file_input.getResolvedValueString()
     if not os.path.isabs(path):
         path = _relative_file(file_input, path, base)
-    layer = _interface_source(node.getInput("layer")) if node.getInput("layer") else None
+    layer = _interface_source(node.getInput("layer"))
+    channel = one_channel(node.getType())
     return Texture(path, file_input.getActiveColorSpace() or "auto", node.getNamePath(),
-                   channel=other_texels(node.getType(),
-                                        layer.getValueString() if layer else None))
+                   channel=channel, channel_index=0 if channel else None,
+                   layer=(layer.getValueString() or None) if layer is not None else None)
 
 
 def read_input(shader, name: str, base: str) -> Input | None:
@@ -122,7 +124,7 @@ def surface_shader(material):
     """The material node's surface shader with a subsurface mapping, else its first."""
     shaders = mx.getShaderNodes(material, "surfaceshader")
     for shader in shaders:
-        if shader.getCategory() in BY_ID:
+        if shader_mapping(shader.getCategory()) is not None:
             return shader
     return shaders[0] if shaders else None
 

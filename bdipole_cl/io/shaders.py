@@ -13,6 +13,10 @@ PxrSurface           subsurfaceColor     subsurfaceDmfp x                subsurf
                                          unitLength
 ===================  ==================  ==============================  ==============  =====
 
+A shader is known by its USD ``info:id`` or MaterialX category: MaterialX's versioned
+nodedefs too (``ND_standard_surface_surfaceshader_100``, Standard Surface 1.0.0: any
+``ND_..._<digits>`` of a known nodedef, ``shader_mapping``) and Arnold's (``arnold:``).
+
 A material counts when its weight (``subsurface_weight``, ``subsurface``, ``subsurfaceGain``)
 is > 0 (or a texture). Every other shader (UsdPreviewSurface, ...) has no subsurface and is
 left out. Inputs not authored take the shader's default (below: the MaterialX 1.39 nodedefs
@@ -29,11 +33,15 @@ default); ``imported_material`` turns a shader's inputs into the scene keys of o
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..errors import one_line
 from . import tiles
+from .channels import classify_channels, layer_of
+from .images import image_header
 from .scene_file import UNIT_METERS, ImportedMaterial, SceneError
 from .targets import DEFAULT_TARGETS
 
@@ -55,7 +63,8 @@ class ShaderMapping:
 
 SHADERS = (
     ShaderMapping(
-        "OpenPBR Surface", ("ND_open_pbr_surface_surfaceshader", "open_pbr_surface"),
+        "OpenPBR Surface", ("ND_open_pbr_surface_surfaceshader", "open_pbr_surface",
+                            "arnold:openpbr_surface"),
         "subsurface_color", ("subsurface_radius", "subsurface_radius_scale"), "specular_ior",
         "subsurface_weight", "extinction",
         "OpenPBR Surface specification, Subsurface: the radius is the mean free path of the medium",
@@ -64,7 +73,8 @@ SHADERS = (
          "specular_ior": (1.5,), "subsurface_scatter_anisotropy": (0.0,)},
         "subsurface_scatter_anisotropy"),
     ShaderMapping(
-        "Standard Surface", ("ND_standard_surface_surfaceshader", "standard_surface"),
+        "Standard Surface", ("ND_standard_surface_surfaceshader", "standard_surface",
+                             "arnold:standard_surface"),
         "subsurface_color", ("subsurface_radius", "subsurface_scale"), "specular_IOR",
         "subsurface", "extinction",
         "Autodesk Standard Surface specification, Subsurface: the radius is the mean free path",
@@ -83,10 +93,19 @@ SHADERS = (
 )
 BY_ID = {i: s for s in SHADERS for i in s.ids}
 
-#: USD and MaterialX nodes whose file is a texture a scene can bake from
-TEXTURE_NODES = ("UsdUVTexture", "image", "tiledimage", "PxrTexture")
-#: each texture node's file input (RenderMan's PxrTexture names it ``filename``)
-FILE_INPUT = {"PxrTexture": "filename"}
+
+def shader_mapping(shader_id) -> ShaderMapping | None:
+    """The mapping of a shader id or category, None for a shader with no subsurface: a
+    MaterialX nodedef of an older version (``ND_<node>_<type>_<version digits>``, as
+    ``ND_standard_surface_surfaceshader_100``: the same inputs, defaults and meaning) as its
+    current one."""
+    found = BY_ID.get(shader_id or "")
+    versioned = re.fullmatch(r"(ND_\w+?)_\d+", shader_id or "")
+    return found if found is not None or versioned is None else BY_ID.get(versioned[1])
+
+
+#: USD, MaterialX, RenderMan and Arnold nodes whose file is a texture a scene can bake from
+TEXTURE_NODES = ("UsdUVTexture", "image", "tiledimage", "PxrTexture", "arnold:image")
 
 SHORT_UNITS = ("m", "cm", "mm", "um", "nm", "km", "in", "ft", "yd", "mi")
 
@@ -115,6 +134,8 @@ class Texture:
     scale: tuple | None = None   # per channel, multiplies the texels (UsdUVTexture scale)
     bias: tuple | None = None    # per channel, added after the scale (UsdUVTexture bias)
     channel: str | None = None   # the one channel read (UsdUVTexture outputs:r ...); None: rgb
+    channel_index: int | None = None   # that channel's place in the file (0: R, the first)
+    layer: str | None = None     # the file's layer read (MaterialX image ``layer``); None: ''
 
 
 @dataclass(frozen=True)
@@ -148,18 +169,24 @@ def default_input(mapping: ShaderMapping, name: str) -> Input:
     return Input(name, value=mapping.defaults[name], authored=False)
 
 
-def other_texels(node_type: str, layer: str | None) -> str | None:
-    """What a MaterialX image node (USD ``ND_image_*``) reads when that is not its file's R,
-    G, B: one channel (a ``float`` image), or an EXR ``layer`` (never ignored: the bake
-    would read the file's own R, G, B instead); else None."""
-    return f"layer {layer!r}" if layer else one_channel(node_type)
-
-
 def one_channel(node_type: str) -> str | None:
     """What a MaterialX image node of ``node_type`` reads when that is one channel of its
     file (a ``float`` image: the first), else None."""
     return f"out (a {node_type} image: the file's first channel)" if node_type == "float" \
         else None
+
+
+def file_colour(file) -> tuple | None:
+    """(the colour channels a bake reads, every channel) of a texture file, names as in the
+    file (``channels.classify_channels``; a <UDIM> pattern: its first tile); None where no
+    such file can be read now."""
+    hits = tiles.expand(file) if tiles.is_pattern(file) else [(file, None)]
+    spec = image_header(hits[0][0]) if hits else None
+    if spec is None:
+        return None
+    names = [str(n) for n in spec.channelnames]
+    colour, _, _ = classify_channels(names, spec.alpha_channel)
+    return [names[i] for i in colour], names
 
 
 class NotBakeable(Exception):
@@ -200,18 +227,61 @@ def _distance(mapping, inputs, unit_m, where):
     return tex.texture.file, [float(v) for v in scale]
 
 
+def _layer_refusal(inp) -> str | None:
+    """Why the layer a texture node names (MaterialX ``layer``) is not the one a bake reads
+    (the file's unlayered colour, else its first layer: ``classify_channels``), or None."""
+    t = inp.texture
+    if not t.layer:
+        return None
+    found = file_colour(t.file)
+    if found is None:
+        return (f"{inp.name} reads layer {t.layer!r} of {t.file} ({t.node}), a file that "
+                f"cannot be read to find that layer")
+    colour, names = found
+    if colour and layer_of(colour[0]) == t.layer:
+        return None
+    head = (f"{inp.name} reads layer {t.layer!r} of {t.file} ({t.node}), but a bake reads "
+            f"its {', '.join(colour) or 'no channel'}")
+    mine = [n for n in names if layer_of(n) == t.layer]
+    if not mine:
+        return f"{head}: it has no layer {t.layer!r} (its channels: {', '.join(names)})"
+    ch = ",".join(f"{n.rsplit('.', 1)[-1]}={n}" for n in mine[:3])
+    return (f"{head}: write that layer to a file of its own (oiiotool {t.file} --ch {ch} -o "
+            f"{t.layer}.exr) and read that")
+
+
+def _one_channel_refusal(inp, is_albedo) -> str | None:
+    """Why a texture node's one channel cannot be baked, or None: a distance may be one
+    channel (OpenPBR's radius is a float) where it is the first of a file whose colour is
+    that one channel (the mfp texture then has one channel, times the scale per channel);
+    an albedo is the colour channels (an rgb output, a color3 image)."""
+    t = inp.texture
+    if t.channel is None:
+        return None
+    head = f"{inp.name} reads {t.channel} of {t.node}, one channel"
+    if is_albedo:
+        return (f"{head}: a bake reads a texture's colour channels (UsdUVTexture outputs:rgb, "
+                f"a color3 image)")
+    found = file_colour(t.file)
+    if found is not None and len(found[0]) == 1 and t.channel_index == 0:
+        return None
+    which = "R" if not t.channel_index else "RGBA"[t.channel_index]
+    if found is not None and t.channel_index is not None and t.channel_index < len(found[1]):
+        which = found[1][t.channel_index]
+    return (f"{head} of {t.file}"
+            + (f", whose colour is {', '.join(found[0])}" if found else "")
+            + f": write that channel to a one-channel file (oiiotool {t.file} --ch {which} "
+              f"-o {inp.name}.exr) and read that")
+
+
 def _texel_refusals(inp, is_albedo) -> list:
     """Why a texture's texels cannot be baked as they are (its colour channels, the
-    distance's scaled): one channel, a bias, a scale of the albedo (never ignored)."""
+    distance's scaled): a layer other than the one read, one channel (but a distance's of a
+    one-channel file), a bias, a scale of the albedo (never ignored)."""
     t = inp.texture
     if t is None:
         return []
-    why = []
-    if t.channel is not None:
-        what = "other texels than its R, G, B" if t.channel.startswith(("layer", "channels")) \
-            else "one channel"
-        why.append(f"{inp.name} reads {t.channel} of {t.node}, {what}: a bake reads a "
-                   f"texture's colour channels (UsdUVTexture outputs:rgb, a color3 image)")
+    why = [w for w in (_layer_refusal(inp), _one_channel_refusal(inp, is_albedo)) if w]
     for what, values in (("bias", t.bias), ("scale", t.scale if is_albedo else None)):
         if values is not None:
             why.append(f"{inp.name}: UsdUVTexture scale/bias not supported ({t.node} has "
@@ -266,7 +336,7 @@ def imported_material(name, path, shader_id, read, *, unit_m, out_dir, bound) ->
         ImportedMaterial:
     """A material from its surface shader's id and ``read(input name) -> Input | None``
     (None: not authored); ``out_dir`` the default folder of its outputs."""
-    mapping = BY_ID.get(shader_id)
+    mapping = shader_mapping(shader_id)
     if mapping is None:
         return ImportedMaterial(name, path, shader_id or "no surface shader", None, {}, {},
                                 {}, unit_m, f"no subsurface ({shader_id or 'no surface'}"
@@ -274,11 +344,18 @@ def imported_material(name, path, shader_id, read, *, unit_m, out_dir, bound) ->
     names = (mapping.weight, mapping.albedo, *mapping.distance, mapping.eta,
              *((mapping.anisotropy,) if mapping.anisotropy else ()),
              *((mapping.unit_length,) if mapping.unit_length else ()))
-    try:                               # an input that cannot be read (a unit that is not
-        inputs = {n: read(n) or default_input(mapping, n) for n in names}   # a distance)
-    except SceneError as exc:          # leaves this material out, named; the others bake
+    inputs = {}
+    for n in names:                    # an input that cannot be read (a unit that is not a
+        try:                           # distance, a value USD cannot give) leaves this
+            inputs[n] = read(n) or default_input(mapping, n)   # material out, named; the
+        except SceneError as exc:                              # others bake
+            why = str(exc)
+        except Exception as exc:       # noqa: BLE001 (a reader's fault is this material's)
+            why = f"{n} cannot be read: {type(exc).__name__}: {one_line(exc)}"
+        else:
+            continue
         return ImportedMaterial(name, path, mapping.name, mapping.mfp_kind, {}, {}, {}, unit_m,
-                                f"not bakeable: {exc}", bound=bound)
+                                f"not bakeable: {why}", bound=bound)
     described = {n: i.describe() for n, i in inputs.items()}
 
     def left(reason):

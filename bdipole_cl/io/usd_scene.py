@@ -1,27 +1,32 @@
 """USD stages (``.usda``, ``.usd``, ``.usdc``, ``.usdz``) as scenes: every UsdShade Material's
 surface shader read through ``shaders`` (I/O; needs ``pxr``, the ``usd`` extra).
 
-A material's surface is looked for in the ``mtlx``, ``ri`` and universal render contexts, in
-that order; the first shader with a subsurface mapping is used. An input's value comes from
+A material's surface is looked for in the ``mtlx``, ``ri``, ``arnold`` and universal render
+contexts, in that order, then any other; the first shader with a subsurface mapping is used. An input's value comes from
 ``UsdShadeInput.GetValueProducingAttributes`` (so through node graphs and interface inputs):
 an authored value, or the output of a texture node (``UsdUVTexture``, MaterialX ``image`` /
-``tiledimage``, RenderMan's ``PxrTexture``) whose ``inputs:file`` (PxrTexture:
-``inputs:filename``) is the texture (``<UDIM>`` kept; one packaged in a
+``tiledimage``, RenderMan ``PxrTexture``, Arnold ``image``) whose ``inputs:file`` (the
+latter two: ``inputs:filename``; a PxrTexture's ``_MAPID_`` the tile token of its
+``atlasStyle``) is the texture (``<UDIM>`` kept; one packaged in a
 ``.usdz`` read from its copy in the cache, ``usdz``; a UsdUVTexture's
 output channel and ``inputs:scale`` / ``inputs:bias`` kept: ``shaders`` applies or refuses
 them; the file, ``sourceColorSpace``, ``scale`` and ``bias`` may come through interface
 inputs too). Its colour space is the file attribute's ``colorSpace`` metadata, else the one a
 ``ColorSpaceAPI`` on its prim or an ancestor declares, else ``inputs:sourceColorSpace``
-(``raw`` is linear, ``sRGB``; ``auto`` leaves it to the file). Values are read at the stage's
-start time code (``bake_time``; without a time range, an input's first time sample): an
+(``raw`` is linear, ``sRGB``; ``auto`` leaves it to the file), a PxrTexture's
+``linearize`` (1: sRGB, else raw) or an Arnold image's ``color_space``. Values are read at the stage's
+start time code (``bake_time``; without a time range, an input's first time sample or
+spline knot): an
 animated input is baked at that time and noted, never replaced by its shader's default. Any
 other node feeding an input is a procedural network: the material is named as not bakeable.
-Distances are in the stage's unit (``metersPerUnit``).
+Distances are in the stage's unit (``metersPerUnit``). A stage using a ``.mtlx`` document
+as a layer needs USD's MaterialX plugin, which the usd-core wheel lacks: refused, saying so.
 """
 from __future__ import annotations
 
 import math
 import os
+import re
 import sys
 import tempfile
 import zipfile
@@ -34,21 +39,47 @@ from pxr import Sdf, Usd, UsdGeom, UsdShade
 from ..errors import one_line
 from . import usdz
 from .scene_file import SceneError
-from .shaders import (BY_ID, FILE_INPUT, TEXTURE_NODES, Input, Texture, imported_material,
-                      other_texels, unique_names)
+from .shaders import (TEXTURE_NODES, Input, Texture, imported_material, one_channel,
+                      shader_mapping, unique_names)
 
-#: render contexts searched for a material's surface, in order
-CONTEXTS = ("mtlx", "ri", "")
+#: render contexts searched for a material's surface, in order (then any other one)
+CONTEXTS = ("mtlx", "ri", "arnold", "")
+
+
+def shader_id_of(shader) -> str:
+    """A shader's identifier: its ``info:id``, else, for one implemented by a source asset
+    (``info:implementationSource = "sourceAsset"``, as a MaterialX library's node), the
+    asset's sub-identifier (``info:mtlx:sourceAsset:subIdentifier``: the nodedef's name);
+    "" if neither."""
+    found = shader.GetShaderId()
+    if found:
+        return found
+    for source_type in shader.GetSourceTypes():
+        sub = shader.GetSourceAssetSubIdentifier(source_type)
+        if sub:
+            return sub
+    return ""
 
 
 def _node_kind(shader_id: str) -> str:
-    """'UsdUVTexture', 'image' or 'tiledimage' for texture nodes (MaterialX ids are
-    ND_<node>_<type>), else the id."""
+    """'UsdUVTexture', 'image', 'tiledimage', 'PxrTexture' or 'arnold:image' for texture
+    nodes (MaterialX ids are ND_<node>_<type>), else the id."""
     if shader_id and shader_id.startswith("ND_"):
         for kind in ("tiledimage", "image"):
             if shader_id.startswith(f"ND_{kind}_"):
                 return kind
     return shader_id
+
+
+#: each texture node's file input; the channel (0 R ... 3 A) its one-channel outputs read
+FILE_INPUT = {"PxrTexture": "filename", "arnold:image": "filename"}
+CHANNEL_OUTPUTS = {"r": 0, "g": 1, "b": 2, "a": 3, "resultR": 0, "resultG": 1, "resultB": 2,
+                   "resultA": 3}
+#: a PxrTexture's atlasStyle: the tile token its ``_MAPID_`` stands for (docs: RenderMan)
+PXR_ATLAS = {1: "<UDIM>", 2: "<UVTILE>", 3: "<UVTILE0>"}
+#: Arnold image ``color_space`` names that are not OCIO's ("linear": linear Rec.709)
+ARNOLD_SPACES = {"": "auto", "auto": "auto", "linear": "lin_rec709", "Raw": "raw",
+                 "raw": "raw"}
 
 
 def _decimal(v) -> float:
@@ -80,11 +111,16 @@ def bake_time(stage) -> Usd.TimeCode:
 
 
 def _animated(attr, time) -> str | None:
-    """Where an attribute's value is animated, the time it is read at, in words; else None."""
+    """Where an attribute's value is animated (time samples or a spline), the time it is read
+    at, in words; else None. Without a time range that is its first sample or knot."""
     if not attr.ValueMightBeTimeVarying() and attr.GetNumTimeSamples() == 0:
         return None
-    at = attr.GetTimeSamples()[0] if time.IsEarliestTime() else time.GetValue()
-    return f"time code {at:g}"
+    if not time.IsEarliestTime():
+        return f"time code {time.GetValue():g}"
+    times = list(attr.GetTimeSamples())
+    if not times and getattr(attr, "HasSpline", None) and attr.HasSpline():   # USD 25.05+
+        times = sorted(attr.GetSpline().GetKnots().keys())
+    return f"time code {times[0]:g}" if times else "its earliest time"
 
 
 def _value_attr(shader, name):
@@ -121,10 +157,11 @@ def _asset_file(attr, time) -> str:
     return path
 
 
-def _scale_bias(shader, time) -> tuple:
-    """A UsdUVTexture's per-channel (scale, bias) of its rgb (None: the default 1 or 0)."""
+def _scale_bias(shader, time, keys=("scale", "bias")) -> tuple:
+    """A UsdUVTexture's per-channel (scale, bias) of its rgb (None: the default 1 or 0); an
+    Arnold image's are ``multiply`` and ``offset``."""
     found = []
-    for key, default in (("scale", 1), ("bias", 0)):
+    for key, default in zip(keys, (1, 0)):
         attr = _value_attr(shader, key)
         raw = attr.Get(time) if attr else None
         value = _values(raw, str(attr.GetPath())) if raw is not None else None
@@ -157,6 +194,36 @@ def _declared_name(attr) -> str:
     return ""
 
 
+def _token(shader, name, time, default):
+    """A texture node's setting ``name`` at ``time`` (through interface inputs), else
+    ``default``."""
+    attr = _value_attr(shader, name)
+    value = attr.Get(time) if attr else None
+    return default if value is None else value
+
+
+def _space(shader, node_kind, attr, time) -> str:
+    """The colour space of a texture node's file: as USD declares it (``_declared_space``),
+    else the node's own setting: UsdUVTexture ``sourceColorSpace``, PxrTexture
+    ``linearize`` (1: sRGB; 0: the texels as they are), Arnold ``color_space``."""
+    space = _declared_space(attr)
+    if space:
+        return space
+    if node_kind == "PxrTexture":
+        return "sRGB" if _token(shader, "linearize", time, 0) else "raw"
+    if node_kind == "arnold:image":
+        name = str(_token(shader, "color_space", time, "auto"))
+        return ARNOLD_SPACES.get(name, name)
+    token = str(_token(shader, "sourceColorSpace", time, "auto"))
+    return {"raw": "raw", "sRGB": "sRGB"}.get(token, "auto")
+
+
+def _atlas_file(shader, path, time) -> str:
+    """A PxrTexture's file with its ``_MAPID_`` as the tile token of its ``atlasStyle``."""
+    style = int(_token(shader, "atlasStyle", time, 0))
+    return path.replace("_MAPID_", PXR_ATLAS[style]) if style in PXR_ATLAS else path
+
+
 def _texture(shader, node_kind: str, output: str = "rgb",
              time=Usd.TimeCode.EarliestTime()) -> Texture | str:
     """The texture a texture node reads (through its ``output``) at ``time``, or why it
@@ -165,42 +232,31 @@ def _texture(shader, node_kind: str, output: str = "rgb",
     if attr is None or attr.Get(time) is None:
         return f"{node_kind} {shader.GetPath()} has no file"
     path = _asset_file(attr, time)
+    if node_kind == "PxrTexture":
+        path = _atlas_file(shader, path, time)
+    if node_kind == "arnold:image":                 # Arnold's tile token is lower case
+        path = path.replace("<udim>", "<UDIM>")
     if usdz.is_packaged(path):         # read from its copy in the cache
         try:
             path = usdz.extracted(path)
         except (OSError, ValueError, zipfile.BadZipFile) as exc:
             return f"{node_kind} {shader.GetPath()}: {one_line(exc)}"
-    space = _declared_space(attr)
-    if node_kind == "PxrTexture":
-        return _pxr_texture(shader, path, space, output, time)
-    if not space:
-        source = _value_attr(shader, "sourceColorSpace")
-        token = str(source.Get(time)) if source and source.Get(time) else "auto"
-        space = {"raw": "raw", "sRGB": "sRGB"}.get(token, "auto")
-    if node_kind != "UsdUVTexture":                  # ND_image_<type>
-        layer = _value_attr(shader, "layer")
-        return Texture(path, space, str(shader.GetPath()), channel=other_texels(
-            (shader.GetShaderId() or "").split("_")[2], layer.Get(time) if layer else None))
-    scale, bias = _scale_bias(shader, time)
-    return Texture(path, space, str(shader.GetPath()), scale, bias,
-                   None if output == "rgb" else f"outputs:{output}")
-
-
-def _pxr_texture(shader, path, space, output, time) -> Texture:
-    """RenderMan's PxrTexture: its colour space as declared, else sRGB where it
-    ``linearize``s; read through ``resultRGB`` from its ``firstChannel`` (another output, or
-    channels from another index, are kept for ``shaders`` to refuse)."""
-    def number(key):
-        attr = _value_attr(shader, key)
-        value = attr.Get(time) if attr else None
-        return int(value) if value is not None else 0
-
-    if not space:
-        space = "sRGB" if number("linearize") else "auto"
-    first = number("firstChannel")
-    channel = (f"outputs:{output}" if output != "resultRGB" else
-               f"channels from firstChannel {first}" if first else None)
-    return Texture(path, space, str(shader.GetPath()), channel=channel)
+    space = _space(shader, node_kind, attr, time)
+    where = str(shader.GetPath())
+    if node_kind in ("image", "tiledimage"):        # ND_image_<type>
+        channel = one_channel(shader_id_of(shader).split("_")[2])
+        layer = str(_token(shader, "layer", time, "")) or None
+        return Texture(path, space, where, channel=channel,
+                       channel_index=0 if channel else None, layer=layer)
+    scale, bias = _scale_bias(shader, time, ("multiply", "offset")
+                              if node_kind == "arnold:image" else ("scale", "bias"))
+    index = CHANNEL_OUTPUTS.get(output)
+    channel = None if index is None else f"outputs:{output}"
+    first = int(_token(shader, "firstChannel", time, 0)) if node_kind == "PxrTexture" else 0
+    if first:                   # a PxrTexture reading from another channel than R: refused
+        index = first + (index or 0)
+        channel = f"outputs:{output} from firstChannel {first}"
+    return Texture(path, space, where, scale, bias, channel, index)
 
 
 def read_input(shader, name: str, time=Usd.TimeCode.EarliestTime()) -> Input | None:
@@ -218,7 +274,7 @@ def read_input(shader, name: str, time=Usd.TimeCode.EarliestTime()) -> Input | N
         return None if value is None else Input(name, value=_values(value, str(attr.GetPath())),
                                                 animated=_animated(attr, time))
     source = UsdShade.Shader(attr.GetPrim())
-    shader_id = source.GetShaderId() or ""
+    shader_id = shader_id_of(source)
     kind = _node_kind(shader_id)
     if kind in TEXTURE_NODES:
         texture = _texture(source, kind, attr.GetBaseName(), time)
@@ -230,20 +286,28 @@ def read_input(shader, name: str, time=Usd.TimeCode.EarliestTime()) -> Input | N
                                f"({source.GetPath()}), a procedural network")
 
 
+def _surface_outputs(material):
+    """The material's surface outputs: those of ``CONTEXTS`` in order, then any other
+    render context's (``outputs:<context>:surface``)."""
+    known = [material.GetSurfaceOutput(c) for c in CONTEXTS]
+    names = {o.GetFullName() for o in known if o}
+    others = [o for o in material.GetSurfaceOutputs() if o.GetFullName() not in names]
+    return [o for o in known if o] + sorted(others, key=lambda o: o.GetFullName())
+
+
 def surface_shader(material):
     """(shader, id) of the material's surface: the first render context with a subsurface
     mapping, else the first surface found, else (None, None)."""
     found = []
-    for context in CONTEXTS:
-        output = material.GetSurfaceOutput(context)
-        if not output or not output.HasConnectedSource():
+    for output in _surface_outputs(material):
+        if not output.HasConnectedSource():
             continue
         for attr in output.GetValueProducingAttributes():
             if UsdShade.Output.IsOutput(attr):
                 shader = UsdShade.Shader(attr.GetPrim())
-                found.append((shader, shader.GetShaderId() or ""))
+                found.append((shader, shader_id_of(shader)))
     for shader, shader_id in found:
-        if shader_id in BY_ID:
+        if shader_mapping(shader_id) is not None:
             return shader, shader_id
     return found[0] if found else (None, None)
 
@@ -330,8 +394,23 @@ def open_stage(path):
     errors = stage.GetCompositionErrors()
     if errors:
         raise SceneError(f"{path}: the stage does not compose whole ({len(errors)} error(s)): "
-                         f"{one_line(errors[0])}")
+                         f"{one_line(errors[0])}{_no_mtlx_plugin(errors)}")
     return stage
+
+
+def _no_mtlx_plugin(errors) -> str:
+    """Why a stage that references, sublayers or payloads a ``.mtlx`` document cannot compose
+    here, and what to do instead (``; ...``), where this USD has no MaterialX file format (the
+    usd-core wheel has none: usdMtlx is not in it); else ""."""
+    mtlx = next((m for e in errors for m in re.findall(r"@([^@]*\.mtlx)@", str(e),
+                                                        re.IGNORECASE)), None)
+    if mtlx is None or Sdf.FileFormat.FindByExtension("mtlx") is not None:
+        return ""
+    return (f"; this USD (the usd-core wheel) has no MaterialX file-format plugin (usdMtlx), "
+            f"so no stage can use {os.path.basename(mtlx)} as a layer: bake the document "
+            f"itself (bdipole_cl bake {mtlx}, or materials_from = \"{mtlx}\" in a scene "
+            f"file), or convert it with a USD built with MaterialX (usdcat {mtlx} -o "
+            f"{os.path.splitext(mtlx)[0]}.usda) and reference that")
 
 
 def read_stage(path):

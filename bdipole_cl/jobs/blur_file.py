@@ -15,6 +15,7 @@ from ..errors import InvalidInputError
 from ..io.channels import classify_channels
 from ..io.collisions import Claim, check_claim
 from ..io.colour import resolve_working_space
+from ..io.freshness import InputGuard
 from ..io.images import (Cancelled, Reader, TextureError, Writer, check_output_format,
                          check_same_window, image_header, invalid_texels, output_spec,
                          read_parameter_texture, read_rows)
@@ -157,7 +158,8 @@ def planned_methods(plan):
 def blur_file(path, output, *, colorspace="auto", working_space=None, half=False,
               max_memory=256 << 20, sources=None, cancel=None, mask=None, header=None,
               progress=None, texture=False, albedo=None, mfp=None, eta=1.4, texel_size=1.0,
-              alpha=None, sigma_t=None, device=None, force=False, clamped=None, **options):
+              alpha=None, sigma_t=None, device=None, force=False, clamped=None, guard=None,
+              **options):
     """Blur an irradiance image file into an EXR, streamed in bands of rows with a halo of the
     truncation radius (memory bounded by ``max_memory``). The irradiance is converted from
     ``colorspace`` (else as the file declares, as in ``process_textures``) into
@@ -178,12 +180,15 @@ def blur_file(path, output, *, colorspace="auto", working_space=None, half=False
     (``io.collisions.foreign``). ``clamped``: a dict that gets, under ``on_invalid="clamp"``,
     the invalid values clamped by kind: the irradiance's and the parameter textures'
     (``BlurInfo.invalid``) and the output values that could not be stored
-    (``images.Writer.clamped``); without it they are warned of. Returns the BlurInfo (None
-    when every band was skipped)."""
+    (``images.Writer.clamped``); without it they are warned of. ``guard``: the
+    ``freshness.InputGuard`` of the job's inputs as first read (default: the irradiance and
+    ``sources`` as of this call): an input changed before the output is in place fails it,
+    nothing written. Returns the BlurInfo (None when every band was skipped)."""
     check_output_format(output)
     sources = dict(sources or {})
     check_claim(Claim(str(path), str(output), {"irradiance": str(path), **sources}), force)
     scattering = Scattering(albedo, mfp, eta, texel_size, alpha, sigma_t)
+    guard = guard or InputGuard({"irradiance": path, **sources})
     reader = Reader(path, "irradiance")
     writer = None
     try:
@@ -235,7 +240,7 @@ def blur_file(path, output, *, colorspace="auto", working_space=None, half=False
                          lambda band: read_rows(reader, band[2]), compute, write)
         finally:
             writer, info = state["writer"], state["info"]
-        writer.commit()
+        writer.commit(check=guard.check)
         report_clamped(writer, output, clamped, counts)
         writer = None
         return info if info is None else replace(info, invalid=counts)
@@ -330,6 +335,7 @@ def run_blur(job, runtime, *, cancel=None, lock=None, progress=None) -> FileResu
     w = job.work
     result = FileResult(job.source, job.output)
     t0 = time.perf_counter()
+    guard = InputGuard(job.inputs, job.identities)     # before the first read
     try:
         keep, header = None, dict(w.header)
         texels = check_windows(job)     # parameter textures meet the irradiance texel by texel
@@ -349,7 +355,8 @@ def run_blur(job, runtime, *, cancel=None, lock=None, progress=None) -> FileResu
             sigma_t=scattering.sigma_t, tol=w.tol, method=w.method, border=w.border,
             on_invalid=w.on_invalid, exact=w.exact, device=runtime, max_memory=w.max_memory,
             texture=w.texture, progress=progress, clamped=result.invalid,
-            force=True)      # its claim was checked where the job was made, with the run's force
+            force=True,      # its claim was checked where the job was made, with the run's force
+            guard=guard)
         result.status = "ok"
         result.texels = texels
     except Cancelled as exc:

@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InvalidInputError, check_policy, find_invalid
+from ..io.freshness import InputGuard
 from ..io.images import (Cancelled, Reader, TextureError, Writer, check_same_window,
                          classify_channels, invalid_texels, output_spec)
 from ..ops.bands import band_rows
@@ -209,6 +210,7 @@ def run_invert(job, runtime, *, cancel=None, lock, progress=None) -> FileResult:
     result = FileResult(job.source, job.output)
     t0 = time.perf_counter()
     readers, writer = [], None
+    guard = InputGuard(job.inputs, job.identities)    # before the first read
     try:
         inp = open_inputs(job, work, readers)
         spec = inp.albedo.spec
@@ -232,7 +234,7 @@ def run_invert(job, runtime, *, cancel=None, lock, progress=None) -> FileResult:
             plan = inversion_plan(work, etas, inp, runtime)
         invert_bands(job, work, inp, route, plan, writer, result, lock, cancel, progress)
         result.invalid.update(writer.clamped)
-        writer.commit()
+        writer.commit(check=guard.check)
         writer = None
         result.status = "ok"
         result.texels = spec.width * spec.height

@@ -93,6 +93,9 @@ class Job:
     udim: str | None = None        # the tile's label (tiles.Tile.label), or None
     key: str = ""                  # the up-to-date key (a parameters digest; "": none)
     name: str = ""                 # a scene's material or blur the job is of ("": none)
+    #: role -> ``freshness.input_identity`` of each input as of its first read (a scene's
+    #: plan, the CLI's parameter reads); None: taken when the job starts
+    identities: dict | None = None
 
     def __post_init__(self):
         if self.kind not in JOB_KINDS:

@@ -36,7 +36,7 @@ import numpy as np
 from ..device import get_runtime
 from ..io.collisions import Claim, collisions
 from ..io.colour import WorkingSpace, resolve_working_space
-from ..io.freshness import header_fields, is_up_to_date, params_digest
+from ..io.freshness import header_fields, input_identities, is_up_to_date, params_digest
 from ..io.images import TextureError, check_same_window, image_header
 from ..io.mipmaps import texture_options
 from ..io.patterns import companion_path, expand_inputs, unmatched_pattern
@@ -90,6 +90,9 @@ class PlannedJob:
     params_digest: str = ""
     config: MethodConfig | None = None
     working: WorkingSpace | None = None   # the space its colours are converted into
+    #: role -> ``freshness.input_identity`` of each input as the plan first read it (the
+    #: bake fails the job if one differs when its output would be put in place)
+    identities: dict | None = None
 
     def describe(self) -> str:
         head = f"{self.kind} {self.name}" + (f" [{self.udim}]" if self.udim else "")
@@ -123,7 +126,7 @@ class Plan:
                             f"{len(self.missing)} that cannot run"])
 
     def to_json(self) -> str:
-        return json.dumps([{k: v for k, v in asdict(j).items() if k not in ("config", "working")}
+        return json.dumps([{k: v for k, v in asdict(j).items() if k not in ("config", "working", "identities")}
                            | {"config": j.config.describe() if j.config else None,
                               "working_space": j.working.describe() if j.working else None}
                            for j in self.jobs], indent=1)
@@ -184,7 +187,7 @@ def _new_job(kind, name, path, udim, out, inputs, fields, working_space, problem
     working = resolve_working_space(working_space)
     digest = params_digest(fields | working.key | {"kind": kind, "udim": udim})
     job = PlannedJob(kind, name, path, udim, out, inputs, params_digest=digest,
-                     working=working)
+                     working=working, identities=input_identities(inputs))
     if problems:
         job.problem = "; ".join(problems)
         problems_all += problems
@@ -397,7 +400,7 @@ def scene_job(job: PlannedJob, scene: Scene, max_memory=DEFAULT_MEMORY) -> Job:
     else:
         work = ConstantWork(next(x for x in scene.materials if x.name == job.name), job.config)
     return Job(job.kind, job.source, job.output, job.inputs, work, job.udim, job.params_digest,
-               job.name)
+               job.name, job.identities)
 
 
 def not_run(job: PlannedJob) -> FileResult | None:

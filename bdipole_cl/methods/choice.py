@@ -368,8 +368,20 @@ def auto_inversion_config(tol: float, double: bool = False, data: ChoiceData | N
     hint = ("" if double else "; float64 reaches 1e-12 (double=True, --double on the "
                               "command line)")
     raise ValueError(f"tol={tol:g}: no monotone {precision} configuration reaches it over eta "
-                     f"(best measured: {best.config.describe(double)} at "
-                     f"{best.max_rho_error:.2e}){hint}")
+                     f"(the best, {best.config.describe(double)}, measured "
+                     f"{best.max_rho_error:.2e}: taken for tol >= "
+                     f"{auto_inversion_floor(double, data):.3g}, its measurement x "
+                     f"{AUTO_MARGIN:g} for what sampling misses){hint}")
+
+
+def auto_inversion_floor(double: bool = False, data: ChoiceData | None = None) -> float:
+    """The smallest tol ``auto_inversion_config`` takes in the precision: the least measured
+    max rho error of its monotone configurations, times AUTO_MARGIN (with the shipped
+    float32 data 9.64e-7: docs/numerics.md)."""
+    data = data or choice_for(None)[0]
+    precision = "f64" if double else "f32"
+    return min(c.max_rho_error for c in data.inversion
+               if c.precision == precision and c.monotone) * AUTO_MARGIN
 
 
 def resolve_method(method="table", double=False, device_key=None, **knobs) -> MethodConfig:
@@ -438,7 +450,9 @@ def auto_blur_config(radius: int, tol: float, data: ChoiceData | None = None,
     error for ANY irradiance (relative to max(E) * Rd, docs/model.md "Blur error bound"); the
     measured error, on one random workload, does not: a hole or a single bright texel can meet
     the whole bound, so a looser truncation is never picked, however well it did on the
-    workload. ``exclude``: methods not to pick (a gaussians fit that misses its share of tol)."""
+    workload. ``exclude``: methods not to pick (a gaussians fit that misses its share of
+    tol), or (method, truncation tol) configurations (one whose kernel is wider than the
+    largest radius: a looser truncation, still <= tol, may not be)."""
     import math
     data = data or load_choice_data()
     blurs = [b for b in data.blur if methods is None or b.method in methods]
@@ -447,5 +461,5 @@ def auto_blur_config(radius: int, tol: float, data: ChoiceData | None = None,
     radii = sorted({b.radius for b in blurs})
     near = min(radii, key=lambda r: abs(math.log((r + 1.0) / (radius + 1.0))))
     ok = [b for b in blurs if b.radius == near and b.tol <= tol and b.max_error <= tol
-          and b.method not in exclude]
+          and b.method not in exclude and (b.method, b.tol) not in exclude]
     return min(ok, key=lambda b: b.median_s) if ok else None

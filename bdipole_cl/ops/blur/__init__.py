@@ -23,7 +23,7 @@ Methods (``method=``)
 
 With constant parameters ``tol`` bounds the error relative to max|E| * Rd for any
 non-negative irradiance (docs/model.md "Blur error bound"; of both signs the truncation counts
-twice): ``error_bound`` reports the bound, and a bound above tol raises BlurAccuracyWarning.
+twice; an exitance below float32's normal range adds float32's absolute floor, 2^-150): ``error_bound`` reports the bound, and a bound above tol raises BlurAccuracyWarning.
 With textures the bound is tol (the truncation) plus the basis fit and the interpolation, each
 measured and <= tol by design, so up to 2 tol: ``error_bound`` reports it (with no warning;
 one that would always fire says nothing), and what widens it beyond (a basis that cannot fit

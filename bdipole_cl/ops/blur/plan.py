@@ -11,6 +11,7 @@ The file blur, Dask and scenes make one plan per image and apply it to every ban
 from __future__ import annotations
 
 import operator
+import warnings
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -21,7 +22,7 @@ from ...methods.registry import BLUR_METHOD, BORDER
 from ..bands import band_rows, bands, gather_rows
 from .dispatch import BlurKernels, gather_costs
 from .params import checked_irradiance
-from .planning import (BlurInfo, blur_whole, channel_plans, constant_row_bytes, halo_of,
+from .planning import (BlurAccuracyWarning, BlurInfo, blur_whole, channel_plans, constant_row_bytes, halo_of,
                        signed_irradiance_bound, worse)
 from .textured import blur_band, textured_info, textured_method, textured_plans, textured_row_bytes
 
@@ -125,7 +126,24 @@ class BlurPlan:
     def apply_band(self, e, rows=None):
         """One in-memory image or band of rows with its halo (HxWxC float32, checked): (M,
         BlurInfo) over the whole of it. ``rows``: texture-varying parameters: the rows of the
-        parameter maps the band covers (``bands.halo_rows``; None: all)."""
+        parameter maps the band covers (``bands.halo_rows``; None: all). A channel whose peak
+        is far from 1 is blurred at a peak in [0.5, 1) (``peak_exponents``) and scaled back,
+        its bound taking float32's absolute floor (``with_output_floor``)."""
+        shifts = peak_exponents(e)
+        if not shifts.any():
+            return self._apply_band(e, rows)
+        out, info = self._apply_band(np.ldexp(e, -shifts), rows)
+        out = np.ldexp(out, shifts)          # one rounding, where the result is subnormal
+        return out, with_output_floor(info, e, self.channel_rd_floor(), self.tol)
+
+    def channel_rd_floor(self) -> list:
+        """Per channel the smallest Rd its exitance is relative to: the constant channel's,
+        a texture-varying channel's smallest texel's."""
+        if self.textured:
+            return [float(np.min(ch[1])) for ch in self.textured]
+        return [p.kernel.rd for p in self.channels]
+
+    def _apply_band(self, e, rows=None):
         kernels = self.bound_kernels()
         if self.textured:
             rows = slice(0, self.shape[0]) if rows is None else np.maximum(rows, 0)
@@ -167,6 +185,47 @@ class BlurPlan:
             info = worse(info, band_info)
             out[y0:y1] = res[self.halo:self.halo + (y1 - y0)]
         return out, info
+
+
+#: a channel whose peak |E| is below 2^-PEAK_RANGE is blurred scaled to a peak in [0.5, 1):
+#: float32 products of E and the weights underflow into subnormals there (a 1e-44 peak's
+#: exitance lost every bit: 370x its bound with gaussians). Scaling by a power of two is exact
+#: both ways. (Large peaks need none: measured to 3e38, every method within 5e-7 of Rd E.)
+PEAK_RANGE = 60
+#: float32's absolute floor: half the spacing of its subnormals (2^-149), the error of any
+#: exitance rounded to float32 below its normal range (docs/model.md "Blur error bound")
+FLOAT32_FLOOR = 2.0 ** -150
+
+
+def peak_exponents(e) -> np.ndarray:
+    """Per channel of an HxWxC band, the power of two k its peak |E| is 2^k x [0.5, 1) where
+    that is below 2^-PEAK_RANGE, else 0 (a zero channel: 0)."""
+    peak = np.max(np.abs(e), axis=(0, 1)).astype(np.float64) if e.size else \
+        np.zeros(e.shape[-1])
+    _, k = np.frexp(peak)
+    far = (peak > 0) & (peak < 2.0 ** -PEAK_RANGE)
+    return np.where(far, k, 0).astype(np.int32)
+
+
+def with_output_floor(info: BlurInfo, e, rd_floor, tol) -> BlurInfo:
+    """``info`` with each channel's bound taking float32's absolute floor relative to its
+    peak |E| x Rd (``FLOAT32_FLOOR / (max|E| Rd)``: negligible but for an exitance below
+    float32's normal range, where no float32 is closer); a bound so taken above ``tol`` is
+    warned of."""
+    chans = list(info.channels)
+    peaks = np.max(np.abs(e), axis=(0, 1)).astype(np.float64)
+    for c, ch in enumerate(chans):
+        scale = peaks[c] * rd_floor[c]
+        if scale <= 0:
+            continue
+        bound = ch.error_bound + FLOAT32_FLOOR / scale
+        if bound > tol >= ch.error_bound:
+            warnings.warn(BlurAccuracyWarning(
+                f"channel {c}: peak irradiance {peaks[c]:.3g}: the exitance is below float32's "
+                f"normal range, stored to {2 * FLOAT32_FLOOR:.2g} absolute: error bound "
+                f"{bound:.2e} relative to max(E) Rd"), stacklevel=4)
+        chans[c] = replace(ch, error_bound=bound)
+    return replace(info, channels=tuple(chans))
 
 
 def as_given(out, irradiance):

@@ -179,7 +179,9 @@ def auto_choice(ck, alpha, sigma_t, eta, tol, exact, auto: AutoData) -> ChannelP
     truncation tol and max error (relative to max(E) * Rd) are <= tol, on the workload of the
     nearest radius, in ``auto``'s data and methods, and whose bound (a gaussians fit's
     included) is <= tol; without data, ``direct`` up to AUTO_DIRECT_MAX_RADIUS (or always,
-    where the host FFT is not allowed) and ``fft`` above, at truncation tol."""
+    where the host FFT is not allowed) and ``fft`` above, at truncation tol. A configuration
+    whose tighter truncation makes the kernel wider than the largest radius is passed over
+    (``ck``, at tol, fits: ``fft`` at tol would not have failed where ``auto`` did)."""
     exclude = ()
     while True:
         choice = auto_blur_config(ck.radius, tol, auto.data, auto.methods, exclude)
@@ -187,7 +189,11 @@ def auto_choice(ck, alpha, sigma_t, eta, tol, exact, auto: AutoData) -> ChannelP
             host_fft = auto.methods is None or "fft" in auto.methods
             method = "direct" if ck.radius <= AUTO_DIRECT_MAX_RADIUS or not host_fft else "fft"
             return ChannelPlan(method, ck, AutoPick("radius", tol, data=auto.source), tol)
-        used = method_kernel(choice.method, alpha, sigma_t, eta, choice.tol, exact)
+        try:
+            used = method_kernel(choice.method, alpha, sigma_t, eta, choice.tol, exact)
+        except ValueError:            # wider than max_radius at that truncation
+            exclude += ((choice.method, choice.tol),)
+            continue
         if choice.method != "gaussians" or gaussians_bound(alpha, sigma_t, eta, used,
                                                            exact) <= tol:
             return ChannelPlan(choice.method, used,

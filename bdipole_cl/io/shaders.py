@@ -288,7 +288,7 @@ def imported_material(name, path, shader_id, read, *, unit_m, out_dir, bound) ->
     if albedo.texture is not None:
         facts["colorspace"] = albedo.texture.colorspace
     tile = tiles.token_of(albedo.texture.file) if albedo.texture is not None else None
-    output = f"{out_dir}/{name}.{tile.token}.exr" if tile else f"{out_dir}/{name}.exr"
+    output = f"{out_dir}/{name}.{tile.output_token}.exr" if tile else f"{out_dir}/{name}.exr"
     return ImportedMaterial(name, path, mapping.name, mapping.mfp_kind, facts,
                             {"output": output}, described, unit_m, None,
                             _notes(mapping, inputs), bound=bound)

@@ -53,8 +53,20 @@ from ..methods.registry import BLUR_METHOD, BORDER, METHOD_OR_AUTO, MFP_KIND, OU
 from ..ops.blur.params import CONSTANT_RULES
 from ..physics.models import MODEL
 from .colour import resolve_colorspace, resolve_working_space
+from .mipmaps import TEXTURE_RESIZES, TEXTURE_WRAPS, TextureOptions, texture_options
 from .scene_values import (as_list, check_material_eta, check_scaled_mfp, floats, mfp_constants,
                            number, numbers_or_number, positive)
+
+
+def texture_value(v) -> bool:
+    """``texture``: true, false, or a table of wrap, tile, resize that ``texture_options``
+    takes."""
+    if isinstance(v, bool):
+        return True
+    try:
+        return isinstance(v, dict) and texture_options(v) is not None
+    except (ValueError, TypeError):
+        return False
 
 
 class SceneError(ValueError):
@@ -81,8 +93,10 @@ KEYS = {
     "mask": ({"material", "blur"}, lambda v: isinstance(v, str) and v,
              "\"alpha\" or a texture path"),
     "half": ({"material", "blur"}, lambda v: isinstance(v, bool), "true or false"),
-    "texture": ({"material", "blur"}, lambda v: isinstance(v, bool),
-                "true (tiled, mip-mapped EXR textures) or false"),
+    "texture": ({"material", "blur"}, texture_value,
+                "true (tiled, mip-mapped EXR textures), false, or a table of wrap ("
+                + ", ".join(TEXTURE_WRAPS) + "), tile (texels) and resize ("
+                + ", ".join(TEXTURE_RESIZES) + ")"),
     "unit": ({"material", "blur"}, lambda v: isinstance(v, str) and v, "a unit name"),
     "tol": ({"material", "blur"}, lambda v: number(v) and 0 < v < 1, "a number in (0, 1)"),
     "model": ({"material"}, lambda v: v in MODEL, MODEL.listing('"')),
@@ -135,7 +149,7 @@ class Material:
     working_space: str | None = None  # the config's name; None: the default working space
     mfp_kind: str = "diffuse"        # methods.registry.MFP_KIND
     mfp_scale: tuple = (1.0,)        # multiplies the mfp (one or per channel)
-    texture: bool = False            # tiled, mip-mapped EXR outputs
+    texture: TextureOptions | None = None    # tiled, mip-mapped EXR outputs (texture_options)
 
     @property
     def constant(self) -> bool:
@@ -179,7 +193,7 @@ class Blur:
     on_invalid: str
     colorspace: str                  # the irradiance's
     working_space: str | None = None  # irradiance, albedo and mfp: the material's unless given
-    texture: bool = False
+    texture: TextureOptions | None = None
 
 
 @dataclass(frozen=True)
@@ -336,7 +350,8 @@ def load(path, importer=None, working_space=None) -> SceneData:
                           b["blur_method"], b["border"], b["on_invalid"],
                           _colour(fail, "blur", i, entry, b, "colorspace"),
                           _colour(fail, "blur", i, entry, b, "working_space")
-                          if "working_space" in entry else mat.working_space, b["texture"]))
+                          if "working_space" in entry else mat.working_space,
+                          texture_options(b["texture"])))
     if not materials and not blurs and not imports:
         fail(None, 0, None, "the scene has no [[material]] and no [[blur]]")
     return SceneData(path.resolve(), tuple(materials.values()), tuple(blurs), source, imports)
@@ -372,7 +387,7 @@ def _material(m, resolve, colour) -> Material:
         resolve(m.get("mask")), m["half"], m["unit"], float(m["tol"]),
         MODEL.canonical(m["model"]),
         m["method"], m["exact"], m["double"], m["on_invalid"], *colour, m["mfp_kind"],
-        floats(m["mfp_scale"]), m["texture"])
+        floats(m["mfp_scale"]), texture_options(m["texture"]))
 
 
 def _imported(fail, index, entry, imp, defaults, resolve, working_space) -> Material:

@@ -844,3 +844,22 @@ def test_exif_colorspace_decides_or_fails_and_an_undeclared_16bit_png_is_srgb(tm
                             outputs=("rho",)).results
     assert row.status == "ok" and row.colour.startswith("sRGB Encoded Rec.709 (sRGB) (16-bit, "
                                                         "default)"), row
+
+
+@pytest.mark.usefixtures("on_device")
+def test_a_space_named_in_the_built_in_configs_words_is_followed_into_a_studio_config(
+        tmp_path, monkeypatch):
+    """--colorspace (or a scene's, a USD stage's) srgb_rec709_scene / srgb_texture under a
+    studio config that has neither name: its sRGB space through its interchange role, or its
+    texture_paint role (was: "unknown to OCIO config")."""
+    for interchange in (True, False):
+        monkeypatch.setenv("OCIO", str(studio_config(tmp_path, interchange)))
+        cm.reset_config_cache()
+        want = "studio paint"
+        for name in ("srgb_rec709_scene", "srgb_texture", "sRGB Encoded Rec.709 (sRGB)"):
+            if not interchange and name != "srgb_rec709_scene":
+                continue
+            assert cm.resolve_colorspace(name) == want, (interchange, name)
+        with pytest.raises(ValueError, match="unknown to OCIO config"):
+            cm.resolve_colorspace("lin_p3d65_scene" if not interchange else "bogus")
+    cm.reset_config_cache()

@@ -150,14 +150,18 @@ class ColourConfig:
         own = self.space(name)
         if own is not None or self.name == BUILTIN_CONFIG:
             return own
-        same = [n for n in self.names() if self.interop_id(n) == name]
-        if same:
-            return same[0]
+        canon = ColourConfig(BUILTIN_CONFIG, "built-in").space(name)
+        if canon is None:
+            return None
+        interop = ColourConfig(BUILTIN_CONFIG, "built-in").interop_id(canon) or canon
+        own = self.space(canon) or self.space(interop)
+        same = [n for n in self.names() if self.interop_id(n) in (name, interop)]
+        if own or same:
+            return own or same[0]
         import PyOpenColorIO as ocio
-        builtin = _pyocio(BUILTIN_CONFIG)
         try:
-            found = ocio.Config.IdentifyBuiltinColorSpace(_pyocio(self.name), builtin,
-                                                          builtin.getCanonicalName(name))
+            found = ocio.Config.IdentifyBuiltinColorSpace(_pyocio(self.name),
+                                                          _pyocio(BUILTIN_CONFIG), canon)
         except ocio.Exception:                    # no interchange roles, or none matches
             return None
         return self.space(found) if found else None
@@ -200,9 +204,12 @@ def _unknown(what, name, config, known) -> ValueError:
 
 
 def resolve_colorspace(name, config=None) -> str:
-    """The config's name for an input colour space ``name`` (ValueError listing the known)."""
+    """The config's name for an input colour space ``name`` (ValueError listing the known):
+    its own name or alias, else a space of the built-in config followed into it
+    (``followed``: a scene's ``srgb_texture`` or ``srgb_rec709_scene`` under a studio's
+    config)."""
     config = config or active_config()
-    space = config.space(name)
+    space = config.space(name) or followed(config, name)
     if space is None:
         raise _unknown("colorspace", name, config, ("auto",) + config.names())
     return space
@@ -346,20 +353,28 @@ def _given_up(path, what) -> ValueError:
     return ValueError(f"{path}: {what}: give its space (--colorspace / colorspace =)")
 
 
+def followed(config, name) -> str | None:
+    """The active config's space for the built-in config's space ``name``
+    (``ColourConfig.builtin_space``; an sRGB texture also by the config's paint roles)."""
+    builtin = ColourConfig(BUILTIN_CONFIG, "built-in")
+    if builtin.space(name) is None:
+        return None
+    space = config.builtin_space(name)
+    if space is None and builtin.space(name) == builtin.space(SRGB):
+        space = next((s for s in map(config.role, PAINT_ROLES) if s), None)
+    return space
+
+
 def _follow(config, declared_space, how, path) -> str:
-    """The active config's space for a declaration (``ColourConfig.builtin_space``; an sRGB
-    texture also by the config's paint roles), else ValueError naming the file and what the
-    config lacks."""
+    """The active config's space for a declaration (its own name or alias, else
+    ``followed``), else ValueError naming the file and what the config lacks."""
     own = config.space(declared_space)          # the active config's own name or alias
     if own is not None:
         return own
-    builtin = ColourConfig(BUILTIN_CONFIG, "built-in")
-    if builtin.space(declared_space) is None:
+    if ColourConfig(BUILTIN_CONFIG, "built-in").space(declared_space) is None:
         raise _given_up(path, f"{how} declares {declared_space}, which OpenColorIO's built-in "
                               f"config has no space for")
-    space = config.builtin_space(declared_space)
-    if space is None and builtin.space(declared_space) == builtin.space(SRGB):
-        space = next((s for s in map(config.role, PAINT_ROLES) if s), None)
+    space = followed(config, declared_space)
     if space is None:
         raise _given_up(path, f"{how} declares {declared_space}, which OCIO config "
                               f"{config.name} has no space for (by name, alias, interop ID, "

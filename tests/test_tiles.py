@@ -252,3 +252,25 @@ def test_scenes_read_every_token_and_refuse_unknown_ones(tmp_path, on_device):
     assert outs == ["skin.u10_v1.exr", "skin.u1_v1.exr", "skin.u1_v2.exr"], plan.describe()
     bad = [j for j in plan.jobs if j.name == "bad"]
     assert bad and all("<f> is Maya's frame token" in (j.problem or "") for j in bad)
+
+
+def test_the_blur_command_takes_tile_patterns(tmp_path, capsys, on_device):
+    """blur irr.<udim>.exr -o out.$UDIM.exr blurs each tile into its own output (it wrote one
+    file literally named out.<udim>.exr, or found no such file); an albedo texture pattern
+    is filled per tile."""
+    for name in ("1001", "1002"):
+        write_exr(tmp_path / f"irr.{name}.exr", np.full((6, 8, 3), 0.5, np.float32),
+                  ("R", "G", "B"))
+        write_exr(tmp_path / f"alb.{name}.exr", np.full((6, 8, 3), 0.6, np.float32),
+                  ("R", "G", "B"))
+    rc = cli_main(["blur", str(tmp_path / "irr.<udim>.exr"), "--albedo",
+                   str(tmp_path / "alb.<UDIM>.exr"), "--mfp", "1", "--no-progress",
+                   "-o", str(tmp_path / "o" / "out.$UDIM.exr")])
+    assert rc == 0, capsys.readouterr()
+    assert sorted(p.name for p in (tmp_path / "o").iterdir()) == ["out.1001.exr",
+                                                                  "out.1002.exr"]
+    rc = cli_main(["blur", str(tmp_path / "irr.1001.exr"), "--albedo", "0.5", "--mfp", "1",
+                   "--no-progress", "-o", str(tmp_path / "p" / "out.<f>.exr")])
+    err = capsys.readouterr().err
+    assert rc == 1 and "<f> is Maya's frame token" in err, err
+    assert not (tmp_path / "p").exists() or not list((tmp_path / "p").iterdir())

@@ -453,10 +453,10 @@ def _cmd_preview(args) -> int:
     before), each of several files' is its own line and the others are drawn (exit 1)."""
     entries = outputs_of(args.input, args.output, lambda p: Path(p).with_suffix('.preview.png'),
                          what="picture")
-    if len(entries) == 1 and entries[0][2] is not None:
-        raise TextureError(entries[0][2])
+    if len(entries) == 1 and entries[0][3] is not None:
+        raise TextureError(entries[0][3])
     failed = 0
-    for path, picture, err in entries:
+    for path, _, picture, err in entries:
         if err is None:
             try:
                 sheet = contact_sheet(path, picture, force=args.force)

@@ -95,7 +95,8 @@ def companion_path(pattern, path, tile):
 
 
 def outputs_of(inputs, output, default, what="output") -> list:
-    """``[(file, output path or None, error or None)]`` for the files that ``inputs`` (paths,
+    """``[(file, Tile or None, output path or None, error or None)]`` for the files that
+    ``inputs`` (paths,
     globs, tile patterns; this tool's outputs too) name: ``output`` filled for each file's tile and name
     (``sheet.<UDIM>.png``, ``{stem}.png``), else ``default(file)``. A pattern that names no
     file, a token that cannot name a tile, or one output for several files is that file's
@@ -105,12 +106,12 @@ def outputs_of(inputs, output, default, what="output") -> list:
         try:
             if tiles.is_pattern(path) and not os.path.exists(path):
                 raise TextureError(unmatched_pattern(path))
-            out.append((path, str(companion_path(output, path, tile) if output is not None
-                                  else default(path)), None))
+            out.append((path, tile, str(companion_path(output, path, tile)
+                                        if output is not None else default(path)), None))
         except (TextureError, tiles.TileError) as exc:
-            out.append((path, None, str(exc)))
-    named = [p for _, p, e in out if e is None]
+            out.append((path, tile, None, str(exc)))
+    named = [p for _, _, p, e in out if e is None]
     one = "a tile token or {stem}"
-    return [(path, None, f"-o {output}: names one {what} ({p}) for {named.count(p)} files; put "
-                         f"{one} in it") if e is None and named.count(p) > 1
-            else (path, p, e) for path, p, e in out]
+    return [(path, t, None, f"-o {output}: names one {what} ({p}) for {named.count(p)} files; "
+                            f"put {one} in it") if e is None and named.count(p) > 1
+            else (path, t, p, e) for path, t, p, e in out]

@@ -200,9 +200,11 @@ def test_the_cli_reads_and_writes_arnolds_token(tmp_path, capsys, on_device):
 @pytest.mark.parametrize("token, why", [
     ("<f>", "Maya's frame token"), ("####", "frame-number padding"),
     ("%04d", "frame-number padding"), ("$textureSet", "Substance Painter export token"),
+    ("$F4", "Houdini's frame token"),
     ("_MAPID_", "RenderMan's atlas token"), ("<Udim>", "did you mean <UDIM> or <udim>?"),
     ("<tiles>", "not a tile token this tool knows"), ("<U>", "names the tile's u but not its v"),
-], ids=["maya-frame", "hashes", "printf", "substance", "mapid", "case", "unknown", "u-only"])
+], ids=["maya-frame", "hashes", "printf", "substance", "houdini-frame", "mapid", "case",
+        "unknown", "u-only"])
 @pytest.mark.parametrize("where", ["input", "output"])
 def test_an_unknown_token_is_refused_named_never_a_file_name(tmp_path, capsys, token, why,
                                                              where, on_device):

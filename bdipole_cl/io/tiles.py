@@ -160,6 +160,8 @@ def _token(found: str, pattern: str) -> tuple:
         return token, int(width or 1)
     name = key.split(":")[0] + ">" if key.startswith("<") and ":" in key else key
     why = REFUSED.get(name) or REFUSED.get(found)
+    if why is None and re.fullmatch(r"\$F\d", found):                # Houdini's $F4
+        why = REFUSED["$F"]
     if why is None and (found.startswith("#") or re.fullmatch(r"%0?\d*d", found)):
         why = f"frame-number padding, {_FRAME}"
     if why is None:

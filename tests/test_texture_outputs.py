@@ -468,7 +468,8 @@ def test_every_mip_level_keeps_its_parents_mean(tmp_path, size, half):
 
 def test_wrap_tile_and_resize_are_the_users_choice(tmp_path, capsys):
     """--texture-wrap, --texture-tile, --texture-resize (maketx --wrap/--tile/--resize,
-    txmake -mode/-resize) and a scene's texture table; bad values are one-line errors."""
+    txmake -mode/-resize) and a scene's texture_wrap, texture_tile, texture_resize keys (each
+    implies texture = true); bad values are one-line errors."""
     alb = np.random.default_rng(3).uniform(0.1, 0.9, (37, 100, 3)).astype(np.float32)
     write_exr(tmp_path / "a.exr", alb, ("R", "G", "B"))
     rc = cli_main(["invert", str(tmp_path / "a.exr"), "--outputs", "alpha", "--no-progress",
@@ -495,7 +496,7 @@ def test_wrap_tile_and_resize_are_the_users_choice(tmp_path, capsys):
         assert stop.value.code == 2 and bad in err and value in err, err
     (tmp_path / "s.toml").write_text(
         '[[material]]\nname = "m"\nalbedo = "a.exr"\noutput = "s.exr"\noutputs = ["alpha"]\n'
-        'texture = {wrap = "mirror", tile = 16, resize = "round"}\n')
+        'texture_wrap = "mirror"\ntexture_tile = 16\ntexture_resize = "round"\n')
     report = load(tmp_path / "s.toml").plan().run()
     assert report.exit_code == 0, report.summary()
     spec = oiio.ImageInput.open(str(tmp_path / "s.exr")).spec()
@@ -503,8 +504,8 @@ def test_wrap_tile_and_resize_are_the_users_choice(tmp_path, capsys):
     assert spec.getattribute("wrapmodes") == "mirror,mirror"
     (tmp_path / "s.toml").write_text(
         '[[material]]\nname = "m"\nalbedo = "a.exr"\noutput = "s.exr"\n'
-        'texture = {wrap = "repeat"}\n')
-    with pytest.raises(ValueError, match="texture"):
+        'texture = true\ntexture_wrap = "repeat"\n')
+    with pytest.raises(ValueError, match="texture_wrap"):
         load(tmp_path / "s.toml")
 
 # }}}

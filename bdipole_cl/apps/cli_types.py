@@ -161,14 +161,16 @@ def add_texture_arg(p):
                    help="write renderer-ready textures: tiled 64x64, mip-mapped EXRs (as maketx "
                         "makes; each level keeps its parent's mean; a .tx/TIFF output is "
                         "refused: it drops channel names)")
+    # dest "texture" keeps --texture's default (False); each default is the option's own
     p.add_argument("--texture-wrap", action=TextureAction, dest="texture", field="wrap",
-                   choices=TEXTURE_WRAP.names, metavar="MODE",
+                   choices=TEXTURE_WRAP.names, metavar="MODE", default="clamp",
                    help=f"lookups beyond the edges: {', '.join(TEXTURE_WRAP.names)} (default "
                         "clamp: no seam at a tile's edge; a blur: as its --border)")
     p.add_argument("--texture-tile", action=TextureAction, dest="texture", field="tile",
-                   type=positive_int, metavar="N", help="tile side in texels (default 64)")
+                   type=positive_int, metavar="N", default=64,
+                   help="tile side in texels (default 64)")
     p.add_argument("--texture-resize", action=TextureAction, dest="texture", field="resize",
-                   choices=TEXTURE_RESIZE.names, metavar="HOW",
+                   choices=TEXTURE_RESIZE.names, metavar="HOW", default="none",
                    help=f"level 0 to powers of two: {', '.join(TEXTURE_RESIZE.names)} "
                         "(default none)")
 

@@ -87,21 +87,14 @@ def check_texture_option(name, value):
 
 
 def texture_options(texture) -> TextureOptions | None:
-    """``texture=`` of the entry points and scene files: True (the defaults), False/None, a
-    TextureOptions, or a mapping of ``wrap``, ``tile``, ``resize`` (a scene's
-    ``texture = {wrap = "periodic", tile = 32}``; ValueError naming a bad key or value)."""
+    """``texture=`` of the entry points: True (the defaults), False/None, or TextureOptions."""
     if texture is None or texture is False:
         return None
     if texture is True:
         return TextureOptions()
     if isinstance(texture, TextureOptions):
         return texture
-    if isinstance(texture, dict):
-        for key, value in texture.items():
-            check_texture_option(key, value)
-        return TextureOptions(**texture)
-    raise TypeError(f"texture={texture!r}: expected True, False, a TextureOptions or a table "
-                    f"of wrap, tile, resize")
+    raise TypeError(f"texture={texture!r}: expected True, False or a TextureOptions")
 
 
 def resized(width, height, resize: str) -> tuple:

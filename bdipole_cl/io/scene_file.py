@@ -49,24 +49,31 @@ except ImportError:  # pragma: no cover - Python 3.10
     import tomli as tomllib
 
 from ..errors import POLICY
-from ..methods.registry import BLUR_METHOD, BORDER, METHOD_OR_AUTO, MFP_KIND, OUTPUTS
+from ..methods.registry import (BLUR_METHOD, BORDER, METHOD_OR_AUTO, MFP_KIND, OUTPUTS,
+                                TEXTURE_RESIZE, TEXTURE_WRAP)
 from ..ops.blur.params import CONSTANT_RULES
 from ..physics.models import MODEL
 from .colour import resolve_colorspace, resolve_working_space
-from .mipmaps import TEXTURE_RESIZES, TEXTURE_WRAPS, TextureOptions, texture_options
+from .mipmaps import MAX_TILE, TextureOptions
 from .scene_values import (as_list, check_material_eta, check_scaled_mfp, floats, mfp_constants,
                            number, numbers_or_number, positive)
 
 
-def texture_value(v) -> bool:
-    """``texture``: true, false, or a table of wrap, tile, resize that ``texture_options``
-    takes."""
-    if isinstance(v, bool):
-        return True
-    try:
-        return isinstance(v, dict) and texture_options(v) is not None
-    except (ValueError, TypeError):
-        return False
+def scene_texture(entry) -> TextureOptions | None:
+    """The texture options of a merged entry: ``texture = true`` and the ``texture_wrap``,
+    ``texture_tile``, ``texture_resize`` keys (each implies a texture, as its CLI option
+    does), else None."""
+    chosen = {k[len("texture_"):]: entry[k] for k in TEXTURE_KEYS
+              if entry.get(k) is not None}
+    if not entry.get("texture") and not chosen:
+        return None
+    return TextureOptions(**{k: TEXTURE_WRAP.canonical(v) if k == "wrap" else
+                             TEXTURE_RESIZE.canonical(v) if k == "resize" else v
+                             for k, v in chosen.items()})
+
+
+#: the scene keys of a texture's options (CLI: --texture-wrap, --texture-tile, ...)
+TEXTURE_KEYS = ("texture_wrap", "texture_tile", "texture_resize")
 
 
 class SceneError(ValueError):
@@ -93,10 +100,16 @@ KEYS = {
     "mask": ({"material", "blur"}, lambda v: isinstance(v, str) and v,
              "\"alpha\" or a texture path"),
     "half": ({"material", "blur"}, lambda v: isinstance(v, bool), "true or false"),
-    "texture": ({"material", "blur"}, texture_value,
-                "true (tiled, mip-mapped EXR textures), false, or a table of wrap ("
-                + ", ".join(TEXTURE_WRAPS) + "), tile (texels) and resize ("
-                + ", ".join(TEXTURE_RESIZES) + ")"),
+    "texture": ({"material", "blur"}, lambda v: isinstance(v, bool),
+                "true (tiled, mip-mapped EXR textures) or false"),
+    "texture_wrap": ({"material", "blur"}, lambda v: v in TEXTURE_WRAP,
+                     TEXTURE_WRAP.listing('"') + " (implies texture = true)"),
+    "texture_tile": ({"material", "blur"},
+                     lambda v: isinstance(v, int) and not isinstance(v, bool)
+                     and 1 <= v <= MAX_TILE,
+                     f"a whole number of texels in 1..{MAX_TILE} (implies texture = true)"),
+    "texture_resize": ({"material", "blur"}, lambda v: v in TEXTURE_RESIZE,
+                       TEXTURE_RESIZE.listing('"') + " (implies texture = true)"),
     "unit": ({"material", "blur"}, lambda v: isinstance(v, str) and v, "a unit name"),
     "tol": ({"material", "blur"}, lambda v: number(v) and 0 < v < 1, "a number in (0, 1)"),
     "model": ({"material"}, lambda v: v in MODEL, MODEL.listing('"')),
@@ -351,7 +364,7 @@ def load(path, importer=None, working_space=None) -> SceneData:
                           _colour(fail, "blur", i, entry, b, "colorspace"),
                           _colour(fail, "blur", i, entry, b, "working_space")
                           if "working_space" in entry else mat.working_space,
-                          texture_options(b["texture"])))
+                          scene_texture(b)))
     if not materials and not blurs and not imports:
         fail(None, 0, None, "the scene has no [[material]] and no [[blur]]")
     return SceneData(path.resolve(), tuple(materials.values()), tuple(blurs), source, imports)
@@ -387,7 +400,7 @@ def _material(m, resolve, colour) -> Material:
         resolve(m.get("mask")), m["half"], m["unit"], float(m["tol"]),
         MODEL.canonical(m["model"]),
         m["method"], m["exact"], m["double"], m["on_invalid"], *colour, m["mfp_kind"],
-        floats(m["mfp_scale"]), texture_options(m["texture"]))
+        floats(m["mfp_scale"]), scene_texture(m))
 
 
 def _imported(fail, index, entry, imp, defaults, resolve, working_space) -> Material:

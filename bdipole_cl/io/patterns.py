@@ -96,11 +96,10 @@ def companion_path(pattern, path, tile):
 
 def outputs_of(inputs, output, default, what="output") -> list:
     """``[(file, Tile or None, output path or None, error or None)]`` for the files that
-    ``inputs`` (paths,
-    globs, tile patterns; this tool's outputs too) name: ``output`` filled for each file's tile and name
-    (``sheet.<UDIM>.png``, ``{stem}.png``), else ``default(file)``. A pattern that names no
-    file, a token that cannot name a tile, or one output for several files is that file's
-    error (one line)."""
+    ``inputs`` (paths, globs, tile patterns; this tool's outputs too) name: ``output`` filled
+    for each file's tile and name (``sheet.<UDIM>.png``, ``{stem}.png``), else
+    ``default(file)``. A pattern that names no file, a token that cannot name a tile, or one
+    output for several files is that file's error (one line)."""
     out = []
     for path, tile in expand_inputs([str(p) for p in inputs], ours=True):
         try:

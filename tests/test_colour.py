@@ -16,6 +16,7 @@ from bdipole_cl import reference as ref
 from bdipole_cl import scene as scenes
 from bdipole_cl.apps.cli import main as cli_main
 from bdipole_cl.io import colour as cm
+from bdipole_cl.io import icc
 from bdipole_cl.io.batch import process_textures
 from bdipole_cl.io.blur_file import blur_file
 
@@ -589,31 +590,276 @@ ADOBE_RGB = ((0.6097, 0.3111, 0.0195), (0.2053, 0.6257, 0.0609), (0.1492, 0.0632
 DISPLAY_P3 = ((0.5151, 0.2412, -0.0011), (0.2920, 0.6922, 0.0419), (0.1571, 0.0666, 0.7841))
 
 
-@pytest.mark.parametrize("colorants, curve, name, srgb", [
-    (None, None, "sRGB (littleCMS, parametric)", True),
-    (cm.icc.SRGB_COLORANTS, SRGB_TABLE, "sRGB IEC61966-2.1 (a 1024-entry table)", True),
-    (ADOBE_RGB, 563 / 256, "Adobe RGB (1998)", False),
-    (DISPLAY_P3, SRGB_TABLE, "Display P3", False),
-    (cm.icc.SRGB_COLORANTS, 1.0, "linear sRGB", False)])
-@pytest.mark.parametrize("suffix", [".png", ".tif", ".jpg"])
-def test_an_embedded_icc_profile_that_is_not_srgb_is_named(tmp_path, colorants, curve, name,
-                                                         srgb, suffix):
-    """OpenImageIO tags every 8-bit PNG and JPEG sRGB (a TIFF not at all) whatever ICC profile
-    it embeds: an Adobe RGB, P3 or linear one fails its file, named, unless its space is given
-    (it was converted as sRGB, exit 0); an sRGB one, parametric or a table, is sRGB."""
+#: (colorants, curve, description, the built-in space it declares, or None: refused)
+PROFILES = [
+    (None, None, "sRGB (littleCMS, parametric)", "srgb_rec709_scene"),
+    (icc.SRGB_COLORANTS, SRGB_TABLE, "sRGB IEC61966-2.1 (a 1024-entry table)",
+     "srgb_rec709_scene"),
+    (ADOBE_RGB, 563 / 256, "Adobe RGB (1998)", "g22_adobergb_scene"),
+    (DISPLAY_P3, SRGB_TABLE, "Display P3", "srgb_p3d65_scene"),
+    (icc.SRGB_COLORANTS, 1.0, "linear sRGB", "lin_rec709_scene"),
+    (DISPLAY_P3, 1.5, "P3 gamma 1.5", None),
+    (((0.45, 0.25, 0.02), (0.35, 0.70, 0.10), (0.16, 0.05, 0.70)), 2.2, "odd primaries", None)]
+
+
+@pytest.mark.usefixtures("on_device")
+@pytest.mark.parametrize("colorants, curve, name, space", PROFILES,
+                         ids=[p[2].split(" (")[0] for p in PROFILES])
+@pytest.mark.parametrize("suffix, depth", [(".png", 8), (".tif", 8), (".jpg", 8), (".tif", 16),
+                                           (".png", 16)], ids=["png", "tif", "jpg", "tif16",
+                                                               "png16"])
+def test_an_embedded_icc_profile_decides_the_space_at_every_bit_depth(
+        tmp_path, colorants, curve, name, space, suffix, depth):
+    """An ICC profile decides the file's space, in every format and at every bit depth: its
+    output equals the one with that space given. A 16-bit TIFF with an sRGB profile was taken
+    as linear (painted 0.5 inverted as albedo 0.5, not 0.214); Adobe RGB, P3 and linear
+    profiles failed. A profile no built-in space matches fails its file, named."""
     from PIL import Image, ImageCms
     profile = (ImageCms.ImageCmsProfile(ImageCms.createProfile("sRGB")).tobytes()
                if colorants is None else icc_profile(colorants, curve, name))
-    pixels = (np.linspace(0.1, 0.9, 8 * 8 * 3).reshape(8, 8, 3) * 255).astype(np.uint8)
+    ramp = np.linspace(0.1, 0.9, 8 * 8 * 3).reshape(8, 8, 3)
     path = tmp_path / f"albedo{suffix}"
-    Image.fromarray(pixels, "RGB").save(path, icc_profile=profile)
-    report = process_textures(str(path), output=str(tmp_path / "o" / "{stem}.exr"))
+    if depth == 8:
+        Image.fromarray((ramp * 255).astype(np.uint8), "RGB").save(path, icc_profile=profile)
+    else:                                   # PIL writes no 16-bit RGB: OpenImageIO does
+        out = oiio.ImageOutput.create(str(path))
+        spec = oiio.ImageSpec(8, 8, 3, "uint16")
+        spec.attribute("ICCProfile", oiio.TypeDesc(f"uint8[{len(profile)}]"),
+                       np.frombuffer(profile, np.uint8))
+        assert out.open(str(path), spec) and out.write_image((ramp * 65535).astype(np.uint16))
+        out.close()
+    report = process_textures(str(path), output=str(tmp_path / "o" / "{stem}.exr"),
+                              outputs=("rho",))
     row, = report.results
-    if srgb:
-        assert row.status == "ok" and "sRGB" in row.colour, row
-    else:
-        assert row.status == "failed" and "which is not sRGB" in row.error, row
-        assert (cm.icc.parse(profile).description or name) in row.error
-        given = process_textures(str(path), output=str(tmp_path / "g" / "{stem}.exr"),
-                                 colorspace="srgb_rec709_scene")
-        assert given.exit_code == 0
+    if space is None:
+        assert row.status == "failed" and name in row.error and "--colorspace" in row.error, row
+        return
+    assert row.status == "ok", row
+    given = process_textures(str(path), output=str(tmp_path / "g" / "{stem}.exr"),
+                             colorspace=space, outputs=("rho",))
+    assert given.exit_code == 0, given.summary()
+    auto, want = (read(tmp_path / d / "albedo.exr")[1] for d in ("o", "g"))
+    assert np.array_equal(auto, want), (name, suffix, depth)
+
+
+def test_the_icc_colorants_are_the_built_in_configs_primaries():
+    """icc.COLORANTS (D50, as profiles carry them) derived independently: the built-in config's
+    primaries and white (xy) to XYZ, Bradford-adapted to ICC's D50 (ICC.1:2010 Annex E)."""
+    bradford = np.array([[0.8951, 0.2664, -0.1614], [-0.7502, 1.7135, 0.0367],
+                         [0.0389, -0.0685, 1.0296]])
+
+    def xyz(x, y):
+        return np.array([x / y, 1.0, (1 - x - y) / y])
+
+    d50 = np.array([0.9642, 1.0, 0.8249])
+    cfg = cm.ColourConfig(cm.BUILTIN_CONFIG, "built-in")
+    for key, colorants in icc.COLORANTS.items():
+        xy = cfg.chromaticities(cfg.space(f"lin_{key}_scene"))
+        prim = np.stack([xyz(*xy[2 * k:2 * k + 2]) for k in range(3)], 1)
+        white = xyz(*xy[6:8])
+        m = prim * np.linalg.solve(prim, white)
+        adapt = np.linalg.inv(bradford) @ np.diag((bradford @ d50) / (bradford @ white)) @ bradford
+        got = (adapt @ m).T
+        assert np.allclose(got, colorants, atol=icc.COLORANT_TOL / 4), (key, got)
+
+
+def png_chunk(kind, data):
+    import struct
+    import zlib
+    return (struct.pack(">I", len(data)) + kind + data
+            + struct.pack(">I", zlib.crc32(kind + data) & 0xffffffff))
+
+
+def png_with(path, px8, chunks):
+    """An 8-bit RGB PNG of ``px8`` (None: the PNG already at ``path``) whose only colour
+    chunks are ``chunks`` (OpenImageIO's own sRGB, gAMA, cHRM, iCCP are taken out)."""
+    import struct
+    if px8 is not None:
+        out = oiio.ImageOutput.create(str(path))
+        assert out.open(str(path), oiio.ImageSpec(px8.shape[1], px8.shape[0], 3, "uint8"))
+        out.write_image(px8)
+        out.close()
+    data, keep, i = path.read_bytes(), [], 8
+    while i < len(data):
+        (n,) = struct.unpack(">I", data[i:i + 4])
+        kind = data[i + 4:i + 8]
+        if kind == b"IDAT" and chunks is not None:
+            keep += chunks
+            chunks = None
+        if kind not in (b"sRGB", b"gAMA", b"cHRM", b"iCCP"):
+            keep.append(data[i:i + 12 + n])
+        i += 12 + n
+    path.write_bytes(data[:8] + b"".join(keep))
+
+
+def chrm(xy):
+    """A cHRM chunk of (xR, yR, xG, yG, xB, yB, xW, yW) (white first, as PNG stores it)."""
+    import struct
+    return png_chunk(b"cHRM", struct.pack(">8I", *(round(v * 100000)
+                                                   for v in (*xy[6:8], *xy[:6]))))
+
+
+#: published primaries and white (xR, yR, xG, yG, xB, yB, xW, yW): SMPTE EG 432-1 (P3-D65),
+#: Adobe RGB (1998)
+P3_XY = (0.680, 0.320, 0.265, 0.690, 0.150, 0.060, 0.3127, 0.3290)
+ADOBE_XY = (0.64, 0.33, 0.21, 0.71, 0.15, 0.06, 0.3127, 0.3290)
+
+
+def gama(gamma):
+    import struct
+    return png_chunk(b"gAMA", struct.pack(">I", round(100000 / gamma)))
+
+
+@pytest.mark.usefixtures("on_device")
+@pytest.mark.parametrize("chunks, space", [
+    ((png_chunk(b"sRGB", b"\0"),), "srgb_rec709_scene"),
+    ((chrm(P3_XY),), "srgb_p3d65_scene"),
+    ((chrm(P3_XY), gama(1.0)), "lin_p3d65_scene"),
+    ((chrm(ADOBE_XY), gama(2.2)), "g22_adobergb_scene"),
+    ((gama(1.0),), "lin_rec709_scene"),
+    ((gama(1.8),), "g18_rec709_scene"),
+    ((gama(2.5),), None),
+    ((png_chunk(b"sRGB", b"\0"), chrm(P3_XY)), None),
+    ((chrm((0.69, 0.3, 0.2, 0.7, 0.14, 0.05, 0.3127, 0.329)),), None),
+], ids=["sRGB", "cHRM-P3", "cHRM-P3-gAMA1", "cHRM-Adobe-gAMA2.2", "gAMA1", "gAMA1.8",
+        "gAMA2.5", "sRGB-with-P3", "cHRM-odd"])
+def test_png_colour_chunks_decide_the_space(tmp_path, chunks, space):
+    """A PNG's sRGB, gAMA and cHRM chunks decide its space (cHRM was ignored: P3 primaries
+    gave Rec.709's coefficients, unsaid); what no space matches, or chunks that contradict
+    each other, fail the file, named."""
+    px8 = (np.linspace(0.1, 0.9, 6 * 4 * 3).reshape(4, 6, 3) * 255).astype(np.uint8)
+    png_with(tmp_path / "a.png", px8, list(chunks))
+    report = process_textures(str(tmp_path / "a.png"), output=str(tmp_path / "o.exr"),
+                              outputs=("rho",))
+    row, = report.results
+    if space is None:
+        assert row.status == "failed" and "a.png" in row.error and "--colorspace" in row.error
+        return
+    assert row.status == "ok" and row.colour.startswith(
+        cm.ColourConfig(cm.BUILTIN_CONFIG, "b").space(space)), (row.colour, space)
+    given = process_textures(str(tmp_path / "a.png"), output=str(tmp_path / "g.exr"),
+                             outputs=("rho",), colorspace=space)
+    assert given.exit_code == 0
+    assert np.array_equal(read(tmp_path / "o.exr")[1], read(tmp_path / "g.exr")[1])
+
+
+STUDIO = """ocio_profile_version: 2.1
+
+roles:
+  default: linear
+  scene_linear: linear
+  texture_paint: {paint}
+  data: raw
+  {interchange}
+
+file_rules:
+  - !<Rule> {{name: Default, colorspace: default}}
+
+colorspaces:
+  - !<ColorSpace>
+    name: linear
+    isdata: false
+
+  - !<ColorSpace>
+    name: ACES2065-1 (studio)
+    isdata: false
+    to_scene_reference: !<MatrixTransform> {{matrix: [{ap0_to_709}]}}
+
+  - !<ColorSpace>
+    name: studio paint
+    isdata: false
+    from_scene_reference: !<ExponentWithLinearTransform>
+      gamma: 2.4
+      offset: 0.055
+      direction: inverse
+
+  - !<ColorSpace>
+    name: raw
+    isdata: true
+"""
+
+
+def studio_config(folder, interchange):
+    """A studio config whose names are none of the CG config's: 'linear' (Rec.709), 'studio
+    paint' (sRGB) as its texture_paint role; with ``interchange`` an aces_interchange role
+    (its AP0 -> Rec.709 matrix taken from the built-in config through OpenColorIO)."""
+    import PyOpenColorIO as ocio
+    builtin = ocio.Config.CreateFromFile("ocio://default")
+    cpu = builtin.getProcessor("ACES2065-1", "lin_rec709_scene").getDefaultCPUProcessor()
+    m = np.eye(4)
+    for k in range(3):
+        v = np.eye(3, dtype=np.float32)[k].copy()
+        cpu.applyRGB(v)
+        m[:3, k] = v
+    path = Path(folder) / "studio.ocio"
+    path.write_text(STUDIO.format(
+        paint="studio paint" if not interchange else "linear",
+        interchange="aces_interchange: ACES2065-1 (studio)" if interchange else "",
+        ap0_to_709=", ".join(f"{v:.9g}" for v in m.ravel())))
+    return path
+
+
+@pytest.mark.usefixtures("on_device")
+@pytest.mark.parametrize("interchange", [False, True], ids=["roles", "interchange"])
+def test_a_studio_config_with_its_own_names_reads_every_png(tmp_path, monkeypatch, interchange):
+    """$OCIO names a config with none of the CG config's names: an 8-bit PNG declared sRGB
+    (OpenImageIO: srgb_rec709_scene) is followed to the config's own sRGB, found through its
+    interchange role (OpenColorIO identifies 'studio paint'), else its texture_paint role (it
+    failed: "srgb_rec709_scene unknown"); an undeclared one takes texture_paint."""
+    monkeypatch.setenv("OCIO", str(studio_config(tmp_path, interchange)))
+    cm.reset_config_cache()
+    px8 = (np.linspace(0.1, 0.9, 6 * 4 * 3).reshape(4, 6, 3) * 255).astype(np.uint8)
+    png_with(tmp_path / "srgb.png", px8, [png_chunk(b"sRGB", b"\0")])
+    png_with(tmp_path / "plain.png", px8, [])
+    for name, space in (("srgb", "studio paint"),
+                        ("plain", "linear" if interchange else "studio paint")):
+        report = process_textures(str(tmp_path / f"{name}.png"),
+                                  output=str(tmp_path / f"o_{name}.exr"), outputs=("rho",))
+        row, = report.results
+        assert row.status == "ok" and row.colour.startswith(space), (name, row)
+    cm.reset_config_cache()
+
+
+@pytest.mark.usefixtures("on_device")
+def test_exif_colorspace_decides_or_fails_and_an_undeclared_16bit_png_is_srgb(tmp_path):
+    """EXIF ColorSpace 1 is sRGB; 65535 (uncalibrated, often Adobe RGB) without an ICC
+    profile fails its file, named. A 16-bit PNG with no colour chunk is sRGB, PNG's default
+    (OpenImageIO's tag said so; it is not taken as linear)."""
+    from PIL import Image
+    px8 = (np.linspace(0.1, 0.9, 8 * 8 * 3).reshape(8, 8, 3) * 255).astype(np.uint8)
+    for value in (1, 65535):
+        exif = Image.Exif()
+        exif[0xA001] = value
+        Image.fromarray(px8, "RGB").save(tmp_path / f"e{value}.jpg", exif=exif.tobytes())
+    ok, bad = (process_textures(str(tmp_path / f"e{v}.jpg"), output=str(tmp_path / f"o{v}.exr"),
+                                outputs=("rho",)).results[0] for v in (1, 65535))
+    assert ok.status == "ok" and "sRGB" in ok.colour, ok
+    assert bad.status == "failed" and "EXIF ColorSpace 65535" in bad.error, bad
+    out = oiio.ImageOutput.create(str(tmp_path / "p16.png"))
+    assert out.open(str(tmp_path / "p16.png"), oiio.ImageSpec(8, 8, 3, "uint16"))
+    out.write_image(px8.astype(np.uint16) * 257)
+    out.close()
+    png_with(tmp_path / "p16.png", None, [])             # no colour chunks at all
+    row, = process_textures(str(tmp_path / "p16.png"), output=str(tmp_path / "p16.exr"),
+                            outputs=("rho",)).results
+    assert row.status == "ok" and row.colour.startswith("sRGB Encoded Rec.709 (sRGB) (16-bit, "
+                                                        "default)"), row
+
+
+@pytest.mark.usefixtures("on_device")
+def test_a_space_named_in_the_built_in_configs_words_is_followed_into_a_studio_config(
+        tmp_path, monkeypatch):
+    """--colorspace (or a scene's, a USD stage's) srgb_rec709_scene / srgb_texture under a
+    studio config that has neither name: its sRGB space through its interchange role, or its
+    texture_paint role (was: "unknown to OCIO config")."""
+    for interchange in (True, False):
+        monkeypatch.setenv("OCIO", str(studio_config(tmp_path, interchange)))
+        cm.reset_config_cache()
+        want = "studio paint"
+        for name in ("srgb_rec709_scene", "srgb_texture", "sRGB Encoded Rec.709 (sRGB)"):
+            if not interchange and name != "srgb_rec709_scene":
+                continue
+            assert cm.resolve_colorspace(name) == want, (interchange, name)
+        with pytest.raises(ValueError, match="unknown to OCIO config"):
+            cm.resolve_colorspace("lin_p3d65_scene" if not interchange else "bogus")
+    cm.reset_config_cache()

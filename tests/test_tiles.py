@@ -1,30 +1,47 @@
 """Tile conventions (bdipole_cl/io/tiles.py): every token reads and writes the right tiles, in
 batches and scenes, and a token that cannot name a tile is a one-line error."""
-import re
 
 import numpy as np
 import OpenImageIO as oiio
 import pytest
+from bdipole_cl.io.batch import expand_inputs, process_textures
+from bdipole_cl.io.scene import load
 
 from bdipole_cl.apps.cli import main as cli_main
 from bdipole_cl.apps.demo import write_exr
 from bdipole_cl.io import tiles
-from bdipole_cl.io.batch import expand_inputs, process_textures
-from bdipole_cl.io.scene import load
 
-#: (token, how tiles (0, 0), (9, 0), (0, 1), (10, 0) are named: None = cannot be)
+#: (pattern's tile part, how tiles (0, 0), (9, 0), (0, 1), (10, 0) are named: None = cannot
+#: be), as each tool's documentation writes them (docs/tiles.md)
 NAMES = {
     "<UDIM>": ("1001", "1010", "1011", None),
-    "%(UDIM)d": ("1001", "1010", "1011", None),
+    "<udim>": ("1001", "1010", "1011", None),                      # Arnold
+    "$UDIM": ("1001", "1010", "1011", None),                       # Mari, Substance Painter
+    "%(UDIM)d": ("1001", "1010", "1011", None),                    # Houdini
     "<UVTILE>": ("u1_v1", "u10_v1", "u1_v2", "u11_v1"),
+    "<uvtile>": ("u0_v0", "u9_v0", "u0_v1", "u10_v0"),             # OpenImageIO, V-Ray
     "%(UVTILE)d": ("u1_v1", "u10_v1", "u1_v2", "u11_v1"),
     "<UVTILE0>": ("u0_v0", "u9_v0", "u0_v1", "u10_v0"),
+    "<tile>": ("_u1_v1", "_u10_v1", "_u1_v2", "_u11_v1"),          # Arnold: Mudbox's _uU_vV
+    "_u##v##": ("_u00v00", "_u09v00", "_u00v01", "_u10v00"),       # OpenImageIO
+    "u<U>_v<V>": ("u1_v1", "u10_v1", "u1_v2", "u11_v1"),           # Maya, 1-based
+    "_u<u>_v<v>": ("_u0_v0", "_u9_v0", "_u0_v1", "_u10_v0"),       # Maya, 0-based
+    "<U><V>": ("u1v1", "u10v1", "u1v2", "u11v1"),                  # OpenImageIO writes u, v
+    "<u>_<v>": ("u0_v0", "u9_v0", "u0_v1", "u10_v0"),
+    "%(U)02d_%(V)02d": ("01_01", "10_01", "01_02", "11_01"),       # Houdini, padded
+    "$U_$V": ("1_1", "10_1", "1_2", "11_1"),                       # V-Ray
+    "$2u_$2v": ("00_00", "09_00", "00_01", "10_00"),               # V-Ray, 0-based padded
 }
 TILES = (tiles.Tile(0, 0), tiles.Tile(9, 0), tiles.Tile(0, 1), tiles.Tile(10, 0))
+#: the registry's entries each NAMES spelling uses
+SPELT = {"u<U>_v<V>": ("u<U>", "v<V>"), "_u<u>_v<v>": ("u<u>", "v<v>"), "<U><V>": ("<U>", "<V>"),
+         "<u>_<v>": ("<u>", "<v>"), "%(U)02d_%(V)02d": ("%(U)d", "%(V)d"), "$U_$V": ("$U", "$V"),
+         "$2u_$2v": ("$u", "$v")}
 
 
 def test_the_registry_holds_every_token():
-    assert set(tiles.TOKENS) == set(NAMES)
+    used = {t for k in NAMES for t in SPELT.get(k, (k,))}
+    assert {t.text for t in tiles.TOKENS} == used
 
 
 @pytest.mark.parametrize("token", NAMES)
@@ -36,16 +53,19 @@ def test_each_token_names_each_tile(token):
                 tiles.fill(pattern, tile, "x.exr")
         else:
             assert tiles.fill(pattern, tile, "x.exr") == f"skin.{name}.exr"
+            assert tiles.match(pattern, f"skin.{name}.exr") == tile, (token, name)
 
 
 def test_mudbox_names_are_udims_as_the_convention_says():
-    """u1_v1 is UDIM 1001; u10_v1 is 1010; u1_v2 is 1011 (and ZBrush's u0_v0 is 1001)."""
-    conv = {c.token: c for c in tiles.CONVENTIONS}
+    """u1_v1 is UDIM 1001; u10_v1 is 1010; u1_v2 is 1011 (and ZBrush's u0_v0 is 1001); a
+    number a token would not write is no tile (1000, u0_v1 1-based, 01 unpadded)."""
     for text, udim in (("u1_v1", 1001), ("u10_v1", 1010), ("u1_v2", 1011)):
-        tile = conv["<UVTILE>"].parse(re.match(conv["<UVTILE>"].regex, text))
+        tile = tiles.match("a.<UVTILE>.exr", f"a.{text}.exr")
         assert tile.udim == udim, (text, tile)
-    tile = conv["<UVTILE0>"].parse(re.match(conv["<UVTILE0>"].regex, "u0_v0"))
-    assert tile.udim == 1001
+    assert tiles.match("a.<UVTILE0>.exr", "a.u0_v0.exr").udim == 1001
+    for pattern, name in (("a.<UDIM>.exr", "a.1000.exr"), ("a.<UVTILE>.exr", "a.u0_v1.exr"),
+                          ("a.$U_$V.exr", "a.01_1.exr"), ("a.$2U_$2V.exr", "a.1_01.exr")):
+        assert tiles.match(pattern, name) is None, (pattern, name)
 
 
 def _tile_set(folder, token, albedos):
@@ -65,8 +85,9 @@ def test_every_token_reads_and_writes_the_right_tiles(tmp_path, token_in, on_dev
               ("R", "G", "B"))
     found = expand_inputs([pattern])
     assert [t for _, t in found] == [TILES[0], TILES[1], TILES[2]]    # ordered by v, then u
-    for token_out in NAMES:
-        out = tmp_path / "out" / token_out.strip("<>%()d") / f"sss.{token_out}.exr"
+    order = list(NAMES)                 # each output token from three inputs, not all (time)
+    for token_out in {token_in, "<UDIM>", order[(order.index(token_in) + 1) % len(order)]}:
+        out = tmp_path / "out" / str(list(NAMES).index(token_out)) / f"sss.{token_out}.exr"
         rep = process_textures(pattern, mfp=1.0, eta=1.4, output=str(out),
                                outputs=("alpha",))
         assert rep.exit_code == 0, (token_in, token_out, rep.summary())
@@ -163,3 +184,95 @@ def test_scenes_convert_tiles_and_report_what_they_cannot_name(tmp_path, on_devi
     assert "\n" not in bad.problem
     report = plan.run()
     assert sum(r.status == "ok" for r in report.results) == 3, report.summary()
+
+
+def test_the_cli_reads_and_writes_arnolds_token(tmp_path, capsys, on_device):
+    """Arnold's <udim> read (was: 'no such file' with the tiles there) and written (was: one
+    file literally named o.<udim>.exr, exit 0)."""
+    _tile_set(tmp_path, "<udim>", (0.2, 0.5, 0.8))
+    rc = cli_main(["invert", str(tmp_path / "alb.<udim>.exr"), "--no-progress",
+                   "-o", str(tmp_path / "o" / "sss.<udim>.exr")])
+    assert rc == 0, capsys.readouterr()
+    assert sorted(p.name for p in (tmp_path / "o").iterdir()) == [
+        "sss.1001.exr", "sss.1010.exr", "sss.1011.exr"]
+
+
+@pytest.mark.parametrize("token, why", [
+    ("<f>", "Maya's frame token"), ("####", "frame-number padding"),
+    ("%04d", "frame-number padding"), ("$textureSet", "Substance Painter export token"),
+    ("$F4", "Houdini's frame token"),
+    ("_MAPID_", "RenderMan's atlas token"), ("<Udim>", "did you mean <UDIM> or <udim>?"),
+    ("<tiles>", "not a tile token this tool knows"), ("<U>", "names the tile's u but not its v"),
+], ids=["maya-frame", "hashes", "printf", "substance", "houdini-frame", "mapid", "case",
+        "unknown", "u-only"])
+@pytest.mark.parametrize("where", ["input", "output"])
+def test_an_unknown_token_is_refused_named_never_a_file_name(tmp_path, capsys, token, why,
+                                                             where, on_device):
+    _tile_set(tmp_path, "<UDIM>", (0.5, 0.5, 0.5))
+    src = f"alb.{token}.exr" if where == "input" else "alb.<UDIM>.exr"
+    out = f"o.{token}.exr" if where == "output" else "o.<UDIM>.exr"
+    rc = cli_main(["invert", str(tmp_path / src), "--no-progress", "-o", str(tmp_path / out)])
+    text = capsys.readouterr().out
+    lines = [x for x in text.splitlines() if token in x and why in x]
+    assert rc == 1 and lines and "no such file" not in text, (rc, text)
+    assert not list(tmp_path.glob("o.*")), list(tmp_path.glob("o.*"))   # nothing written
+
+
+def test_preview_takes_a_tile_pattern(tmp_path, capsys, on_device):
+    """preview reads the same tokens as invert and writes one sheet per tile."""
+    _tile_set(tmp_path, "$UDIM", (0.2, 0.5, 0.8))
+    rc = cli_main(["preview", str(tmp_path / "alb.$UDIM.exr"),
+                   "-o", str(tmp_path / "sheet.<UDIM>.png")])
+    assert rc == 0, capsys.readouterr()
+    assert sorted(p.name for p in tmp_path.glob("sheet.*")) == [
+        "sheet.1001.png", "sheet.1010.png", "sheet.1011.png"]
+    rc = cli_main(["preview", str(tmp_path / "alb.$UDIM.exr"), "-o", str(tmp_path / "s.png")])
+    err = capsys.readouterr().err
+    assert rc == 1 and err.count("names one picture") == 3, err      # never one over another
+    rc = cli_main(["invert", str(tmp_path / "alb.$UDIM.exr"), "--no-progress",
+                   "-o", str(tmp_path / "o" / "sss.<udim>.exr")])
+    assert rc == 0, capsys.readouterr()
+    rc = cli_main(["preview", str(tmp_path / "o" / "sss.<udim>.exr")])   # its own outputs too
+    assert rc == 0 and len(list((tmp_path / "o").glob("*.preview.png"))) == 3, capsys.readouterr()
+    rc = cli_main(["preview", str(tmp_path / "alb.<f>.exr")])
+    err = capsys.readouterr().err
+    assert rc == 1 and "<f> is Maya's frame token" in err, err
+
+
+def test_scenes_read_every_token_and_refuse_unknown_ones(tmp_path, on_device):
+    """A scene's albedo in Substance's $UDIM, output in Maya's u<U>_v<V>; a second material
+    whose output has a Maya frame token is a planned problem naming it."""
+    (tmp_path / "tex").mkdir()
+    _tile_set(tmp_path / "tex", "$UDIM", (0.5, 0.5, 0.5))
+    (tmp_path / "scene.toml").write_text(
+        '[[material]]\nname = "skin"\nalbedo = "tex/alb.$UDIM.exr"\nmfp = 1.0\n'
+        'output = "out/skin.u<U>_v<V>.exr"\n'
+        '[[material]]\nname = "bad"\nalbedo = "tex/alb.$UDIM.exr"\nmfp = 1.0\n'
+        'output = "out/bad.<f>.exr"\n')
+    plan = load(tmp_path / "scene.toml").plan()
+    outs = sorted(j.output.rsplit("/", 1)[1] for j in plan.jobs if j.name == "skin")
+    assert outs == ["skin.u10_v1.exr", "skin.u1_v1.exr", "skin.u1_v2.exr"], plan.describe()
+    bad = [j for j in plan.jobs if j.name == "bad"]
+    assert bad and all("<f> is Maya's frame token" in (j.problem or "") for j in bad)
+
+
+def test_the_blur_command_takes_tile_patterns(tmp_path, capsys, on_device):
+    """blur irr.<udim>.exr -o out.$UDIM.exr blurs each tile into its own output (it wrote one
+    file literally named out.<udim>.exr, or found no such file); an albedo texture pattern
+    is filled per tile."""
+    for name in ("1001", "1002"):
+        write_exr(tmp_path / f"irr.{name}.exr", np.full((6, 8, 3), 0.5, np.float32),
+                  ("R", "G", "B"))
+        write_exr(tmp_path / f"alb.{name}.exr", np.full((6, 8, 3), 0.6, np.float32),
+                  ("R", "G", "B"))
+    rc = cli_main(["blur", str(tmp_path / "irr.<udim>.exr"), "--albedo",
+                   str(tmp_path / "alb.<UDIM>.exr"), "--mfp", "1", "--no-progress",
+                   "-o", str(tmp_path / "o" / "out.$UDIM.exr")])
+    assert rc == 0, capsys.readouterr()
+    assert sorted(p.name for p in (tmp_path / "o").iterdir()) == ["out.1001.exr",
+                                                                  "out.1002.exr"]
+    rc = cli_main(["blur", str(tmp_path / "irr.1001.exr"), "--albedo", "0.5", "--mfp", "1",
+                   "--no-progress", "-o", str(tmp_path / "p" / "out.<f>.exr")])
+    err = capsys.readouterr().err
+    assert rc == 1 and "<f> is Maya's frame token" in err, err
+    assert not (tmp_path / "p").exists() or not list((tmp_path / "p").iterdir())

@@ -107,8 +107,12 @@ def cli_actions(option: str):
 def test_the_cli_offers_each_registry(row):
     reg = registry_at(row["registry"])
     for command, action in cli_actions(row["CLI"]):
-        if action.choices is None:            # --outputs: a comma list, checked by its type
-            assert action.type(",".join(reg.names)) == reg.names, command
+        if action.choices is None:            # a comma list (--outputs, --target), its type's
+            for option in reg:                # every spelling alone, to the canonical name
+                for spelling in (option.name, *option.aliases):
+                    assert action.type(spelling) == (option.name,), (command, spelling)
+            if row["kind"] != "render target":    # targets: one per render context
+                assert action.type(",".join(reg.names)) == reg.names, command
             with pytest.raises(argparse.ArgumentTypeError) as exc:
                 action.type("nonsense")
             assert all(name in str(exc.value) for name in reg.names), str(exc.value)

@@ -346,8 +346,9 @@ def build_parser() -> argparse.ArgumentParser:
     p = command(
         "invert", help="albedo (+ mfp) textures -> scattering-coefficient EXRs", epilog=EPILOG)
     p.add_argument("inputs", nargs="+",
-                   help="albedo files, globs or tile patterns: <UDIM>, %%(UDIM)d (1001...), "
-                        "<UVTILE>, %%(UVTILE)d (u1_v1, 1-based), <UVTILE0> (u0_v0, 0-based)")
+                   help="albedo files, globs or tile patterns: <UDIM>, <udim>, $UDIM, "
+                        "%%(UDIM)d (1001...), <UVTILE>, <tile>, u<U>_v<V> (u1_v1), <UVTILE0>, "
+                        "<uvtile> (u0_v0), ... (docs/tiles.md)")
     p.add_argument("--mfp", default="1", type=constant_or_texture("mfp"),
                    help="mean free path ld = 1/mu_tr: constant(s) 'v' or 'r,g,b', or a texture "
                         "path/pattern ({stem}, {dir}, <UDIM>)")

@@ -44,7 +44,45 @@ def blur_job(args, sources):
     return Job("blur", args.input, args.output, inputs, work, identities=identities)
 
 
+#: the options of the blur that may name a texture: filled per tile of a tile pattern
+TEXTURE_OPTIONS = ("albedo", "mfp", "alpha_prime", "sigma_t")
+
+
 def cmd_blur(args) -> int:
+    """One irradiance file, or each tile of a tile pattern (``irr.<UDIM>.exr -o
+    out.<UDIM>.exr``, the tokens of ``io.tiles``; parameter textures filled per tile): a
+    tile's failure is its own line, the others run."""
+    import argparse
+    import os
+
+    from ..io import tiles
+    from ..io.patterns import companion_path, outputs_of
+    patterned = tiles.has_tokens(args.output) or (tiles.is_pattern(args.input)
+                                                  and not os.path.exists(args.input))
+    if not patterned:
+        return blur_one(args)
+    code = 0
+    for path, tile, out, err in outputs_of([args.input], args.output, lambda p: p):
+        one = argparse.Namespace(**vars(args))
+        one.input, one.output = path, out
+        try:
+            for key in TEXTURE_OPTIONS:
+                value = getattr(args, key)
+                if value is not None and number_list(value) is None:
+                    setattr(one, key, companion_path(value, path, tile))
+        except (ValueError, tiles.TileError) as exc:
+            err = err or str(exc)
+        if err is not None:
+            print(f"bdipole-cl {args.command}: error: {err}", file=sys.stderr)
+            code = max(code, 1)
+            continue
+        code = max(code, blur_one(one))
+        if code >= 128:                           # a stop: the other tiles are not begun
+            break
+    return code
+
+
+def blur_one(args) -> int:
     from ..io.collisions import Claim, check_claim
     from ..io.images import TextureError, check_output_format
     from ..jobs import runner

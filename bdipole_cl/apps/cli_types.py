@@ -4,6 +4,10 @@ from __future__ import annotations
 
 import argparse
 import re
+from dataclasses import replace
+
+from ..io.mipmaps import TextureOptions
+from ..methods.registry import TEXTURE_RESIZE, TEXTURE_WRAP
 
 #: what argparse takes for a negative number (a value, not an option): its own rule (-5,
 #: -.5) widened to exponents and size suffixes, so that ``--max-memory -5M`` or ``--tol -1e-3``
@@ -149,10 +153,44 @@ def output_list(text):
 
 
 def add_texture_arg(p):
-    """``--texture`` of the commands that write images (invert, blur)."""
-    p.add_argument("--texture", action="store_true",
+    """``--texture`` of the commands that write images (invert, blur), and the options of the
+    texture (``--texture-wrap``, ``--texture-tile``, ``--texture-resize``, as maketx's
+    ``--wrap``, ``--tile``, ``--resize`` and txmake's ``-mode``, ``-resize``): each makes
+    ``args.texture`` a TextureOptions (one of them alone implies ``--texture``)."""
+    p.add_argument("--texture", action=TextureAction, nargs=0, default=False,
                    help="write renderer-ready textures: tiled 64x64, mip-mapped EXRs (as maketx "
-                        "makes; a .tx/TIFF output is refused: it drops channel names)")
+                        "makes; each level keeps its parent's mean; a .tx/TIFF output is "
+                        "refused: it drops channel names)")
+    # dest "texture" keeps --texture's default (False); each default is the option's own
+    p.add_argument("--texture-wrap", action=TextureAction, dest="texture", field="wrap",
+                   choices=TEXTURE_WRAP.names, metavar="MODE", default="clamp",
+                   help=f"lookups beyond the edges: {', '.join(TEXTURE_WRAP.names)} (default "
+                        "clamp: no seam at a tile's edge; a blur: as its --border)")
+    p.add_argument("--texture-tile", action=TextureAction, dest="texture", field="tile",
+                   type=positive_int, metavar="N", default=64,
+                   help="tile side in texels (default 64)")
+    p.add_argument("--texture-resize", action=TextureAction, dest="texture", field="resize",
+                   choices=TEXTURE_RESIZE.names, metavar="HOW", default="none",
+                   help=f"level 0 to powers of two: {', '.join(TEXTURE_RESIZE.names)} "
+                        "(default none)")
+
+
+class TextureAction(argparse.Action):
+    """``--texture`` and its options, gathered into one TextureOptions in ``args.texture``."""
+
+    def __init__(self, option_strings, dest, field=None, **kwargs):
+        self.field = field
+        super().__init__(option_strings, dest, **kwargs)
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        current = getattr(namespace, self.dest, False)
+        options = current if isinstance(current, TextureOptions) else TextureOptions()
+        if self.field is not None:
+            try:
+                options = replace(options, **{self.field: values})
+            except ValueError as exc:
+                parser.error(f"{option_string}: {exc}")
+        setattr(namespace, self.dest, options)
 
 
 def target_list(text):

@@ -17,15 +17,18 @@ OpenImageIO reads.
 from __future__ import annotations
 
 import os
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from ..durable import durable_replace
-from ..io.collisions import PICTURE_MARK, Claim, check_claim
+from ..errors import one_line
 from ..io.channels import NOT_RGB
-from ..io.images import classify_channels, read_whole
+from ..io.collisions import PICTURE_MARK, Claim, check_claim
+from ..io.images import TextureError, classify_channels, read_whole
+from ..io.patterns import outputs_of
 
 #: positive values spanning more than this many decades are shown on a log scale
 LOG_DECADES = 2.0
@@ -436,18 +439,40 @@ def _wrap(text, width):
 def add_command(command):
     """Add the command to the CLI (``command``: the subparsers' add_parser)."""
     p = command("preview", help="contact sheet of an EXR: a thumbnail per channel group")
-    p.add_argument("input", help="an EXR (a bdipole output, or any)")
-    p.add_argument("-o", "--output", help="PNG or SVG (default: FILE.preview.png beside it)")
+    p.add_argument("input", nargs="+",
+                   help="EXRs (a bdipole output, or any): files, globs or tile patterns "
+                        "(alb.<UDIM>.exr, <udim>, $UDIM, u<U>_v<V>, ...: docs/tiles.md)")
+    p.add_argument("-o", "--output",
+                   help="PNG or SVG, a pattern for several files (sheet.<UDIM>.png, "
+                        "{stem}.png; default: FILE.preview.png beside each)")
     p.add_argument("--force", action="store_true",
                    help="replace an existing -o file that bdipole-cl did not write")
     p.set_defaults(func=_cmd_preview)
 
 
 def _cmd_preview(args) -> int:
-    sheet = contact_sheet(args.input, args.output, force=args.force)
-    for t in sheet.tiles:
-        scale = "log" if t.log else "linear"
-        print(f"{t.group.name}: {', '.join(t.group.names)}  {span_text(t.vmin, t.vmax, 4)} "
-              f"({scale})")
-    print(f"wrote {sheet.path} ({sheet.size[0]}x{sheet.size[1]})")
-    return 0
+    """One sheet per file named; a lone file's error is the command's (exit 1 or 2, as
+    before), each of several files' is its own line and the others are drawn (exit 1)."""
+    entries = outputs_of(args.input, args.output, lambda p: Path(p).with_suffix('.preview.png'),
+                         what="picture")
+    if len(entries) == 1 and entries[0][3] is not None:
+        raise TextureError(entries[0][3])
+    failed = 0
+    for path, _, picture, err in entries:
+        if err is None:
+            try:
+                sheet = contact_sheet(path, picture, force=args.force)
+            except (OSError, ValueError, ImportError) as exc:
+                if len(entries) == 1:
+                    raise
+                err = one_line(str(exc) if str(path) in str(exc) else f"{path}: {exc}")
+        if err is not None:                       # a bad file never stops the others
+            failed += 1
+            print(f"bdipole-cl preview: error: {err}", file=sys.stderr)
+            continue
+        for t in sheet.tiles:
+            scale = "log" if t.log else "linear"
+            print(f"{t.group.name}: {', '.join(t.group.names)}  "
+                  f"{span_text(t.vmin, t.vmax, 4)} ({scale})")
+        print(f"wrote {sheet.path} ({sheet.size[0]}x{sheet.size[1]})")
+    return 1 if failed else 0

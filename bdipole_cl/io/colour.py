@@ -9,9 +9,15 @@ converted (docs/model.md "Colour").
   name or alias. Default: the config's ``scene_linear`` role under ``$OCIO`` (a studio's
   pipeline), else ``lin_rec709_scene``.
 * **An input's space** (``colour_path``): the one given (``colorspace``), else what the file
-  declares (``oiio:ColorSpace`` as OpenImageIO reports it: an EXR's ``colorInteropID``, a PNG's
-  sRGB/gAMA/ICC information), else its EXR ``chromaticities`` matched to a linear space of the
-  config, else: 8-bit is sRGB, 16-bit and float are already in the working space.
+  declares (``declared``: an ICC profile at any bit depth, a PNG's sRGB/gAMA/cHRM chunks,
+  EXIF ColorSpace; an EXR's ``colorInteropID`` and other formats' ``oiio:ColorSpace``; EXR
+  ``chromaticities``), each in OpenColorIO's built-in config's words followed into the active
+  config (``ColourConfig.builtin_space``: its name, alias or interop ID, else OpenColorIO's
+  ``IdentifyBuiltinColorSpace`` through its interchange roles, else for sRGB textures its
+  ``texture_paint`` or ``color_picking`` role), else: 8-bit is the config's ``texture_paint``
+  role (sRGB in the built-in config), as is any undeclared PNG (sRGB is PNG's default at
+  every bit depth); other 16-bit and float files are already in the working space.
+  Declarations that disagree, or that the config cannot follow, fail the file, named.
 * **Never converted**: mfp textures and constants (lengths per channel of the working space),
   masks and alpha (data).
 * **Outputs** (``tag_output``): ``oiio:ColorSpace`` is the working space (its interop ID when
@@ -24,14 +30,13 @@ so the decoding is exact to float32 (docs/colour.md).
 from __future__ import annotations
 
 import os
-import struct
 import threading
 from dataclasses import dataclass
 
 import numpy as np
 import OpenImageIO as oiio
 
-from . import icc
+from . import declared
 from .oiio_text import oiio_error
 
 #: OpenColorIO's OPTIMIZATION_LOSSLESS (OpenColorTypes.h): no fast pow/log/exp approximations
@@ -76,10 +81,24 @@ def _ocio(name) -> "oiio.ColorConfig":
         return cfg
 
 
+_pyocio_configs: dict = {}
+
+
+def _pyocio(name):
+    """OpenColorIO's own Config of ``name`` (roles, identification), loaded once."""
+    import PyOpenColorIO as ocio
+    with _configs_lock:
+        cfg = _pyocio_configs.get(name)
+        if cfg is None:
+            cfg = _pyocio_configs[name] = ocio.Config.CreateFromFile(name)
+        return cfg
+
+
 def reset_config_cache() -> None:
     """Forget loaded configs (a config file edited in place is read again)."""
     with _configs_lock:
         _configs.clear()
+        _pyocio_configs.clear()
 
 
 @dataclass(frozen=True)
@@ -127,6 +146,35 @@ class ColourConfig:
     def interop_id(self, space) -> str:
         return self._cfg.get_color_interop_id(space) or ""
 
+    def role(self, role) -> str | None:
+        """The space the config's role ``role`` names (texture_paint, ...), or None."""
+        space = _pyocio(self.name).getRoleColorSpace(role)
+        return self.space(space) if space else None
+
+    def builtin_space(self, name) -> str | None:
+        """This config's space for the built-in config's space ``name`` (an interop ID such as
+        srgb_rec709_scene): its name or alias, else the space with that interop ID, else the
+        one OpenColorIO identifies as the same through the config's interchange roles
+        (``Config.IdentifyBuiltinColorSpace``), else None."""
+        own = self.space(name)
+        if own is not None or self.name == BUILTIN_CONFIG:
+            return own
+        canon = ColourConfig(BUILTIN_CONFIG, "built-in").space(name)
+        if canon is None:
+            return None
+        interop = ColourConfig(BUILTIN_CONFIG, "built-in").interop_id(canon) or canon
+        own = self.space(canon) or self.space(interop)
+        same = [n for n in self.names() if self.interop_id(n) in (name, interop)]
+        if own or same:
+            return own or same[0]
+        import PyOpenColorIO as ocio
+        try:
+            found = ocio.Config.IdentifyBuiltinColorSpace(_pyocio(self.name),
+                                                          _pyocio(BUILTIN_CONFIG), canon)
+        except ocio.Exception:                    # no interchange roles, or none matches
+            return None
+        return self.space(found) if found else None
+
     def match_chromaticities(self, xy) -> str | None:
         """The first scene-linear space whose primaries and white are ``xy`` (CHROMATICITY_TOL)."""
         for n in self.working_names():
@@ -165,9 +213,12 @@ def _unknown(what, name, config, known) -> ValueError:
 
 
 def resolve_colorspace(name, config=None) -> str:
-    """The config's name for an input colour space ``name`` (ValueError listing the known)."""
+    """The config's name for an input colour space ``name`` (ValueError listing the known):
+    its own name or alias, else a space of the built-in config followed into it
+    (``followed``: a scene's ``srgb_texture`` or ``srgb_rec709_scene`` under a studio's
+    config)."""
     config = config or active_config()
-    space = config.space(name)
+    space = config.space(name) or followed(config, name)
     if space is None:
         raise _unknown("colorspace", name, config, ("auto",) + config.names())
     return space
@@ -301,22 +352,64 @@ def colour_path(spec, path, colorspace="auto", working=None, names=None) -> Colo
     return route
 
 
-def check_icc_profile(spec, path):
-    """A ValueError naming the file and its embedded ICC profile where that profile is not
-    sRGB's (``icc``): OpenImageIO's tag (sRGB for every 8-bit PNG and JPEG, none for a TIFF)
-    does not read the profile, so an Adobe RGB or P3 texture would pass as sRGB."""
-    data = spec.getattribute("ICCProfile")
-    if data is None or not len(data):
-        return
+#: roles that name the space of painted (8-bit) textures, in the order consulted
+PAINT_ROLES = ("texture_paint", "color_picking")
+#: the built-in config's space of an sRGB texture
+SRGB = "srgb_rec709_scene"
+
+
+def _given_up(path, what) -> ValueError:
+    return ValueError(f"{path}: {what}: give its space (--colorspace / colorspace =)")
+
+
+def followed(config, name) -> str | None:
+    """The active config's space for the built-in config's space ``name``
+    (``ColourConfig.builtin_space``; an sRGB texture also by the config's paint roles)."""
+    builtin = ColourConfig(BUILTIN_CONFIG, "built-in")
+    if builtin.space(name) is None:
+        return None
+    space = config.builtin_space(name)
+    if space is None and builtin.space(name) == builtin.space(SRGB):
+        space = next((s for s in map(config.role, PAINT_ROLES) if s), None)
+    return space
+
+
+def _follow(config, declared_space, how, path) -> str:
+    """The active config's space for a declaration (its own name or alias, else
+    ``followed``), else ValueError naming the file and what the config lacks."""
+    own = config.space(declared_space)          # the active config's own name or alias
+    if own is not None:
+        return own
+    if ColourConfig(BUILTIN_CONFIG, "built-in").space(declared_space) is None:
+        raise _given_up(path, f"{how} declares {declared_space}, which OpenColorIO's built-in "
+                              f"config has no space for")
+    space = followed(config, declared_space)
+    if space is None:
+        raise _given_up(path, f"{how} declares {declared_space}, which OCIO config "
+                              f"{config.name} has no space for (by name, alias, interop ID, "
+                              f"its interchange roles or its {'/'.join(PAINT_ROLES)} roles)")
+    return space
+
+
+def _declared(spec, path, config) -> tuple:
+    """(the config's space, how it was declared) of the file's own declarations, or
+    (None, None); ValueError where one cannot be followed or two disagree."""
     try:
-        profile = icc.parse(data)
-    except (ValueError, struct.error) as exc:
-        raise ValueError(f"{path}: embeds an ICC profile that cannot be read ({exc}): give "
-                         f"its space (--colorspace / colorspace =)") from None
-    if not profile.is_srgb:
-        raise ValueError(f"{path}: embeds the ICC profile {profile.description or '(unnamed)'!r},"
-                         f" which is not sRGB (its primaries or tone curves differ): give its "
-                         f"space (--colorspace / colorspace =)")
+        found = declared.declarations(spec, path)
+    except declared.DeclarationError as exc:
+        raise _given_up(path, str(exc)) from None
+    kind = declared.file_kind(path)
+    tag = spec.getattribute("oiio:ColorSpace")
+    if tag and kind not in ("png", "jpeg"):  # there OpenImageIO's tag is its own default, or
+        found.append(declared.Declared(str(tag), "oiio:ColorSpace"))    # the chunks' reading
+    spaces = {}
+    for d in found:
+        spaces.setdefault(_follow(config, d.space, d.how, path), []).append(d)
+    if len(spaces) > 1:
+        raise _given_up(path, "declares " + " but ".join(
+            f"{s} ({', '.join(d.how for d in ds)})" for s, ds in spaces.items()))
+    space, ds = next(iter(spaces.items()), (None, [None]))
+    return space, ds[0]
 
 
 def _colour_path(spec, path, colorspace, working) -> ColourPath:
@@ -324,34 +417,29 @@ def _colour_path(spec, path, colorspace, working) -> ColourPath:
     enc = encoding(spec)
     if colorspace not in (None, "", "auto"):
         return ColourPath(resolve_colorspace(colorspace, config), "given", enc, working)
-    check_icc_profile(spec, path)
     xy = _declared_chromaticities(spec)
-    declared = spec.getattribute("oiio:ColorSpace")
-    if declared:
-        space = config.space(declared)
-        if space is None:
-            raise ValueError(f"{path}: declares colour space {declared!r}, unknown to OCIO "
-                             f"config {config.name}: give its space (--colorspace / "
-                             f"colorspace =)")
+    space, first = _declared(spec, path, config)
+    if space is not None:
         own = config.chromaticities(space)
         if xy and own and max(abs(a - b) for a, b in zip(own, xy)) > CHROMATICITY_TOL:
-            raise ValueError(f"{path}: declares {declared!r} but its chromaticities "
-                             f"{', '.join(f'{v:.4f}' for v in xy)} are not that space's: give "
-                             f"its space (--colorspace / colorspace =)")
+            raise _given_up(path, f"declares {first.space!r} but its chromaticities "
+                                  f"{', '.join(f'{v:.4f}' for v in xy)} are not that space's")
         return ColourPath(space, "declared", enc, working)
     if xy and enc in ("half", "float"):
         space = config.match_chromaticities(xy)
         if space is None:
-            raise ValueError(f"{path}: its chromaticities {', '.join(f'{v:.4f}' for v in xy)} "
-                             f"match no linear colour space of OCIO config {config.name}: "
-                             f"give its space (--colorspace / colorspace =)")
+            raise _given_up(path, f"its chromaticities {', '.join(f'{v:.4f}' for v in xy)} "
+                                  f"match no linear colour space of OCIO config {config.name}")
         return ColourPath(space, "chromaticities", enc, working)
-    if enc == "8-bit":
-        srgb = next((s for s in map(config.space, SRGB_NAMES) if s), None)
-        if srgb is None:
-            raise ValueError(f"{path}: an 8-bit file is taken as sRGB, which OCIO config "
-                             f"{config.name} has not: give its space (--colorspace)")
-        return ColourPath(srgb, "default", enc, working)
+    if enc == "8-bit" or declared.file_kind(path) in ("png", "jpeg"):  # PNG's own default
+        space = (next((s for s in map(config.role, PAINT_ROLES) if s), None)
+                 or config.builtin_space(SRGB)
+                 or next((s for s in map(config.space, SRGB_NAMES) if s), None))
+        if space is None:
+            raise _given_up(path, f"an undeclared 8-bit file or PNG is taken as the config's "
+                                  f"{'/'.join(PAINT_ROLES)} role or sRGB, which OCIO config "
+                                  f"{config.name} has not")
+        return ColourPath(space, "default", enc, working)
     return ColourPath(working.name, "default", enc, working)
 
 # }}}

@@ -17,6 +17,20 @@ import numpy as np
 #: (Bradford), rows R, G, B (IEC 61966-2-1's profile; littleCMS's built-in gives the same)
 SRGB_COLORANTS = ((0.4361, 0.2225, 0.0139), (0.3851, 0.7169, 0.0971),
                   (0.1431, 0.0606, 0.7141))
+#: the colorants (D50 PCS, Bradford, as ICC profiles carry them) of the primaries of
+#: OpenColorIO's built-in config that profiles use, keyed as its interop IDs name them
+#: (``srgb_p3d65_scene``); tests/test_colour.py derives each from the config's chromaticities
+COLORANTS = {
+    "rec709": SRGB_COLORANTS,
+    "p3d65": ((0.5151, 0.2412, -0.0011), (0.2920, 0.6922, 0.0419), (0.1571, 0.0666, 0.7841)),
+    "adobergb": ((0.6097, 0.3111, 0.0195), (0.2053, 0.6257, 0.0609),
+                 (0.1492, 0.0632, 0.7446)),
+    "rec2020": ((0.6735, 0.2790, -0.0019), (0.1657, 0.6753, 0.0300),
+                (0.1250, 0.0456, 0.7969)),
+}
+#: tone curves (code value -> linear) keyed as the built-in config's interop IDs name them
+CURVES = {"srgb": lambda x: srgb_decode(x), "lin": lambda x: x, "g18": lambda x: x ** 1.8,
+          "g22": lambda x: x ** 2.2, "g24": lambda x: x ** 2.4}
 #: colorants within this of sRGB's are sRGB's: s15Fixed16 holds them to 1.5e-5, and Bradford
 #: matrices of different authors differ by <= 5e-4; the nearest other spaces (P3, Adobe RGB)
 #: differ by > 0.05
@@ -40,6 +54,25 @@ class Profile:
         x = np.linspace(0.0, 1.0, 256)
         return bool(self.curves) and all(
             np.max(np.abs(curve(x) - srgb_decode(x))) <= CURVE_TOL for curve in self.curves)
+
+
+def identify(profile: Profile) -> tuple | None:
+    """(transfer, primaries) of a profile, as the built-in config's interop IDs name them
+    (``("srgb", "p3d65")``), or None: colorants within COLORANT_TOL of a COLORANTS entry (a
+    grey profile: Rec.709's), the same curve on every channel within CURVE_TOL of a CURVES
+    entry."""
+    if profile.colorants is None:
+        primaries = "rec709"
+    else:
+        primaries = next((k for k, c in COLORANTS.items()
+                          if np.allclose(profile.colorants, c, rtol=0, atol=COLORANT_TOL)), None)
+    if primaries is None or not profile.curves:
+        return None
+    x = np.linspace(0.0, 1.0, 256)
+    for key, ideal in CURVES.items():
+        if all(np.max(np.abs(curve(x) - ideal(x))) <= CURVE_TOL for curve in profile.curves):
+            return key, primaries
+    return None
 
 
 def srgb_decode(v):

@@ -355,9 +355,7 @@ class Writer:
         self.texture = texture_options(texture)
         if self.texture is not None:      # the mark of this tool's textures (collisions.ours)
             check_texture_window(path, spec)      # before any band is computed
-            t = self.texture
-            spec.attribute("bdipole:texture", f"tiles {t.tile}, {t.mip_filter} mips, "
-                                              f"{t.compression}")
+            spec.attribute("bdipole:texture", self.texture.describe())
         self.cancel = cancel
         self.out = oiio.ImageOutput.create(str(self.tmp))
         if self.out is None:

@@ -70,8 +70,14 @@ def _relative_file(element, path: str, base: str) -> str:
 
 
 def _exists(path: str) -> bool:
-    """Whether a file, or a tile of a <UDIM> pattern, is there."""
-    return bool(tiles.expand(path)) if tiles.is_pattern(path) else os.path.exists(path)
+    """Whether a file, or a tile of a tile pattern, is there (a refused token: no; the job
+    says why)."""
+    if os.path.exists(path) or not tiles.is_pattern(path):
+        return os.path.exists(path)
+    try:
+        return bool(tiles.expand(path))
+    except tiles.TileError:
+        return False
 
 
 def _texture(node, base: str) -> Texture | str:

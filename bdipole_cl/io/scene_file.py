@@ -36,12 +36,10 @@ Every error is one line naming the file, the line, the key and what is allowed
 """
 from __future__ import annotations
 
-import math
 import re
 from dataclasses import dataclass, replace
 from pathlib import Path
 
-import numpy as np
 
 try:
     import tomllib
@@ -49,11 +47,13 @@ except ImportError:  # pragma: no cover - Python 3.10
     import tomli as tomllib
 
 from ..errors import POLICY
-from ..methods.registry import BLUR_METHOD, BORDER, METHOD_OR_AUTO, MFP_KIND, OUTPUTS
+from ..methods.registry import (BLUR_METHOD, BORDER, METHOD_OR_AUTO, MFP_KIND, OUTPUTS,
+                                TEXTURE_RESIZE, TEXTURE_WRAP)
 from ..ops.blur.params import CONSTANT_RULES
 from ..physics.models import MODEL
 from .colour import resolve_colorspace, resolve_working_space
 from .targets import TARGET, parse_targets
+from .mipmaps import MAX_TILE, TextureOptions, scene_texture
 from .scene_values import (as_list, check_material_eta, check_scaled_mfp, floats, mfp_constants,
                            number, numbers_or_number, positive)
 
@@ -84,6 +84,14 @@ KEYS = {
     "half": ({"material", "blur"}, lambda v: isinstance(v, bool), "true or false"),
     "texture": ({"material", "blur"}, lambda v: isinstance(v, bool),
                 "true (tiled, mip-mapped EXR textures) or false"),
+    "texture_wrap": ({"material", "blur"}, lambda v: v in TEXTURE_WRAP,
+                     TEXTURE_WRAP.listing('"') + " (implies texture = true)"),
+    "texture_tile": ({"material", "blur"},
+                     lambda v: isinstance(v, int) and not isinstance(v, bool)
+                     and 1 <= v <= MAX_TILE,
+                     f"a whole number of texels in 1..{MAX_TILE} (implies texture = true)"),
+    "texture_resize": ({"material", "blur"}, lambda v: v in TEXTURE_RESIZE,
+                       TEXTURE_RESIZE.listing('"') + " (implies texture = true)"),
     "unit": ({"material", "blur"}, lambda v: isinstance(v, str) and v, "a unit name"),
     "tol": ({"material", "blur"}, lambda v: number(v) and 0 < v < 1, "a number in (0, 1)"),
     "model": ({"material"}, lambda v: v in MODEL, MODEL.listing('"')),
@@ -147,7 +155,7 @@ class Material:
     working_space: str | None = None  # the config's name; None: the default working space
     mfp_kind: str = "diffuse"        # methods.registry.MFP_KIND
     mfp_scale: tuple = (1.0,)        # multiplies the mfp (one or per channel)
-    texture: bool = False            # tiled, mip-mapped EXR outputs
+    texture: TextureOptions | None = None    # tiled, mip-mapped EXR outputs (texture_options)
     targets: tuple = ()               # io.targets.TARGET: the material networks a bake writes
     #                                   (a stage's or document's materials: DEFAULT_TARGETS)
 
@@ -193,7 +201,7 @@ class Blur:
     on_invalid: str
     colorspace: str                  # the irradiance's
     working_space: str | None = None  # irradiance, albedo and mfp: the material's unless given
-    texture: bool = False
+    texture: TextureOptions | None = None
 
 
 @dataclass(frozen=True)
@@ -350,7 +358,8 @@ def load(path, importer=None, working_space=None) -> SceneData:
                           b["blur_method"], b["border"], b["on_invalid"],
                           _colour(fail, "blur", i, entry, b, "colorspace"),
                           _colour(fail, "blur", i, entry, b, "working_space")
-                          if "working_space" in entry else mat.working_space, b["texture"]))
+                          if "working_space" in entry else mat.working_space,
+                          scene_texture(b)))
     if not materials and not blurs and not imports:
         fail(None, 0, None, "the scene has no [[material]] and no [[blur]]")
     return SceneData(path.resolve(), tuple(materials.values()), tuple(blurs), source, imports)
@@ -386,7 +395,7 @@ def _material(m, resolve, colour) -> Material:
         resolve(m.get("mask")), m["half"], m["unit"], float(m["tol"]),
         MODEL.canonical(m["model"]),
         m["method"], m["exact"], m["double"], m["on_invalid"], *colour, m["mfp_kind"],
-        floats(m["mfp_scale"]), m["texture"], parse_targets(m.get("targets", [])))
+        floats(m["mfp_scale"]), scene_texture(m), parse_targets(m.get("targets", [])))
 
 
 def _imported(fail, index, entry, imp, defaults, resolve, working_space) -> Material:

@@ -93,12 +93,9 @@ def package_folder(package: str) -> str:
 def members(names, member: str) -> list:
     """The archive's names that ``member`` names: itself, or where it is a tile pattern
     (``tex/a.<UDIM>.exr``) every name that fills it."""
-    conv = tiles.token_of(member)
-    if conv is None:
+    if tiles.token_of(member) is None:
         return [n for n in names if n == member]
-    before, after = member.split(conv.token, 1)
-    pattern = re.compile(re.escape(before) + r"[^/]+" + re.escape(after) + "$")
-    return [n for n in names if pattern.match(n)]
+    return [n for n in names if tiles.match(member, n) is not None]
 
 
 def extract(archive, name: str, target: str):

@@ -140,8 +140,8 @@ def exitance_writer(path, output, spec, colour, alpha_ch, route, plan, *, half=F
     meta["source"] = str(path)
     meta.update(route.header("irradiance"))
     Path(output).parent.mkdir(parents=True, exist_ok=True)
-    options = texture_options(texture)           # a texture wraps as the blur's border did
-    if options is not None:
+    options = texture_options(texture)   # a texture wraps as the blur's border did, unless
+    if options is not None and options.wrap is None:         # the user chose a wrap mode
         options = replace(options, wrap=BORDER[plan.border].texture_wrap)
     return Writer(output, output_spec(spec, names, len(names) - 1 if alpha_ch >= 0 else -1,
                                       half, meta, working=route.working),

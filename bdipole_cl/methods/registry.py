@@ -140,6 +140,19 @@ BORDER = Registry("border", (
 ))
 BORDERS = BORDER.names
 
+#: how a lookup beyond a texture output's edges reads it (OpenImageIO's ``wrapmodes``, maketx
+#: ``--wrap``, txmake ``-mode``; docs/textures.md)
+TEXTURE_WRAP = Registry.of(
+    "wrap", clamp="the nearest edge texel (no seam at a UDIM tile's edge; the default)",
+    black="0 beyond the edges (maketx's default: a tile's edge reads dark)",
+    periodic="the texture repeats", mirror="the texture repeats, mirrored")
+#: level 0 of a texture output resized to powers of two per axis (txmake ``-resize``; maketx
+#: ``--resize`` is up), by the area average that keeps its mean
+TEXTURE_RESIZE = Registry.of(
+    "resize", none="kept as it is (the plain output, bit for bit)",
+    up="the next power of two up", down="the power of two below",
+    round="the nearest power of two")
+
 #: what a mean free path is (docs/model.md "Mean free path")
 MFP_KIND = Registry.of(
     "mfp_kind", diffuse="ld = 1/mu_tr (Jensen/Hery, the default)",

@@ -232,10 +232,14 @@ def verdict(device) -> "isolation.Verdict":
 
 def known_verdict(device):
     """The device's verdict where one is at hand (this process's or the cache's), else None:
-    never starts a probe (None in the probe's own child)."""
+    never starts a probe (None in the probe's own child, and for a device whose driver cannot
+    say what it is)."""
     if in_probe_child():
         return None
-    return isolation.cached_verdict(device, kernels_digest())
+    try:
+        return isolation.cached_verdict(device, kernels_digest())
+    except (AttributeError, cl.Error):
+        return None
 
 
 def runtime_at(index: str) -> Runtime:

@@ -38,7 +38,9 @@ def make_own_entries(root: Path):
     """One entry of each kind bdipole_cl makes in its cache folder, as the code names them."""
     (root / "icd-0123456789abcdef").mkdir(parents=True)
     (root / "icd-0123456789abcdef" / "bdipole_cl-intel-cpu.icd").write_text("/x/libintelocl.so\n")
-    (root / "choice-intel-cpu.json").write_text("{}")
+    (root / "choice-intel-cpu-0123456789ab.json").write_text("{}")     # DeviceKey.slug's shape
+    (root / "probes").mkdir()
+    (root / "probes" / "0123456789abcdef0123.json").write_text("{}")  # a probe's verdict
     (root / "usdz" / "0123456789abcdef0123").mkdir(parents=True)
     (root / "usdz" / "0123456789abcdef0123" / "a.exr").write_bytes(b"x" * 100)
 
@@ -64,7 +66,8 @@ def test_clear_removes_only_the_tools_own_entries(home, tmp_path, capsys):
     root = home / ".cache" / "bdipole_cl"
     make_own_entries(root)
     mine = [root / "notes.txt", root / "choice.json", root / "usdz" / "my_textures" / "a.exr",
-            root / "icd-mine" / "x.icd"]
+            root / "icd-mine" / "x.icd", root / "choice-my-notes.json", root / "choice-.json",
+            root / "probes" / "README.json"]
     for path in mine:
         path.parent.mkdir(parents=True, exist_ok=True)
         path.write_text("the user's")
@@ -77,7 +80,8 @@ def test_clear_removes_only_the_tools_own_entries(home, tmp_path, capsys):
     pocl.write_bytes(b"shared")
     assert cli_main(["cache", "--clear"]) == 0
     out = capsys.readouterr().out
-    for gone in ("icd-0123456789abcdef", "choice-intel-cpu.json", "usdz/0123456789abcdef0123"):
+    for gone in ("icd-0123456789abcdef", "choice-intel-cpu-0123456789ab.json",
+                 "usdz/0123456789abcdef0123", "probes/0123456789abcdef0123.json"):
         assert not (root / gone).exists(), (gone, out)
         assert gone.split("/")[-1] in out, (gone, out)
     for path in mine + [elsewhere / "keep.txt", pocl]:

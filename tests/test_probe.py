@@ -42,6 +42,10 @@ def fresh_cache(tmp_path, monkeypatch):
     isolation._verdicts.update(saved)
 
 
+def _index(rt):
+    return next(s.index for s in device.survey() if s.device.int_ptr == rt.device.int_ptr)
+
+
 def _probe_with_fault(monkeypatch, rt, fault):
     monkeypatch.setenv(isolation.FAULT_VARIABLE, fault)
     return device.verdict(rt.device)
@@ -161,3 +165,87 @@ def test_auto_says_its_timings_are_this_devices(runtime):
     if "calibrated" not in auto.source:
         assert "rescaled by this device's probe" in auto.source, auto.source
         assert auto.methods is None
+
+
+def test_a_kill_from_outside_is_not_cached(monkeypatch, fresh_cache):
+    rt = _pick("intel")
+    verdict = _probe_with_fault(monkeypatch, rt, "blur_direct=kill")
+    assert not verdict.passed("blur_direct") and "SIGKILL" in verdict.result("blur_direct").reason
+    assert verdict.works and verdict.transient
+    assert not isolation.verdict_path(rt.device, kernels_digest()).exists()
+
+
+def test_a_device_whose_default_inversion_fails_at_every_width_is_broken(monkeypatch,
+                                                                        fresh_cache):
+    from bdipole_cl.methods.choice import TABLE_WIDTHS_ALLOWED
+    rt = _pick("intel")
+    fault = ";".join(f"invert_table/w{w}=abort:INVALID_KERNEL_NAME" for w in TABLE_WIDTHS_ALLOWED)
+    verdict = _probe_with_fault(monkeypatch, rt, fault)
+    assert verdict.passed("blur_direct") and not verdict.works
+    assert "the default inversion kernel fails at every width" in verdict.reason, verdict.reason
+
+
+def test_intel_names_intels_runtime_not_pocl_on_an_intel_cpu():
+    platforms = {rt.device.platform.name.strip() for rt in RUNTIMES}
+    if not any("Intel(R) OpenCL" in p for p in platforms):
+        pytest.skip("Intel's runtime is not among the devices under test")
+    assert "Intel(R) OpenCL" in bdipole_cl.get_runtime("intel").device.platform.name
+
+
+def test_a_runtime_made_by_hand_is_probed_too(monkeypatch):
+    import pyopencl as cl
+    rt = RUNTIMES[0]
+    mine = bdipole_cl.Runtime(rt.context, cl.CommandQueue(rt.context))
+    monkeypatch.setitem(device._probes, rt.device.int_ptr, "crashed (SIGSEGV)")
+    with pytest.raises(bdipole_cl.DeviceError, match="is broken: crashed"):
+        bdipole_cl.invert_albedo(np.float32([0.5]), 1.4, device=mine)
+
+
+def test_a_killed_caller_leaves_no_probe_running(tmp_path):
+    """A process killed while its device is probed (SIGKILL: no handler runs) takes its probe
+    child with it, instead of leaving it building for ever."""
+    import signal
+    import time
+    env = dict(os.environ, BDIPOLE_CL_CACHE_DIR=str(tmp_path),
+               **{isolation.FAULT_VARIABLE: "invert_table/w1=hang"})
+    parent = subprocess.Popen([sys.executable, "-c", "import bdipole_cl as b; b.get_runtime()"],
+                              env=env, stderr=subprocess.DEVNULL)
+
+    def children():
+        found = []
+        for proc in os.listdir("/proc"):
+            try:
+                cmd = open(f"/proc/{proc}/cmdline", "rb").read().split(b"\0")
+            except OSError:
+                continue
+            if b"bdipole_cl.ops.kernel_checks" in cmd and str(parent.pid).encode() in cmd:
+                found.append(int(proc))
+        return found
+    deadline = time.monotonic() + 120
+    while not children() and time.monotonic() < deadline:
+        time.sleep(0.5)
+    assert children(), "the probe's child never started"
+    parent.send_signal(signal.SIGKILL)
+    parent.wait()
+    deadline = time.monotonic() + 10
+    while children() and time.monotonic() < deadline:
+        time.sleep(0.2)
+    assert not children(), "the probe's child outlived its killed parent"
+
+
+def test_crosscheck_fails_when_no_device_works_and_goes_on_past_a_rejection(monkeypatch,
+                                                                            fresh_cache,
+                                                                            capsys):
+    from bdipole_cl.apps.cli import main as cli_main
+    monkeypatch.setattr(device, "_default", None)
+    rt = _pick("intel")
+    assert not _probe_with_fault(monkeypatch, rt, "physics_eval=segv").passed("physics_eval")
+    assert cli_main(["--device", _index(rt), "crosscheck", "--n", "20"]) == 0
+    out = capsys.readouterr().out
+    assert "physics f32: rejected by the device's probe, skipped" in out, out
+    assert "invert table" in out and "blur direct" in out          # the rest was checked
+    for s in device.survey():
+        monkeypatch.setitem(device._probes, s.device.int_ptr, "crashed (SIGSEGV)")
+    assert cli_main(["crosscheck", "--all-devices", "--n", "20"]) == 1
+    err = capsys.readouterr().err
+    assert "no working OpenCL device" in err and "Traceback" not in err

@@ -23,7 +23,7 @@ from ..caches import CACHE_DIR_VARIABLE, user_cache_dir
 from ..device.icd import vendors_roots
 from ..device.isolation import VERDICT_FOLDER, VERDICT_NAME
 from ..io.usdz import EXTRACTED_FOLDER, EXTRACTED_NAME
-from ..methods.choice import CALIBRATION_GLOB
+from ..methods.choice import CALIBRATION_GLOB, CALIBRATION_NAME
 
 #: a runtime registration's folder: ``icd-`` and 16 hex digits (``icd.vendors_directory``)
 ICD_NAME = re.compile(r"^icd-[0-9a-f]{16}$")
@@ -115,7 +115,7 @@ def own_entries() -> list[OwnEntry]:
     root = user_cache_dir()
     if root.is_dir():
         entries += [OwnEntry("calibration", p) for p in sorted(root.glob(CALIBRATION_GLOB))
-                    if p.is_file() and not p.is_symlink()]
+                    if CALIBRATION_NAME.match(p.name) and p.is_file() and not p.is_symlink()]
         probes = root / VERDICT_FOLDER
         if probes.is_dir() and not probes.is_symlink():
             entries += [OwnEntry("device probe verdict", p) for p in sorted(probes.iterdir())

@@ -16,7 +16,12 @@ to build a configuration the verdict rejected, so no caller (a forced width incl
 take the process down on a known crash.
 
 ``FAULT_VARIABLE`` makes the child fail one configuration on purpose (tests): ``NAME=segv``
-(killed by SIGSEGV), ``NAME=abort:TEXT`` (TEXT on stderr, then exit status 1), ``NAME=hang``.
+(killed by SIGSEGV), ``NAME=abort:TEXT`` (TEXT on stderr, then exit status 1), ``NAME=hang``,
+``NAME=kill`` (SIGKILL, as from outside: such a verdict is not cached); several with ``;``.
+
+A verdict that says more of the moment than of the device (the probe's process failed outside
+any kernel, or was killed by SIGKILL) serves its process only and is not cached; the child ends
+with its parent (``ops.kernel_checks``), so a killed caller leaves no probe building on.
 """
 from __future__ import annotations
 
@@ -54,6 +59,16 @@ START_TIMEOUT_S = 120.0
 
 log = logging.getLogger("bdipole_cl")
 
+#: the configurations of the default inversion kernel: a device works when one of them does
+ESSENTIAL = "invert_table"
+#: a child killed by SIGKILL was killed from outside (the OOM killer, an operator): a verdict
+#: holding it is not cached
+KILLED = "SIGKILL"
+#: seconds after which a configuration still building is said (once) on stderr
+SLOW_NOTE_S = 30.0
+#: what re-probes a device (its verdict removed)
+REPROBE = "`bdipole-cl cache --clear` probes again"
+
 
 @dataclass(frozen=True)
 class ConfigResult:
@@ -77,7 +92,10 @@ class Verdict:
 
     @property
     def works(self) -> bool:
-        return not self.error and any(r.ok for r in self.results)
+        """The device is usable: its default inversion kernel works at some width (every
+        other configuration is optional: what it rejected is never built)."""
+        return not self.error and any(r.ok for r in self.results
+                                      if r.name.startswith(ESSENTIAL + "/"))
 
     @property
     def reason(self) -> str:
@@ -86,10 +104,18 @@ class Verdict:
             return ""
         if self.error:
             return self.error
-        if not self.results:
+        essential = [r for r in self.results if r.name.startswith(ESSENTIAL + "/")]
+        if not essential:
             return "the probe ran no kernel"
-        first = self.results[0]
-        return f"no kernel configuration works ({first.name}: {first.reason})"
+        first = essential[0]
+        return (f"the default inversion kernel fails at every width ({first.name}: "
+                f"{first.reason})")
+
+    @property
+    def transient(self) -> bool:
+        """Whether it says more of this moment than of the device (the probe's process
+        failed outside any kernel, or was killed from outside): not cached."""
+        return bool(self.error) or any(not r.ok and KILLED in r.reason for r in self.results)
 
     def result(self, name: str) -> ConfigResult | None:
         return next((r for r in self.results if r.name == name), None)
@@ -168,12 +194,20 @@ def read_verdict(path: Path) -> Verdict | None:
     """The verdict stored at ``path``; None where there is none or it cannot be read."""
     try:
         raw = json.loads(path.read_text())
-        results = tuple(ConfigResult(str(r["name"]), bool(r["ok"]), str(r.get("reason", "")),
+        results = tuple(ConfigResult(str(r["name"]), _strict_bool(r["ok"]),
+                                     str(r.get("reason", "")),
                                      None if r.get("seconds") is None else float(r["seconds"]))
                         for r in raw["results"])
         return Verdict(str(raw["device"]), results, str(raw.get("error", "")), cached=True)
     except (OSError, ValueError, KeyError, TypeError):
         return None
+
+
+def _strict_bool(value) -> bool:
+    """A JSON true or false (a string "false" is not true: the file is not a verdict)."""
+    if not isinstance(value, bool):
+        raise ValueError(f"not a boolean: {value!r}")
+    return value
 
 
 def write_verdict(verdict: Verdict, path: Path) -> None:
@@ -219,13 +253,14 @@ class _Child:
     that every wait has a timeout."""
 
     def __init__(self, device_index: str, results: dict):
-        cmd = [sys.executable, "-m", PROBE_MODULE, "--device", device_index]
+        cmd = [sys.executable, "-m", PROBE_MODULE, "--device", device_index,
+               "--parent", str(os.getpid())]
         if results:
             cmd += ["--skip", ",".join(results),
                     "--passed", ",".join(n for n, r in results.items() if r.ok)]
         self.err = tempfile.TemporaryFile(mode="w+")
         self.proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=self.err,
-                                     stdin=subprocess.DEVNULL, text=True,
+                                     stdin=subprocess.DEVNULL, text=True, env=child_env(),
                                      start_new_session=True)   # a terminal's Ctrl-C is ours
         self.lines: queue.Queue = queue.Queue()
         threading.Thread(target=self._read, daemon=True).start()
@@ -265,6 +300,17 @@ class _Child:
         return rc, text
 
 
+def child_env() -> dict:
+    """The child's environment: this one, with this process's import path first on
+    PYTHONPATH, so that the child imports the bdipole_cl this process runs (a checkout put on
+    ``sys.path`` by hand, not another installed copy)."""
+    env = dict(os.environ)
+    package_root = str(Path(__file__).resolve().parent.parent.parent)
+    paths = [package_root] + [p for p in sys.path if p and p != package_root]
+    env["PYTHONPATH"] = os.pathsep.join(paths)
+    return env
+
+
 #: ``_Child.line``'s answer when nothing came in time
 TIMED_OUT = object()
 
@@ -280,11 +326,24 @@ class _Run:
     error: str = ""                     # it could not open the device
 
 
-def _read(child: _Child, results: dict) -> _Run:
+def _next(child: _Child, timeout: float, current: str | None, describe: str):
+    """The child's next line within ``timeout`` seconds (TIMED_OUT after), saying once on
+    stderr when a configuration takes over SLOW_NOTE_S."""
+    if current is None or timeout <= SLOW_NOTE_S:
+        return child.line(timeout)
+    msg = child.line(SLOW_NOTE_S)
+    if msg is not TIMED_OUT:
+        return msg
+    print(f"bdipole-cl: probing {describe}: {current} has taken {SLOW_NOTE_S:.0f} s; waiting "
+          f"up to {timeout:.0f} s", file=sys.stderr, flush=True)
+    return child.line(timeout - SLOW_NOTE_S)
+
+
+def _read(child: _Child, results: dict, describe: str = "") -> _Run:
     """Read ``child``'s lines into ``results`` until it ends, says done, or times out."""
     run, timeout = _Run(), START_TIMEOUT_S
     while True:
-        msg = child.line(timeout)
+        msg = _next(child, timeout, run.current, describe)
         if msg is None or msg is TIMED_OUT:
             run.timed_out = msg is TIMED_OUT
             return run
@@ -317,7 +376,7 @@ def run_probe(device_index: str, description: str) -> Verdict:
     for _attempt in range(64):                 # more than there are configurations
         child = _Child(device_index, results)
         try:
-            run = _read(child, results)
+            run = _read(child, results, description)
         except BaseException:
             child.finish(kill=True)
             raise
@@ -359,12 +418,17 @@ def device_verdict(device, device_index: str, kernels_digest: str, describe: str
             verdict = run_probe(device_index, describe)
             if verdict.works and verdict.rejected():
                 log.warning("%s: %s; the library uses the configurations that passed "
-                            "(`bdipole-cl devices` lists them)", describe,
-                            verdict.describe_rejected())
-            try:
-                write_verdict(verdict, path)
-            except OSError as exc:              # an unwritable cache: probed again next time
-                log.warning("the probe's verdict for %s could not be cached: %s", describe, exc)
+                            "(`bdipole-cl devices` lists them; %s)", describe,
+                            verdict.describe_rejected(), REPROBE)
+            if verdict.transient:               # this moment's, not the device's: next time
+                log.warning("%s: the probe was disturbed (%s); its verdict serves this process "
+                            "only", describe, verdict.error or KILLED)
+            else:
+                try:
+                    write_verdict(verdict, path)
+                except OSError as exc:          # an unwritable cache: probed again next time
+                    log.warning("the probe's verdict for %s could not be cached: %s",
+                                describe, exc)
         _verdicts[path] = verdict
     return verdict
 

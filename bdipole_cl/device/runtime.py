@@ -351,8 +351,11 @@ def _from_string(spec: str) -> Runtime:
     if ":" in spec and all(part.isdigit() for part in spec.split(":", 1)):
         matches = [s for s in states if s.index == spec]
     else:
+        # a platform's name first ("intel" is Intel's runtime, not PoCL on an Intel CPU,
+        # whose device name says Intel too), else the devices' names
         needle = ALIASES.get(spec.lower(), spec.lower())
-        matches = [s for s in states if needle in f"{s.platform} {s.name}".lower()]
+        matches = ([s for s in states if needle in s.platform.lower()]
+                   or [s for s in states if needle in f"{s.platform} {s.name}".lower()])
     if not matches:
         listing = ", ".join(f"{s.index} {s.platform} / {s.name}" for s in states) or "none"
         raise DeviceError(f"device {spec!r} matches no OpenCL device (seen: {listing})")
@@ -372,6 +375,10 @@ def get_runtime(device=None) -> Runtime:
     global _default
     if isinstance(device, Runtime):
         _usable(device.device)
+        # a Runtime made by hand is probed too (not a stand-in without a device)
+        reason = probe(device.device) if isinstance(device.device, cl.Device) else ""
+        if reason:
+            raise DeviceError(f"{device.describe()} is broken: {reason}")
         return device
     if device is None:
         with _lock:

@@ -156,6 +156,9 @@ def calibration_dir() -> Path:
 
 #: the calibration files' names in ``calibration_dir()`` (``calibration_path``)
 CALIBRATION_GLOB = "choice-*.json"
+#: a calibration's exact file name (``DeviceKey.slug``: readable, a dash, 12 hex digits), so
+#: that ``cache --clear`` never takes a user's file for one
+CALIBRATION_NAME = re.compile(r"^choice-(?:[a-z0-9-]{1,48}-)?[0-9a-f]{12}\.json$")
 
 
 def calibration_path(key: DeviceKey) -> Path:

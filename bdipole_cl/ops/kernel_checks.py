@@ -293,8 +293,31 @@ def _inject_fault(name: str):
         elif what.startswith("abort:"):
             print(what[len("abort:"):], file=sys.stderr, flush=True)
             os._exit(1)
+        elif what == "kill":              # as the OOM killer or an operator would
+            os.kill(os.getpid(), signal.SIGKILL)
         elif what == "hang":
             time.sleep(3600)
+
+
+def _die_with(parent: int):
+    """End this process when ``parent`` ends (a probe whose caller was killed must not build on
+    for ever): Linux's PR_SET_PDEATHSIG, else a thread watching the parent's pid."""
+    import ctypes
+    import threading
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        PR_SET_PDEATHSIG = 1
+        libc.prctl(PR_SET_PDEATHSIG, signal.SIGKILL)
+    except (OSError, AttributeError):
+        pass
+
+    def watch():
+        while os.getppid() == parent:
+            time.sleep(1.0)
+        os._exit(3)
+    threading.Thread(target=watch, daemon=True).start()
+    if os.getppid() != parent:            # it ended before the above took hold
+        os._exit(3)
 
 
 def _emit(msg):
@@ -306,7 +329,10 @@ def main(argv=None) -> int:
     parser.add_argument("--device", required=True, help="P:D, as `bdipole-cl devices` lists")
     parser.add_argument("--skip", default="", help="comma list of configurations done")
     parser.add_argument("--passed", default="", help="those of them that passed")
+    parser.add_argument("--parent", type=int, help="end when this process ends")
     args = parser.parse_args(argv)
+    if args.parent:
+        _die_with(args.parent)
     from ..device.runtime import PROBE_CHILD_VARIABLE, runtime_at
     os.environ[PROBE_CHILD_VARIABLE] = "1"
     try:

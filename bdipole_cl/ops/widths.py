@@ -13,7 +13,7 @@ import logging
 from dataclasses import dataclass
 
 from ..device.isolation import config_name
-from ..device.runtime import known_verdict
+from ..device.runtime import DeviceError, known_verdict
 
 log = logging.getLogger("bdipole_cl")
 
@@ -26,13 +26,13 @@ class WidthChoice:
     source: str
 
 
-def passes(rt, source: str, width: int) -> bool:
-    """Whether the device's probe passed kernels/<source>.cl at ``width`` (True where it has
+def passes(rt, source: str, width: int | None = None) -> bool:
+    """Whether the device's probe passed kernels/<source>.cl (at ``width``; True where it has
     no verdict: the probe's own child, which is what measures it)."""
     known = known_verdict(rt.device)
     if known is None:
         return True
-    ok = known.passed(config_name(source, (f"-DBD_WIDTH={width}",)))
+    ok = known.passed(config_name(source, () if width is None else (f"-DBD_WIDTH={width}",)))
     return ok is not False
 
 
@@ -65,7 +65,9 @@ def choose_width(rt, source: str, allowed, calibrated, default) -> WidthChoice:
     if working:
         return WidthChoice(working[0], f"the narrowest width that passed the probe "
                                        f"({default} was rejected)")
-    return WidthChoice(default, "no width passed the probe")
+    raise DeviceError(f"kernels/{source}.cl failed this device's probe at every width "
+                      f"({', '.join(map(str, allowed))}) on {rt.describe()}: choose another "
+                      f"device with --device (`bdipole-cl devices` lists them)")
 
 
 #: the probe's blur timings' name prefix (``blur_timing_name``; ``ops.kernel_checks`` writes

@@ -12,7 +12,7 @@ from ...device import get_runtime
 from ...device.runtime import device_kind
 from ...methods.choice import (AUTO_DIRECT_MAX_RADIUS, ChoiceData, DeviceKey, auto_blur_config,
                                choice_for, rescaled_blur)
-from ..widths import blur_timings
+from ..widths import blur_timings, passes
 from ...signals import check_stop
 from .dispatch import DeviceBlur
 from .fft import fft_blur_channels, fft_bound, fft_dtype, settled, summed_roundoff
@@ -49,19 +49,29 @@ class AutoData:
     methods: tuple | None              # None: every measured method
 
 
+#: the device kernel each blur method runs (the host FFT runs none): a method whose kernel the
+#: device's probe rejected is never picked by ``auto``
+METHOD_KERNELS = {"direct": "blur_direct", "gaussians": "blur_separable"}
+
+
 def auto_data(rt=None) -> AutoData:
     """The AutoData of ``rt``'s device (None: the default device): data measured on another
-    device have their blur timings rescaled by this device's probe (``probed_blur_data``)."""
+    device have their blur timings rescaled by this device's probe (``probed_blur_data``);
+    methods whose kernels the probe rejected are left out."""
     rt = get_runtime(rt)
     data, source = choice_for(DeviceKey.of(rt.device))
     described = source.describe()
+    usable = tuple(m for m in ("direct", "gaussians", "fft")
+                   if m not in METHOD_KERNELS or passes(rt, METHOD_KERNELS[m]))
+    methods = None if len(usable) == 3 else usable
     if not source.this_device:
         probed = probed_blur_data(rt, data)
         if probed is not None:
             return AutoData(probed, described + "; blur timings rescaled by this device's "
-                                                "probe", None)
-    foreign = not source.this_device and device_kind(rt.device) != "cpu"
-    return AutoData(data, described, ("direct", "gaussians") if foreign else None)
+                                                "probe", methods)
+    if not source.this_device and device_kind(rt.device) != "cpu":
+        methods = tuple(m for m in ("direct", "gaussians") if m in usable)
+    return AutoData(data, described, methods)
 
 
 def probed_blur_data(rt, data: ChoiceData) -> ChoiceData | None:

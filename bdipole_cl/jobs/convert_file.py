@@ -124,6 +124,15 @@ def convert_textures(inputs, *, radius=1.0, source="better-dipole", target="van-
     return BatchReport(results)
 
 
+#: what an output holds: the target's colour and radius, or for ``random-walk`` the medium's
+#: sigma_a and sigma_s (1/unit; its g is the header's)
+COLOUR_GROUPS, MEDIUM_GROUPS = ("colour", "radius"), ("sigma_a", "sigma_s")
+
+
+def output_groups(target) -> tuple:
+    return MEDIUM_GROUPS if target == "random-walk" else COLOUR_GROUPS
+
+
 def convert_band(work, inp, route, colour_in, radius, mask, etas, job, y0):
     """One band's target colour and radius (HxWxC each) and invalid counts, per channel."""
     colour, negative = non_negative_albedo(route.convert(colour_in, inp.names),
@@ -165,7 +174,8 @@ def run_convert(job, *, cancel=None) -> FileResult:
         etas = per_channel(work.eta, len(inp.names), "eta", job.source)
         route = inp.albedo.colour(work.colorspace, work.working)
         result.colour = route.describe()
-        names = [f"{g}.{n}" for g in ("colour", "radius") for n in inp.names]
+        groups = output_groups(work.target)
+        names = [f"{g}.{n}" for g in groups for n in inp.names]
         if inp.keep_alpha:
             names.append(spec.channelnames[inp.alpha])
         header = {"version": __version__, "source": work.source, "target": work.target,
@@ -190,6 +200,9 @@ def run_convert(job, *, cancel=None) -> FileResult:
                                                  radius, mask, etas, job, y0)
             for key, n in invalid.items():
                 result.invalid[key] = result.invalid.get(key, 0) + n
+            if groups == MEDIUM_GROUPS:          # the medium: 1/mfp split by alpha
+                sigma_t = np.float32(1.0) / out_r
+                out_c, out_r = (np.float32(1.0) - out_c) * sigma_t, out_c * sigma_t
             parts = [out_c, out_r] + ([a[..., inp.alpha:inp.alpha + 1]] if inp.keep_alpha
                                       else [])
             if cancel is not None and cancel.is_set():

@@ -31,6 +31,7 @@ from scipy.special import ellipe
 
 from ..caches import ByteCache
 from . import transport_tables as tables
+from .transport_tables import alpha_of_s, rho_of_s, similarity_s  # noqa: F401 (re-exported)
 from .fresnel import fresnel_moments_exact, fresnel_reflectance
 
 #: the two incidences the reflectance is defined for (docs/transport.md "Incidence")
@@ -48,7 +49,7 @@ TAU0 = 2.0 ** -20
 T_STOP = 1e-18
 #: doubling steps at most (2^-20 doubled 100 times: 1e24 mean free paths)
 MAX_DOUBLINGS = 100
-#: Chebyshev degree of the interpolant Rd(q) (docs/transport.md "Interpolant": measured)
+#: Chebyshev degree of the interpolant Rd(s) at least (docs/transport.md "Interpolant")
 CHEB_DEGREE = 32
 
 CURVES = ByteCache("transport reflectance curves", 4 << 20)
@@ -68,7 +69,7 @@ def check_arguments(g, eta, incidence):
 def quadrature_order(g: float) -> int:
     """Gauss nodes per interval for a mean cosine g (measured: docs/transport.md)."""
     a = abs(g)
-    return 16 if a <= 0.5 else 24 if a <= 0.8 else 40
+    return 16 if a <= 0.5 else 24 if a <= 0.7 else 32 if a <= 0.8 else 48
 
 
 # {{{ quadrature
@@ -190,20 +191,22 @@ def thin_layer(gamma, sigma, tau0: float):
     return r, e
 
 
-def double(r, e, t_stop=T_STOP, max_doublings=MAX_DOUBLINGS):
+def double(r, e, t_stop=T_STOP, max_doublings=MAX_DOUBLINGS, keep_e=False):
     """Double a homogeneous layer until its transmission is below ``t_stop``:
     G = (1 - R R)^-1, R' = R + T R G T, T' = T G T, written for E = 1 - T as
     E' = 2E - E E - T R R G T (the thin layers' T = 1 - E keeps its digits).
-    Returns ``(R, doublings)``."""
+    Returns ``(R, doublings)``, or ``(R, E)`` with ``keep_e``."""
     eye = np.eye(r.shape[-1])
-    for k in range(max_doublings):
+    k = 0
+    while k < max_doublings:
         t = eye - e
         if np.max(np.abs(t)) < t_stop:
-            return r, k
+            break
         rr = r @ r
         x = np.linalg.solve(eye - rr, t)
         r, e = r + t @ r @ x, 2.0 * e - e @ e - t @ rr @ x
-    return r, max_doublings
+        k += 1
+    return (r, e) if keep_e else (r, k)
 
 
 def semi_infinite_reflection(rho, g: float, eta: float, n: int | None = None,
@@ -215,6 +218,16 @@ def semi_infinite_reflection(rho, g: float, eta: float, n: int | None = None,
     r, e = thin_layer(gamma, sigma, tau0)
     r, _ = double(r, e)
     return mu, w, r
+
+def slab(rho, g: float, eta: float, doublings: int, n: int | None = None,
+         tau0: float = TAU0):
+    """``(mu, w, R, T)`` of a slab of depth tau0 2^doublings (no boundary), for the checks of
+    energy conservation and convergence in depth."""
+    mu, w = quadrature(eta, n or quadrature_order(g))
+    gamma, sigma = layer_operators(mu, w, g, rho)
+    r, e = thin_layer(gamma, sigma, tau0)
+    r, e = double(r, e, t_stop=0.0, max_doublings=doublings, keep_e=True)
+    return mu, w, r, np.eye(len(mu)) - e
 
 # }}}
 
@@ -260,31 +273,26 @@ def solve_reflectance(alpha=None, g: float = 0.0, eta: float = 1.0, incidence="d
     check_arguments(g, eta, incidence)
     rho = np.asarray(1.0 - np.asarray(alpha, np.float64) if rho is None else rho, np.float64)
     mu, w, r = semi_infinite_reflection(rho.reshape(-1), g, eta, n, tau0)
-    return boundary_reflectance(mu, w, r, eta, incidence).reshape(rho.shape)
+    rd = boundary_reflectance(mu, w, r, eta, incidence).reshape(rho.shape)
+    # alpha = 1: a conservative medium returns all the light that entered (1 - specular).
+    # Doubling cannot reach it (its T falls as 1/tau, and 1 - Rd ~ sqrt(rho) turns rounding
+    # of order eps into 1e-8..1e-6); the finite slab's R + T = 1 is checked instead
+    # (docs/transport.md "Energy").
+    return np.where(rho == 0.0, 1.0 - specular_reflectance(eta, incidence), rd)
 
 # }}}
 
 
 # {{{ the interpolant and the public functions
 
-def similarity_s(alpha, g: float):
-    """van de Hulst's similarity parameter s = sqrt((1 - alpha)/(1 - alpha g)) [1]: Rd is
-    analytic in s on [0, 1] (in q = sqrt(1 - alpha) it has a branch point at
-    rho = -(1 - g)/g, close to the interval for large g)."""
-    a = np.asarray(alpha, np.float64)
-    return np.sqrt((1.0 - a) / (1.0 - a * g))
-
-
-def rho_of_s(s, g: float):
-    """1 - alpha of s, without cancellation: rho = s^2 (1 - g)/(1 - g s^2)."""
-    s2 = np.asarray(s, np.float64) ** 2
-    return s2 * (1.0 - g) / (1.0 - g * s2)
-
-
-def alpha_of_s(s, g: float):
-    """alpha = (1 - s^2)/(1 - g s^2) (the inverse of similarity_s)."""
-    s2 = np.asarray(s, np.float64) ** 2
-    return (1.0 - s2) / (1.0 - g * s2)
+def chebyshev_degree(g: float) -> int:
+    """Degree of the Chebyshev series of Rd(s): alpha(s) has a pole at s = 1/sqrt(g) (g > 0),
+    which bounds the series' convergence to rho^-N, rho = x + sqrt(x^2 - 1), x = 2/sqrt(g) - 1
+    (the Bernstein ellipse); the degree brings rho^-N to 1e-16, within [32, 128]."""
+    if g <= 0.25:
+        return CHEB_DEGREE
+    x = 2.0 / np.sqrt(g) - 1.0
+    return int(np.clip(np.ceil(37.0 / np.log(x + np.sqrt(x * x - 1.0))), CHEB_DEGREE, 128))
 
 
 def chebyshev_nodes(degree: int = CHEB_DEGREE):
@@ -293,16 +301,28 @@ def chebyshev_nodes(degree: int = CHEB_DEGREE):
 
 
 @CURVES.memoize
-def reflectance_curve(g: float, eta: float, incidence: str, degree: int = CHEB_DEGREE):
-    """Chebyshev coefficients (in x = 2s - 1) of Rd(s), read-only. At s = 0 (alpha = 1) the
-    value is exact by energy conservation, Rd = 1 - specular; elsewhere solve_reflectance."""
+def reflectance_curves(g: float, eta: float):
+    """Chebyshev coefficients (in x = 2s - 1) of Rd(s) for each incidence, read-only, from one
+    doubling of the medium at the Chebyshev-Lobatto points. At s = 0 (alpha = 1) the value is
+    exact by energy conservation, Rd = 1 - specular (solve_reflectance)."""
+    check_arguments(g, eta, "diffuse")
+    degree = chebyshev_degree(g)
     s = chebyshev_nodes(degree)
-    rd = np.empty_like(s)
-    rd[0] = 1.0 - specular_reflectance(eta, incidence)
-    rd[1:] = solve_reflectance(g=g, eta=eta, incidence=incidence, rho=rho_of_s(s[1:], g))
-    coefs = chebyshev.chebfit(2.0 * s - 1.0, rd, degree)
-    coefs.setflags(write=False)
-    return coefs
+    rho = rho_of_s(s, g)
+    mu, w, r = semi_infinite_reflection(rho, g, eta)
+    curves = {}
+    for incidence in INCIDENCES:
+        rd = boundary_reflectance(mu, w, r, eta, incidence)
+        rd[0] = 1.0 - specular_reflectance(eta, incidence)
+        coefs = chebyshev.chebfit(2.0 * s - 1.0, rd, degree)
+        coefs.setflags(write=False)
+        curves[incidence] = coefs
+    return curves
+
+
+def reflectance_curve(g: float, eta: float, incidence: str):
+    """The Chebyshev coefficients of Rd(s) of one incidence (reflectance_curves)."""
+    return reflectance_curves(float(g), float(eta))[incidence]
 
 
 def reflectance_of_s(s, g: float, eta: float, incidence: str):
@@ -327,21 +347,30 @@ def walk_reflectance(alpha, g: float = 0.0, eta: float = 1.0, incidence: str = "
 def walk_alpha(rd, g: float = 0.0, eta: float = 1.0, incidence: str = "diffuse"):
     """The single-scattering albedo alpha whose walk_reflectance is rd (docs/transport.md
     "Inversion": rd <= 0 gives 0, rd >= the reflectance of alpha = 1 gives 1, NaN stays NaN)."""
-    s = tables.evaluate_inverse(inverse_table(float(g), float(eta), incidence), rd)
-    return alpha_of_s(s, g)
+    return tables.evaluate_inverse(inverse_table(float(g), float(eta), incidence), rd)[0]
 
 
 @tables.INVERSE_TABLES.memoize
 def inverse_table(g: float, eta: float, incidence: str) -> tables.InverseTable:
     """The monotone table of s over Rd of one (g, eta, incidence), checked when built."""
     check_arguments(g, eta, incidence)
-    return tables.build_inverse_table(reflectance_curve(g, eta, incidence))
+    return tables.build_inverse_table(reflectance_curve(g, eta, incidence), g)
 
 
 def walk_spread(alpha, g: float = 0.0, eta: float = 1.0, fraction: float = 0.5):
     """Radius [mean free paths, 1/sigma_t] of the disk around a normally incident pencil beam
     that holds ``fraction`` of the diffusely reflected energy (Monte Carlo table:
     docs/transport.md "Spread")."""
-    raise NotImplementedError("walk_spread: the Monte Carlo spread table is not built yet")
+    check_arguments(g, eta, "normal")
+    s = similarity_s(alpha, g)
+    return tables.spread_lookup(s, float(g), float(eta), float(fraction))
+
+
+def walk_spread_stderr(alpha, g: float = 0.0, eta: float = 1.0, fraction: float = 0.5):
+    """The Monte Carlo standard error of walk_spread [mean free paths], interpolated alike."""
+    check_arguments(g, eta, "normal")
+    table = tables.spread_table()
+    s = similarity_s(alpha, g)
+    return tables.spread_lookup(s, float(g), float(eta), float(fraction), table.stderr)
 
 # }}}

@@ -18,7 +18,8 @@ INCIDENCES = list(tr.INCIDENCES)
 # {{{ Chandrasekhar's H-function (isotropic scattering, eta = 1), computed here independently
 
 def h_function(mu, omega):
-    """Chandrasekhar (1960, eq. V.(111)'s closed form; Kawabata & Limaye 2011):
+    """The explicit solution of the H-equation (Chandrasekhar 1960, ch. V; the form used by
+    Kawabata & Limaye 2011, docs/transport.md "Checks"):
     ln H(mu) = -(mu/pi) Int_0^{pi/2} ln(1 - omega theta cot theta) / (cos^2 + mu^2 sin^2) dtheta."""
     def integrand(th):
         x = th / np.tan(th) if th > 0.0 else 1.0
@@ -39,7 +40,7 @@ def h_albedos(omega):
 @pytest.mark.filterwarnings("ignore::scipy.integrate.IntegrationWarning")
 def test_h_function_itself():
     # Chandrasekhar's table (conservative isotropic): H(1) = 2.90781; and the zeroth moment
-    # identity Int H dmu = (2/omega)(1 - sqrt(1 - omega)) (Chandrasekhar 1960, eq. V.(44)).
+    # identity Int H dmu = (2/omega)(1 - sqrt(1 - omega)) (Chandrasekhar 1960, ch. V).
     # 1e-5: the table's last digit; 1e-11: quad's accuracy here
     assert abs(h_function(1.0, 1.0) - 2.90781) < 1e-5
     for omega in (0.5, 0.9, 0.999):

@@ -200,9 +200,11 @@ def spread_table() -> SpreadTable:
 
 def spread_lookup(s, g: float, eta: float, fraction: float, values=None):
     """Interpolate the table at similarity parameters ``s`` (array) for one (g, eta,
-    fraction): linear in (s, g, eta) of log(r s) (r s tends to a constant as s -> 0, the
-    diffusion scaling, and is held there below the grid; above it r is held), then linear in
-    the fraction of log r. ``values``: another array on the grid (the standard errors)."""
+    fraction): linear in (s, g, eta) of log(r (1 - g)) (the radius in transport mean free
+    paths, nearly independent of g at a given s), then linear in the fraction. Below the grid's
+    smallest s the line through its first two s is extended to s = 0 (the radii tend to finite
+    limits as alpha -> 1); above its largest s the value is held (single scattering).
+    ``values``: another array on the grid (the standard errors), interpolated alike."""
     t = spread_table()
     for name, v, axis in (("g", g, t.g), ("eta", eta, t.eta), ("fraction", fraction,
                                                                  t.fraction)):
@@ -211,21 +213,18 @@ def spread_lookup(s, g: float, eta: float, fraction: float, values=None):
                              f"Carlo spread table's range (docs/transport.md \"Spread\")")
     s = np.asarray(s, np.float64)
     grid = t.radius if values is None else values
-    scaled = np.log(grid * t.s[:, None, None, None])
-    # g and eta: bilinear weights on the two scalar axes
-    jg = min(np.searchsorted(t.g, g, side="right") - 1, len(t.g) - 2)
-    je = min(np.searchsorted(t.eta, eta, side="right") - 1, len(t.eta) - 2)
-    wg = (g - t.g[jg]) / (t.g[jg + 1] - t.g[jg])
-    we = (eta - t.eta[je]) / (t.eta[je + 1] - t.eta[je])
-    plane = ((1 - wg) * (1 - we) * scaled[:, jg, je] + wg * (1 - we) * scaled[:, jg + 1, je]
-             + (1 - wg) * we * scaled[:, jg, je + 1] + wg * we * scaled[:, jg + 1, je + 1])
-    # fraction: linear in log r (log r s differs from log r by a constant per s row)
-    jf = min(np.searchsorted(t.fraction, fraction, side="right") - 1, len(t.fraction) - 2)
-    wf = (fraction - t.fraction[jf]) / (t.fraction[jf + 1] - t.fraction[jf])
-    column = (1 - wf) * plane[:, jf] + wf * plane[:, jf + 1]
-    s_in = np.clip(s, t.s[0], t.s[-1])
-    log_rs = np.interp(s_in, t.s, column)
-    radius = np.exp(log_rs) / np.where(s < t.s[0], np.maximum(s, 1e-300), s_in)
-    return np.where(np.isnan(s), np.nan, radius)
+    scaled = np.log(grid * (1.0 - t.g)[None, :, None, None])
+    # g, eta and fraction: multilinear weights on the three scalar axes
+    plane = scaled
+    for axis, v in ((t.fraction, fraction), (t.eta, eta), (t.g, g)):
+        j = min(int(np.searchsorted(axis, v, side="right")) - 1, len(axis) - 2)
+        w = (v - axis[j]) / (axis[j + 1] - axis[j])
+        plane = (1.0 - w) * plane[..., j] + w * plane[..., j + 1]
+    # s: linear inside, the first segment's line extended below, held above
+    s_in = np.clip(np.nan_to_num(s), 0.0, t.s[-1])
+    slope = (plane[1] - plane[0]) / (t.s[1] - t.s[0])
+    log_r = np.where(s_in < t.s[0], plane[0] + slope * (s_in - t.s[0]),
+                     np.interp(s_in, t.s, plane))
+    return np.where(np.isnan(s), np.nan, np.exp(log_r) / (1.0 - g))
 
 # }}}

@@ -44,7 +44,7 @@ def test_h_function_itself():
     # 1e-5: the table's last digit; 1e-11: quad's accuracy here
     assert abs(h_function(1.0, 1.0) - 2.90781) < 1e-5
     for omega in (0.5, 0.9, 0.999):
-        h0 = quad(lambda m: h_function(m, omega), 0.0, 1.0, epsabs=1e-15, epsrel=1e-13)[0]
+        h0 = quad(lambda m, om=omega: h_function(m, om), 0.0, 1.0, epsabs=1e-15, epsrel=1e-13)[0]
         assert abs(h0 - 2.0 / omega * (1.0 - np.sqrt(1.0 - omega))) < 1e-11, omega
 
 
@@ -141,7 +141,9 @@ def test_quadrature_integrates_the_fresnel_moments():
         mu, w = tr.quadrature(eta, 16)
         got = np.sum(w * mu * tr.fresnel_reflectance(mu, eta))
         mu_c = tr.critical_cosine(eta)
-        f = lambda m: m * float(mc.dielectric_reflectance(m, eta))  # noqa: E731
+        def f(m, eta=eta):
+            return m * float(mc.dielectric_reflectance(m, eta))
+
         want = quad(f, 0.0, mu_c)[0] + quad(f, mu_c, 1.0, epsabs=1e-15, limit=200)[0]
         assert abs(got - want) < 1e-13, (eta, got, want)
 
@@ -151,7 +153,9 @@ def test_specular_reflectance():
     assert tr.specular_reflectance(1.5, "normal") == pytest.approx(0.04, abs=1e-16)
     for eta in (0.7, 1.0, 1.4, 2.5):
         mu_c = np.sqrt(max(1.0 - eta * eta, 0.0))          # outside critical (eta < 1)
-        f = lambda m: 2.0 * m * float(mc.dielectric_reflectance(m, 1.0 / eta))  # noqa: E731
+        def f(m, eta=eta):
+            return 2.0 * m * float(mc.dielectric_reflectance(m, 1.0 / eta))
+
         want = quad(f, 0.0, mu_c)[0] + quad(f, mu_c, 1.0, epsabs=1e-15, limit=200)[0]
         assert abs(tr.specular_reflectance(eta) - want) < 1e-13, eta
 

@@ -24,8 +24,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from bdipole_cl.physics import montecarlo as mc                       # noqa: E402
-from bdipole_cl.physics import transport as tr                        # noqa: E402
+from bdipole_cl.physics import montecarlo as mc
+from bdipole_cl.physics import transport as tr
 
 
 def van_de_hulst_alpha(c: float, g: float = 0.0) -> float:

@@ -25,14 +25,16 @@ refraction, medium over outside [1]; ``mu`` cosine to the normal [1]; ``tau`` op
 """
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 from numpy.polynomial import chebyshev, legendre
 from scipy.special import ellipe
 
 from ..caches import ByteCache
 from . import transport_tables as tables
-from .transport_tables import alpha_of_s, rho_of_s, similarity_s  # noqa: F401 (re-exported)
 from .fresnel import fresnel_moments_exact, fresnel_reflectance
+from .transport_tables import alpha_of_s, rho_of_s, similarity_s  # noqa: F401 (re-exported)
 
 #: the two incidences the reflectance is defined for (docs/transport.md "Incidence")
 INCIDENCES = ("diffuse", "normal")
@@ -110,7 +112,7 @@ def quadrature(eta: float, n: int):
     x, wx = legendre.leggauss(n)
     gauss = (0.5 * (x + 1.0), 0.5 * wx)
     mus, weights = [], []
-    for k, (a, b) in enumerate(zip(cuts[:-1], cuts[1:])):
+    for k, (a, b) in enumerate(itertools.pairwise(cuts)):
         u, wu = gauss_radau_right(n) if k == len(cuts) - 2 else gauss
         if a == 0.0 or a == mu_c:
             mus.append(a + (b - a) * u**2)

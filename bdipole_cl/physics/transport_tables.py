@@ -5,9 +5,9 @@ similarity parameter s in [0, 1]) is strictly decreasing and analytic. Its inver
 in two uniform segments split at s = 1/2: alpha(Rd) below (Rd ~ k alpha near alpha = 0:
 analytic and nearly linear, where s(Rd) bends sharply for large g), s(Rd) above (Rd(0) - Rd ~
 c s near alpha = 1). Cubic Hermite tables with exact node slopes converge as h^4 on both; each
-is checked monotone (Fritsch & Carlson's sufficient condition on every interval) when built. Pure functions of the Chebyshev coefficients: this
-module imports nothing of transport.py (transport.py imports it). Also the Monte Carlo table
-of the spread (``spread_lookup``).
+is checked monotone (Fritsch & Carlson's sufficient condition on every interval) when built.
+Pure functions of the Chebyshev coefficients: this module imports nothing of transport.py
+(transport.py imports it). Also the Monte Carlo table of the spread (``spread_lookup``).
 """
 from __future__ import annotations
 
@@ -62,8 +62,9 @@ def dalpha_ds(s, g: float):
 
 class InverseTable(NamedTuple):
     """The inverse of Rd in two uniform segments: alpha(Rd) on [0, rd_split] (nearly linear:
-    Rd ~ k alpha), s(Rd) on [rd_split, rd_max] (Rd(0) - Rd ~ c s), rd_split = Rd(S_SPLIT). Rows: per interval the
-    cubic's coefficients in the local u in [0, 1): c0 + c1 u + c2 u^2 + c3 u^3."""
+    Rd ~ k alpha), s(Rd) on [rd_split, rd_max] (Rd(0) - Rd ~ c s), rd_split = Rd(S_SPLIT).
+    Rows: per interval the cubic's coefficients in the local u in [0, 1):
+    c0 + c1 u + c2 u^2 + c3 u^3."""
 
     g: float
     rd_split: float

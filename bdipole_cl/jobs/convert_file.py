@@ -134,7 +134,8 @@ def output_groups(target) -> tuple:
 
 
 def convert_band(work, inp, route, colour_in, radius, mask, etas, job, y0):
-    """One band's target colour and radius (HxWxC each) and invalid counts, per channel."""
+    """One band's target colour and radius (for ``random-walk``: sigma_a and sigma_s), HxWxC
+    each, and the invalid counts, per channel."""
     colour, negative = non_negative_albedo(route.convert(colour_in, inp.names),
                                            work.on_invalid, mask, one_valid=True)
     radius = np.broadcast_to(radius, colour.shape)
@@ -151,7 +152,12 @@ def convert_band(work, inp, route, colour_in, radius, mask, etas, job, y0):
             raise invalid_texels(exc.with_(first_index=(yy, xx, c)), where, spec.x + xx,
                                  spec.y + y0 + yy, inp.names[c],
                                  f" in rows {y0}..") from None
-        out_c[..., c], out_r[..., c] = done.colour, done.radius
+        if output_groups(work.target) == MEDIUM_GROUPS:
+            # in float64 before the cast: 1 - alpha of a float32 alpha near 1 keeps few digits
+            medium = done.medium()
+            out_c[..., c], out_r[..., c] = medium.sigma_a, medium.sigma_s
+        else:
+            out_c[..., c], out_r[..., c] = done.colour, done.radius
         for key, n in done.invalid.items():
             invalid[key] += n
     return out_c, out_r, invalid
@@ -200,9 +206,6 @@ def run_convert(job, *, cancel=None) -> FileResult:
                                                  radius, mask, etas, job, y0)
             for key, n in invalid.items():
                 result.invalid[key] = result.invalid.get(key, 0) + n
-            if groups == MEDIUM_GROUPS:          # the medium: 1/mfp split by alpha
-                sigma_t = np.float32(1.0) / out_r
-                out_c, out_r = (np.float32(1.0) - out_c) * sigma_t, out_c * sigma_t
             parts = [out_c, out_r] + ([a[..., inp.alpha:inp.alpha + 1]] if inp.keep_alpha
                                       else [])
             if cancel is not None and cancel.is_set():

@@ -302,23 +302,47 @@ def chebyshev_nodes(degree: int = CHEB_DEGREE):
     return 0.5 * (1.0 - np.cos(np.pi * np.arange(degree + 1) / degree))
 
 
+def node_reflectances(s, g: float, eta: float):
+    """Rd at the similarity parameters s for each incidence, one batched doubling; s = 0
+    (alpha = 1) exact by energy conservation, Rd = 1 - specular (solve_reflectance)."""
+    mu, w, r = semi_infinite_reflection(rho_of_s(s, g), g, eta)
+    out = {}
+    for incidence in INCIDENCES:
+        rd = boundary_reflectance(mu, w, r, eta, incidence)
+        out[incidence] = np.where(s == 0.0, 1.0 - specular_reflectance(eta, incidence), rd)
+    return out
+
+
+#: the series is refined (degree doubled, the old nodes kept) while its last three
+#: coefficients exceed this: a strongly reflecting boundary (eta 2.5: 84% of the inner
+#: hemisphere totally reflected) bends Rd(s) near s = 0 more than g alone predicts
+CHEB_TAIL = 1e-12
+CHEB_MAX_DEGREE = 256
+
+
 @CURVES.memoize
 def reflectance_curves(g: float, eta: float):
-    """Chebyshev coefficients (in x = 2s - 1) of Rd(s) for each incidence, read-only, from one
-    doubling of the medium at the Chebyshev-Lobatto points. At s = 0 (alpha = 1) the value is
-    exact by energy conservation, Rd = 1 - specular (solve_reflectance)."""
+    """Chebyshev coefficients (in x = 2s - 1) of Rd(s) for each incidence, read-only, from
+    doublings of the medium at Chebyshev-Lobatto points: chebyshev_degree(g) first, doubled
+    while the tail is above CHEB_TAIL (the degree-N nodes are the even ones of degree 2N)."""
     check_arguments(g, eta, "diffuse")
     degree = chebyshev_degree(g)
     s = chebyshev_nodes(degree)
-    rho = rho_of_s(s, g)
-    mu, w, r = semi_infinite_reflection(rho, g, eta)
-    curves = {}
-    for incidence in INCIDENCES:
-        rd = boundary_reflectance(mu, w, r, eta, incidence)
-        rd[0] = 1.0 - specular_reflectance(eta, incidence)
-        coefs = chebyshev.chebfit(2.0 * s - 1.0, rd, degree)
-        coefs.setflags(write=False)
-        curves[incidence] = coefs
+    rd = node_reflectances(s, g, eta)
+    while True:
+        curves = {k: chebyshev.chebfit(2.0 * s - 1.0, v, degree) for k, v in rd.items()}
+        tail = max(np.max(np.abs(c[-3:])) for c in curves.values())
+        if tail <= CHEB_TAIL or degree >= CHEB_MAX_DEGREE:
+            break
+        degree *= 2
+        s = chebyshev_nodes(degree)
+        new = node_reflectances(s[1::2], g, eta)
+        for k in rd:
+            both = np.empty(degree + 1)
+            both[0::2], both[1::2] = rd[k], new[k]
+            rd[k] = both
+    for c in curves.values():
+        c.setflags(write=False)
     return curves
 
 

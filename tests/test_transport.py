@@ -2,17 +2,32 @@
 computations: Chandrasekhar's H-function (eta = 1), energy conservation, reciprocity,
 convergence in quadrature and depth, the Fresnel quadrature, the separate Monte Carlo, and its
 inverse table."""
+import os
 import time
 
 import numpy as np
 import pytest
 from scipy.integrate import quad
 
+from bdipole_cl.caches import CACHE_DIR_VARIABLE
 from bdipole_cl.physics import montecarlo as mc
 from bdipole_cl.physics import transport as tr
 from bdipole_cl.physics import transport_tables as tt
 
 INCIDENCES = list(tr.INCIDENCES)
+
+
+@pytest.fixture(autouse=True, scope="module")
+def private_cache_dir(tmp_path_factory):
+    """The curves' disk cache in a folder of this module's own: no file of the user's cache
+    is read (a stale one could hide a change) or written."""
+    old = os.environ.get(CACHE_DIR_VARIABLE)
+    os.environ[CACHE_DIR_VARIABLE] = str(tmp_path_factory.mktemp("cache"))
+    yield
+    if old is None:
+        del os.environ[CACHE_DIR_VARIABLE]
+    else:
+        os.environ[CACHE_DIR_VARIABLE] = old
 
 
 # {{{ Chandrasekhar's H-function (isotropic scattering, eta = 1), computed here independently
@@ -227,6 +242,22 @@ def test_inverse_table_builds_fast():
     start = time.perf_counter()
     tr.inverse_table(0.123, 1.234, "diffuse")
     assert time.perf_counter() - start < 6.0
+
+def test_curves_disk_cache_round_trip_and_bad_file():
+    # written once (temp file, read back, renamed), read back bit-identical; a damaged file
+    # is ignored and rebuilt
+    g, eta = 0.2, 1.3
+    path = tr.curve_cache_path(g, eta)
+    fresh = tr.computed_curves(g, eta)
+    tr.write_cached_curves(path, fresh)
+    back = tr.read_cached_curves(path)
+    assert all(np.array_equal(back[k], fresh[k]) for k in INCIDENCES)
+    path.write_bytes(b"not an npz")
+    assert tr.read_cached_curves(path) is None
+    tr.CURVES.clear()
+    curves = tr.reflectance_curves(g, eta)
+    assert all(np.array_equal(curves[k], fresh[k]) for k in INCIDENCES)
+    assert tr.read_cached_curves(path) is not None          # rebuilt and rewritten
 
 # }}}
 

@@ -25,13 +25,18 @@ refraction, medium over outside [1]; ``mu`` cosine to the normal [1]; ``tau`` op
 """
 from __future__ import annotations
 
+import hashlib
 import itertools
+import os
+import tempfile
+from pathlib import Path
 
 import numpy as np
 from numpy.polynomial import chebyshev, legendre
 from scipy.special import ellipe
 
-from ..caches import ByteCache
+from ..caches import ByteCache, user_cache_dir
+from ..durable import durable_replace
 from . import transport_tables as tables
 from .fresnel import fresnel_moments_exact, fresnel_reflectance
 from .transport_tables import alpha_of_s, rho_of_s, similarity_s  # noqa: F401 (re-exported)
@@ -320,12 +325,10 @@ CHEB_TAIL = 1e-12
 CHEB_MAX_DEGREE = 256
 
 
-@CURVES.memoize
-def reflectance_curves(g: float, eta: float):
-    """Chebyshev coefficients (in x = 2s - 1) of Rd(s) for each incidence, read-only, from
-    doublings of the medium at Chebyshev-Lobatto points: chebyshev_degree(g) first, doubled
-    while the tail is above CHEB_TAIL (the degree-N nodes are the even ones of degree 2N)."""
-    check_arguments(g, eta, "diffuse")
+def computed_curves(g: float, eta: float):
+    """Chebyshev coefficients (in x = 2s - 1) of Rd(s) for each incidence, from doublings of
+    the medium at Chebyshev-Lobatto points: chebyshev_degree(g) first, doubled while the tail
+    is above CHEB_TAIL (the degree-N nodes are the even ones of degree 2N)."""
     degree = chebyshev_degree(g)
     s = chebyshev_nodes(degree)
     rd = node_reflectances(s, g, eta)
@@ -341,6 +344,62 @@ def reflectance_curves(g: float, eta: float):
             both = np.empty(degree + 1)
             both[0::2], both[1::2] = rd[k], new[k]
             rd[k] = both
+    return curves
+
+
+def curve_cache_path(g: float, eta: float) -> Path:
+    """The curves' file in the user cache dir, named by (g, eta) exactly and by a digest of
+    the solver's source (any change to it, or to the Fresnel formula, is a new file)."""
+    here = Path(__file__).resolve().parent
+    digest = hashlib.sha256()
+    for name in ("transport.py", "transport_tables.py", "fresnel.py"):
+        digest.update((here / name).read_bytes())
+    return (user_cache_dir() / "transport"
+            / f"curves-{digest.hexdigest()[:16]}-g{float(g).hex()}-eta{float(eta).hex()}.npz")
+
+
+def read_cached_curves(path: Path):
+    """The curves from a cache file, or None when absent or not as written (then rebuilt)."""
+    try:
+        with np.load(path) as data:
+            curves = {k: np.array(data[k], np.float64) for k in INCIDENCES}
+    except (OSError, KeyError, ValueError):
+        return None
+    ok = all(c.ndim == 1 and CHEB_DEGREE < len(c) <= CHEB_MAX_DEGREE + 1
+             and np.all(np.isfinite(c)) for c in curves.values())
+    return curves if ok else None
+
+
+def write_cached_curves(path: Path, curves) -> None:
+    """Temp file, verified by reading back, then a durable rename; a cache that cannot be
+    written is only a cache (nothing raised)."""
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(suffix=".npz", dir=path.parent)
+        try:
+            with os.fdopen(fd, "wb") as f:
+                np.savez(f, **curves)
+            back = read_cached_curves(Path(tmp))
+            if back is None or any(not np.array_equal(back[k], curves[k]) for k in curves):
+                return
+            durable_replace(tmp, path)
+        finally:
+            if os.path.exists(tmp):
+                os.unlink(tmp)
+    except OSError:
+        return
+
+
+@CURVES.memoize
+def reflectance_curves(g: float, eta: float):
+    """The curves of (g, eta), read-only: from memory, else from the user cache dir
+    (curve_cache_path), else computed_curves (and written there)."""
+    check_arguments(g, eta, "diffuse")
+    path = curve_cache_path(g, eta)
+    curves = read_cached_curves(path)
+    if curves is None:
+        curves = computed_curves(g, eta)
+        write_cached_curves(path, curves)
     for c in curves.values():
         c.setflags(write=False)
     return curves

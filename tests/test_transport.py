@@ -232,6 +232,12 @@ def test_inverse_is_monotone_and_clipped():
     assert np.isnan(out[0]) and out[1] == 0.0 and out[2] == 1.0
     with pytest.raises(ValueError, match="g="):
         tr.walk_alpha(0.5, 0.95, 1.4)
+    with pytest.raises(ValueError, match="alpha=1.5"):
+        tr.walk_reflectance([0.5, 1.5], 0.3, 1.4)
+    with pytest.raises(ValueError, match="alpha=-0.1"):
+        tr.walk_spread(-0.1, 0.3, 1.4)
+    forward = tr.walk_reflectance(np.array([np.nan, 0.0, 1.0]), 0.3, 1.4)
+    assert np.isnan(forward[0]) and forward[1] == pytest.approx(0.0, abs=1e-14)
     with pytest.raises(ValueError, match="incidence"):
         tr.walk_alpha(0.5, 0.0, 1.4, "oblique")
 

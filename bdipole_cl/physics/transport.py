@@ -12,14 +12,14 @@ A float64 reference, vectorised over alpha, written for accuracy first:
   internal reflection, the light escaping through the Fresnel transmission.
 
 The reflectance excludes the surface's own (specular) reflection, set apart as
-``specular_reflectance``. ``walk_reflectance`` evaluates a Chebyshev interpolant in
-``q = sqrt(1 - alpha)`` (``Rd`` is analytic in q on [0, 1]) built once per (g, eta, incidence)
-from ``solve_reflectance``, the direct solver; ``walk_alpha`` inverts it
-(``transport_tables``); ``walk_spread`` reads the Monte Carlo table of radii
-(``transport_tables``).
+``specular_reflectance``. ``walk_reflectance`` evaluates a Chebyshev series in van de Hulst's
+similarity parameter ``s = sqrt((1 - alpha)/(1 - alpha g))`` (``Rd`` is analytic in s on
+[0, 1]) built once per (g, eta) from the direct solver (``solve_reflectance``) and cached in
+memory and on disk; ``walk_alpha`` inverts it (``transport_tables``); ``walk_spread`` reads the
+Monte Carlo table of radii (``transport_tables``).
 
 Notation: ``alpha`` single-scattering albedo sigma_s/sigma_t [1]; ``rho = 1 - alpha``;
-``q = sqrt(rho)``; ``g`` Henyey-Greenstein mean cosine [1]; ``eta`` relative index of
+``s`` similarity parameter [1]; ``g`` Henyey-Greenstein mean cosine [1]; ``eta`` relative index of
 refraction, medium over outside [1]; ``mu`` cosine to the normal [1]; ``tau`` optical depth
 (mean free paths, 1/sigma_t) [1].
 """
@@ -422,11 +422,16 @@ def walk_reflectance(alpha, g: float = 0.0, eta: float = 1.0, incidence: str = "
     alpha, HG mean cosine g, under a smooth dielectric boundary of relative index eta,
     specular reflection excluded; incidence "diffuse" (uniform environment) or "normal".
     alpha outside [0, 1] is an error; NaN gives NaN."""
+    return reflectance_of_s(similarity_s(checked_alpha(alpha), g), g, eta, incidence)
+
+
+def checked_alpha(alpha):
+    """alpha as float64, ValueError naming the first value outside [0, 1] (NaN passes)."""
     a = np.asarray(alpha, np.float64)
     bad = (a < 0.0) | (a > 1.0)
     if np.any(bad):
         raise ValueError(f"alpha={float(a[bad].flat[0])!r} is outside [0, 1]")
-    return reflectance_of_s(similarity_s(a, g), g, eta, incidence)
+    return a
 
 
 def walk_alpha(rd, g: float = 0.0, eta: float = 1.0, incidence: str = "diffuse"):
@@ -447,7 +452,7 @@ def walk_spread(alpha, g: float = 0.0, eta: float = 1.0, fraction: float = 0.5):
     that holds ``fraction`` of the diffusely reflected energy (Monte Carlo table:
     docs/transport.md "Spread")."""
     check_arguments(g, eta, "normal")
-    s = similarity_s(alpha, g)
+    s = similarity_s(checked_alpha(alpha), g)
     return tables.spread_lookup(s, float(g), float(eta), float(fraction))
 
 
@@ -455,7 +460,7 @@ def walk_spread_stderr(alpha, g: float = 0.0, eta: float = 1.0, fraction: float 
     """The Monte Carlo standard error of walk_spread [mean free paths], interpolated alike."""
     check_arguments(g, eta, "normal")
     table = tables.spread_table()
-    s = similarity_s(alpha, g)
+    s = similarity_s(checked_alpha(alpha), g)
     return tables.spread_lookup(s, float(g), float(eta), float(fraction), table.stderr)
 
 # }}}

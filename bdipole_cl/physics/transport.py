@@ -440,6 +440,16 @@ def walk_alpha(rd, g: float = 0.0, eta: float = 1.0, incidence: str = "diffuse")
     return tables.evaluate_inverse(inverse_table(float(g), float(eta), incidence), rd)[0]
 
 
+def walk_rho(rd, g: float = 0.0, eta: float = 1.0, incidence: str = "diffuse"):
+    """1 - walk_alpha(rd) [1] with its digits near alpha = 1 (from s: rho = s^2 (1 - g)/
+    (1 - g s^2), relative error ~1e-12 where 1 - alpha itself would keep only eps/rho);
+    the same clipping (rd <= 0: 1, rd >= the maximum: 0; NaN stays NaN)."""
+    table = inverse_table(float(g), float(eta), incidence)
+    alpha, s = tables.evaluate_inverse(table, rd)
+    upper = np.asarray(rd, np.float64) >= table.rd_split
+    return np.where(upper, rho_of_s(s, g), 1.0 - alpha)
+
+
 @tables.INVERSE_TABLES.memoize
 def inverse_table(g: float, eta: float, incidence: str) -> tables.InverseTable:
     """The monotone table of s over Rd of one (g, eta, incidence), checked when built."""

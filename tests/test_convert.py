@@ -213,3 +213,19 @@ def test_cycles_skin_is_converted_texel_by_texel():
     # its radius jumps with the colour (12 float bisection steps): never interpolated
     assert CONVENTION["cycles-skin"].stepwise
     assert not any(c.stepwise for c in CONVENTION if c.name != "cycles-skin")
+
+
+def test_cli_random_walk_target_writes_the_medium(tmp_path, capsys):
+    _needs_walk("random-walk")
+    from bdipole_cl.apps.cli import main
+    colour = np.random.default_rng(6).uniform(0.1, 0.8, (2, 3, 3))
+    _write(tmp_path / "skin.exr", colour)
+    assert main(["convert", str(tmp_path / "skin.exr"), "--radius", "0.5",
+                 "--target", "random-walk"]) == 0, capsys.readouterr()
+    names, px = _read(tmp_path / "skin.random-walk.exr")
+    assert names[:3] == ("sigma_a.R", "sigma_a.G", "sigma_a.B") and names[3] == "sigma_s.R"
+    want = bdipole_cl.convert(colour.astype(np.float32), 0.5, "better-dipole", "random-walk",
+                              eta=1.4).medium()
+    # sigma_a from float64 alpha (a float32 alpha near 1 would leave 1 - alpha 2e-5 off)
+    np.testing.assert_allclose(px[..., :3], want.sigma_a, rtol=1.2e-7)
+    np.testing.assert_allclose(px[..., 3:], want.sigma_s, rtol=1.2e-7)

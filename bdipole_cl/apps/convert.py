@@ -40,7 +40,8 @@ def add_command(command):
     p.add_argument("--unit", default="mm", help="length unit of the radius")
     p.add_argument("-o", "--output", default="{dir}/{stem}.{target}.exr",
                    help="output path pattern: {dir} {stem} {name} {target} and a tile token; "
-                        "channels colour.* and radius.*")
+                        "channels colour.* and radius.* (random-walk: sigma_a.*, sigma_s.*, "
+                        "per unit)")
     p.add_argument("--half", action="store_true", help="write half floats")
     add_texture_arg(p)
     p.add_argument("--colorspace", default="auto", type=colorspace_arg,

@@ -124,8 +124,18 @@ def convert_textures(inputs, *, radius=1.0, source="better-dipole", target="van-
     return BatchReport(results)
 
 
+#: what an output holds: the target's colour and radius, or for ``random-walk`` the medium's
+#: sigma_a and sigma_s (1/unit; its g is the header's)
+COLOUR_GROUPS, MEDIUM_GROUPS = ("colour", "radius"), ("sigma_a", "sigma_s")
+
+
+def output_groups(target) -> tuple:
+    return MEDIUM_GROUPS if target == "random-walk" else COLOUR_GROUPS
+
+
 def convert_band(work, inp, route, colour_in, radius, mask, etas, job, y0):
-    """One band's target colour and radius (HxWxC each) and invalid counts, per channel."""
+    """One band's target colour and radius (for ``random-walk``: sigma_a and sigma_s), HxWxC
+    each, and the invalid counts, per channel."""
     colour, negative = non_negative_albedo(route.convert(colour_in, inp.names),
                                            work.on_invalid, mask, one_valid=True)
     radius = np.broadcast_to(radius, colour.shape)
@@ -142,7 +152,12 @@ def convert_band(work, inp, route, colour_in, radius, mask, etas, job, y0):
             raise invalid_texels(exc.with_(first_index=(yy, xx, c)), where, spec.x + xx,
                                  spec.y + y0 + yy, inp.names[c],
                                  f" in rows {y0}..") from None
-        out_c[..., c], out_r[..., c] = done.colour, done.radius
+        if output_groups(work.target) == MEDIUM_GROUPS:
+            # in float64 before the cast: 1 - alpha of a float32 alpha near 1 keeps few digits
+            medium = done.medium()
+            out_c[..., c], out_r[..., c] = medium.sigma_a, medium.sigma_s
+        else:
+            out_c[..., c], out_r[..., c] = done.colour, done.radius
         for key, n in done.invalid.items():
             invalid[key] += n
     return out_c, out_r, invalid
@@ -165,7 +180,8 @@ def run_convert(job, *, cancel=None) -> FileResult:
         etas = per_channel(work.eta, len(inp.names), "eta", job.source)
         route = inp.albedo.colour(work.colorspace, work.working)
         result.colour = route.describe()
-        names = [f"{g}.{n}" for g in ("colour", "radius") for n in inp.names]
+        groups = output_groups(work.target)
+        names = [f"{g}.{n}" for g in groups for n in inp.names]
         if inp.keep_alpha:
             names.append(spec.channelnames[inp.alpha])
         header = {"version": __version__, "source": work.source, "target": work.target,

@@ -32,6 +32,9 @@ BOUNDARIES = dict(
                "internal reflection at every exit (Mitsuba, pbrt, Hyperion 2018)",
     entry="refracted in (the surface's specular lobe keeps the Fresnel part), then the walk "
           "leaves at its first surface crossing: no internal reflection (Cycles)",
+    cosine_entry="let in through 1 - F as a diffuse (cosine) bounce, then the index-matched "
+                 "walk leaves at its first crossing (Cycles Skin, as measured: half its "
+                 "entries are cosine bounces, half a roughness-1 refraction)",
     matched="index-matched: no Fresnel on the way in or out (what the OpenPBR, Chiang 2016 "
             "and Wrenninge 2017 fits assume)",
     diffusion="an analytic profile whose integral is the colour (a dipole's boundary is in "
@@ -182,7 +185,7 @@ CONVENTION = Registry("convention", (
     Convention("cycles-skin", "Cycles Random Walk (Skin): radius x sqrt(3 (1 - Jensen "
                "alpha')), Wrenninge fit", renderers="Blender Cycles (Random Walk (Skin))",
                colour="Subsurface colour", radius=_DMFP + " (Jensen's)", unit="dmfp",
-               boundary="entry", source="Cycles bssrdf.h bssrdf_setup_radius",
+               boundary="cosine_entry", source="Cycles bssrdf.h bssrdf_setup_radius",
                alpha_fit=fits.wvh_alpha, extinction=_sigma_t_cycles_skin,
                alpha_max=0.999999, min_alpha=0.2, stepwise=True),
     Convention("moonray-walk", "MoonRay random walk: its refit albedo, Chiang's s, radius x "
@@ -247,11 +250,13 @@ def _walk_eta(conv, eta):
 
 def _walked(conv, alpha, eta, g):
     """The walk's own reflectance under the convention's boundary (no Cycles floor)."""
-    if conv.boundary == "entry":
+    if conv.boundary in ("entry", "cosine_entry"):
         if g != 0.0:
             raise ValueError(f"convention {conv.name!r}: its walk leaves at the first surface "
                              f"crossing, which is modelled for g = 0 only (got g={g:g}); "
                              f"docs/conventions.md \"Boundaries\"")
+        if conv.boundary == "cosine_entry":
+            return half_space.cosine_entry_reflectance_fast(alpha, eta)
         return half_space.entry_reflectance_fast(alpha, eta)
     return _transport().walk_reflectance(alpha, g=g, eta=_walk_eta(conv, eta))
 
@@ -375,7 +380,7 @@ def colour_for(convention, rd, eta=1.4, g=0.0):
 
 def single_scattering_albedo(conv, rd, eta, g):
     """The alpha whose walk renders ``rd`` under the convention's boundary (and floor)."""
-    if conv.boundary == "entry":
+    if conv.boundary in ("entry", "cosine_entry"):
         return increasing_inverse(lambda a: walk_rd(conv, a, eta, g), rd)
     t = _transport()
     alpha = t.walk_alpha(rd, g=g, eta=_walk_eta(conv, eta))

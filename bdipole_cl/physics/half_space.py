@@ -84,3 +84,32 @@ def entry_reflectance_fast(alpha, eta):
     q, r = _entry_table(float(eta))
     spline = CubicSpline(q, r)
     return spline(np.sqrt(np.clip(1.0 - np.asarray(alpha, np.float64), 0.0, 1.0)))
+
+
+def diffuse_fresnel(eta):
+    """The surface's white-sky Fresnel reflectance for light from outside:
+    2 Int F(mu) mu dmu (index ``eta`` inside)."""
+    return float(np.sum(2.0 * _WMU * _MU * fresnel_reflectance(_MU, 1.0 / float(eta))))
+
+
+def cosine_entry_reflectance_fast(alpha, eta):
+    """A walk let in through 1 - F (white sky) as a cosine-distributed (diffuse) bounce,
+    index-matched inside, leaving at its first crossing: (1 - F_dr) times the matched
+    half-space's white-sky reflectance (at alpha = 1: all of 1 - F_dr). From a table in q as
+    ``entry_reflectance_fast``; isotropic scattering."""
+    from scipy.interpolate import CubicSpline
+    q, r = _matched_table()
+    spline = CubicSpline(q, r)
+    matched = spline(np.sqrt(np.clip(1.0 - np.asarray(alpha, np.float64), 0.0, 1.0)))
+    return (1.0 - diffuse_fresnel(eta)) * matched
+
+
+@lru_cache(maxsize=1)
+def _matched_table():
+    q = np.linspace(0.0, 1.0, 1025)
+    r = np.empty_like(q)
+    r[1:] = matched_reflectance(1.0 - q[1:] ** 2)
+    r[0] = 1.0
+    q.setflags(write=False)
+    r.setflags(write=False)
+    return q, r

@@ -12,26 +12,34 @@ A float64 reference, vectorised over alpha, written for accuracy first:
   internal reflection, the light escaping through the Fresnel transmission.
 
 The reflectance excludes the surface's own (specular) reflection, set apart as
-``specular_reflectance``. ``walk_reflectance`` evaluates a Chebyshev interpolant in
-``q = sqrt(1 - alpha)`` (``Rd`` is analytic in q on [0, 1]) built once per (g, eta, incidence)
-from ``solve_reflectance``, the direct solver; ``walk_alpha`` inverts it
-(``transport_tables``); ``walk_spread`` reads the Monte Carlo table of radii
-(``transport_tables``).
+``specular_reflectance``. ``walk_reflectance`` evaluates a Chebyshev series in van de Hulst's
+similarity parameter ``s = sqrt((1 - alpha)/(1 - alpha g))`` (``Rd`` is analytic in s on
+[0, 1]) built once per (g, eta) from the direct solver (``solve_reflectance``) and cached in
+memory and on disk; ``walk_alpha`` inverts it (``transport_tables``); ``walk_spread`` reads the
+Monte Carlo table of radii (``transport_tables``).
 
 Notation: ``alpha`` single-scattering albedo sigma_s/sigma_t [1]; ``rho = 1 - alpha``;
-``q = sqrt(rho)``; ``g`` Henyey-Greenstein mean cosine [1]; ``eta`` relative index of
+``s`` similarity parameter [1]; ``g`` Henyey-Greenstein mean cosine [1]; ``eta`` relative index of
 refraction, medium over outside [1]; ``mu`` cosine to the normal [1]; ``tau`` optical depth
 (mean free paths, 1/sigma_t) [1].
 """
 from __future__ import annotations
 
+import hashlib
+import itertools
+import os
+import tempfile
+from pathlib import Path
+
 import numpy as np
 from numpy.polynomial import chebyshev, legendre
 from scipy.special import ellipe
 
-from ..caches import ByteCache
+from ..caches import ByteCache, user_cache_dir
+from ..durable import durable_replace
 from . import transport_tables as tables
 from .fresnel import fresnel_moments_exact, fresnel_reflectance
+from .transport_tables import alpha_of_s, rho_of_s, similarity_s  # noqa: F401 (re-exported)
 
 #: the two incidences the reflectance is defined for (docs/transport.md "Incidence")
 INCIDENCES = ("diffuse", "normal")
@@ -48,7 +56,7 @@ TAU0 = 2.0 ** -20
 T_STOP = 1e-18
 #: doubling steps at most (2^-20 doubled 100 times: 1e24 mean free paths)
 MAX_DOUBLINGS = 100
-#: Chebyshev degree of the interpolant Rd(q) (docs/transport.md "Interpolant": measured)
+#: Chebyshev degree of the interpolant Rd(s) at least (docs/transport.md "Interpolant")
 CHEB_DEGREE = 32
 
 CURVES = ByteCache("transport reflectance curves", 4 << 20)
@@ -68,7 +76,7 @@ def check_arguments(g, eta, incidence):
 def quadrature_order(g: float) -> int:
     """Gauss nodes per interval for a mean cosine g (measured: docs/transport.md)."""
     a = abs(g)
-    return 16 if a <= 0.5 else 24 if a <= 0.8 else 40
+    return 16 if a <= 0.5 else 24 if a <= 0.7 else 32 if a <= 0.8 else 48
 
 
 # {{{ quadrature
@@ -109,7 +117,7 @@ def quadrature(eta: float, n: int):
     x, wx = legendre.leggauss(n)
     gauss = (0.5 * (x + 1.0), 0.5 * wx)
     mus, weights = [], []
-    for k, (a, b) in enumerate(zip(cuts[:-1], cuts[1:])):
+    for k, (a, b) in enumerate(itertools.pairwise(cuts)):
         u, wu = gauss_radau_right(n) if k == len(cuts) - 2 else gauss
         if a == 0.0 or a == mu_c:
             mus.append(a + (b - a) * u**2)
@@ -190,20 +198,22 @@ def thin_layer(gamma, sigma, tau0: float):
     return r, e
 
 
-def double(r, e, t_stop=T_STOP, max_doublings=MAX_DOUBLINGS):
+def double(r, e, t_stop=T_STOP, max_doublings=MAX_DOUBLINGS, keep_e=False):
     """Double a homogeneous layer until its transmission is below ``t_stop``:
     G = (1 - R R)^-1, R' = R + T R G T, T' = T G T, written for E = 1 - T as
     E' = 2E - E E - T R R G T (the thin layers' T = 1 - E keeps its digits).
-    Returns ``(R, doublings)``."""
+    Returns ``(R, doublings)``, or ``(R, E)`` with ``keep_e``."""
     eye = np.eye(r.shape[-1])
-    for k in range(max_doublings):
+    k = 0
+    while k < max_doublings:
         t = eye - e
         if np.max(np.abs(t)) < t_stop:
-            return r, k
+            break
         rr = r @ r
         x = np.linalg.solve(eye - rr, t)
         r, e = r + t @ r @ x, 2.0 * e - e @ e - t @ rr @ x
-    return r, max_doublings
+        k += 1
+    return (r, e) if keep_e else (r, k)
 
 
 def semi_infinite_reflection(rho, g: float, eta: float, n: int | None = None,
@@ -215,6 +225,16 @@ def semi_infinite_reflection(rho, g: float, eta: float, n: int | None = None,
     r, e = thin_layer(gamma, sigma, tau0)
     r, _ = double(r, e)
     return mu, w, r
+
+def slab(rho, g: float, eta: float, doublings: int, n: int | None = None,
+         tau0: float = TAU0):
+    """``(mu, w, R, T)`` of a slab of depth tau0 2^doublings (no boundary), for the checks of
+    energy conservation and convergence in depth."""
+    mu, w = quadrature(eta, n or quadrature_order(g))
+    gamma, sigma = layer_operators(mu, w, g, rho)
+    r, e = thin_layer(gamma, sigma, tau0)
+    r, e = double(r, e, t_stop=0.0, max_doublings=doublings, keep_e=True)
+    return mu, w, r, np.eye(len(mu)) - e
 
 # }}}
 
@@ -260,31 +280,26 @@ def solve_reflectance(alpha=None, g: float = 0.0, eta: float = 1.0, incidence="d
     check_arguments(g, eta, incidence)
     rho = np.asarray(1.0 - np.asarray(alpha, np.float64) if rho is None else rho, np.float64)
     mu, w, r = semi_infinite_reflection(rho.reshape(-1), g, eta, n, tau0)
-    return boundary_reflectance(mu, w, r, eta, incidence).reshape(rho.shape)
+    rd = boundary_reflectance(mu, w, r, eta, incidence).reshape(rho.shape)
+    # alpha = 1: a conservative medium returns all the light that entered (1 - specular).
+    # Doubling cannot reach it (its T falls as 1/tau, and 1 - Rd ~ sqrt(rho) turns rounding
+    # of order eps into 1e-8..1e-6); the finite slab's R + T = 1 is checked instead
+    # (docs/transport.md "Energy").
+    return np.where(rho == 0.0, 1.0 - specular_reflectance(eta, incidence), rd)
 
 # }}}
 
 
 # {{{ the interpolant and the public functions
 
-def similarity_s(alpha, g: float):
-    """van de Hulst's similarity parameter s = sqrt((1 - alpha)/(1 - alpha g)) [1]: Rd is
-    analytic in s on [0, 1] (in q = sqrt(1 - alpha) it has a branch point at
-    rho = -(1 - g)/g, close to the interval for large g)."""
-    a = np.asarray(alpha, np.float64)
-    return np.sqrt((1.0 - a) / (1.0 - a * g))
-
-
-def rho_of_s(s, g: float):
-    """1 - alpha of s, without cancellation: rho = s^2 (1 - g)/(1 - g s^2)."""
-    s2 = np.asarray(s, np.float64) ** 2
-    return s2 * (1.0 - g) / (1.0 - g * s2)
-
-
-def alpha_of_s(s, g: float):
-    """alpha = (1 - s^2)/(1 - g s^2) (the inverse of similarity_s)."""
-    s2 = np.asarray(s, np.float64) ** 2
-    return (1.0 - s2) / (1.0 - g * s2)
+def chebyshev_degree(g: float) -> int:
+    """Degree of the Chebyshev series of Rd(s): alpha(s) has a pole at s = 1/sqrt(g) (g > 0),
+    which bounds the series' convergence to rho^-N, rho = x + sqrt(x^2 - 1), x = 2/sqrt(g) - 1
+    (the Bernstein ellipse); the degree brings rho^-N to 1e-16, within [32, 128]."""
+    if g <= 0.25:
+        return CHEB_DEGREE
+    x = 2.0 / np.sqrt(g) - 1.0
+    return int(np.clip(np.ceil(37.0 / np.log(x + np.sqrt(x * x - 1.0))), CHEB_DEGREE, 128))
 
 
 def chebyshev_nodes(degree: int = CHEB_DEGREE):
@@ -292,17 +307,107 @@ def chebyshev_nodes(degree: int = CHEB_DEGREE):
     return 0.5 * (1.0 - np.cos(np.pi * np.arange(degree + 1) / degree))
 
 
-@CURVES.memoize
-def reflectance_curve(g: float, eta: float, incidence: str, degree: int = CHEB_DEGREE):
-    """Chebyshev coefficients (in x = 2s - 1) of Rd(s), read-only. At s = 0 (alpha = 1) the
-    value is exact by energy conservation, Rd = 1 - specular; elsewhere solve_reflectance."""
+def node_reflectances(s, g: float, eta: float):
+    """Rd at the similarity parameters s for each incidence, one batched doubling; s = 0
+    (alpha = 1) exact by energy conservation, Rd = 1 - specular (solve_reflectance)."""
+    mu, w, r = semi_infinite_reflection(rho_of_s(s, g), g, eta)
+    out = {}
+    for incidence in INCIDENCES:
+        rd = boundary_reflectance(mu, w, r, eta, incidence)
+        out[incidence] = np.where(s == 0.0, 1.0 - specular_reflectance(eta, incidence), rd)
+    return out
+
+
+#: the series is refined (degree doubled, the old nodes kept) while its last three
+#: coefficients exceed this: a strongly reflecting boundary (eta 2.5: 84% of the inner
+#: hemisphere totally reflected) bends Rd(s) near s = 0 more than g alone predicts
+CHEB_TAIL = 1e-12
+CHEB_MAX_DEGREE = 256
+
+
+def computed_curves(g: float, eta: float):
+    """Chebyshev coefficients (in x = 2s - 1) of Rd(s) for each incidence, from doublings of
+    the medium at Chebyshev-Lobatto points: chebyshev_degree(g) first, doubled while the tail
+    is above CHEB_TAIL (the degree-N nodes are the even ones of degree 2N)."""
+    degree = chebyshev_degree(g)
     s = chebyshev_nodes(degree)
-    rd = np.empty_like(s)
-    rd[0] = 1.0 - specular_reflectance(eta, incidence)
-    rd[1:] = solve_reflectance(g=g, eta=eta, incidence=incidence, rho=rho_of_s(s[1:], g))
-    coefs = chebyshev.chebfit(2.0 * s - 1.0, rd, degree)
-    coefs.setflags(write=False)
-    return coefs
+    rd = node_reflectances(s, g, eta)
+    while True:
+        curves = {k: chebyshev.chebfit(2.0 * s - 1.0, v, degree) for k, v in rd.items()}
+        tail = max(np.max(np.abs(c[-3:])) for c in curves.values())
+        if tail <= CHEB_TAIL or degree >= CHEB_MAX_DEGREE:
+            break
+        degree *= 2
+        s = chebyshev_nodes(degree)
+        new = node_reflectances(s[1::2], g, eta)
+        for k in rd:
+            both = np.empty(degree + 1)
+            both[0::2], both[1::2] = rd[k], new[k]
+            rd[k] = both
+    return curves
+
+
+def curve_cache_path(g: float, eta: float) -> Path:
+    """The curves' file in the user cache dir, named by (g, eta) exactly and by a digest of
+    the solver's source (any change to it, or to the Fresnel formula, is a new file)."""
+    here = Path(__file__).resolve().parent
+    digest = hashlib.sha256()
+    for name in ("transport.py", "transport_tables.py", "fresnel.py"):
+        digest.update((here / name).read_bytes())
+    return (user_cache_dir() / "transport"
+            / f"curves-{digest.hexdigest()[:16]}-g{float(g).hex()}-eta{float(eta).hex()}.npz")
+
+
+def read_cached_curves(path: Path):
+    """The curves from a cache file, or None when absent or not as written (then rebuilt)."""
+    try:
+        with np.load(path) as data:
+            curves = {k: np.array(data[k], np.float64) for k in INCIDENCES}
+    except (OSError, KeyError, ValueError):
+        return None
+    ok = all(c.ndim == 1 and CHEB_DEGREE < len(c) <= CHEB_MAX_DEGREE + 1
+             and np.all(np.isfinite(c)) for c in curves.values())
+    return curves if ok else None
+
+
+def write_cached_curves(path: Path, curves) -> None:
+    """Temp file, verified by reading back, then a durable rename; a cache that cannot be
+    written is only a cache (nothing raised)."""
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(suffix=".npz", dir=path.parent)
+        try:
+            with os.fdopen(fd, "wb") as f:
+                np.savez(f, **curves)
+            back = read_cached_curves(Path(tmp))
+            if back is None or any(not np.array_equal(back[k], curves[k]) for k in curves):
+                return
+            durable_replace(tmp, path)
+        finally:
+            if os.path.exists(tmp):
+                os.unlink(tmp)
+    except OSError:
+        return
+
+
+@CURVES.memoize
+def reflectance_curves(g: float, eta: float):
+    """The curves of (g, eta), read-only: from memory, else from the user cache dir
+    (curve_cache_path), else computed_curves (and written there)."""
+    check_arguments(g, eta, "diffuse")
+    path = curve_cache_path(g, eta)
+    curves = read_cached_curves(path)
+    if curves is None:
+        curves = computed_curves(g, eta)
+        write_cached_curves(path, curves)
+    for c in curves.values():
+        c.setflags(write=False)
+    return curves
+
+
+def reflectance_curve(g: float, eta: float, incidence: str):
+    """The Chebyshev coefficients of Rd(s) of one incidence (reflectance_curves)."""
+    return reflectance_curves(float(g), float(eta))[incidence]
 
 
 def reflectance_of_s(s, g: float, eta: float, incidence: str):
@@ -317,31 +422,55 @@ def walk_reflectance(alpha, g: float = 0.0, eta: float = 1.0, incidence: str = "
     alpha, HG mean cosine g, under a smooth dielectric boundary of relative index eta,
     specular reflection excluded; incidence "diffuse" (uniform environment) or "normal".
     alpha outside [0, 1] is an error; NaN gives NaN."""
+    return reflectance_of_s(similarity_s(checked_alpha(alpha), g), g, eta, incidence)
+
+
+def checked_alpha(alpha):
+    """alpha as float64, ValueError naming the first value outside [0, 1] (NaN passes)."""
     a = np.asarray(alpha, np.float64)
     bad = (a < 0.0) | (a > 1.0)
     if np.any(bad):
         raise ValueError(f"alpha={float(a[bad].flat[0])!r} is outside [0, 1]")
-    return reflectance_of_s(similarity_s(a, g), g, eta, incidence)
+    return a
 
 
 def walk_alpha(rd, g: float = 0.0, eta: float = 1.0, incidence: str = "diffuse"):
     """The single-scattering albedo alpha whose walk_reflectance is rd (docs/transport.md
     "Inversion": rd <= 0 gives 0, rd >= the reflectance of alpha = 1 gives 1, NaN stays NaN)."""
-    s = tables.evaluate_inverse(inverse_table(float(g), float(eta), incidence), rd)
-    return alpha_of_s(s, g)
+    return tables.evaluate_inverse(inverse_table(float(g), float(eta), incidence), rd)[0]
+
+
+def walk_rho(rd, g: float = 0.0, eta: float = 1.0, incidence: str = "diffuse"):
+    """1 - walk_alpha(rd) [1] with its digits near alpha = 1 (from s: rho = s^2 (1 - g)/
+    (1 - g s^2), relative error ~1e-12 where 1 - alpha itself would keep only eps/rho);
+    the same clipping (rd <= 0: 1, rd >= the maximum: 0; NaN stays NaN)."""
+    table = inverse_table(float(g), float(eta), incidence)
+    alpha, s = tables.evaluate_inverse(table, rd)
+    upper = np.asarray(rd, np.float64) >= table.rd_split
+    return np.where(upper, rho_of_s(s, g), 1.0 - alpha)
 
 
 @tables.INVERSE_TABLES.memoize
 def inverse_table(g: float, eta: float, incidence: str) -> tables.InverseTable:
     """The monotone table of s over Rd of one (g, eta, incidence), checked when built."""
     check_arguments(g, eta, incidence)
-    return tables.build_inverse_table(reflectance_curve(g, eta, incidence))
+    return tables.build_inverse_table(reflectance_curve(g, eta, incidence), g)
 
 
 def walk_spread(alpha, g: float = 0.0, eta: float = 1.0, fraction: float = 0.5):
     """Radius [mean free paths, 1/sigma_t] of the disk around a normally incident pencil beam
     that holds ``fraction`` of the diffusely reflected energy (Monte Carlo table:
     docs/transport.md "Spread")."""
-    raise NotImplementedError("walk_spread: the Monte Carlo spread table is not built yet")
+    check_arguments(g, eta, "normal")
+    s = similarity_s(checked_alpha(alpha), g)
+    return tables.spread_lookup(s, float(g), float(eta), float(fraction))
+
+
+def walk_spread_stderr(alpha, g: float = 0.0, eta: float = 1.0, fraction: float = 0.5):
+    """The Monte Carlo standard error of walk_spread [mean free paths], interpolated alike."""
+    check_arguments(g, eta, "normal")
+    table = tables.spread_table()
+    s = similarity_s(checked_alpha(alpha), g)
+    return tables.spread_lookup(s, float(g), float(eta), float(fraction), table.stderr)
 
 # }}}

@@ -201,3 +201,17 @@ def test_dask_tasks_check_the_identity_the_client_first_read(tmp_path):
                           blur_plan, "auto", None, identity=old)
     assert isinstance(band, InputChanged) and "it was replaced by another file" in str(band)
     assert not (tmp_path / "b.exr").exists()
+
+
+def test_cli_convert_fails_an_input_changed_during_its_read(tmp_path, monkeypatch, capsys):
+    """The conversion (bdipole-cl convert) is a path of its own: an albedo overwritten between
+    its band reads fails the job, named, nothing written."""
+    a, out = tmp_path / "a.exr", tmp_path / "o" / "a.exr"
+    write_plain(a, 1.0)
+    seen = change_during_read(monkeypatch, a, "overwrite")
+    assert cli_main(["convert", str(a), "--radius", "1", "--source", "pxrsurface", "--target",
+                     "openpbr", "-o", str(out), "--max-memory", SMALL]) == 1
+    assert seen["n"] == -1
+    err = capsys.readouterr()
+    assert f"{a}: the albedo changed while the job read it" in err.out + err.err
+    assert not out.exists()

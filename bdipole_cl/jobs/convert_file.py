@@ -21,7 +21,7 @@ from ..errors import InvalidInputError, check_policy
 from ..io import tiles
 from ..io.collisions import collisions
 from ..io.colour import WorkingSpace, check_colorspace, resolve_working_space
-from ..io.freshness import params_digest
+from ..io.freshness import InputGuard, params_digest
 from ..io.images import (Cancelled, TextureError, Writer, check_output_format,
                          classify_channels, invalid_texels, output_spec)
 from ..io.mipmaps import TextureOptions, texture_options
@@ -170,6 +170,7 @@ def run_convert(job, *, cancel=None) -> FileResult:
     result = FileResult(job.source, job.output)
     t0 = time.perf_counter()
     readers, writer = [], None
+    guard = InputGuard(job.inputs)               # before the first read
     try:
         inp = open_inputs(job, work, readers)
         spec = inp.albedo.spec
@@ -215,7 +216,7 @@ def run_convert(job, *, cancel=None) -> FileResult:
         stream_bands([(y, min(y + rows, spec.height)) for y in range(0, spec.height, rows)],
                      lambda band: inp.read(band, work), compute,
                      lambda band, block: writer.write_band(*band, block))
-        writer.commit()
+        writer.commit(check=guard.check)          # an input changed meanwhile: nothing written
         writer = None
         result.status = "ok"
         result.texels = spec.width * spec.height

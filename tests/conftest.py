@@ -41,9 +41,22 @@ _ids = [short_id(rt) for rt in RUNTIMES]
 RUNTIME_IDS = [i if _ids.count(i) == 1 else f"{i}{k}" for k, i in enumerate(_ids)]
 
 
+#: modules of files, scenes and commands (I/O, colour, tiles, USD and MaterialX, records,
+#: pictures): what they check does not depend on the device, so they run on the first device
+#: under test only; the kernels they call are checked on every device by the kernel modules
+#: and the crosscheck. (Twice over two runtimes, they were a third of a cold suite's time.)
+ONE_DEVICE_MODULES = {
+    "test_colour", "test_tiles", "test_texture_outputs", "test_usd_import_faults",
+    "test_usd_scene", "test_scene", "test_bake_materials", "test_mtlx_scene", "test_textures",
+    "test_bake_records", "test_input_changes", "test_mfp_kind", "test_jobs", "test_pictures",
+}
+
+
 def pytest_generate_tests(metafunc):
     if "runtime" in metafunc.fixturenames:
-        metafunc.parametrize("runtime", RUNTIMES, ids=RUNTIME_IDS, indirect=True,
+        one = metafunc.module.__name__.rsplit(".", 1)[-1] in ONE_DEVICE_MODULES
+        metafunc.parametrize("runtime", RUNTIMES[:1] if one else RUNTIMES,
+                             ids=RUNTIME_IDS[:1] if one else RUNTIME_IDS, indirect=True,
                              scope="session")
 
 

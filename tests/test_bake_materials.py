@@ -171,9 +171,8 @@ def test_only_the_chosen_targets_are_written_and_said(tmp_path):
     records = json.loads((tmp_path / "both" / "bdipole" / "bdipole_materials.json").read_text())
     entries = {e["name"]: e for e in records["materials"]}
     assert entries["skin"]["targets"]["pxrsurface"] == "written"
-    # openpbr: written where this build converts to van de Hulst, else said why not
-    assert entries["skin"]["targets"]["openpbr"] == "written" or \
-        entries["skin"]["targets"]["openpbr"].startswith("not written: its van-de-hulst maps")
+    # openpbr: its colour and radius maps converted to van de Hulst (physics.transport)
+    assert entries["skin"]["targets"]["openpbr"] == "written", entries["skin"]["targets"]
 
 
 def painted_pxr_stage(root):

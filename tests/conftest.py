@@ -49,6 +49,7 @@ ONE_DEVICE_MODULES = {
     "test_colour", "test_tiles", "test_texture_outputs", "test_usd_import_faults",
     "test_usd_scene", "test_scene", "test_bake_materials", "test_mtlx_scene", "test_textures",
     "test_bake_records", "test_input_changes", "test_mfp_kind", "test_jobs", "test_pictures",
+    "test_invert_plan", "test_report",
 }
 
 

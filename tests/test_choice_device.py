@@ -69,7 +69,11 @@ def test_data_for_another_device_are_not_used(on_device, cache_dir, caplog):
 
 def test_short_calibration_is_what_auto_then_reads(on_device, cache_dir, caplog):
     """A (short) calibration writes this device's data to the cache; invert_albedo's and
-    blur's auto then decide from it and say so."""
+    blur's auto then decide from it and say so. (The first device only: the file's logic is
+    the device's no more than the kernels it times, which are checked on every device.)"""
+    from conftest import RUNTIMES
+    if on_device is not RUNTIMES[0]:
+        pytest.skip("calibration's logic checked on the first device")
     path = calibrate(n=4096, blur_size=24, repeats=1, progress=lambda *a: None,
                      sweep=[MethodConfig("table", table_size=64)], sweep_f64=[],
                      blur_sweep=[("direct", 1e-4)], gather_size=48)

@@ -27,7 +27,11 @@ SMALLEST = float(np.float32(1.4e-45))    # the smallest positive float32 (a deno
 @pytest.mark.parametrize("eta", [0.5, 1.4, 2.8])
 def test_default_table_is_monotone_over_every_float32_albedo(runtime, eta):
     # every positive float32 below 1 (1,065,353,215 of them), in chunks: alpha' must never
-    # decrease as Rd increases
+    # decrease as Rd increases. Every eta on the first device, the middle one on the others
+    # (about 9 s a sweep: the suite's time); the table is the same data on every device
+    from conftest import RUNTIMES
+    if runtime is not RUNTIMES[0] and eta != 1.4:
+        pytest.skip("swept at every eta on the first device, at 1.4 on the others")
     res = sweep(MethodConfig("table"), eta, SMALLEST, 1.0, device=runtime)
     assert res.count == 1065353215
     assert res.reversals == 0 and res.nan == 0, (res.reversals, res.first)

@@ -45,13 +45,9 @@ def test_pareto_marking():
     assert [p.pareto for p in pts] == [True, True, False, True]
 
 
-def test_small_report_run_writes_table_csv_plot(tmp_path, runtime):
-    """The report's table, CSV and plot. It builds every method's kernels: on the first device
-    under test only (over a minute of cold compiles on PoCL), as every kernel it times is
-    checked on every device by the crosscheck and the kernel tests."""
-    from conftest import RUNTIMES
-    if runtime is not RUNTIMES[0]:
-        pytest.skip("the report's own code is device-independent: run on the first device")
+def test_small_report_run_writes_table_csv_plot(tmp_path):
+    """The report's table, CSV and plot (on the first device: tests/conftest.py's
+    ONE_DEVICE_MODULES; every kernel it times is checked on every device elsewhere)."""
     points = run_report(tmp_path, n=4096, blur_size=32, repeats=1, progress=lambda *_: None)
     methods = {p.method.split()[0] for p in points}
     assert {"memo", "bisection", "secant", "table", "direct", "gaussians", "fft"} <= methods

@@ -10,7 +10,6 @@ checks and verified atomic writes; only the per-band computation differs
 from __future__ import annotations
 
 import os
-import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
@@ -31,7 +30,7 @@ from ..physics.conventions import CONVENTION
 from ..physics.conversion import convert
 from ..version import __version__
 from .batch import job_claims, parse_constant
-from .invert_file import non_negative_albedo, open_inputs, per_channel
+from .invert_file import JobFiles, non_negative_albedo, open_inputs, per_channel
 from .pipeline import stream_bands
 from .results import BatchReport, FileResult
 
@@ -168,11 +167,9 @@ def run_convert(job, *, cancel=None) -> FileResult:
     or nothing written)."""
     work = job.work
     result = FileResult(job.source, job.output)
-    t0 = time.perf_counter()
-    readers, writer = [], None
     guard = InputGuard(job.inputs)               # before the first read
-    try:
-        inp = open_inputs(job, work, readers)
+    with JobFiles(job, result) as files:
+        inp = open_inputs(job, work, files.readers)
         spec = inp.albedo.spec
         _, _, other = classify_channels(spec.channelnames, spec.alpha_channel)
         if other:
@@ -193,8 +190,8 @@ def run_convert(job, *, cancel=None) -> FileResult:
         out_spec = output_spec(spec, names, len(names) - 1 if inp.keep_alpha else -1,
                                work.half, header, working=route.working)
         Path(job.output).parent.mkdir(parents=True, exist_ok=True)
-        writer = Writer(job.output, out_spec, work.on_invalid, texture=work.texture,
-                        cancel=cancel)
+        files.writer = writer = Writer(job.output, out_spec, work.on_invalid,
+                                       texture=work.texture, cancel=cancel)
         per_texel = 8 * 6 * (spec.nchannels + 4 * len(inp.names))
         rows = band_rows(spec.height, spec.width * per_texel, work.max_memory,
                          tile_height=spec.tile_height if spec.tile_width else 0)
@@ -217,19 +214,7 @@ def run_convert(job, *, cancel=None) -> FileResult:
                      lambda band: inp.read(band, work), compute,
                      lambda band, block: writer.write_band(*band, block))
         writer.commit(check=guard.check)          # an input changed meanwhile: nothing written
-        writer = None
+        files.writer = None
         result.status = "ok"
         result.texels = spec.width * spec.height
-    except Cancelled as exc:
-        result.status, result.error = "cancelled", str(exc)
-    except TextureError as exc:
-        result.error = str(exc)
-    except (OSError, ValueError) as exc:
-        result.error = f"{job.source}: {exc}"
-    finally:
-        if writer is not None:
-            writer.abort()
-        for r in readers:
-            r.close()
-        result.seconds = time.perf_counter() - t0
     return result

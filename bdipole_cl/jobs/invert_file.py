@@ -204,15 +204,45 @@ def invert_bands(job, work, inp, route, plan, writer, result, lock, cancel, prog
                  lambda band: inp.read(band, work), compute, write)
 
 
+class JobFiles:
+    """A file job's open readers and its writer, and how the job ends (``run_invert``,
+    ``convert_file.run_convert``): used as ``with JobFiles(job, result) as files``, an error
+    of the job's files (cancelled, a texture error, OSError, ValueError) becomes the result's,
+    the writer not committed (``files.writer`` still set) is aborted, the readers closed and
+    the time taken recorded."""
+
+    def __init__(self, job, result: FileResult):
+        self.job, self.result = job, result
+        self.readers: list = []
+        self.writer = None
+
+    def __enter__(self):
+        self._t0 = time.perf_counter()
+        return self
+
+    def __exit__(self, kind, exc, tb):
+        result = self.result
+        if isinstance(exc, Cancelled):
+            result.status, result.error = "cancelled", str(exc)
+        elif isinstance(exc, TextureError):
+            result.error = str(exc)
+        elif isinstance(exc, (OSError, ValueError)):
+            result.error = f"{self.job.source}: {exc}"
+        if self.writer is not None:
+            self.writer.abort()
+        for r in self.readers:
+            r.close()
+        result.seconds = time.perf_counter() - self._t0
+        return isinstance(exc, (Cancelled, TextureError, OSError, ValueError))
+
+
 def run_invert(job, runtime, *, cancel=None, lock, progress=None) -> FileResult:
     """Run one inversion job (``runner.run_job``): its FileResult."""
     work = job.work
     result = FileResult(job.source, job.output)
-    t0 = time.perf_counter()
-    readers, writer = [], None
     guard = InputGuard(job.inputs, job.identities)    # before the first read
-    try:
-        inp = open_inputs(job, work, readers)
+    with JobFiles(job, result) as files:
+        inp = open_inputs(job, work, files.readers)
         spec = inp.albedo.spec
         _, _, other = classify_channels(spec.channelnames, spec.alpha_channel)
         if other:
@@ -228,27 +258,14 @@ def run_invert(job, runtime, *, cancel=None, lock, progress=None) -> FileResult:
                                work.half, output_header(job, work, etas, inp, route),
                                working=route.working)
         Path(job.output).parent.mkdir(parents=True, exist_ok=True)
-        writer = Writer(job.output, out_spec, work.on_invalid, texture=work.texture,
-                        cancel=cancel)
+        files.writer = writer = Writer(job.output, out_spec, work.on_invalid,
+                                       texture=work.texture, cancel=cancel)
         with lock:
             plan = inversion_plan(work, etas, inp, runtime)
         invert_bands(job, work, inp, route, plan, writer, result, lock, cancel, progress)
         result.invalid.update(writer.clamped)
         writer.commit(check=guard.check)
-        writer = None
+        files.writer = None
         result.status = "ok"
         result.texels = spec.width * spec.height
-    except Cancelled as exc:
-        result.status = "cancelled"
-        result.error = str(exc)
-    except TextureError as exc:
-        result.error = str(exc)
-    except (OSError, ValueError) as exc:
-        result.error = f"{job.source}: {exc}"
-    finally:
-        if writer is not None:
-            writer.abort()
-        for r in readers:
-            r.close()
-        result.seconds = time.perf_counter() - t0
     return result

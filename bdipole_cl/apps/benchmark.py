@@ -6,7 +6,6 @@ float64 reference inverse of the exact float32 inputs.
 """
 from __future__ import annotations
 
-import contextlib
 import os
 import statistics
 import time
@@ -16,6 +15,7 @@ import numpy as np
 import pyopencl as cl
 
 from ..device import build_options, get_program, get_runtime, real_dtype
+from ..device.runtime import forced
 from ..methods.registry import MethodConfig
 from ..ops.invert import InversionKernel
 from ..physics import reference as ref
@@ -24,7 +24,6 @@ from ..physics import reference as ref
 def cpu_model() -> str:
     """This machine's CPU: model name, family and model numbers, widest SIMD, logical cores
     (/proc/cpuinfo where there is one; a VM's model name can be generic)."""
-    import os
     import platform
     fields = {}
     try:
@@ -150,21 +149,6 @@ def reference_inverse(rd, eta):
 #: texels per work-item of the texture-varying gather
 TABLE_WIDTH_CHOICES = (1, 4, 8, 16)
 GATHER_WIDTH_CHOICES = (1, 8, 16)
-
-
-@contextlib.contextmanager
-def forced(variable, value):
-    """A context in which the environment variable ``variable`` is ``value`` (the width
-    overrides the kernels read when they are built)."""
-    before = os.environ.get(variable)
-    os.environ[variable] = str(value)
-    try:
-        yield
-    finally:
-        if before is None:
-            del os.environ[variable]
-        else:
-            os.environ[variable] = before
 
 
 def table_width_times(n, repeats=3, widths=TABLE_WIDTH_CHOICES) -> dict:

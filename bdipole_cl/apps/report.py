@@ -34,7 +34,8 @@ from ..methods.choice import (ChoiceData, DeviceKey, KernelTuning, calibration_i
                               calibration_path, is_choice_data, write_choice_data)
 from ..methods.registry import BLUR_KERNELS, BlurChoice, InversionChoice, MethodConfig
 from ..ops.invert import InversionKernel
-from .benchmark import (GATHER_WIDTH_CHOICES, fitted_gather_costs, forced, gather_rows,
+from ..device.runtime import forced
+from .benchmark import (GATHER_WIDTH_CHOICES, fitted_gather_costs, gather_rows,
                         inversion_workload, reference_inverse, stiff_workload,
                         table_width_times, time_inversion)
 from .preview import replaced_together

@@ -26,6 +26,7 @@ with its parent (``ops.kernel_checks``), so a killed caller leaves no probe buil
 from __future__ import annotations
 
 import dataclasses
+import functools
 import hashlib
 import importlib.util
 import json
@@ -159,6 +160,7 @@ def identity(device) -> dict:
             "driver": device.driver_version.strip(), "version": device.version.strip()}
 
 
+@functools.lru_cache(maxsize=None)
 def checks_digest() -> str:
     """A digest of the checks' own source (PROBE_MODULE's file, found without importing it):
     a changed check is a new verdict."""

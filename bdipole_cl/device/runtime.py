@@ -23,6 +23,7 @@ worker, say) opens its own. ``use_device`` replaces the process default.
 """
 from __future__ import annotations
 
+import contextlib
 import os
 import threading
 import warnings
@@ -171,6 +172,21 @@ def forced_width(variable: str, allowed) -> int | None:
     if text not in {str(w) for w in allowed}:
         raise ValueError(f"{variable}={text!r}: expected one of {', '.join(map(str, allowed))}")
     return int(text)
+
+
+@contextlib.contextmanager
+def forced(variable, value):
+    """A context in which the environment variable ``variable`` is ``value`` (the width
+    overrides, ``forced_width``, that the kernels read when they are built)."""
+    before = os.environ.get(variable)
+    os.environ[variable] = str(value)
+    try:
+        yield
+    finally:
+        if before is None:
+            os.environ.pop(variable, None)
+        else:
+            os.environ[variable] = before
 
 
 def _one_line(text: str, limit: int = 200) -> str:

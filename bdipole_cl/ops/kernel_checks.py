@@ -28,6 +28,7 @@ from typing import Callable
 
 import numpy as np
 
+from ..device.runtime import forced
 from .widths import blur_timing_name
 
 #: a probe's loose agreement with the float64 reference (relative, of rho and of the blur's
@@ -59,21 +60,6 @@ def _assert_close(got, want, what):
         raise RuntimeError(f"{what} computed wrongly (max relative error {worst:.3g})")
 
 
-def _forcing(variable, value):
-    """A context setting the environment variable ``variable`` to ``value`` while it runs."""
-    class _Force:
-        def __enter__(self):
-            self.old = os.environ.get(variable)
-            os.environ[variable] = str(value)
-
-        def __exit__(self, *exc):
-            if self.old is None:
-                os.environ.pop(variable, None)
-            else:
-                os.environ[variable] = self.old
-    return _Force()
-
-
 def _albedos(n, seed=0):
     """``n`` albedos over the whole range, both stiff ends first."""
     ends = np.float32([1e-6, 1e-3, 0.5, 0.9, 0.999])
@@ -88,7 +74,7 @@ def table_check(width):
         from ..physics import reference as ref
         from .inversion_kernel import TABLE_WIDTH_VARIABLE
         from .invert import albedo_to_coefficients, invert_albedo
-        with _forcing(TABLE_WIDTH_VARIABLE, width):
+        with forced(TABLE_WIDTH_VARIABLE, width):
             rd = _albedos(3 * 4093).reshape(-1, 3)       # a count no width divides
             etas = (1.3, 1.4, 1.5)
             _alpha, rho = invert_albedo(rd, etas, return_rho=True, device=rt)
@@ -165,7 +151,7 @@ def gather_check(width):
         e = np.random.default_rng(2).random((size, size, 1), np.float32)
         want = blur(e, albedo=0.6, mfp=3.0, method="fft", border="clamp", tol=1e-3, device=rt)
         albedo, mfp = _smooth_textures(size)
-        with _forcing(GATHER_WIDTH_VARIABLE, width):
+        with forced(GATHER_WIDTH_VARIABLE, width):
             for a, m, bound in ((np.full_like(albedo, 0.6), np.full_like(mfp, 3.0), 1e-2),
                                 (albedo, mfp, 0.3)):
                 got = blur(e, albedo=a, mfp=m, method="fft", border="clamp", tol=1e-3,
@@ -186,7 +172,7 @@ def table_timer(rt, width):
     import pyopencl as cl
     from ..methods.registry import MethodConfig
     from .inversion_kernel import TABLE_WIDTH_VARIABLE, InversionKernel
-    with _forcing(TABLE_WIDTH_VARIABLE, width):
+    with forced(TABLE_WIDTH_VARIABLE, width):
         kernel = InversionKernel((1.4,), MethodConfig(), runtime=rt)
     host = np.random.default_rng(1).uniform(1e-6, 0.999, TIMING_N).astype(np.float32)
     mf = cl.mem_flags
@@ -204,7 +190,7 @@ def gather_timer(rt, width):
     albedo, mfp = _smooth_textures(256)
 
     def run():
-        with _forcing(GATHER_WIDTH_VARIABLE, width):
+        with forced(GATHER_WIDTH_VARIABLE, width):
             blur(e, albedo=albedo, mfp=mfp, method="fft", border="clamp", tol=1e-3, device=rt)
     return run
 

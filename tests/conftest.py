@@ -8,9 +8,14 @@ import os
 import numpy as np
 import pytest
 
-import bdipole_cl
-from bdipole_cl import device
-from bdipole_cl import reference as ref
+# Tests start from OpenColorIO's built-in config, whatever the user's shell sets; those about
+# a studio config set $OCIO themselves (OpenImageIO's writers name spaces through a default
+# config made from $OCIO at its first use in the process: tests/test_colour.py)
+os.environ.pop("OCIO", None)
+
+import bdipole_cl  # noqa: E402
+from bdipole_cl import device  # noqa: E402
+from bdipole_cl import reference as ref  # noqa: E402
 
 #: float32 unit roundoff (half an ulp of 1); tolerances below are multiples of it.
 EPS32 = 2.0**-24

@@ -368,6 +368,22 @@ def test_custom_config_in_a_fresh_process(tmp_path, runtime):
     assert spec.getattribute("bdipole:ocio_config") == env["OCIO"]
 
 
+def test_conversions_leave_openimageios_default_config_alone(tmp_path, monkeypatch):
+    """OpenImageIO names the spaces of the files it writes through a process-wide default
+    config; a conversion must leave it alone. Reading it from Python (OpenImageIO 3.2) moved
+    it out, so that after a conversion under a studio $OCIO, files written in the built-in
+    config's words lost their declaration (found as an order-dependent 19% error in
+    test_blur_irradiance_converted_like_a_pre_converted_file)."""
+    rgb = np.full((1, 1, 3), 0.5, np.float32)
+    with monkeypatch.context() as studio:
+        studio.setenv("OCIO", str(write_config(tmp_path)))
+        cm.active_config().convert(rgb, "srgb_texture", "studio_wide")
+    cm.active_config().convert(rgb, "ACEScg", "lin_rec709_scene")
+    write(tmp_path / "a.exr", np.zeros((H, W, 3)), "float", attrs=by_name("ACEScg"))
+    spec, _ = read(tmp_path / "a.exr")
+    assert spec.getattribute("colorInteropID") == "lin_ap1_scene"
+
+
 @pytest.mark.usefixtures("on_device")
 def test_mfp_and_alpha_are_not_converted(tmp_path):
     """The albedo (declared lin_rec709) is converted into ACEScg; the mfp texture, declared

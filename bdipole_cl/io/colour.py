@@ -3,8 +3,8 @@ working space through OpenColorIO before any computation; what is not a colour i
 converted (docs/model.md "Colour").
 
 * **The config** (``active_config``): the one named by ``$OCIO`` when it is set, else the
-  built-in ``ocio://default`` that OpenImageIO carries. Conversions are OpenImageIO's
-  ``colorconvert`` with that config; no colour matrix is written here.
+  built-in ``ocio://default``. Conversions are that config's OpenColorIO processors (what
+  OpenImageIO's ``colorconvert`` applies); no colour matrix is written here.
 * **The working space** (``resolve_working_space``): any scene-linear colour space of the config, by
   name or alias. Default: the config's ``scene_linear`` role under ``$OCIO`` (a studio's
   pipeline), else ``lin_rec709_scene``.
@@ -35,6 +35,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import OpenImageIO as oiio
+import PyOpenColorIO as ocio
 
 from . import declared
 from .oiio_text import oiio_error
@@ -85,8 +86,7 @@ _pyocio_configs: dict = {}
 
 
 def _pyocio(name):
-    """OpenColorIO's own Config of ``name`` (roles, identification), loaded once."""
-    import PyOpenColorIO as ocio
+    """OpenColorIO's own Config of ``name`` (roles, identification, processors), loaded once."""
     with _configs_lock:
         cfg = _pyocio_configs.get(name)
         if cfg is None:
@@ -94,11 +94,32 @@ def _pyocio(name):
         return cfg
 
 
+_processors: dict = {}
+
+
+def _processor(name, source, target):
+    """The CPU processor of ``source`` -> ``target`` in config ``name``, made once. Not
+    OpenImageIO's colorconvert on its default config: that config is made from $OCIO at its
+    first use, and reading it from Python (``ColorConfig.default_colorconfig``, OpenImageIO
+    3.2) moves it out of the process, so that OpenImageIO's readers and writers afterwards
+    map names through whatever $OCIO then names; by name it would load the config each call
+    (30 ms). ``getDefaultCPUProcessor`` honours OCIO_OPTIMIZATION_FLAGS (lossless, above)."""
+    key = (name, source, target)
+    with _configs_lock:
+        cpu = _processors.get(key)
+    if cpu is None:
+        cpu = _pyocio(name).getProcessor(source, target).getDefaultCPUProcessor()
+        with _configs_lock:
+            cpu = _processors.setdefault(key, cpu)
+    return cpu
+
+
 def reset_config_cache() -> None:
     """Forget loaded configs (a config file edited in place is read again)."""
     with _configs_lock:
         _configs.clear()
         _pyocio_configs.clear()
+        _processors.clear()
 
 
 @dataclass(frozen=True)
@@ -167,7 +188,6 @@ class ColourConfig:
         same = [n for n in self.names() if self.interop_id(n) in (name, interop)]
         if own or same:
             return own or same[0]
-        import PyOpenColorIO as ocio
         try:
             found = ocio.Config.IdentifyBuiltinColorSpace(_pyocio(self.name),
                                                           _pyocio(BUILTIN_CONFIG), canon)
@@ -184,19 +204,16 @@ class ColourConfig:
         return None
 
     def convert(self, rgb, source, target):
-        """(rows, width, 3) float32 texels from ``source`` to ``target`` by OpenImageIO's
-        colorconvert with this config (unpremultiplied: only colour channels are passed)."""
-        rows, width, nch = rgb.shape
-        buf = oiio.ImageBuf(oiio.ImageSpec(width, rows, nch, "float"))
-        buf.set_pixels(oiio.ROI(), np.ascontiguousarray(rgb, np.float32))
-        if self.name == oiio.ColorConfig.default_colorconfig().configname():
-            out = oiio.ImageBufAlgo.colorconvert(buf, source, target, False)  # processor cached
-        else:                                   # a config by name: loaded by each call
-            out = oiio.ImageBufAlgo.colorconvert(buf, source, target, False, "", "", self.name)
-        if out.has_error:
+        """(rows, width, 3) float32 texels from ``source`` to ``target`` by this config's
+        OpenColorIO CPU processor (the one OpenImageIO's colorconvert applies, bit for bit;
+        unpremultiplied: only colour channels are passed)."""
+        out = np.array(rgb, np.float32, order="C")
+        try:
+            _processor(self.name, source, target).applyRGB(out)
+        except ocio.Exception as exc:           # a space the config lacks
             raise ValueError(f"colour conversion {source} -> {target} (OCIO config "
-                             f"{self.name}) failed: {oiio_error(out)}")
-        return out.get_pixels(oiio.FLOAT).reshape(rows, width, nch)
+                             f"{self.name}) failed: {' '.join(str(exc).split())}") from None
+        return out
 
 
 def active_config() -> ColourConfig:

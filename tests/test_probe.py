@@ -177,6 +177,27 @@ def test_a_kill_from_outside_is_not_cached(monkeypatch, fresh_cache):
     assert not isolation.verdict_path(rt.device, kernels_digest()).exists()
 
 
+def test_processes_starting_together_probe_a_device_once(fresh_cache):
+    """Two processes (a test run's workers, a farm's tasks) meeting a cold cache: one probes,
+    the other waits for its verdict and reads it (cached=True), nothing probed twice."""
+    rt = _pick("intel")
+    spec = "intel" if "intel" in rt.device.platform.name.lower() else "0:0"
+    code = (f"import bdipole_cl; from bdipole_cl.device import runtime as d; "
+            f"rt = bdipole_cl.get_runtime({spec!r}); print('cached', d.verdict(rt.device).cached)")
+    env = dict(os.environ, **{CACHE_DIR_VARIABLE: str(fresh_cache)})
+    env["PYTHONPATH"] = os.pathsep.join([str(isolation.Path(bdipole_cl.__file__).parents[1]),
+                                         env.get("PYTHONPATH", "")])
+    env.pop(isolation.FAULT_VARIABLE, None)
+    children = [subprocess.Popen([sys.executable, "-c", code], env=env, text=True,
+                                 stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+                for _ in range(2)]
+    runs = [(c.communicate(timeout=600), c.returncode) for c in children]
+    assert all(rc == 0 for _, rc in runs), runs
+    probing = sum(err.count("bdipole-cl: probing") for (_, err), _ in runs)
+    assert probing == 1, runs
+    assert sorted(out.split()[-1] for (out, _), _ in runs) == ["False", "True"], runs
+
+
 def test_a_device_whose_default_inversion_fails_at_every_width_is_broken(monkeypatch,
                                                                         fresh_cache):
     from bdipole_cl.methods.choice import TABLE_WIDTHS_ALLOWED

@@ -25,6 +25,7 @@ with its parent (``ops.kernel_checks``), so a killed caller leaves no probe buil
 """
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import functools
 import hashlib
@@ -181,7 +182,8 @@ def verdict_key(device, kernels_digest: str) -> str:
 
 #: the verdicts' folder in the user's cache folder, and their file names (a key's 20 hex digits)
 VERDICT_FOLDER = "probes"
-VERDICT_NAME = re.compile(r"^[0-9a-f]{20}\.json$")
+#: (a verdict, and the lock of the process probing it)
+VERDICT_NAME = re.compile(r"^[0-9a-f]{20}\.(json|lock)$")
 
 
 def verdict_dir() -> Path:
@@ -404,34 +406,53 @@ _lock = threading.Lock()
 _verdicts: dict = {}              # verdict path -> Verdict (this process)
 
 
+@contextlib.contextmanager
+def _probing(path: Path):
+    """Hold ``path``'s probe lock (an flock on a file beside it) while this process probes,
+    so that processes starting together (a test run's workers, a farm's tasks) probe a device
+    once and the others read its verdict. Without fcntl or a writable cache: no lock."""
+    try:
+        import fcntl
+        path.parent.mkdir(parents=True, exist_ok=True)
+        handle = open(path.with_suffix(".lock"), "a")
+    except (ImportError, OSError):
+        yield
+        return
+    with handle:
+        fcntl.flock(handle, fcntl.LOCK_EX)      # released when the file closes
+        yield
+
+
 def device_verdict(device, device_index: str, kernels_digest: str, describe: str) -> Verdict:
     """The device's verdict: this process's, else the cached one, else probed now (seconds
-    to a minute, once per device, driver and kernels) and cached. Says on stderr that it is
-    probing, and what it rejected when it probes."""
+    to a minute, once per device, driver and kernels; one process at a time) and cached.
+    Says on stderr that it is probing, and what it rejected when it probes."""
     path = verdict_path(device, kernels_digest)
     with _lock:
-        hit = _verdicts.get(path)
-        if hit is not None:
-            return hit
-        verdict = read_verdict(path)
-        if verdict is None:
-            print(f"bdipole-cl: probing {describe}: building its kernels once (cached in "
-                  f"{verdict_dir()})", file=sys.stderr, flush=True)
-            verdict = run_probe(device_index, describe)
-            if verdict.works and verdict.rejected():
-                log.warning("%s: %s; the library uses the configurations that passed "
-                            "(`bdipole-cl devices` lists them; %s)", describe,
-                            verdict.describe_rejected(), REPROBE)
-            if verdict.transient:               # this moment's, not the device's: next time
-                log.warning("%s: the probe was disturbed (%s); its verdict serves this process "
-                            "only", describe, verdict.error or KILLED)
-            else:
-                try:
-                    write_verdict(verdict, path)
-                except OSError as exc:          # an unwritable cache: probed again next time
-                    log.warning("the probe's verdict for %s could not be cached: %s",
-                                describe, exc)
-        _verdicts[path] = verdict
+        hit = _verdicts.get(path) or read_verdict(path)
+        if hit is None:
+            with _probing(path):
+                hit = read_verdict(path) or _probe_and_cache(path, device_index, describe)
+        _verdicts[path] = hit
+    return hit
+
+
+def _probe_and_cache(path: Path, device_index: str, describe: str) -> Verdict:
+    print(f"bdipole-cl: probing {describe}: building its kernels once (cached in "
+          f"{verdict_dir()})", file=sys.stderr, flush=True)
+    verdict = run_probe(device_index, describe)
+    if verdict.works and verdict.rejected():
+        log.warning("%s: %s; the library uses the configurations that passed "
+                    "(`bdipole-cl devices` lists them; %s)", describe,
+                    verdict.describe_rejected(), REPROBE)
+    if verdict.transient:               # this moment's, not the device's: next time
+        log.warning("%s: the probe was disturbed (%s); its verdict serves this process "
+                    "only", describe, verdict.error or KILLED)
+    else:
+        try:
+            write_verdict(verdict, path)
+        except OSError as exc:          # an unwritable cache: probed again next time
+            log.warning("the probe's verdict for %s could not be cached: %s", describe, exc)
     return verdict
 
 

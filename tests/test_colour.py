@@ -368,6 +368,22 @@ def test_custom_config_in_a_fresh_process(tmp_path, runtime):
     assert spec.getattribute("bdipole:ocio_config") == env["OCIO"]
 
 
+@pytest.mark.parametrize("source, target", [("sRGB", "linear"), ("ACEScg", "lin_rec709_scene"),
+                                            ("srgb_rec709_scene", "ACEScg"),
+                                            ("Linear Rec.2020", "scene_linear")])
+def test_conversions_are_openimageios_colorconvert_bit_for_bit(source, target):
+    """The config's processor, by OpenImageIO's names and aliases too: equal to
+    ImageBufAlgo.colorconvert with the same config to the last bit (HDR and negative texels
+    included)."""
+    rgb = np.random.default_rng(1).uniform(-0.5, 40.0, (7, 5, 3)).astype(np.float32)
+    buf = oiio.ImageBuf(oiio.ImageSpec(5, 7, 3, "float"))
+    buf.set_pixels(oiio.ROI(), rgb)
+    want = oiio.ImageBufAlgo.colorconvert(buf, source, target, False, "", "",
+                                          cm.BUILTIN_CONFIG).get_pixels(oiio.FLOAT)
+    got = cm.active_config().convert(rgb, source, target)
+    assert np.array_equal(got.view(np.uint32), want.reshape(got.shape).view(np.uint32))
+
+
 def test_conversions_leave_openimageios_default_config_alone(tmp_path, monkeypatch):
     """OpenImageIO names the spaces of the files it writes through a process-wide default
     config; a conversion must leave it alone. Reading it from Python (OpenImageIO 3.2) moved

@@ -208,8 +208,9 @@ class ColourConfig:
         OpenColorIO CPU processor (the one OpenImageIO's colorconvert applies, bit for bit;
         unpremultiplied: only colour channels are passed)."""
         out = np.array(rgb, np.float32, order="C")
-        try:
-            _processor(self.name, source, target).applyRGB(out)
+        try:           # names as OpenImageIO resolves them ("sRGB", "linear": its aliases)
+            _processor(self.name, self.space(source) or source,
+                       self.space(target) or target).applyRGB(out)
         except ocio.Exception as exc:           # a space the config lacks
             raise ValueError(f"colour conversion {source} -> {target} (OCIO config "
                              f"{self.name}) failed: {' '.join(str(exc).split())}") from None

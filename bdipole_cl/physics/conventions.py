@@ -250,14 +250,15 @@ def _walk_eta(conv, eta):
 
 def _walked(conv, alpha, eta, g):
     """The walk's own reflectance under the convention's boundary (no Cycles floor)."""
-    if conv.boundary in ("entry", "cosine_entry"):
-        if g != 0.0:
-            raise ValueError(f"convention {conv.name!r}: its walk leaves at the first surface "
-                             f"crossing, which is modelled for g = 0 only (got g={g:g}); "
-                             f"docs/conventions.md \"Boundaries\"")
-        if conv.boundary == "cosine_entry":
+    if conv.boundary == "cosine_entry":
+        if g == 0.0:                    # Chandrasekhar's H: exact, and cross-checks the solver
             return half_space.cosine_entry_reflectance_fast(alpha, eta)
-        return half_space.entry_reflectance_fast(alpha, eta)
+        return (1.0 - half_space.diffuse_fresnel(eta)) * _transport().walk_reflectance(
+            alpha, g=g, eta=1.0)
+    if conv.boundary == "entry":
+        if g == 0.0:
+            return half_space.entry_reflectance_fast(alpha, eta)
+        return _transport().first_crossing_walk_reflectance(alpha, g=g, eta=eta)
     return _transport().walk_reflectance(alpha, g=g, eta=_walk_eta(conv, eta))
 
 

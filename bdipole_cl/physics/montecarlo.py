@@ -91,8 +91,9 @@ def enter(rng, n: int, eta: float, incidence: str):
     return (sin_i * np.cos(phi), sin_i * np.sin(phi), np.sqrt(1.0 - sin_i * sin_i), weight)
 
 
-def walk_chunk(rng, n, alpha, g, eta, incidence, hist):
-    """Walk n photons to the end; return each photon's escaped weight (adds to hist)."""
+def walk_chunk(rng, n, alpha, g, eta, incidence, hist, exit_="dielectric"):
+    """Walk n photons to the end; return each photon's escaped weight (adds to hist).
+    ``exit_`` "first_crossing": no Fresnel on the way out (Cycles' walks)."""
     ux, uy, uz, w = enter(rng, n, eta, incidence)
     x, y, z = np.zeros(n), np.zeros(n), np.zeros(n)
     ident = np.arange(n)
@@ -105,7 +106,8 @@ def walk_chunk(rng, n, alpha, g, eta, incidence, hist):
             # the crossing point, then the Fresnel split: w (1 - F) leaves, w F is mirrored
             t_hit = z[out] / -uz[out]
             r_exit = np.hypot(x[out] + ux[out] * t_hit, y[out] + uy[out] * t_hit)
-            f = dielectric_reflectance(-uz[out], eta)
+            f = (dielectric_reflectance(-uz[out], eta) if exit_ == "dielectric"
+                 else np.zeros(int(out.sum())))
             leave = w[out] * (1.0 - f)
             escaped[ident[out]] += leave
             k = np.searchsorted(RADIUS_EDGES, r_exit)
@@ -129,10 +131,14 @@ def walk_chunk(rng, n, alpha, g, eta, incidence, hist):
 
 
 def walk(alpha: float, g: float = 0.0, eta: float = 1.0, incidence: str = "diffuse",
-         paths: int = 100_000, seed: int = 1, batches: int = 10) -> WalkResult:
-    """Monte Carlo diffuse reflectance (specular excluded) of the semi-infinite medium."""
+         paths: int = 100_000, seed: int = 1, batches: int = 10,
+         exit_: str = "dielectric") -> WalkResult:
+    """Monte Carlo diffuse reflectance (specular excluded) of the semi-infinite medium; the
+    walk leaves through the dielectric, or (``exit_="first_crossing"``) at its first crossing."""
     if incidence not in ("diffuse", "normal"):
         raise ValueError(f"incidence={incidence!r}: expected 'diffuse' or 'normal'")
+    if exit_ not in ("dielectric", "first_crossing"):
+        raise ValueError(f"exit_={exit_!r}: expected 'dielectric' or 'first_crossing'")
     rng = np.random.default_rng(seed)
     per_batch = -(-paths // batches)
     hist = np.zeros((batches, RADIUS_BINS + 1))
@@ -141,7 +147,7 @@ def walk(alpha: float, g: float = 0.0, eta: float = 1.0, incidence: str = "diffu
         left = per_batch
         while left > 0:
             n = min(left, CHUNK)
-            samples.append(walk_chunk(rng, n, alpha, g, eta, incidence, hist[b]))
+            samples.append(walk_chunk(rng, n, alpha, g, eta, incidence, hist[b], exit_))
             left -= n
     sample = np.concatenate(samples)
     return WalkResult(float(sample.mean()), float(sample.std(ddof=1) / np.sqrt(sample.size)),

@@ -43,6 +43,12 @@ from .transport_tables import alpha_of_s, rho_of_s, similarity_s  # noqa: F401 (
 
 #: the two incidences the reflectance is defined for (docs/transport.md "Incidence")
 INCIDENCES = ("diffuse", "normal")
+#: how a walk leaves: through the dielectric (Fresnel and total internal reflection at every
+#: crossing), or at its first crossing after a refracted entry (Cycles' walks:
+#: docs/conventions.md "Boundaries")
+EXITS = ("dielectric", "first_crossing")
+#: the interpolant's curves: one per (exit, incidence)
+CURVE_KEYS = tuple(i if e == "dielectric" else f"{e}_{i}" for e in EXITS for i in INCIDENCES)
 #: g interval: the quadrature orders below are measured to keep Rd within ~1e-9 there
 G_RANGE = (-0.9, 0.9)
 #: eta interval (medium over outside)
@@ -263,6 +269,14 @@ def boundary_reflectance(mu, w, r, eta: float, incidence: str):
     return 2.0 * np.sum(w * mu * (1.0 - f) * u, axis=-1)
 
 
+def first_crossing_reflectance(mu, w, r, eta: float, incidence: str):
+    """Diffuse reflectance of a walk refracted in through the interface that leaves at its
+    first crossing (no Fresnel on the way out): Rd = 2 sum_i w_i mu_i (R D0)_i. At alpha = 1
+    it is all that entered, 1 - specular, as under the dielectric."""
+    d0 = incident_radiance(mu, w, eta, incidence)
+    return 2.0 * np.sum(w * mu * (r @ d0), axis=-1)
+
+
 def specular_reflectance(eta: float, incidence: str = "diffuse") -> float:
     """The surface's own Fresnel reflectance for light from outside: 2 Int F(mu_o) mu_o dmu_o
     (diffuse) or ((eta - 1)/(eta + 1))^2 (normal). What walk_reflectance sets apart."""
@@ -308,13 +322,16 @@ def chebyshev_nodes(degree: int = CHEB_DEGREE):
 
 
 def node_reflectances(s, g: float, eta: float):
-    """Rd at the similarity parameters s for each incidence, one batched doubling; s = 0
-    (alpha = 1) exact by energy conservation, Rd = 1 - specular (solve_reflectance)."""
+    """Rd at the similarity parameters s for each incidence and exit (CURVE_KEYS), one batched
+    doubling; s = 0 (alpha = 1) exact by energy conservation, Rd = 1 - specular."""
     mu, w, r = semi_infinite_reflection(rho_of_s(s, g), g, eta)
     out = {}
     for incidence in INCIDENCES:
-        rd = boundary_reflectance(mu, w, r, eta, incidence)
-        out[incidence] = np.where(s == 0.0, 1.0 - specular_reflectance(eta, incidence), rd)
+        conservative = 1.0 - specular_reflectance(eta, incidence)
+        for exit_, key in ((EXITS[0], incidence), (EXITS[1], f"{EXITS[1]}_{incidence}")):
+            rd = (boundary_reflectance if exit_ == "dielectric" else
+                  first_crossing_reflectance)(mu, w, r, eta, incidence)
+            out[key] = np.where(s == 0.0, conservative, rd)
     return out
 
 
@@ -362,7 +379,7 @@ def read_cached_curves(path: Path):
     """The curves from a cache file, or None when absent or not as written (then rebuilt)."""
     try:
         with np.load(path) as data:
-            curves = {k: np.array(data[k], np.float64) for k in INCIDENCES}
+            curves = {k: np.array(data[k], np.float64) for k in CURVE_KEYS}
     except (OSError, KeyError, ValueError):
         return None
     ok = all(c.ndim == 1 and CHEB_DEGREE < len(c) <= CHEB_MAX_DEGREE + 1
@@ -405,15 +422,18 @@ def reflectance_curves(g: float, eta: float):
     return curves
 
 
-def reflectance_curve(g: float, eta: float, incidence: str):
-    """The Chebyshev coefficients of Rd(s) of one incidence (reflectance_curves)."""
-    return reflectance_curves(float(g), float(eta))[incidence]
+def reflectance_curve(g: float, eta: float, incidence: str, exit_: str = "dielectric"):
+    """The Chebyshev coefficients of Rd(s) of one incidence and exit (reflectance_curves)."""
+    key = incidence if exit_ == "dielectric" else f"{exit_}_{incidence}"
+    return reflectance_curves(float(g), float(eta))[key]
 
 
-def reflectance_of_s(s, g: float, eta: float, incidence: str):
+def reflectance_of_s(s, g: float, eta: float, incidence: str, exit_: str = "dielectric"):
     """Rd of the similarity parameter s from the cached interpolant."""
     check_arguments(g, eta, incidence)
-    coefs = reflectance_curve(float(g), float(eta), incidence)
+    if exit_ not in EXITS:
+        raise ValueError(f"exit={exit_!r}: expected one of {', '.join(EXITS)}")
+    coefs = reflectance_curve(float(g), float(eta), incidence, exit_)
     return chebyshev.chebval(2.0 * np.asarray(s, np.float64) - 1.0, coefs)
 
 
@@ -423,6 +443,16 @@ def walk_reflectance(alpha, g: float = 0.0, eta: float = 1.0, incidence: str = "
     specular reflection excluded; incidence "diffuse" (uniform environment) or "normal".
     alpha outside [0, 1] is an error; NaN gives NaN."""
     return reflectance_of_s(similarity_s(checked_alpha(alpha), g), g, eta, incidence)
+
+
+def first_crossing_walk_reflectance(alpha, g: float = 0.0, eta: float = 1.0,
+                                    incidence: str = "diffuse"):
+    """Diffuse reflectance [1] of a walk refracted in through a smooth dielectric of index eta
+    (its Fresnel part excluded) in a semi-infinite medium (alpha, HG g), that leaves at its
+    first surface crossing: what Cycles' random walks render (docs/conventions.md
+    "Boundaries"). Same interpolant and accuracy as walk_reflectance."""
+    return reflectance_of_s(similarity_s(checked_alpha(alpha), g), g, eta, incidence,
+                            "first_crossing")
 
 
 def checked_alpha(alpha):

@@ -400,6 +400,92 @@ def test_conversions_leave_openimageios_default_config_alone(tmp_path, monkeypat
     assert spec.getattribute("colorInteropID") == "lin_ap1_scene"
 
 
+SHOT_CONFIG = """ocio_profile_version: 2
+search_path: luts
+environment:
+  SHOT: A
+roles:
+  default: lin709
+  scene_linear: lin709
+file_rules:
+  - !<Rule> {name: Default, colorspace: default}
+colorspaces:
+  - !<ColorSpace>
+    name: lin709
+    isdata: false
+  - !<ColorSpace>
+    name: shotlut
+    isdata: false
+    to_scene_reference: !<FileTransform> {src: $SHOT/lut.spi1d, interpolation: linear}
+  - !<ColorSpace>
+    name: broken
+    isdata: false
+    to_scene_reference: !<FileTransform> {src: nothere.spi1d}
+"""
+
+
+def shot_config(folder):
+    """A studio config whose 'shotlut' scales by 1/2 (SHOT=A) or 1/4 (SHOT=B), and a
+    'broken' space whose LUT is missing."""
+    for shot, top in (("A", 0.5), ("B", 0.25)):
+        (folder / "luts" / shot).mkdir(parents=True)
+        (folder / "luts" / shot / "lut.spi1d").write_text(
+            f"Version 1\nFrom 0.0 1.0\nLength 2\nComponents 1\n{{\n 0.0\n {top}\n}}\n")
+    (folder / "config.ocio").write_text(SHOT_CONFIG)
+    return folder / "config.ocio"
+
+
+def test_an_empty_optimization_flags_variable_still_decodes_exactly():
+    """OpenColorIO reads an empty OCIO_OPTIMIZATION_FLAGS as unset (its fast pow, 2.4e-5 off at
+    sRGB white): the library's lossless level replaces it, as when it is not set at all."""
+    code = ("import numpy as np; from bdipole_cl.io import colour as cm; "
+            "v = np.arange(256, dtype=np.float32) / 255; "
+            "x = np.repeat(v[None, :, None], 3, axis=2); "
+            "y = cm.active_config().convert(x, 'srgb_rec709_scene', 'lin_rec709_scene'); "
+            "want = np.where(v <= 0.04045, v / 12.92, ((v + 0.055) / 1.055) ** 2.4); "
+            "print(float(np.max(np.abs(y[0, :, 0] - want))))")
+    env = {k: v for k, v in os.environ.items() if k != "OCIO"}
+    env.update(OCIO_OPTIMIZATION_FLAGS="", PYTHONPATH=os.pathsep.join(
+        [str(Path(__file__).parents[1]), env.get("PYTHONPATH", "")]))
+    run = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True,
+                         text=True, timeout=120)
+    assert run.returncode == 0, run.stderr
+    assert float(run.stdout.split()[-1]) < 2e-6, run.stdout     # float32 decode (7.5e-7)
+
+
+def test_a_studio_configs_context_and_broken_spaces(tmp_path, monkeypatch):
+    """Context variables are read at each conversion ($SHOT changed in the process is
+    followed, as OpenImageIO's colorconvert by name does); a relative $OCIO is the file in the
+    folder it was named in; a space whose LUT is missing costs only what uses it, named in one
+    line (OpenColorIO's ExceptionMissingFile is no PyOpenColorIO.Exception)."""
+    # written first: OpenImageIO's writer names spaces through the config of its first use
+    write(tmp_path / "acescg.exr", albedo_in(), "float",
+          attrs=by_name("ACEScg") + (("colorInteropID", "lin_ap1_scene"),))
+    config = shot_config(tmp_path / "studio")
+    monkeypatch.chdir(config.parent)
+    monkeypatch.setenv("OCIO", "config.ocio")
+    monkeypatch.setenv("SHOT", "A")
+    cfg = cm.active_config()
+    assert cfg.name == str(config)
+    texel = np.full((1, 1, 3), 0.8, np.float32)
+    assert float(cfg.convert(texel, "shotlut", "lin709")[0, 0, 0]) == pytest.approx(0.4)
+    monkeypatch.setenv("SHOT", "B")
+    assert float(cfg.convert(texel, "shotlut", "lin709")[0, 0, 0]) == pytest.approx(0.2)
+    with pytest.raises(ValueError, match="broken -> lin709.*nothere.spi1d"):
+        cfg.convert(texel, "broken", "lin709")
+    # an ACEScg file under this config (no interchange roles to follow it by) fails in one
+    # named line, not as an unexpected error, and the broken space is not what it is about
+    monkeypatch.chdir(tmp_path)     # the relative $OCIO now names another (absent) file
+    with pytest.raises(ValueError, match="cannot be used"):
+        cm.active_config()
+    monkeypatch.setenv("OCIO", str(config))
+    report = process_textures(tmp_path / "acescg.exr", mfp=1.0, eta=ETA,
+                              output=str(tmp_path / "{stem}_out.exr"))
+    r = report.results[0]
+    assert r.status == "failed" and "has no space for" in r.error, (r.error, r.colour)
+    assert "\n" not in r.error and "acescg.exr" in r.error
+
+
 @pytest.mark.usefixtures("on_device")
 def test_mfp_and_alpha_are_not_converted(tmp_path):
     """The albedo (declared lin_rec709) is converted into ACEScg; the mfp texture, declared

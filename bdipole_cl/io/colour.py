@@ -41,7 +41,8 @@ from . import declared
 from .oiio_text import oiio_error
 
 #: OpenColorIO's OPTIMIZATION_LOSSLESS (OpenColorTypes.h): no fast pow/log/exp approximations
-os.environ.setdefault("OCIO_OPTIMIZATION_FLAGS", "0x89c3fc3")
+if not os.environ.get("OCIO_OPTIMIZATION_FLAGS", "").strip():   # OCIO reads "" as unset
+    os.environ["OCIO_OPTIMIZATION_FLAGS"] = "0x89c3fc3"
 
 #: the config when $OCIO is not set: OpenImageIO's built-in (OpenColorIO's CG config)
 BUILTIN_CONFIG = "ocio://default"
@@ -98,17 +99,21 @@ _processors: dict = {}
 
 
 def _processor(name, source, target):
-    """The CPU processor of ``source`` -> ``target`` in config ``name``, made once. Not
-    OpenImageIO's colorconvert on its default config: that config is made from $OCIO at its
-    first use, and reading it from Python (``ColorConfig.default_colorconfig``, OpenImageIO
-    3.2) moves it out of the process, so that OpenImageIO's readers and writers afterwards
-    map names through whatever $OCIO then names; by name it would load the config each call
-    (30 ms). ``getDefaultCPUProcessor`` honours OCIO_OPTIMIZATION_FLAGS (lossless, above)."""
-    key = (name, source, target)
+    """The CPU processor of ``source`` -> ``target`` in config ``name`` under the context of
+    the environment now ($SHOT in a LUT path...), made once per context. Not OpenImageIO's
+    colorconvert on its default config: that config is made from $OCIO at its first use, and
+    reading it from Python (``ColorConfig.default_colorconfig``, OpenImageIO 3.2) moves it out
+    of the process, so that its readers and writers afterwards name spaces through whatever
+    $OCIO then names; by name it would load the config each call (30 ms).
+    ``getDefaultCPUProcessor`` honours OCIO_OPTIMIZATION_FLAGS (lossless, above)."""
+    config = _pyocio(name)
+    context = config.getCurrentContext()       # a copy in the Python binding
+    context.loadEnvironment()
+    key = (name, source, target, context.getCacheID())
     with _configs_lock:
         cpu = _processors.get(key)
     if cpu is None:
-        cpu = _pyocio(name).getProcessor(source, target).getDefaultCPUProcessor()
+        cpu = config.getProcessor(context, source, target).getDefaultCPUProcessor()
         with _configs_lock:
             cpu = _processors.setdefault(key, cpu)
     return cpu
@@ -191,8 +196,8 @@ class ColourConfig:
         try:
             found = ocio.Config.IdentifyBuiltinColorSpace(_pyocio(self.name),
                                                           _pyocio(BUILTIN_CONFIG), canon)
-        except ocio.Exception:                    # no interchange roles, or none matches
-            return None
+        except Exception:       # no interchange roles, none matches, or a space that cannot
+            return None         # be built (OCIO's ExceptionMissingFile is no ocio.Exception)
         return self.space(found) if found else None
 
     def match_chromaticities(self, xy) -> str | None:
@@ -211,7 +216,7 @@ class ColourConfig:
         try:           # names as OpenImageIO resolves them ("sRGB", "linear": its aliases)
             _processor(self.name, self.space(source) or source,
                        self.space(target) or target).applyRGB(out)
-        except ocio.Exception as exc:           # a space the config lacks
+        except Exception as exc:   # a space the config lacks, a LUT missing (ExceptionMissingFile)
             raise ValueError(f"colour conversion {source} -> {target} (OCIO config "
                              f"{self.name}) failed: {' '.join(str(exc).split())}") from None
         return out
@@ -220,6 +225,8 @@ class ColourConfig:
 def active_config() -> ColourConfig:
     """The config named by ``$OCIO`` when set, else the built-in one (ValueError if unusable)."""
     env = os.environ.get("OCIO", "").strip()
+    if env and "://" not in env:          # a file: by its absolute path (a chdir is another)
+        env = os.path.abspath(env)
     config = ColourConfig(env, "$OCIO") if env else ColourConfig(BUILTIN_CONFIG, "built-in")
     _ocio(config.name)
     return config

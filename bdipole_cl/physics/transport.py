@@ -15,8 +15,7 @@ The reflectance excludes the surface's own (specular) reflection, set apart as
 ``specular_reflectance``. ``walk_reflectance`` evaluates a Chebyshev series in van de Hulst's
 similarity parameter ``s = sqrt((1 - alpha)/(1 - alpha g))`` (``Rd`` is analytic in s on
 [0, 1]) built once per (g, eta) from the direct solver (``solve_reflectance``) and cached in
-memory and on disk; ``walk_alpha`` inverts it (``transport_tables``); ``walk_spread`` reads the
-Monte Carlo table of radii (``transport_tables``).
+memory and on disk; ``walk_alpha`` inverts it, ``walk_spread`` reads Monte Carlo radii.
 
 Notation: ``alpha`` single-scattering albedo sigma_s/sigma_t [1]; ``rho = 1 - alpha``;
 ``s`` similarity parameter [1]; ``g`` Henyey-Greenstein mean cosine [1]; ``eta`` relative index of
@@ -43,9 +42,7 @@ from .transport_tables import alpha_of_s, rho_of_s, similarity_s  # noqa: F401 (
 
 #: the two incidences the reflectance is defined for (docs/transport.md "Incidence")
 INCIDENCES = ("diffuse", "normal")
-#: how a walk leaves: through the dielectric (Fresnel and total internal reflection at every
-#: crossing), or at its first crossing after a refracted entry (Cycles' walks:
-#: docs/conventions.md "Boundaries")
+#: how a walk leaves: through the dielectric, or at its first crossing (docs/transport.md)
 EXITS = ("dielectric", "first_crossing")
 #: the interpolant's curves: one per (exit, incidence)
 CURVE_KEYS = tuple(i if e == "dielectric" else f"{e}_{i}" for e in EXITS for i in INCIDENCES)
@@ -68,8 +65,10 @@ CHEB_DEGREE = 32
 CURVES = ByteCache("transport reflectance curves", 4 << 20)
 
 
-def check_arguments(g, eta, incidence):
+def check_arguments(g, eta, incidence, exit_="dielectric"):
     """Raise ValueError naming the first bad argument."""
+    if exit_ not in EXITS:
+        raise ValueError(f"exit={exit_!r}: expected one of {', '.join(EXITS)}")
     if incidence not in INCIDENCES:
         raise ValueError(f"incidence={incidence!r}: expected one of {', '.join(INCIDENCES)}")
     if not G_RANGE[0] <= g <= G_RANGE[1]:
@@ -270,9 +269,8 @@ def boundary_reflectance(mu, w, r, eta: float, incidence: str):
 
 
 def first_crossing_reflectance(mu, w, r, eta: float, incidence: str):
-    """Diffuse reflectance of a walk refracted in through the interface that leaves at its
-    first crossing (no Fresnel on the way out): Rd = 2 sum_i w_i mu_i (R D0)_i. At alpha = 1
-    it is all that entered, 1 - specular, as under the dielectric."""
+    """Rd of a walk refracted in that leaves at its first crossing (no Fresnel on the way
+    out): 2 sum_i w_i mu_i (R D0)_i; 1 - specular at alpha = 1, as under the dielectric."""
     d0 = incident_radiance(mu, w, eta, incidence)
     return 2.0 * np.sum(w * mu * (r @ d0), axis=-1)
 
@@ -328,10 +326,9 @@ def node_reflectances(s, g: float, eta: float):
     out = {}
     for incidence in INCIDENCES:
         conservative = 1.0 - specular_reflectance(eta, incidence)
-        for exit_, key in ((EXITS[0], incidence), (EXITS[1], f"{EXITS[1]}_{incidence}")):
-            rd = (boundary_reflectance if exit_ == "dielectric" else
-                  first_crossing_reflectance)(mu, w, r, eta, incidence)
-            out[key] = np.where(s == 0.0, conservative, rd)
+        for key, rd in ((incidence, boundary_reflectance), (f"{EXITS[1]}_{incidence}",
+                                                            first_crossing_reflectance)):
+            out[key] = np.where(s == 0.0, conservative, rd(mu, w, r, eta, incidence))
     return out
 
 
@@ -430,9 +427,7 @@ def reflectance_curve(g: float, eta: float, incidence: str, exit_: str = "dielec
 
 def reflectance_of_s(s, g: float, eta: float, incidence: str, exit_: str = "dielectric"):
     """Rd of the similarity parameter s from the cached interpolant."""
-    check_arguments(g, eta, incidence)
-    if exit_ not in EXITS:
-        raise ValueError(f"exit={exit_!r}: expected one of {', '.join(EXITS)}")
+    check_arguments(g, eta, incidence, exit_)
     coefs = reflectance_curve(float(g), float(eta), incidence, exit_)
     return chebyshev.chebval(2.0 * np.asarray(s, np.float64) - 1.0, coefs)
 
@@ -447,10 +442,8 @@ def walk_reflectance(alpha, g: float = 0.0, eta: float = 1.0, incidence: str = "
 
 def first_crossing_walk_reflectance(alpha, g: float = 0.0, eta: float = 1.0,
                                     incidence: str = "diffuse"):
-    """Diffuse reflectance [1] of a walk refracted in through a smooth dielectric of index eta
-    (its Fresnel part excluded) in a semi-infinite medium (alpha, HG g), that leaves at its
-    first surface crossing: what Cycles' random walks render (docs/conventions.md
-    "Boundaries"). Same interpolant and accuracy as walk_reflectance."""
+    """walk_reflectance of a walk refracted in that leaves at its first surface crossing,
+    without Fresnel (Cycles' walks: docs/transport.md "First crossing")."""
     return reflectance_of_s(similarity_s(checked_alpha(alpha), g), g, eta, incidence,
                             "first_crossing")
 

@@ -198,6 +198,36 @@ def test_processes_starting_together_probe_a_device_once(fresh_cache):
     assert sorted(out.split()[-1] for (out, _), _ in runs) == ["False", "True"], runs
 
 
+def test_a_process_waiting_for_a_probe_says_so_and_its_lock_is_kept(fresh_cache):
+    """While another process holds a device's probe lock, a new one says it waits (it does not
+    probe beside it), and `cache --clear` leaves a held lock alone; released, it probes."""
+    import fcntl
+    import time
+    from bdipole_cl.apps.cache import own_entries
+    rt = _pick("intel")
+    spec = "intel" if "intel" in rt.device.platform.name.lower() else "0:0"
+    lock = isolation.verdict_path(rt.device, kernels_digest()).with_suffix(".lock")
+    lock.parent.mkdir(parents=True, exist_ok=True)
+    env = dict(os.environ, **{CACHE_DIR_VARIABLE: str(fresh_cache)})
+    env["PYTHONPATH"] = os.pathsep.join([str(isolation.Path(bdipole_cl.__file__).parents[1]),
+                                         env.get("PYTHONPATH", "")])
+    env.pop(isolation.FAULT_VARIABLE, None)
+    with open(lock, "a") as held:
+        fcntl.flock(held, fcntl.LOCK_EX)
+        child = subprocess.Popen([sys.executable, "-c", f"import bdipole_cl; "
+                                  f"bdipole_cl.get_runtime({spec!r})"], env=env, text=True,
+                                 stderr=subprocess.PIPE)
+        first = child.stderr.readline()         # the child's first word, while it waits
+        assert "waiting for another process probing" in first, first
+        assert lock not in [e.path for e in own_entries()]      # cache --clear keeps it
+        time.sleep(0.2)
+        assert child.poll() is None
+    _, rest = child.communicate(timeout=600)
+    assert child.returncode == 0, rest
+    assert "bdipole-cl: probing" in rest, rest
+    assert lock in [e.path for e in own_entries()]              # free again: clearable
+
+
 def test_a_device_whose_default_inversion_fails_at_every_width_is_broken(monkeypatch,
                                                                         fresh_cache):
     from bdipole_cl.methods.choice import TABLE_WIDTHS_ALLOWED

@@ -21,7 +21,7 @@ from pathlib import Path
 
 from ..caches import CACHE_DIR_VARIABLE, user_cache_dir
 from ..device.icd import vendors_roots
-from ..device.isolation import VERDICT_FOLDER, VERDICT_NAME
+from ..device.isolation import VERDICT_FOLDER, VERDICT_NAME, lock_in_use
 from ..io.usdz import EXTRACTED_FOLDER, EXTRACTED_NAME
 from ..methods.choice import CALIBRATION_GLOB, CALIBRATION_NAME
 
@@ -118,8 +118,11 @@ def own_entries() -> list[OwnEntry]:
                     if CALIBRATION_NAME.match(p.name) and p.is_file() and not p.is_symlink()]
         probes = root / VERDICT_FOLDER
         if probes.is_dir() and not probes.is_symlink():
-            entries += [OwnEntry("device probe verdict", p) for p in sorted(probes.iterdir())
-                        if VERDICT_NAME.match(p.name) and p.is_file() and not p.is_symlink()]
+            entries += [OwnEntry("device probe " + ("lock" if p.suffix == ".lock" else
+                                                    "verdict"), p)
+                        for p in sorted(probes.iterdir())
+                        if VERDICT_NAME.match(p.name) and p.is_file() and not p.is_symlink()
+                        and not (p.suffix == ".lock" and lock_in_use(p))]   # a probe's own
         packages = root / EXTRACTED_FOLDER
         if packages.is_dir() and not packages.is_symlink():
             entries += [OwnEntry("extracted .usdz textures", p)

@@ -407,10 +407,11 @@ _verdicts: dict = {}              # verdict path -> Verdict (this process)
 
 
 @contextlib.contextmanager
-def _probing(path: Path):
+def _probing(path: Path, describe: str):
     """Hold ``path``'s probe lock (an flock on a file beside it) while this process probes,
     so that processes starting together (a test run's workers, a farm's tasks) probe a device
-    once and the others read its verdict. Without fcntl or a writable cache: no lock."""
+    once and the others read its verdict (saying that they wait). Without fcntl or a
+    writable cache: no lock."""
     try:
         import fcntl
         path.parent.mkdir(parents=True, exist_ok=True)
@@ -418,9 +419,27 @@ def _probing(path: Path):
     except (ImportError, OSError):
         yield
         return
-    with handle:
-        fcntl.flock(handle, fcntl.LOCK_EX)      # released when the file closes
+    with handle:                                # the lock goes with the file's closing
+        try:
+            fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            print(f"bdipole-cl: waiting for another process probing {describe} (it holds "
+                  f"{handle.name})", file=sys.stderr, flush=True)
+            fcntl.flock(handle, fcntl.LOCK_EX)
         yield
+
+
+def lock_in_use(lock: Path) -> bool:
+    """Whether a process holds the probe lock ``lock`` now (``cache --clear`` leaves it)."""
+    try:
+        import fcntl
+        with open(lock, "a") as handle:
+            fcntl.flock(handle, fcntl.LOCK_SH | fcntl.LOCK_NB)
+    except BlockingIOError:
+        return True
+    except (ImportError, OSError):
+        return False
+    return False
 
 
 def device_verdict(device, device_index: str, kernels_digest: str, describe: str) -> Verdict:
@@ -431,7 +450,7 @@ def device_verdict(device, device_index: str, kernels_digest: str, describe: str
     with _lock:
         hit = _verdicts.get(path) or read_verdict(path)
         if hit is None:
-            with _probing(path):
+            with _probing(path, describe):
                 hit = read_verdict(path) or _probe_and_cache(path, device_index, describe)
         _verdicts[path] = hit
     return hit

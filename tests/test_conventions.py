@@ -206,3 +206,16 @@ def test_walk_reference_agrees_with_the_h_function():
     a = np.array([0.3, 0.6, 0.9, 0.99, 0.999])
     np.testing.assert_allclose(transport.walk_reflectance(a, g=0.0, eta=1.0),
                                half_space.matched_reflectance(a), atol=1e-10)
+
+
+def test_cycles_clamps_its_anisotropy_to_0_and_0_9():
+    # Cycles' Subsurface Anisotropy is clamped to [0, 0.9] (svm_closure.h): a negative g
+    # renders as 0, 0.95 as 0.9, for each of its walks; the other walks take g as given
+    from bdipole_cl.physics.conventions import rendered_rd
+    c = np.array([0.3, 0.6])
+    for name in ("cycles-random-walk", "cycles-legacy", "cycles-skin"):
+        np.testing.assert_array_equal(rendered_rd(name, c, 1.4, -0.3), rendered_rd(name, c, 1.4))
+        np.testing.assert_array_equal(rendered_rd(name, c, 1.4, 0.95),
+                                      rendered_rd(name, c, 1.4, 0.9))
+    assert not np.array_equal(rendered_rd("van-de-hulst", c, 1.4, -0.3),
+                              rendered_rd("van-de-hulst", c, 1.4))

@@ -259,8 +259,14 @@ def test_a_nearly_black_texel_round_trips_within_its_documented_bound():
     radius = np.ones_like(colour)
     colour_bound = {"openpbr": 1e-6, "random-walk": 1e-6, "cycles-random-walk": 1e-6,
                     "moonray-walk": 7.5e-4}       # docs/conventions.md: each one's floor
+    # MoonRay renders no less than its colour floor's reflectance: texels below it are
+    # invalid, named, and clamped to the floor on request
+    with pytest.raises(InvalidInputError, match="below 0.00073.*colour floor"):
+        bdipole_cl.convert(colour, radius, source="pxrsurface", target="moonray-walk", eta=1.4)
     for target, bound in colour_bound.items():
-        there = bdipole_cl.convert(colour, radius, source="pxrsurface", target=target, eta=1.4)
+        policy = "clamp" if target == "moonray-walk" else "raise"
+        there = bdipole_cl.convert(colour, radius, source="pxrsurface", target=target, eta=1.4,
+                                   on_invalid=policy)
         back = bdipole_cl.convert(there.colour, there.radius, source=target,
                                   target="pxrsurface", eta=1.4)
         assert np.max(np.abs(back.colour - colour)) <= bound, target

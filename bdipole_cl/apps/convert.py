@@ -30,13 +30,17 @@ def add_command(command):
     p.add_argument("--radius-scale", type=positive_float, default=1.0,
                    help="multiplies radius values")
     p.add_argument("--source", default="better-dipole", type=spelling_of(CONVENTION),
-                   choices=CONVENTION.names, metavar="CONVENTION", help=f"the textures' convention: {names}")
+                   choices=CONVENTION.names, metavar="CONVENTION",
+                   help=f"the textures' convention: {names}")
     p.add_argument("--target", default="van-de-hulst", type=spelling_of(CONVENTION),
-                   choices=CONVENTION.names, metavar="CONVENTION", help="the convention to write (random-walk: the "
-                   "medium's single-scattering albedo and mean free path 1/sigma_t)")
+                   choices=CONVENTION.names, metavar="CONVENTION",
+                   help="the convention to write (random-walk: the medium's single-scattering "
+                   "albedo and mean free path 1/sigma_t)")
     p.add_argument("--eta", type=floats, default=(1.4,),
                    help="relative IOR of the surface, one or per channel 'r,g,b'")
-    p.add_argument("--g", type=float, default=0.0, help="HG mean cosine of the walks")
+    p.add_argument("--g", type=float, default=0.0,
+                   help="HG mean cosine of the walks (default 0; -0.9..0.9, spreads from the "
+                   "Monte Carlo table 0..0.8; Cycles clamps to 0..0.9)")
     p.add_argument("--unit", default="mm", help="length unit of the radius")
     p.add_argument("-o", "--output", default="{dir}/{stem}.{target}.exr",
                    help="output path pattern: {dir} {stem} {name} {target} and a tile token; "

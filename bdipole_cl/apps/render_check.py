@@ -175,11 +175,11 @@ def _panorama_exitance(path):
 
 
 def cycles_exitance(colour, radius, ior, method="RANDOM_WALK", spp=64, batches=4,
-                    workdir=None) -> Measured:
+                    workdir=None, anisotropy=0.0) -> Measured:
     """Exitance / pi of the Principled slab per channel over ``batches`` seeds."""
     import tempfile
     from pathlib import Path
-    scene = cycles_scene(colour, radius, ior, method, spp)
+    scene = cycles_scene(colour, radius, ior, method, spp, anisotropy)
     bpy = _bpy()
     runs = []
     with tempfile.TemporaryDirectory(dir=workdir) as tmp:
@@ -195,11 +195,14 @@ def cycles_exitance(colour, radius, ior, method="RANDOM_WALK", spp=64, batches=4
                     spp * batches)
 
 
-def cycles_reflectance(colour, radius, ior, method="RANDOM_WALK", spp=64, batches=4):
+def cycles_reflectance(colour, radius, ior, method="RANDOM_WALK", spp=64, batches=4,
+                       anisotropy=0.0):
     """(diffuse, specular) Cycles renders: the slab's exitance less the same slab with a
-    black base colour (the specular layer alone)."""
-    total = cycles_exitance(colour, radius, ior, method, spp, batches)
-    spec = cycles_exitance((0.0, 0.0, 0.0), radius, ior, method, spp, batches)
+    black base colour (the specular layer alone); ``anisotropy``: the Subsurface Anisotropy
+    (HG g of the walk)."""
+    total = cycles_exitance(colour, radius, ior, method, spp, batches, anisotropy=anisotropy)
+    spec = cycles_exitance((0.0, 0.0, 0.0), radius, ior, method, spp, batches,
+                           anisotropy=anisotropy)
     return (Measured(total.value - spec.value, np.hypot(total.error, spec.error),
                      total.samples), spec)
 

@@ -71,7 +71,9 @@ class Convention(Option):
     floor (alpha raised to it, the throughput scaled by alpha/min_alpha). Profiles:
     ``profile`` ("better-dipole", "dipole" or "burley") and, for burley, ``burley_s`` (d =
     radius/s). ``stepwise``: its maps jump with the colour (Cycles Skin's 12-step float
-    bisection), so a conversion never interpolates them."""
+    bisection), so a conversion never interpolates them. ``g_range``: the anisotropy the
+    renderer takes (``renderer_g``); ``colour_floor``: the least colour it takes (MoonRay's
+    0.001: darker colours render as it)."""
 
     renderers: str = ""
     colour: str = ""
@@ -86,10 +88,22 @@ class Convention(Option):
     profile: str | None = None
     burley_s: Callable | None = None
     stepwise: bool = False
+    g_range: tuple = (-1.0, 1.0)
+    colour_floor: float = 0.0
+
+    def renderer_g(self, g) -> float:
+        """The HG g the renderer walks with: ``g`` clamped to ``g_range`` (Cycles clamps
+        Subsurface Anisotropy to [0, 0.9])."""
+        return float(np.clip(g, *self.g_range))
 
     @property
     def walk(self) -> bool:
         return self.profile is None
+
+
+#: the anisotropy Cycles takes: Subsurface Anisotropy clamped to [0, 0.9] (svm_closure.h,
+#: "clamps protecting against bad/extreme and non physical values")
+CYCLES_G = (0.0, 0.9)
 
 
 def _sigma_t_plain(colour, radius, eta, g):
@@ -118,8 +132,12 @@ def _sigma_t_s(s_fit, scale=1.0, floor=0.0):
     return extinction
 
 
+#: MoonRay's colour floor (VolumeSubsurface.cc)
+MOONRAY_COLOUR_FLOOR = 0.001
+
+
 def _moonray_alpha(colour, g):
-    return fits.moonray_alpha(np.maximum(colour, 0.001))   # its colour floor
+    return fits.moonray_alpha(np.maximum(colour, MOONRAY_COLOUR_FLOOR))
 
 
 def _moonray_s(colour):
@@ -175,24 +193,25 @@ CONVENTION = Registry("convention", (
                "an mfp x 4 pi", unit="mfp", boundary="entry",
                source="Cycles subsurface_random_walk.h, bssrdf.h",
                alpha_fit=fits.van_de_hulst_alpha, extinction=_sigma_t_cycles,
-               alpha_max=0.999999, min_alpha=0.2),
+               alpha_max=0.999999, min_alpha=0.2, g_range=CYCLES_G),
     Convention("cycles-legacy", "Cycles Random Walk (Legacy): Wrenninge 2017 fit",
                renderers="Blender Cycles (Random Walk (Legacy))",
                colour="Subsurface colour", radius="radius x 1/(4 pi) = sigma_t' mfp",
                unit="mfp", boundary="entry", source="Cycles subsurface_random_walk.h; "
                "Wrenninge, Villemin & Hery 2017", alpha_fit=fits.wvh_alpha,
-               extinction=_sigma_t_cycles_legacy, alpha_max=0.999999, min_alpha=0.2),
+               extinction=_sigma_t_cycles_legacy, alpha_max=0.999999, min_alpha=0.2,
+               g_range=CYCLES_G),
     Convention("cycles-skin", "Cycles Random Walk (Skin): radius x sqrt(3 (1 - Jensen "
                "alpha')), Wrenninge fit", renderers="Blender Cycles (Random Walk (Skin))",
                colour="Subsurface colour", radius=_DMFP + " (Jensen's)", unit="dmfp",
                boundary="cosine_entry", source="Cycles bssrdf.h bssrdf_setup_radius",
                alpha_fit=fits.wvh_alpha, extinction=_sigma_t_cycles_skin,
-               alpha_max=0.999999, min_alpha=0.2, stepwise=True),
+               alpha_max=0.999999, min_alpha=0.2, stepwise=True, g_range=CYCLES_G),
     Convention("moonray-walk", "MoonRay random walk: its refit albedo, Chiang's s, radius x "
                "0.3333", renderers="MoonRay VolumeSubsurface", colour="scattering colour",
                radius="scattering radius (a dmfp-like radius, in 'shrekles' = 3 cm)",
                unit="dmfp", boundary="entry", source="MoonRay VolumeSubsurface.cc",
-               alpha_fit=_moonray_alpha,
+               alpha_fit=_moonray_alpha, colour_floor=MOONRAY_COLOUR_FLOOR,
                extinction=_sigma_t_s(_moonray_s, scale=0.3333, floor=0.001)),
     Convention("chiang-burley-2016", "Chiang, Kutz & Burley 2016 fits", aliases=("chiang",),
                renderers="Hyperion 2016; Arnold-style randomwalk", colour="surface albedo A",
@@ -228,6 +247,7 @@ def medium(convention, colour, radius, eta=1.4, g=0.0) -> Medium:
     """The medium a walk convention's renderer walks (alpha clamped as it clamps; Cycles'
     alpha floor not applied: it is a throughput factor, ``rendered`` applies it)."""
     conv = lookup(convention)
+    g = conv.renderer_g(g)
     if not conv.walk:
         if conv.profile == "burley":
             raise ValueError(f"convention={conv.name!r} is a profile, not a medium")
@@ -276,6 +296,7 @@ def walk_rd(conv, alpha, eta, g):
 def rendered(convention, colour, radius, eta=1.4, g=0.0) -> Rendered:
     """Diffuse reflectance and median radius a convention's renderer produces."""
     conv = lookup(convention)
+    g = conv.renderer_g(g)
     colour = np.asarray(colour, np.float64)
     radius = np.asarray(radius, np.float64)
     if not conv.walk:
@@ -291,6 +312,7 @@ def rendered(convention, colour, radius, eta=1.4, g=0.0) -> Rendered:
 def rendered_rd(convention, colour, eta=1.4, g=0.0):
     """The diffuse reflectance alone (``rendered(...).rd``, no spread computed)."""
     conv = lookup(convention)
+    g = conv.renderer_g(g)
     colour = np.asarray(colour, np.float64)
     if not conv.walk:
         return colour
@@ -367,6 +389,7 @@ def colour_for(convention, rd, eta=1.4, g=0.0):
     """The colour with which a convention's renderer produces diffuse reflectance ``rd``
     (``rd`` within ``rd_range``; NaN outside)."""
     conv = lookup(convention)
+    g = conv.renderer_g(g)
     rd = np.asarray(rd, np.float64)
     lo, hi = rd_range(conv.name, eta, g)
     inside = (rd >= lo) & (rd <= hi)
@@ -376,7 +399,8 @@ def colour_for(convention, rd, eta=1.4, g=0.0):
     alpha = single_scattering_albedo(conv, r, eta, g)
     colour = increasing_inverse(lambda c: np.clip(conv.alpha_fit(c, g), 0.0, conv.alpha_max),
                                 alpha)
-    return np.where(inside, colour, np.nan)
+    # below a colour floor every colour renders alike: the floor is the one that says so
+    return np.where(inside, np.maximum(colour, conv.colour_floor), np.nan)
 
 
 def single_scattering_albedo(conv, rd, eta, g):
@@ -392,11 +416,15 @@ def single_scattering_albedo(conv, rd, eta, g):
 
 
 def rd_range(convention, eta=1.4, g=0.0):
-    """(lowest, highest) diffuse reflectance the convention can render: its colour's [0, 1]."""
+    """(lowest, highest) diffuse reflectance the convention can render: its colour's [0, 1]
+    (a colour floor raises the lowest above 0)."""
     conv = lookup(convention)
     if not conv.walk:
         return 0.0, 1.0
+    g = conv.renderer_g(g)
     top = np.clip(conv.alpha_fit(np.float64(1.0), g), 0.0, min(conv.alpha_max, 1.0 - 1e-9))
-    return 0.0, float(walk_rd(conv, top, eta, g))
+    low = (float(walk_rd(conv, conv.alpha_fit(np.float64(conv.colour_floor), g), eta, g))
+           if conv.colour_floor else 0.0)          # MoonRay's colour floor renders more than 0
+    return low, float(walk_rd(conv, top, eta, g))
 
 # }}}

@@ -116,6 +116,10 @@ def convert(colour, radius, source="better-dipole", target="van-de-hulst", eta=1
     n_rd = find_invalid("colour", colour, (rd > hi)[inverse.reshape(colour.shape)],
                         f"renders a reflectance above {hi:.6g}, the most {tgt.name} renders "
                         f"at eta {eta:g}", on_invalid, texels=texels)
+    # below the floor by more than the maps' rounding (a round trip's 1e-9 relative)
+    n_rd += find_invalid("colour", colour, (rd < lo * (1.0 - 1e-8))[inverse.reshape(colour.shape)],
+                         f"renders a reflectance below {lo:.6g}, the least {tgt.name} renders "
+                         f"(its colour floor) at eta {eta:g}", on_invalid, texels=texels)
     if flat_c.size <= EXACT_MAX or src.stepwise or tgt.stepwise:
         out_c, ratio, src_median = colour_maps(src, tgt, flat_c, eta, g)
     else:                     # a texture: the maps on a fine grid of colours, interpolated

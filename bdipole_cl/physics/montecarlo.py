@@ -91,15 +91,29 @@ def enter(rng, n: int, eta: float, incidence: str):
     return (sin_i * np.cos(phi), sin_i * np.sin(phi), np.sqrt(1.0 - sin_i * sin_i), weight)
 
 
-def walk_chunk(rng, n, alpha, g, eta, incidence, hist, exit_="dielectric"):
+def _similar(alpha, g):
+    """(sigma_t, alpha) of the isotropic medium similar to (1, alpha, g): sigma_s (1 - g)
+    scattering, the absorption kept (Cycles' walks after their 10th flight)."""
+    sigma_t = 1.0 - alpha * g
+    return sigma_t, alpha * (1.0 - g) / sigma_t
+
+
+def walk_chunk(rng, n, alpha, g, eta, incidence, hist, exit_="dielectric",
+               similarity_after=None):
     """Walk n photons to the end; return each photon's escaped weight (adds to hist).
-    ``exit_`` "first_crossing": no Fresnel on the way out (Cycles' walks)."""
+    ``exit_`` "first_crossing": no Fresnel on the way out (Cycles' walks).
+    ``similarity_after`` k: flights after the k-th (0-based) walk the similar isotropic
+    medium (``_similar``), as Cycles' random walk does (its SIMILARITY_LEVEL 9)."""
     ux, uy, uz, w = enter(rng, n, eta, incidence)
     x, y, z = np.zeros(n), np.zeros(n), np.zeros(n)
     ident = np.arange(n)
     escaped = np.zeros(n)
+    flights = np.zeros(n, np.int64)
+    late_sigma_t, late_alpha = _similar(alpha, g)
     while ident.size:
-        step = -np.log1p(-rng.random(ident.size))
+        late = (flights > similarity_after if similarity_after is not None
+                else np.zeros(ident.size, bool))
+        step = -np.log1p(-rng.random(ident.size)) / np.where(late, late_sigma_t, 1.0)
         xn, yn, zn = x + ux * step, y + uy * step, z + uz * step
         out = zn < 0.0
         if np.any(out):
@@ -117,8 +131,14 @@ def walk_chunk(rng, n, alpha, g, eta, incidence, hist, exit_="dielectric"):
             uz[out] = -uz[out]
         x, y, z = xn, yn, zn
         # collision: implicit capture, then a new direction
-        w *= alpha
-        cos_t = sample_hg_cosine(rng.random(ident.size), g)
+        w *= np.where(late, late_alpha, alpha)
+        flights += 1
+        u = rng.random(ident.size)
+        if similarity_after is None:
+            cos_t = sample_hg_cosine(u, g)
+        else:           # the direction leaving flight k is drawn with the phase of flight k + 1
+            cos_t = np.where(flights > similarity_after, sample_hg_cosine(u, 0.0),
+                             sample_hg_cosine(u, g))
         ux, uy, uz = scatter(ux, uy, uz, cos_t, 2.0 * np.pi * rng.random(ident.size))
         low = w < ROULETTE_WEIGHT
         if np.any(low):
@@ -126,13 +146,14 @@ def walk_chunk(rng, n, alpha, g, eta, incidence, hist, exit_="dielectric"):
             w[low] = np.where(live, w[low] / ROULETTE_SURVIVAL, 0.0)
         keep = w > 0.0
         if not np.all(keep):
-            ident, x, y, z, ux, uy, uz, w = (a[keep] for a in (ident, x, y, z, ux, uy, uz, w))
+            ident, x, y, z, ux, uy, uz, w, flights = (
+                a[keep] for a in (ident, x, y, z, ux, uy, uz, w, flights))
     return escaped
 
 
 def walk(alpha: float, g: float = 0.0, eta: float = 1.0, incidence: str = "diffuse",
          paths: int = 100_000, seed: int = 1, batches: int = 10,
-         exit_: str = "dielectric") -> WalkResult:
+         exit_: str = "dielectric", similarity_after: int | None = None) -> WalkResult:
     """Monte Carlo diffuse reflectance (specular excluded) of the semi-infinite medium; the
     walk leaves through the dielectric, or (``exit_="first_crossing"``) at its first crossing."""
     if incidence not in ("diffuse", "normal"):
@@ -147,7 +168,8 @@ def walk(alpha: float, g: float = 0.0, eta: float = 1.0, incidence: str = "diffu
         left = per_batch
         while left > 0:
             n = min(left, CHUNK)
-            samples.append(walk_chunk(rng, n, alpha, g, eta, incidence, hist[b], exit_))
+            samples.append(walk_chunk(rng, n, alpha, g, eta, incidence, hist[b], exit_,
+                                      similarity_after))
             left -= n
     sample = np.concatenate(samples)
     return WalkResult(float(sample.mean()), float(sample.std(ddof=1) / np.sqrt(sample.size)),

@@ -99,11 +99,13 @@ def _similar(alpha, g):
 
 
 def walk_chunk(rng, n, alpha, g, eta, incidence, hist, exit_="dielectric",
-               similarity_after=None):
+               similarity_after=None, max_flights=None):
     """Walk n photons to the end; return each photon's escaped weight (adds to hist).
     ``exit_`` "first_crossing": no Fresnel on the way out (Cycles' walks).
     ``similarity_after`` k: flights after the k-th (0-based) walk the similar isotropic
-    medium (``_similar``), as Cycles' random walk does (its SIMILARITY_LEVEL 9)."""
+    medium (``_similar``), as Cycles' random walk does (its SIMILARITY_LEVEL 9).
+    ``max_flights``: a walk still inside after that many flights is lost (Cycles'
+    BSSRDF_MAX_BOUNCES = 256)."""
     ux, uy, uz, w = enter(rng, n, eta, incidence)
     x, y, z = np.zeros(n), np.zeros(n), np.zeros(n)
     ident = np.arange(n)
@@ -145,6 +147,8 @@ def walk_chunk(rng, n, alpha, g, eta, incidence, hist, exit_="dielectric",
             live = rng.random(int(low.sum())) < ROULETTE_SURVIVAL
             w[low] = np.where(live, w[low] / ROULETTE_SURVIVAL, 0.0)
         keep = w > 0.0
+        if max_flights is not None:
+            keep &= flights < max_flights
         if not np.all(keep):
             ident, x, y, z, ux, uy, uz, w, flights = (
                 a[keep] for a in (ident, x, y, z, ux, uy, uz, w, flights))
@@ -153,7 +157,8 @@ def walk_chunk(rng, n, alpha, g, eta, incidence, hist, exit_="dielectric",
 
 def walk(alpha: float, g: float = 0.0, eta: float = 1.0, incidence: str = "diffuse",
          paths: int = 100_000, seed: int = 1, batches: int = 10,
-         exit_: str = "dielectric", similarity_after: int | None = None) -> WalkResult:
+         exit_: str = "dielectric", similarity_after: int | None = None,
+         max_flights: int | None = None) -> WalkResult:
     """Monte Carlo diffuse reflectance (specular excluded) of the semi-infinite medium; the
     walk leaves through the dielectric, or (``exit_="first_crossing"``) at its first crossing."""
     if incidence not in ("diffuse", "normal"):
@@ -169,7 +174,7 @@ def walk(alpha: float, g: float = 0.0, eta: float = 1.0, incidence: str = "diffu
         while left > 0:
             n = min(left, CHUNK)
             samples.append(walk_chunk(rng, n, alpha, g, eta, incidence, hist[b], exit_,
-                                      similarity_after))
+                                      similarity_after, max_flights))
             left -= n
     sample = np.concatenate(samples)
     return WalkResult(float(sample.mean()), float(sample.std(ddof=1) / np.sqrt(sample.size)),

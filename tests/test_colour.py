@@ -468,9 +468,22 @@ def test_a_studio_configs_context_and_broken_spaces(tmp_path, monkeypatch):
     cfg = cm.active_config()
     assert cfg.name == str(config)
     texel = np.full((1, 1, 3), 0.8, np.float32)
-    assert float(cfg.convert(texel, "shotlut", "lin709")[0, 0, 0]) == pytest.approx(0.4)
-    monkeypatch.setenv("SHOT", "B")
-    assert float(cfg.convert(texel, "shotlut", "lin709")[0, 0, 0]) == pytest.approx(0.2)
+    # with its environment: section (SHOT declared, default A) and without one (every
+    # variable of the environment): A, B, A again, and unset (the default, or an error)
+    bare = config.parent / "bare.ocio"
+    bare.write_text(SHOT_CONFIG.replace("environment:\n  SHOT: A\n", ""))
+    for studio, unset in ((cfg, 0.4), (cm.ColourConfig(str(bare), "$OCIO"), None)):
+        for shot, want in (("A", 0.4), ("B", 0.2), ("A", 0.4), (None, unset)):
+            if shot is None:
+                monkeypatch.delenv("SHOT")
+            else:
+                monkeypatch.setenv("SHOT", shot)
+            if want is None:
+                with pytest.raises(ValueError, match="shotlut -> lin709"):
+                    studio.convert(texel, "shotlut", "lin709")
+                continue
+            got = float(studio.convert(texel, "shotlut", "lin709")[0, 0, 0])
+            assert got == pytest.approx(want), (studio.name, shot, got)
     with pytest.raises(ValueError, match="broken -> lin709.*nothere.spi1d"):
         cfg.convert(texel, "broken", "lin709")
     # an ACEScg file under this config (no interchange roles to follow it by) fails in one

@@ -171,6 +171,22 @@ def test_cli_names_an_invalid_texel(tmp_path, capsys):
     assert (tmp_path / "good.burley.exr").exists() and not (tmp_path / "bad.burley.exr").exists()
 
 
+def test_cli_counts_invalid_texels_over_every_channel_and_names_the_first(tmp_path, capsys):
+    # MoonRay renders nothing darker than its colour floor: a dark G at (1, 1) and a black
+    # texel at (3, 2) are 4 invalid values, the first (in the image's order) at x=1, y=1, G
+    from bdipole_cl.apps.cli import main
+    colour = np.full((4, 5, 3), 0.5)
+    colour[1, 1, 1] = 5e-4
+    colour[2, 3] = 0.0
+    _write(tmp_path / "dark.exr", colour)
+    rc = main(["convert", str(tmp_path / "dark.exr"), "--radius", "1",
+               "--target", "moonray-walk"])
+    out = capsys.readouterr().out
+    assert rc == 1 and "4 invalid colour value(s)" in out, out
+    assert "x=1, y=1, channel G" in out and "in rows 0..3" in out, out
+    assert not (tmp_path / "dark.moonray-walk.exr").exists()
+
+
 @pytest.mark.parametrize("name", [c.name for c in CONVENTION if c.name != "random-walk"])
 def test_round_trip_through_the_medium_for_any_spread_curve(name, monkeypatch):
     # the conversion's algebra (reflectance matched through the real walk reference, radius

@@ -39,8 +39,8 @@ def add_command(command):
     p.add_argument("--eta", type=floats, default=(1.4,),
                    help="relative IOR of the surface, one or per channel 'r,g,b'")
     p.add_argument("--g", type=float, default=0.0,
-                   help="HG mean cosine of the walks (default 0; -0.9..0.9, spreads from the "
-                   "Monte Carlo table 0..0.8; Cycles clamps to 0..0.9)")
+                   help="HG mean cosine of the walks (default 0): 0..0.8, the Monte Carlo "
+                   "spread table's range (Cycles' conventions clamp it to 0..0.9 first)")
     p.add_argument("--unit", default="mm", help="length unit of the radius")
     p.add_argument("-o", "--output", default="{dir}/{stem}.{target}.exr",
                    help="output path pattern: {dir} {stem} {name} {target} and a tile token; "

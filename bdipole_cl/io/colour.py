@@ -30,7 +30,6 @@ so the decoding is exact to float32 (docs/colour.md).
 from __future__ import annotations
 
 import os
-import threading
 from dataclasses import dataclass
 
 import numpy as np
@@ -38,11 +37,8 @@ import OpenImageIO as oiio
 import PyOpenColorIO as ocio
 
 from . import declared
-from .oiio_text import oiio_error
+from .ocio_configs import ocio_config, oiio_config, processor, reset_config_cache
 
-#: OpenColorIO's OPTIMIZATION_LOSSLESS (OpenColorTypes.h): no fast pow/log/exp approximations
-if not os.environ.get("OCIO_OPTIMIZATION_FLAGS", "").strip():   # OCIO reads "" as unset
-    os.environ["OCIO_OPTIMIZATION_FLAGS"] = "0x89c3fc3"
 
 #: the config when $OCIO is not set: OpenImageIO's built-in (OpenColorIO's CG config)
 BUILTIN_CONFIG = "ocio://default"
@@ -65,68 +61,6 @@ _RGB = {"r": 0, "red": 0, "g": 1, "green": 1, "b": 2, "blue": 2}
 
 # {{{ the config
 
-_configs: dict = {}
-_configs_lock = threading.Lock()
-
-
-def _ocio(name) -> "oiio.ColorConfig":
-    """OpenImageIO's ColorConfig of ``name``, loaded once (ValueError if it cannot be)."""
-    with _configs_lock:
-        cfg = _configs.get(name)
-        if cfg is None:
-            cfg = oiio.ColorConfig(name)
-            err = oiio_error(cfg)
-            if err or cfg.configname() != name:
-                raise ValueError(f"OCIO config {name!r} cannot be used: "
-                                 f"{' '.join((err or 'not found').split())}")
-            _configs[name] = cfg
-        return cfg
-
-
-_pyocio_configs: dict = {}
-
-
-def _pyocio(name):
-    """OpenColorIO's own Config of ``name`` (roles, identification, processors), loaded once."""
-    with _configs_lock:
-        cfg = _pyocio_configs.get(name)
-        if cfg is None:
-            cfg = _pyocio_configs[name] = ocio.Config.CreateFromFile(name)
-        return cfg
-
-
-_processors: dict = {}
-
-
-def _processor(name, source, target):
-    """The CPU processor of ``source`` -> ``target`` in config ``name`` under the context of
-    the environment now ($SHOT in a LUT path...), made once per context. Not OpenImageIO's
-    colorconvert on its default config: that config is made from $OCIO at its first use, and
-    reading it from Python (``ColorConfig.default_colorconfig``, OpenImageIO 3.2) moves it out
-    of the process, so that its readers and writers afterwards name spaces through whatever
-    $OCIO then names; by name it would load the config each call (30 ms).
-    ``getDefaultCPUProcessor`` honours OCIO_OPTIMIZATION_FLAGS (lossless, above)."""
-    config = _pyocio(name)
-    context = config.getCurrentContext()       # a copy in the Python binding
-    context.loadEnvironment()
-    key = (name, source, target, context.getCacheID())
-    with _configs_lock:
-        cpu = _processors.get(key)
-    if cpu is None:
-        cpu = config.getProcessor(context, source, target).getDefaultCPUProcessor()
-        with _configs_lock:
-            cpu = _processors.setdefault(key, cpu)
-    return cpu
-
-
-def reset_config_cache() -> None:
-    """Forget loaded configs (a config file edited in place is read again)."""
-    with _configs_lock:
-        _configs.clear()
-        _pyocio_configs.clear()
-        _processors.clear()
-
-
 @dataclass(frozen=True)
 class ColourConfig:
     """An OpenColorIO config by name (picklable: the loaded config is cached per process)."""
@@ -136,7 +70,7 @@ class ColourConfig:
 
     @property
     def _cfg(self):
-        return _ocio(self.name)
+        return oiio_config(self.name)
 
     def space(self, name) -> str | None:
         """The config's own name for the colour space, role or alias ``name``, or None."""
@@ -174,7 +108,7 @@ class ColourConfig:
 
     def role(self, role) -> str | None:
         """The space the config's role ``role`` names (texture_paint, ...), or None."""
-        space = _pyocio(self.name).getRoleColorSpace(role)
+        space = ocio_config(self.name).getRoleColorSpace(role)
         return self.space(space) if space else None
 
     def builtin_space(self, name) -> str | None:
@@ -194,8 +128,8 @@ class ColourConfig:
         if own or same:
             return own or same[0]
         try:
-            found = ocio.Config.IdentifyBuiltinColorSpace(_pyocio(self.name),
-                                                          _pyocio(BUILTIN_CONFIG), canon)
+            found = ocio.Config.IdentifyBuiltinColorSpace(ocio_config(self.name),
+                                                          ocio_config(BUILTIN_CONFIG), canon)
         except Exception:       # no interchange roles, none matches, or a space that cannot
             return None         # be built (OCIO's ExceptionMissingFile is no ocio.Exception)
         return self.space(found) if found else None
@@ -214,7 +148,7 @@ class ColourConfig:
         unpremultiplied: only colour channels are passed)."""
         out = np.array(rgb, np.float32, order="C")
         try:           # names as OpenImageIO resolves them ("sRGB", "linear": its aliases)
-            _processor(self.name, self.space(source) or source,
+            processor(self.name, self.space(source) or source,
                        self.space(target) or target).applyRGB(out)
         except Exception as exc:   # a space the config lacks, a LUT missing (ExceptionMissingFile)
             raise ValueError(f"colour conversion {source} -> {target} (OCIO config "
@@ -228,7 +162,7 @@ def active_config() -> ColourConfig:
     if env and "://" not in env:          # a file: by its absolute path (a chdir is another)
         env = os.path.abspath(env)
     config = ColourConfig(env, "$OCIO") if env else ColourConfig(BUILTIN_CONFIG, "built-in")
-    _ocio(config.name)
+    oiio_config(config.name)
     return config
 
 

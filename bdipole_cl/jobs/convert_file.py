@@ -140,17 +140,16 @@ def convert_band(work, inp, route, colour_in, radius, mask, etas, job, y0):
     radius = np.broadcast_to(radius, colour.shape)
     out_c, out_r = np.empty(colour.shape, np.float32), np.empty(colour.shape, np.float32)
     invalid = {"colour": negative, "radius": 0}
+    raised = []                     # (y, x, channel, error): every channel is seen first
     for c, eta in enumerate(etas):
+        def done_with(policy, c=c, eta=eta):
+            return convert(colour[..., c], radius[..., c], work.source, work.target, eta,
+                           work.g, on_invalid=policy, texels=True)
         try:
-            done = convert(colour[..., c], radius[..., c], work.source, work.target, eta,
-                           work.g, on_invalid=work.on_invalid, texels=True)
+            done = done_with(work.on_invalid)
         except InvalidInputError as exc:
-            yy, xx = exc.first_index[:2]
-            where = job.inputs.get("mfp", job.source) if exc.name == "radius" else job.source
-            spec = inp.albedo.spec
-            raise invalid_texels(exc.with_(first_index=(yy, xx, c)), where, spec.x + xx,
-                                 spec.y + y0 + yy, inp.names[c],
-                                 f" in rows {y0}..") from None
+            raised.append((*exc.first_index[:2], c, exc))
+            done = done_with("clamp")                  # to count them all
         if output_groups(work.target) == MEDIUM_GROUPS:
             # in float64 before the cast: 1 - alpha of a float32 alpha near 1 keeps few digits
             medium = done.medium()
@@ -159,6 +158,13 @@ def convert_band(work, inp, route, colour_in, radius, mask, etas, job, y0):
             out_c[..., c], out_r[..., c] = done.colour, done.radius
         for key, n in done.invalid.items():
             invalid[key] += n
+    if raised:                      # the first in the image's order, counted over channels
+        yy, xx, c, exc = min(raised, key=lambda r: r[:3])
+        where = job.inputs.get("mfp", job.source) if exc.name == "radius" else job.source
+        spec = inp.albedo.spec
+        raise invalid_texels(exc.with_(first_index=(yy, xx, c), count=invalid[exc.name]),
+                             where, spec.x + xx, spec.y + y0 + yy, inp.names[c],
+                             f" in rows {y0}..{y0 + colour.shape[0] - 1}") from None
     return out_c, out_r, invalid
 
 

@@ -105,6 +105,7 @@ def convert(colour, radius, source="better-dipole", target="van-de-hulst", eta=1
         raise ValueError(f"eta={eta!r}: expected a relative index in [1, 3]")
     if not (-0.9 <= g <= 0.9):
         raise ValueError(f"g={g!r}: expected an HG mean cosine in [-0.9, 0.9]")
+    check_walk_g(src, tgt, g)
     colour = plain_array(colour, "colour").astype(np.float64)
     radius = plain_array(radius, "radius").astype(np.float64)
     colour, radius = np.broadcast_arrays(colour, radius)
@@ -129,6 +130,17 @@ def convert(colour, radius, source="better-dipole", target="van-de-hulst", eta=1
     return Conversion(out_c[inv], radius * ratio[inv], np.clip(rd, lo, hi)[inv],
                       radius * src_median[inv], src.name, tgt.name, eta, g,
                       {"colour": n_colour + n_rd, "radius": n_radius})
+
+
+def check_walk_g(src, tgt, g) -> None:
+    """ValueError before any texel is read when a walk of the pair would walk a g (after its
+    renderer's clamp) outside the spread table's (the radius is matched by it)."""
+    from .transport_tables import spread_table
+    lo, hi = float(spread_table().g[0]), float(spread_table().g[-1])
+    for conv in (src, tgt):
+        if conv.walk and not lo <= conv.renderer_g(g) <= hi:
+            raise ValueError(f"g={g!r}: {conv.name}'s spread is tabulated for g in [{lo:g}, "
+                             f"{hi:g}] (the Monte Carlo table: docs/transport.md \"Spread\")")
 
 
 def colour_maps(src, tgt, colour, eta, g):

@@ -112,13 +112,14 @@ def convert(colour, radius, source="better-dipole", target="van-de-hulst", eta=1
     colour, n_colour = check_colour(colour, on_invalid, texels=texels)
     radius, n_radius = check_radius(radius, on_invalid, texels=texels)
     flat_c, inverse = np.unique(colour, return_inverse=True)
+    inv = inverse.reshape(colour.shape)
     lo, hi = rd_range(tgt.name, eta, g)
     rd = rendered_rd(src, flat_c, eta, g)
-    n_rd = find_invalid("colour", colour, (rd > hi)[inverse.reshape(colour.shape)],
+    n_rd = find_invalid("colour", colour, (rd > hi)[inv],
                         f"renders a reflectance above {hi:.6g}, the most {tgt.name} renders "
                         f"at eta {eta:g}", on_invalid, texels=texels)
     # below the floor by more than the maps' rounding (a round trip's 1e-9 relative)
-    n_rd += find_invalid("colour", colour, (rd < lo * (1.0 - 1e-8))[inverse.reshape(colour.shape)],
+    n_rd += find_invalid("colour", colour, (rd < lo * (1.0 - 1e-8))[inv],
                          f"renders a reflectance below {lo:.6g}, the least {tgt.name} renders "
                          f"(its colour floor) at eta {eta:g}", on_invalid, texels=texels)
     if flat_c.size <= EXACT_MAX or src.stepwise or tgt.stepwise:
@@ -126,7 +127,6 @@ def convert(colour, radius, source="better-dipole", target="van-de-hulst", eta=1
     else:                     # a texture: the maps on a fine grid of colours, interpolated
         grid = _grid_maps(src.name, tgt.name, eta, g)
         out_c, ratio, src_median = (np.interp(flat_c, grid[0], m) for m in grid[1:])
-    inv = inverse.reshape(colour.shape)
     return Conversion(out_c[inv], radius * ratio[inv], np.clip(rd, lo, hi)[inv],
                       radius * src_median[inv], src.name, tgt.name, eta, g,
                       {"colour": n_colour + n_rd, "radius": n_radius})

@@ -177,17 +177,27 @@ def test_a_kill_from_outside_is_not_cached(monkeypatch, fresh_cache):
     assert not isolation.verdict_path(rt.device, kernels_digest()).exists()
 
 
+def _process_env(cache):
+    """Another process's environment: this checkout first on its path (the probe child's
+    own, ``isolation.child_env``), the verdict cache ``cache``, no simulated fault."""
+    env = dict(isolation.child_env(), **{CACHE_DIR_VARIABLE: str(cache)})
+    env.pop(isolation.FAULT_VARIABLE, None)
+    return env
+
+
+def _spec(rt):
+    """A device spec that names ``rt`` in a new process."""
+    return "intel" if "intel" in rt.device.platform.name.lower() else "0:0"
+
+
 def test_processes_starting_together_probe_a_device_once(fresh_cache):
     """Two processes (a test run's workers, a farm's tasks) meeting a cold cache: one probes,
     the other waits for its verdict and reads it (cached=True), nothing probed twice."""
     rt = _pick("intel")
-    spec = "intel" if "intel" in rt.device.platform.name.lower() else "0:0"
+    spec = _spec(rt)
     code = (f"import bdipole_cl; from bdipole_cl.device import runtime as d; "
             f"rt = bdipole_cl.get_runtime({spec!r}); print('cached', d.verdict(rt.device).cached)")
-    env = dict(os.environ, **{CACHE_DIR_VARIABLE: str(fresh_cache)})
-    env["PYTHONPATH"] = os.pathsep.join([str(isolation.Path(bdipole_cl.__file__).parents[1]),
-                                         env.get("PYTHONPATH", "")])
-    env.pop(isolation.FAULT_VARIABLE, None)
+    env = _process_env(fresh_cache)
     children = [subprocess.Popen([sys.executable, "-c", code], env=env, text=True,
                                  stdout=subprocess.PIPE, stderr=subprocess.PIPE)
                 for _ in range(2)]
@@ -205,13 +215,10 @@ def test_a_process_waiting_for_a_probe_says_so_and_its_lock_is_kept(fresh_cache)
     import time
     from bdipole_cl.apps.cache import own_entries
     rt = _pick("intel")
-    spec = "intel" if "intel" in rt.device.platform.name.lower() else "0:0"
+    spec = _spec(rt)
     lock = isolation.verdict_path(rt.device, kernels_digest()).with_suffix(".lock")
     lock.parent.mkdir(parents=True, exist_ok=True)
-    env = dict(os.environ, **{CACHE_DIR_VARIABLE: str(fresh_cache)})
-    env["PYTHONPATH"] = os.pathsep.join([str(isolation.Path(bdipole_cl.__file__).parents[1]),
-                                         env.get("PYTHONPATH", "")])
-    env.pop(isolation.FAULT_VARIABLE, None)
+    env = _process_env(fresh_cache)
     with open(lock, "a") as held:
         fcntl.flock(held, fcntl.LOCK_EX)
         child = subprocess.Popen([sys.executable, "-c", f"import bdipole_cl; "

@@ -203,7 +203,8 @@ def test_device_weights_match_host_interpolation(runtime):
 @pytest.mark.parametrize("nweights", [1, 4, 5, 8, 9, 16, 17, 23])
 def test_device_reads_node_records_of_every_size(runtime, nweights):
     """The kernels read the table as node records of 4, 8 or 16 floats, or several chunks of
-    16 (dispatch.node_records): every weight count, its padding included, gives the host's
+    the widest the device's vector cap allows (dispatch.node_records; 8 where its compiler's
+    16-float ABI is wrong): every weight count, its padding included, gives the host's
     interpolation of the table (here a random value per weight, so that a weight read from
     another slot or the padding shows, varying by 1% between nodes, so that the coordinates'
     float32 rounding moves the result no more than in a fitted table)."""
@@ -216,8 +217,9 @@ def test_device_reads_node_records_of_every_size(runtime, nweights):
             + 0.01 * rng.uniform(-1, 1, plan.fine.shape[:2] + (nweights,))).astype(np.float32)
     plan = replace(plan, fine=fine, kernels=tuple(range(nweights)), near=-1,
                    near_values=np.zeros((0, 0), np.float32))
-    records = node_records(fine)
-    chunk = record_chunk(nweights)
+    from bdipole_cl.ops.widths import device_vector_cap
+    chunk = record_chunk(nweights, device_vector_cap(runtime))
+    records = node_records(fine, chunk)
     assert records.shape[2] % chunk == 0 and records.shape[2] - chunk < nweights
     assert not records[..., nweights:].any()
     dev = weight_planes(plan, rd, ld, runtime)

@@ -15,6 +15,7 @@ import pytest
 import bdipole_cl
 from bdipole_cl.caches import CACHE_DIR_VARIABLE
 from bdipole_cl.device import isolation
+from bdipole_cl.device.children import child_env
 from bdipole_cl.device import runtime as device
 from bdipole_cl.device.programs import kernels_digest
 from bdipole_cl.ops import inversion_kernel
@@ -33,13 +34,16 @@ def _pick(platform_part):
 
 @pytest.fixture
 def fresh_cache(tmp_path, monkeypatch):
-    """An empty verdict cache, this process's verdicts forgotten (and restored after)."""
+    """An empty verdict cache, this process's verdicts forgotten (and restored after), and its
+    programs built under them dropped (a program built before is not refused again)."""
     monkeypatch.setenv(CACHE_DIR_VARIABLE, str(tmp_path))
     saved = dict(isolation._verdicts)
     isolation.forget_verdicts()
+    bdipole_cl.clear_caches()
     yield tmp_path
     isolation.forget_verdicts()
     isolation._verdicts.update(saved)
+    bdipole_cl.clear_caches()
 
 
 def _index(rt):
@@ -179,8 +183,8 @@ def test_a_kill_from_outside_is_not_cached(monkeypatch, fresh_cache):
 
 def _process_env(cache):
     """Another process's environment: this checkout first on its path (the probe child's
-    own, ``isolation.child_env``), the verdict cache ``cache``, no simulated fault."""
-    env = dict(isolation.child_env(), **{CACHE_DIR_VARIABLE: str(cache)})
+    own, ``children.child_env``), the verdict cache ``cache``, no simulated fault."""
+    env = dict(child_env(), **{CACHE_DIR_VARIABLE: str(cache)})
     env.pop(isolation.FAULT_VARIABLE, None)
     return env
 

@@ -4,7 +4,8 @@ the variable that moves each (``--info``), and ``--clear`` of the entries bdipol
 bdipole_cl's own entries (docs/guide.md, "Where it writes") live in its cache folder
 (``caches.user_cache_dir``): the OpenCL runtime registration (``icd-*``, else in a folder of the
 temporary directory), the device probes' verdicts (``probes/<digest>.json``:
-``device.isolation``), the device calibrations (``choice-*.json``) and the textures extracted
+``device.isolation``) and their guarded builds' records (``probes/<digest>.builds/``:
+``device.guard``), the device calibrations (``choice-*.json``) and the textures extracted
 from ``.usdz`` packages (``usdz/<digest>``). The other folders belong to the libraries it runs
 (PoCL, pyopencl, pytools, matplotlib, Dask) and are shared with every other program using them:
 they are shown, never removed. A clear removes only names the tool makes, by their exact shape,
@@ -25,6 +26,9 @@ from ..device.isolation import VERDICT_FOLDER, VERDICT_NAME, lock_in_use
 from ..io.usdz import EXTRACTED_FOLDER, EXTRACTED_NAME
 from ..methods.choice import CALIBRATION_GLOB, CALIBRATION_NAME
 
+#: what each of the probes' entries is, by its suffix (``device.isolation.VERDICT_NAME``)
+PROBE_ENTRIES = {".json": "device probe verdict", ".lock": "device probe lock",
+                 ".builds": "guarded builds' records"}
 #: a runtime registration's folder: ``icd-`` and 16 hex digits (``icd.vendors_directory``)
 ICD_NAME = re.compile(r"^icd-[0-9a-f]{16}$")
 
@@ -118,10 +122,10 @@ def own_entries() -> list[OwnEntry]:
                     if CALIBRATION_NAME.match(p.name) and p.is_file() and not p.is_symlink()]
         probes = root / VERDICT_FOLDER
         if probes.is_dir() and not probes.is_symlink():
-            entries += [OwnEntry("device probe " + ("lock" if p.suffix == ".lock" else
-                                                    "verdict"), p)
+            entries += [OwnEntry(PROBE_ENTRIES[p.suffix], p)
                         for p in sorted(probes.iterdir())
-                        if VERDICT_NAME.match(p.name) and p.is_file() and not p.is_symlink()
+                        if VERDICT_NAME.match(p.name) and not p.is_symlink()
+                        and (p.is_dir() if p.suffix == ".builds" else p.is_file())
                         and not (p.suffix == ".lock" and lock_in_use(p))]   # a probe's own
         packages = root / EXTRACTED_FOLDER
         if packages.is_dir() and not packages.is_symlink():

@@ -1,14 +1,21 @@
 """Kernel probes in a child process, and their verdicts cached on disk (the device layer).
 
-A runtime's compiler can crash inside the process that builds (PoCL's LLVM on some CPUs dies
-with SIGSEGV building a 16-lane kernel), and nothing in-process survives that. So a device's
-probe runs in a child process: ``python -m PROBE_MODULE`` builds and runs every kernel
-configuration the library may pick on that device (each width of the vectorised kernels, the
-blur kernels, float64 where the device claims it) and prints one JSON line as it begins and one
-as it ends each configuration. When the child dies, the configuration it was in is rejected
-with the signal or the runtime's last words, and a new child goes on with the rest. The
-verdict is cached per device identity (platform, device, driver) and kernel digest in the
-user's cache folder, so the probe costs seconds once per device and driver, not per process.
+A runtime's compiler can crash inside the process that builds (PoCL's LLVM on a Zen 4 dies
+with SIGSEGV or an abort building 16-float vectors), and nothing in-process survives that. So
+a device's probe runs in a child process (``children``): ``python -m PROBE_MODULE`` first
+checks the vector ABI (``VECTOR_ABI``: whether the compiler passes 16- and 8-float vectors to
+its built-ins as they take them; where it does not, nothing that wide is built), then builds,
+asks the binaries of, runs and checks every kernel configuration the library may pick on that
+device (each width of the vectorised kernels, the blur kernels, float64 where the device
+claims it), then times the widths and the blur's methods; it prints one JSON line as it
+begins and one as it ends each configuration, and one as it begins each timing run. When the
+child dies, the configuration it was in (building, running or timing it) is rejected with the
+signal or the runtime's last words, and a new child goes on with the rest; one that dies after
+its last configuration (at the runtime's teardown) leaves an ``exit`` result. The verdict is
+cached per device identity (platform, device, driver) and kernel digest in the user's cache
+folder, so the probe costs seconds once per device and driver, not per process. Programs the
+probe did not build (a job's own constants and options) are built first in a child too
+(``guard``).
 
 A configuration's name is ``config_name(source, options)``: the kernel file's name, then
 ``/w<BD_WIDTH>`` and ``/f64`` where those options are given. ``programs.get_program`` refuses
@@ -18,10 +25,11 @@ take the process down on a known crash.
 ``FAULT_VARIABLE`` makes the child fail one configuration on purpose (tests): ``NAME=segv``
 (killed by SIGSEGV), ``NAME=abort:TEXT`` (TEXT on stderr, then exit status 1), ``NAME=hang``,
 ``NAME=kill`` (SIGKILL, as from outside: such a verdict is not cached); several with ``;``.
+NAME is a configuration, or a timed workload as ``time:NAME``.
 
 A verdict that says more of the moment than of the device (the probe's process failed outside
 any kernel, or was killed by SIGKILL) serves its process only and is not cached; the child ends
-with its parent (``ops.kernel_checks``), so a killed caller leaves no probe building on.
+with its parent (``children.die_with``), so a killed caller leaves no probe building on.
 """
 from __future__ import annotations
 
@@ -33,10 +41,7 @@ import importlib.util
 import json
 import logging
 import os
-import queue
 import re
-import signal
-import subprocess
 import sys
 import tempfile
 import threading
@@ -46,11 +51,12 @@ from pathlib import Path
 from ..caches import user_cache_dir
 from ..durable import durable_replace
 from ..version import __version__
+from .children import TIMED_OUT, Child, death
 
 #: the module the child runs (the operations layer's checks: started by name, not imported)
 PROBE_MODULE = "bdipole_cl.ops.kernel_checks"
 #: raised whenever what a check does, or the verdict file's fields, change meaning
-PROBE_FORMAT = 1
+PROBE_FORMAT = 2
 #: fails one configuration of the child on purpose: tests only (module docstring)
 FAULT_VARIABLE = "BDIPOLE_CL_PROBE_FAULT"
 #: seconds one configuration may take (a PoCL build of the largest blur kernel takes ~20 s
@@ -70,6 +76,16 @@ KILLED = "SIGKILL"
 SLOW_NOTE_S = 30.0
 #: what re-probes a device (its verdict removed)
 REPROBE = "`bdipole-cl cache --clear` probes again"
+#: the result of a child that died after its last configuration (at its runtime's teardown,
+#: as PoCL does with "still have references to IRs" after building a broken program)
+EXIT = "exit"
+#: the probe's first check (``ops.kernel_checks.vector_abi_check``): ``vector_abi/w<N>`` fails
+#: where the device's compiler passes N-float vectors to its built-ins otherwise than they take
+#: them (PoCL's LLVM 14 calls a Zen 4 'znver3', without AVX-512, but loads its AVX-512 built-in
+#: library): no configuration of N lanes or more is built there
+VECTOR_ABI = "vector_abi"
+#: the vector widths (floats) the probe checks the ABI of, widest first
+VECTOR_ABI_WIDTHS = (16, 8)
 
 
 @dataclass(frozen=True)
@@ -130,6 +146,12 @@ class Verdict:
     def rejected(self) -> tuple:
         return tuple(r for r in self.results if not r.ok)
 
+    @property
+    def vector_cap(self) -> int:
+        """The widest vector (floats) that the device's kernels may use: half the narrowest
+        width whose ABI check failed (``VECTOR_ABI``), else 16, OpenCL's widest."""
+        return vector_cap({r.name for r in self.results if not r.ok})
+
     def describe_rejected(self) -> str:
         """"" or '2 configurations rejected: a (reason); b (reason)'."""
         bad = self.rejected()
@@ -137,6 +159,12 @@ class Verdict:
             return ""
         items = "; ".join(f"{r.name} ({r.reason})" for r in bad)
         return f"{len(bad)} configuration{'s' if len(bad) > 1 else ''} rejected: {items}"
+
+
+def vector_cap(failed) -> int:
+    """The widest usable vector (floats) given the names of the failed configurations."""
+    bad = [w for w in VECTOR_ABI_WIDTHS if f"{VECTOR_ABI}/w{w}" in failed]
+    return min(bad) // 2 if bad else max(VECTOR_ABI_WIDTHS)
 
 
 def config_name(source: str, options=()) -> str:
@@ -172,18 +200,26 @@ def checks_digest() -> str:
         return ""
 
 
+def probe_faults() -> str:
+    """The simulated faults of the probe's child (FAULT_VARIABLE without the guarded builds'
+    ``build:`` ones): a verdict made under them is not the device's."""
+    return ";".join(item for item in os.environ.get(FAULT_VARIABLE, "").split(";")
+                    if item and not item.startswith("build:"))
+
+
 def verdict_key(device, kernels_digest: str) -> str:
     """The cache key: the device's identity, the kernels, the checks and this library's
     version."""
     text = json.dumps([identity(device), kernels_digest, checks_digest(), __version__,
-                       PROBE_FORMAT, os.environ.get(FAULT_VARIABLE, "")], sort_keys=True)
+                       PROBE_FORMAT, probe_faults()], sort_keys=True)
     return hashlib.sha256(text.encode()).hexdigest()[:20]
 
 
 #: the verdicts' folder in the user's cache folder, and their file names (a key's 20 hex digits)
 VERDICT_FOLDER = "probes"
-#: (a verdict, and the lock of the process probing it)
-VERDICT_NAME = re.compile(r"^[0-9a-f]{20}\.(json|lock)$")
+#: (a verdict, the lock of the process probing it, and the folder of its programs' guarded
+#: builds, ``guard``)
+VERDICT_NAME = re.compile(r"^[0-9a-f]{20}\.(json|lock|builds)$")
 
 
 def verdict_dir() -> Path:
@@ -230,107 +266,18 @@ def write_verdict(verdict: Verdict, path: Path) -> None:
 
 # {{{ the child
 
-def _signal_name(status: int) -> str:
-    try:
-        return signal.Signals(-status).name
-    except ValueError:
-        return f"signal {-status}"
-
-
-def _last_words(stderr_text: str) -> str:
-    """The runtime's most telling line on stderr: one naming an error, else the last."""
-    lines = [ln.strip() for ln in stderr_text.splitlines() if ln.strip()]
-    pick = next((ln for ln in reversed(lines) if "error" in ln.lower() or "invalid" in ln.lower()
-                 or "fail" in ln.lower()), lines[-1] if lines else "")
-    return pick if len(pick) <= 160 else pick[:157] + "..."
-
-
-def _death(returncode: int, stderr_text: str) -> str:
-    how = (f"crashed ({_signal_name(returncode)})" if returncode < 0
-           else f"its process exited with status {returncode}")
-    words = _last_words(stderr_text)
-    return f"{how}: {words}" if words else how
-
-
-class _Child:
-    """One child process running the checks; its stdout is read by a thread into a queue, so
-    that every wait has a timeout."""
-
-    def __init__(self, device_index: str, results: dict):
-        cmd = [sys.executable, "-m", PROBE_MODULE, "--device", device_index,
-               "--parent", str(os.getpid())]
-        if results:
-            cmd += ["--skip", ",".join(results),
-                    "--passed", ",".join(n for n, r in results.items() if r.ok)]
-        self.err = tempfile.TemporaryFile(mode="w+")
-        self.proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=self.err,
-                                     stdin=subprocess.DEVNULL, text=True, env=child_env(),
-                                     start_new_session=True)   # a terminal's Ctrl-C is ours
-        self.lines: queue.Queue = queue.Queue()
-        threading.Thread(target=self._read, daemon=True).start()
-
-    def _read(self):
-        for text in self.proc.stdout:
-            self.lines.put(text)
-        self.lines.put(None)
-
-    def line(self, timeout: float):
-        """The next JSON line ({} for a line that is not JSON), None at the end of output,
-        or TIMED_OUT after ``timeout`` seconds."""
-        try:
-            text = self.lines.get(timeout=timeout)
-        except queue.Empty:
-            return TIMED_OUT
-        if text is None:
-            return None
-        try:
-            msg = json.loads(text)
-        except ValueError:
-            return {}                       # a runtime's own chatter on stdout: skipped
-        return msg if isinstance(msg, dict) else {}
-
-    def finish(self, kill=False) -> tuple:
-        """(returncode, stderr text) once the child has ended (killed first if ``kill``)."""
-        if kill and self.proc.poll() is None:
-            self.proc.kill()
-        try:
-            rc = self.proc.wait(timeout=30)
-        except subprocess.TimeoutExpired:
-            self.proc.kill()
-            rc = self.proc.wait()
-        self.err.seek(0)
-        text = self.err.read()
-        self.err.close()
-        return rc, text
-
-
-def child_env() -> dict:
-    """The child's environment: this one, with this process's import path first on
-    PYTHONPATH, so that the child imports the bdipole_cl this process runs (a checkout put on
-    ``sys.path`` by hand, not another installed copy)."""
-    env = dict(os.environ)
-    package_root = str(Path(__file__).resolve().parent.parent.parent)
-    paths = [package_root] + [p for p in sys.path if p and p != package_root]
-    env["PYTHONPATH"] = os.pathsep.join(paths)
-    return env
-
-
-#: ``_Child.line``'s answer when nothing came in time
-TIMED_OUT = object()
-
-
 @dataclass
 class _Run:
     """What one child reported before it ended."""
 
-    current: str | None = None          # the configuration it was in
+    current: str | None = None          # the configuration it was in (checking or timing it)
     finished: bool = False              # it said "done"
     timed_out: bool = False
-    timing: bool = False                # it had begun timing (every check had ended)
+    timing: bool = False                # ``current`` is being timed (its check had passed)
     error: str = ""                     # it could not open the device
 
 
-def _next(child: _Child, timeout: float, current: str | None, describe: str):
+def _next(child: Child, timeout: float, current: str | None, describe: str):
     """The child's next line within ``timeout`` seconds (TIMED_OUT after), saying once on
     stderr when a configuration takes over SLOW_NOTE_S."""
     if current is None or timeout <= SLOW_NOTE_S:
@@ -343,7 +290,7 @@ def _next(child: _Child, timeout: float, current: str | None, describe: str):
     return child.line(timeout - SLOW_NOTE_S)
 
 
-def _read(child: _Child, results: dict, describe: str = "") -> _Run:
+def _read(child: Child, results: dict, describe: str = "") -> _Run:
     """Read ``child``'s lines into ``results`` until it ends, says done, or times out."""
     run, timeout = _Run(), START_TIMEOUT_S
     while True:
@@ -353,13 +300,13 @@ def _read(child: _Child, results: dict, describe: str = "") -> _Run:
             return run
         timeout = CONFIG_TIMEOUT_S
         if "begin" in msg:
-            run.current = str(msg["begin"])
+            run.current, run.timing = str(msg["begin"]), False
         elif "end" in msg:
             r = ConfigResult(str(msg["end"]), bool(msg["ok"]), str(msg.get("reason", "")))
             results[r.name] = r
             run.current = None
-        elif "timing" in msg:
-            run.timing = True
+        elif "run" in msg:                      # a workload's timing run begins
+            run.current, run.timing = str(msg["run"]), True
         elif "time" in msg:                     # a width's, or a workload's of its own
             name = str(msg["time"])
             r = results.get(name, ConfigResult(name, True))
@@ -372,13 +319,24 @@ def _read(child: _Child, results: dict, describe: str = "") -> _Run:
             return run
 
 
+def _probe_args(device_index: str, results: dict) -> list:
+    """The child's arguments: the device, and what earlier children already decided (skipped;
+    those that passed are timed)."""
+    args = ["--device", device_index]
+    if results:
+        args += ["--skip", ",".join(results),
+                 "--passed", ",".join(n for n, r in results.items() if r.ok)]
+    return args
+
+
 def run_probe(device_index: str, description: str) -> Verdict:
     """Probe the device ``device_index`` ("P:D") in child processes: every configuration's
-    result, a crashed one rejected and the rest probed by a new child. An interrupt (or any
-    error here) kills the child and propagates: nothing is cached."""
+    result, one that killed its child (building, running or timing it) rejected and the rest
+    probed by a new child. An interrupt (or any error here) kills the child and propagates:
+    nothing is cached."""
     results: dict = {}
     for _attempt in range(64):                 # more than there are configurations
-        child = _Child(device_index, results)
+        child = Child(PROBE_MODULE, _probe_args(device_index, results))
         try:
             run = _read(child, results, description)
         except BaseException:
@@ -387,16 +345,19 @@ def run_probe(device_index: str, description: str) -> Verdict:
         rc, err = child.finish(kill=run.timed_out or not run.finished)
         if run.error:
             return Verdict(description, tuple(results.values()), run.error)
-        if (run.finished and rc == 0) or run.timing:   # a failed timing costs the timings
+        if run.finished:
+            if rc != 0:          # after every configuration: at its runtime's teardown
+                results[EXIT] = ConfigResult(EXIT, False, death(rc, err))
             return Verdict(description, tuple(results.values()))
         if run.current is None:                 # died between configurations, or at start
             why = (f"timed out after {START_TIMEOUT_S:.0f} s" if run.timed_out
-                   else _death(rc, err))
+                   else death(rc, err))
             return Verdict(description, tuple(results.values()),
                            f"the kernel probe's process failed outside any kernel ({why})")
-        results[run.current] = ConfigResult(
-            run.current, False, f"timed out after {CONFIG_TIMEOUT_S:.0f} s" if run.timed_out
-            else _death(rc, err))
+        how = (f"timed out after {CONFIG_TIMEOUT_S:.0f} s" if run.timed_out
+               else death(rc, err))
+        results[run.current] = ConfigResult(run.current, False,
+                                            f"{how} (timing it)" if run.timing else how)
     return Verdict(description, tuple(results.values()), "the kernel probe did not finish")
 
 # }}}

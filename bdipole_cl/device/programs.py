@@ -4,9 +4,10 @@ A kernel's source is the generated parameter layout (``layout.header``), then th
 header kernels/bdipole.h, then ``kernels/<name>.cl``, joined as text (no ``#include``: PoCL
 compiles from a temporary file, so relative include paths break), with ``#line`` markers so
 that compiler messages point at the right file. Build options specialize it; every option is
-``-DBD_<NAME>`` (kernels/bdipole.h lists them). Programs are built once per context, source
-name and options, in a cache bounded by the programs' binary sizes (``PROGRAM_CACHE_BYTES``), and
-dropped by ``bdipole_cl.clear_caches()``.
+``-DBD_<NAME>`` (kernels/bdipole.h lists them). A program is built in a child process first,
+once per device (``guard``: a compiler crash costs the program, not the process), then here,
+once per context, source name and options, in a cache bounded by the programs' binary sizes
+(``PROGRAM_CACHE_BYTES``), and dropped by ``bdipole_cl.clear_caches()``.
 """
 from __future__ import annotations
 
@@ -17,10 +18,12 @@ import pyopencl as cl
 from ..caches import ByteCache
 from ..physics.models import MODEL
 from . import layout
+from .guard import checked_build
 from .isolation import config_name
 from .sources import HEADER, kernel_dir, kernels_digest  # noqa: F401 (kernels_digest: the
 #                                                        device layer's name for it)
-from .runtime import DeviceError, Runtime, build_quietly, known_verdict
+from .runtime import (DeviceError, Runtime, build_quietly, device_index, in_probe_child,
+                      known_verdict)
 
 #: the explicit vector lanes (BD_WIDTH) of the kernels that take several elements a work-item
 LANES = "lanes.h"
@@ -74,13 +77,25 @@ def get_program(rt: Runtime, name: str, options=()) -> cl.Program:
         if any(o == "-DBD_DOUBLE" for o in options) and not rt.has_fp64:
             raise DeviceError(f"{rt.describe()} has no cl_khr_fp64: float64 is not available")
         refuse_rejected(rt, name, options)
+        source = kernel_source(name)
+        guarded_build_check(rt, source, options, f"kernels/{name}.cl with "
+                                                 f"{' '.join(options) or 'no options'}")
         try:
-            prg = build_quietly(rt.context, kernel_source(name), options)
+            prg = build_quietly(rt.context, source, options)
         except cl.RuntimeError as exc:
             raise DeviceError(f"building kernels/{name}.cl with {' '.join(options)} failed:\n"
                               f"{exc}") from exc
         PROGRAM_CACHE.put(key, prg, program_bytes(prg))
     return prg
+
+
+def guarded_build_check(rt: Runtime, source: str, options, what: str) -> None:
+    """Raise ``guard.BuildRefused`` where building this program crashed ``rt``'s runtime in a
+    child process (tried there first, once per device and program: ``guard``); nothing in the
+    probe's own child, which is the guard there."""
+    if not in_probe_child():
+        checked_build(rt.device, device_index(rt.device), kernels_digest(), source, options,
+                      what)
 
 
 def refuse_rejected(rt: Runtime, name: str, options) -> None:

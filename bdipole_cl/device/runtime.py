@@ -354,12 +354,27 @@ def _from_pyopencl_ctx(spec: str) -> Runtime:
 ALIASES = {"pocl": "portable computing language"}
 
 
+#: tests only: a clang target feature (``-avx512f``) that every PoCL build hands its front end,
+#: to make on any AVX-512 CPU the vector ABI mismatch PoCL makes on a Zen 4 (docs/runtimes.md
+#: "Vector widths"); it follows a define and a tab, which PoCL's option check lets through
+TARGET_FEATURE_VARIABLE = "BDIPOLE_CL_TARGET_FEATURE"
+
+
+def simulated_target(context) -> list:
+    """The build option TARGET_FEATURE_VARIABLE asks for on a PoCL context, else none."""
+    feature = os.environ.get(TARGET_FEATURE_VARIABLE)
+    if not feature or not any(is_pocl(d) for d in context.devices):
+        return []
+    return [f"-DBD_TARGET_FEATURE\t-target-feature\t{feature}"]
+
+
 def build_quietly(context, source, options=()):
     """Build quietly: a non-empty build log is normal for some drivers (Intel's prints one for
     every build) and pyopencl would warn on each; failures still raise with the log."""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", cl.CompilerWarning)
-        return cl.Program(context, source).build(options=list(options))
+        return cl.Program(context, source).build(
+            options=list(options) + simulated_target(context))
 
 
 def _from_string(spec: str) -> Runtime:

@@ -16,7 +16,7 @@ from ..device.launch import enqueue_items
 from ..device.layout import channel_params
 from ..device.runtime import device_kind, forced_width, platform_entry
 from ..device.transfer import aligned_empty, run_elementwise
-from .widths import WidthChoice, choose_width
+from .widths import WidthChoice, built_at_width, choose_width
 from ..methods.choice import TABLE_WIDTHS_ALLOWED, DeviceKey, device_tuning
 from ..methods.registry import MethodConfig
 from ..physics import reference as ref
@@ -139,8 +139,7 @@ class InversionKernel:
         self._table_kernels = {}
         if self.width:
             # kernels/invert_table.cl: built per set of outputs (on the first call)
-            self._table_defines = {"BD_TABLE_N": config.table_size, "BD_WIDTH": self.width,
-                                   "BD_NCHAN": self.nchan}
+            self._table_defines = {"BD_TABLE_N": config.table_size, "BD_NCHAN": self.nchan}
             if specialise:
                 self._table_defines["BD_CONST_PARAMS"] = defines["BD_CONST_PARAMS"]
             if self.mfp_compiled:
@@ -168,19 +167,24 @@ class InversionKernel:
         return self.mfp_compiled
 
     def _table_kernel(self, bits: int, check: int = 0, mfp_channels: bool = False):
-        """kernels/invert_table.cl for the outputs ``bits`` (OUTPUT_BITS), the validity test
-        ``check`` (0, CHECK_ALBEDO, CHECK_COEFFICIENTS) and the mfp layout, built once each."""
+        """(width, kernel) of kernels/invert_table.cl for the outputs ``bits`` (OUTPUT_BITS),
+        the validity test ``check`` (0, CHECK_ALBEDO, CHECK_COEFFICIENTS) and the mfp layout,
+        built once each at ``width``, or narrower where that build was refused
+        (``widths.built_at_width``)."""
         key = (bits, check, mfp_channels)
-        knl = self._table_kernels.get(key)
-        if knl is None:
+        hit = self._table_kernels.get(key)
+        if hit is None:
             defines = {**self._table_defines, "BD_OUTPUTS": bits, "BD_CHECK": check,
                        "BD_MFP_MIN": f"{MFP_MIN:g}f"}
             if mfp_channels:
                 defines["BD_MFP_CHANNELS"] = None
-            opts = build_options(defines, model=self.model)
-            knl = self._table_kernels[key] = cl.Kernel(
-                get_program(self.rt, "invert_table", opts), "invert_table")
-        return knl
+
+            def build(width):
+                opts = build_options({**defines, "BD_WIDTH": width}, model=self.model)
+                return cl.Kernel(get_program(self.rt, "invert_table", opts), "invert_table")
+            hit = self._table_kernels[key] = built_at_width(
+                self.rt, "invert_table", self.width, TABLE_WIDTHS_ALLOWED, build)
+        return hit
 
     @property
     def monotone(self) -> bool:
@@ -206,9 +210,9 @@ class InversionKernel:
         if self.width:
             given = {"alpha": alpha, "rho": rho, "sigma_a": sigma_a, "sigma_s": sigma_s}
             bits = sum(OUTPUT_BITS[k] for k, b in given.items() if b is not None)
+            width, knl = self._table_kernel(bits, check, mfp_channels)
             return enqueue_items(
-                self._table_kernel(bits, check, mfp_channels), self.rt.queue,
-                -(-n // self.width), rd, mfp, alpha, rho, sigma_a, sigma_s, self.params,
+                knl, self.rt.queue, -(-n // width), rd, mfp, alpha, rho, sigma_a, sigma_s, self.params,
                 self.tables, np.int32(tables.entries_per_channel(self.table_n)), np.uint32(n),
                 invalid, wait_for=wait_for)
         return enqueue_items(self.kernel, self.rt.queue, n, rd, mfp, alpha, rho, sigma_a,
@@ -303,8 +307,9 @@ def inversion_kernel(etas, config, *, exact=False, model="better", double=False,
                      runtime=None) -> InversionKernel:
     """The InversionKernel for these arguments, from KERNEL_CACHE when it has it."""
     rt = get_runtime(runtime)
+    width = table_width(rt) if vectorised(config, double) else 0     # forced ones differ
     key = (id(rt.context), threading.get_ident(), tuple(etas), config.resolved(double), exact,
-           model, double)
+           model, double, width)
     hit = KERNEL_CACHE.get(key)
     if hit is None or hit[0] is not rt.context:    # the entry holds its context: ids are its own
         kernel = InversionKernel(etas, config, exact=exact, model=model, double=double,

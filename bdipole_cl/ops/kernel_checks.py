@@ -11,25 +11,33 @@ between CPUs is timed: each width that passed (``ops.widths`` picks the fastest 
 method at each radius of the shipped choice data (``ops.blur.planning.auto_data`` rescales
 those data's timings with them, so ``auto``'s crossovers are this device's).
 
+First of all the vector ABI is checked (``vector_abi_reason``): where the compiler would pass
+16 (or 8) floats to its built-ins otherwise than they take them, no configuration that wide is
+built at all (each is rejected unbuilt), and the table records' chunks stay within the cap
+(``ops.widths.vector_cap``).
+
 Output: one JSON line ``{"begin": NAME}`` before a check and ``{"end": NAME, "ok": ..., "reason":
-...}`` after it; then ``{"timing": true}``, a ``{"time": NAME, "seconds": ...}`` line for each
-workload timed (``timed_runs``: the widths, the blur's methods), and ``{"done": true}``.
+...}`` after it; then ``{"run": NAME}`` before each run of a workload timed (``timed_runs``: the
+widths, the blur's methods: a child that dies there costs that configuration), a ``{"time":
+NAME, "seconds": ...}`` line for each, and ``{"done": true}``.
 """
 from __future__ import annotations
 
 import argparse
-import json
 import os
-import signal
+import re
 import sys
 import time
+import uuid
 from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
 
+from ..device.children import die_with, emit, inject_fault
+from ..device.isolation import EXIT, VECTOR_ABI, VECTOR_ABI_WIDTHS, vector_cap
 from ..device.runtime import forced
-from .widths import blur_timing_name
+from .widths import VECTOR_CAP_VARIABLE, blur_timing_name
 
 #: a probe's loose agreement with the float64 reference (relative, of rho and of the blur's
 #: exitance): a working float32 kernel is within ~1e-5 (docs/model.md "Accuracy"); a
@@ -44,11 +52,36 @@ TIMING_N = 1 << 22
 class KernelCheck:
     """One configuration: its name (``device.isolation.config_name`` of what it builds), the
     function that builds, runs and checks it on a Runtime (returning its timing in seconds,
-    or None), and whether it needs float64."""
+    or None), whether it needs float64, and its vectors' floats (0: no explicit vectors)."""
 
     name: str
     run: Callable
     fp64: bool = False
+    width: int = 0
+
+
+#: clang's warning where a vector crosses a call in another ABI than the callee's: PoCL's
+#: built-in library compiled for the CPU's features, the kernel for the target its LLVM named
+ABI_WARNING = re.compile(r"vector (?:argument|return) of type .*? without '[\w.+-]+' enabled "
+                         r"changes the ABI")
+
+
+def vector_abi_reason(rt, width: int) -> str:
+    """"" where the device's compiler passes ``width``-float vectors to its built-ins as they
+    take them, else one line saying it does not (its warning quoted). The kernel is built, never
+    run nor asked for its binary (with the mismatch, both crash LLVM), under a new name each
+    time: a runtime's kernel cache would give back the first build without its log."""
+    import pyopencl as cl
+    from ..device.runtime import build_quietly
+    source = (f"__kernel void bd_abi_{uuid.uuid4().hex}(__global float{width} *a)\n"
+              f"{{ const size_t i = get_global_id(0); a[i] = sqrt(a[i]); }}\n")
+    prg = build_quietly(rt.context, source)
+    log = prg.get_build_info(rt.device, cl.program_build_info.LOG) or ""
+    found = ABI_WARNING.search(log)
+    if found is None:
+        return ""
+    return (f"the compiler passes float{width} to its built-ins otherwise than they take it "
+            f"(its log: {found.group(0)})")
 
 
 def _assert_close(got, want, what):
@@ -219,9 +252,10 @@ def blur_timers(rt) -> dict:
     return timers
 
 
-def timed_runs(rt, passed) -> dict:
+def timed_runs(rt, passed, failed=frozenset()) -> dict:
     """{name: one run} of every workload timed on the device: each width that ``passed``
-    (names) of each kernel in TIMED_WIDTHS, and the blur's methods (``blur_timers``)."""
+    (names) of each kernel in TIMED_WIDTHS, and the blur's methods (``blur_timers``), but for
+    those ``failed`` (an earlier child died timing them)."""
     from ..methods.choice import GATHER_WIDTHS_ALLOWED, TABLE_WIDTHS_ALLOWED
     allowed = {"TABLE": TABLE_WIDTHS_ALLOWED, "GATHER": GATHER_WIDTHS_ALLOWED}
     runs = {}
@@ -230,17 +264,26 @@ def timed_runs(rt, passed) -> dict:
                      if f"{source}/w{w}" in passed})
     if {"blur_direct", "blur_separable"} <= passed:
         runs.update(blur_timers(rt))
-    return runs
+    return {name: run for name, run in runs.items() if name not in failed}
+
+
+def _announced(name, run):
+    """``run``, saying on stdout which workload runs (a child that dies in it costs that
+    configuration, ``device.isolation``), with its simulated fault (tests)."""
+    emit({"run": name})
+    _inject_fault(f"time:{name}")
+    run()
 
 
 def time_runs(runs: dict) -> dict:
     """{name: best seconds} of ``runs``, timed in TIMING_ROUNDS interleaved rounds (after one
-    untimed run each: builds, first touches)."""
-    for run in runs.values():
-        run()
+    untimed run each: builds, first touches), each run announced (``_announced``)."""
+    for name, run in runs.items():
+        _announced(name, run)
     best = {}
     for _ in range(TIMING_ROUNDS):
         for name, run in runs.items():
+            emit({"run": name})
             t0 = time.perf_counter()
             run()
             best[name] = min(best.get(name, float("inf")), time.perf_counter() - t0)
@@ -252,14 +295,16 @@ def time_runs(runs: dict) -> dict:
 def checks(fp64: bool) -> list:
     """The configurations probed on a device (with float64 ones where it has fp64)."""
     from ..methods.choice import GATHER_WIDTHS_ALLOWED, TABLE_WIDTHS_ALLOWED
-    out = [KernelCheck(f"invert_table/w{w}", table_check(w)) for w in TABLE_WIDTHS_ALLOWED]
+    out = [KernelCheck(f"invert_table/w{w}", table_check(w), width=w)
+           for w in TABLE_WIDTHS_ALLOWED]
     out += [KernelCheck("invert", method_check("bisection", False)),
             KernelCheck("invert/f64", method_check("table", True), fp64=True),
             KernelCheck("physics_eval", physics_check(False)),
             KernelCheck("physics_eval/f64", physics_check(True), fp64=True),
             KernelCheck("blur_direct", blur_check("direct")),
             KernelCheck("blur_separable", blur_check("gaussians"))]
-    out += [KernelCheck(f"blur_textured/w{w}", gather_check(w)) for w in GATHER_WIDTHS_ALLOWED]
+    out += [KernelCheck(f"blur_textured/w{w}", gather_check(w), width=w)
+            for w in GATHER_WIDTHS_ALLOWED]
     return [c for c in out if fp64 or not c.fp64]
 
 
@@ -268,46 +313,26 @@ def checks(fp64: bool) -> list:
 def _inject_fault(name: str):
     """The fault ``device.isolation.FAULT_VARIABLE`` asks for at check ``name`` (tests)."""
     from ..device.isolation import FAULT_VARIABLE
-    spec = os.environ.get(FAULT_VARIABLE, "")
-    for item in filter(None, spec.split(";")):
-        target, _, what = item.partition("=")
-        if target != name:
+    inject_fault(os.environ.get(FAULT_VARIABLE, ""), lambda target: target == name)
+
+
+def _checked_vector_abi(rt, skip, failed) -> int:
+    """Run the vector ABI checks not yet done (``skip``), adding the failed ones' names to
+    ``failed``: the widest vector (floats) the device's kernels may use."""
+    for width in VECTOR_ABI_WIDTHS:
+        name = f"{VECTOR_ABI}/w{width}"
+        if name in skip:
             continue
-        if what == "segv":              # the default action (a runtime may handle SIGSEGV)
-            signal.signal(signal.SIGSEGV, signal.SIG_DFL)
-            os.kill(os.getpid(), signal.SIGSEGV)
-        elif what.startswith("abort:"):
-            print(what[len("abort:"):], file=sys.stderr, flush=True)
-            os._exit(1)
-        elif what == "kill":              # as the OOM killer or an operator would
-            os.kill(os.getpid(), signal.SIGKILL)
-        elif what == "hang":
-            time.sleep(3600)
-
-
-def _die_with(parent: int):
-    """End this process when ``parent`` ends (a probe whose caller was killed must not build on
-    for ever): Linux's PR_SET_PDEATHSIG, else a thread watching the parent's pid."""
-    import ctypes
-    import threading
-    try:
-        libc = ctypes.CDLL(None, use_errno=True)
-        PR_SET_PDEATHSIG = 1
-        libc.prctl(PR_SET_PDEATHSIG, signal.SIGKILL)
-    except (OSError, AttributeError):
-        pass
-
-    def watch():
-        while os.getppid() == parent:
-            time.sleep(1.0)
-        os._exit(3)
-    threading.Thread(target=watch, daemon=True).start()
-    if os.getppid() != parent:            # it ended before the above took hold
-        os._exit(3)
-
-
-def _emit(msg):
-    print(json.dumps(msg), flush=True)
+        emit({"begin": name})
+        _inject_fault(name)
+        try:
+            reason = vector_abi_reason(rt, width)
+        except Exception as exc:   # the tiny build itself failed: nothing that wide is safe
+            reason = " ".join(str(exc).split())[:300] or type(exc).__name__
+        if reason:
+            failed.add(name)
+        emit({"end": name, "ok": not reason, "reason": reason})
+    return vector_cap(failed)
 
 
 def main(argv=None) -> int:
@@ -318,32 +343,39 @@ def main(argv=None) -> int:
     parser.add_argument("--parent", type=int, help="end when this process ends")
     args = parser.parse_args(argv)
     if args.parent:
-        _die_with(args.parent)
+        die_with(args.parent)
     from ..device.runtime import PROBE_CHILD_VARIABLE, runtime_at
     os.environ[PROBE_CHILD_VARIABLE] = "1"
     try:
         rt = runtime_at(args.device)
     except Exception as exc:       # every driver failure: the device cannot be opened at all
-        _emit({"error": " ".join(str(exc).split())[:300]})
+        emit({"error": " ".join(str(exc).split())[:300]})
         return 0
     skip = set(filter(None, args.skip.split(",")))
     passed = set(filter(None, args.passed.split(",")))
+    failed = skip - passed
+    cap = _checked_vector_abi(rt, skip, failed)
+    os.environ[VECTOR_CAP_VARIABLE] = str(cap)      # the chunks' cap, where no verdict is yet
     for check in checks(rt.has_fp64):
         if check.name in skip:
             continue
-        _emit({"begin": check.name})
+        if check.width > cap:      # never built: the compiler's vector ABI is wrong that wide
+            emit({"end": check.name, "ok": False, "reason": f"not built: vectors of "
+                  f"{check.width} floats fail this device's vector ABI check ({VECTOR_ABI})"})
+            continue
+        emit({"begin": check.name})
         _inject_fault(check.name)
         try:
             check.run(rt)
             passed.add(check.name)
-            _emit({"end": check.name, "ok": True, "reason": ""})
+            emit({"end": check.name, "ok": True, "reason": ""})
         except Exception as exc:   # a build error, a driver error, a wrong result
             text = " ".join(str(exc).split())
-            _emit({"end": check.name, "ok": False, "reason": text[:300] or type(exc).__name__})
-    _emit({"timing": True})
-    for name, seconds in time_runs(timed_runs(rt, passed)).items():
-        _emit({"time": name, "seconds": seconds})
-    _emit({"done": True})
+            emit({"end": check.name, "ok": False, "reason": text[:300] or type(exc).__name__})
+    for name, seconds in time_runs(timed_runs(rt, passed, failed)).items():
+        emit({"time": name, "seconds": seconds})
+    emit({"done": True})
+    _inject_fault(EXIT)                       # a runtime's abort at its teardown (tests)
     return 0
 
 

@@ -10,12 +10,29 @@ per-platform default. A width the probe rejected is never chosen.
 from __future__ import annotations
 
 import logging
+import os
 from dataclasses import dataclass
 
-from ..device.isolation import config_name
+from ..device.guard import BuildRefused
+from ..device.isolation import VECTOR_ABI_WIDTHS, config_name
 from ..device.runtime import DeviceError, known_verdict
 
 log = logging.getLogger("bdipole_cl")
+
+#: the widest vector (floats) in the probe's own child, where no verdict is at hand yet (it
+#: sets it from its vector ABI checks, ``ops.kernel_checks``)
+VECTOR_CAP_VARIABLE = "BDIPOLE_CL_VECTOR_CAP"
+
+
+def device_vector_cap(rt) -> int:
+    """The widest vector (floats) ``rt``'s kernels may use: the probe's vector ABI verdict
+    (``device.isolation.Verdict.vector_cap``; 16 where every width passed or none was
+    checked)."""
+    named = os.environ.get(VECTOR_CAP_VARIABLE)
+    if named:
+        return int(named)
+    known = known_verdict(rt.device)
+    return known.vector_cap if known is not None else max(VECTOR_ABI_WIDTHS)
 
 
 @dataclass(frozen=True)
@@ -68,6 +85,21 @@ def choose_width(rt, source: str, allowed, calibrated, default) -> WidthChoice:
     raise DeviceError(f"kernels/{source}.cl failed this device's probe at every width "
                       f"({', '.join(map(str, allowed))}) on {rt.describe()}: choose another "
                       f"device with --device (`bdipole-cl devices` lists them)")
+
+
+def built_at_width(rt, source: str, width: int, allowed, build):
+    """(w, build(w)): ``build`` (a program's kernel at a width) at ``width``, else, where its
+    build was refused (it crashed the runtime in the guard's child, ``device.guard``), at each
+    narrower width of ``allowed`` the probe passed, saying each refusal in one line."""
+    narrower = [w for w in sorted(allowed, reverse=True) if w < width and passes(rt, source, w)]
+    for w in [width, *narrower]:
+        try:
+            return w, build(w)
+        except BuildRefused as exc:
+            if w == min([width, *narrower]):
+                raise
+            log.warning("%s; a narrower width is used", exc)
+    raise AssertionError("unreachable")                      # pragma: no cover
 
 
 #: the probe's blur timings' name prefix (``blur_timing_name``; ``ops.kernel_checks`` writes

@@ -11,7 +11,7 @@ from ...device.launch import enqueue_items
 from ...device.runtime import forced_width, platform_entry
 from ...device.transfer import aligned_empty
 from ...methods.choice import GATHER_WIDTHS_ALLOWED
-from ..widths import choose_width
+from ..widths import built_at_width, choose_width, device_vector_cap
 from ...signals import check_stop
 from ..inversion_kernel import kernel_tuning
 from .fit import gaussian_1d
@@ -172,20 +172,21 @@ def gather_costs(rt) -> GatherCosts:
     return platform_entry(rt.device, GATHER_COSTS, DEFAULT_GATHER_COSTS)
 
 
-def record_chunk(nweights) -> int:
+def record_chunk(nweights, cap=16) -> int:
     """Floats per load of a table node's record (kernels/blur_textured.cl ``BD_CHUNK``): the
-    smallest vector of 4, 8 or 16 that holds ``nweights`` weights, else 16 (records of several
-    chunks)."""
-    return next((n for n in (4, 8) if nweights <= n), 16)
+    smallest vector of 4, 8 or 16 floats that holds ``nweights`` weights, else the widest
+    (records of several chunks); none wider than ``cap`` (the device's vector cap,
+    ``widths.device_vector_cap``)."""
+    sizes = [n for n in (4, 8, 16) if n <= max(cap, 4)]
+    return next((n for n in sizes if nweights <= n), sizes[-1])
 
 
-def node_records(fine):
+def node_records(fine, chunk):
     """The fine table (nu, nv, weights) as kernels/blur_textured.cl reads it: each node's
-    weights padded with zeros to a whole number of ``record_chunk`` floats, float32, on the
-    device-alignment boundary (so every chunk load is aligned; a CPU runtime reads it in
-    place)."""
+    weights padded with zeros to a whole number of ``chunk`` floats (``record_chunk``),
+    float32, on the device-alignment boundary (so every chunk load is aligned; a CPU runtime
+    reads it in place)."""
     nu, nv, nweights = fine.shape
-    chunk = record_chunk(nweights)
     records = aligned_empty(nu * nv * chunk * -(-nweights // chunk), np.float32).reshape(
         (nu, nv, -1))
     records[..., nweights:] = 0
@@ -193,19 +194,34 @@ def node_records(fine):
     return records
 
 
-def lattice_args(plan, width):
+def lattice_args(plan, width, chunk):
     """Program options and the lattice arguments of kernels/blur_textured.cl for a plan, at
-    ``width`` texels per work-item: the fine table's size, then its coordinates'
-    (``fine_coords``: the Rd clamp, and per axis the scale and offset of
-    ``textured_plan.texel_coords``)."""
+    ``width`` texels per work-item and records read ``chunk`` floats at a time: the fine
+    table's size, then its coordinates' (``fine_coords``: the Rd clamp, and per axis the scale
+    and offset of ``textured_plan.texel_coords``)."""
     nu, nv, nweights = plan.fine.shape
     opts = build_options({"BD_NBASIS": len(plan.kernels), "BD_NEAR": plan.near,
                           "BD_NEAR_RANK": len(plan.near_basis),
                           "BD_NU_TAPS": 1 if nu == 1 else 2, "BD_NV_TAPS": 1 if nv == 1 else 2,
-                          "BD_WIDTH": width, "BD_CHUNK": record_chunk(nweights)})
+                          "BD_WIDTH": width, "BD_CHUNK": chunk})
     coords = [np.float32(v) for v in (RD_MIN, RD_MAX, *fine_axis_map(plan.axes[0]),
                                       *fine_axis_map(plan.axes[1]))]
     return opts, (np.int32(nu), np.int32(nv), *coords)
+
+
+def textured_kernel(rt, plan, n, name):
+    """(width, chunk, kernel, lattice arguments) of kernel ``name`` of kernels/blur_textured.cl
+    for a plan over rows of n texels: at ``gather_width``, or narrower where that build was
+    refused (``widths.built_at_width``), its records read in chunks within the device's vector
+    cap."""
+    chunk = record_chunk(plan.fine.shape[2], device_vector_cap(rt))
+
+    def build(width):
+        return cl.Kernel(get_program(rt, "blur_textured", lattice_args(plan, width, chunk)[0]),
+                         name)
+    width, knl = built_at_width(rt, "blur_textured", gather_width(rt, n), GATHER_WIDTHS_ALLOWED,
+                                build)
+    return width, chunk, knl, lattice_args(plan, width, chunk)[1]
 
 
 def weight_planes(plan, rd, ld, rt):
@@ -221,12 +237,11 @@ def device_weight_planes(plan, rd, ld, rt):
     buffer the separable column pass reads: kernels/blur_textured.cl, blur_separable.cl)."""
     h, w = rd.shape
     mf = cl.mem_flags
-    width = gather_width(rt, h * w)
-    opts, axis_args = lattice_args(plan, width)
-    bufs = [host_buffer(rt, a, mf.READ_ONLY) for a in (rd, ld, node_records(plan.fine))]
+    width, chunk, knl, axis_args = textured_kernel(rt, plan, h * w, "lattice_weights")
+    bufs = [host_buffer(rt, a, mf.READ_ONLY) for a in (rd, ld, node_records(plan.fine, chunk))]
     planes = cl.Buffer(rt.context, mf.READ_WRITE, max(plan.fine.shape[2] * h * w * 4, 4))
-    enqueue_items(cl.Kernel(get_program(rt, "blur_textured", opts), "lattice_weights"),
-                  rt.queue, -(-h * w // width), *bufs, planes, np.int32(h * w), *axis_args)
+    enqueue_items(knl, rt.queue, -(-h * w // width), *bufs, planes, np.int32(h * w),
+                  *axis_args)
     rt.queue.finish()                  # the host arrays under ``bufs`` are then free to go
     return planes
 
@@ -239,14 +254,13 @@ def gather_exitance(out, c, plan, rd, ld, planes, padded, x0, rt, settle=(0.0, T
     round-off of a non-negative irradiance)."""
     h, w, nch = out.shape
     mf = cl.mem_flags
-    width = gather_width(rt, w)
-    opts, axis_args = lattice_args(plan, width)
+    width, chunk, knl, axis_args = textured_kernel(rt, plan, w, "gather_exitance")
     bufs = [host_buffer(rt, a if a.size else np.zeros(1, np.float32), mf.READ_ONLY)
-            for a in (rd, ld, node_records(plan.fine), planes, padded,
+            for a in (rd, ld, node_records(plan.fine, chunk), planes, padded,
                       plan.near_basis)]                                     # none: 1 float
     dst = host_buffer(rt, out, mf.READ_WRITE)
     scale, nonneg = settle
-    cl.Kernel(get_program(rt, "blur_textured", opts), "gather_exitance")(
+    knl(
         rt.queue, (-(-w // width), h), None, *bufs, dst, np.int32(w), np.int32(h),
         np.int32(planes.shape[2]), np.int32(planes.shape[1] * planes.shape[2]),
         np.int32(padded.shape[1]), np.int32(x0), np.int32(nch), np.int32(c),

@@ -188,17 +188,19 @@ def test_out_arrays_that_overlap_each_other_are_refused(on_device):
             invert_albedo(rd, 1.4, return_rho=True, out=pair)
 
 
-def test_host_memory_is_used_without_copies(runtime):
-    """On a CPU device the kernel's buffers are the host arrays themselves: mapping an output
-    buffer gives back the array's own memory (in each launch)."""
-    assert transfer.shares_host_memory(runtime)
+def test_host_memory_is_used_without_copies_where_the_device_shares_it(runtime):
+    """On a device that shares host memory (a CPU device) the kernel's buffers are the host
+    arrays themselves: mapping an output buffer gives back the array's own memory (in each
+    launch). On a discrete one (a GPU) they are device buffers, filled from pinned staging
+    (``CL_MEM_ALLOC_HOST_PTR``) kept across calls."""
     k = InversionKernel((1.4,), MethodConfig(), runtime=runtime)
     out = transfer.aligned_empty(4096, np.float32)
     rd = albedos(4000)[:4096]
-    pointers = []
+    pointers, flags = [], []
 
-    def launch(n, bufs):
-        event = k(n, bufs["rd"], alpha=bufs["alpha"])
+    def launch(n, bufs, wait_for=None):
+        event = k(n, bufs["rd"], alpha=bufs["alpha"], wait_for=wait_for)
+        flags.append(bufs["alpha"].flags)
         mapped, _ = cl.enqueue_map_buffer(runtime.queue, bufs["alpha"], cl.map_flags.READ, 0,
                                           (n,), np.float32, wait_for=[event], is_blocking=True)
         pointers.append(mapped.ctypes.data)
@@ -206,24 +208,32 @@ def test_host_memory_is_used_without_copies(runtime):
         return event
 
     transfer.run_elementwise(runtime, launch, {"rd": rd}, {"alpha": out})
-    # rd (a slice of NumPy's array) is not aligned: its head is a launch of its own
-    head = transfer.aligned_head(rd, transfer.base_alignment(runtime))
-    assert pointers == [out.ctypes.data] + ([out.ctypes.data + 4 * head] if head else [])
     np.testing.assert_array_equal(out, k.run(rd)["alpha"])
+    if transfer.shares_host_memory(runtime):
+        # rd (a slice of NumPy's array) is not aligned: its head is a launch of its own
+        head = transfer.aligned_head(rd, transfer.base_alignment(runtime))
+        assert pointers == [out.ctypes.data] + ([out.ctypes.data + 4 * head] if head else [])
+        assert all(f & cl.mem_flags.USE_HOST_PTR for f in flags)
+    else:
+        assert not any(f & cl.mem_flags.USE_HOST_PTR for f in flags)
+        pinned = [key for key in transfer.DEVICE_BUFFERS._data if "pinned" in str(key)]
+        assert pinned, "no pinned staging buffer was made"
 
 
 def test_staged_path_reuses_its_buffers(runtime, monkeypatch):
-    """The discrete-device path (pinned staging into device buffers, forced here on a CPU
-    device) gives the same bits, over several chunks, and allocates nothing on a second call."""
+    """The discrete-device path (pinned staging into device buffers, chunks in a pipeline of
+    STAGES on three queues; forced here on a CPU device) gives the same bits, over many
+    chunks, and allocates nothing on a second call."""
     monkeypatch.setattr(transfer, "shares_host_memory", lambda rt: False)
     monkeypatch.setattr(transfer, "DEVICE_CHUNK", 1 << 12)
     transfer.DEVICE_BUFFERS.clear()
-    rd = albedos(10000)
+    rd = albedos(30000)                             # 8 chunks: every slot used again
     k = InversionKernel((1.4,), MethodConfig(), runtime=runtime)
     got = k.run(rd, None, ("alpha", "rho"))
     held = len(transfer.DEVICE_BUFFERS)
     again = k.run(rd, None, ("alpha", "rho"))
-    assert held == 6 and len(transfer.DEVICE_BUFFERS) == held     # rd, alpha, rho: 2 each
+    # rd, alpha, rho: a device and a pinned buffer each per stage, and the two extra queues
+    assert held == 3 * 2 * transfer.STAGES + 1 and len(transfer.DEVICE_BUFFERS) == held
     monkeypatch.undo()
     want = k.run(rd, None, ("alpha", "rho"))
     for key in ("alpha", "rho"):

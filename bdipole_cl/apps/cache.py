@@ -72,6 +72,13 @@ def pyopencl_cache() -> Path:
         return xdg("XDG_CACHE_HOME", ".cache") / "pyopencl"
 
 
+def nvidia_compute_cache() -> Path:
+    """Where NVIDIA's driver keeps the GPU code it compiles ($CUDA_CACHE_PATH, else
+    ~/.nv/ComputeCache)."""
+    named = os.environ.get("CUDA_CACHE_PATH")
+    return Path(named) if named else Path.home() / ".nv" / "ComputeCache"
+
+
 def matplotlib_folders() -> tuple[Path, Path]:
     """matplotlib's (cache, configuration) folders, found without creating them."""
     named = os.environ.get("MPLCONFIGDIR")
@@ -102,6 +109,9 @@ def cache_folders() -> list[CacheFolder]:
         CacheFolder("matplotlib's font list (pictures)", mpl_cache, "MPLCONFIGDIR", "matplotlib"),
         CacheFolder("matplotlib's settings folder (made empty)", mpl_config, "MPLCONFIGDIR",
                     "matplotlib"),
+        CacheFolder("NVIDIA's compiled GPU kernels (its OpenCL driver's JIT cache; only on "
+                    "an NVIDIA GPU)", nvidia_compute_cache(),
+                    "CUDA_CACHE_PATH (CUDA_CACHE_DISABLE=1: none)", "NVIDIA's driver"),
         CacheFolder("Dask's scratch space (--scheduler local:N)",
                     Path(tempfile.gettempdir()) / "dask-scratch-space",
                     "DASK_TEMPORARY_DIRECTORY", "Dask"),

@@ -35,8 +35,8 @@ from ..methods.choice import (ChoiceData, DeviceKey, KernelTuning, calibration_i
 from ..methods.registry import BLUR_KERNELS, BlurChoice, InversionChoice, MethodConfig
 from ..ops.invert import InversionKernel
 from ..device.runtime import forced
-from .benchmark import (GATHER_WIDTH_CHOICES, fitted_gather_costs, gather_rows,
-                        inversion_workload, reference_inverse, stiff_workload,
+from .benchmark import (GATHER_WIDTH_CHOICES, TABLE_WIDTH_CHOICES, fitted_gather_costs,
+                        gather_rows, inversion_workload, reference_inverse, stiff_workload,
                         table_width_times, time_inversion)
 from .preview import replaced_together
 
@@ -335,12 +335,17 @@ def kernel_tuning(n, gather_size, repeats, progress=print) -> KernelTuning:
     """The current device's fastest table width (the default table inversion of ``n`` albedos,
     at least TABLE_TUNING_TEXELS), fastest gather width (the texture-varying gather at near
     field 3), and gather costs at that width (``benchmark.gather_rows``, a ``gather_size``
-    map)."""
+    map); only the widths the device's probe passed are timed (a rejected one is never built:
+    ``device.isolation``)."""
+    from ..device import get_runtime
     from ..ops.blur.dispatch import GATHER_WIDTH_VARIABLE
-    table = table_width_times(max(n, TABLE_TUNING_TEXELS), repeats)
+    from ..ops.widths import passes
+    rt = get_runtime()
+    table = table_width_times(max(n, TABLE_TUNING_TEXELS), repeats,
+                              [w for w in TABLE_WIDTH_CHOICES if passes(rt, "invert_table", w)])
     progress("  table widths: " + ", ".join(f"{w}: {t * 1e3:.2f} ms" for w, t in table.items()))
     gather = {}
-    for width in GATHER_WIDTH_CHOICES:
+    for width in [w for w in GATHER_WIDTH_CHOICES if passes(rt, "blur_textured", w)]:
         with forced(GATHER_WIDTH_VARIABLE, width):
             gather[width] = gather_rows(gather_size, repeats=repeats, radii=(3,))[0][0].seconds
     progress("  gather widths: " + ", ".join(f"{w}: {t * 1e3:.2f} ms" for w, t in gather.items()))

@@ -102,7 +102,22 @@ def evaluation_source(source: str, path: str, name: str, kind: str) -> str:
             f"    {call}\n}}\n")
 
 
+#: a compiler's error line, whatever names the file: clang's ``file:LINE:COL: error: text``
+#: (Intel's runtime, PoCL), ``<kernel>:LINE:COL: error:`` or ``file(LINE): error`` (other
+#: drivers' logs): the line and the message
+COMPILER_ERROR = re.compile(r"(?::(\d+)(?::\d+)?|\((\d+)\))\s*:?\s*error\s*:?\s*(.*)", re.I)
+
+
 def _build_error(path, name, kind, log: str) -> str:
+    """One line: the user's file and line of the compiler's first error, its words, and the
+    signature expected; else every error line of the log. The source given to the compiler
+    marks the user's lines (``#line``), so the compiler's line is the user's."""
+    for ln in str(log).splitlines():
+        found = COMPILER_ERROR.search(ln)
+        if found and "wrapper" not in ln:
+            line = found.group(1) or found.group(2)
+            return (f"{path}:{line}: error: {found.group(3).strip()[:300]} (building {name}; "
+                    f"expected: {signature(kind, name)})")
     lines = [ln.strip() for ln in str(log).splitlines() if path in ln or "error" in ln.lower()]
     detail = "; ".join(dict.fromkeys(lines)) or str(log).strip().splitlines()[-1]
     return (f"{path}: building {name} failed (expected: {signature(kind, name)}): "

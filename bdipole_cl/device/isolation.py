@@ -364,7 +364,8 @@ def run_probe(device_index: str, description: str) -> Verdict:
 
 
 _lock = threading.Lock()
-_verdicts: dict = {}              # verdict path -> Verdict (this process)
+_verdicts: dict = {}              # verdict key -> Verdict (this process, wherever the cache
+#                                   folder points: a device's verdict is the device's)
 
 
 @contextlib.contextmanager
@@ -407,13 +408,14 @@ def device_verdict(device, device_index: str, kernels_digest: str, describe: str
     """The device's verdict: this process's, else the cached one, else probed now (seconds
     to a minute, once per device, driver and kernels; one process at a time) and cached.
     Says on stderr that it is probing, and what it rejected when it probes."""
+    key = verdict_key(device, kernels_digest)
     path = verdict_path(device, kernels_digest)
     with _lock:
-        hit = _verdicts.get(path) or read_verdict(path)
+        hit = _verdicts.get(key) or read_verdict(path)
         if hit is None:
             with _probing(path, describe):
                 hit = read_verdict(path) or _probe_and_cache(path, device_index, describe)
-        _verdicts[path] = hit
+        _verdicts[key] = hit
     return hit
 
 
@@ -438,13 +440,13 @@ def _probe_and_cache(path: Path, device_index: str, describe: str) -> Verdict:
 
 def cached_verdict(device, kernels_digest: str) -> Verdict | None:
     """This process's verdict of ``device``, else the cache file's, else None (no probe)."""
-    path = verdict_path(device, kernels_digest)
+    key = verdict_key(device, kernels_digest)
     with _lock:
-        hit = _verdicts.get(path)
+        hit = _verdicts.get(key)
         if hit is None:
-            hit = read_verdict(path)
+            hit = read_verdict(verdict_path(device, kernels_digest))
             if hit is not None:
-                _verdicts[path] = hit
+                _verdicts[key] = hit
         return hit
 
 

@@ -429,6 +429,17 @@ def get_runtime(device=None) -> Runtime:
                     f"string such as '0:0' or 'intel'")
 
 
+def runtime_of_array(array) -> Runtime:
+    """The Runtime a device array (``pyopencl.array.Array``) lives on: this process's own for
+    its context where it made it, else one of its context and queue (probed when used, as any
+    Runtime made by hand)."""
+    with _lock:
+        for rt in _runtimes.values():
+            if rt.context == array.context:
+                return rt
+    return Runtime(array.context, array.queue or cl.CommandQueue(array.context))
+
+
 def use_device(device=None) -> Runtime:
     """Make ``device`` (anything ``get_runtime`` takes; None: choose again) the default."""
     global _default

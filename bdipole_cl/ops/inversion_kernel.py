@@ -242,6 +242,26 @@ class InversionKernel:
         with self._lock:
             return self._run_checked(rd, mfp, want, out, check, mfp_channels)
 
+    def run_buffers(self, n, rd, mfp=None, outputs=None, *, check=0, mfp_channels=None,
+                    wait_for=None):
+        """The kernel over ``n`` elements of device buffers (device-resident arrays:
+        ``inversion_device``): ``outputs`` {name: buffer}, ``mfp`` a buffer of one value per
+        element or ``mfp_channels`` one value per channel. Returns (its event, whether an input
+        broke the rule ``check`` tests: None without a test; one int read back). One call at a
+        time, as ``run_checked``."""
+        with self._lock:
+            flag_buf = self._flag_buf if check else None
+            if check:
+                self._flag[0] = 0
+                cl.enqueue_copy(self.rt.queue, flag_buf, self._flag)
+            const = None if mfp_channels is None else self._mfp_channels_buffer(mfp_channels)
+            event = self(n, rd, mfp if const is None else const, **(outputs or {}),
+                         invalid=flag_buf, check=check, mfp_channels=const is not None,
+                         wait_for=wait_for)
+            if check:
+                cl.enqueue_copy(self.rt.queue, self._flag, flag_buf)
+            return event, (bool(self._flag[0]) if check else None)
+
     def _mfp_channels_buffer(self, values):
         """A constant buffer of the per-channel mfp ``values``, the last one kept."""
         values = np.ascontiguousarray(values, self.dtype)
@@ -268,10 +288,10 @@ class InversionKernel:
             self._flag[0] = 0
             cl.enqueue_copy(rt.queue, flag_buf, self._flag)
 
-        def launch(count, bufs):
+        def launch(count, bufs, wait_for=None):
             return self(count, bufs["rd"], bufs.get("mfp", const_mfp),
                         **{k: bufs[k] for k in want}, invalid=flag_buf, check=check,
-                        mfp_channels=const_mfp is not None)
+                        mfp_channels=const_mfp is not None, wait_for=wait_for)
 
         run_elementwise(rt, launch, inputs, outs, multiple=self.nchan * max(self.width, 1),
                         nchan=self.nchan)

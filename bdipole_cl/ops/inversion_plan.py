@@ -22,6 +22,8 @@ from ..methods.registry import MFP_KIND, MFP_KINDS, OUTPUTS, MethodConfig
 from ..physics.models import MODEL
 from .host_arrays import (apart_from, channel_values, check_out_shapes, shared_channels,
                           texel_broadcast)
+from ..device.transfer import is_device_array
+from .inversion_device import apply_on_device, send_to, shares_memory
 from .inversion_kernel import (CHECK_ALBEDO, CHECK_COEFFICIENTS, MFP_MIN, InversionKernel,
                                inversion_kernel, output_array)
 
@@ -242,7 +244,21 @@ class InversionPlan:
         {name: array} dict, a sequence in ``outputs`` order, or one array (the first output);
         each C-contiguous, writeable, of the input's shape (or flat, of its size) and the
         plan's dtype (on a device that shares host memory the kernel writes into them in
-        place); outputs not given are new arrays."""
+        place); outputs not given are new arrays.
+
+        Device arrays (``pyopencl.array.Array``) in, device arrays out, on the plan's device
+        (``inversion_device``)."""
+        if is_device_array(rd) or is_device_array(mfp):
+            with self._lock:
+                outs, redo = apply_on_device(self, rd, mfp, mask, self._out_dict(out))
+            if redo is None:
+                return Inverted(outs)
+            done = self._apply_host(redo.rd, redo.mfp)      # an input broke its rule
+            send_to(outs, done.arrays)
+            return Inverted(outs, done.invalid_albedo, done.invalid_mfp)
+        return self._apply_host(rd, mfp, mask, out)
+
+    def _apply_host(self, rd, mfp=None, mask=None, out=None) -> Inverted:
         out = self._out_dict(out)
         with self._lock:
             mfp_map, shared = None, 1
@@ -334,7 +350,7 @@ class InversionPlan:
         if isinstance(out, dict):
             arrays = out
         else:
-            seq = (out,) if isinstance(out, np.ndarray) else tuple(out)
+            seq = (out,) if isinstance(out, np.ndarray) or is_device_array(out) else tuple(out)
             if len(seq) > len(self.outputs):
                 raise ValueError(f"out: {len(seq)} arrays for the {len(self.outputs)} "
                                  f"outputs {', '.join(self.outputs)}")
@@ -342,7 +358,7 @@ class InversionPlan:
         names = list(arrays)
         for i, a in enumerate(names):
             for b in names[i + 1:]:
-                if np.shares_memory(arrays[a], arrays[b]):
+                if shares_memory(arrays[a], arrays[b]):
                     raise ValueError(f"out: the arrays for {a} and {b} overlap; give each "
                                      f"output its own memory")
         return arrays

@@ -10,6 +10,8 @@ import numpy as np
 
 from ..errors import check_numbers
 from ..methods.registry import MethodConfig
+from ..device.runtime import runtime_of_array
+from ..device.transfer import is_device_array
 from .inversion_kernel import InversionKernel
 from .host_arrays import texel_broadcast
 from .inversion_plan import (MFP_CLAMP_RANGE, OUTPUTS, RD_CLAMP_MAX, InversionPlan, Inverted,
@@ -19,6 +21,23 @@ __all__ = ["CoefficientMapper", "InversionKernel", "InversionPlan", "Inverted",
            "MFP_CLAMP_RANGE", "OUTPUTS", "RD_CLAMP_MAX", "albedo_to_coefficients",
            "channel_etas", "check_mfp_kind", "check_outputs", "invert_albedo",
            "plan_inversion"]
+
+
+def device_of(device, *values):
+    """``device``, else the runtime of the first device array among ``values`` (an inversion
+    of device arrays runs where they are), else None (the default device)."""
+    if device is not None:
+        return device
+    return next((runtime_of_array(v) for v in values if is_device_array(v)), None)
+
+
+def device_channel_etas(etas, rd, mfp):
+    """``etas``, one per channel where device albedos take a per-channel mfp beside one eta
+    (the kernel reads one mfp a channel: a map of them would cross the bus)."""
+    if (is_device_array(rd) and not is_device_array(mfp) and len(etas) == 1 and rd.ndim
+            and np.ndim(mfp) == 1 and np.size(mfp) == rd.shape[-1] > 1):
+        return etas * rd.shape[-1]
+    return etas
 
 
 def channel_etas(eta, shape):
@@ -42,8 +61,11 @@ def invert_albedo(rd, eta, method="table", *, return_rho=False, model="better", 
 
     Parameters
     ----------
-    rd : array_like, any shape, float32 or float64
+    rd : array_like, any shape, float32 or float64; or a pyopencl.array.Array
         Diffuse reflectance ("albedo"), linear. Rd <= 0 gives alpha' = 0, Rd = 1 gives 1.
+        A device array (C-contiguous, of the computation's precision) is inverted where it
+        is, into device arrays (``out`` too): nothing crosses the bus but one int
+        (docs/python.md "Arrays on the device").
     eta : float or sequence of float
         Relative index of refraction; one per channel (the last axis of ``rd``) allowed.
     method : {"table", "secant", "bisection", "memo", "auto"} or MethodConfig
@@ -79,10 +101,11 @@ def invert_albedo(rd, eta, method="table", *, return_rho=False, model="better", 
     (``bdipole_cl.device.transfer``). float32 input is tested for invalid values by the kernel
     itself as it reads them; the host looks for the first invalid value only when one was seen.
     """
-    rd = as_float(rd)
+    rd = rd if is_device_array(rd) else as_float(rd)
     plan = plan_inversion(channel_etas(eta, rd.shape), method,
                           outputs=("alpha", "rho") if return_rho else ("alpha",), model=model,
-                          exact=exact, double=double, on_invalid=on_invalid, device=device,
+                          exact=exact, double=double, on_invalid=on_invalid,
+                          device=device_of(device, rd),
                           iterations=iterations, tol=tol, table_size=table_size, polish=polish,
                           seed_size=seed_size)
     arrays = plan.apply(rd, out=out).arrays
@@ -135,14 +158,21 @@ def albedo_to_coefficients(rd, mfp, eta, method="table", *, model="better", exac
     ``on_invalid="clamp"`` maps Rd >= 1 to the largest float32 below 1 (finite, very large
     sigma_t'), NaN albedo to 0, and mfp into ``MFP_CLAMP_RANGE`` (NaN -> its top).
 
+    ``rd`` and ``mfp`` may be device arrays (``pyopencl.array.Array``, the mfp of the albedos'
+    shape, or one value or one per channel on the host): the outputs are device arrays then
+    (as ``invert_albedo``'s).
+
     ``outputs`` picks what is returned, in order, from alpha, rho, sigma_a, sigma_s, sigma_t.
     ``device``: where to run, as for ``invert_albedo``. ``out``: arrays to write the outputs
     into, one per output in order (as ``invert_albedo``'s ``out``); returned.
     """
-    rd, mfp = texel_broadcast(as_float(rd), as_float(mfp))
-    rd = np.broadcast_to(rd, np.broadcast_shapes(rd.shape, mfp.shape))  # a one-value albedo
-    plan = plan_inversion(channel_etas(eta, rd.shape), method, outputs=check_outputs(outputs),
+    if not (is_device_array(rd) or is_device_array(mfp)):
+        rd, mfp = texel_broadcast(as_float(rd), as_float(mfp))
+        rd = np.broadcast_to(rd, np.broadcast_shapes(rd.shape, mfp.shape))  # one albedo
+    plan = plan_inversion(device_channel_etas(channel_etas(eta, rd.shape), rd, mfp), method,
+                          outputs=check_outputs(outputs),
                           mfp_kind=check_mfp_kind(mfp_kind), model=model, exact=exact,
-                          double=double, on_invalid=on_invalid, device=device, **knobs)
+                          double=double, on_invalid=on_invalid,
+                          device=device_of(device, rd, mfp), **knobs)
     result = tuple(plan.apply(rd, mfp, out=out).arrays.values())
     return result if len(result) > 1 else result[0]

@@ -64,7 +64,14 @@ def test_data_for_another_device_are_not_used(on_device, cache_dir, caplog):
     assert "table(size=8" not in caplog.text
     _, info = blur(np.ones((8, 8, 1), np.float32), albedo=0.8, mfp=1.0, return_info=True)
     assert info.channels[0].auto.data.startswith("shipped choice data"), info
-    assert info.channels[0].method != "gaussians"
+    # the pick is this device's data's (the shipped data with its probe's timings), not the
+    # foreign data's (gaussians, measured error 1e-9)
+    from bdipole_cl.ops.blur import channel_parameters
+    from bdipole_cl.ops.blur.planning import auto_data, plan_channel
+    (a, st, eta), = channel_parameters(1, albedo=0.8, mfp=1.0, eta=1.4)
+    own = plan_channel("auto", a, st, eta, 1e-3, False, auto_data(on_device))
+    assert (info.channels[0].method, info.channels[0].auto) == (own.method, own.auto), info
+    assert info.channels[0].auto.measured_error != 1e-9
 
 
 def test_short_calibration_is_what_auto_then_reads(on_device, cache_dir, caplog):
@@ -102,11 +109,15 @@ def test_short_calibration_is_what_auto_then_reads(on_device, cache_dir, caplog)
     assert pick.auto.data.startswith("choice data calibrated on this device"), pick
 
 
-def test_auto_blurs_on_a_gpu_without_its_own_data(cache_dir):
+def test_auto_blurs_on_a_gpu_without_its_own_data(cache_dir, monkeypatch):
     """On a device that is not a CPU, the shipped (CPU) data's timings say nothing: auto keeps
-    to the methods that run on the device, never the host FFT."""
+    to the methods that run on the device: every one where the FFT runs there (its engine,
+    ``widths.fft_engine``: the device on a GPU without timings), never the host FFT."""
+    from bdipole_cl.ops.widths import FFT_ENGINE_VARIABLE
     gpu = SimpleNamespace(vendor="Vendor", name="GPU", driver_version="1", type=cl.device_type.GPU)
     rt = Runtime(context=None, queue=SimpleNamespace(device=gpu))
+    assert auto_data(rt).methods is None
+    monkeypatch.setenv(FFT_ENGINE_VARIABLE, "host")
     auto = auto_data(rt)
     assert auto.methods == ("direct", "gaussians") and "fft" not in auto.methods
     assert auto.source.startswith("shipped choice data, measured on another device")

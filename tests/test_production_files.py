@@ -1080,7 +1080,9 @@ def test_an_interrupted_demo_runs_again_in_its_folder(tmp_path, monkeypatch, cap
         143 if stop == "SIGTERM" else 130)
     assert not [p for p in folder.rglob(".*") if p.name != ".bdipole_demo"]
     monkeypatch.undo()
-    assert cli_main(["demo", "--dir", str(folder), "--no-progress"]) == 0
+    capsys.readouterr()
+    rc = cli_main(["demo", "--dir", str(folder), "--no-progress"])
+    assert rc == 0, capsys.readouterr()         # what failed, where it fails (a GPU did once)
     (folder / "albedo.exr").write_bytes(b"the user's")
     assert cli_main(["demo", "--dir", str(folder), "--no-progress"]) == 2
     assert (folder / "albedo.exr").read_bytes() == b"the user's"

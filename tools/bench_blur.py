@@ -27,6 +27,11 @@ warm time to the constant default in the same run, the warm time with the spectr
 each call, and the max error at sampled texels against their own exact kernels (per-exit-texel
 reference).
 
+``--device-arrays`` also times ``auto`` with the map and the exitance as device arrays
+(device to device) and host to host, beside CuPy's ``cupyx.scipy.signal.fftconvolve`` of the
+same map and kernels, device-only and host to host, where CuPy is installed (the GPU goals;
+``tools/gpu_check.sh``).
+
 ``--gather`` measures instead the texture-varying gather's costs on the device
 (``near_field.GatherCosts``, what chooses the near field): for each near field radius, the
 gather's time and the basis blurs' per kernel on the varying workload at mfp 4, and the
@@ -112,6 +117,9 @@ def main(argv=None):
                     help="alternated runs of each goal's two sides (their median ratio)")
     ap.add_argument("--samples", type=int, default=48, help="texels checked per channel")
     ap.add_argument("--device", help="OpenCL device (as `bdipole-cl --device`); default: automatic")
+    ap.add_argument("--device-arrays", action="store_true",
+                    help="also time auto with device arrays in and out, and CuPy's "
+                         "fftconvolve where CuPy is installed (the GPU goals)")
     ap.add_argument("--gather", action="store_true",
                     help="measure the texture-varying gather's costs per near field radius")
     args = ap.parse_args(argv)
@@ -168,8 +176,69 @@ def main(argv=None):
             vs_vary = paired_ratio(lambda: blur(e, albedo=albedo, mfp=mfps, eta=1.4,
                                                 tol=args.tol), constant_auto, args.pairs)
         summary.append((mfp, t_peer, t_const, t_vary, vs_peer, vs_vary))
+        if args.device_arrays:
+            device_rows(e, mfp, args)
     print_summary(summary, args.pairs)
     return 0
+
+
+def _synced(fn):
+    """fn(), its device arrays finished (their events waited for)."""
+    out = fn()
+    for a in out if isinstance(out, (tuple, list)) else (out,):
+        if hasattr(a, "finish"):
+            a.finish()
+    return out
+
+
+def cupy_peers(e, kernels, repeats):
+    """(device-only, host-to-host) seconds of CuPy's ``cupyx.scipy.signal.fftconvolve`` of the
+    map with the blur's kernels (``mode="same"``), the peer a GPU user would write; None where
+    CuPy is not installed (it is no dependency: ``tools/gpu_check.sh`` runs it where it is)."""
+    try:
+        import cupy as cp
+        from cupyx.scipy.signal import fftconvolve as cfft
+    except ImportError:
+        return None
+    ks = [cp.asarray(k) for k in kernels]
+    e_dev = cp.asarray(e)
+
+    def device_only():
+        out = [cfft(e_dev[..., c], ks[c], mode="same") for c in range(3)]
+        cp.cuda.runtime.deviceSynchronize()
+        return out
+
+    def host_to_host():
+        d = cp.asarray(e)
+        return cp.stack([cfft(d[..., c], ks[c], mode="same") for c in range(3)], -1).get()
+    device_only(), host_to_host()
+    return timed(device_only, repeats)[0], timed(host_to_host, repeats)[0]
+
+
+def device_rows(e, mfp, args):
+    """``auto`` with the map as a device array (the exitance one too: device to device) and
+    host to host, beside CuPy's fftconvolve of the same map and kernels (the GPU goals: host
+    to host faster than CuPy's, device to device within 2x of CuPy's device-only time)."""
+    import pyopencl.array as cla
+    rt = get_runtime()
+    e_dev = cla.to_device(rt.queue, e)
+
+    def on_device():
+        return _synced(lambda: blur(e_dev, albedo=ALBEDO, mfp=mfp, eta=1.4, tol=args.tol))
+    on_device()
+    t_dev, _ = timed(on_device, args.repeats)
+    t_host, _ = timed(lambda: blur(e, albedo=ALBEDO, mfp=mfp, eta=1.4, tol=args.tol),
+                      args.repeats)
+    line = (f"{mfp:5g} device arrays: auto device to device {t_dev * 1e3:8.1f} ms, host to "
+            f"host {t_host * 1e3:8.1f} ms")
+    peers = cupy_peers(e, impulse_responses(mfp, args.tol), args.repeats)
+    if peers is None:
+        print(line + "; CuPy not installed here: its peers not measured")
+        return
+    t_cd, t_ch = peers
+    print(line + f"; CuPy fftconvolve device-only {t_cd * 1e3:.1f} ms, host to host "
+          f"{t_ch * 1e3:.1f} ms: device to device {t_dev / t_cd:.2f}x CuPy's (goal <= 2), "
+          f"host to host {t_ch / t_host:.2f}x CuPy's speed (goal > 1)")
 
 
 def print_summary(summary, pairs):

@@ -37,7 +37,8 @@ import numpy as np
 from ..device.children import die_with, emit, inject_fault
 from ..device.isolation import EXIT, VECTOR_ABI, VECTOR_ABI_WIDTHS, vector_cap
 from ..device.runtime import forced
-from .widths import VECTOR_CAP_VARIABLE, blur_timing_name
+from .widths import (DEVICE_FFT_CONFIGS, DEVICE_FFT_TIMING, FFT_ENGINE_VARIABLE,
+                     VECTOR_CAP_VARIABLE, blur_timing_name)
 
 #: a probe's loose agreement with the float64 reference (relative, of rho and of the blur's
 #: exitance): a working float32 kernel is within ~1e-5 (docs/model.md "Accuracy"); a
@@ -82,6 +83,12 @@ def vector_abi_reason(rt, width: int) -> str:
         return ""
     return (f"the compiler passes float{width} to its built-ins otherwise than they take it "
             f"(its log: {found.group(0)})")
+
+
+def _assert_small(err, what):
+    """A relative error within PROBE_RTOL, else the check fails naming ``what``."""
+    if not np.isfinite(err) or err > PROBE_RTOL:
+        raise RuntimeError(f"{what} computed wrongly (max relative error {err:.3g})")
 
 
 def _assert_close(got, want, what):
@@ -164,6 +171,52 @@ def blur_check(method):
     return run
 
 
+def device_fft_check(double):
+    """kernels/fft.cl (``ops.device_fft``): a batch of two planes of a mixed-radix size,
+    forward and back, against NumPy's FFT, within PROBE_RTOL of the largest value (a working
+    float32 transform is within ~1e-6; a miscompiled one is off by far more)."""
+    def run(rt):
+        import pyopencl as cl
+        from .device_fft import DeviceFFT, device_fft_len
+        dtype = np.float64 if double else np.float32
+        shape = (device_fft_len(30), device_fft_len(44))
+        x = np.random.default_rng(4).random((2, *shape)).astype(dtype)
+        fft = DeviceFFT(rt, shape, 2, double)
+        mf = cl.mem_flags
+        src = cl.Buffer(rt.context, mf.READ_WRITE | mf.COPY_HOST_PTR, hostbuf=x)
+        spec = cl.Buffer(rt.context, mf.READ_WRITE, x.size * 2 * x.itemsize * 2)
+        fft.forward(src, spec)
+        got = np.empty((2, shape[0], shape[1] // 2 + 1), np.complex128 if double
+                       else np.complex64)
+        cl.enqueue_copy(rt.queue, got, spec)
+        want = np.fft.rfft2(x.astype(np.float64))
+        _assert_small(np.abs(got - want).max() / np.abs(want).max(), "forward FFT")
+        fft.inverse(spec, src)
+        back = np.empty_like(x)
+        cl.enqueue_copy(rt.queue, back, src)
+        _assert_small(np.abs(back - x).max() / np.abs(x).max(), "inverse FFT")
+        return None
+    return run
+
+
+def blur_fft_check():
+    """kernels/blur_fft.cl with the device's FFT: the FFT blur on the device is the host's
+    FFT blur, within PROBE_RTOL of the peak (both float32 FFT convolutions of one kernel:
+    ~1e-6 apart when they work)."""
+    def run(rt):
+        e = np.random.default_rng(5).random((40, 52, 2), np.float32)
+        got, want = (_forced_engine_blur(e, rt, engine) for engine in ("device", "host"))
+        _assert_small(np.abs(got - want).max() / np.abs(want).max(), "device FFT blur")
+        return None
+    return run
+
+
+def _forced_engine_blur(e, rt, engine):
+    from .blur import blur
+    with forced(FFT_ENGINE_VARIABLE, engine):
+        return blur(e, albedo=(0.6, 0.3), mfp=2.0, method="fft", border="clamp", device=rt)
+
+
 def _smooth_textures(size):
     """Albedo 0.5..0.7 and mfp 2.5..3.5 texels varying across a ``size`` square: a
     texture-varying blur with several basis kernels and a near field."""
@@ -237,18 +290,34 @@ TIMING_ROUNDS = 5
 #: keeps the probe to seconds, and ``auto`` compares the methods at one radius, whose costs
 #: scale alike with the area
 BLUR_TIMING_SIZE = 256
-def blur_timers(rt) -> dict:
+#: the side of the blur timings' image on a device that is not a CPU: a GPU's fixed costs per
+#: launch (tens of microseconds) would decide at 256^2, where its throughput decides at the
+#: sizes users blur
+GPU_BLUR_TIMING_SIZE = 1024
+
+
+def blur_timers(rt, passed=frozenset()) -> dict:
     """{name: one blur}: each (method, kernel radius) of the shipped choice data, on its
     workload's mfp at its reference tol (``methods.choice.timing_references``): what decides
-    the crossovers of ``blur(method="auto")`` between methods on this device."""
+    the crossovers of ``blur(method="auto")`` between methods on this device; the ``fft``
+    method on each engine (the host's, and the device's where its kernels ``passed``): what
+    decides ``widths.fft_engine``."""
+    from ..device.runtime import device_kind
     from ..methods.choice import PACKAGED_CHOICE_DATA, load_choice_data, timing_references
     from .blur import blur
-    e = np.random.default_rng(3).random((BLUR_TIMING_SIZE, BLUR_TIMING_SIZE, 1), np.float32)
+    side = BLUR_TIMING_SIZE if device_kind(rt.device) == "cpu" else GPU_BLUR_TIMING_SIZE
+    e = np.random.default_rng(3).random((side, side, 1), np.float32)
+
+    def one(ref, engine):
+        with forced(FFT_ENGINE_VARIABLE, engine):
+            blur(e, albedo=0.8, mfp=ref.mfp, method=ref.method, tol=ref.tol, border="clamp",
+                 device=rt)
     timers = {}
     for ref in timing_references(load_choice_data(PACKAGED_CHOICE_DATA)):
-        timers[blur_timing_name(ref.method, ref.radius)] = (
-            lambda ref=ref: blur(e, albedo=0.8, mfp=ref.mfp, method=ref.method, tol=ref.tol,
-                                 border="clamp", device=rt))
+        timers[blur_timing_name(ref.method, ref.radius)] = lambda ref=ref: one(ref, "host")
+        if ref.method == "fft" and set(DEVICE_FFT_CONFIGS) <= set(passed):
+            timers[blur_timing_name(DEVICE_FFT_TIMING, ref.radius)] = (
+                lambda ref=ref: one(ref, "device"))
     return timers
 
 
@@ -263,7 +332,7 @@ def timed_runs(rt, passed, failed=frozenset()) -> dict:
         runs.update({f"{source}/w{w}": make(rt, w) for w in allowed[kind]
                      if f"{source}/w{w}" in passed})
     if {"blur_direct", "blur_separable"} <= passed:
-        runs.update(blur_timers(rt))
+        runs.update(blur_timers(rt, passed))
     return {name: run for name, run in runs.items() if name not in failed}
 
 
@@ -302,7 +371,10 @@ def checks(fp64: bool) -> list:
             KernelCheck("physics_eval", physics_check(False)),
             KernelCheck("physics_eval/f64", physics_check(True), fp64=True),
             KernelCheck("blur_direct", blur_check("direct")),
-            KernelCheck("blur_separable", blur_check("gaussians"))]
+            KernelCheck("blur_separable", blur_check("gaussians")),
+            KernelCheck("fft", device_fft_check(False)),
+            KernelCheck("fft/f64", device_fft_check(True), fp64=True),
+            KernelCheck("blur_fft", blur_fft_check())]
     out += [KernelCheck(f"blur_textured/w{w}", gather_check(w), width=w)
             for w in GATHER_WIDTHS_ALLOWED]
     return [c for c in out if fp64 or not c.fp64]

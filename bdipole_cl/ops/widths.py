@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 from ..device.guard import BuildRefused
 from ..device.isolation import VECTOR_ABI_WIDTHS, config_name
-from ..device.runtime import DeviceError, known_verdict
+from ..device.runtime import DeviceError, device_kind, known_verdict
 
 log = logging.getLogger("bdipole_cl")
 
@@ -111,8 +111,42 @@ def blur_timing_name(method: str, radius: int) -> str:
     return f"{BLUR_TIMING}/{method}/r{radius}"
 
 
-def blur_timings(rt) -> dict:
-    """{(method, radius): seconds} of the blur timings of ``rt``'s device's probe."""
+#: forces where method="fft" transforms: "host" (scipy.fft on all cores) or "device"
+#: (kernels/fft.cl, ``ops.device_fft``)
+FFT_ENGINE_VARIABLE = "BDIPOLE_CL_FFT_ENGINE"
+FFT_ENGINES = ("host", "device")
+#: the probe's name of the device engine's FFT blur timings (``blur_timing_name``'s method)
+DEVICE_FFT_TIMING = "fft@device"
+#: the probe's checks of the device FFT's kernels (``passes`` them before using it)
+DEVICE_FFT_CONFIGS = ("fft", "blur_fft")
+
+
+def fft_engine(rt) -> str:
+    """Where ``method="fft"`` transforms on ``rt``'s device: forced by FFT_ENGINE_VARIABLE,
+    else the faster of the two at the radii the probe timed both (its blur timings), else the
+    device on a device that is not a CPU (the host's FFT there means the bus both ways) and
+    the host on a CPU; never the device where the probe rejected its kernels."""
+    forced = os.environ.get(FFT_ENGINE_VARIABLE)
+    if forced:
+        if forced not in FFT_ENGINES:
+            raise ValueError(f"{FFT_ENGINE_VARIABLE}={forced!r}: expected one of "
+                             f"{', '.join(FFT_ENGINES)}")
+        return forced
+    if not all(passes(rt, name) for name in DEVICE_FFT_CONFIGS):
+        return "host"
+    times = blur_timings(rt, raw=True)
+    host = {r: t for (m, r), t in times.items() if m == "fft"}
+    device = {r: t for (m, r), t in times.items() if m == DEVICE_FFT_TIMING}
+    both = sorted(set(host) & set(device))
+    if both:
+        return "device" if sum(device[r] for r in both) < sum(host[r] for r in both) else "host"
+    return "host" if device_kind(rt.device) == "cpu" else "device"
+
+
+def blur_timings(rt, raw=False) -> dict:
+    """{(method, radius): seconds} of the blur timings of ``rt``'s device's probe, the
+    ``fft`` method's those of its engine (``fft_engine``; ``raw``: both engines', the
+    device's as DEVICE_FFT_TIMING)."""
     known = known_verdict(rt.device)
     if known is None:
         return {}
@@ -122,4 +156,12 @@ def blur_timings(rt) -> dict:
         if r.ok and r.seconds is not None and r.name.startswith(prefix):
             method, radius = r.name[len(prefix):].rsplit("/r", 1)
             out[(method, int(radius))] = r.seconds
+    if raw:
+        return out
+    engine = fft_engine(rt)          # "fft" costs what its engine does
+    for (method, radius), seconds in list(out.items()):
+        if method == DEVICE_FFT_TIMING:
+            if engine == "device":
+                out[("fft", radius)] = seconds
+            del out[(method, radius)]
     return out

@@ -39,12 +39,12 @@ HDR values are fine: weights sum to Rd <= 1.
 """
 from __future__ import annotations
 
-from dataclasses import replace
-
+from ...device.runtime import runtime_of_array
+from ...device.transfer import is_device_array
 from ...methods.registry import BLUR_METHODS, BORDERS
 from .fit import fit_gaussians
-from .params import PARAM_KEYS, channel_parameters, checked_irradiance
-from .plan import BlurPlan, Scattering, as_given, plan_blur
+from .params import PARAM_KEYS, channel_parameters, irradiance_shape
+from .plan import BlurPlan, Scattering, plan_blur
 from .planning import BlurInfo, ChannelInfo
 from .weights import channel_kernel
 
@@ -78,12 +78,13 @@ def blur(irradiance, *, albedo=None, mfp=None, eta=1.4, texel_size=1.0, alpha=No
     ``device``: where to run (None, a string such as ``"intel"``, a pyopencl Device or a
     Runtime; see ``bdipole_cl.device``).
     """
-    counts = {}
-    e = checked_irradiance(irradiance, on_invalid, counts)
-    plan = plan_blur(e.shape, Scattering(albedo, mfp, eta, texel_size, alpha, sigma_t),
+    if is_device_array(irradiance):
+        shape = irradiance.shape
+        device = device if device is not None else runtime_of_array(irradiance)
+    else:
+        shape = irradiance_shape(irradiance)
+    plan = plan_blur(shape, Scattering(albedo, mfp, eta, texel_size, alpha, sigma_t),
                      tol=tol, method=method, border=border, exact=exact,
                      on_invalid=on_invalid, device=device)
-    out, info = plan.apply_checked(e, max_memory)
-    info = replace(info, invalid={**counts, **plan.invalid})
-    out = as_given(out, irradiance)
+    out, info = plan.apply(irradiance, max_memory)
     return (out, info) if return_info else out

@@ -9,7 +9,7 @@ import pyopencl as cl
 from ...device import build_options, get_program
 from ...device.launch import enqueue_items
 from ...device.runtime import forced_width, platform_entry
-from ...device.transfer import aligned_empty
+from ...device.transfer import aligned_empty, is_device_array
 from ...methods.choice import GATHER_WIDTHS_ALLOWED
 from ..widths import built_at_width, choose_width, device_vector_cap
 from ...signals import check_stop
@@ -35,12 +35,14 @@ class BlurKernels:
         self._kernels = {}
         self._buffers = {}
 
-    def kernel(self, program, name, **options):
-        """Kernel ``name`` of kernels/<program>.cl, with the border and ``options`` defined."""
-        key = (program, name, tuple(sorted(options.items())))
+    def kernel(self, program, name, double=False, **options):
+        """Kernel ``name`` of kernels/<program>.cl, with the border and ``options`` defined
+        (``double``: its ``real`` is double)."""
+        key = (program, name, double, tuple(sorted(options.items())))
         if key not in self._kernels:
             opts = {f"BD_BORDER_{self.border.upper()}": None, **options}
-            self._kernels[key] = cl.Kernel(get_program(self.rt, program, build_options(opts)),
+            self._kernels[key] = cl.Kernel(get_program(self.rt, program,
+                                                       build_options(opts, double=double)),
                                            name)
         return self._kernels[key]
 
@@ -56,17 +58,21 @@ class BlurKernels:
 
 
 class DeviceBlur:
-    """The image buffers of one image (or band) on the plan's device."""
+    """The image buffers of one image (or band) on the plan's device: the irradiance ``e``
+    uploaded, or ``src`` and ``dst`` given (device buffers of its shape: the device path)."""
 
-    def __init__(self, e, kernels: BlurKernels):
+    def __init__(self, e, kernels: BlurKernels, src=None, dst=None):
         self.kernels = kernels
         self.rt = rt = kernels.rt
         self.h, self.w, self.c = e.shape
+        nbytes = max(self.h * self.w * self.c * 4, 4)
         mf = cl.mem_flags
-        self.src = cl.Buffer(rt.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=e)
-        self.dst = cl.Buffer(rt.context, mf.READ_WRITE, max(e.nbytes, 4))
+        self.src = (cl.Buffer(rt.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=e)
+                    if src is None else src)
+        self.dst = cl.Buffer(rt.context, mf.READ_WRITE, nbytes) if dst is None else dst
         self.tmp = cl.Buffer(rt.context, mf.READ_WRITE, max(self.h * self.w * 4, 4))
-        cl.enqueue_fill_buffer(rt.queue, self.dst, np.float32(0), 0, max(e.nbytes, 4))
+        if dst is None:
+            cl.enqueue_fill_buffer(rt.queue, self.dst, np.float32(0), 0, nbytes)
 
     def run_direct(self, c, ck):
         """Channel c gathered with the ChannelKernel's exact weights, in launches of about
@@ -234,11 +240,13 @@ def weight_planes(plan, rd, ld, rt):
 
 def device_weight_planes(plan, rd, ld, rt):
     """w_j(x) * Rd(x), (G, H, W) float32, computed on ``rt``'s device and left there (the
-    buffer the separable column pass reads: kernels/blur_textured.cl, blur_separable.cl)."""
+    buffer the separable column pass reads: kernels/blur_textured.cl, blur_separable.cl); the
+    Rd and ld maps host arrays or device arrays."""
     h, w = rd.shape
     mf = cl.mem_flags
     width, chunk, knl, axis_args = textured_kernel(rt, plan, h * w, "lattice_weights")
-    bufs = [host_buffer(rt, a, mf.READ_ONLY) for a in (rd, ld, node_records(plan.fine, chunk))]
+    bufs = [a.data if is_device_array(a) else host_buffer(rt, a, mf.READ_ONLY)
+            for a in (rd, ld, node_records(plan.fine, chunk))]
     planes = cl.Buffer(rt.context, mf.READ_WRITE, max(plan.fine.shape[2] * h * w * 4, 4))
     enqueue_items(knl, rt.queue, -(-h * w // width), *bufs, planes, np.int32(h * w),
                   *axis_args)

@@ -325,20 +325,32 @@ def ld_in_float32(ld, c):
     return ld
 
 
-def checked_irradiance(irradiance, on_invalid="raise", counts=None):
-    """Irradiance as HxWxC float32. NaN and infinite texels are invalid: an InvalidInputError
-    naming the first, or with ``on_invalid="clamp"`` unlit (0): irradiance has no upper bound
-    to clamp to, and an unlit texel neither adds nor removes light that is really there.
-    ``counts``: a dict that gets the clamped values' count under "irradiance"."""
+def irradiance_array(irradiance) -> np.ndarray:
+    """The irradiance as an HxWxC NumPy array (its values unchecked), else a ValueError naming
+    what is wrong with its shape or kind."""
     e = plain_array(irradiance, "irradiance")
     if e.ndim == 2:
         e = e[..., None]
     if e.ndim != 3:
         raise ValueError(f"irradiance must be HxW or HxWxC, got shape {e.shape}")
-    e = float32_irradiance(e, on_invalid, counts)
     if 0 in e.shape:
         raise ValueError(f"irradiance is empty (shape {e.shape}: no texels or no channels): "
                          f"nothing to blur")
+    return e
+
+
+def irradiance_shape(irradiance) -> tuple:
+    """The (H, W, C) of an irradiance (``irradiance_array``'s checks, no pass over its
+    values)."""
+    return irradiance_array(irradiance).shape
+
+
+def checked_irradiance(irradiance, on_invalid="raise", counts=None):
+    """Irradiance as HxWxC float32. NaN and infinite texels are invalid: an InvalidInputError
+    naming the first, or with ``on_invalid="clamp"`` unlit (0): irradiance has no upper bound
+    to clamp to, and an unlit texel neither adds nor removes light that is really there.
+    ``counts``: a dict that gets the clamped values' count under "irradiance"."""
+    e = float32_irradiance(irradiance_array(irradiance), on_invalid, counts)
     check_policy(on_invalid)
     if all_finite(e):
         return e

@@ -11,20 +11,24 @@ The file blur, Dask and scenes make one plan per image and apply it to every ban
 from __future__ import annotations
 
 import operator
-import warnings
 from dataclasses import dataclass, field, replace
 
 import numpy as np
+import pyopencl.array as cla
 
 from ...device import Runtime, get_runtime
+from ...device.transfer import is_device_array
 from ...errors import check_policy
 from ...methods.registry import BLUR_METHOD, BORDER
 from ..bands import band_rows, bands, gather_rows
+from ..widths import fft_engine
 from .dispatch import BlurKernels, gather_costs
-from .params import checked_irradiance
-from .planning import (BlurAccuracyWarning, BlurInfo, blur_whole, channel_plans, constant_row_bytes, halo_of,
-                       signed_irradiance_bound, worse)
+from .fft import channel_peaks
+from .params import checked_irradiance, irradiance_shape
+from .planning import (BlurInfo, blur_whole, channel_plans, constant_row_bytes, halo_of,
+                       peak_exponents, signed_irradiance_bound, with_output_floor, worse)
 from .textured import blur_band, textured_info, textured_method, textured_plans, textured_row_bytes
+from .whole_device import apply_band_on_device, apply_on_device
 
 
 #: ``blur``'s keyword of each Scattering field (``alpha`` is alpha', the API's older name)
@@ -61,6 +65,13 @@ class Scattering:
         rest = dict(keywords)
         given = {name: rest.pop(key) for name, key in KEYWORDS.items() if key in rest}
         return cls(**given), rest
+
+    def on_host(self) -> "Scattering":
+        """These parameters with every device array brought to the host: a texture-varying
+        plan is made from its maps' ranges and per-texel Rd and ld maps there, once per plan
+        (the irradiance and the exitance stay on the device)."""
+        return replace(self, **{f: getattr(self, f).get() for f in KEYWORDS
+                                if is_device_array(getattr(self, f))})
 
     def header(self) -> dict:
         """The given parameters for an output's ``bdipole:*`` attributes ("texture" for maps)."""
@@ -128,13 +139,28 @@ class BlurPlan:
         BlurInfo) over the whole of it. ``rows``: texture-varying parameters: the rows of the
         parameter maps the band covers (``bands.halo_rows``; None: all). A channel whose peak
         is far from 1 is blurred at a peak in [0.5, 1) (``peak_exponents``) and scaled back,
-        its bound taking float32's absolute floor (``with_output_floor``)."""
+        its bound taking float32's absolute floor (``with_output_floor``). On the device end
+        to end where the plan runs there (``runs_on_device``)."""
+        if self.runs_on_device():
+            done = apply_band_on_device(self, e, rows)
+            if done is not None:
+                return done
         shifts = peak_exponents(e)
         if not shifts.any():
             return self._apply_band(e, rows)
         out, info = self._apply_band(np.ldexp(e, -shifts), rows)
         out = np.ldexp(out, shifts)          # one rounding, where the result is subnormal
-        return out, with_output_floor(info, e, self.channel_rd_floor(), self.tol)
+        return out, with_output_floor(info, channel_peaks(e), self.channel_rd_floor(), self.tol)
+
+    def runs_on_device(self) -> bool:
+        """Whether the blur runs on the device end to end (``whole_device``,
+        ``textured_device``): every constant channel's method there, the FFT's where its engine
+        is the device (``widths.fft_engine``, by measurement on the device); texture-varying
+        parameters where that engine is the device."""
+        if self.textured:                # the basis blurs: transforms, or the separable kernels
+            return fft_engine(self.bound_kernels().rt) == "device"
+        return (not any(p.method == "fft" for p in self.channels)
+                or fft_engine(self.bound_kernels().rt) == "device")
 
     def channel_rd_floor(self) -> list:
         """Per channel the smallest Rd its exitance is relative to: the constant channel's,
@@ -166,9 +192,27 @@ class BlurPlan:
         the irradiance's shape; the BlurInfo counts the irradiance values and (from planning)
         the parameter values clamped."""
         counts = dict(self.invalid)
-        out, info = self.apply_checked(checked_irradiance(irradiance, self.on_invalid, counts),
+        on_device_array = is_device_array(irradiance)
+        if on_device_array or self.runs_on_device():
+            self._check_shape(irradiance.shape if on_device_array
+                              else irradiance_shape(irradiance))
+            done = (apply_on_device(self, irradiance, max_memory, counts)
+                    if self.runs_on_device() else None)
+            if done is not None:
+                return done[0], replace(done[1], invalid=counts)
+            counts = dict(self.invalid)                  # the host's check counts again
+        host = irradiance.get() if on_device_array else irradiance
+        out, info = self.apply_checked(checked_irradiance(host, self.on_invalid, counts),
                                        max_memory)
-        return as_given(out, irradiance), replace(info, invalid=counts)
+        out = as_given(out, host)
+        if on_device_array:                              # returned where it was given
+            out = cla.to_device(irradiance.queue or self.bound_kernels().rt.queue, out)
+        return out, replace(info, invalid=counts)
+
+    def _check_shape(self, shape):
+        if checked_shape(shape) != tuple(self.shape):
+            raise ValueError(f"irradiance has shape {tuple(shape)}; the plan is for "
+                             f"{self.shape}")
 
     def apply_checked(self, e, max_memory=None):
         """``apply`` of an irradiance ``params.checked_irradiance`` has already checked."""
@@ -185,47 +229,6 @@ class BlurPlan:
             info = worse(info, band_info)
             out[y0:y1] = res[self.halo:self.halo + (y1 - y0)]
         return out, info
-
-
-#: a channel whose peak |E| is below 2^-PEAK_RANGE is blurred scaled to a peak in [0.5, 1):
-#: float32 products of E and the weights underflow into subnormals there (a 1e-44 peak's
-#: exitance lost every bit: 370x its bound with gaussians). Scaling by a power of two is exact
-#: both ways. (Large peaks need none: measured to 3e38, every method within 5e-7 of Rd E.)
-PEAK_RANGE = 60
-#: float32's absolute floor: half the spacing of its subnormals (2^-149), the error of any
-#: exitance rounded to float32 below its normal range (docs/model.md "Blur error bound")
-FLOAT32_FLOOR = 2.0 ** -150
-
-
-def peak_exponents(e) -> np.ndarray:
-    """Per channel of an HxWxC band, the power of two k its peak |E| is 2^k x [0.5, 1) where
-    that is below 2^-PEAK_RANGE, else 0 (a zero channel: 0)."""
-    peak = np.max(np.abs(e), axis=(0, 1)).astype(np.float64) if e.size else \
-        np.zeros(e.shape[-1])
-    _, k = np.frexp(peak)
-    far = (peak > 0) & (peak < 2.0 ** -PEAK_RANGE)
-    return np.where(far, k, 0).astype(np.int32)
-
-
-def with_output_floor(info: BlurInfo, e, rd_floor, tol) -> BlurInfo:
-    """``info`` with each channel's bound taking float32's absolute floor relative to its
-    peak |E| x Rd (``FLOAT32_FLOOR / (max|E| Rd)``: negligible but for an exitance below
-    float32's normal range, where no float32 is closer); a bound so taken above ``tol`` is
-    warned of."""
-    chans = list(info.channels)
-    peaks = np.max(np.abs(e), axis=(0, 1)).astype(np.float64)
-    for c, ch in enumerate(chans):
-        scale = peaks[c] * rd_floor[c]
-        if scale <= 0:
-            continue
-        bound = ch.error_bound + FLOAT32_FLOOR / scale
-        if bound > tol >= ch.error_bound:
-            warnings.warn(BlurAccuracyWarning(
-                f"channel {c}: peak irradiance {peaks[c]:.3g}: the exitance is below float32's "
-                f"normal range, stored to {2 * FLOAT32_FLOOR:.2g} absolute: error bound "
-                f"{bound:.2e} relative to max(E) Rd"), stacklevel=4)
-        chans[c] = replace(ch, error_bound=bound)
-    return replace(info, channels=tuple(chans))
 
 
 def as_given(out, irradiance):
@@ -260,6 +263,7 @@ def plan_blur(shape, scattering: Scattering, *, tol=1e-3, method="auto", border=
     channel's method and kernel decided here, once (``auto`` for ``device``'s runtime)."""
     check_blur_options(method, tol, border, on_invalid)
     shape = checked_shape(shape)
+    scattering = scattering.on_host()
     rt = get_runtime(device)
     base = BlurPlan(scattering, shape, tol, method, border, exact, on_invalid, 0, runtime=rt)
     if scattering.textured:

@@ -12,10 +12,11 @@ from ...device import get_runtime
 from ...device.runtime import device_kind
 from ...methods.choice import (AUTO_DIRECT_MAX_RADIUS, ChoiceData, DeviceKey, auto_blur_config,
                                choice_for, rescaled_blur)
-from ..widths import blur_timings, passes
+from ..widths import blur_timings, fft_engine, passes
 from ...signals import check_stop
 from .dispatch import DeviceBlur
-from .fft import fft_blur_channels, fft_bound, fft_dtype, settled, summed_roundoff
+from .fft import (channel_extremes, channel_peaks, fft_blur_channels, fft_bound, fft_dtype,
+                  settled, summed_roundoff)
 from .fit import fit_gaussians
 from .params import channel_parameters
 from .weights import ChannelKernel, channel_kernel
@@ -57,7 +58,8 @@ METHOD_KERNELS = {"direct": "blur_direct", "gaussians": "blur_separable"}
 def auto_data(rt=None) -> AutoData:
     """The AutoData of ``rt``'s device (None: the default device): data measured on another
     device have their blur timings rescaled by this device's probe (``probed_blur_data``);
-    methods whose kernels the probe rejected are left out."""
+    methods whose kernels the probe rejected are left out, and without the probe's timings,
+    on a device that is not a CPU, the FFT where it would run on the host."""
     rt = get_runtime(rt)
     data, source = choice_for(DeviceKey.of(rt.device))
     described = source.describe()
@@ -69,7 +71,7 @@ def auto_data(rt=None) -> AutoData:
         if probed is not None:
             return AutoData(probed, described + "; blur timings rescaled by this device's "
                                                 "probe", methods)
-    if not source.this_device and device_kind(rt.device) != "cpu":
+    if not source.this_device and device_kind(rt.device) != "cpu" and fft_engine(rt) == "host":
         methods = tuple(m for m in ("direct", "gaussians") if m in usable)
     return AutoData(data, described, methods)
 
@@ -235,43 +237,58 @@ def halo_of(plans) -> int:
     return max(p.kernel.radius for p in plans)
 
 
+def planned_info(c, param, plan, exact, fft_precision=None) -> ChannelInfo:
+    """Channel c's ChannelInfo from its plan alone (the irradiance's signs are added after):
+    its method's error bound (the constant FFT's in ``fft_precision``), warned of where it
+    exceeds the tol asked for."""
+    a, st, et = param
+    ck, tol = plan.kernel, plan.asked_tol
+    if plan.method == "direct":
+        bound = ck.truncated + DIRECT_ROUNDOFF
+    elif plan.method == "gaussians":
+        fit = fit_gaussians(a, st, et, ck.tol, exact)
+        bound = gaussians_bound(a, st, et, ck, exact)
+        if bound > tol:
+            warnings.warn(BlurAccuracyWarning(
+                f"channel {c}: the gaussians fit of this kernel (radius {ck.radius}, "
+                f"albedo {ck.rd:.3g}) has L1 error {fit.l1_error:.2e}: error bound "
+                f"{bound:.2e} > tol {tol:g}; energy is kept, the shape is not: use "
+                f"method='direct' or 'fft' for the exact kernel"), stacklevel=5)
+    else:
+        bound = fft_bound(ck, fft_precision)
+    if plan.auto is not None and plan.auto.measured_error is not None:
+        bound = max(bound, plan.auto.measured_error)
+    if bound > tol and plan.method != "gaussians":
+        warnings.warn(BlurAccuracyWarning(
+            f"channel {c}: method {plan.method!r}: error bound {bound:.2e} > tol {tol:g}"),
+            stacklevel=5)
+    return ChannelInfo(c, plan.method, ck.radius, bound, rd=ck.rd, auto=plan.auto)
+
+
 def blur_whole(e, params, plans, border, exact, kernels):
     """One in-memory image (or band with its halo), its channel plans resolved, on the plan's
-    device kernels (``dispatch.BlurKernels``): (M, BlurInfo)."""
+    device kernels (``dispatch.BlurKernels``), the constant FFT on the host: (M, BlurInfo)."""
     device = None
     fft_dtypes = {}                    # channel: the constant FFT's precision
     info = []
-    for c, ((a, st, et), plan) in enumerate(zip(params, plans)):
+    for c, (param, plan) in enumerate(zip(params, plans)):
         check_stop()
         ck = plan.kernel
         if plan.method in ("direct", "gaussians") and device is None:
             device = DeviceBlur(e, kernels)
-        tol = plan.asked_tol
         if plan.method == "direct":
             device.run_direct(c, ck)
-            bound = ck.truncated + DIRECT_ROUNDOFF
         elif plan.method == "gaussians":
-            fit = fit_gaussians(a, st, et, ck.tol, exact)
-            device.run_gaussians(c, fit)
-            bound = gaussians_bound(a, st, et, ck, exact)
-            if bound > tol:
-                warnings.warn(BlurAccuracyWarning(
-                    f"channel {c}: the gaussians fit of this kernel (radius {ck.radius}, "
-                    f"albedo {ck.rd:.3g}) has L1 error {fit.l1_error:.2e}: error bound "
-                    f"{bound:.2e} > tol {tol:g}; energy is kept, the shape is not: use "
-                    f"method='direct' or 'fft' for the exact kernel"), stacklevel=4)
+            device.run_gaussians(c, fit_gaussians(*param, ck.tol, exact))
         else:
-            fft_dtypes[c] = fft_dtype(ck.truncated, tol)
-            bound = fft_bound(ck, fft_dtypes[c])
-        if plan.auto is not None and plan.auto.measured_error is not None:
-            bound = max(bound, plan.auto.measured_error)
-        if bound > tol and plan.method != "gaussians":
-            warnings.warn(BlurAccuracyWarning(
-                f"channel {c}: method {plan.method!r}: error bound {bound:.2e} > tol {tol:g}"),
-                stacklevel=4)
-        info.append(ChannelInfo(c, plan.method, ck.radius, bound, rd=ck.rd, auto=plan.auto))
+            fft_dtypes[c] = fft_dtype(ck.truncated, plan.asked_tol)
+        info.append(planned_info(c, param, plan, exact, fft_dtypes.get(c)))
     out = device.result() if device is not None else np.empty_like(e)
     ranges = {}                        # channel: its irradiance's (min, max)
+    others = [c for c in range(len(plans)) if c not in fft_dtypes]
+    if others:
+        lows, highs = channel_extremes(e)
+        ranges.update({c: (float(lows[c]), float(highs[c])) for c in others})
     if fft_dtypes:                     # one batched transform, settled there
         got = []
         fft_blur_channels(e, list(fft_dtypes), [plans[c].kernel for c in fft_dtypes],
@@ -280,9 +297,47 @@ def blur_whole(e, params, plans, border, exact, kernels):
         ranges.update(zip(fft_dtypes, got))
     for c, plan in enumerate(plans):
         if c not in fft_dtypes:
-            ranges[c] = (float(e[..., c].min()), float(e[..., c].max()))
             settled(out[..., c], e[..., c], plan.kernel.rd, e_range=ranges[c])
         low, high = ranges[c]
         if low < 0 < high:
             info[c] = signed_irradiance_bound(info[c], plan.kernel.truncated, plan.asked_tol)
     return out, BlurInfo(tuple(info))
+
+
+#: a channel whose peak |E| is below 2^-PEAK_RANGE is blurred scaled to a peak in [0.5, 1):
+#: float32 products of E and the weights underflow into subnormals there (a 1e-44 peak's
+#: exitance lost every bit: 370x its bound with gaussians). Scaling by a power of two is exact
+#: both ways. (Large peaks need none: measured to 3e38, every method within 5e-7 of Rd E.)
+PEAK_RANGE = 60
+#: float32's absolute floor: half the spacing of its subnormals (2^-149), the error of any
+#: exitance rounded to float32 below its normal range (docs/model.md "Blur error bound")
+FLOAT32_FLOOR = 2.0 ** -150
+
+
+def peak_exponents(e) -> np.ndarray:
+    """Per channel of an HxWxC band, the power of two k its peak |E| is 2^k x [0.5, 1) where
+    that is below 2^-PEAK_RANGE, else 0 (a zero channel: 0)."""
+    peak = channel_peaks(e) if e.size else np.zeros(e.shape[-1])
+    _, k = np.frexp(peak)
+    far = (peak > 0) & (peak < 2.0 ** -PEAK_RANGE)
+    return np.where(far, k, 0).astype(np.int32)
+
+
+def with_output_floor(info: BlurInfo, peaks, rd_floor, tol) -> BlurInfo:
+    """``info`` with each channel's bound taking float32's absolute floor relative to its
+    peak |E| (``peaks``, per channel) x Rd (``FLOAT32_FLOOR / (max|E| Rd)``: negligible but
+    for an exitance below float32's normal range, where no float32 is closer); a bound so
+    taken above ``tol`` is warned of."""
+    chans = list(info.channels)
+    for c, ch in enumerate(chans):
+        scale = peaks[c] * rd_floor[c]
+        if scale <= 0:
+            continue
+        bound = ch.error_bound + FLOAT32_FLOOR / scale
+        if bound > tol >= ch.error_bound:
+            warnings.warn(BlurAccuracyWarning(
+                f"channel {c}: peak irradiance {peaks[c]:.3g}: the exitance is below float32's "
+                f"normal range, stored to {2 * FLOAT32_FLOOR:.2g} absolute: error bound "
+                f"{bound:.2e} relative to max(E) Rd"), stacklevel=4)
+        chans[c] = replace(ch, error_bound=bound)
+    return replace(info, channels=tuple(chans))

@@ -12,8 +12,8 @@ from ...device.transfer import aligned_empty
 from ...methods.registry import TEXTURED_BLUR_METHODS
 from ...signals import check_stop
 from .dispatch import DeviceBlur, device_weight_planes, gather_exitance
-from .fft import (FFT32_ROUNDOFF, FFT32_ROUNDOFF_ULPS, ROUNDOFF_ULPS, basis_blurs, fft_shape,
-                  settle_floor, settled, summed_roundoff)
+from .fft import (FFT32_ROUNDOFF, FFT32_ROUNDOFF_ULPS, ROUNDOFF_ULPS, basis_blurs,
+                  channel_extremes, fft_shape, settle_floor, settled, summed_roundoff)
 from .params import MapRanges, texel_parameters
 from .planning import BlurAccuracyWarning, BlurInfo, ChannelInfo, separable_roundoff
 from .near_field import DEFAULT_GATHER_COSTS, near_cells
@@ -79,8 +79,9 @@ def blur_band(e, plans, rows, method, border, kernels, ranges=None):
         for c, (plan, rd, ld, _) in enumerate(plans):
             device.run_textured(c, plan, device_weight_planes(plan, rd[rows], ld[rows], rt))
         out = device.result()
+        lows, highs = channel_extremes(e)
         for c, (_, rd, _, _) in enumerate(plans):
-            ranges.append((float(e[..., c].min()), float(e[..., c].max())))
+            ranges.append((float(lows[c]), float(highs[c])))
             settled(out[..., c], e[..., c], rd[rows], e_range=ranges[-1])
         return out
     out = host_array(e.shape)

@@ -295,3 +295,27 @@ class BlurChoice:
     mfp: float                # the workload's mfp (texels)
     max_error: float          # max |M - exact| / (max E Rd)
     median_s: float
+
+
+@dataclass(frozen=True)
+class LengthUnit(Option):
+    """A length unit of stretch maps (docs/stretch.md), and its size in metres."""
+
+    metres: float = 1.0
+
+
+#: the unit a stretch map's texel lengths are written in: the unit of the mfp it blurs with
+LENGTH_UNIT = Registry("unit", (
+    LengthUnit("mm", "millimetres (the mfp's usual unit)", metres=1e-3),
+    LengthUnit("cm", "centimetres", metres=1e-2),
+    LengthUnit("m", "metres", metres=1.0),
+))
+LENGTH_UNITS = LENGTH_UNIT.names
+
+#: what a stretched blur does at UV chart borders (docs/stretch.md "Chart borders")
+CHART_BORDER = Registry.of(
+    "charts", clamp="each texel gathers from its own chart only, the chart continued beyond "
+                    "its edge by its nearest texel (the default)",
+    zero="each texel gathers from its own chart only, nothing beyond its edge",
+    none="charts ignored: the blur crosses chart borders as in the plain blur")
+CHART_BORDERS = CHART_BORDER.names

@@ -15,6 +15,7 @@ from ...errors import check_policy
 from ...methods.registry import BORDER, CHART_BORDER
 from ...physics import reference as ref
 from ...signals import check_stop
+from .dispatch import host_buffer, read_back
 from .fft import FFT32_ROUNDOFF, basis_blurs, fft_shape, settle_floor, summed_roundoff, \
     FFT32_ROUNDOFF_ULPS, ROUNDOFF_ULPS, value_range
 from .params import MapRanges, checked_irradiance, texel_parameters
@@ -309,10 +310,10 @@ def gather(res, plan, rd, lu, lv, planes, rt, settle):
     mf = cl.mem_flags
     g = len(plan.kernels)
     fine = np.ascontiguousarray(plan.fine, np.float32)
-    bufs = [cl.Buffer(rt.context, mf.READ_ONLY | mf.COPY_HOST_PTR,
-                      hostbuf=np.ascontiguousarray(a, np.float32))
+    # over the host arrays (zero-copy on a CPU device: the planes are G images)
+    bufs = [host_buffer(rt, np.ascontiguousarray(a, np.float32), mf.READ_ONLY)
             for a in (rd, lu, lv, fine, planes)]
-    dst = cl.Buffer(rt.context, mf.WRITE_ONLY, max(res.nbytes, 4))
+    dst = host_buffer(rt, res, mf.READ_WRITE)
     (s0, o0), (s1, o1), (s2, o2) = plan.axis_maps()
     n0, n1, n2 = fine.shape[:3]
     scale, nonneg = settle
@@ -323,8 +324,7 @@ def gather(res, plan, rd, lu, lv, planes, rt, settle):
            np.int32(plan.radius), np.int32(n0), np.int32(n1), np.int32(n2),
            np.float32(RD_MIN), np.float32(RD_MAX), s0, o0, s1, o1, s2, o2,
            np.float32(scale), np.int32(bool(nonneg)))
-    cl.enqueue_copy(rt.queue, res, dst)
-    rt.queue.finish()
+    read_back(rt, dst, res)
 
 
 def plan_stretched(shape, scattering, stretch, *, tol=1e-3, border="clamp", charts="clamp",

@@ -5,7 +5,15 @@ from __future__ import annotations
 
 import sys
 
-from ..methods.registry import LENGTH_UNITS
+
+
+def length_unit(text):
+    """A length unit of the scene files' table (``io.scene_file.UNIT_METERS``)."""
+    import argparse
+    from ..io.scene_file import UNIT_METERS
+    if text not in UNIT_METERS:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected one of {', '.join(UNIT_METERS)}")
+    return text
 
 
 def add_command(command):
@@ -16,8 +24,9 @@ def add_command(command):
                    help="output EXR, with a tile token for several tiles: stretch.<UDIM>.exr")
     p.add_argument("--size", type=int, default=1024,
                    help="texels per tile side (the irradiance maps' resolution)")
-    p.add_argument("--unit", default="mm", choices=LENGTH_UNITS,
-                   help="unit of the lengths written: the mfp's unit (default mm)")
+    p.add_argument("--unit", default="mm", type=length_unit,
+                   help="unit of the lengths written: the mfp's unit (mm, cm, m, in, ...; "
+                        "default mm)")
     p.add_argument("--time", type=float, default=None,
                    help="USD time code of the points (default: the default time)")
     p.add_argument("--prim", default=None, help="USD: only the mesh at this prim path")

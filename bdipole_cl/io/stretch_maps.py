@@ -13,13 +13,13 @@ from __future__ import annotations
 import numpy as np
 import OpenImageIO as oiio
 
-from ..methods.registry import LENGTH_UNIT
 from ..ops.blur.stretched import Stretch
 from ..ops.stretch import StretchTile, stretch_tiles
 from ..version import __version__
 from .colour import active_config
 from .images import SOFTWARE, Reader, TextureError, Writer, check_output_format, header_text
 from .mesh import read_meshes
+from .scene_file import UNIT_METERS
 from .tiles import Tile, fill, has_tokens
 
 CHANNELS = ("stretch.u", "stretch.v", "chart")
@@ -83,12 +83,14 @@ def tile_path(pattern, tile: StretchTile, single: bool) -> str:
 def stretch_maps(path, output=None, *, size=1024, unit="mm", time=None, prim=None,
                  meters_per_unit=None) -> list:
     """The StretchTiles of a mesh file (USD or OBJ; ``io.mesh.read_meshes``) at ``size``
-    texels a tile (an int or (H, W)), lengths in ``unit`` (``methods.registry.LENGTH_UNIT``),
+    texels a tile (an int or (H, W)), lengths in ``unit`` (a name of ``scene_file.UNIT_METERS``,
+    the scene files' units),
     at ``time``; with ``output`` (a pattern such as ``stretch.<UDIM>.exr``) each written there.
     Returns [(StretchTile, written path or None)]."""
-    u = LENGTH_UNIT[unit]
+    if unit not in UNIT_METERS:
+        raise ValueError(f"unit={unit!r}: expected one of {', '.join(UNIT_METERS)}")
     meshes = read_meshes(path, time=time, prim_path=prim, meters_per_unit=meters_per_unit)
-    tiles = stretch_tiles(meshes, size, u.metres, u.name)
+    tiles = stretch_tiles(meshes, size, UNIT_METERS[unit], unit)
     out = []
     for t in tiles:
         target = None if output is None else tile_path(output, t, len(tiles) == 1)

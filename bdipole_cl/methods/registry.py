@@ -297,21 +297,6 @@ class BlurChoice:
     median_s: float
 
 
-@dataclass(frozen=True)
-class LengthUnit(Option):
-    """A length unit of stretch maps (docs/stretch.md), and its size in metres."""
-
-    metres: float = 1.0
-
-
-#: the unit a stretch map's texel lengths are written in: the unit of the mfp it blurs with
-LENGTH_UNIT = Registry("unit", (
-    LengthUnit("mm", "millimetres (the mfp's usual unit)", metres=1e-3),
-    LengthUnit("cm", "centimetres", metres=1e-2),
-    LengthUnit("m", "metres", metres=1.0),
-))
-LENGTH_UNITS = LENGTH_UNIT.names
-
 #: what a stretched blur does at UV chart borders (docs/stretch.md "Chart borders")
 CHART_BORDER = Registry.of(
     "charts", clamp="each texel gathers from its own chart only, the chart continued beyond "

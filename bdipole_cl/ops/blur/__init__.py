@@ -61,7 +61,8 @@ def is_textured(**physical) -> bool:
 
 def blur(irradiance, *, albedo=None, mfp=None, eta=1.4, texel_size=1.0, alpha=None,
          sigma_t=None, tol=1e-3, method="auto", border="clamp", exact=False,
-         on_invalid="raise", return_info=False, max_memory=None, device=None):
+         on_invalid="raise", return_info=False, max_memory=None, device=None, stretch=None,
+         charts="clamp"):
     """Texture-space subsurface scattering: ``irradiance`` (HxW or HxWxC) blurred by R(r).
 
     ``albedo`` (Rd) and ``mfp`` (ld = 1/mu_tr, same unit as ``texel_size``), or ``alpha``
@@ -77,12 +78,18 @@ def blur(irradiance, *, albedo=None, mfp=None, eta=1.4, texel_size=1.0, alpha=No
 
     ``device``: where to run (None, a string such as ``"intel"``, a pyopencl Device or a
     Runtime; see ``bdipole_cl.device``).
+
+    ``stretch``: the surface length of a texel step along u and v per texel (an (su, sv)
+    pair of HxW maps, an HxWx2 array, a ``stretched.Stretch`` or an ``ops.stretch.StretchTile``
+    from ``bdipole_cl.stretch_maps``), in the mfp's unit, instead of ``texel_size``: the profile
+    in surface distance, per texel anisotropic (docs/stretch.md). ``charts`` (with a stretch
+    that has charts): "clamp", "zero" or "none" (``methods.registry.CHART_BORDER``).
     """
     counts = {}
     e = checked_irradiance(irradiance, on_invalid, counts)
-    plan = plan_blur(e.shape, Scattering(albedo, mfp, eta, texel_size, alpha, sigma_t),
+    plan = plan_blur(e.shape, Scattering(albedo, mfp, eta, texel_size, alpha, sigma_t, stretch),
                      tol=tol, method=method, border=border, exact=exact,
-                     on_invalid=on_invalid, device=device)
+                     on_invalid=on_invalid, device=device, charts=charts)
     out, info = plan.apply_checked(e, max_memory)
     info = replace(info, invalid={**counts, **plan.invalid})
     out = as_given(out, irradiance)

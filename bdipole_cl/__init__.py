@@ -69,6 +69,17 @@ from .physics.conversion import Conversion, convert
 from .physics.models import MODELS
 from .version import __version__
 
+
+
+def stretch_maps(mesh, output=None, **options):
+    """The stretch maps of a USD or OBJ mesh, per UDIM tile (``io.stretch_maps.stretch_maps``:
+    ``size``, ``unit``, ``time``, ``prim``, ``meters_per_unit``), written to ``output`` (a
+    pattern such as ``stretch.<UDIM>.exr``) if given: [(StretchTile, path)]. A StretchTile is
+    what ``blur(..., stretch=)`` takes (docs/stretch.md)."""
+    from .io import stretch_maps as maps_io
+    return maps_io.stretch_maps(mesh, output, **options)
+
+
 __all__ = [
     "CONVENTIONS",
     "METHODS",
@@ -96,6 +107,7 @@ __all__ = [
     "plan_blur",
     "plan_inversion",
     "reference",
+    "stretch_maps",
     "survey",
     "use_device",
 ]

@@ -41,6 +41,14 @@ of one basis blur (``dispatch.GATHER_COSTS`` holds the figures for the runtimes 
     python tools/bench_blur.py
     python tools/bench_blur.py --size 1024 --mfp 1 4 --tol 1e-3
     python tools/bench_blur.py --gather --device 1:0
+    python tools/bench_blur.py --stretch --device intel
+
+``--stretch`` measures instead the stretched blur (docs/stretch.md) against the texture-varying
+blur of the same map in the same run (goal: <= 2x its time): the texture-varying workload's
+albedo and mfp maps (mfp in mm, texel 1 mm for the texture-varying side), and two stretch
+maps: a smooth one (each axis 2^(+-0.25 p(x)) mm a texel: aspect 0.71..1.41, no charts) and a
+USD cylinder's (two UV charts of different stretch, aspect 1.3 and 2.5, charts kept apart);
+warm times (plans and spectra cached), median of --pairs alternated pairs.
 """
 import argparse
 import sys
@@ -122,6 +130,8 @@ def main(argv=None):
                          "fftconvolve where CuPy is installed (the GPU goals)")
     ap.add_argument("--gather", action="store_true",
                     help="measure the texture-varying gather's costs per near field radius")
+    ap.add_argument("--stretch", action="store_true",
+                    help="the stretched blur against the texture-varying one (docs/stretch.md)")
     args = ap.parse_args(argv)
     if "auto" not in args.methods:
         ap.error("--methods: the ratios are to auto's time; include auto")
@@ -130,6 +140,8 @@ def main(argv=None):
     print("\n".join(machine_lines(get_runtime())))
     if args.gather:
         return gather_costs(args)
+    if args.stretch:
+        return stretch_rows(args)
     e = hdr_irradiance(args.size)                         # with a few HDR highlights
     print(f"input {args.size}x{args.size} RGB, albedo {ALBEDO}, eta 1.4, tol {args.tol}, "
           f"border clamp; error = max|M - exact| / (max E * Rd)")
@@ -324,6 +336,54 @@ def gather_costs(args):
     (cell, term, weight), fixed = fitted_gather_costs(rows, per_blur)
     print(f"a basis blur: {per_blur * 1e3:.1f} ms; GatherCosts(cell={cell:.2g}, term={term:.2g}, "
           f"weight={weight:.2g}) (gather's fixed part {fixed * 1e3:.1f} ms)")
+    return 0
+
+
+
+def stretch_maps_of(n, kind):
+    """A (su, sv) pair or a StretchTile for ``--stretch``: "smooth" (each axis 2^(+-0.25 p),
+    p smooth patterns in [-1, 1]) or "cylinder" (a USD cylinder's two charts)."""
+    if kind == "smooth":
+        yy, xx = np.mgrid[0:n, 0:n] / n
+        p = np.sin(2 * np.pi * (2 * xx + yy))
+        q = np.cos(2 * np.pi * (xx - 2 * yy))
+        return ((2.0 ** (0.25 * p)).astype(np.float32), (2.0 ** (0.25 * q)).astype(np.float32))
+    import tempfile
+    from pathlib import Path
+    sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
+    from stretch_meshes import cylinder_stage
+    from bdipole_cl.io.stretch_maps import stretch_maps
+    with tempfile.TemporaryDirectory() as d:
+        # radius 320 mm, 1600 mm high: texels of ~1 mm along v and in chart 0 along u, ~2 mm
+        # along u in chart 1 at 2048 (as the texture-varying side's 1 mm)
+        (tile, _), = stretch_maps(cylinder_stage(Path(d) / "c.usda", radius=320.0 * n / 2048,
+                                                 height=1600.0 * n / 2048), size=n)
+    return tile
+
+
+def stretch_rows(args):
+    """The stretched blur against the texture-varying blur of the same maps (``--stretch``)."""
+    for mfp in args.mfp:
+        e, albedo, mfps = varying_workload(args.size, mfp)
+        def varying():
+            return blur(e, albedo=albedo, mfp=mfps, eta=1.4, tol=args.tol)
+        t_vary, _ = timed(varying, args.repeats)
+        for kind in ("smooth", "cylinder"):
+            s = stretch_maps_of(args.size, kind)
+            def stretched():
+                return blur(e, albedo=albedo, mfp=mfps, eta=1.4, tol=args.tol, stretch=s,
+                            return_info=True)
+            t0 = time.perf_counter()
+            _, info = stretched()
+            cold = time.perf_counter() - t0
+            t_s, _ = timed(stretched, args.repeats)
+            r, (lo, hi) = paired_ratio(stretched, varying, args.pairs)
+            ranks = ", ".join(c.method.split("stretched, ")[1].split(" eigen")[0]
+                              for c in info.channels)
+            print(f"mfp {mfp:g}: stretch {kind:8s}: cold {cold:6.2f} s, warm {t_s:6.2f} s; "
+                  f"texture-varying {t_vary:6.2f} s; stretched / texture-varying {r:5.2f}x "
+                  f"[{lo:.2f}, {hi:.2f}] (goal <= 2); eigen-kernels {ranks}; bound "
+                  f"{max(c.error_bound for c in info.channels):.1e}")
     return 0
 
 

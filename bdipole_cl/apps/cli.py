@@ -9,7 +9,7 @@ import warnings
 
 from ..errors import POLICIES
 from ..io.targets import DEFAULT_TARGETS, TARGET
-from ..methods.registry import ALPHA_CHANNEL, BLUR_METHODS, BORDERS
+from ..methods.registry import ALPHA_CHANNEL, BLUR_METHODS, BORDERS, CHART_BORDERS
 from ..signals import SignalStop, Terminated, end_startup, terminate_raises
 from ..version import __version__
 from .cli_blur import cmd_blur
@@ -233,8 +233,9 @@ def build_parser() -> argparse.ArgumentParser:
     add_global_args(common, argparse.SUPPRESS)   # after the command too, not overriding
     sub = parser.add_subparsers(dest="command", required=True)
     command = functools.partial(sub.add_parser, parents=[common])
-    from . import devices
+    from . import devices, stretch
     devices.add_command(command)
+    stretch.add_command(command)
 
     p = command("demo", help="make a built-in example and run the main jobs on it")
     p.add_argument("--dir", default="bdipole_demo", help="folder for inputs and results")
@@ -322,6 +323,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--eta", type=floats, default=(1.4,), help="one or per channel 'r,g,b'")
     p.add_argument("--texel-size", type=positive_float, default=1.0,
                    help="world size of a texel")
+    p.add_argument("--stretch", default=None,
+                   help="a stretch map (bdipole-cl stretch; a tile pattern with the input's): "
+                        "per-texel surface lengths instead of --texel-size (docs/stretch.md)")
+    p.add_argument("--charts", default="clamp", choices=CHART_BORDERS,
+                   help="with --stretch: at UV chart borders, the chart continued by its edge "
+                        "(clamp), nothing beyond it (zero), or charts ignored (none)")
     p.add_argument("--tol", type=fraction, default=1e-3,
                    help="error bound relative to max(E) * Rd, for any irradiance")
     p.add_argument("--method", default="auto", choices=BLUR_METHODS,

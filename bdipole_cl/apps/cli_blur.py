@@ -28,24 +28,32 @@ def blur_job(args, sources):
     from ..jobs.job import BlurWork, Job
     from ..ops.blur import Scattering
     inputs = {"irradiance": args.input, **sources}
+    if getattr(args, "stretch", None):
+        inputs["stretch"] = args.stretch
     identities = input_identities(inputs)      # before the first read (of a parameter)
+    stretch = None
+    if getattr(args, "stretch", None):
+        from ..io.stretch_maps import read_stretch
+        stretch = read_stretch(args.stretch)
     if args.alpha_prime is not None:
         scattering = Scattering(alpha_prime=parameter(args.alpha_prime, "alpha'"),
                                 sigma_t=parameter(args.sigma_t, "sigma_t'"), eta=args.eta,
-                                texel_size=args.texel_size)
+                                texel_size=args.texel_size, stretch=stretch)
     else:
         scattering = Scattering(parameter(args.albedo, "albedo", colorspace=args.colorspace,
                                        working=args.working_space),
-                                parameter(args.mfp, "mfp"), args.eta, args.texel_size)
+                                parameter(args.mfp, "mfp"), args.eta, args.texel_size,
+                                stretch=stretch)
     work = BlurWork(scattering, tol=args.tol, method=args.method, border=args.border,
                     exact=args.exact, on_invalid=args.on_invalid, half=args.half,
                     texture=args.texture, colorspace=args.colorspace,
-                    working=args.working_space, max_memory=args.max_memory)
+                    working=args.working_space, max_memory=args.max_memory,
+                    charts=getattr(args, "charts", "clamp"))
     return Job("blur", args.input, args.output, inputs, work, identities=identities)
 
 
 #: the options of the blur that may name a texture: filled per tile of a tile pattern
-TEXTURE_OPTIONS = ("albedo", "mfp", "alpha_prime", "sigma_t")
+TEXTURE_OPTIONS = ("albedo", "mfp", "alpha_prime", "sigma_t", "stretch")
 
 
 def cmd_blur(args) -> int:

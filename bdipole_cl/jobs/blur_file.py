@@ -159,7 +159,7 @@ def blur_file(path, output, *, colorspace="auto", working_space=None, half=False
               max_memory=256 << 20, sources=None, cancel=None, mask=None, header=None,
               progress=None, texture=False, albedo=None, mfp=None, eta=1.4, texel_size=1.0,
               alpha=None, sigma_t=None, device=None, force=False, clamped=None, guard=None,
-              **options):
+              stretch=None, **options):
     """Blur an irradiance image file into an EXR, streamed in bands of rows with a halo of the
     truncation radius (memory bounded by ``max_memory``). The irradiance is converted from
     ``colorspace`` (else as the file declares, as in ``process_textures``) into
@@ -187,7 +187,7 @@ def blur_file(path, output, *, colorspace="auto", working_space=None, half=False
     check_output_format(output)
     sources = dict(sources or {})
     check_claim(Claim(str(path), str(output), {"irradiance": str(path), **sources}), force)
-    scattering = Scattering(albedo, mfp, eta, texel_size, alpha, sigma_t)
+    scattering = Scattering(albedo, mfp, eta, texel_size, alpha, sigma_t, stretch)
     guard = guard or InputGuard({"irradiance": path, **sources})
     reader = Reader(path, "irradiance")
     writer = None
@@ -355,6 +355,7 @@ def run_blur(job, runtime, *, cancel=None, lock=None, progress=None) -> FileResu
             sigma_t=scattering.sigma_t, tol=w.tol, method=w.method, border=w.border,
             on_invalid=w.on_invalid, exact=w.exact, device=runtime, max_memory=w.max_memory,
             texture=w.texture, progress=progress, clamped=result.invalid,
+            stretch=scattering.stretch, charts=w.charts,
             force=True,      # its claim was checked where the job was made, with the run's force
             guard=guard)
         result.status = "ok"

@@ -71,6 +71,7 @@ class BlurWork:
     material: object = None                # scene blurs: the material whose profile blurs
     texel_size: float = 1.0                # scene blurs: the texel's size in the mfp's unit
     mask: str | None = None                # scene blurs: None, "alpha" or a mask texture
+    charts: str = "clamp"                  # with a stretch: methods.registry.CHART_BORDER
 
 
 @dataclass(frozen=True)

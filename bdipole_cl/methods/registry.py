@@ -295,3 +295,12 @@ class BlurChoice:
     mfp: float                # the workload's mfp (texels)
     max_error: float          # max |M - exact| / (max E Rd)
     median_s: float
+
+
+#: what a stretched blur does at UV chart borders (docs/stretch.md "Chart borders")
+CHART_BORDER = Registry.of(
+    "charts", clamp="each texel gathers from its own chart only, the chart continued beyond "
+                    "its edge by its nearest texel (the default)",
+    zero="each texel gathers from its own chart only, nothing beyond its edge",
+    none="charts ignored: the blur crosses chart borders as in the plain blur")
+CHART_BORDERS = CHART_BORDER.names

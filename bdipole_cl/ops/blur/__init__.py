@@ -39,6 +39,8 @@ HDR values are fine: weights sum to Rd <= 1.
 """
 from __future__ import annotations
 
+from pyopencl.array import to_device
+
 from ...device.runtime import runtime_of_array
 from ...device.transfer import is_device_array
 from ...methods.registry import BLUR_METHODS, BORDERS
@@ -61,7 +63,8 @@ def is_textured(**physical) -> bool:
 
 def blur(irradiance, *, albedo=None, mfp=None, eta=1.4, texel_size=1.0, alpha=None,
          sigma_t=None, tol=1e-3, method="auto", border="clamp", exact=False,
-         on_invalid="raise", return_info=False, max_memory=None, device=None):
+         on_invalid="raise", return_info=False, max_memory=None, device=None, stretch=None,
+         charts="clamp"):
     """Texture-space subsurface scattering: ``irradiance`` (HxW or HxWxC) blurred by R(r).
 
     ``albedo`` (Rd) and ``mfp`` (ld = 1/mu_tr, same unit as ``texel_size``), or ``alpha``
@@ -77,14 +80,25 @@ def blur(irradiance, *, albedo=None, mfp=None, eta=1.4, texel_size=1.0, alpha=No
 
     ``device``: where to run (None, a string such as ``"intel"``, a pyopencl Device or a
     Runtime; see ``bdipole_cl.device``).
+
+    ``stretch``: the surface length of a texel step along u and v per texel (an (su, sv)
+    pair of HxW maps, an HxWx2 array, a ``stretched.Stretch`` or an ``ops.stretch.StretchTile``
+    from ``bdipole_cl.stretch_maps``), in the mfp's unit, instead of ``texel_size``: the profile
+    in surface distance, per texel anisotropic (docs/stretch.md). ``charts`` (with a stretch
+    that has charts): "clamp", "zero" or "none" (``methods.registry.CHART_BORDER``).
     """
     if is_device_array(irradiance):
         shape = irradiance.shape
         device = device if device is not None else runtime_of_array(irradiance)
     else:
         shape = irradiance_shape(irradiance)
-    plan = plan_blur(shape, Scattering(albedo, mfp, eta, texel_size, alpha, sigma_t),
+    plan = plan_blur(shape, Scattering(albedo, mfp, eta, texel_size, alpha, sigma_t, stretch),
                      tol=tol, method=method, border=border, exact=exact,
-                     on_invalid=on_invalid, device=device)
-    out, info = plan.apply(irradiance, max_memory)
+                     on_invalid=on_invalid, device=device, charts=charts)
+    if is_device_array(irradiance) and not isinstance(plan, BlurPlan):
+        # the stretched blur runs on the host: the exitance goes back where the light was
+        out, info = plan.apply(irradiance.get(), max_memory)
+        out = to_device(irradiance.queue, out)
+    else:
+        out, info = plan.apply(irradiance, max_memory)
     return (out, info) if return_info else out

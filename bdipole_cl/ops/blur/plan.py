@@ -49,11 +49,14 @@ class Scattering:
     texel_size: float = 1.0
     alpha_prime: object = None
     sigma_t: object = None
+    stretch: object = None     # per-texel texel lengths (``stretched.as_stretch``): replaces
+    #                            texel_size; the blur in surface distance (docs/stretch.md)
 
     @property
     def textured(self) -> bool:
         """Whether a parameter is a texture (2D or more) rather than one value per channel."""
-        return any(np.ndim(v) >= 2 for v in self.keywords().values() if v is not None)
+        return self.stretch is not None or any(np.ndim(v) >= 2 for v in self.keywords().values()
+                                               if v is not None)
 
     def keywords(self) -> dict:
         """The parameters as ``params.channel_parameters`` and ``texel_parameters`` take them."""
@@ -75,8 +78,13 @@ class Scattering:
 
     def header(self) -> dict:
         """The given parameters for an output's ``bdipole:*`` attributes ("texture" for maps)."""
-        return {key: (v if np.ndim(v) < 2 else "texture") for key, v in self.keywords().items()
+        head = {key: (v if np.ndim(v) < 2 else "texture") for key, v in self.keywords().items()
                 if v is not None}
+        if self.stretch is not None:
+            head["texel_size"] = "stretch map"
+            if getattr(self.stretch, "unit", ""):
+                head["stretch_unit"] = self.stretch.unit
+        return head
 
 
 @dataclass(eq=False)
@@ -249,6 +257,16 @@ def checked_shape(shape) -> tuple:
     return dims if len(dims) == 3 else (*dims, 1)
 
 
+def stretched_blur_plan(shape, scattering, tol, method, border, exact, on_invalid, device,
+                        charts):
+    """``plan_blur``'s stretched plan: method fft or auto only (its basis is eigen-kernels)."""
+    from .stretched import plan_stretched
+    if method not in ("auto", "fft"):
+        raise ValueError(f"method={method!r}: the stretched blur runs fft (or auto)")
+    return plan_stretched(shape, scattering, scattering.stretch, tol=tol, border=border,
+                          charts=charts, exact=exact, on_invalid=on_invalid, device=device)
+
+
 def check_blur_options(method, tol, border, on_invalid):
     """ValueError naming the option and its choices unless each is one of its registry's."""
     BLUR_METHOD[method], BORDER[border]
@@ -258,12 +276,17 @@ def check_blur_options(method, tol, border, on_invalid):
 
 
 def plan_blur(shape, scattering: Scattering, *, tol=1e-3, method="auto", border="clamp",
-              exact=False, on_invalid="raise", device=None) -> BlurPlan:
+              exact=False, on_invalid="raise", device=None, charts="clamp") -> BlurPlan:
     """The BlurPlan of an irradiance of ``shape`` (HxW or HxWxC) under ``scattering``: each
-    channel's method and kernel decided here, once (``auto`` for ``device``'s runtime)."""
+    channel's method and kernel decided here, once (``auto`` for ``device``'s runtime). With
+    ``scattering.stretch``, the stretched blur's plan (``stretched.plan_stretched``; chart
+    borders by ``charts``)."""
     check_blur_options(method, tol, border, on_invalid)
     shape = checked_shape(shape)
     scattering = scattering.on_host()
+    if scattering.stretch is not None:
+        return stretched_blur_plan(shape, scattering, tol, method, border, exact, on_invalid,
+                                   device, charts)
     rt = get_runtime(device)
     base = BlurPlan(scattering, shape, tol, method, border, exact, on_invalid, 0, runtime=rt)
     if scattering.textured:

@@ -1,0 +1,158 @@
+"""Stretch maps from meshes (bdipole_cl/io/mesh.py, ops/stretch.py, io/stretch_maps.py,
+``bdipole-cl stretch``; docs/stretch.md): analytic planes, a USD cylinder over UDIM tiles with
+faceVarying seams, degenerate and flipped triangles, UVs in no tile."""
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from bdipole_cl.io.mesh import MeshError, read_meshes
+from bdipole_cl.io.stretch_maps import read_stretch, stretch_maps
+from bdipole_cl.ops.stretch import StretchError, stretch_tiles
+from stretch_meshes import affine_plane, cylinder_lengths, cylinder_stage, write_obj
+
+#: float32 unit round-off: the maps are float64 Jacobians rounded once to float32 (u), from
+#: positions and UVs exact in binary or within a few float64 ulps (negligible)
+U32 = 2.0 ** -24
+
+
+@pytest.mark.parametrize("jac,shear", [
+    (((0.3, 0.0), (0.0, 0.12), (0.0, 0.0)), 0.0),                  # u along x, v along y
+    (((0.2, 0.0), (0.0, 0.1), (0.15, 0.05)), None),                 # tilted in 3D
+    (((0.3, 0.1), (0.0, 0.2), (0.0, 0.0)), None),                   # sheared
+], ids=["axes", "tilted", "sheared"])
+def test_affine_plane_exact(tmp_path, jac, shear):
+    """An affine UV map's stretch is constant: |dP/du| / W and |dP/dv| / H (metres to mm),
+    equal to the analytic values within float32's rounding, the shear the cosine between the
+    columns; every texel of the tile (gutters too, by dilation) holds it."""
+    jac = np.asarray(jac)
+    path = affine_plane(tmp_path / "plane.obj", jac)
+    (tile,) = stretch_tiles(read_meshes(path), (64, 128), 1e-3)
+    su = np.linalg.norm(jac[:, 0]) / 128 / 1e-3
+    sv = np.linalg.norm(jac[:, 1]) / 64 / 1e-3
+    cos = jac[:, 0] @ jac[:, 1] / (np.linalg.norm(jac[:, 0]) * np.linalg.norm(jac[:, 1]))
+    assert tile.tile == (0, 0) and tile.covered.mean() > 0.5
+    assert np.max(np.abs(tile.su / su - 1)) <= 2 * U32, (tile.su.min(), tile.su.max(), su)
+    assert np.max(np.abs(tile.sv / sv - 1)) <= 2 * U32, (tile.sv.min(), tile.sv.max(), sv)
+    assert abs(tile.max_shear - abs(cos)) <= 4 * U32, (tile.max_shear, cos)
+    if shear is not None:
+        assert tile.max_shear == shear
+
+
+def test_flipped_triangles_same_map(tmp_path):
+    """A mirrored UV layout (negative UV orientation) gives the same lengths, counted."""
+    jac = [(0.3, 0.0), (0.0, 0.12), (0.0, 0.0)]
+    (a,) = stretch_tiles(read_meshes(affine_plane(tmp_path / "a.obj", jac)), 64)
+    (b,) = stretch_tiles(read_meshes(affine_plane(tmp_path / "b.obj", jac, flip=True)), 64)
+    assert b.flipped == 2 and a.flipped == 0
+    np.testing.assert_array_equal(a.su, b.su)
+    np.testing.assert_array_equal(a.sv, b.sv)
+
+
+def test_degenerate_triangles_left_out(tmp_path):
+    """Triangles of zero UV area or zero surface area have no Jacobian: left out and counted;
+    their texels take their neighbours' (right) values."""
+    pts = [(0, 0, 0), (0.1, 0, 0), (0.1, 0.1, 0), (0, 0.1, 0), (0.05, 0.05, 0), (0.2, 0.2, 0)]
+    uvs = [(0.1, 0.1), (0.9, 0.1), (0.9, 0.9), (0.1, 0.9), (0.5, 0.5), (0.5, 0.5)]
+    faces = [[(0, 0), (1, 1), (2, 2)], [(0, 0), (2, 2), (3, 3)],
+             [(4, 0), (4, 1), (4, 2)],                 # zero surface area, full UV area
+             [(0, 4), (1, 5), (5, 4)]]                 # zero UV area
+    path = write_obj(tmp_path / "deg.obj", pts, uvs, faces)
+    (tile,) = stretch_tiles(read_meshes(path), 32)
+    assert tile.degenerate == 2
+    want = 0.1 / 0.8 / 32 / 1e-3
+    assert np.max(np.abs(tile.su / want - 1)) <= 2 * U32
+    assert np.max(np.abs(tile.sv / want - 1)) <= 2 * U32
+
+
+@pytest.mark.parametrize("uv,where", [((-0.2, 0.5), "-0.2"), ((10.5, 0.5), "10.5"),
+                                      ((0.5, -1.0), "-1")], ids=["u<0", "u>=10", "v<0"])
+def test_uv_in_no_tile_one_line(tmp_path, uv, where):
+    """A texture coordinate in no UDIM tile: one line naming the mesh, the face and the UV
+    (API: StretchError; CLI: exit 1, that line)."""
+    pts = [(0, 0, 0), (1, 0, 0), (0, 1, 0)]
+    path = write_obj(tmp_path / "out.obj", pts, [(0.1, 0.1), (0.2, 0.1), uv],
+                     [[(0, 0), (1, 1), (2, 2)]])
+    with pytest.raises(StretchError, match=rf"face 0: texture coordinate .*{where}.* no UDIM"):
+        stretch_tiles(read_meshes(path), 16)
+    run = subprocess.run([sys.executable, "-m", "bdipole_cl", "stretch", str(path), "-o",
+                          str(tmp_path / "s.<UDIM>.exr"), "--size", "16"],
+                         capture_output=True, text=True)
+    assert run.returncode == 1, run.stderr
+    lines = run.stderr.strip().splitlines()
+    assert len(lines) == 1 and "no UDIM tile" in lines[0], run.stderr
+    assert not list(tmp_path.glob("s.*"))
+
+
+def test_obj_errors_named(tmp_path):
+    """An OBJ face without texture coordinates, or an index past the vertices: named."""
+    bad = tmp_path / "bad.obj"
+    bad.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    with pytest.raises(MeshError, match=r"bad.obj:4: a face without texture coordinates"):
+        read_meshes(bad)
+    bad.write_text("v 0 0 0\nvt 0 0\nf 1/1 2/1 3/1\n")
+    with pytest.raises(MeshError, match=r"bad.obj:3: index 2 outside the 1"):
+        read_meshes(bad)
+
+
+def test_cylinder_udim_facevarying(tmp_path):
+    """A USD cylinder (metersPerUnit 0.001: mm) with faceVarying st, its halves two charts in
+    UDIM 1001 and 1002: one EXR per tile, declared as data, with the unit, each chart's
+    lengths the polygon's (chord x facets per texel), the seam making two charts."""
+    from OpenImageIO import ImageInput
+    stage = cylinder_stage(tmp_path / "cyl.usda", tile2=True)
+    done = stretch_maps(stage, str(tmp_path / "st.<UDIM>.exr"), size=256)
+    assert [t.udim for t, _ in done] == [1001, 1002]
+    want = cylinder_lengths()
+    for side, (tile, path) in enumerate(done):
+        s = read_stretch(path)
+        su, sv = want[side]
+        cov = s.covered
+        # the stage's points are float32: each coordinate within u x 10 mm, so a 0.98 mm
+        # chord within ~2 x 10 / 0.98 u = 20 u relative, and the map's own rounding (u)
+        assert np.max(np.abs(s.su[cov] / su - 1)) <= 24 * U32, (s.su[cov].min(), su)
+        assert np.max(np.abs(s.sv[cov] / sv - 1)) <= 24 * U32, (s.sv[cov].min(), sv)
+        assert len(np.unique(s.chart)) == 1 and s.unit == "mm"
+        inp = ImageInput.open(path)
+        spec = inp.spec()
+        inp.close()
+        assert spec.get_string_attribute("oiio:ColorSpace") in ("data", "Raw", "raw")
+        assert spec.get_string_attribute("bdipole:stretch_unit") == "mm"
+        assert spec.get_string_attribute("bdipole:stretch_meters_per_unit") == "0.001"
+    (one, _), = stretch_maps(cylinder_stage(tmp_path / "one.usda"), None, size=256)
+    charts = np.unique(one.chart[one.covered])
+    assert len(charts) == 2                # the faceVarying seams split the two halves
+
+
+def test_usd_time_samples(tmp_path):
+    """Points time-sampled: the map at the time asked (a plane scaled 2x at time 10)."""
+    from pxr import Gf, Sdf, Usd, UsdGeom, Vt
+    stage = Usd.Stage.CreateNew(str(tmp_path / "t.usda"))
+    UsdGeom.SetStageMetersPerUnit(stage, 0.01)                     # cm
+    mesh = UsdGeom.Mesh.Define(stage, "/p")
+    quad = np.array([(0, 0, 0), (8, 0, 0), (8, 8, 0), (0, 8, 0)], float)
+    for t, k in ((1.0, 1.0), (10.0, 2.0)):
+        mesh.GetPointsAttr().Set(Vt.Vec3fArray([Gf.Vec3f(*(k * p)) for p in quad]), t)
+    mesh.CreateFaceVertexCountsAttr([4])
+    mesh.CreateFaceVertexIndicesAttr([0, 1, 2, 3])
+    UsdGeom.PrimvarsAPI(mesh).CreatePrimvar(
+        "st", Sdf.ValueTypeNames.TexCoord2fArray, UsdGeom.Tokens.vertex).Set(
+        Vt.Vec2fArray([Gf.Vec2f(0, 0), Gf.Vec2f(1, 0), Gf.Vec2f(1, 1), Gf.Vec2f(0, 1)]))
+    stage.GetRootLayer().Save()
+    for t, k in ((1.0, 1.0), (10.0, 2.0)):
+        (tile, _), = stretch_maps(tmp_path / "t.usda", size=32, time=t)
+        want = k * 80.0 / 32                                       # mm per texel
+        assert np.max(np.abs(tile.su / want - 1)) <= 2 * U32, (t, tile.su.max(), want)
+
+
+def test_cli_stretch_writes_tiles(tmp_path):
+    """``bdipole-cl stretch`` writes the tiles and says what each holds."""
+    stage = cylinder_stage(tmp_path / "cyl.usda", tile2=True)
+    run = subprocess.run([sys.executable, "-m", "bdipole_cl", "stretch", str(stage), "-o",
+                          str(tmp_path / "s.<UDIM>.exr"), "--size", "64", "--unit", "cm"],
+                         capture_output=True, text=True)
+    assert run.returncode == 0, run.stderr
+    assert (tmp_path / "s.1001.exr").exists() and (tmp_path / "s.1002.exr").exists()
+    assert "UDIM 1002" in run.stdout and "cm/texel" in run.stdout
+    assert read_stretch(tmp_path / "s.1001.exr").unit == "cm"

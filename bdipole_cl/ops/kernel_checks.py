@@ -217,6 +217,25 @@ def _forced_engine_blur(e, rt, engine):
         return blur(e, albedo=(0.6, 0.3), mfp=2.0, method="fft", border="clamp", device=rt)
 
 
+def stretched_check():
+    """kernels/blur_stretched.cl: a stretched blur whose texel steps are all one unit long is
+    the constant blur (within 1e-2 of it: both within ~2 tol of the exact blur, docs/stretch.md;
+    a miscompiled gather is off by far more, or not finite)."""
+    def run(rt):
+        from .blur import blur
+        size = 40
+        e = np.random.default_rng(6).random((size, size, 1), np.float32)
+        ones = np.ones((size, size), np.float32)
+        got = blur(e, albedo=0.6, mfp=3.0, stretch=(ones, ones), charts="none", tol=1e-3,
+                   device=rt)
+        want = blur(e, albedo=0.6, mfp=3.0, method="fft", border="clamp", tol=1e-3, device=rt)
+        err = float(np.max(np.abs(got - want)) / np.max(np.abs(want)))
+        if not np.isfinite(got).all() or err > 1e-2:
+            raise RuntimeError(f"stretched blur computed wrongly (error {err:.3g})")
+        return None
+    return run
+
+
 def _smooth_textures(size):
     """Albedo 0.5..0.7 and mfp 2.5..3.5 texels varying across a ``size`` square: a
     texture-varying blur with several basis kernels and a near field."""
@@ -374,7 +393,8 @@ def checks(fp64: bool) -> list:
             KernelCheck("blur_separable", blur_check("gaussians")),
             KernelCheck("fft", device_fft_check(False)),
             KernelCheck("fft/f64", device_fft_check(True), fp64=True),
-            KernelCheck("blur_fft", blur_fft_check())]
+            KernelCheck("blur_fft", blur_fft_check()),
+            KernelCheck("blur_stretched", stretched_check())]
     out += [KernelCheck(f"blur_textured/w{w}", gather_check(w), width=w)
             for w in GATHER_WIDTHS_ALLOWED]
     return [c for c in out if fp64 or not c.fp64]

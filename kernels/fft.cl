@@ -8,9 +8,10 @@
 //
 // Layout. Every kernel works on tiles in local memory: `len` points of each of `cols`
 // independent sequences, point i of sequence c at [i * cols + c] (consecutive work-items take
-// consecutive sequences: no bank conflicts where cols > 1). Two such buffers (ping and pong)
-// hold a tile; each Stockham stage reads one and writes the other (no in-place shuffle, so
-// no stage waits on its own writes), a barrier between stages.
+// consecutive sequences, so the stages' reads are free of bank conflicts; their writes, at
+// stride R, are not padded against them: a GPU's possible gain). Two such buffers (ping and
+// pong) hold a tile; each Stockham stage reads one and writes the other (no in-place shuffle,
+// so no stage waits on its own writes), a barrier between stages.
 //
 // Sign: forward transforms use W_n = exp(-2 pi i / n); inverse ones are conj(DFT(conj(x)))
 // (`inverse`: conjugate at load and at store), unnormalised; the host folds 1 / (N0 N1) into

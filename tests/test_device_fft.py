@@ -14,7 +14,7 @@ per log2 of its radix: radix 2 (k = 1) 5.8 u, 4 (k = 2) 4.7 u, 8 (k = 5 with its
 products) 7.9 u, 3 (k = 4) 8.6 u, 5 (k = 6) 9.8 u, 7 (k = 7) 10.7 u, and the real twist (a
 2-point stage with a twiddle product, both of its outputs from one pair) 12 u. The stages' log2
 radices add up to log2(N0 N1), so a 2D real transform's relative error is at most
-ETA_LEVEL u log2(N0 N1) to first order (4320 x 2160 in float32: 1.7e-5; measured: 1.7e-7).
+ETA_LEVEL u log2(N0 N1) to first order (2160 x 4320 in float32: 1.7e-5; measured: 1.8e-7).
 """
 import math
 

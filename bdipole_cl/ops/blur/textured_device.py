@@ -96,7 +96,7 @@ def _basis_blurs(kernels, e_dev, c, plan, shift, dtype, wait_for):
     fft = device_transforms(rt, shape, 1, double)
     spec = cl.Buffer(rt.context, mf.READ_WRITE, n0 * (n1 // 2 + 1) * 2 * size)
     prod = cl.Buffer(rt.context, mf.READ_WRITE, n0 * (n1 // 2 + 1) * 2 * size)
-    rows = cl.Buffer(rt.context, mf.READ_WRITE, h * n1 * size)
+    rows = cl.Buffer(rt.context, mf.READ_WRITE, h * n1 * size) if double else None
     event = fft.forward(source, spec, wait_for=[event])
     ks = _kept(rt, plan, ("spectra", shape, np.dtype(real).str), lambda: _upload(
         rt, cached_spectra(plan, shape, real)))
@@ -106,13 +106,13 @@ def _basis_blurs(kernels, e_dev, c, plan, shift, dtype, wait_for):
         check_stop()
         event = times(rt.queue, (n1 // 2 + 1, n0), None, spec, ks, prod, np.int32(n0),
                       np.int32(n1 // 2 + 1), np.int32(j), wait_for=[event])
-        event = fft.inverse(prod, rows, rows=(k, k + h), wait_for=[event])
-        if double:
+        if double:                     # float64 rows, then narrowed into basis plane j
+            event = fft.inverse(prod, rows, rows=(k, k + h), wait_for=[event])
             event = enqueue_items(narrow, rt.queue, h * n1, rows, planes,
                                   np.uint64(j * h * n1), np.uint64(h * n1), wait_for=[event])
-        else:
-            event = cl.enqueue_copy(rt.queue, planes, rows, byte_count=h * n1 * 4,
-                                    dst_offset=j * h * n1 * 4, wait_for=[event])
+        else:                          # straight into basis plane j
+            event = fft.inverse(prod, planes, rows=(k, k + h), wait_for=[event],
+                                dst_offset=j * h * n1)
     return padded32, planes, event
 
 

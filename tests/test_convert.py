@@ -104,6 +104,33 @@ def test_shapes_broadcast_and_invalid_values_named():
         bdipole_cl.convert(0.5, 1.0, "better-dipole", "no-such")
 
 
+@pytest.mark.parametrize("value,target", [(1.5, "cycles-random-walk"), (np.nan, "moonray-walk"),
+                                          (-0.25, "moonray-walk"), (0.95, "cycles-legacy")])
+def test_a_value_breaking_several_rules_is_one_invalid_value(value, target):
+    # 1.5 is outside [0, 1] and, clamped to 1, beyond Cycles' reach; -0.25 and NaN, clamped to
+    # 0, are below MoonRay's colour floor: each is one invalid value, not one per rule
+    _needs_walk(target)
+    colour = np.array([[[0.5, value, 0.4]]])
+    done = bdipole_cl.convert(colour, 1.0, "better-dipole", target, eta=1.4,
+                              on_invalid="clamp", texels=True)
+    assert done.invalid == {"colour": 1, "radius": 0}, (value, target, done.invalid)
+
+
+def test_cli_counts_a_value_breaking_several_rules_once(tmp_path, capsys):
+    _needs_walk("cycles-random-walk", "moonray-walk")
+    from bdipole_cl.apps.cli import main
+    colour = np.full((2, 3, 3), 0.5)
+    colour[1, 2, 1] = 1.5
+    _write(tmp_path / "hot.exr", colour)
+    colour[1, 2, 1] = -0.25
+    _write(tmp_path / "cold.exr", colour)
+    for name, target in (("hot", "cycles-random-walk"), ("cold", "moonray-walk")):
+        rc = main(["convert", str(tmp_path / f"{name}.exr"), "--radius", "1", "--target",
+                   target, "--on-invalid", "clamp"])
+        out = capsys.readouterr().out
+        assert rc == 0 and "colour 1" in out and "colour 2" not in out, (target, out)
+
+
 def test_cycles_cannot_render_a_high_albedo_at_ior_1_4():
     # the walk loses the entry's Fresnel part: a painted 0.95 is beyond Cycles' reach
     _needs_walk("cycles-random-walk")

@@ -30,7 +30,7 @@ from ..physics.conventions import CONVENTION
 from ..physics.conversion import convert
 from ..version import __version__
 from .batch import job_claims, parse_constant
-from .invert_file import JobFiles, non_negative_albedo, open_inputs, per_channel
+from .invert_file import JobFiles, open_inputs, per_channel
 from .pipeline import stream_bands
 from .results import BatchReport, FileResult
 
@@ -132,14 +132,15 @@ def output_groups(target) -> tuple:
     return MEDIUM_GROUPS if target == "random-walk" else COLOUR_GROUPS
 
 
-def convert_band(work, inp, route, colour_in, radius, mask, etas, job, y0):
+def convert_band(work, inp, route, colour_in, radius, etas, job, y0):
     """One band's target colour and radius (for ``random-walk``: sigma_a and sigma_s), HxWxC
-    each, and the invalid counts, per channel."""
-    colour, negative = non_negative_albedo(route.convert(colour_in, inp.names),
-                                           work.on_invalid, mask, one_valid=True)
+    each, and the invalid counts, per channel. ``convert`` is the one check of a colour
+    (below 0 after the colour conversion is outside [0, 1] there): each invalid value is
+    counted once."""
+    colour = route.convert(colour_in, inp.names)
     radius = np.broadcast_to(radius, colour.shape)
     out_c, out_r = np.empty(colour.shape, np.float32), np.empty(colour.shape, np.float32)
-    invalid = {"colour": negative, "radius": 0}
+    invalid = {"colour": 0, "radius": 0}
     raised = []                     # (y, x, channel, error): every channel is seen first
     for c, eta in enumerate(etas):
         def done_with(policy, c=c, eta=eta):
@@ -203,11 +204,11 @@ def run_convert(job, *, cancel=None) -> FileResult:
                          tile_height=spec.tile_height if spec.tile_width else 0)
 
         def compute(band, data):
-            (y0, _), (a, m, mask) = band, data
+            (y0, _), (a, m, _) = band, data
             radius = (inp.mfp_const if m is None
                       else m[..., inp.mfp_channels] * np.float32(work.mfp_scale))
             out_c, out_r, invalid = convert_band(work, inp, route, a[..., inp.colour],
-                                                 radius, mask, etas, job, y0)
+                                                 radius, etas, job, y0)
             for key, n in invalid.items():
                 result.invalid[key] = result.invalid.get(key, 0) + n
             parts = [out_c, out_r] + ([a[..., inp.alpha:inp.alpha + 1]] if inp.keep_alpha

@@ -55,12 +55,12 @@ def _scalar(value, name):
 
 
 def check_colour(colour, on_invalid, name="colour", texels=False):
-    """(colour in [0, 1], count): NaN, infinite or outside [0, 1] is invalid (clamped into
-    [0, 1]; NaN to 0)."""
+    """(colour in [0, 1], invalid mask): NaN, infinite or outside [0, 1] (below 0: outside
+    the working space's gamut, or not a colour) is invalid, clamped into [0, 1] (NaN to 0)."""
     bad = ~((colour >= 0.0) & (colour <= 1.0))
     n = find_invalid(name, colour, bad, "NaN, infinite or outside [0, 1]", on_invalid,
                      texels=texels)
-    return (np.clip(np.nan_to_num(colour, nan=0.0), 0.0, 1.0) if n else colour), n
+    return (np.clip(np.nan_to_num(colour, nan=0.0), 0.0, 1.0) if n else colour), bad
 
 
 def check_radius(radius, on_invalid, name="radius", texels=False):
@@ -102,25 +102,29 @@ def convert(colour, radius, source="better-dipole", target="van-de-hulst", eta=1
     colour = plain_array(colour, "colour").astype(np.float64)
     radius = plain_array(radius, "radius").astype(np.float64)
     colour, radius = np.broadcast_arrays(colour, radius)
-    colour, n_colour = check_colour(colour, on_invalid, texels=texels)
+    colour, outside = check_colour(colour, on_invalid, texels=texels)
     radius, n_radius = check_radius(radius, on_invalid, texels=texels)
     flat_c, inverse = np.unique(colour, return_inverse=True)
     inv = inverse.reshape(colour.shape)
     lo, hi = rd_range(tgt.name, eta, g)
     rd = rendered_rd(src, flat_c, eta, g)
-    n_rd = find_invalid("colour", colour, (rd > hi)[inv],
-                        f"renders a reflectance above {hi:.6g}, the most {tgt.name} renders "
-                        f"at eta {eta:g}", on_invalid, texels=texels)
+    above = (rd > hi)[inv]
+    find_invalid("colour", colour, above, f"renders a reflectance above {hi:.6g}, the most "
+                 f"{tgt.name} renders at eta {eta:g}", on_invalid, texels=texels)
     # below the floor by more than the maps' rounding (a round trip's 1e-9 relative)
-    n_rd += find_invalid("colour", colour, (rd < lo * (1.0 - 1e-8))[inv],
-                         f"renders a reflectance below {lo:.6g}, the least {tgt.name} renders "
-                         f"(its colour floor) at eta {eta:g}", on_invalid, texels=texels)
+    below = (rd < lo * (1.0 - 1e-8))[inv]
+    find_invalid("colour", colour, below, f"renders a reflectance below {lo:.6g}, the least "
+                 f"{tgt.name} renders (its colour floor) at eta {eta:g}", on_invalid,
+                 texels=texels)
+    # a value is one invalid value, however many rules it breaks (1.5 is outside [0, 1] and,
+    # clamped to 1, beyond a Cycles walk's reach: counted once)
+    n_colour = int(np.count_nonzero(outside | above | below))
     # every distinct colour exactly, whatever their number: a texel's result is the same bits
     # in any array (no interpolated path whose error depends on how many colours there are)
     out_c, ratio, src_median = colour_maps(src, tgt, flat_c, eta, g)
     return Conversion(out_c[inv], radius * ratio[inv], np.clip(rd, lo, hi)[inv],
                       radius * src_median[inv], src.name, tgt.name, eta, g,
-                      {"colour": n_colour + n_rd, "radius": n_radius})
+                      {"colour": n_colour, "radius": n_radius})
 
 
 def check_walk_g(src, tgt, g) -> None:

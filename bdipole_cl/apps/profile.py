@@ -248,7 +248,7 @@ def material_specs(scene, name, inputs=None):
         albedos.append(px[keep])
         if isinstance(m.mfp, str):
             inputs.append(companion_path(m.mfp, path, tile))
-            mfp = read_parameter_texture(inputs[-1], "mfp")
+            mfp = read_parameter_texture(inputs[-1], "mfp", role="mfp")
             mfps.append(np.broadcast_to(mfp, px.shape[:2] + (mfp.shape[-1],))[keep])
     if not albedos:
         raise ValueError(f"material {name!r}: no albedo file matches {m.albedo}")

@@ -18,6 +18,7 @@ import numpy as np
 
 from ..errors import InvalidInputError, check_policy
 from ..io import tiles
+from ..io.channels import COLOUR_LAYERS, MEDIUM_LAYERS, short_name
 from ..io.collisions import collisions
 from ..io.colour import WorkingSpace, check_colorspace, resolve_working_space
 from ..io.freshness import InputGuard, params_digest
@@ -124,8 +125,8 @@ def convert_textures(inputs, *, radius=1.0, source="better-dipole", target="van-
 
 
 #: what an output holds: the target's colour and radius, or for ``random-walk`` the medium's
-#: sigma_a and sigma_s (1/unit; its g is the header's)
-COLOUR_GROUPS, MEDIUM_GROUPS = ("colour", "radius"), ("sigma_a", "sigma_s")
+#: sigma_a and sigma_s (1/unit; its g is the header's): the layers ``channels`` reads by role
+COLOUR_GROUPS, MEDIUM_GROUPS = COLOUR_LAYERS, MEDIUM_LAYERS
 
 
 def output_groups(target) -> tuple:
@@ -178,7 +179,7 @@ def run_convert(job, *, cancel=None) -> FileResult:
     with JobFiles(job, result) as files:
         inp = open_inputs(job, work, files.readers)
         spec = inp.albedo.spec
-        _, _, other = classify_channels(spec.channelnames, spec.alpha_channel)
+        _, _, other = classify_channels(spec.channelnames, spec.alpha_channel, "albedo")
         if other:
             result.notes.append("not colour, left out: "
                                 + ", ".join(spec.channelnames[c] for c in other))
@@ -186,7 +187,7 @@ def run_convert(job, *, cancel=None) -> FileResult:
         route = inp.albedo.colour(work.colorspace, work.working)
         result.colour = route.describe()
         groups = output_groups(work.target)
-        names = [f"{g}.{n}" for g in groups for n in inp.names]
+        names = [f"{g}.{short_name(n)}" for g in groups for n in inp.names]
         if inp.keep_alpha:
             names.append(spec.channelnames[inp.alpha])
         header = {"version": __version__, "source": work.source, "target": work.target,

@@ -27,7 +27,7 @@ def read_albedo(path, mask_mode, mask_path, colorspace, working):
     mask as booleans or None, colour channel names, alpha name or None, other channel names,
     its ColourPath). ``mask_mode``: None, "alpha" (the file's alpha) or a texture
     (``mask_path``, its first channel; masks are data, never converted)."""
-    r = Reader(path, "albedo")
+    r = Reader(path, "albedo", role="albedo")
     try:
         spec = r.spec
         colour, alpha = r.channels()
@@ -35,7 +35,7 @@ def read_albedo(path, mask_mode, mask_path, colorspace, working):
         px = r.read_band(0, spec.height)
     finally:
         r.close()
-    _, _, other = classify_channels(spec.channelnames, spec.alpha_channel)
+    _, _, other = classify_channels(spec.channelnames, spec.alpha_channel, "albedo")
     keep = None
     if mask_mode == "alpha":
         if alpha < 0:
@@ -53,7 +53,7 @@ def albedo_stats(path, mask_mode, mask_path, colorspace, working, max_memory=DEF
     """(colour channel names, alpha name, other names, Rd range of unmasked texels, masked
     fraction, ColourPath) of an albedo file: the statistics pass, in the working space,
     streamed in bands of rows."""
-    readers = [Reader(path, "albedo")]
+    readers = [Reader(path, "albedo", role="albedo")]
     try:
         spec = readers[0].spec
         colour, alpha = readers[0].channels()
@@ -81,7 +81,7 @@ def albedo_stats(path, mask_mode, mask_path, colorspace, working, max_memory=DEF
     finally:
         for r in readers:
             r.close()
-    _, _, other = classify_channels(spec.channelnames, spec.alpha_channel)
+    _, _, other = classify_channels(spec.channelnames, spec.alpha_channel, "albedo")
     names = spec.channelnames
     return (colour_names, names[alpha] if alpha >= 0 else None,
             [names[c] for c in other], (lo, hi) if lo <= hi else None,

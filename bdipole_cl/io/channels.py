@@ -39,10 +39,11 @@ def layer_of(name) -> str:
     return str(name).rsplit(".", 1)[0] if "." in str(name) else ""
 
 
-def classify_channels(names, alpha_channel=-1, role=None):
+def classify_channels(names, alpha_channel=-1, role=None, layer=None):
     """(colour, alpha, other) channel indices of a file, by name (the part after the last '.',
-    case-insensitive), the file's declared alpha channel and the input ``role`` it is read
-    for (a ``ROLE_LAYER`` key, or None):
+    case-insensitive), the file's declared alpha channel, the input ``role`` it is read
+    for (a ``ROLE_LAYER`` key, or None) and the ``layer`` asked for (a MaterialX image's
+    ``layer``; None: as follows; '' the unlayered channels):
 
     - alpha: the declared alpha channel, else the first named A or alpha;
     - colour: channels named R, G, B, Y (also red, green, blue, L, gray, grey), in file order,
@@ -50,10 +51,10 @@ def classify_channels(names, alpha_channel=-1, role=None):
       the file has it, else the unlayered one (R, G, B) where it has colour, else the first
       layer that has (``albedo.R``...): other layers (AOVs: specular.R, N.R) are left out. A
       file whose layers are all our outputs' but not the role's (an inversion's ``sigma_a``
-      read as an mfp) has none: it is not that input. Y only in
-      capitals, and not in a vector's layer (a named one that holds X or Z: P.X, P.Y, P.Z;
-      the unlayered channels when one is X: X, Y, Z is a vector or CIE XYZ colour, not a
-      luminance; a lower-case y is a component too: N.y, motion.y, uv.y); a grey one only
+      read as an mfp) has none: it is not that input. A ``layer`` asked for is the one read
+      (none where it has no colour). Y only in capitals, and not in a vector's layer (a
+      named one that holds X or Z: P.X, P.Y, P.Z; the unlayered channels when one is X: X,
+      Y, Z is a vector or CIE XYZ colour, not a luminance; a lower-case y is a component too: N.y, motion.y, uv.y); a grey one only
       where the layer has no R, G or B (beside them it is an extra luminance);
     - a file whose channels have none of these names but exactly one non-alpha channel: that
       channel is grey (a 1-channel file of any name; 2 channels of which one is alpha);
@@ -75,14 +76,15 @@ def classify_channels(names, alpha_channel=-1, role=None):
               and not (short[i] in VECTOR_NAMES and layers[i] in vectors)]
     if colour:                        # one layer: the role's, the unlayered one, the first
         held = {layers[i] for i in colour}
-        layer = (ROLE_LAYER.get(role) if ROLE_LAYER.get(role) in held else
-                 "" if "" in held else layers[colour[0]])
-        if role in ROLE_LAYER and layer != ROLE_LAYER[role] and held <= OWN_LAYERS:
-            layer = None              # an output of ours without this role's layer: refused
+        if layer is None:
+            layer = (ROLE_LAYER.get(role) if ROLE_LAYER.get(role) in held else
+                     "" if "" in held else layers[colour[0]])
+            if role in ROLE_LAYER and layer != ROLE_LAYER[role] and held <= OWN_LAYERS:
+                layer = None          # an output of ours without this role's layer: refused
         colour = [i for i in colour if layers[i] == layer]
     if any(short[i] not in GREY_NAMES for i in colour):
         colour = [i for i in colour if short[i] not in GREY_NAMES]
-    if not colour and len(rest) == 1:
+    if not colour and len(rest) == 1 and layer in (None, layers[rest[0]]):
         colour = rest
     other = [i for i in rest if i not in colour]
     return colour, alpha, other

@@ -164,10 +164,10 @@ class Reader:
     """One image file open for band reads (scanline or tiled), float32 out: the first part,
     mip level 0; multi-part and deep files are refused by name. ``role``: the input it is
     read as (``channels.ROLE_LAYER``: albedo, mfp, alpha, sigma_t), which picks the layer of
-    an output of ours that holds it."""
+    an output of ours that holds it; ``layer``: the one asked for (a material's)."""
 
-    def __init__(self, path, what, role=None):
-        self.path, self.what, self.role = path, what, role
+    def __init__(self, path, what, role=None, layer=None):
+        self.path, self.what, self.role, self.layer = path, what, role, layer
         self.inp = None
         check_regular_file(path, what)
         self.inp = oiio.ImageInput.open(oiio_path(path), open_config())
@@ -203,7 +203,11 @@ class Reader:
                 raise TextureError(f"{self.path}: channels {', '.join(names)} are "
                                    f"{'/'.join(sorted(model))} colour, not linear RGB: "
                                    f"convert to R, G, B first")
-        colour, alpha, _ = classify_channels(names, self.spec.alpha_channel, self.role)
+        colour, alpha, _ = classify_channels(names, self.spec.alpha_channel, self.role,
+                                             self.layer)
+        if not colour and self.layer is not None:
+            raise TextureError(f"{self.path}: no colour channel in layer {self.layer!r} "
+                               f"({self.what}; its channels: {', '.join(names)})")
         if not colour and role_missing(names, self.role):
             raise TextureError(f"{self.path}: {role_missing(names, self.role)} ({self.what})")
         if not colour:
@@ -460,12 +464,12 @@ class Writer:
 
 
 def read_parameter_texture(path, what, colour=False, colorspace="auto", working=None,
-                           role=None):
+                           role=None, layer=None):
     """A parameter texture (albedo, mfp, alpha', sigma_t') as HxWxC float32, alpha dropped;
     ``colour`` (albedo): converted from its space (``colorspace``, else as the file declares)
-    into the working space ``working``; else read as data, as it is. ``role``: as
-    ``Reader``'s (an output of ours read by its layer)."""
-    reader = Reader(path, what, role)
+    into the working space ``working``; else read as data, as it is. ``role``, ``layer``: as
+    ``Reader``'s (an output of ours read by its layer; a material's layer)."""
+    reader = Reader(path, what, role, layer)
     try:
         cols, _ = reader.channels()
         px = reader.read_band(0, reader.spec.height)[..., cols]

@@ -316,9 +316,9 @@ def material_scattering(job, runtime):
     extinction mfp as alpha' and sigma_t' = 1/mfp. (Scattering, mask or None, header)."""
     w, m = job.work, job.work.material
     albedo, keep, *_, route = read_albedo(job.inputs["albedo"], w.mask, job.inputs.get("mask"),
-                                          m.colorspace, w.working)
-    mfp = (read_parameter_texture(job.inputs["mfp"], "mfp", role="mfp") if "mfp" in job.inputs
-           else np.asarray(m.mfp)) * np.asarray(m.mfp_scale, np.float32)
+                                          m.colorspace, w.working, m.albedo_layer)
+    mfp = (read_parameter_texture(job.inputs["mfp"], "mfp", role="mfp", layer=m.mfp_layer)
+           if "mfp" in job.inputs else np.asarray(m.mfp)) * np.asarray(m.mfp_scale, np.float32)
     albedo = masked_parameter(albedo, keep)
     if np.ndim(mfp) >= 2:
         mfp = masked_parameter(mfp, keep)
@@ -368,9 +368,10 @@ def run_blur(job, runtime, *, cancel=None, lock=None, progress=None) -> FileResu
     return result
 
 
-def colour_of(path, role, colorspace, working) -> str:
-    """The colour path of one file into ``working``, described (``ColourPath.describe``)."""
-    r = Reader(path, role, role=role)
+def colour_of(path, role, colorspace, working, layer=None) -> str:
+    """The colour path of one file (its ``layer``) into ``working``, described
+    (``ColourPath.describe``)."""
+    r = Reader(path, role, role=role, layer=layer)
     try:
         return r.colour(colorspace, working).describe()
     finally:

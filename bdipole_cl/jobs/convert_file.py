@@ -72,6 +72,7 @@ class ConvertWork:
     working: WorkingSpace | None = None
     texture: TextureOptions | None = None
     header: dict = field(default_factory=dict)
+    layers: dict = field(default_factory=dict)    # as InvertWork's (none for convert)
 
 
 def convert_textures(inputs, *, radius=1.0, source="better-dipole", target="van-de-hulst",

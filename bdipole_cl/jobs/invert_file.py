@@ -72,7 +72,7 @@ class InvertInputs:
 def open_inputs(job, work, readers) -> InvertInputs:
     """Open the job's albedo, mfp and mask (each appended to ``readers`` as it opens, so the
     caller closes what opened) and check they fit together."""
-    alb = Reader(job.source, "albedo", role="albedo")
+    alb = Reader(job.source, "albedo", role="albedo", layer=work.layers.get("albedo"))
     readers.append(alb)
     colour, alpha_ch = alb.channels()
     spec = alb.spec
@@ -80,7 +80,7 @@ def open_inputs(job, work, readers) -> InvertInputs:
     mfp_reader = mfp_channels = mfp_const = mask_reader = None
     mfp_path = job.inputs.get("mfp")
     if mfp_path is not None:
-        mfp_reader = Reader(mfp_path, "mfp texture", role="mfp")
+        mfp_reader = Reader(mfp_path, "mfp texture", role="mfp", layer=work.layers.get("mfp"))
         readers.append(mfp_reader)
         check_same_window(spec, mfp_reader.spec, job.source, "mfp texture", mfp_path)
         mfp_channels, _ = mfp_reader.channels()
@@ -245,7 +245,8 @@ def run_invert(job, runtime, *, cancel=None, lock, progress=None) -> FileResult:
     with JobFiles(job, result) as files:
         inp = open_inputs(job, work, files.readers)
         spec = inp.albedo.spec
-        _, _, other = classify_channels(spec.channelnames, spec.alpha_channel)
+        _, _, other = classify_channels(spec.channelnames, spec.alpha_channel, "albedo",
+                                        work.layers.get("albedo"))
         if other:
             result.notes.append("not colour, left out: "
                                 + ", ".join(spec.channelnames[c] for c in other))

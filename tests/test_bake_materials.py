@@ -505,6 +505,8 @@ def test_a_scene_file_with_targets_writes_its_materials_as_new_ones(tmp_path):
     report = scenes.load(tmp_path / "scene.toml").plan().run()
     assert report.exit_code == 0, report.summary()
     stage = Usd.Stage.Open(str(tmp_path / "out" / "bdipole.usda"))
+    # its materials' distances in mm, and the layer says so (USD's default would be cm)
+    assert stage.GetRootLayer().pseudoRoot.GetInfo("metersPerUnit") == 1e-3
     skin = UsdShade.Material(stage.GetPrimAtPath("/bdipole_materials/skin"))
     assert skin and skin.ComputeSurfaceSource("ri")[0].GetShaderId() == "PxrSurface"
     pxr_surface = skin.ComputeSurfaceSource("ri")[0]

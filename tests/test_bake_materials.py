@@ -247,15 +247,21 @@ def test_the_written_pxrsurface_reads_back_as_the_material_that_was_baked(tmp_pa
 
 
 def generated(doc, element):
-    """GLSL and OSL source MaterialX's own generators write for ``element``."""
+    """GLSL, OSL and (where MaterialX has it) MDL source MaterialX's own generators write for
+    ``element``."""
     import MaterialX as mx
     import MaterialX.PyMaterialXGenGlsl as glsl
     import MaterialX.PyMaterialXGenOsl as osl
     import MaterialX.PyMaterialXGenShader as gen_shader
     from bdipole_cl.io.mtlx_networks import library
+    generators = [("glsl", glsl.GlslShaderGenerator), ("osl", osl.OslShaderGenerator)]
+    try:
+        import MaterialX.PyMaterialXGenMdl as mdl
+        generators.append(("mdl", mdl.MdlShaderGenerator))
+    except ImportError:
+        pass
     out = {}
-    for lang, cls, stage in (("glsl", glsl.GlslShaderGenerator, gen_shader.PIXEL_STAGE),
-                             ("osl", osl.OslShaderGenerator, gen_shader.PIXEL_STAGE)):
+    for lang, cls, stage in ((lang, cls, gen_shader.PIXEL_STAGE) for lang, cls in generators):
         gen = cls.create()
         context = gen_shader.GenContext(gen)
         context.registerSourceCodeSearchPath(mx.getDefaultDataSearchPath())
@@ -297,8 +303,11 @@ def test_the_materialx_document_validates_and_generates_glsl_and_osl(tmp_path):
         assert node.getInputValue("file") == f"./skin.<UDIM>.{output}.exr"
         code = generated(doc, graph.getOutput(output))
         assert all("texture" in c for c in code.values())
-        # OSL hands an image's layer to OpenImageIO as "subimage": empty, the file's own
-        assert set(re.findall(r'string \w+_layer = "([^"]*)"', code["osl"])) == {""}, output
+        # OSL hands an image's layer to OpenImageIO as "subimage" (MDL has it too): empty,
+        # the file's own
+        for lang in {"osl", "mdl"} & set(code):
+            layers = set(re.findall(r'string \w+_layer = "([^"]*)"', code[lang]))
+            assert layers == {""}, (lang, output, layers)
         for tile in ("1001", "1002"):
             same_as_layer(tmp_path / "bdipole" / f"skin.{tile}.{output}.exr",
                           tmp_path / "bdipole" / f"skin.{tile}.exr", output)

@@ -44,7 +44,7 @@ from .jobs.job import Job
 from .jobs.results import BatchReport, FileResult
 from .jobs.scene import Plan, not_run, scene_job
 from .jobs.scene_stats import DEFAULT_MEMORY
-from .jobs.scene_records import finish_bake
+from .jobs.scene_finish import finish_bake
 from .ops import invert as ops_invert
 from .ops.bands import band_rows, bands, halo_rows
 from .ops.host_arrays import texel_broadcast

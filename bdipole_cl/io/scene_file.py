@@ -37,7 +37,7 @@ Every error is one line naming the file, the line, the key and what is allowed
 from __future__ import annotations
 
 import re
-from dataclasses import dataclass, replace
+from dataclasses import replace
 from pathlib import Path
 
 
@@ -53,7 +53,8 @@ from ..ops.blur.params import CONSTANT_RULES
 from ..physics.models import MODEL
 from .colour import resolve_colorspace, resolve_working_space
 from .targets import TARGET, parse_targets
-from .mipmaps import MAX_TILE, TextureOptions, scene_texture
+from .mipmaps import MAX_TILE, scene_texture
+from .scene_types import Blur, ImportedMaterial, Material, SceneData  # noqa: F401
 from .scene_values import (as_list, check_material_eta, check_scaled_mfp, floats, mfp_constants,
                            number, numbers_or_number, positive)
 
@@ -70,6 +71,10 @@ KEYS = {
     "mfp": ({"material"}, lambda v: mfp_constants(v) or (isinstance(v, str) and v),
             f"a number in {CONSTANT_RULES['mfp'][0]}, a list of one per channel, or a texture "
             f"path"),
+    "albedo_layer": ({"material"}, lambda v: isinstance(v, str), "an EXR layer's name of the "
+                     "albedo texture (\"\": its unlayered channels)"),
+    "mfp_layer": ({"material"}, lambda v: isinstance(v, str), "an EXR layer's name of the mfp "
+                  "texture (\"\": its unlayered channels)"),
     "mfp_kind": ({"material"}, lambda v: v in MFP_KIND, MFP_KIND.listing('"')),
     "mfp_scale": ({"material"}, lambda v: numbers_or_number(v) and min(as_list(v)) > 0,
                   "a number > 0 or one per channel"),
@@ -132,88 +137,6 @@ DEFAULTS = {"eta": 1.4, "unit": "mm", "model": "better", "mfp": 1.0, "half": Fal
 #: tol when neither the entry nor [defaults] gives one: the inversion's accuracy contract, the
 #: blur's usual truncation
 DEFAULT_TOL = {"material": 1e-4, "blur": 1e-3}
-
-
-@dataclass(frozen=True)
-class Material:
-    name: str
-    albedo: str | tuple              # absolute pattern, or constants (imported materials)
-    mfp: tuple | str                 # constants per channel, or an absolute texture pattern
-    eta: tuple
-    outputs: tuple
-    output: str
-    mask: str | None                 # None, "alpha" or an absolute texture pattern
-    half: bool
-    unit: str
-    tol: float
-    model: str                       # physics.models.MODEL's canonical name
-    method: str
-    exact: bool
-    double: bool
-    on_invalid: str
-    colorspace: str                  # the albedo's: "auto" or the config's name of a space
-    working_space: str | None = None  # the config's name; None: the default working space
-    mfp_kind: str = "diffuse"        # methods.registry.MFP_KIND
-    mfp_scale: tuple = (1.0,)        # multiplies the mfp (one or per channel)
-    texture: TextureOptions | None = None    # tiled, mip-mapped EXR outputs (texture_options)
-    targets: tuple = ()               # io.targets.TARGET: the material networks a bake writes
-    #                                   (a stage's or document's materials: DEFAULT_TARGETS)
-
-    @property
-    def constant(self) -> bool:
-        """No texture: the coefficients are numbers (no image is written)."""
-        return not isinstance(self.albedo, str) and not isinstance(self.mfp, str)
-
-
-@dataclass(frozen=True)
-class ImportedMaterial:
-    """A material as read from a USD stage or MaterialX document (``shaders``): where it is,
-    which shader, the scene keys it gives (``facts``; ``suggestions`` yield to [defaults]),
-    each mapped input described, and why it is left out (None: it is baked)."""
-
-    name: str
-    path: str                        # the prim path (MaterialX: UsdMtlx's path for it)
-    shader: str
-    mfp_kind: str | None
-    facts: dict
-    suggestions: dict
-    inputs: dict                     # input name -> description
-    unit_m: float                    # metres per scene unit
-    left_out: str | None = None
-    notes: tuple = ()
-    bound: bool | None = None        # bound to geometry (None: the source cannot say)
-    instanced: bool = False          # a prim of an instance's prototype (USD): no over of a
-    #                                  layer above reaches it
-
-
-@dataclass(frozen=True)
-class Blur:
-    name: str
-    material: Material
-    irradiance: str
-    texel_size: float
-    output: str
-    mask: str | None
-    half: bool
-    tol: float
-    method: str
-    border: str
-    on_invalid: str
-    colorspace: str                  # the irradiance's
-    working_space: str | None = None  # irradiance, albedo and mfp: the material's unless given
-    texture: TextureOptions | None = None
-
-
-@dataclass(frozen=True)
-class SceneData:
-    """A checked scene file: its path, materials and blurs (``bdipole_cl.jobs.scene.Scene``
-    adds planning)."""
-
-    path: Path
-    materials: tuple
-    blurs: tuple
-    source: str | None = None        # the stage or document materials come from
-    imports: tuple = ()              # ImportedMaterial, baked or left out
 
 
 def line_of(text: str, section: str | None, index: int, key: str | None) -> int:
@@ -395,7 +318,8 @@ def _material(m, resolve, colour) -> Material:
         resolve(m.get("mask")), m["half"], m["unit"], float(m["tol"]),
         MODEL.canonical(m["model"]),
         m["method"], m["exact"], m["double"], m["on_invalid"], *colour, m["mfp_kind"],
-        floats(m["mfp_scale"]), scene_texture(m), parse_targets(m.get("targets", [])))
+        floats(m["mfp_scale"]), scene_texture(m), parse_targets(m.get("targets", [])),
+        m.get("albedo_layer"), m.get("mfp_layer"))
 
 
 def _imported(fail, index, entry, imp, defaults, resolve, working_space) -> Material:
@@ -406,8 +330,11 @@ def _imported(fail, index, entry, imp, defaults, resolve, working_space) -> Mate
         if not KEYS[key][1](value):
             fail("material", index or 0, "name",
                  f"{imp.path}: {key} = {value!r}: expected {KEYS[key][2]}")
+    # the stage's layer of its texture, not of the override's own texture
+    facts = {k: v for k, v in imp.facts.items()
+             if not (k.endswith("_layer") and k[:-len("_layer")] in entry)}
     m = _entry(fail, "material", index or 0, {"name": imp.name, **entry}, defaults,
-               below=imp.suggestions, above=imp.facts)
+               below=imp.suggestions, above=facts)
     check_material_eta(fail, index or 0, entry, m, from_stage="eta" in imp.facts)
     named = entry.get("unit", defaults.get("unit"))
     if "mfp" in entry:

@@ -48,19 +48,20 @@ def located(exc, path, sources, spec, idx, names=None):
     parameter's channel serves), as ``invert`` names it."""
     yy, xx, cc = exc.first_index
     row = int(idx[yy]) if exc.name == "irradiance" else yy
-    where = sources.get(exc.name, sources.get(exc.name.rstrip("'"), path))
-    names = (texture_channel_names(where) or names) if where != path else names
+    role = exc.name if exc.name in sources else exc.name.rstrip("'")
+    where = sources.get(role, path)
+    names = (texture_channel_names(where, role) or names) if where != path else names
     channel = names[min(cc, len(names) - 1)] if names and cc >= 0 else cc
     return invalid_texels(exc, where, spec.x + xx, spec.y + row, channel)
 
 
-def texture_channel_names(path) -> list | None:
-    """The colour channels' names of a parameter texture file (a one-channel map serves every
-    channel: its one name), None where ``path`` is no image file."""
+def texture_channel_names(path, role=None) -> list | None:
+    """The colour channels' names of a parameter texture file read as ``role`` (a one-channel
+    map serves every channel: its one name), None where ``path`` is no image file."""
     header = image_header(path) if isinstance(path, (str, Path)) else None
     if header is None:
         return None
-    colour, _, _ = classify_channels(header.channelnames, header.alpha_channel)
+    colour, _, _ = classify_channels(header.channelnames, header.alpha_channel, role)
     return [header.channelnames[c] for c in colour] or None
 
 
@@ -299,7 +300,7 @@ def check_windows(job):
     try:
         for role, p in job.inputs.items():
             if role != "irradiance":
-                other = Reader(p, role)
+                other = Reader(p, role, role=role)
                 try:
                     check_same_window(r.spec, other.spec, job.source, role, p)
                 finally:
@@ -315,9 +316,9 @@ def material_scattering(job, runtime):
     extinction mfp as alpha' and sigma_t' = 1/mfp. (Scattering, mask or None, header)."""
     w, m = job.work, job.work.material
     albedo, keep, *_, route = read_albedo(job.inputs["albedo"], w.mask, job.inputs.get("mask"),
-                                          m.colorspace, w.working)
-    mfp = (read_parameter_texture(job.inputs["mfp"], "mfp") if "mfp" in job.inputs
-           else np.asarray(m.mfp)) * np.asarray(m.mfp_scale, np.float32)
+                                          m.colorspace, w.working, m.albedo_layer)
+    mfp = (read_parameter_texture(job.inputs["mfp"], "mfp", role="mfp", layer=m.mfp_layer)
+           if "mfp" in job.inputs else np.asarray(m.mfp)) * np.asarray(m.mfp_scale, np.float32)
     albedo = masked_parameter(albedo, keep)
     if np.ndim(mfp) >= 2:
         mfp = masked_parameter(mfp, keep)
@@ -368,9 +369,10 @@ def run_blur(job, runtime, *, cancel=None, lock=None, progress=None) -> FileResu
     return result
 
 
-def colour_of(path, role, colorspace, working) -> str:
-    """The colour path of one file into ``working``, described (``ColourPath.describe``)."""
-    r = Reader(path, role)
+def colour_of(path, role, colorspace, working, layer=None) -> str:
+    """The colour path of one file (its ``layer``) into ``working``, described
+    (``ColourPath.describe``)."""
+    r = Reader(path, role, role=role, layer=layer)
     try:
         return r.colour(colorspace, working).describe()
     finally:

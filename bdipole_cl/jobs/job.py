@@ -48,6 +48,8 @@ class InvertWork:
     working: WorkingSpace | None = None          # None: the default working space
     mfp_kind: str = "diffuse"    # methods.registry.MFP_KINDS: ld = 1/mu_tr, or 1/sigma_t'
     texture: TextureOptions | None = None        # tiled, mip-mapped outputs (images.Writer)
+    layers: dict = field(default_factory=dict)   # {input role: its EXR layer read} (a scene
+    #                                              material's albedo_layer, mfp_layer)
 
 
 @dataclass(frozen=True)

@@ -54,10 +54,10 @@ from .blur_file import colour_of
 from .invert_file import per_channel
 from .job import BlurWork, ConstantWork, InvertWork, Job
 from .results import BatchReport, FileResult
+from .scene_finish import finish_bake
 from .scene_records import (LAYER, MANIFEST, coefficients_digest, constant_config,
-                            constant_text, finish_bake,
-                            foreign_records, imported_lines, mfp_text, read_manifest,
-                            record_inputs, records_dir, records_over_input,
+                            constant_text, foreign_records, imported_lines, mfp_text,
+                            read_manifest, record_inputs, records_dir, records_over_input,
                             records_refusal)
 from .scene_stats import DEFAULT_MEMORY, albedo_stats, table_for_range
 
@@ -217,7 +217,7 @@ def _plan_invert(m, path, tile, force, device, problems_all, max_memory):
         return job
     try:
         names, alpha, other, rd_range, masked, route = albedo_stats(
-            path, m.mask, inputs.get("mask"), m.colorspace, working, max_memory)
+            path, m.mask, inputs.get("mask"), m.colorspace, working, max_memory, m.albedo_layer)
     except TextureError as exc:          # this job cannot run (unreadable, or a colour space
         return _cannot_run(job, str(exc), problems_all)   # the config cannot follow); others do
     try:                                 # what the bake would refuse, refused now
@@ -286,9 +286,10 @@ def _plan_blur(b, path, tile, force, problems_all):
     if not todo:
         return job
     try:
-        for role, file, space in (("irradiance", path, b.colorspace),
-                                  ("albedo", inputs["albedo"], m.colorspace)):
-            job.computes.append(f"colour: {role} {colour_of(file, role, space, working)}")
+        for role, file, space, layer in (("irradiance", path, b.colorspace, None),
+                                         ("albedo", inputs["albedo"], m.colorspace,
+                                          m.albedo_layer)):
+            job.computes.append(f"colour: {role} {colour_of(file, role, space, working, layer)}")
     except TextureError as exc:                # e.g. a space the config does not know
         return _cannot_run(job, str(exc), problems_all)
     job.left_out.append(_not_converted(b.mask))
@@ -376,6 +377,12 @@ def plan(scene: Scene, *, force=False, device=None, max_memory=DEFAULT_MEMORY) -
 
 # {{{ the bake
 
+def layers_of(m) -> dict:
+    """{input role: the EXR layer read} of a material (its albedo_layer, mfp_layer)."""
+    return {role: layer for role, layer in (("albedo", m.albedo_layer), ("mfp", m.mfp_layer))
+            if layer is not None}
+
+
 def scene_job(job: PlannedJob, scene: Scene, max_memory=DEFAULT_MEMORY) -> Job:
     """The runnable ``job.Job`` of a planned job (``runner.run_job`` runs it; so do Dask's
     workers): the material's or blur's fields as the typed work."""
@@ -389,7 +396,7 @@ def scene_job(job: PlannedJob, scene: Scene, max_memory=DEFAULT_MEMORY) -> Job:
             on_invalid=m.on_invalid, max_memory=max_memory, outputs=m.outputs, unit=m.unit,
             double=m.double, mask=None if not m.mask else "alpha" if m.mask == "alpha"
             else "texture", specialise=SPECIALISE, header=header | {"tol": m.tol},
-            working=job.working, texture=texture_options(m.texture))
+            working=job.working, texture=texture_options(m.texture), layers=layers_of(m))
     elif job.kind == "blur":
         b = next(x for x in scene.blurs if x.name == job.name)
         work = BlurWork(tol=b.tol, method=b.method, border=b.border, exact=b.material.exact,

@@ -7,6 +7,7 @@ import os
 import sys
 import warnings
 
+from ..device.numerics import NUMERICS
 from ..errors import POLICIES
 from ..io.targets import DEFAULT_TARGETS, TARGET
 from ..methods.registry import ALPHA_CHANNEL, BLUR_METHODS, BORDERS, CHART_BORDERS
@@ -16,7 +17,8 @@ from .cli_blur import cmd_blur
 from .cli_options import (add_global_args, add_method_args, add_scheduler_args, cluster_client,
                           colorspace_arg, method_knobs)
 from .cli_types import (Parser, add_texture_arg, constant_or_texture, floats, fraction,
-                        output_list, positive_float, positive_int, size, target_list)
+                        output_list, positive_float, positive_int, size, spelling_of,
+                        target_list)
 from .user_kernel import SIGNATURES
 
 DESCRIPTION = """\
@@ -93,6 +95,11 @@ def _cmd_crosscheck(args) -> int:
             print("bdipole-cl crosscheck: error: --user-kernel needs --function and --against",
                   file=sys.stderr)
             return 2
+        if args.numerics != NUMERICS.names[0]:
+            print(f"bdipole-cl crosscheck: error: --numerics {args.numerics} applies to the "
+                  f"built-in kernels; a user kernel is built as its device builds it",
+                  file=sys.stderr)
+            return 2
         try:
             rows = []
             for eta in args.eta:
@@ -103,12 +110,12 @@ def _cmd_crosscheck(args) -> int:
             print(f"bdipole-cl crosscheck: error: {exc}", file=sys.stderr)
             return 1 if isinstance(exc, UserKernelRunError) else 2
     elif args.all_devices:
-        rows = run_all_devices(args.eta, n=args.n)
+        rows = run_all_devices(args.eta, n=args.n, numerics=args.numerics)
     else:
-        rows = run_crosscheck(args.eta, n=args.n)
-    if not args.all_devices:
         from ..device import get_runtime
-        print(f"device: {get_runtime().describe()}")
+        rt = get_runtime().with_numerics(args.numerics)
+        rows = run_crosscheck(args.eta, n=args.n, device=rt)
+        print(f"device: {rt.describe()}")
     print(format_rows(rows))
     return 1 if any(r.status == "FAIL" for r in rows) else 0
 
@@ -260,6 +267,12 @@ def build_parser() -> argparse.ArgumentParser:
                         "pointers")
     p.add_argument("--timeout", type=positive_float, default=120.0,
                    help="seconds a user kernel's run may take before it is stopped")
+    p.add_argument("--numerics", default=NUMERICS.names[0], type=spelling_of(NUMERICS),
+                   choices=NUMERICS.names,
+                   help="the float32 arithmetic the built-in kernels are built for: the "
+                        "device's own, or a GPU's on any device: ftz (subnormals flushed to "
+                        "zero), inexact (sqrt and division off by up to 2 ulps), gpu (both; "
+                        "docs/numerics.md)")
     p.set_defaults(func=_cmd_crosscheck)
 
     p = _scene_command(command, "plan", "what a scene's bake computes and leaves out, per job",

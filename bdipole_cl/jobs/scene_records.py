@@ -27,6 +27,8 @@ from ..methods.registry import MethodConfig
 from ..ops.invert import albedo_to_coefficients
 from .results import BatchReport, FileResult
 from .scene_maps import maps_entry, remove_stale_maps, target_maps
+from .scene_stale import dropped_records, remove_stale_outputs
+from .scene_stretch import made_files, stretch_records
 from .scene_layer import (LAYER_MARK, baked_material, mtlx_text, output_channels,
                           target_lines, usd_layer_text)
 
@@ -364,6 +366,9 @@ def write_records(plan, results) -> list:
             coefficients[job.name] = old[job.name]["coefficients"]
     maps = target_maps(scene, plan.jobs, results, coefficients, _outcome)
     records = manifest(scene, plan.jobs, coefficients, folder, results, maps)
+    stretch = stretch_records(scene, plan.jobs, results, folder)
+    for entry in records["materials"]:        # each blur's stretch, under its material
+        entry.update({"stretch": stretch[entry["name"]]} if entry["name"] in stretch else {})
     texts = {os.path.join(folder, MANIFEST): json.dumps(records, indent=1, sort_keys=True)
              + "\n"}
     if writes_materials(scene):
@@ -375,6 +380,8 @@ def write_records(plan, results) -> list:
         [f for e in old.values() for m in (e.get("maps") or {}).values()
          if isinstance(m, dict) for f in m.get("files") or []],
         [f for ms in maps.values() for m in ms.values() for f in m.files], folder, inputs)]
+    written += [(path, REMOVED) for path in remove_stale_maps(
+        made_files(old.values()), made_files(records["materials"]), folder, inputs)]
     written += [(line, DROPPED) for line in dropped_records(old, records)]
     written += [(path, MAPPED) for ms in maps.values() for mp in ms.values()
                 for path in mp.written]
@@ -437,45 +444,6 @@ REMOVED = "removed"
 DROPPED = "records removed"
 #: write_records' mark of a map of colour and radius in a target's convention it wrote
 MAPPED = "maps"
-
-
-def dropped_records(old: dict, records: dict) -> list:
-    """One line per material the last bake recorded as baked (``old``: its manifest) that
-    these ``records`` do not: its inputs vanished, it failed, or it left the scene; its
-    ``over`` (and so its records and material networks) is gone from the layer, which a
-    pipeline reading the layer would otherwise not know."""
-    now = {e["name"]: e for e in records["materials"]}
-    lines = []
-    for name, entry in sorted(old.items()):
-        new = now.get(name)
-        if not entry.get("baked") or (new is not None and new.get("baked")):
-            continue
-        why = ("no longer in the scene" if new is None else
-               new.get("not_baked") or new.get("left_out") or "not baked")
-        lines.append(f"material {name} ({entry.get('prim') or 'scene file'}): its records "
-                     f"are removed: {why}")
-    return lines
-
-
-def remove_stale_outputs(old, jobs, folder, inputs) -> list:
-    """Remove, and return, the output files an earlier bake in ``folder`` wrote for a material
-    this bake makes again (its manifest ``old``'s ``files``) that no job of this bake makes: a
-    tile whose albedo tile is gone, say, which the records' <UDIM> pattern would still give a
-    renderer. Only regular files in the folder that this bake does not read."""
-    making = {os.path.normpath(j.output) for j in jobs if j.output}
-    names = {j.name for j in jobs if j.kind == "invert"}
-    root = os.path.realpath(folder)
-    removed = []
-    for name, entry in old.items():
-        for f in (entry.get("files") or []) if name in names else []:
-            path = os.path.normpath(os.path.join(folder, str(f)))
-            real = os.path.realpath(path)
-            if (path in making or real in inputs or not real.startswith(root + os.sep)
-                    or not is_regular_file(path)):
-                continue
-            os.unlink(path)
-            removed.append(path)
-    return removed
 
 
 def finish_bake(plan, results: list) -> BatchReport:

@@ -162,6 +162,17 @@ def test_the_records_list_the_stretch_maps_as_usd_and_oiio_read_them(bound_scene
     rel = prim.GetRelationship("bdipole:stretch:skin_tsd:meshes")
     assert [str(p) for p in rel.GetTargets()] == ["/cyl"]
     assert stage.GetPrimAtPath("/cyl").IsA(UsdGeom.Mesh)
+    # a tile gone: its maps, which the <UDIM> record would still give, are removed, said
+    (root / "light" / "irr.1002.exr").unlink()
+    report = scenes.load(bound_scene).plan().run()
+    assert any(r.notes == ["removed"] and "skin_sss.1002.stretch.exr" in r.output
+               for r in report.results), report.summary()
+    assert not (root / "out" / "skin_sss.1002.stretch.exr").exists()
+    stage = composed(root / "asset.usda", root / "out" / "bdipole.usda")
+    attr = stage.GetPrimAtPath("/Looks/skin").GetAttribute("bdipole:stretch:skin_tsd")
+    layer = attr.GetPropertyStack(Usd.TimeCode.Default())[0].layer
+    assert [p.rsplit("/", 1)[-1] for p, _ in UsdShade.UdimUtils.ResolveUdimTilePaths(
+        attr.Get().path, layer)] == ["skin_sss.1001.stretch.exr"]
 
 
 def test_the_cli_plans_and_bakes_the_stretch(bound_scene, capsys):
@@ -340,6 +351,36 @@ def test_a_mesh_file_and_given_maps_in_another_unit(tmp_path):
                                         .read_text())["materials"]
                   if e["name"] == "skin")["stretch"]["skin_tsd"]
     assert record["from"] == "maps" and len(record["files"]) == 2, record
+
+
+def test_an_obj_in_its_own_unit_gives_the_analytic_lengths(tmp_path):
+    """stretch = an OBJ with mesh_unit: a plane 40 x 20 (cm) over the UV square, the
+    material in mm: each texel step is 400/64 mm along u and 200/64 mm along v, and the
+    blur of a single irradiance file (no tile token: the one tile the mesh covers) uses
+    them."""
+    from bdipole_cl.apps.demo import write_exr
+    from stretch_meshes import affine_plane
+    root = tmp_path / "obj"
+    (root / "tex").mkdir(parents=True)
+    affine_plane(root / "plane.obj", [[40.0, 0], [0, 20.0], [0, 0]], offset=(0, 0),
+                 extent=(1, 1))
+    write_exr(root / "tex" / "a.exr", albedo(1001), ("R", "G", "B"))
+    write_exr(root / "irr.exr", irradiance(1001), ("R", "G", "B"))
+    (root / "scene.toml").write_text(
+        '[[material]]\nname = "m"\nalbedo = "tex/a.exr"\ncolorspace = "raw"\n'
+        'mfp = [1.5, 0.8, 0.4]\noutput = "out/m.exr"\n\n[[blur]]\nname = "b"\n'
+        'material = "m"\nirradiance = "irr.exr"\ncolorspace = "raw"\n'
+        'stretch = "plane.obj"\nmesh_unit = "cm"\noutput = "out/b.exr"\n')
+    plan = scenes.load(root / "scene.toml").plan()
+    assert [j.kind for j in plan.jobs] == ["invert", "stretch", "blur"], plan.describe()
+    assert plan.run().exit_code == 0
+    s = read_stretch(root / "out" / "b.stretch.exr")
+    assert s.unit == "mm" and s.covered.all()
+    np.testing.assert_allclose(s.su, 400.0 / SIZE, rtol=1e-6)
+    np.testing.assert_allclose(s.sv, 200.0 / SIZE, rtol=1e-6)
+    got, _, _ = read_exr(root / "out" / "b.exr")
+    want = bd.blur(irradiance(1001), albedo=albedo(1001), mfp=DMFP, eta=1.4, stretch=s)
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-6 * float(want.max()))
 
 
 @pytest.mark.parametrize("keys, where, words", [

@@ -179,7 +179,7 @@ def stretch_records(scene, jobs, results, folder) -> dict:
             elif path and os.path.isfile(path):
                 files.append(os.path.relpath(path, folder))
             if j.kind == "stretch" and isinstance(j.work, StretchWork):
-                record["source"] = _relative(j.source, folder)
+                record["source"] = os.path.relpath(j.source, folder)
                 record["prims"] = list(j.work.prims) if j.work.material else []
                 record["time_code"] = time_record(j.work.time)
         record["files"] = sorted(set(files))

@@ -21,8 +21,9 @@ def albedo(udim) -> np.ndarray:
 
 
 def irradiance(udim) -> np.ndarray:
-    """An impulse on each chart of the cylinder (row 32; columns on its charts of the tile)."""
-    e = np.zeros((SIZE, SIZE, 3), np.float32)
+    """Impulses on the cylinder's chart of the tile over a uniform 0.05 (which reaches the
+    charts' borders: where the chart border rules differ)."""
+    e = np.full((SIZE, SIZE, 3), 0.05, np.float32)
     e[32, 20 if udim == 1001 else 45] = 1.0
     e[20, 30 if udim == 1001 else 50] = 0.5
     return e

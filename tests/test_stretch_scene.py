@@ -38,11 +38,11 @@ def read_exr(path):
         inp.close()
 
 
-def expected_blur(udim, stretch_file):
+def expected_blur(udim, stretch_file, charts="clamp"):
     """The scene blur's exitance computed apart: ``bd.blur`` of the tile's irradiance with the
     material's albedo texture, its dmfp and eta and the stretch maps read back."""
     return bd.blur(irradiance(udim), albedo=albedo(udim), mfp=DMFP, eta=1.4,
-                   stretch=read_stretch(stretch_file))
+                   stretch=read_stretch(stretch_file), charts=charts)
 
 
 def check_maps_equal(made, want_stage, udim):
@@ -327,15 +327,19 @@ def test_meshes_that_share_texels_agree_or_are_refused_naming_both(tmp_path):
 # {{{ the scene file's stretch keys
 
 def test_a_mesh_file_and_given_maps_in_another_unit(tmp_path):
-    """stretch = a stage (every mesh of it) gives the bound mesh's maps; stretch = maps in cm
-    (``bdipole-cl stretch --unit cm``) blurs as the same maps in mm: converted into the
-    material's unit, not read as mm."""
-    scene = stretch_scene(tmp_path / "f", stretch='"asset.usda"')
+    """stretch = a stage (every mesh of it) gives the bound mesh's maps, and charts = "zero"
+    is the blur's; stretch = maps in cm (``bdipole-cl stretch --unit cm``) blurs as the same
+    maps in mm: converted into the material's unit, not read as mm."""
+    scene = stretch_scene(tmp_path / "f", stretch='"asset.usda"', extra='charts = "zero"')
     root = scene.parent
     assert scenes.load(scene).plan().run().exit_code == 0
     for udim in UDIMS:
-        check_maps_equal(root / "out" / f"skin_sss.{udim}.stretch.exr", root / "asset.usda",
-                         udim)
+        made = root / "out" / f"skin_sss.{udim}.stretch.exr"
+        check_maps_equal(made, root / "asset.usda", udim)
+        got, _, _ = read_exr(root / "out" / f"skin_sss.{udim}.exr")
+        want = expected_blur(udim, made, "zero")
+        assert np.abs(want - expected_blur(udim, made)).max() > 1e-3 * want.max()
+        np.testing.assert_allclose(got, want, rtol=0, atol=1e-6 * float(want.max()))
     stretch_maps(root / "asset.usda", str(root / "cm.<UDIM>.exr"), size=SIZE, unit="cm")
     given = stretch_scene(tmp_path / "g", stretch='"../f/cm.<UDIM>.exr"')
     plan = scenes.load(given).plan()

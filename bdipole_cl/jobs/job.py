@@ -71,7 +71,8 @@ class BlurWork:
     max_memory: int = 256 << 20
     header: dict = field(default_factory=dict)
     material: object = None                # scene blurs: the material whose profile blurs
-    texel_size: float = 1.0                # scene blurs: the texel's size in the mfp's unit
+    texel_size: float | None = 1.0         # scene blurs: the texel's size in the mfp's unit
+    #                                        (None: the job's "stretch" maps give lengths)
     mask: str | None = None                # scene blurs: None, "alpha" or a mask texture
     charts: str = "clamp"                  # with a stretch: methods.registry.CHART_BORDER
 

@@ -390,7 +390,7 @@ def scene_job(job: PlannedJob, scene: Scene, max_memory=DEFAULT_MEMORY, pending=
                         on_invalid=b.on_invalid, half=b.half, texture=b.texture,
                         colorspace=b.colorspace, working=job.working, max_memory=max_memory,
                         header=header, material=b.material, texel_size=b.texel_size,
-                        mask=b.mask)
+                        mask=b.mask, charts=b.charts)
     elif job.kind == "stretch":
         work = job.work                      # the plan made it (scene_stretch.plan_stretch)
     else:

@@ -14,6 +14,7 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass, replace
 
+from ..errors import one_line
 from ..io.freshness import header_fields, input_identities, is_up_to_date, params_digest
 from ..io.images import TextureError, image_header
 from ..io.mesh_sets import is_earliest, read_mesh_set
@@ -25,7 +26,6 @@ from ..ops.stretch import check_tiles, mesh_tiles
 from .job import StretchWork
 from .planned import PlannedJob
 from .results import FileResult
-
 
 
 @dataclass
@@ -67,8 +67,8 @@ def read_cached(cache, source, material, mesh_unit):
             cache[key] = read_mesh_set(source, material, mesh_unit)
             for mesh in cache[key].meshes:
                 check_tiles(mesh)
-        except (OSError, ValueError) as exc:       # MeshError, StretchError, SceneError
-            cache[key] = str(exc)
+        except (OSError, ValueError, RuntimeError) as exc:   # MeshError, StretchError,
+            cache[key] = one_line(exc)                      # SceneError; pxr's Tf errors
     return cache[key]
 
 

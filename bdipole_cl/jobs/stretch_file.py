@@ -7,6 +7,7 @@ from __future__ import annotations
 import time
 from dataclasses import replace
 
+from ..errors import one_line
 from ..io.freshness import InputChanged, InputGuard
 from ..io.images import TextureError
 from ..io.mesh_sets import read_mesh_set, time_words
@@ -42,8 +43,8 @@ def run_stretch(job, runtime, *, cancel=None, lock=None, progress=None) -> FileR
                         f"{tile.sv.min():.4g}..{tile.sv.max():.4g} {w.unit} a texel"]
     except Stopped:
         result.status, result.error = "cancelled", f"{job.output}: interrupted; nothing written"
-    except (TextureError, OSError, ValueError) as exc:    # MeshError, StretchError, SceneError
-        result.error = str(exc)
+    except (TextureError, OSError, ValueError, RuntimeError) as exc:   # MeshError,
+        result.error = one_line(exc)          # StretchError, SceneError; pxr's Tf errors
     result.seconds = time.perf_counter() - t0
     return result
 

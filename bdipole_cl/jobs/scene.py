@@ -21,6 +21,8 @@ computed and what is left out, and why:
   texture space do exchange light, as in any texture-space diffusion (keep islands a kernel
   radius apart, or accept the bleed);
 - **colour**: each colour input's path into the job's working space; mfp and masks as is;
+- **stretch**: a blur whose ``stretch`` is meshes has, per tile, a stretch job before it
+  that makes its maps (``scene_stretch``; up to date while the meshes' geometry is);
 - **up to date**: an output whose ``bdipole:*`` header records the same parameters digest
   (which includes the working space and the OCIO config), library version and input files
   (size and modification time, else their content digest) is not rebuilt.

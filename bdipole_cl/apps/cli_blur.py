@@ -160,7 +160,13 @@ def blur_on_cluster(args, sources, stop) -> int:
     from ..jobs.blur_file import clamped_text
     job = blur_job(args, sources)
     s = job.work.scattering
-    if s.textured:                      # before any cluster starts
+    if s.stretch is not None:           # before any cluster starts
+        print("bdipole-cl blur: error: --stretch with --scheduler: the cluster blurs bands of "
+              "rows, and a stretched blur reads the whole image at once; blur without "
+              "--scheduler, or bake a scene on the cluster (each tile its own job)",
+              file=sys.stderr)
+        return 2
+    if s.textured:
         print("bdipole-cl blur: error: --scheduler takes constant parameters (one value or one "
               "per channel); with parameter textures, blur without --scheduler",
               file=sys.stderr)

@@ -22,8 +22,8 @@
     name = "skin_tsd"
     material = "skin"
     irradiance = "light/skin_irr.<UDIM>.exr"
-    texel_size = 0.05
-    output = "out/skin_exitance.<UDIM>.exr"
+    texel_size = 0.05                 # or stretch = "bound" (a stage's material: the meshes
+    output = "out/skin_exitance.<UDIM>.exr"   # it is bound to), a mesh file, stretch maps
 
     materials_from = "asset.usda"     # optional: a USD stage or MaterialX document's
                                       # subsurface materials; a [[material]] of the same
@@ -46,97 +46,20 @@ try:
 except ImportError:  # pragma: no cover - Python 3.10
     import tomli as tomllib
 
-from ..errors import POLICY
-from ..methods.registry import (BLUR_METHOD, BORDER, METHOD_OR_AUTO, MFP_KIND, OUTPUTS,
-                                TEXTURE_RESIZE, TEXTURE_WRAP)
-from ..ops.blur.params import CONSTANT_RULES
 from ..physics.models import MODEL
 from .colour import resolve_colorspace, resolve_working_space
-from .targets import TARGET, parse_targets
-from .mipmaps import MAX_TILE, scene_texture
+from .targets import parse_targets
+from .mipmaps import scene_texture
+from .scene_keys import (DEFAULT_TOL, DEFAULTS, KEYS, REQUIRED, STAGE_SUFFIXES,  # noqa: F401
+                         UNIT_METERS, blur_lengths)     # (KEYS ... UNIT_METERS: read from here)
 from .scene_types import Blur, ImportedMaterial, Material, SceneData  # noqa: F401
-from .scene_values import (as_list, check_material_eta, check_scaled_mfp, floats, mfp_constants,
-                           number, numbers_or_number, positive)
+from .scene_values import as_list, check_material_eta, check_scaled_mfp, floats
 
 
 class SceneError(ValueError):
     """A scene file that cannot be used: one line with the file, line, key and what is allowed."""
 
 
-#: each key: (kinds it belongs to, check, what is allowed)
-KEYS = {
-    "name": ({"material", "blur"}, lambda v: isinstance(v, str) and v, "a non-empty string"),
-    "albedo": ({"material"}, lambda v: (isinstance(v, str) and v) or numbers_or_number(v),
-               "a texture path or pattern, or constants (a number or one per channel)"),
-    "mfp": ({"material"}, lambda v: mfp_constants(v) or (isinstance(v, str) and v),
-            f"a number in {CONSTANT_RULES['mfp'][0]}, a list of one per channel, or a texture "
-            f"path"),
-    "albedo_layer": ({"material"}, lambda v: isinstance(v, str), "an EXR layer's name of the "
-                     "albedo texture (\"\": its unlayered channels)"),
-    "mfp_layer": ({"material"}, lambda v: isinstance(v, str), "an EXR layer's name of the mfp "
-                  "texture (\"\": its unlayered channels)"),
-    "mfp_kind": ({"material"}, lambda v: v in MFP_KIND, MFP_KIND.listing('"')),
-    "mfp_scale": ({"material"}, lambda v: numbers_or_number(v) and min(as_list(v)) > 0,
-                  "a number > 0 or one per channel"),
-    "eta": ({"material"}, lambda v: numbers_or_number(v), "a number or one per channel"),
-    "outputs": ({"material"}, lambda v: isinstance(v, list) and v and set(v) <= set(OUTPUTS)
-                and len(set(v)) == len(v), f"a list from {', '.join(OUTPUTS)}, each once"),
-    "output": ({"material", "blur"}, lambda v: isinstance(v, str) and v.endswith(".exr"),
-               "an .exr path or pattern (a .tx/TIFF texture drops the channel names: "
-               "texture = true writes tiled, mip-mapped EXRs)"),
-    "mask": ({"material", "blur"}, lambda v: isinstance(v, str) and v,
-             "\"alpha\" or a texture path"),
-    "half": ({"material", "blur"}, lambda v: isinstance(v, bool), "true or false"),
-    "texture": ({"material", "blur"}, lambda v: isinstance(v, bool),
-                "true (tiled, mip-mapped EXR textures) or false"),
-    "texture_wrap": ({"material", "blur"}, lambda v: v in TEXTURE_WRAP,
-                     TEXTURE_WRAP.listing('"') + " (implies texture = true)"),
-    "texture_tile": ({"material", "blur"},
-                     lambda v: isinstance(v, int) and not isinstance(v, bool)
-                     and 1 <= v <= MAX_TILE,
-                     f"a whole number of texels in 1..{MAX_TILE} (implies texture = true)"),
-    "texture_resize": ({"material", "blur"}, lambda v: v in TEXTURE_RESIZE,
-                       TEXTURE_RESIZE.listing('"') + " (implies texture = true)"),
-    "unit": ({"material", "blur"}, lambda v: isinstance(v, str) and v, "a unit name"),
-    "tol": ({"material", "blur"}, lambda v: number(v) and 0 < v < 1, "a number in (0, 1)"),
-    "model": ({"material"}, lambda v: v in MODEL, MODEL.listing('"')),
-    "method": ({"material"}, lambda v: v in METHOD_OR_AUTO,
-               f"one of {', '.join(METHOD_OR_AUTO.names)}"),
-    "blur_method": ({"blur"}, lambda v: v in BLUR_METHOD,
-                    f"one of {', '.join(BLUR_METHOD.names)}"),
-    "border": ({"blur"}, lambda v: v in BORDER, f"one of {', '.join(BORDER.names)}"),
-    "exact": ({"material"}, lambda v: isinstance(v, bool), "true or false"),
-    "double": ({"material"}, lambda v: isinstance(v, bool), "true or false"),
-    "on_invalid": ({"material", "blur"}, lambda v: v in POLICY, POLICY.listing()),
-    "colorspace": ({"material", "blur"}, lambda v: isinstance(v, str) and v,
-                   "auto or a colour space of the OCIO config"),
-    "working_space": ({"material", "blur"}, lambda v: isinstance(v, str) and v,
-                      "a scene-linear colour space of the OCIO config"),
-    "material": ({"blur"}, lambda v: isinstance(v, str) and v, "a material's name"),
-    "irradiance": ({"blur"}, lambda v: isinstance(v, str) and v, "a texture path or pattern"),
-    "texel_size": ({"blur"}, positive, "a finite number > 0 (in the unit of mfp)"),
-    "targets": ({"material"}, lambda v: isinstance(v, list) and _targets_ok(v),
-                f"a list from {TARGET.listing(chr(34))}, one per render context"),
-}
-
-
-def _targets_ok(value) -> bool:
-    try:
-        parse_targets([str(v) for v in value])
-    except ValueError:
-        return False
-    return all(isinstance(v, str) for v in value)
-
-REQUIRED = {"material": ("name", "albedo", "output"),
-            "blur": ("name", "material", "irradiance", "texel_size", "output")}
-DEFAULTS = {"eta": 1.4, "unit": "mm", "model": "better", "mfp": 1.0, "half": False,
-            "texture": False,
-            "outputs": ["sigma_a", "sigma_s"], "method": "auto", "blur_method": "auto",
-            "border": "clamp", "exact": False, "double": False, "on_invalid": "raise",
-            "colorspace": "auto", "mfp_kind": "diffuse", "mfp_scale": 1.0}
-#: tol when neither the entry nor [defaults] gives one: the inversion's accuracy contract, the
-#: blur's usual truncation
-DEFAULT_TOL = {"material": 1e-4, "blur": 1e-3}
 
 
 def line_of(text: str, section: str | None, index: int, key: str | None) -> int:
@@ -162,12 +85,6 @@ def line_of(text: str, section: str | None, index: int, key: str | None) -> int:
     return (start or 0) + 1
 
 
-#: metres per unit (MaterialX ``distance`` unit names and their short forms)
-UNIT_METERS = {"m": 1.0, "cm": 0.01, "mm": 1e-3, "um": 1e-6, "nm": 1e-9, "km": 1e3,
-               "in": 0.0254, "ft": 0.3048, "yd": 0.9144, "mi": 1609.344,
-               "meter": 1.0, "centimeter": 0.01, "millimeter": 1e-3, "micron": 1e-6,
-               "nanometer": 1e-9, "kilometer": 1e3, "inch": 0.0254, "foot": 0.3048,
-               "yard": 0.9144, "mile": 1609.344}
 
 
 def load(path, importer=None, working_space=None) -> SceneData:
@@ -276,13 +193,17 @@ def load(path, importer=None, working_space=None) -> SceneData:
             fail("blur", i, "material", f"material '{mat.name}' has a constant albedo: a blur "
                                         f"needs an albedo texture")
         mask = resolve(b["mask"]) if "mask" in entry else mat.mask
-        blurs.append(Blur(b["name"], mat, resolve(b["irradiance"]), float(b["texel_size"]),
+        from_stage = (str(source or "").lower().endswith(STAGE_SUFFIXES)
+                      and any(imp.name == mat.name for imp in imports))
+        texel, stretch, mesh_unit = blur_lengths(fail, i, entry, defaults, b, mat, from_stage,
+                                                 resolve)
+        blurs.append(Blur(b["name"], mat, resolve(b["irradiance"]), texel,
                           resolve(b["output"]), mask, b["half"], float(b["tol"]),
                           b["blur_method"], b["border"], b["on_invalid"],
                           _colour(fail, "blur", i, entry, b, "colorspace"),
                           _colour(fail, "blur", i, entry, b, "working_space")
                           if "working_space" in entry else mat.working_space,
-                          scene_texture(b)))
+                          scene_texture(b), stretch, b["charts"], mesh_unit))
     if not materials and not blurs and not imports:
         fail(None, 0, None, "the scene has no [[material]] and no [[blur]]")
     return SceneData(path.resolve(), tuple(materials.values()), tuple(blurs), source, imports)

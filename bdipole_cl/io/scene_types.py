@@ -70,7 +70,7 @@ class Blur:
     name: str
     material: Material
     irradiance: str
-    texel_size: float
+    texel_size: float | None         # None: the blur's lengths are ``stretch``'s
     output: str
     mask: str | None
     half: bool
@@ -81,6 +81,9 @@ class Blur:
     colorspace: str                  # the irradiance's
     working_space: str | None = None  # irradiance, albedo and mfp: the material's unless given
     texture: TextureOptions | None = None
+    stretch: str | None = None        # scene_keys.BOUND, or a mesh file's or stretch maps' path
+    charts: str = "clamp"             # methods.registry.CHART_BORDER (with a stretch)
+    mesh_unit: str | None = None      # an OBJ stretch mesh's positions' unit
 
 
 @dataclass(frozen=True)

@@ -30,6 +30,7 @@ from ..signals import Stopped
 from .pipeline import stream_bands
 from .results import FileResult
 from .scene_stats import read_albedo
+from .stretch_file import scene_stretch
 
 #: working set per row of a streamed band, in floats per texel and channel of the file: the
 #: band as read, the colour planes, the blur's own working set (``constant_row_bytes``, which
@@ -313,7 +314,8 @@ def check_windows(job):
 def material_scattering(job, runtime):
     """A scene blur's parameters from its material (``BlurWork.material``): the albedo file
     read into the working space, the mfp texture or constants, masked texels filled; an
-    extinction mfp as alpha' and sigma_t' = 1/mfp. (Scattering, mask or None, header)."""
+    extinction mfp as alpha' and sigma_t' = 1/mfp; the job's "stretch" maps, if any, in the
+    material's unit. (Scattering, mask or None, header)."""
     w, m = job.work, job.work.material
     albedo, keep, *_, route = read_albedo(job.inputs["albedo"], w.mask, job.inputs.get("mask"),
                                           m.colorspace, w.working, m.albedo_layer)
@@ -322,12 +324,15 @@ def material_scattering(job, runtime):
     albedo = masked_parameter(albedo, keep)
     if np.ndim(mfp) >= 2:
         mfp = masked_parameter(mfp, keep)
+    # a stretch job's maps, or the user's, in the material's unit (the mfp's)
+    stretch = scene_stretch(job.inputs["stretch"], m.unit) if "stretch" in job.inputs else None
+    texel = 1.0 if w.texel_size is None else w.texel_size    # (unused with a stretch)
     if m.mfp_kind == "diffuse":
-        scattering = Scattering(albedo, mfp, m.eta, w.texel_size)
+        scattering = Scattering(albedo, mfp, m.eta, texel, stretch=stretch)
     else:
         alpha_prime = invert_albedo(albedo, m.eta if len(m.eta) > 1 else m.eta[0],
                                     exact=m.exact, model=m.model, device=runtime)
-        scattering = Scattering(None, None, m.eta, w.texel_size, alpha_prime, 1.0 / mfp)
+        scattering = Scattering(None, None, m.eta, texel, alpha_prime, 1.0 / mfp, stretch)
     return scattering, keep, route.header("albedo")
 
 

@@ -213,8 +213,38 @@ def usd_layer_text(scene, records: dict, folder) -> str:
                      Vt.StringArray(channels))
                 attr(f"{output}:firstChannel", Sdf.ValueTypeNames.Int,
                      entry["first_channel"][output])
+        stretch_attributes(spec, entry.get("stretch") or {}, attr)
     author_networks(layer, wired, folder)
     return layer.ExportToString()
+
+
+def stretch_attributes(spec, records: dict, attr):
+    """The stretch maps of a material's blurs (``records``: the manifest entry's ``stretch``)
+    on its record prim ``spec``, each blur's under ``bdipole:stretch:{blur}``: the files as
+    USD resolves them (an asset path with ``<UDIM>``, else ``:tiles``), ``:unit``,
+    ``:channels`` and, for meshes a stage binds, a ``:meshes`` relationship to them."""
+    from pxr import Sdf, Tf, Vt
+    taken = set()
+    for blur, record in sorted(records.items()):
+        if not record.get("files"):
+            continue
+        name, k = f"stretch:{Tf.MakeValidIdentifier(blur)}", 1
+        while name in taken:                  # two blurs one identifier (a-b, a_b)
+            k += 1
+            name = f"stretch:{Tf.MakeValidIdentifier(blur)}_{k}"
+        taken.add(name)
+        pattern, tile_files = usd_asset_records(record["maps"], record["files"])
+        if pattern is not None:
+            attr(name, Sdf.ValueTypeNames.Asset, Sdf.AssetPath(pattern))
+        else:
+            attr(f"{name}:tiles", Sdf.ValueTypeNames.AssetArray,
+                 Sdf.AssetPathArray([Sdf.AssetPath(f) for f in tile_files]))
+        attr(f"{name}:unit", Sdf.ValueTypeNames.String, record["unit"])
+        attr(f"{name}:channels", Sdf.ValueTypeNames.StringArray,
+             Vt.StringArray(record["channels"]))
+        if record.get("prims"):
+            rel = Sdf.RelationshipSpec(spec, f"bdipole:{name}:meshes", custom=True)
+            rel.targetPathList.explicitItems = [Sdf.Path(p) for p in record["prims"]]
 
 
 def author_networks(layer, wired, folder):

@@ -24,9 +24,11 @@ from ..io.shaders import SHADERS
 from ..methods.choice import resolve_method
 from ..methods.registry import MethodConfig
 from ..ops.invert import albedo_to_coefficients
-from .results import BatchReport, FileResult
+from .results import FileResult
 from .layer_files import coefficient_layers
 from .scene_maps import maps_entry, remove_stale_maps, target_maps
+from .scene_stale import dropped_records, remove_stale_outputs
+from .scene_stretch import made_files, stretch_records
 from .scene_layer import (LAYER_MARK, baked_material, layer_unit, mtlx_text,
                           output_channels, target_lines, usd_layer_text)
 
@@ -371,6 +373,9 @@ def write_records(plan, results) -> list:
         if entry.get("baked") and entry["name"] in layered:
             entry["layer_files"] = sorted(os.path.relpath(f, folder)
                                           for f in layered[entry["name"]])
+    stretch = stretch_records(scene, plan.jobs, results, folder)
+    for entry in records["materials"]:        # each blur's stretch, under its material
+        entry.update({"stretch": stretch[entry["name"]]} if entry["name"] in stretch else {})
     texts = {os.path.join(folder, MANIFEST): json.dumps(records, indent=1, sort_keys=True)
              + "\n"}
     if writes_materials(scene):
@@ -385,6 +390,8 @@ def write_records(plan, results) -> list:
     written += [(path, REMOVED) for path in remove_stale_maps(
         [f for e in old.values() for f in e.get("layer_files") or []],
         [f for fs in layered.values() for f in fs], folder, inputs)]
+    written += [(path, REMOVED) for path in remove_stale_maps(
+        made_files(old.values()), made_files(records["materials"]), folder, inputs)]
     written += [(path, why or LAYERED) for path, why in layer_rows]
     written += [(line, DROPPED) for line in dropped_records(old, records)]
     written += [(path, MAPPED) for ms in maps.values() for mp in ms.values()
@@ -449,41 +456,3 @@ MAPPED = "maps"
 #: write_records' mark of an output's layer it wrote as a file of its own (``layer_files``)
 LAYERED = "layer file"
 
-
-def dropped_records(old: dict, records: dict) -> list:
-    """One line per material the last bake recorded as baked (``old``: its manifest) that
-    these ``records`` do not: its inputs vanished, it failed, or it left the scene; its
-    ``over`` (and so its records and material networks) is gone from the layer, which a
-    pipeline reading the layer would otherwise not know."""
-    now = {e["name"]: e for e in records["materials"]}
-    lines = []
-    for name, entry in sorted(old.items()):
-        new = now.get(name)
-        if not entry.get("baked") or (new is not None and new.get("baked")):
-            continue
-        why = ("no longer in the scene" if new is None else
-               new.get("not_baked") or new.get("left_out") or "not baked")
-        lines.append(f"material {name} ({entry.get('prim') or 'scene file'}): its records "
-                     f"are removed: {why}")
-    return lines
-
-
-def remove_stale_outputs(old, jobs, folder, inputs) -> list:
-    """Remove, and return, the output files an earlier bake in ``folder`` wrote for a material
-    this bake makes again (its manifest ``old``'s ``files``) that no job of this bake makes: a
-    tile whose albedo tile is gone, say, which the records' <UDIM> pattern would still give a
-    renderer. Only regular files in the folder that this bake does not read."""
-    making = {os.path.normpath(j.output) for j in jobs if j.output}
-    names = {j.name for j in jobs if j.kind == "invert"}
-    root = os.path.realpath(folder)
-    removed = []
-    for name, entry in old.items():
-        for f in (entry.get("files") or []) if name in names else []:
-            path = os.path.normpath(os.path.join(folder, str(f)))
-            real = os.path.realpath(path)
-            if (path in making or real in inputs or not real.startswith(root + os.sep)
-                    or not is_regular_file(path)):
-                continue
-            os.unlink(path)
-            removed.append(path)
-    return removed

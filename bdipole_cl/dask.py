@@ -44,7 +44,8 @@ from .jobs.job import Job
 from .jobs.results import BatchReport, FileResult
 from .jobs.scene import Plan, not_run, scene_job
 from .jobs.scene_stats import DEFAULT_MEMORY
-from .jobs.scene_records import finish_bake
+from .jobs.scene_finish import finish_bake
+from .jobs.scene_stretch import blocked, with_maps_header
 from .ops import invert as ops_invert
 from .ops.bands import band_rows, bands, halo_rows
 from .ops.host_arrays import texel_broadcast
@@ -70,8 +71,9 @@ def bake_on_cluster(plan: Plan, client, *, device=None, progress=True,
                     run=run_on_worker, max_memory=DEFAULT_MEMORY) -> BatchReport:
     """``Plan.run`` with the jobs on the cluster (up-to-date checks already done by the plan,
     in this process, before anything is sent): each planned job's ``scene_job`` is mapped
-    over by ``run`` (the runner)."""
-    results, futures = {}, {}
+    over by ``run`` (the runner); a blur that reads the stretch maps a stretch job of this
+    bake makes starts when that job has finished (``run_after``)."""
+    results, futures, made = {}, {}, {}   # made: stretch output -> its job's future
     before = {i: file_identity(j.output) for i, j in enumerate(plan.jobs) if j.output}
     run_id = uuid.uuid4().hex[:12]       # a run's own task keys: never an earlier run's results
     for i, job in enumerate(plan.jobs):
@@ -80,11 +82,14 @@ def bake_on_cluster(plan: Plan, client, *, device=None, progress=True,
         results[i] = not_run(job)
         if results[i] is None:
             del results[i]
-            fut = client.submit(run, absolute(scene_job(job, plan.scene, max_memory)),
-                                device, pure=False,
-                                retries=RETRIES,
+            work = absolute(scene_job(job, plan.scene, max_memory, pending=set(made)))
+            needs = made.get(work.inputs.get("stretch")) if job.kind == "blur" else None
+            fut = client.submit(*((run_after, run, work, device, needs) if needs is not None
+                                  else (run, work, device)), pure=False, retries=RETRIES,
                                 key=task_key("bake", i, job.kind, job.name, job.udim, run_id))
             futures[fut] = i
+            if job.kind == "stretch":
+                made[work.output] = fut
     bar = progress_bar(len(futures), "bake", progress)
     try:
         results.update(gather_results(client, futures, lambda i, exc: FileResult(
@@ -98,6 +103,14 @@ def bake_on_cluster(plan: Plan, client, *, device=None, progress=True,
             remove_partial_files(job.output)
     return finish_bake(plan, [results.get(i) or not_finished(j.source, j.output, before.get(i))
                               for i, j in enumerate(plan.jobs)])
+
+def run_after(run, job: Job, device, needed: FileResult) -> FileResult:
+    """``run(job, device)`` once the stretch job whose maps ``job`` reads has finished (Dask
+    passes its FileResult, ``needed``): where it made none, ``job`` fails, named, and reads
+    nothing (``scene_stretch.blocked``)."""
+    return (blocked(job, {job.inputs.get("stretch"): needed})
+            or run(with_maps_header(job), device))
+
 
 def not_started(plan: Plan, why: str) -> BatchReport:
     """The report of a bake whose cluster did not start (``cluster.ClusterStartError``):
@@ -363,10 +376,15 @@ def albedo_to_coefficients(rd, mfp, eta, method="table", *, outputs=("sigma_a", 
 BOUNDARIES = {"clamp": "nearest", "zero": 0, "wrap": "periodic"}
 
 
-def blur(irradiance, *, border="clamp", device=None, **kwargs):
+def blur(irradiance, *, border="clamp", device=None, stretch=None, charts="clamp", **kwargs):
     """``bdipole_cl.blur`` of an HxW or HxWxC dask array (lazy), constant parameters: each
-    block with an overlap of the plan's truncation radius, the image's edges by ``border``."""
+    block with an overlap of the plan's truncation radius, the image's edges by ``border``.
+    With ``stretch`` (and ``charts``), as ``bdipole_cl.blur`` takes them: the blur in surface
+    distance (``stretched_blur``)."""
     scattering, options = Scattering.split(kwargs)
+    if stretch is not None and not scattering.textured:
+        return stretched_blur(irradiance, scattering, stretch, charts=charts, border=border,
+                              device=device, **options)
     if scattering.textured:
         raise ValueError("bdipole_cl.dask.blur takes constant parameters (one value or one "
                          "per channel)")
@@ -396,5 +414,35 @@ def blur(irradiance, *, border="clamp", device=None, **kwargs):
                           dtype=np.float32, allow_rechunk=True)
     return out if irradiance.ndim == 3 else out[..., 0]
 
-# }}}
 
+
+def channel_keywords(scattering: Scattering, c: int) -> dict:
+    """``blur``'s parameter keywords of channel ``c`` alone (a constant per channel sliced;
+    one value for every channel kept)."""
+    return {k: (v if np.size(v) == 1 else np.asarray(v).ravel()[c])
+            for k, v in scattering.keywords().items() if v is not None}
+
+
+def stretched_blur(irradiance, scattering, stretch, *, charts="clamp", border="clamp",
+                   device=None, **options):
+    """``blur`` with a stretch: one task per channel over the whole image (the stretched blur
+    reads every texel of it at once: its basis blurs are FFTs of the image's chart windows, so
+    no band with a halo makes it); channels are blurred apart in it too, each with its own
+    plan. The stretch is checked against the image's size here, before any task; the result
+    comes chunked as the input."""
+    from .ops.blur import blur as blur_image
+    from .ops.blur.stretched import as_stretch
+    arr = irradiance if irradiance.ndim == 3 else irradiance[..., None]
+    s = as_stretch(stretch, arr.shape)
+
+    def channel(block, block_info=None):
+        c = block_info[0]["chunk-location"][2]
+        out = blur_image(np.ascontiguousarray(block, np.float32), stretch=s, charts=charts,
+                         border=border, device=device, **channel_keywords(scattering, c),
+                         **options)
+        return out.reshape(block.shape)
+    out = arr.rechunk({0: -1, 1: -1, 2: 1}).map_blocks(channel, dtype=np.float32)
+    out = out.rechunk(arr.chunks)
+    return out if irradiance.ndim == 3 else out[..., 0]
+
+# }}}

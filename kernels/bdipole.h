@@ -29,6 +29,113 @@ typedef float real;
 
 // }}}
 
+// {{{ a GPU's division and sqrt, on any device (-DBD_INEXACT_MATH; tests)
+//
+// OpenCL lets a device's float division be off by 2.5 ulp and its sqrt by 3 ulp (unless built
+// with -cl-fp32-correctly-rounded-divide-sqrt; NVIDIA's are not correctly rounded by default),
+// where the CPU runtimes round both correctly. -DBD_INEXACT_MATH makes any device err that way:
+// every float sqrt here and in the kernels, and every float division written BD_DIV(a, b) (the
+// inversion kernels'), is moved by -2 to +2 ulps, chosen by a hash of its operands' bits, so
+// that neighbouring inputs get unrelated errors (the worst a device may do: its results are
+// not monotone in their input). With -cl-denorms-are-zero these are what
+// bdipole_cl.device.numerics calls "gpu" (docs/numerics.md "What a GPU does"). Needs a
+// clang-based compiler (overloaded functions): the CPU runtimes.
+
+#ifdef BD_INEXACT_MATH
+#ifndef __clang__
+#error "-DBD_INEXACT_MATH needs a clang-based OpenCL compiler (Intel's CPU runtime, PoCL)"
+#endif
+// v moved by -2 .. 2 ulps (its bits, as integers) as the hash of key picks; zeros, infinities,
+// NaN and values below 2^-100 (where a step could cross zero or into the subnormals) unmoved.
+#define BD_INEXACT_TYPE(F, I, U, AS_I, AS_F, AS_U, MUL, SHIFT, TINY)                         \
+    inline __attribute__((overloadable)) F bd_inexact(F v, U key)                           \
+    {                                                                                        \
+        I off = AS_I(((key * MUL) >> SHIFT) % (U)5) - (I)2;                                  \
+        return isfinite(v) && fabs(v) >= (F)TINY ? AS_F(AS_I(v) + off) : v;                  \
+    }                                                                                        \
+    inline __attribute__((overloadable)) F bd_inexact_sqrt(F x)                              \
+    {                                                                                        \
+        return bd_inexact(sqrt(x), AS_U(x));                                                 \
+    }                                                                                        \
+    inline __attribute__((overloadable)) F bd_inexact_div(F a, F b)                          \
+    {                                                                                        \
+        return bd_inexact(a / b, AS_U(a) ^ (AS_U(b) * (U)3));                                \
+    }
+// for float, and for the lanes' vector type where the kernel has one (BD_WIDTH: only that
+// width, as PoCL's built-ins take some vector widths otherwise than its kernels pass them)
+#define BD_INEXACT_FLOAT(N)                                                                  \
+    BD_INEXACT_TYPE(float##N, int##N, uint##N, as_int##N, as_float##N, as_uint##N,            \
+                    0x9E3779B1u, 29, 0x1p-100f)
+#define BD_INEXACT_FLOAT_OF(N) BD_INEXACT_FLOAT(N)
+BD_INEXACT_FLOAT()
+#if defined(BD_WIDTH) && BD_WIDTH > 1
+BD_INEXACT_FLOAT_OF(BD_WIDTH)
+#endif
+#ifdef BD_DOUBLE
+// double division and sqrt: correctly rounded on every OpenCL device (OpenCL C's table of
+// double ulp bounds: 0 for both), so unmoved
+inline __attribute__((overloadable)) double bd_inexact_sqrt(double x) { return sqrt(x); }
+inline __attribute__((overloadable)) double bd_inexact_div(double a, double b) { return a / b; }
+#endif
+#undef sqrt                 // PoCL's headers rename the built-in by a macro of that name
+#define sqrt(x) bd_inexact_sqrt(x)
+#define BD_DIV(a, b) bd_inexact_div(a, b)
+#else
+#define BD_DIV(a, b) ((a) / (b))
+#endif
+
+// }}}
+
+// {{{ sqrt monotone on every device: BD_SQRT_RN (docs/model.md "Monotone inverse")
+//
+// The float inversion's variable x = sqrt(Rd) must be non-decreasing in Rd, which a sqrt off
+// by up to OpenCL's 3 ulp need not be (a GPU's reversed the default table near FLT_MIN). So it
+// is made the correctly rounded sqrt, which is monotone, whatever the device's:
+//   1. tiny r is scaled by 2^100 (its sqrt by 2^50 at the end, exactly), so that every
+//      quantity below (down to ulp^2 >= 2^-106) is a normal float: a device that flushes
+//      subnormals (FTZ/DAZ) gets the same answers;
+//   2. one Newton step from the device's s, s + (r - s^2) h with h ~ 1/(2s): the residual by
+//      fma (relative error 2^-24), h by the bit trick below (relative error <= 5.1%). The
+//      device's |s - sqrt r| <= 3 ulp is <= 6 ulps of the binade below sqrt r, so the step's
+//      exact value is within 6 x 0.051 = 0.31 of those ulps of sqrt r (the Newton and
+//      residual terms add < 2^-20), closer than any two rounding boundaries: its rounding is
+//      RN(sqrt r) or a neighbour (so from any sqrt within 9 ulp: 19 of the binade below);
+//   3. one exact step to RN(sqrt r): with ulp = 2^E the spacing at s = m 2^E (m < 2^24 an
+//      integer), r - s^2 = K 2^2E for an integer K, and sqrt r lies above the midpoint
+//      s + ulp/2 iff K > m, i.e. iff fma(-s, s, r) > s ulp (m 2^2E is a float, so the fma's
+//      rounding cannot cross it); below the midpoint under s iff fma(-s, s, r) <= -s ulp
+//      (-s ulp/2 where s is a power of two, its lower neighbour then ulp/2 away).
+// BD_SQRT_RN_DEFINE(name, float type, int type, bit casts) defines it for a scalar or vector
+// type (kernels/invert_table.cl's lanes); r <= 0, NaN and a subnormal that the device reads as
+// 0 give a value the caller replaces. It costs ~15 operations a value: where the device's sqrt
+// is known to be correctly rounded (-DBD_DEVICE_SQRT_RN, below), that is used instead.
+#define BD_SQRT_RN_DEFINE(NAME, F, I, AS_I, AS_F)                                           \
+    inline F NAME(F r)                                                                       \
+    {                                                                                        \
+        const I tiny = r < 0x1p-60f;                                                         \
+        const F rs = fmax(tiny ? r * 0x1p100f : r, (F)0x1p-60f);                             \
+        F s = sqrt(rs);                                                                      \
+        const F half_inv = AS_F(0x7e7311c7 - AS_I(s));     /* 1/(2s) within 5.1% */          \
+        s = fma(fma(-s, s, rs), half_inv, s);                                                \
+        const F ulp = AS_F(AS_I(s) & 0x7f800000) * 0x1p-23f;                                 \
+        const F above = s * ulp;                                                             \
+        const F below = (AS_I(s) & 0x007fffff) == 0 ? 0.5f * above : above;                  \
+        const F e = fma(-s, s, rs);                                                          \
+        s = e > above ? AS_F(AS_I(s) + 1) : e <= -below ? AS_F(AS_I(s) - 1) : s;              \
+        return tiny ? s * 0x1p-50f : s;                                                      \
+    }
+// -DBD_DEVICE_SQRT_RN (bdipole_cl/device/numerics.py: the CPU runtimes, whose sqrt is the
+// instruction set's IEEE one): the device's sqrt is correctly rounded already, used as it is.
+#if defined(BD_DOUBLE) || defined(BD_DEVICE_SQRT_RN)
+#undef BD_SQRT_RN_DEFINE
+#define BD_SQRT_RN_DEFINE(NAME, F, I, AS_I, AS_F) inline F NAME(F r) { return sqrt(r); }
+#endif
+// (double sqrt is correctly rounded on every OpenCL device)
+BD_SQRT_RN_DEFINE(bd_sqrt_rn, real, int, as_int, as_float)
+#define BD_SQRT_RN(x) bd_sqrt_rn(x)
+
+// }}}
+
 // {{{ per-channel constants
 
 // One channel's record in the params array: BD_PARAM_STRIDE reals, field BD_P_<NAME> at its
@@ -197,7 +304,7 @@ inline real bd_mu_over_sigma_t(real rho)
 #ifdef BD_MODEL_DIPOLE
     return sqrt(BD_LIT(3.0) * rho);
 #else
-    return sqrt(BD_LIT(3.0) * rho / (BD_LIT(1.0) + rho));
+    return sqrt(BD_DIV(BD_LIT(3.0) * rho, BD_LIT(1.0) + rho));
 #endif
 }
 

@@ -66,13 +66,13 @@ inline real table_guess(real rd, real x, bd_params p, __global const float4 *tab
         dgdx = BD_LIT(1.0);
     } else if (rd < BD_LIT(0.5)) {              // segment 1: G = -log Rd = -n log x
         v = table_value(table, 1, (x - p.x_split) * p.scale1, p.scale1, &dvdx);
-        dgdx = -(real)BD_POWER / x;
+        dgdx = BD_DIV(-(real)BD_POWER, x);
     } else {                                    // segment 2: G = -log(1 - x)
         real y = BD_LIT(1.0) - rd;
         v = table_value(table, 2, y * p.scale2, p.scale2, &dvdx);
-        dgdx = BD_LIT(1.0) / rd;
+        dgdx = BD_DIV(BD_LIT(1.0), rd);
     }
-    *slope = dgdx / dvdx;
+    *slope = BD_DIV(dgdx, dvdx);
     return v;
 }
 #endif
@@ -119,10 +119,10 @@ inline real solve_half(int upper, real target, real rd, real x, bd_params p,
         real f = half_residual(upper, v, p, &df) - target;
         if (fabs(f) <= (real)BD_TOL * target) break;
         if (f < BD_LIT(0.0)) lo = v; else hi = v;
-        if (i > 0 && f != f_prev) slope = (f - f_prev) / (v - v_prev);
+        if (i > 0 && f != f_prev) slope = BD_DIV(f - f_prev, v - v_prev);
         v_prev = v;
         f_prev = f;
-        v = v - f / slope;
+        v = v - BD_DIV(f, slope);
         if (!(v > lo && v < hi)) v = BD_LIT(0.5) * (lo + hi);
     }
     return v;
@@ -166,7 +166,7 @@ inline real polish_half(int upper, real v, real target, real hi, bd_params p)
     real df;
     for (int k = 0; k < BD_POLISH; ++k) {
         real f = half_residual(upper, v, p, &df) - target;
-        v = clamp(v - f / df, BD_LIT(0.0), hi);
+        v = clamp(v - BD_DIV(f, df), BD_LIT(0.0), hi);
     }
     return v;
 }
@@ -174,7 +174,7 @@ inline real polish_half(int upper, real v, real target, real hi, bd_params p)
 
 inline void invert_one(real rd, bd_params p, __global const float4 *table, real *alpha, real *rho)
 {
-    real x = BD_POWER == 2 ? sqrt(rd) : rd;
+    real x = BD_POWER == 2 ? BD_SQRT_RN(rd) : rd;
     real slope;
     real v = table_guess(rd, x, p, table, &slope);
     if (rd < p.rd_split) {
@@ -193,7 +193,7 @@ inline void invert_one(real rd, bd_params p, __global const float4 *table, real 
 #else
 inline void invert_one(real rd, bd_params p, __global const float4 *table, real *alpha, real *rho)
 {
-    real x = BD_POWER == 2 ? sqrt(rd) : rd;
+    real x = BD_POWER == 2 ? BD_SQRT_RN(rd) : rd;
     if (rd < p.rd_split) {
         lower_result(solve_half(0, x, rd, x, p, table), alpha, rho);
     } else {
@@ -251,7 +251,7 @@ __kernel void invert_albedo(__global const real *rd, __global const real *mfp,
     if (BD_WANTS(1, alpha_out)) alpha_out[i] = alpha;
     if (BD_WANTS(2, rho_out)) rho_out[i] = rho;
     if (BD_HAS_MFP && (BD_WANTS(4, sigma_a_out) || BD_WANTS(8, sigma_s_out))) {
-        real sigma_t = BD_LIT(1.0) / (BD_MFP(i, c) * bd_mu_over_sigma_t(rho));
+        real sigma_t = BD_DIV(BD_LIT(1.0), BD_MFP(i, c) * bd_mu_over_sigma_t(rho));
         if (BD_WANTS(4, sigma_a_out)) sigma_a_out[i] = sigma_t * rho;
         if (BD_WANTS(8, sigma_s_out)) sigma_s_out[i] = sigma_t * alpha;
     }

@@ -52,6 +52,13 @@
 // 1 where a lane's test holds, else 0 (vector comparisons give -1, scalar ones 1)
 #define ONE_IF(test) select((ivec)0, (ivec)1, test)
 
+// the correctly rounded sqrt of each lane (bdipole.h: BD_SQRT_RN_DEFINE)
+#if BD_WIDTH == 1
+#define bd_sqrt_rn_vec bd_sqrt_rn
+#else
+BD_SQRT_RN_DEFINE(bd_sqrt_rn_vec, vec, ivec, AS_INT, AS_FLOAT)
+#endif
+
 // }}}
 
 // {{{ per-lane channel parameters
@@ -110,7 +117,7 @@ inline vec table_lookup(vec rd, ivec ch, __constant const float *params,
               scale0 = lane_param(params, ch, BD_P_SCALE0),
               scale1 = lane_param(params, ch, BD_P_SCALE1),
               scale2 = lane_param(params, ch, BD_P_SCALE2);
-    vec x = BD_POWER == 2 ? sqrt(rd) : rd;
+    vec x = BD_POWER == 2 ? bd_sqrt_rn_vec(rd) : rd;   // monotone on every device (bdipole.h)
     ivec up = rd >= rd_split, top = rd >= 0.5f;
     vec t = top ? (1.0f - rd) * scale2 : up ? (x - x_split) * scale1 : x * scale0;
     ivec i = clamp(TO_INT(t), 0, BD_TABLE_N - 1);
@@ -216,9 +223,9 @@ __kernel void invert_table(__global const float *rd, BD_MFP_SPACE const float *m
 #ifdef BD_MODEL_DIPOLE
     vec mu_over_sigma_t = sqrt(3.0f * rho);
 #else
-    vec mu_over_sigma_t = sqrt(3.0f * rho / (1.0f + rho));
+    vec mu_over_sigma_t = sqrt(BD_DIV(3.0f * rho, 1.0f + rho));
 #endif
-    vec sigma_t = 1.0f / (ld * mu_over_sigma_t);
+    vec sigma_t = BD_DIV((vec)1.0f, ld * mu_over_sigma_t);
     if (BD_OUTPUTS & 4) store_lanes(sigma_t * rho, g, whole, n, sigma_a_out);
     if (BD_OUTPUTS & 8) store_lanes(sigma_t * alpha, g, whole, n, sigma_s_out);
 #endif

@@ -11,6 +11,7 @@
 //                       took 1.6x as long with them there); GLOADN(N, i, p) for N floats
 //                       (defined at widths 2 and up, with clang: else use vloadN)
 //   TO_INT, TO_FLOAT    lane-wise conversions
+//   AS_INT, AS_FLOAT    lane-wise bit casts (as_intN, as_floatN)
 //   ANY_LANE(test)      whether any lane's test holds
 //   BD_LANES            the lane numbers 0 .. BD_WIDTH - 1 (ivec; widths 2 and up)
 //   FOR_LANES(M)        M(.sK, K) for each lane K (M(, 0) at width 1): per-lane code
@@ -24,6 +25,8 @@ typedef int ivec;
 #define VSTORE(v, i, p) ((p)[i] = (v))
 #define TO_INT(v) ((int)(v))
 #define TO_FLOAT(v) ((float)(v))
+#define AS_INT(v) as_int(v)
+#define AS_FLOAT(v) as_float(v)
 #define ANY_LANE(test) (test)
 #define FOR_LANES(M) M(, 0)
 #else
@@ -35,6 +38,8 @@ typedef BD_CAT(int, BD_WIDTH) ivec;
 #define VSTORE(v, i, p) BD_CAT(vstore, BD_WIDTH)(v, i, p)
 #define TO_INT(v) BD_CAT(convert_int, BD_WIDTH)(v)
 #define TO_FLOAT(v) BD_CAT(convert_float, BD_WIDTH)(v)
+#define AS_INT(v) BD_CAT(as_int, BD_WIDTH)(v)
+#define AS_FLOAT(v) BD_CAT(as_float, BD_WIDTH)(v)
 #define ANY_LANE(test) any(test)
 #endif
 

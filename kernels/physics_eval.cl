@@ -5,6 +5,9 @@
 //   BD_FUNC_PROFILE       x = r, y = alpha', z = sigma_t'    -> R(r)
 //   BD_FUNC_PROFILE_CDF   x = r, y = alpha', z = sigma_t'    -> energy within r
 //   BD_FUNC_PROFILE_TAIL  x = r, y = alpha', z = sigma_t'    -> energy beyond r
+//   BD_FUNC_SQRT          x                                  -> sqrt(x), the device's own
+//   BD_FUNC_SQRT_RN       x = Rd                             -> BD_SQRT_RN(x): the correctly
+//                         rounded sqrt the inversion's variable is made of (0 for x <= 0)
 // For the profile functions, rho = 1 - alpha' is passed separately (w) so that it is exact.
 
 __kernel void physics_eval(__global const real *x, __global const real *y,
@@ -17,6 +20,10 @@ __kernel void physics_eval(__global const real *x, __global const real *y,
     real d;
 #if defined(BD_FUNC_RD)
     out[i] = bd_rd(x[i], p);
+#elif defined(BD_FUNC_SQRT)
+    out[i] = sqrt(x[i]);
+#elif defined(BD_FUNC_SQRT_RN)
+    out[i] = x[i] > BD_LIT(0.0) ? BD_SQRT_RN(x[i]) : BD_LIT(0.0);
 #elif defined(BD_FUNC_ONE_MINUS_RD)
     out[i] = -expm1(bd_log_rd_q(x[i], p, &d));
 #else

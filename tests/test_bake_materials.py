@@ -3,12 +3,16 @@ mtlx_networks.py, targets.py), loaded with their consumers' own APIs: UsdShade's
 surface resolution per render context, every connection to a declared input of its type,
 UsdShade.UdimUtils finding every tile, USD's validators (usdchecker's), and the library's own
 reader giving back the material that was baked."""
+import json
+import re
+
 import numpy as np
 import pytest
 
 pxr = pytest.importorskip("pxr")
-from pxr import Sdf, Sdr, Usd, UsdGeom, UsdShade, UsdValidation  # noqa: E402
+from pxr import Gf, Sdf, Sdr, Usd, UsdGeom, UsdShade, UsdValidation  # noqa: E402
 
+import bdipole_cl as bd  # noqa: E402
 from bdipole_cl import scene as scenes  # noqa: E402
 from bdipole_cl.io.targets import TARGET, parse_targets  # noqa: E402
 from bdipole_cl.io.usd_networks import RENDERMAN_TYPES, sdf_type  # noqa: E402
@@ -80,6 +84,17 @@ def check_tiles(material, want):
                 assert asset.resolvedPath, (attr.GetPath(), asset.path)
 
 
+def same_as_layer(own, layered, layer):
+    """The file ``own`` a texture node names holds, as its first channels (all MaterialX's
+    generators read: GLSL ignores an image's ``layer``, OSL takes it for a subimage), the
+    ``layer`` of the output ``layered``, bit for bit, named R, G, B."""
+    px, names = read(own)
+    want, want_names = read(layered)
+    idx = [i for i, n in enumerate(want_names) if n.startswith(f"{layer}.")]
+    assert names == [n.rsplit(".", 1)[1] for n in (want_names[i] for i in idx)], (own, names)
+    np.testing.assert_array_equal(px, want[..., idx], err_msg=str(own))
+
+
 def test_geometry_binds_the_bakes_networks_per_render_context(tmp_path):
     stage_path, stage = baked(tmp_path, targets="preview,pxrsurface")
     bound = {}
@@ -108,12 +123,17 @@ def test_geometry_binds_the_bakes_networks_per_render_context(tmp_path):
     tex = pxr_surface.GetInput("subsurfaceColor").GetConnectedSources()[0][0].source
     assert UsdShade.Shader(tex.GetPrim()).GetShaderId() == "PxrTexture"
     assert tex.GetInput("filename").Get().resolvedPath == str(tmp_path / "tex" / "marble.exr")
-    # the coefficient graph's image nodes read their own layer, as data
+    # the coefficient graph's image nodes read each output's own file (its first channels:
+    # no MaterialX generator reads a layer), as data
     graph = UsdShade.NodeGraph(skin.GetPrim().GetChild("bdipole_coefficients"))
     for output in ("sigma_a", "sigma_s"):
         node = graph.GetOutput(output).GetConnectedSources()[0][0].source
-        assert node.GetInput("layer").Get() == output
+        assert not node.GetInput("layer")
+        assert node.GetInput("file").Get().path == f"./skin.<UDIM>.{output}.exr"
         assert node.GetInput("file").GetAttr().GetColorSpace() == "raw"
+        for tile in ("1001", "1002"):
+            same_as_layer(tmp_path / "bdipole" / f"skin.{tile}.{output}.exr",
+                          tmp_path / "bdipole" / f"skin.{tile}.exr", output)
     for material in (skin, marble):
         assert check_connections(material) >= 2
     check_tiles(skin, 2)
@@ -227,15 +247,21 @@ def test_the_written_pxrsurface_reads_back_as_the_material_that_was_baked(tmp_pa
 
 
 def generated(doc, element):
-    """GLSL and OSL source MaterialX's own generators write for ``element``."""
+    """GLSL, OSL and (where MaterialX has it) MDL source MaterialX's own generators write for
+    ``element``."""
     import MaterialX as mx
     import MaterialX.PyMaterialXGenGlsl as glsl
     import MaterialX.PyMaterialXGenOsl as osl
     import MaterialX.PyMaterialXGenShader as gen_shader
     from bdipole_cl.io.mtlx_networks import library
+    generators = [("glsl", glsl.GlslShaderGenerator), ("osl", osl.OslShaderGenerator)]
+    try:
+        import MaterialX.PyMaterialXGenMdl as mdl
+        generators.append(("mdl", mdl.MdlShaderGenerator))
+    except ImportError:
+        pass
     out = {}
-    for lang, cls, stage in (("glsl", glsl.GlslShaderGenerator, gen_shader.PIXEL_STAGE),
-                             ("osl", osl.OslShaderGenerator, gen_shader.PIXEL_STAGE)):
+    for lang, cls, stage in ((lang, cls, gen_shader.PIXEL_STAGE) for lang, cls in generators):
         gen = cls.create()
         context = gen_shader.GenContext(gen)
         context.registerSourceCodeSearchPath(mx.getDefaultDataSearchPath())
@@ -252,6 +278,8 @@ def test_the_materialx_document_validates_and_generates_glsl_and_osl(tmp_path):
     baked(tmp_path)
     doc = mx.createDocument()
     mx.readFromXmlFile(doc, str(tmp_path / "bdipole" / "bdipole.mtlx"))
+    assert not [e.getNamePath() for e in doc.traverseTree() if e.getCategory() == "input"
+                and e.getName() == "layer"]           # (before the libraries' own nodes)
     doc.importLibrary(library())
     ok, message = doc.validate()
     assert ok, message
@@ -260,8 +288,10 @@ def test_the_materialx_document_validates_and_generates_glsl_and_osl(tmp_path):
     for name, material in materials.items():
         code = generated(doc, material)
         assert all(len(c) > 1000 for c in code.values()), name
-    # the skin's albedo file and the coefficients' layers, as written, in the generated code's
-    # uniforms (GLSL binds the file by name; the layer is part of the image's identity)
+    # the skin's albedo file, and each coefficient's own file, as written: no image names a
+    # layer (GLSL ignores it: every image read the file's first channels, the sigma_a; OSL
+    # took it for a subimage: "Unknown subimage"), the generated code has none, and each file's
+    # first channels are what its node reads
     skin = mx.getShaderNodes(materials["skin"])[0]
     image = skin.getInput("diffuseColor").getConnectedNode()
     assert image.getInputValue("file") == "./../tex/skin.<UDIM>.exr"
@@ -269,10 +299,64 @@ def test_the_materialx_document_validates_and_generates_glsl_and_osl(tmp_path):
     graph = doc.getNodeGraph("skin_coefficients")
     for output in ("sigma_a", "sigma_s"):
         node = graph.getOutput(output).getConnectedNode()
-        assert node.getInputValue("layer") == output and node.getType() == "vector3"
-        assert node.getInputValue("file") == "./skin.<UDIM>.exr"
+        assert node.getType() == "vector3"
+        assert node.getInputValue("file") == f"./skin.<UDIM>.{output}.exr"
         code = generated(doc, graph.getOutput(output))
         assert all("texture" in c for c in code.values())
+        # OSL hands an image's layer to OpenImageIO as "subimage" (MDL has it too): empty,
+        # the file's own
+        for lang in {"osl", "mdl"} & set(code):
+            layers = set(re.findall(r'string \w+_layer = "([^"]*)"', code[lang]))
+            assert layers == {""}, (lang, output, layers)
+        for tile in ("1001", "1002"):
+            same_as_layer(tmp_path / "bdipole" / f"skin.{tile}.{output}.exr",
+                          tmp_path / "bdipole" / f"skin.{tile}.exr", output)
+
+
+@pytest.mark.parametrize("targets", ["preview,pxrsurface,openpbr", "preview,standard-surface",
+                                     "openpbr,preview"])
+def test_a_preview_beside_a_materialx_target_has_names_of_its_own(tmp_path, targets):
+    """A preview with OpenPBR or Standard Surface: the preview's material and the preview's
+    shader node shared a name (LookupError: "Child name is not unique: skin_preview", the
+    bake stopped). Every element has a name of its own; each material's shader generates."""
+    mx = pytest.importorskip("MaterialX")
+    from bdipole_cl.io.mtlx_networks import library
+    baked(tmp_path, targets=targets)
+    doc = mx.createDocument()
+    mx.readFromXmlFile(doc, str(tmp_path / "bdipole" / "bdipole.mtlx"))
+    doc.importLibrary(library())
+    ok, message = doc.validate()
+    assert ok, message
+    materials = {m.getName(): m for m in doc.getMaterialNodes()}
+    assert set(materials) == {f"{m}{k}" for m in ("skin", "jade", "marble")
+                              for k in ("", "_preview")}
+    main = "standard_surface" if "standard" in targets else "open_pbr_surface"
+    for name, material in materials.items():
+        (shader,) = mx.getShaderNodes(material)
+        assert shader.getCategory() == ("UsdPreviewSurface" if name.endswith("_preview")
+                                        else main), name
+        assert all(len(c) > 1000 for c in generated(doc, material).values()), name
+
+
+def test_a_material_named_as_anothers_preview_keeps_its_name(tmp_path):
+    """Materials take their names first: one named ``skin_preview`` beside ``skin`` (both
+    with a preview and OpenPBR) is that material; skin's preview takes the next free name."""
+    mx = pytest.importorskip("MaterialX")
+    from bdipole_cl.io.mtlx_networks import document_text, library
+    from bdipole_cl.io.networks import networks
+    b = converted_material(tmp_path, ("preview", "openpbr"))
+    written, why = networks(b, str(tmp_path))
+    assert why == {}
+    text = document_text([("skin", written, ()), ("skin_preview", written, ())], "test")
+    doc = mx.createDocument()
+    mx.readFromXmlString(doc, text)
+    doc.importLibrary(library())
+    assert doc.validate()[0]
+    shaders = {m.getName(): mx.getShaderNodes(m)[0].getCategory()
+               for m in doc.getMaterialNodes()}
+    assert shaders == {"skin": "open_pbr_surface", "skin_preview": "open_pbr_surface",
+                       "skin_preview2": "UsdPreviewSurface",
+                       "skin_preview_preview": "UsdPreviewSurface"}
 
 
 def test_the_cli_and_scene_files_choose_targets_in_one_vocabulary(tmp_path, capsys):
@@ -430,6 +514,8 @@ def test_a_scene_file_with_targets_writes_its_materials_as_new_ones(tmp_path):
     report = scenes.load(tmp_path / "scene.toml").plan().run()
     assert report.exit_code == 0, report.summary()
     stage = Usd.Stage.Open(str(tmp_path / "out" / "bdipole.usda"))
+    # its materials' distances in mm, and the layer says so (USD's default would be cm)
+    assert stage.GetRootLayer().pseudoRoot.GetInfo("metersPerUnit") == 1e-3
     skin = UsdShade.Material(stage.GetPrimAtPath("/bdipole_materials/skin"))
     assert skin and skin.ComputeSurfaceSource("ri")[0].GetShaderId() == "PxrSurface"
     pxr_surface = skin.ComputeSurfaceSource("ri")[0]
@@ -567,8 +653,8 @@ def test_a_material_of_an_instanced_asset_gets_a_material_of_its_own(tmp_path):
 def test_convert_writes_the_materials_of_its_outputs(tmp_path, capsys):
     """``bdipole-cl convert`` to a convention a render target reads (Jensen's dipole to the
     Better Dipole: PxrSurface): a Material per texture set reading the converted file's
-    colour and radius layers (PxrTexture firstChannel), every tile resolving; again: the
-    same bytes."""
+    colour and radius, each from a file of its own (its first channels), every tile
+    resolving, in a layer that states the run's unit; again: the same bytes."""
     from bdipole_cl.apps.cli import main as cli_main
     for k, tile in enumerate(("1001", "1002")):
         albedo_texture(tmp_path / "tex" / f"skin.{tile}.exr", k)
@@ -577,24 +663,74 @@ def test_convert_writes_the_materials_of_its_outputs(tmp_path, capsys):
     assert cli_main(args) == 0, capsys.readouterr()
     layer = tmp_path / "tex" / "bdipole_convert.usda"
     stage = Usd.Stage.Open(str(layer))
+    # the radius is in cm: a renderer reading the layer takes its metersPerUnit (USD's default
+    # when none is authored is cm: a mm run read 10x too large)
+    assert stage.GetRootLayer().pseudoRoot.GetInfo("metersPerUnit") == 0.01
+    assert UsdGeom.GetStageUpAxis(stage) == "Y"
     skin = UsdShade.Material(stage.GetPrimAtPath("/bdipole_materials/skin"))
     surface = skin.ComputeSurfaceSource("ri")[0]
     assert surface.GetShaderId() == "PxrSurface"
-    first = {}
-    for name in ("subsurfaceColor", "subsurfaceDmfpColor"):
+    for name, layer_name in (("subsurfaceColor", "colour"), ("subsurfaceDmfpColor", "radius")):
         tex = UsdShade.Shader(surface.GetInput(name).GetConnectedSources()[0][0].source
                               .GetPrim())
-        assert tex.GetInput("filename").Get().path == "./skin.<UDIM>.better-dipole.exr"
-        first[name] = tex.GetInput("firstChannel").Get()
-    _, names = read(tmp_path / "tex" / "skin.1001.better-dipole.exr")
-    assert names[first["subsurfaceColor"]] == "colour.R"
-    assert names[first["subsurfaceDmfpColor"]] == "radius.R"
+        assert tex.GetInput("filename").Get().path == \
+            f"./skin.<UDIM>.better-dipole.{layer_name}.exr"
+        assert tex.GetInput("firstChannel").Get() == 0
+        for tile in ("1001", "1002"):
+            same_as_layer(tmp_path / "tex" / f"skin.{tile}.better-dipole.{layer_name}.exr",
+                          tmp_path / "tex" / f"skin.{tile}.better-dipole.exr", layer_name)
     check_connections(skin)
     check_tiles(skin, 2)
     before = layer.read_bytes()
     assert cli_main(args) == 0
     assert layer.read_bytes() == before
     assert (tmp_path / "tex" / "bdipole_convert.mtlx").is_file()
+
+
+def test_convert_runs_into_one_folder_share_its_materials(tmp_path, capsys):
+    """A second ``convert`` into the folder (another set, in mm where the first was cm;
+    another target for the first set) joins the earlier runs' materials: nothing is
+    dropped (the second run rewrote the files with only its own). The layer keeps the first
+    run's unit and the second's radius is scaled into it; the .mtlx validates, and its
+    images read each layer's own file (what MaterialX's generators read)."""
+    mx = pytest.importorskip("MaterialX")
+    from bdipole_cl.apps.cli import main as cli_main
+    from bdipole_cl.io.mtlx_networks import library
+    for name, k in (("skin", 0), ("eyes", 1)):
+        albedo_texture(tmp_path / f"{name}.exr", k)
+    runs = [("skin", "openpbr", "cm"), ("eyes", "openpbr", "mm"), ("skin", "pxrsurface", "cm")]
+    for name, target, unit in runs:
+        assert cli_main(["convert", str(tmp_path / f"{name}.exr"), "--radius", "1",
+                         "--target", target, "--unit", unit]) == 0, capsys.readouterr()
+    stage = Usd.Stage.Open(str(tmp_path / "bdipole_convert.usda"))
+    assert UsdGeom.GetStageMetersPerUnit(stage) == 0.01
+    skin = UsdShade.Material(stage.GetPrimAtPath("/bdipole_materials/skin"))
+    eyes = UsdShade.Material(stage.GetPrimAtPath("/bdipole_materials/eyes"))
+    assert skin.ComputeSurfaceSource("mtlx")[0].GetShaderId() == TARGET["openpbr"].shader_id
+    assert skin.ComputeSurfaceSource("ri")[0].GetShaderId() == "PxrSurface"
+    pbr = eyes.ComputeSurfaceSource("mtlx")[0]
+    assert pbr.GetInput("subsurface_radius").Get() == pytest.approx(0.1)   # mm on a cm layer
+    for material in (skin, eyes):
+        check_connections(material)
+    doc = mx.createDocument()
+    mx.readFromXmlFile(doc, str(tmp_path / "bdipole_convert.mtlx"))
+    doc.importLibrary(library())
+    ok, message = doc.validate()
+    assert ok, message
+    assert {m.getName() for m in doc.getMaterialNodes()} == {"skin", "eyes"}
+    for name in ("skin", "eyes"):
+        material = doc.getNode(name)
+        assert all(len(c) > 1000 for c in generated(doc, material).values()), name
+        shader = mx.getShaderNodes(material)[0]
+        for inp, layer_name in (("subsurface_color", "colour"),
+                                ("subsurface_radius_scale", "radius")):
+            node = shader.getInput(inp).getConnectedNode()
+            node = node.getInput("in").getConnectedNode() if node.getCategory() == "convert" \
+                else node
+            assert node.getInput("layer") is None
+            assert node.getInputValue("file") == f"./{name}.van-de-hulst.{layer_name}.exr"
+            same_as_layer(tmp_path / f"{name}.van-de-hulst.{layer_name}.exr",
+                          tmp_path / f"{name}.van-de-hulst.exr", layer_name)
 
 
 def test_every_targets_convention_is_one_of_the_conventions_registry():
@@ -604,3 +740,68 @@ def test_every_targets_convention_is_one_of_the_conventions_registry():
         # a target's own name, where the conventions registry knows it, means the same
         if target.name in CONVENTION:
             assert CONVENTION.canonical(target.name) == target.convention, target
+
+
+def test_a_layer_of_a_painted_texture_bakes_and_reads_back_from_the_written_network(
+        tmp_path):
+    """A PxrSurface whose colour is a MaterialX image of layer ``diffuse`` of an EXR that also
+    has unlayered R, G, B: the bake reads that layer (it was refused with an oiiotool
+    command, and the bake said "done"); the written PxrSurface reads it through PxrTexture's
+    firstChannel, and the stage read back through that network bakes the same coefficients,
+    bit for bit. UsdPreviewSurface's texture node reads a file's first channels: its preview
+    is not written, and the plan and manifest say why."""
+    from test_mtlx_scene import layered_exr
+    layered_exr(tmp_path / "tex" / "wax.exr", {"": (0.2, 0.2, 0.2), "diffuse": (0.8, 0.6, 0.4)})
+    stage = Usd.Stage.CreateNew(str(tmp_path / "wax.usda"))
+    UsdGeom.SetStageMetersPerUnit(stage, 0.01)
+    wax = UsdShade.Material.Define(stage, "/Looks/wax")
+    s = shader(stage, wax, "/Looks/wax/pxr", "PxrSurface", "ri",
+               {"subsurfaceGain": (F, 1.0), "subsurfaceDmfp": (F, 0.5),
+                "subsurfaceDmfpColor": (C3, Gf.Vec3f(1, 0.5, 0.25)),
+                "subsurfaceIor": (F, 1.4), "unitLength": (F, 1.0)})
+    out = texture_node(stage, "/Looks/wax/img", "ND_image_color3", "tex/wax.exr", "out",
+                       colorspace="lin_rec709")
+    UsdShade.Shader(out.GetPrim()).CreateInput("layer", Sdf.ValueTypeNames.String).Set(
+        "diffuse")
+    s.CreateInput("subsurfaceColor", C3).ConnectToSource(out)
+    stage.GetRootLayer().Save()
+    report = scenes.load(tmp_path / "wax.usda", targets="preview,pxrsurface").plan().run()
+    assert report.exit_code == 0, report.summary()
+    px, names = read(tmp_path / "bdipole" / "wax.exr")
+    want_a, _ = bd.albedo_to_coefficients(np.float32([0.8, 0.6, 0.4]),
+                                          0.5 * np.float32([1, 0.5, 0.25]), 1.4)
+    # the scene's accuracy contract: 1e-4 relative (tests/test_usd_scene.py TOL)
+    np.testing.assert_allclose(px[..., :3], np.broadcast_to(want_a, (4, 4, 3)), rtol=1e-4)
+    entry = json.loads((tmp_path / "bdipole" / "bdipole_materials.json").read_text())
+    targets = entry["materials"][0]["targets"]
+    assert targets["pxrsurface"] == "written" and "layer 'diffuse'" in targets["preview"]
+    composed_stage = composed(tmp_path / "wax.usda", tmp_path / "bdipole" / "bdipole.usda")
+    surface = UsdShade.Material(composed_stage.GetPrimAtPath("/Looks/wax")) \
+        .ComputeSurfaceSource("ri")[0]
+    tex = UsdShade.Shader(surface.GetInput("subsurfaceColor").GetConnectedSources()[0][0]
+                          .source.GetPrim())
+    assert tex.GetInput("firstChannel").Get() == 3
+    over = tmp_path / "wax_baked.usda"
+    over.write_text('#usda 1.0\n(\n    subLayers = [@bdipole/bdipole.usda@, @wax.usda@]\n)\n')
+    (tmp_path / "again.toml").write_text('materials_from = "wax_baked.usda"\n[defaults]\n'
+                                         'output = "again/{material}.exr"\n')
+    again = scenes.load(tmp_path / "again.toml")
+    assert {m.name: m.albedo_layer for m in again.materials} == {"wax": "diffuse"}
+    assert again.plan().run().exit_code == 0
+    np.testing.assert_array_equal(read(tmp_path / "again" / "wax.exr")[0], px)
+
+
+@pytest.mark.parametrize("meters_per_unit, up_axis", [(0.01, "Y"), (1.0, "Z")])
+def test_the_records_layer_states_the_stages_unit_and_up_axis(tmp_path, meters_per_unit,
+                                                               up_axis):
+    """bdipole.usda states the metersPerUnit and upAxis its networks' distances are in (the
+    stage's): a reader of the layer alone takes USD's defaults (cm, Y) otherwise."""
+    stage_path = write_stage(tmp_path, meters_per_unit=meters_per_unit)
+    stage = Usd.Stage.Open(str(stage_path))
+    UsdGeom.SetStageUpAxis(stage, up_axis)
+    stage.GetRootLayer().Save()
+    assert scenes.load(stage_path, targets="pxrsurface").plan().run().exit_code == 0
+    layer = Usd.Stage.Open(str(tmp_path / "bdipole" / "bdipole.usda"))
+    assert UsdGeom.GetStageMetersPerUnit(layer) == meters_per_unit
+    assert UsdGeom.GetStageUpAxis(layer) == up_axis
+    assert layer.GetRootLayer().pseudoRoot.HasInfo("metersPerUnit")

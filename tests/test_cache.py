@@ -102,6 +102,17 @@ def test_the_readme_and_the_install_page_name_every_folders_variable(home):
             assert f"`{variable}`" in text, (page.name, f.what, variable)
 
 
+def test_the_readme_and_the_install_page_name_every_entry_the_tool_makes():
+    """Each kind of entry bdipole_cl makes in its cache folder (``cache.OWN_KINDS``) is named
+    in the README's and docs/install.md's "Where it writes" tables (a walk's reflectance
+    curves were in neither)."""
+    for page in (ROOT / "README.md", ROOT / "docs" / "install.md"):
+        text = page.read_text()
+        table = text[text.index("Where it writes"):]
+        for kind in cache.OWN_KINDS:
+            assert kind.shown in table, (page.name, kind.what, kind.shown)
+
+
 @pytest.mark.slow
 def test_demo_in_an_empty_home_writes_only_listed_folders(home, tmp_path):
     """A fresh user's demo: it ends with its pictures and the next steps, and every folder that
@@ -126,3 +137,73 @@ def test_demo_in_an_empty_home_writes_only_listed_folders(home, tmp_path):
     assert written, "the demo wrote no cache at all: the check would be empty"
     unlisted = [p for p in written if not any(p.is_relative_to(f) for f in listed)]
     assert not unlisted, unlisted[:5]
+
+
+#: every writer of bdipole_cl's cache folder, run in a fresh one: a device used (its runtime
+#: registration and its probe), a short calibration, a walk's reflectance curves for a (g,
+#: eta) first met, a .usdz stage baked (its textures extracted)
+WRITERS = """
+import sys
+from pathlib import Path
+import numpy as np
+sys.path.insert(0, sys.argv[2])
+from bdipole_cl import get_runtime, invert_albedo, scene
+from bdipole_cl.apps.report import calibrate
+from bdipole_cl.methods.registry import MethodConfig
+from bdipole_cl.physics import transport
+from pxr import Sdf, UsdUtils
+from test_usd_scene import write_stage
+runtime = get_runtime("intel")
+invert_albedo(np.float32([0.5]), 1.4, device=runtime)
+calibrate(n=4096, blur_size=24, repeats=1, progress=lambda *a: None,
+          sweep=[MethodConfig("table", table_size=64)], sweep_f64=[],
+          blur_sweep=[("direct", 1e-4)], gather_size=48)
+transport.reflectance_curves(0.125, 1.3125)
+work = Path(sys.argv[1])
+stage = write_stage(work)
+usdz = stage.with_suffix(".usdz")
+assert UsdUtils.CreateNewUsdzPackage(Sdf.AssetPath(str(stage)), str(usdz))
+assert scene.load(usdz).plan().run().exit_code == 0
+"""
+
+
+def test_every_entry_a_writer_makes_is_listed_and_cleared(tmp_path):
+    """Every writer of bdipole_cl's cache folder, in a fresh one (a process of its own: no
+    memory of an earlier one): each file it then holds lies in an entry ``cache --info``
+    lists, and ``cache --clear`` leaves none (a walk's reflectance curves, written by
+    ``convert``, were neither listed nor removed)."""
+    from conftest import RUNTIMES
+    if not any("intel" in r.describe().lower() for r in RUNTIMES):
+        pytest.skip("Intel's runtime is not among the test devices")
+    root = tmp_path / "cache"
+    work = tmp_path / "work"
+    work.mkdir()
+    env = {**os.environ, "BDIPOLE_CL_CACHE_DIR": str(root),
+           "PYTHONPATH": str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", "")}
+    done = subprocess.run([sys.executable, "-c", WRITERS, str(work), str(ROOT / "tests")],
+                          cwd=work, env=env, capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr[-3000:]
+    env_here = {"BDIPOLE_CL_CACHE_DIR": str(root)}
+    files = [p for p in root.rglob("*") if p.is_file() or p.is_symlink()]
+    kinds = {"icd-": "registration", "probes": "probe", "choice-": "calibration",
+             "usdz": "usdz", "transport": "curves"}
+    made = {kinds[k] for p in files for k in kinds if k in str(p.relative_to(root))}
+    # (the registration: where this process's runtime was registered already, none)
+    assert made >= set(kinds.values()) - {"registration"}, sorted(
+        str(p.relative_to(root)) for p in files)
+    old = {k: os.environ.get(k) for k in env_here}
+    os.environ.update(env_here)
+    try:
+        entries = [e.path for e in cache.own_entries()]
+        unlisted = [p for p in files if not any(p == e or e in p.parents for e in entries)]
+        assert not unlisted, unlisted
+        assert "walk reflectance curves" in "\n".join(cache.info_lines())
+        cache.clear()
+        left = [p for p in root.rglob("*") if p.is_file()]
+        assert not left, left
+    finally:
+        for k, v in old.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v

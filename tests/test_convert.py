@@ -104,6 +104,33 @@ def test_shapes_broadcast_and_invalid_values_named():
         bdipole_cl.convert(0.5, 1.0, "better-dipole", "no-such")
 
 
+@pytest.mark.parametrize("value,target", [(1.5, "cycles-random-walk"), (np.nan, "moonray-walk"),
+                                          (-0.25, "moonray-walk"), (0.95, "cycles-legacy")])
+def test_a_value_breaking_several_rules_is_one_invalid_value(value, target):
+    # 1.5 is outside [0, 1] and, clamped to 1, beyond Cycles' reach; -0.25 and NaN, clamped to
+    # 0, are below MoonRay's colour floor: each is one invalid value, not one per rule
+    _needs_walk(target)
+    colour = np.array([[[0.5, value, 0.4]]])
+    done = bdipole_cl.convert(colour, 1.0, "better-dipole", target, eta=1.4,
+                              on_invalid="clamp", texels=True)
+    assert done.invalid == {"colour": 1, "radius": 0}, (value, target, done.invalid)
+
+
+def test_cli_counts_a_value_breaking_several_rules_once(tmp_path, capsys):
+    _needs_walk("cycles-random-walk", "moonray-walk")
+    from bdipole_cl.apps.cli import main
+    colour = np.full((2, 3, 3), 0.5)
+    colour[1, 2, 1] = 1.5
+    _write(tmp_path / "hot.exr", colour)
+    colour[1, 2, 1] = -0.25
+    _write(tmp_path / "cold.exr", colour)
+    for name, target in (("hot", "cycles-random-walk"), ("cold", "moonray-walk")):
+        rc = main(["convert", str(tmp_path / f"{name}.exr"), "--radius", "1", "--target",
+                   target, "--on-invalid", "clamp"])
+        out = capsys.readouterr().out
+        assert rc == 0 and "colour 1" in out and "colour 2" not in out, (target, out)
+
+
 def test_cycles_cannot_render_a_high_albedo_at_ior_1_4():
     # the walk loses the entry's Fresnel part: a painted 0.95 is beyond Cycles' reach
     _needs_walk("cycles-random-walk")
@@ -225,30 +252,44 @@ def test_cli_pxrsurface_to_openpbr_matches_the_arrays(tmp_path, capsys):
 @pytest.mark.parametrize("source,target", [("better-dipole", "burley"),
                                            ("burley-perpendicular", "dipole"),
                                            ("better-dipole", "van-de-hulst"),
+                                           ("random-walk", "better-dipole"),
                                            ("cycles-random-walk", "hyperion-2018")])
-def test_texture_path_interpolates_within_float32(source, target, monkeypatch):
-    # arrays of more than EXACT_MAX distinct colours go through the maps on a grid: within
-    # 5e-7 relative of the exact maps (a few float32 ulps; measured 1.8e-7)
+def test_a_colour_converts_to_the_same_bits_among_any_number_of_others(source, target):
+    # every distinct colour is converted exactly (docs/conventions.md "Conversion"): a
+    # texture's texel (over 4096 distinct colours: it went through an interpolated grid, 2e-4
+    # off with the real spread table) is bit for bit the exact maps of that colour alone
     from bdipole_cl.physics import conversion
-    from bdipole_cl.physics.conventions import CONVENTION
-    if any(CONVENTION[n].walk for n in (source, target)):
-        transport = pytest.importorskip("bdipole_cl.physics.transport")
-        monkeypatch.setattr(transport, "walk_spread", lambda a, g=0.0, eta=1.0, fraction=0.5:
-                            0.7 + 1.0 / np.sqrt(3 * (1 - np.asarray(a)) + 1e-3))
-        conversion._grid_maps.cache_clear()
-    colour = np.random.default_rng(2).uniform(0.02, 0.8, conversion.EXACT_MAX + 100)
+    _needs_walk(source, target)
+    colour = np.random.default_rng(2).uniform(0.02, 0.8, 6000).astype(np.float32)
     done = conversion.convert(colour, 1.0, source, target, eta=1.4)
-    exact = conversion.colour_maps(CONVENTION[source], CONVENTION[target], colour[:500],
-                                   1.4, 0.0)
-    assert np.max(np.abs(done.colour[:500] / exact[0] - 1)) < 5e-7
-    assert np.max(np.abs(done.radius[:500] / exact[1] - 1)) < 5e-7
-    conversion._grid_maps.cache_clear()        # the stand-in spread stays in this test
+    exact = conversion.colour_maps(CONVENTION[source], CONVENTION[target],
+                                   colour[:300].astype(np.float64), 1.4, 0.0)
+    np.testing.assert_array_equal(done.colour[:300], exact[0], err_msg=f"{source}->{target}")
+    np.testing.assert_array_equal(done.radius[:300], exact[1], err_msg=f"{source}->{target}")
+    for n in (1, 7, 4097):
+        few = conversion.convert(colour[:n], 1.0, source, target, eta=1.4)
+        np.testing.assert_array_equal(few.colour, done.colour[:n], err_msg=f"{n} colours")
+        np.testing.assert_array_equal(few.radius, done.radius[:n], err_msg=f"{n} colours")
 
 
-def test_cycles_skin_is_converted_texel_by_texel():
-    # its radius jumps with the colour (12 float bisection steps): never interpolated
-    assert CONVENTION["cycles-skin"].stepwise
-    assert not any(c.stepwise for c in CONVENTION if c.name != "cycles-skin")
+def test_cli_texels_do_not_depend_on_the_image_size(tmp_path, capsys):
+    # a 64x64 and a 65x65 texture (4096 and 4225 distinct colours per channel) give the same
+    # bits for the texels they share, and those are the array API's
+    _needs_walk("van-de-hulst")
+    from bdipole_cl.apps.cli import main
+    colour = np.random.default_rng(8).uniform(0.05, 0.8, (65, 65, 3)).astype(np.float32)
+    _write(tmp_path / "big.exr", colour)
+    _write(tmp_path / "small.exr", colour[:64, :64])
+    rc = main(["convert", str(tmp_path / "big.exr"), str(tmp_path / "small.exr"),
+               "--radius", "1.2,0.6,0.3", "--source", "pxrsurface", "--target", "openpbr"])
+    assert rc == 0, capsys.readouterr()
+    _, big = _read(tmp_path / "big.van-de-hulst.exr")
+    _, small = _read(tmp_path / "small.van-de-hulst.exr")
+    np.testing.assert_array_equal(big[:64, :64], small)
+    want = bdipole_cl.convert(colour[:64, :64, 0], np.float32(1.2), "better-dipole",
+                              "van-de-hulst", eta=1.4)
+    np.testing.assert_array_equal(small[..., 0], want.colour.astype(np.float32))
+    np.testing.assert_array_equal(small[..., 3], want.radius.astype(np.float32))
 
 
 def test_cli_random_walk_target_writes_the_medium(tmp_path, capsys):

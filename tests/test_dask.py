@@ -406,3 +406,65 @@ def test_invert_and_blur_name_their_files_when_the_cluster_does_not_start(tmp_pa
     err = capsys.readouterr().err
     assert f"{e}: not blurred, nothing written: --scheduler local:1: the local cluster did " \
         f"not start" in err and not (tmp_path / "m.exr").exists()
+
+
+def test_lazy_blur_with_a_stretch_equals_the_in_memory_blur(client, tmp_path):
+    """``bdipole_cl.dask.blur(..., stretch=, charts=)`` as ``bdipole_cl.blur`` takes them (a
+    cylinder's two charts 1:2 along u, from its mesh): one task per channel, the whole image
+    each, chunked back as the input; equal to the in-memory blur within its bound (each
+    channel's plan is the in-memory plan's channel), under each chart border rule; an HxW
+    image too. A stretch of another size is refused before any task runs."""
+    pytest.importorskip("pxr")
+    from stretch_meshes import cylinder_stage
+    (tile, _), = bdipole_cl.stretch_maps(cylinder_stage(tmp_path / "cyl.usda"), size=48)
+    e = np.zeros((48, 48, 3), np.float32)
+    e[24, 10], e[20, 35], e[5:9, 30:33] = 1.0, 0.5, 2.0
+    kw = dict(albedo=(0.8, 0.6, 0.4), mfp=(1.2, 0.6, 0.3), eta=(1.4, 1.4, 1.3), tol=1e-3)
+    for charts in ("clamp", "zero", "none"):
+        want, info = bdipole_cl.blur(e, stretch=tile, charts=charts, return_info=True, **kw)
+        lazy = bdask.blur(da.from_array(e, chunks=(20, 16, 3)), stretch=tile, charts=charts,
+                          **kw)
+        assert lazy.chunks == da.from_array(e, chunks=(20, 16, 3)).chunks
+        got = lazy.compute()
+        for c in range(3):
+            bound = 2 * info.channels[c].error_bound * float(e.max()) * kw["albedo"][c]
+            assert np.max(np.abs(got[..., c] - want[..., c])) <= bound, (charts, c)
+        assert got[..., 0].sum() > 0
+    grey = bdask.blur(da.from_array(e[..., 0], chunks=16), albedo=0.8, mfp=1.2,
+                      stretch=tile).compute()
+    np.testing.assert_allclose(grey, bdipole_cl.blur(e[..., 0], albedo=0.8, mfp=1.2,
+                                                     stretch=tile), rtol=0, atol=1e-6)
+    with pytest.raises(ValueError, match=r"shape \(48, 48\); expected \(40, 48\)"):
+        bdask.blur(da.from_array(e[:40], chunks=16), stretch=tile, **kw)
+
+
+def test_a_stretch_scene_bakes_on_the_cluster_its_blurs_after_their_maps(client, tmp_path):
+    """A scene whose blur takes its stretch from the stage's bound mesh, on the cluster: each
+    blur task starts after its tile's stretch task (here the stretch tasks are slowed: a blur
+    that did not wait would find no maps), and the maps, exitance and records are the
+    in-process bake's."""
+    pytest.importorskip("pxr")
+    from stretch_scenes import stretch_scene
+    local, cluster = stretch_scene(tmp_path / "local"), stretch_scene(tmp_path / "cluster")
+    assert scenes.load(local).plan().run().exit_code == 0
+
+    def slow_maps(job, device=None):
+        if job.kind == "stretch":
+            time.sleep(3.0)
+        return bdask.run_on_worker(job, device)
+    report = bdask.bake_on_cluster(scenes.load(cluster).plan(), client, progress=False,
+                                   run=slow_maps)
+    assert report.exit_code == 0, report.summary()
+    for udim in (1001, 1002):
+        name = f"skin_sss.{udim}.stretch.exr"
+        np.testing.assert_array_equal(read(cluster.parent / "out" / name),
+                                      read(local.parent / "out" / name))
+        name = f"skin_sss.{udim}.exr"
+        np.testing.assert_allclose(read(cluster.parent / "out" / name),
+                                   read(local.parent / "out" / name), rtol=1e-6, atol=1e-8)
+    for name in ("bdipole.usda", "bdipole_materials.json"):
+        a = (local.parent / "out" / name).read_text().replace(str(local.parent), "ROOT")
+        b = (cluster.parent / "out" / name).read_text().replace(str(cluster.parent), "ROOT")
+        assert a == b, name
+    again = bdask.bake_on_cluster(scenes.load(cluster).plan(), client, progress=False)
+    assert {r.status for r in again.results} == {"skipped"}

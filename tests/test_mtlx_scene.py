@@ -17,7 +17,7 @@ pytestmark = pytest.mark.usefixtures("on_device")
 
 #: 1.39: an OpenPBR skin whose colour comes from a tiled <UDIM> image through a node graph
 #: (the graph's colour space from the document default), radius in millimetres; a Standard
-#: Surface with constants; a noise-fed one; a UsdPreviewSurface
+#: Surface with constants; a UsdPreviewSurface (DOC_139_NOISY: and a noise-fed one)
 DOC_139 = """<?xml version="1.0"?>
 <materialx version="1.39" colorspace="srgb_texture" fileprefix="tex/">
   <nodegraph name="skin_graph">
@@ -46,7 +46,15 @@ DOC_139 = """<?xml version="1.0"?>
   <surfacematerial name="jade" type="material">
     <input name="surfaceshader" type="surfaceshader" nodename="jade_std" />
   </surfacematerial>
-  <fractal3d name="fbm" type="color3" />
+  <UsdPreviewSurface name="plastic_preview" type="surfaceshader" />
+  <surfacematerial name="plastic" type="material">
+    <input name="surfaceshader" type="surfaceshader" nodename="plastic_preview" />
+  </surfacematerial>
+</materialx>
+"""
+
+#: DOC_139 with a subsurface material no bake can bake (its colour a noise)
+DOC_139_NOISY = DOC_139.replace("</materialx>", """  <fractal3d name="fbm" type="color3" />
   <open_pbr_surface name="noisy_pbr" type="surfaceshader">
     <input name="subsurface_weight" type="float" value="1" />
     <input name="subsurface_color" type="color3" nodename="fbm" />
@@ -54,12 +62,7 @@ DOC_139 = """<?xml version="1.0"?>
   <surfacematerial name="noisy" type="material">
     <input name="surfaceshader" type="surfaceshader" nodename="noisy_pbr" />
   </surfacematerial>
-  <UsdPreviewSurface name="plastic_preview" type="surfaceshader" />
-  <surfacematerial name="plastic" type="material">
-    <input name="surfaceshader" type="surfaceshader" nodename="plastic_preview" />
-  </surfacematerial>
-</materialx>
-"""
+</materialx>""")
 
 #: 1.37: material / shaderref / bindinput, the image's file a parameter; no colorspace on
 #: the image, so the document's (srgb_texture) is the texture's
@@ -99,7 +102,7 @@ def write_doc(root, text, name="look.mtlx", radius="0.5"):
 
 
 def test_materialx_139_shaders_textures_units_and_refusals(tmp_path):
-    path = write_doc(tmp_path, DOC_139)
+    path = write_doc(tmp_path, DOC_139_NOISY)
     imports = {m.name: m for m in import_materials(path)}
     skin = imports["skin"]
     assert skin.shader == "OpenPBR Surface" and skin.path == "/MaterialX/Materials/skin"
@@ -116,11 +119,14 @@ def test_materialx_139_shaders_textures_units_and_refusals(tmp_path):
 
 
 def test_materialx_bake_in_millimetres_equals_albedo_to_coefficients(tmp_path):
-    write_doc(tmp_path, DOC_139)
+    write_doc(tmp_path, DOC_139_NOISY)
     scene = tmp_path / "scene.toml"
     scene.write_text('materials_from = "look.mtlx"\n[defaults]\nunit = "mm"\n')
     report = scenes.load(scene).plan().run()
-    assert report.exit_code == 0, report.summary()
+    # the noise-fed material is not baked: the bake fails it, named; the others bake
+    assert report.exit_code == 1, report.summary()
+    assert [r.path for r in report.results if r.status != "ok"] == [
+        "material noisy (/MaterialX/Materials/noisy)"], report.summary()
     for k, tile in enumerate(("1001", "1002")):
         albedo = albedo_texture(tmp_path / "probe" / "a.exr", k)
         check_texture_bake(tmp_path / "bdipole" / f"skin.{tile}.exr", albedo,
@@ -199,14 +205,18 @@ def test_a_bad_value_in_the_document_leaves_that_material_out_and_the_rest_bake(
                                                                                 edit, why):
     """A value of one material that cannot be baked (a unit that is not a distance, a NaN or
     out-of-range eta, a radius of 0) leaves that material out, named with the value, as
-    other not-bakeable materials are: the document still loads and the others bake."""
+    other not-bakeable materials are: the document still loads and the others bake; the
+    bake fails that material (exit 1), named."""
     path = write_doc(tmp_path, DOC_139.replace(*edit))
     scene = scenes.load(path)
     left = {m.name: m.left_out for m in scene.imports}
     assert left["skin"] and left["skin"].startswith("not bakeable") and why in left["skin"], left
     assert "jade" in {m.name for m in scene.materials}
     assert "skin" not in {m.name for m in scene.materials}
-    assert scene.plan().run().exit_code == 0
+    report = scene.plan().run()
+    assert report.exit_code == 1, report.summary()
+    assert [r.path for r in report.results if r.status != "ok"] == [
+        "material skin (/MaterialX/Materials/skin)"], report.summary()
     records = json.loads((tmp_path / "bdipole" / "bdipole_materials.json").read_text())
     by_name = {e["name"]: e for e in records["materials"]}
     assert by_name["jade"]["baked"] and why in by_name["skin"]["left_out"]
@@ -307,31 +317,36 @@ def layered_exr(path, layers):
     write_exr(path, px, names)
 
 
-def test_an_image_layer_is_read_or_refused_never_replaced_by_the_files_rgb(tmp_path):
-    """An image's ``layer`` names the file's layer to read: where the file also has unlayered
-    R, G, B (what a bake reads) it was baked from those (other coefficients, exit 0); it is
-    refused, named, with a command that makes the layer a file of its own. Where the layer
-    is the file's only colour, it is what the bake reads, and it bakes."""
-    layered_exr(tmp_path / "tex" / "both.exr", {"": (0.2, 0.2, 0.2), "diffuse": (0.8, 0.6, 0.4)})
-    layered_exr(tmp_path / "tex" / "only.exr", {"diffuse": (0.8, 0.6, 0.4)})
-    (imp,) = import_materials(image_doc(tmp_path / "both.mtlx", "diffuse",
-                                        file="tex/both.exr"))
-    assert imp.left_out and "subsurface_color reads layer 'diffuse' of" in imp.left_out \
-        and "--ch R=diffuse.R,G=diffuse.G,B=diffuse.B" in imp.left_out, imp.left_out
-    (imp,) = import_materials(image_doc(tmp_path / "none.mtlx", "spec", file="tex/only.exr"))
-    assert imp.left_out and "it has no layer 'spec'" in imp.left_out, imp.left_out
-    path = image_doc(tmp_path / "only.mtlx", "diffuse", file="tex/only.exr")
-    (imp,) = import_materials(path)
-    assert imp.left_out is None, imp.left_out
-    report = scenes.load(path).plan().run()
-    assert report.exit_code == 0, report.summary()
-    px, names = read(tmp_path / "bdipole" / "m.exr")     # channels keep the layer's name
+def test_an_image_layer_is_baked_from_that_layer_or_the_material_fails(tmp_path):
+    """An image's ``layer`` names the file's layer to read, and the bake reads that layer
+    (OpenImageIO reads it by its channels' names): where the file also has unlayered R, G, B
+    the layer's texels are baked, never the file's first ones (it was refused with an
+    oiiotool command, and the bake said "done", exit 0, having baked nothing). A layer the
+    file lacks leaves the material out, and the bake fails it, named."""
+    layers = {"both": {"": (0.2, 0.2, 0.2), "diffuse": (0.8, 0.6, 0.4)},
+              "only": {"diffuse": (0.8, 0.6, 0.4)}, "none": {"diffuse": (0.8, 0.6, 0.4)}}
+    for name, found in layers.items():       # each document in a folder of its own
+        layered_exr(tmp_path / name / "tex" / "a.exr", found)
     want_a, _ = bd.albedo_to_coefficients(np.float32([0.8, 0.6, 0.4]), np.float32([1, 0.5, 0.25]),
                                           1.5, mfp_kind="extinction")
-    got = [px[..., names.index(f"sigma_a.diffuse.{ch}")] for ch in "RGB"]
-    # the scene's accuracy contract: 1e-4 relative (tests/test_usd_scene.py TOL)
-    np.testing.assert_allclose(np.moveaxis(got, 0, -1), np.broadcast_to(want_a, (4, 4, 3)),
-                               rtol=1e-4)
+    for name in ("both", "only"):
+        path = image_doc(tmp_path / name / "m.mtlx", "diffuse", file="tex/a.exr")
+        (imp,) = import_materials(path)
+        assert imp.left_out is None and imp.facts["albedo_layer"] == "diffuse", imp.left_out
+        report = scenes.load(path).plan().run()
+        assert report.exit_code == 0, report.summary()
+        px, names = read(tmp_path / name / "bdipole" / "m.exr")
+        assert names == [f"{o}.{ch}" for o in ("sigma_a", "sigma_s") for ch in "RGB"], names
+        # the scene's accuracy contract: 1e-4 relative (tests/test_usd_scene.py TOL)
+        np.testing.assert_allclose(px[..., :3], np.broadcast_to(want_a, (4, 4, 3)), rtol=1e-4,
+                                   err_msg=name)
+    path = image_doc(tmp_path / "none" / "m.mtlx", "spec", file="tex/a.exr")
+    (imp,) = import_materials(path)
+    assert imp.left_out and "which has no colour channel in that layer" in imp.left_out
+    report = scenes.load(path).plan().run()
+    assert report.exit_code == 1, report.summary()
+    assert [r.path for r in report.results if r.status != "ok"] == [
+        "material m (/MaterialX/Materials/m)"]
 
 
 def test_a_one_channel_radius_map_on_openpbrs_float_radius_bakes(tmp_path):

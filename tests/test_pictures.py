@@ -289,3 +289,52 @@ def test_lab_channels_are_one_colour_group_not_alpha_and_blue(tmp_path):
     assert [(g.name, g.names) for g in groups] == [("Y/RY/BY", ("Y", "RY", "BY"))]
     assert [g.names for g in channel_groups(("B", "G", "R", "A"), 3)] == [("R", "G", "B"),
                                                                           ("A",)]
+
+
+#: four 8x8 blocks of codes 0, 64, 128, 255 (constant blocks: a JPEG keeps them)
+CODES = np.kron(np.array([[0, 64], [128, 255]]), np.ones((8, 8)))
+
+
+def srgb_encoded(linear):
+    """IEC 61966-2-1's encoding, written here (an independent check of the preview's)."""
+    linear = np.asarray(linear, np.float64)
+    return np.where(linear <= 0.0031308, 12.92 * linear,
+                    1.055 * np.power(np.maximum(linear, 0), 1 / 2.4) - 0.055)
+
+
+@pytest.mark.parametrize("name, fmt, attribs, encoded", [
+    ("a.png", "uint8", {}, True),                     # 8-bit PNG (declared sRGB by its reader)
+    ("a.tif", "uint8", {}, True),                     # 8-bit TIFF, undeclared: sRGB
+    ("a.jpg", "uint8", {}, True),                     # 8-bit JPEG
+    ("b.png", "uint16", {}, True),                    # 16-bit PNG: declared sRGB
+    ("b.tif", "uint16", {}, False),                   # 16-bit TIFF, undeclared: linear
+    ("a.exr", "half", {}, False),                     # EXR, undeclared: linear
+    ("s.exr", "float", {"oiio:ColorSpace": "srgb_rec709_scene"}, True),   # EXR declared sRGB
+    ("l.png", "uint8", {"oiio:ColorSpace": "lin_rec709_scene"}, False),   # 8-bit declared linear
+], ids=["png8", "tif8", "jpg8", "png16", "tif16", "exr", "exr-srgb", "png8-linear"])
+def test_a_colour_is_shown_with_its_encoding_once(tmp_path, name, fmt, attribs, encoded):
+    """Each texel of a file's colour is shown as its encoded value, once: an sRGB file's
+    code 128 as 128 (it was shown as 0.737: decoded as linear, then encoded for display), a
+    linear file's value sRGB-encoded; as the tools read the file (its declaration, else the
+    8-bit rule)."""
+    path = tmp_path / name
+    spec = oiio.ImageSpec(16, 16, 3, fmt)
+    for k, v in attribs.items():
+        spec.attribute(k, v)
+    scale = {"uint8": 255, "uint16": 65535}.get(fmt)
+    stored = CODES / 255.0
+    data = np.repeat((np.round(stored * scale) if scale else stored)[..., None], 3, -1)
+    out = oiio.ImageOutput.create(str(path))
+    assert out.open(str(path), spec)
+    assert out.write_image(data.astype({"uint8": np.uint8, "uint16": np.uint16}.get(
+        fmt, np.float32)))
+    out.close()
+    back = oiio.ImageBuf(str(path)).get_pixels(oiio.FLOAT)       # as stored (a JPEG's own)
+    sheet = contact_sheet(path, tmp_path / "sheet.png")
+    tile, = sheet.tiles
+    assert not tile.log and tile.vmin == pytest.approx(0, abs=2e-3), tile
+    want = back if encoded else srgb_encoded(back)
+    # one float32 decode (OpenColorIO) and encode (the preview's) of 8-bit steps: 1e-4
+    np.testing.assert_allclose(tile.image, want, atol=1e-4, err_msg=name)
+    mid = tile.image[12, 4]                     # the 128 block
+    assert abs(mid[0] - (128 / 255 if encoded else srgb_encoded(128 / 255))) < 2e-3, mid

@@ -465,7 +465,8 @@ def test_one_colour_layer_is_inverted_and_a_vector_is_not_colour(tmp_path):
     rep = process_textures(str(tmp_path / "aov.exr"), mfp=1.0, output=str(tmp_path / "o.exr"))
     assert rep.exit_code == 0, rep.summary()
     got = read(tmp_path / "o.exr")[1].channelnames
-    assert not any("specular" in n for n in got) and any("diffuse.R" in n for n in got), got
+    # each output's channels named {output}.{R, G, B}: never sigma_a.diffuse.R
+    assert got == tuple(f"{o}.{c}" for o in ("sigma_a", "sigma_s") for c in "RGB"), got
     write(tmp_path / "p.exr", ramp(), ["P.X", "P.Y", "P.Z"])
     rep = process_textures(str(tmp_path / "p.exr"), mfp=1.0, output=str(tmp_path / "p_o.exr"))
     assert rep.exit_code == 1 and "no colour channel" in rep.results[0].error, rep.summary()

@@ -156,3 +156,39 @@ def test_cli_stretch_writes_tiles(tmp_path):
     assert (tmp_path / "s.1001.exr").exists() and (tmp_path / "s.1002.exr").exists()
     assert "UDIM 1002" in run.stdout and "cm/texel" in run.stdout
     assert read_stretch(tmp_path / "s.1001.exr").unit == "cm"
+
+
+def test_cli_stretch_of_meshes_that_share_texels(tmp_path):
+    """``bdipole-cl stretch`` of a stage whose two meshes cover the same UVs with different
+    lengths: exit 1, one line naming both prims and the texel (it had written the second
+    mesh's lengths over the first's, silently); ``--prim`` takes one of them; two copies of
+    one plane (the same lengths) give the one plane's map."""
+    from pxr import Gf, Sdf, Usd, UsdGeom, Vt
+    stage = Usd.Stage.CreateNew(str(tmp_path / "two.usda"))
+    UsdGeom.SetStageMetersPerUnit(stage, 1.0)
+    for name, width, x in (("a", 0.04, 0.0), ("copy", 0.04, 1.0), ("b", 0.08, 2.0)):
+        mesh = UsdGeom.Mesh.Define(stage, f"/{name}")
+        mesh.CreatePointsAttr(Vt.Vec3fArray([Gf.Vec3f(x + px * width, py * 0.02, 0) for px,
+                                             py in ((0, 0), (1, 0), (1, 1), (0, 1))]))
+        mesh.CreateFaceVertexCountsAttr([4])
+        mesh.CreateFaceVertexIndicesAttr([0, 1, 2, 3])
+        UsdGeom.PrimvarsAPI(mesh).CreatePrimvar(
+            "st", Sdf.ValueTypeNames.TexCoord2fArray, UsdGeom.Tokens.vertex).Set(
+            Vt.Vec2fArray([Gf.Vec2f(*p) for p in ((0.1, 0.1), (0.9, 0.1), (0.9, 0.9),
+                                                  (0.1, 0.9))]))
+    stage.GetRootLayer().Save()
+    run = subprocess.run([sys.executable, "-m", "bdipole_cl", "stretch", str(tmp_path /
+                          "two.usda"), "-o", str(tmp_path / "s.exr"), "--size", "32"],
+                         capture_output=True, text=True)
+    assert run.returncode == 1 and not (tmp_path / "s.exr").exists(), run.stderr
+    line = run.stderr.strip()
+    assert "\n" not in line and ":/a and " in line and ":/b: both cover texel" in line, line
+    assert "one stretch map cannot hold both" in line, line
+    (b, _), = stretch_maps(tmp_path / "two.usda", size=32, prim="/b")
+    np.testing.assert_allclose(b.su[b.covered], 80.0 / 0.8 / 32, rtol=1e-6)
+    stage.RemovePrim("/b")
+    stage.GetRootLayer().Save()
+    (both, _), = stretch_maps(tmp_path / "two.usda", size=32)
+    (one, _), = stretch_maps(tmp_path / "two.usda", size=32, prim="/a")
+    np.testing.assert_array_equal(both.su, one.su)
+    np.testing.assert_array_equal(both.sv, one.sv)

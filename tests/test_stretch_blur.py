@@ -169,3 +169,20 @@ def test_cli_blur_with_stretch(on_device, tmp_path):
                        stretch=read_stretch(tmp_path / f"st.{udim}.exr"))
         np.testing.assert_allclose(got, want, rtol=0, atol=1e-7)
         assert got[..., 0].sum() > 0
+
+
+def test_cli_blur_with_stretch_on_a_scheduler_says_why_not(tmp_path, capsys):
+    """``blur --stretch --scheduler``: a usage error (exit 2) before any cluster starts, that
+    says why (the cluster blurs bands; a stretched blur reads the whole image) and what to do
+    instead; it had said the parameters were textures."""
+    from bdipole_cl.apps.cli import main
+    from bdipole_cl.apps.demo import write_exr
+    (tile, _), = stretch_maps(affine_plane(tmp_path / "p.obj", [[0.04, 0], [0, 0.02], [0, 0]]),
+                              str(tmp_path / "st.exr"), size=16)
+    write_exr(tmp_path / "irr.exr", np.ones((16, 16, 3), np.float32), ("R", "G", "B"))
+    code = main(["blur", str(tmp_path / "irr.exr"), "--stretch", str(tmp_path / "st.exr"),
+                 "--albedo", "0.5", "--mfp", "1", "-o", str(tmp_path / "out.exr"),
+                 "--scheduler", "local:1", "--no-progress", "--device", "intel"])
+    err = capsys.readouterr().err
+    assert code == 2 and "a stretched blur reads the whole image" in err, err
+    assert "bake a scene on the cluster" in err and not (tmp_path / "out.exr").exists()

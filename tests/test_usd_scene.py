@@ -55,10 +55,11 @@ def texture_node(stage, path, shader_id, file, out, **meta):
     return t.CreateOutput(out, C3)
 
 
-def write_stage(root, meters_per_unit=0.01, radius=0.5):
+def write_stage(root, meters_per_unit=0.01, radius=0.5, procedural=False):
     """/Looks: skin (OpenPBR, a <UDIM> albedo through a node graph), jade (Standard Surface,
     constants, unbound), marble (PxrSurface, a UsdUVTexture), plastic (UsdPreviewSurface),
-    noisy (OpenPBR fed by a noise), empty (no surface shader)."""
+    empty (no surface shader); with ``procedural`` noisy (OpenPBR fed by a noise: a
+    subsurface material no bake can bake, so a bake of the stage fails it)."""
     for k, tile in enumerate(("1001", "1002")):
         albedo_texture(root / "tex" / f"skin.{tile}.exr", k)
     albedo_texture(root / "tex" / "marble.exr", 3)
@@ -91,12 +92,13 @@ def write_stage(root, meters_per_unit=0.01, radius=0.5):
     plastic = UsdShade.Material.Define(stage, "/Looks/plastic")
     shader(stage, plastic, "/Looks/plastic/preview", "UsdPreviewSurface", "",
            {"diffuseColor": (C3, Gf.Vec3f(0.2, 0.3, 0.4))})
-    noisy = UsdShade.Material.Define(stage, "/Looks/noisy")
-    s = shader(stage, noisy, "/Looks/noisy/pbr", "ND_open_pbr_surface_surfaceshader", "mtlx",
-               {"subsurface_weight": (F, 1.0)})
-    noise = UsdShade.Shader.Define(stage, "/Looks/noisy/noise")
-    noise.CreateIdAttr("ND_noise3d_color3")
-    s.CreateInput("subsurface_color", C3).ConnectToSource(noise.CreateOutput("out", C3))
+    if procedural:
+        noisy = UsdShade.Material.Define(stage, "/Looks/noisy")
+        s = shader(stage, noisy, "/Looks/noisy/pbr", "ND_open_pbr_surface_surfaceshader",
+                   "mtlx", {"subsurface_weight": (F, 1.0)})
+        noise = UsdShade.Shader.Define(stage, "/Looks/noisy/noise")
+        noise.CreateIdAttr("ND_noise3d_color3")
+        s.CreateInput("subsurface_color", C3).ConnectToSource(noise.CreateOutput("out", C3))
     UsdShade.Material.Define(stage, "/Looks/empty")
     for name, material in (("head", skin), ("table", marble), ("cup", plastic)):
         mesh = UsdGeom.Mesh.Define(stage, f"/World/{name}")
@@ -120,7 +122,8 @@ def stage_path(tmp_path):
     return write_stage(tmp_path)
 
 
-def test_each_shader_maps_and_the_rest_are_left_out_by_name(stage_path):
+def test_each_shader_maps_and_the_rest_are_left_out_by_name(tmp_path):
+    stage_path = write_stage(tmp_path, procedural=True)
     imports = {m.name: m for m in import_materials(stage_path)}
     assert imports["skin"].shader == "OpenPBR Surface" and imports["skin"].mfp_kind == \
         "extinction"
@@ -143,6 +146,13 @@ def test_each_shader_maps_and_the_rest_are_left_out_by_name(stage_path):
     assert sorted((j.kind, j.name, j.udim) for j in plan.jobs) == [
         ("constant", "jade", None), ("invert", "marble", None), ("invert", "skin", "1001"),
         ("invert", "skin", "1002")]
+    # the others bake; the subsurface material left unbaked fails the bake, named (it was a
+    # success: "done", exit 0, having baked nothing of it)
+    report = plan.run()
+    failed = [r for r in report.results if r.status != "ok"]
+    assert report.exit_code == 1, report.summary()
+    assert [(r.path, r.error) for r in failed] == [
+        ("material noisy (/Looks/noisy)", "not baked: " + imports["noisy"].left_out)]
 
 
 def test_baked_values_equal_albedo_to_coefficients_and_the_layer_reads_them_back(stage_path):
@@ -223,9 +233,12 @@ def test_materials_from_with_an_override_and_an_up_to_date_rebake(tmp_path):
     assert todo == [("skin", "1001"), ("skin", "1002")]
     scenes.load(scene).plan().run()
     after = {p.name: p.stat().st_mtime_ns for p in files}
-    # the manifest records the new radius; the layer holds only paths and constants: as it was
+    # the manifest records the new radius; the layer holds only paths and constants: as it
+    # was; each output's own file (the networks' texture nodes read) follows its output
     assert sorted(n for n in after if after[n] != before[n]) == [
-        "bdipole_materials.json", "skin.1001.exr", "skin.1002.exr"]
+        "bdipole_materials.json", "skin.1001.exr", "skin.1001.sigma_a.exr",
+        "skin.1001.sigma_s.exr", "skin.1002.exr", "skin.1002.sigma_a.exr",
+        "skin.1002.sigma_s.exr"]
 
 
 def test_an_override_of_a_left_out_material_is_refused(tmp_path):

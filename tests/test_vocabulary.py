@@ -25,7 +25,8 @@ from bdipole_cl.vocabulary import Option, Registry
 PYTHON_DOCS = Path(__file__).resolve().parent.parent / "docs" / "python.md"
 #: the modules that define registries (a registry defined elsewhere is a test failure below)
 REGISTRY_MODULES = ("bdipole_cl.errors", "bdipole_cl.physics.models",
-                    "bdipole_cl.physics.conventions", "bdipole_cl.methods.registry")
+                    "bdipole_cl.physics.conventions", "bdipole_cl.methods.registry",
+                    "bdipole_cl.device.numerics")
 PACKAGE = Path(__file__).resolve().parent.parent / "bdipole_cl"
 
 
@@ -90,7 +91,7 @@ def test_registries_are_defined_only_where_expected():
     # a Registry(...) anywhere else in the package would be a second vocabulary
     found = sorted(str(p.relative_to(PACKAGE)) for p in PACKAGE.rglob("*.py")
                    if re.search(r"(?<![\w.])Registry\(", p.read_text()))   # not Sdr.Registry()
-    assert found == ["errors.py", "io/targets.py", "methods/registry.py",
+    assert found == ["device/numerics.py", "errors.py", "io/targets.py", "methods/registry.py",
                      "physics/conventions.py", "physics/models.py", "vocabulary.py"]
 
 

@@ -11,7 +11,9 @@ then measured again as the median of --pairs alternated copy / default measureme
 back to back, so that a slow moment of a shared machine slows both of its sides), and so is its
 speed against the issue's peer, the minimal table kernel a user would write outside the
 project (MINIMAL_SOURCE: one texel per work-item, no channels, clamps or tests), fed the
-default's own table.
+default's own table. On a device whose sqrt is used as it is (a CPU), the default is also
+timed against itself with the sqrt corrected in the kernel, as a GPU runs it (numerics
+"corrected": docs/numerics.md "What a GPU does").
 
 Then, on the same host arrays: ``invert_albedo(rd, eta, return_rho=True)`` and
 ``albedo_to_coefficients(rd, 2.0, eta)`` (sigma_a, sigma_s') host to host (NumPy in, NumPy
@@ -38,6 +40,7 @@ from bdipole_cl.apps.benchmark import (inversion_workload, machine_lines, median
                                        reference_inverse, time_copy, time_inversion)
 from bdipole_cl.device import build_options, get_program
 from bdipole_cl.device.layout import P, channel_params
+from bdipole_cl.device.numerics import sqrt_is_correctly_rounded
 from bdipole_cl.physics import tables
 from bdipole_cl.methods.registry import MethodConfig
 from bdipole_cl.ops.invert import InversionKernel
@@ -154,6 +157,14 @@ def minimal_ratios(config, rd, eta, pairs=7):
     return peer_ratios(lambda n, src, dst: peer(n, src, *dst), config, rd, eta, pairs)
 
 
+def corrected_ratios(config, rd, eta, pairs=7):
+    """``peer_ratios`` against ``config`` built with the in-kernel sqrt correction (numerics
+    "corrected", kernels/bdipole.h BD_SQRT_RN): its time over the default's."""
+    peer = InversionKernel((eta,), config, runtime=get_runtime().with_numerics("corrected"))
+    return peer_ratios(lambda n, src, dst: peer(n, src, alpha=dst[0], rho=dst[1]), config, rd,
+                       eta, pairs)
+
+
 def best_time(fn, repeats):
     """The fastest of ``repeats`` wall times of ``fn()`` after one warm-up call."""
     fn()
@@ -247,6 +258,12 @@ def main(argv=None):
     print(f"{DEFAULT.describe()} against the minimal table kernel (max rel err alpha "
           f"{minimal_check(rd, args.eta, want_a):.1e}), {args.pairs} alternated pairs: "
           f"median {np.median(peer):.2f}x its speed [{min(peer):.2f}, {max(peer):.2f}]")
+    if sqrt_is_correctly_rounded(rt.device, rt.numerics):
+        slower = corrected_ratios(DEFAULT, rd, args.eta, args.pairs)
+        print(f"{DEFAULT.describe()} with its sqrt corrected in the kernel (numerics "
+              f"'corrected': what a device whose sqrt is not known to be correctly rounded, a "
+              f"GPU, runs), {args.pairs} alternated pairs: median {np.median(slower):.2f}x the "
+              f"default's time [{min(slower):.2f}, {max(slower):.2f}]")
     print(f"\nhost to host, same {args.n} float32 albedos (% of NumPy's pass of the same form):")
     for name, seconds, peer in host_rows(rd, args.eta, rt, args.repeats):
         print(f"{name:34s} {'f32':5s} {args.n / seconds / 1e6:9.2f} {seconds * 1e3:9.2f}"

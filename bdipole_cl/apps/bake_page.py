@@ -10,8 +10,8 @@ from ..io.collisions import Claim, collisions
 from ..io.images import TextureError
 from ..signals import check_stop
 
-from .preview import (ContactSheet, contact_sheet, draw_group, read_image, require_matplotlib,
-                      save_figure)
+from .preview import (ContactSheet, contact_sheet, displayed_colour, draw_group, read_image,
+                      require_matplotlib, save_figure)
 from .profile import draw_profiles, material_specs
 
 #: inches per thumbnail on the bake page, and for the profile panel
@@ -140,9 +140,10 @@ def _bake_page(scene, plan, sheets, page, force=False):
         y0 = 1 - (0.5 + ROW_IN * (k + 1)) / height
         cell_h = ROW_IN / height
         for c, (title, path, group) in enumerate(groups):
-            if path not in cache:
-                cache[path] = read_image(path)
-            px, _, _, header = cache[path]
+            if path not in cache:           # its colour as the contact sheet shows it
+                px, names, alpha, header = read_image(path)
+                cache[path] = (displayed_colour(path, px, names, alpha, header)[0], header)
+            px, header = cache[path]
             x0 = (0.2 + c * THUMB_IN) / width
             ax = fig.add_axes((x0 + 0.05 * THUMB_IN / width, y0 + 0.36 * cell_h,
                                0.9 * THUMB_IN / width, 0.5 * cell_h))

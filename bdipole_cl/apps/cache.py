@@ -4,9 +4,11 @@ the variable that moves each (``--info``), and ``--clear`` of the entries bdipol
 bdipole_cl's own entries (docs/guide.md, "Where it writes") live in its cache folder
 (``caches.user_cache_dir``): the OpenCL runtime registration (``icd-*``, else in a folder of the
 temporary directory), the device probes' verdicts (``probes/<digest>.json``:
-``device.isolation``) and their guarded builds' records (``probes/<digest>.builds/``:
-``device.guard``), the device calibrations (``choice-*.json``) and the textures extracted
-from ``.usdz`` packages (``usdz/<digest>``). The other folders belong to the libraries it runs
+``device.isolation``), the device calibrations (``choice-*.json``), the textures extracted
+from ``.usdz`` packages (``usdz/<digest>``) and the walks' reflectance curves
+(``transport/curves-*.npz``: ``physics.transport``) and the guarded builds' records
+(``probes/<digest>.builds/``: ``device.guard``), each kind named as its writer names it
+(``OWN_KINDS``, imported, never retyped). The other folders belong to the libraries it runs
 (PoCL, pyopencl, pytools, matplotlib, Dask) and are shared with every other program using them:
 they are shown, never removed. A clear removes only names the tool makes, by their exact shape,
 so a user's file in a folder they pointed a variable at is never touched.
@@ -22,15 +24,38 @@ from pathlib import Path
 
 from ..caches import CACHE_DIR_VARIABLE, user_cache_dir
 from ..device.icd import vendors_roots
-from ..device.isolation import VERDICT_FOLDER, VERDICT_NAME, lock_in_use
+from ..device.isolation import BUILDS_NAME, VERDICT_FOLDER, VERDICT_NAME, lock_in_use
 from ..io.usdz import EXTRACTED_FOLDER, EXTRACTED_NAME
-from ..methods.choice import CALIBRATION_GLOB, CALIBRATION_NAME
+from ..methods.choice import CALIBRATION_NAME
+from ..physics.transport_tables import CURVES_FOLDER, CURVES_NAME
 
-#: what each of the probes' entries is, by its suffix (``device.isolation.VERDICT_NAME``)
-PROBE_ENTRIES = {".json": "device probe verdict", ".lock": "device probe lock",
-                 ".builds": "guarded builds' records"}
 #: a runtime registration's folder: ``icd-`` and 16 hex digits (``icd.vendors_directory``)
 ICD_NAME = re.compile(r"^icd-[0-9a-f]{16}$")
+
+
+@dataclass(frozen=True)
+class OwnKind:
+    """A kind of entry bdipole_cl makes in its cache folder: under ``folder`` ('' the folder
+    itself), named exactly as ``name`` matches, a folder (``is_dir``) or a file; ``shown``
+    as the README's and docs/install.md's "Where it writes" tables name it."""
+
+    what: str
+    folder: str
+    name: re.Pattern
+    is_dir: bool
+    shown: str
+
+
+#: every kind of entry bdipole_cl makes in its cache folder but the runtime registrations
+#: (which have a second root): ``--info`` lists them, ``--clear`` removes them
+OWN_KINDS = (
+    OwnKind("calibration", "", CALIBRATION_NAME, False, "choice-*.json"),
+    OwnKind("device probe", VERDICT_FOLDER, VERDICT_NAME, False, f"{VERDICT_FOLDER}/"),
+    OwnKind("guarded builds' records", VERDICT_FOLDER, BUILDS_NAME, True, f"{VERDICT_FOLDER}/"),
+    OwnKind("extracted .usdz textures", EXTRACTED_FOLDER, EXTRACTED_NAME, True,
+            f"{EXTRACTED_FOLDER}/"),
+    OwnKind("walk reflectance curves", CURVES_FOLDER, CURVES_NAME, False, f"{CURVES_FOLDER}/"),
+)
 
 
 @dataclass(frozen=True)
@@ -95,7 +120,7 @@ def cache_folders() -> list[CacheFolder]:
     cache_home = xdg("XDG_CACHE_HOME", ".cache")
     return [
         CacheFolder("runtime registration, device probe verdicts, calibrations, extracted "
-                    ".usdz textures", own,
+                    ".usdz textures, walk reflectance curves", own,
                     f"{CACHE_DIR_VARIABLE} (else XDG_CACHE_HOME)", "bdipole_cl"),
         CacheFolder("runtime registration where the cache folder is not writable", fallback,
                     "TMPDIR", "bdipole_cl"),
@@ -127,22 +152,22 @@ def own_entries() -> list[OwnEntry]:
             entries += [OwnEntry("runtime registration", p) for p in sorted(root.iterdir())
                         if ICD_NAME.match(p.name) and p.is_dir() and not p.is_symlink()]
     root = user_cache_dir()
-    if root.is_dir():
-        entries += [OwnEntry("calibration", p) for p in sorted(root.glob(CALIBRATION_GLOB))
-                    if CALIBRATION_NAME.match(p.name) and p.is_file() and not p.is_symlink()]
-        probes = root / VERDICT_FOLDER
-        if probes.is_dir() and not probes.is_symlink():
-            entries += [OwnEntry(PROBE_ENTRIES[p.suffix], p)
-                        for p in sorted(probes.iterdir())
-                        if VERDICT_NAME.match(p.name) and not p.is_symlink()
-                        and (p.is_dir() if p.suffix == ".builds" else p.is_file())
-                        and not (p.suffix == ".lock" and lock_in_use(p))]   # a probe's own
-        packages = root / EXTRACTED_FOLDER
-        if packages.is_dir() and not packages.is_symlink():
-            entries += [OwnEntry("extracted .usdz textures", p)
-                        for p in sorted(packages.iterdir())
-                        if EXTRACTED_NAME.match(p.name) and p.is_dir() and not p.is_symlink()]
+    for kind in OWN_KINDS:
+        folder = root / kind.folder
+        if not folder.is_dir() or folder.is_symlink():
+            continue
+        entries += [OwnEntry(entry_what(kind, p), p) for p in sorted(folder.iterdir())
+                    if kind.name.match(p.name) and not p.is_symlink()
+                    and (p.is_dir() if kind.is_dir else p.is_file())
+                    and not (p.suffix == ".lock" and lock_in_use(p))]   # a probe's own
     return entries
+
+
+def entry_what(kind: OwnKind, path: Path) -> str:
+    """What one entry is (a probe's verdict or its lock file)."""
+    if kind.folder == VERDICT_FOLDER:
+        return f"{kind.what} {'lock' if path.suffix == '.lock' else 'verdict'}"
+    return kind.what
 
 
 def size_of(path: Path) -> tuple[int, int]:
@@ -230,8 +255,9 @@ def add_command(command):
                         help="every folder, its size, whose it is and the variable that moves "
                              "it (the default)")
     action.add_argument("--clear", action="store_true",
-                        help="remove bdipole_cl's own entries (registration, calibrations, "
-                             "extracted .usdz textures); shared library caches are left")
+                        help="remove bdipole_cl's own entries (registration, probes, "
+                             "calibrations, extracted .usdz textures, walk reflectance "
+                             "curves); shared library caches are left")
     p.set_defaults(func=_cmd_cache)
 
 

@@ -7,16 +7,19 @@ import os
 import sys
 import warnings
 
+from ..device.numerics import NUMERICS
 from ..errors import POLICIES
 from ..io.targets import DEFAULT_TARGETS, TARGET
 from ..methods.registry import ALPHA_CHANNEL, BLUR_METHODS, BORDERS, CHART_BORDERS
 from ..signals import SignalStop, Terminated, end_startup, terminate_raises
 from ..version import __version__
 from .cli_blur import cmd_blur
+from .cli_crosscheck import cmd_crosscheck
 from .cli_options import (add_global_args, add_method_args, add_scheduler_args, cluster_client,
                           colorspace_arg, method_knobs)
 from .cli_types import (Parser, add_texture_arg, constant_or_texture, floats, fraction,
-                        output_list, positive_float, positive_int, size, target_list)
+                        output_list, positive_float, positive_int, size, spelling_of,
+                        target_list)
 from .user_kernel import SIGNATURES
 
 DESCRIPTION = """\
@@ -83,34 +86,6 @@ def _invert(args, run_files) -> int:
         progress=not args.no_progress and run_files is None,
         run_files=run_files, texture=args.texture, force=args.force, **method_knobs(args))
     return _finish(report, stop)
-
-
-def _cmd_crosscheck(args) -> int:
-    from .crosscheck import format_rows, run_all_devices, run_crosscheck
-    from .user_kernel import UserKernelError, UserKernelRunError, check_user_kernel
-    if args.user_kernel:
-        if not (args.function and args.against):
-            print("bdipole-cl crosscheck: error: --user-kernel needs --function and --against",
-                  file=sys.stderr)
-            return 2
-        try:
-            rows = []
-            for eta in args.eta:
-                rows += check_user_kernel(args.user_kernel, args.function, args.against,
-                                          eta=eta, n=args.n, device=args.device,
-                                          timeout=args.timeout)
-        except UserKernelError as exc:
-            print(f"bdipole-cl crosscheck: error: {exc}", file=sys.stderr)
-            return 1 if isinstance(exc, UserKernelRunError) else 2
-    elif args.all_devices:
-        rows = run_all_devices(args.eta, n=args.n)
-    else:
-        rows = run_crosscheck(args.eta, n=args.n)
-    if not args.all_devices:
-        from ..device import get_runtime
-        print(f"device: {get_runtime().describe()}")
-    print(format_rows(rows))
-    return 1 if any(r.status == "FAIL" for r in rows) else 0
 
 
 def _cmd_plan(args) -> int:
@@ -260,7 +235,13 @@ def build_parser() -> argparse.ArgumentParser:
                         "pointers")
     p.add_argument("--timeout", type=positive_float, default=120.0,
                    help="seconds a user kernel's run may take before it is stopped")
-    p.set_defaults(func=_cmd_crosscheck)
+    p.add_argument("--numerics", default=NUMERICS.names[0], type=spelling_of(NUMERICS),
+                   choices=NUMERICS.names,
+                   help="the float32 arithmetic the built-in kernels are built for: the "
+                        "device's own, or a GPU's on any device: ftz (subnormals flushed to "
+                        "zero), inexact (sqrt and division off by up to 2 ulps), gpu (both; "
+                        "docs/numerics.md)")
+    p.set_defaults(func=cmd_crosscheck)
 
     p = _scene_command(command, "plan", "what a scene's bake computes and leaves out, per job",
                        "plan every job, up to date or not, as if replacing existing outputs "

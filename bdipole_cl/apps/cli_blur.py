@@ -11,15 +11,16 @@ from .cli_options import cluster_client
 from .cli_types import number_list
 
 
-def parameter(text, what, **colour):
+def parameter(text, what, role, **colour):
     """A blur parameter: numbers ('0.8' or 'r,g,b', in the working space), else the path of
-    a texture (``colour``: colorspace= and working= of an albedo texture, converted)."""
+    a texture read as the input ``role`` (``colour``: colorspace= and working= of an albedo
+    texture, converted)."""
     values = number_list(text)     # constants were checked at parse time (constant_or_texture)
     if values is not None:
         return values
     else:
         from ..io.images import read_parameter_texture
-        return read_parameter_texture(text, what, colour=bool(colour), **colour)
+        return read_parameter_texture(text, what, colour=bool(colour), role=role, **colour)
 
 
 def blur_job(args, sources):
@@ -36,13 +37,13 @@ def blur_job(args, sources):
         from ..io.stretch_maps import read_stretch
         stretch = read_stretch(args.stretch)
     if args.alpha_prime is not None:
-        scattering = Scattering(alpha_prime=parameter(args.alpha_prime, "alpha'"),
-                                sigma_t=parameter(args.sigma_t, "sigma_t'"), eta=args.eta,
-                                texel_size=args.texel_size, stretch=stretch)
+        scattering = Scattering(alpha_prime=parameter(args.alpha_prime, "alpha'", "alpha"),
+                                sigma_t=parameter(args.sigma_t, "sigma_t'", "sigma_t"),
+                                eta=args.eta, texel_size=args.texel_size, stretch=stretch)
     else:
-        scattering = Scattering(parameter(args.albedo, "albedo", colorspace=args.colorspace,
+        scattering = Scattering(parameter(args.albedo, "albedo", "albedo", colorspace=args.colorspace,
                                        working=args.working_space),
-                                parameter(args.mfp, "mfp"), args.eta, args.texel_size,
+                                parameter(args.mfp, "mfp", "mfp"), args.eta, args.texel_size,
                                 stretch=stretch)
     work = BlurWork(scattering, tol=args.tol, method=args.method, border=args.border,
                     exact=args.exact, on_invalid=args.on_invalid, half=args.half,
@@ -159,7 +160,13 @@ def blur_on_cluster(args, sources, stop) -> int:
     from ..jobs.blur_file import clamped_text
     job = blur_job(args, sources)
     s = job.work.scattering
-    if s.textured:                      # before any cluster starts
+    if s.stretch is not None:           # before any cluster starts
+        print("bdipole-cl blur: error: --stretch with --scheduler: the cluster blurs bands of "
+              "rows, and a stretched blur reads the whole image at once; blur without "
+              "--scheduler, or bake a scene on the cluster (each tile its own job)",
+              file=sys.stderr)
+        return 2
+    if s.textured:
         print("bdipole-cl blur: error: --scheduler takes constant parameters (one value or one "
               "per channel); with parameter textures, blur without --scheduler",
               file=sys.stderr)

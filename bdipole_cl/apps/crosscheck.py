@@ -163,8 +163,9 @@ def _unless_rejected(group: str, rows_of):
                     "-", None, str(exc))]
 
 
-def run_all_devices(etas=(1.0, 1.4, 2.5), *, n=500):
-    """``run_crosscheck`` on every working device, each row labelled with its device."""
+def run_all_devices(etas=(1.0, 1.4, 2.5), *, n=500, numerics="device"):
+    """``run_crosscheck`` on every working device, each row labelled with its device, its
+    kernels built for ``numerics`` (``device.numerics.NUMERICS``)."""
     from dataclasses import replace
 
     from ..device import survey
@@ -180,7 +181,8 @@ def run_all_devices(etas=(1.0, 1.4, 2.5), *, n=500):
                             state.reason, f"[{state.index}] {state.platform}"))
             continue
         label = f"[{state.index}] {state.platform}"
-        rows += [replace(r, device=label) for r in run_crosscheck(etas, n=n, device=state.device)]
+        rt = get_runtime(state.device).with_numerics(numerics)
+        rows += [replace(r, device=label) for r in run_crosscheck(etas, n=n, device=rt)]
     return rows
 
 

@@ -6,7 +6,10 @@ blur's exitance) and the alpha it carries; any other EXR's are the prefixes of i
 drawn as a thumbnail of its (up to three) channels as R, G, B (one channel: grey), on a scale
 shared by its channels: logarithmic when the middle 90% of its positive values spans more
 than ``LOG_DECADES`` decades (coefficients often do), else linear and sRGB-encoded for
-display. Each has a colour bar of
+display. A file's colour is first decoded as the tools read it (its colour path into linear
+Rec.709, ``io.colour``: an 8-bit sRGB texture's 128 is 0.216, shown as 128 again, never
+encoded twice); data (coefficients, alpha, an output's other layers) is shown as stored.
+Each has a colour bar of
 that scale and its range in the caption; texels at 0 (masked) or below the log range are
 black. The header's parameters (model, eta, mfp, working space, method, tol) are the sheet's
 caption. Everything drawn is returned (``ContactSheet``), so tests read the picture back.
@@ -25,15 +28,13 @@ import numpy as np
 
 from ..durable import durable_replace
 from ..errors import one_line
-from ..io.channels import NOT_RGB
+from ..io.channels import COLOUR_LAYERS, NOT_RGB, layer_of
 from ..io.collisions import PICTURE_MARK, Claim, check_claim
-from ..io.images import TextureError, classify_channels, read_whole
+from ..io.images import Reader, TextureError, classify_channels, read_whole
 from ..io.patterns import outputs_of
+from .thumbnails import (LOG_DECADES, NOT_FINITE_RGB, THUMB, finite_spread,  # noqa: F401
+                         group_scale, normalise, shrink, srgb_encode)
 
-#: positive values spanning more than this many decades are shown on a log scale
-LOG_DECADES = 2.0
-#: longest side of a thumbnail, texels (larger images are averaged down in blocks)
-THUMB = 192
 #: inches per tile of the sheet and its resolution
 TILE_IN, DPI = (3.0, 3.1), 100
 
@@ -142,54 +143,33 @@ def read_image(path):
     return px, tuple(spec.channelnames), spec.alpha_channel, header
 
 
-def shrink(px, longest=THUMB):
-    """Average ``px`` down in square blocks so its longest side is at most ``longest``: the
-    image's last rows and columns repeated to whole blocks (a strip 300 x 1 is one column of
-    blocks, not none; no edge texel is dropped). A block with a texel that is not finite is
-    not finite (``thumbnail`` shows it)."""
-    k = int(np.ceil(max(px.shape[:2]) / longest))
-    if k <= 1:
-        return px
-    h, w = -(-px.shape[0] // k) * k, -(-px.shape[1] // k) * k
-    whole = np.pad(px, ((0, h - px.shape[0]), (0, w - px.shape[1]), (0, 0)), mode="edge")
-    return whole.reshape(h // k, k, w // k, k, -1).mean(axis=(1, 3))
+#: the space a preview shows colour in: linear Rec.709, sRGB-encoded for the display
+DISPLAY_LINEAR = "lin_rec709_scene"
 
 
-def srgb_encode(x):
-    """Linear [0, 1] -> sRGB-encoded [0, 1] (IEC 61966-2-1), for display."""
-    x = np.clip(x, 0.0, 1.0)
-    return np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4) - 0.055)
-
-
-def group_scale(values, may_log=True):
-    """(log?, vmin, vmax) of a group's finite values: log when the middle 90% of its positive
-    values spans more than LOG_DECADES decades (a few outliers do not make a scale log),
-    between the smallest positive value and the largest; (False, nan, nan) where no value is
-    finite (no range is made up: the caption says so)."""
-    finite = values[np.isfinite(values)]
-    if finite.size == 0:
-        return False, float("nan"), float("nan")
-    pos = finite[finite > 0]
-    spread = np.log10(np.percentile(pos, 95) / np.percentile(pos, 5)) if pos.size else 0.0
-    if may_log and finite.min() >= 0 and spread > LOG_DECADES:
-        return True, float(pos.min()), float(pos.max())
-    return False, float(finite.min()), float(finite.max())
-
-
-#: texels (thumbnail blocks) holding a value that is not finite are drawn in this colour
-NOT_FINITE_RGB = (1.0, 0.0, 1.0)
-
-
-def normalise(values, log, vmin, vmax):
-    """Values -> [0, 1] on the group's scale (0 for texels at or below the log range)."""
-    with np.errstate(divide="ignore", invalid="ignore"):
-        if log:
-            t = (np.log10(np.maximum(values, vmin)) - np.log10(vmin)) / np.log10(vmax / vmin)
-            t = np.where(values > 0, t, 0.0)
-        else:
-            # a constant group is shown mid-grey (its caption says it is constant)
-            t = (values - vmin) / (vmax - vmin) if vmax > vmin else np.full_like(values, 0.5)
-    return np.clip(np.nan_to_num(t, nan=0.0), 0.0, 1.0)
+def displayed_colour(path, px, names, alpha, header) -> tuple:
+    """(pixels whose colour channels are decoded into DISPLAY_LINEAR as the tools read them,
+    what was done for the caption or None): a file's colour channels (``classify_channels``;
+    of an output of ours only its colour, convert's ``colour`` layer or a blur's exitance,
+    never its coefficients); a declaration the config cannot follow is shown as stored and
+    said."""
+    colour, _, _ = classify_channels(names, alpha)
+    if header.get("bdipole:version") is not None:
+        colour = [i for i in colour if layer_of(names[i]) in ("", COLOUR_LAYERS[0])]
+    if not colour:
+        return px, None
+    reader = Reader(path, "preview")
+    try:
+        route = reader.colour("auto", DISPLAY_LINEAR)
+    except TextureError as exc:
+        return px, f"colour shown as stored: {exc}"
+    finally:
+        reader.close()
+    if route.identity:
+        return px, None
+    out = px.copy()
+    out[..., colour] = route.convert(px[..., colour], [names[i] for i in colour])
+    return out, f"colour {route.describe()}"
 
 
 def thumbnail(px, group):
@@ -208,15 +188,6 @@ def thumbnail(px, group):
     varies = any(finite_spread(ch) for ch in np.moveaxis(group_px, -1, 0))
     not_finite = int(np.count_nonzero(~np.all(np.isfinite(group_px), axis=-1)))
     return rgb, log, vmin, vmax, varies, not_finite
-
-
-def finite_spread(channel) -> bool:
-    """Whether a channel's finite values are not all one value (False where none is)."""
-    finite = np.isfinite(channel)
-    if not finite.any():
-        return False
-    return bool(np.min(channel, where=finite, initial=np.inf)
-                != np.max(channel, where=finite, initial=-np.inf))
 
 
 def plain(text: str) -> str:
@@ -390,6 +361,7 @@ def contact_sheet(path, output=None, *, title=None, force=False) -> ContactSheet
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
     px, names, alpha, header = read_image(path)
+    px, decoded = displayed_colour(path, px, names, alpha, header)
     groups = channel_groups(names, alpha, header)
     cols = min(len(groups), 3)
     rows = -(-len(groups) // cols)
@@ -398,7 +370,7 @@ def contact_sheet(path, output=None, *, title=None, force=False) -> ContactSheet
     bottom = 0.45 / fig.get_figheight()
     fig.text(0.5, 1.0 - 0.22 / fig.get_figheight(), plain(title or Path(path).name), ha="center",
              va="center", fontsize=11, weight="bold")
-    caption = caption_text(header)
+    caption = caption_text(header) + (f"   {decoded}" if decoded else "")
     fig.text(0.5, 0.22 / fig.get_figheight(), plain(_wrap(caption, 40 * cols)), ha="center",
              va="center", fontsize=8)
     drawn = []

@@ -242,13 +242,14 @@ def material_specs(scene, name, inputs=None):
             continue
         mask_path = companion_path(m.mask, path, tile) if m.mask not in (None, "alpha") else None
         px, keep, names, *_ = read_albedo(path, m.mask, mask_path, m.colorspace,
-                                          resolve_working_space(m.working_space))
+                                          resolve_working_space(m.working_space),
+                                          m.albedo_layer)
         inputs += [p for p in (path, mask_path) if p]
         keep = np.ones(px.shape[:2], bool) if keep is None else keep
         albedos.append(px[keep])
         if isinstance(m.mfp, str):
             inputs.append(companion_path(m.mfp, path, tile))
-            mfp = read_parameter_texture(inputs[-1], "mfp")
+            mfp = read_parameter_texture(inputs[-1], "mfp", role="mfp", layer=m.mfp_layer)
             mfps.append(np.broadcast_to(mfp, px.shape[:2] + (mfp.shape[-1],))[keep])
     if not albedos:
         raise ValueError(f"material {name!r}: no albedo file matches {m.albedo}")

@@ -217,9 +217,10 @@ def verdict_key(device, kernels_digest: str) -> str:
 
 #: the verdicts' folder in the user's cache folder, and their file names (a key's 20 hex digits)
 VERDICT_FOLDER = "probes"
-#: (a verdict, the lock of the process probing it, and the folder of its programs' guarded
-#: builds, ``guard``)
-VERDICT_NAME = re.compile(r"^[0-9a-f]{20}\.(json|lock|builds)$")
+#: (a verdict, and the lock of the process probing it)
+VERDICT_NAME = re.compile(r"^[0-9a-f]{20}\.(json|lock)$")
+#: the folder of a device's guarded builds' records beside its verdict (``guard``)
+BUILDS_NAME = re.compile(r"^[0-9a-f]{20}\.builds$")
 
 
 def verdict_dir() -> Path:

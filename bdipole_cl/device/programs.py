@@ -4,9 +4,11 @@ A kernel's source is the generated parameter layout (``layout.header``), then th
 header kernels/bdipole.h, then ``kernels/<name>.cl``, joined as text (no ``#include``: PoCL
 compiles from a temporary file, so relative include paths break), with ``#line`` markers so
 that compiler messages point at the right file. Build options specialize it; every option is
-``-DBD_<NAME>`` (kernels/bdipole.h lists them). A program is built in a child process first,
-once per device (``guard``: a compiler crash costs the program, not the process), then here,
-once per context, source name and options, in a cache bounded by the programs' binary sizes
+``-DBD_<NAME>`` (kernels/bdipole.h lists them), but for the runtime's numerics
+(``numerics.NUMERICS``: one registry holds their OpenCL ``-cl-*`` options and defines), which
+``get_program`` adds to every program. A program is built in a child process first, once per
+device (``guard``: a compiler crash costs the program, not the process), then here, once per
+context, source name and options, in a cache bounded by the programs' binary sizes
 (``PROGRAM_CACHE_BYTES``), and dropped by ``bdipole_cl.clear_caches()``.
 """
 from __future__ import annotations
@@ -20,6 +22,7 @@ from ..physics.models import MODEL
 from . import layout
 from .guard import checked_build
 from .isolation import config_name
+from .numerics import numerics_options
 from .sources import HEADER, kernel_dir, kernels_digest  # noqa: F401 (kernels_digest: the
 #                                                        device layer's name for it)
 from .runtime import (DeviceError, Runtime, build_quietly, device_index, in_probe_child,
@@ -70,8 +73,10 @@ def build_options(defines: dict | None = None, double: bool = False, model: str 
 
 
 def get_program(rt: Runtime, name: str, options=()) -> cl.Program:
-    """Build (once per runtime, source name and options) the program of ``kernels/<name>.cl``."""
-    key = (id(rt.context), name, tuple(options))
+    """Build (once per runtime, source name and options) the program of ``kernels/<name>.cl``,
+    with the options of ``rt``'s numerics added (``numerics.numerics_options``)."""
+    options = tuple(options) + numerics_options(rt.device, rt.numerics)
+    key = (id(rt.context), name, options)
     prg = PROGRAM_CACHE.get(key)
     if prg is None:
         if any(o == "-DBD_DOUBLE" for o in options) and not rt.has_fp64:

@@ -27,10 +27,11 @@ import contextlib
 import os
 import threading
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 
 from . import icd, isolation
+from .numerics import DEVICE_NUMERICS, NUMERICS, Numerics
 from .sources import kernels_digest
 
 icd.register_environment_runtimes()   # before pyopencl's first platform query
@@ -55,10 +56,12 @@ class DeviceError(RuntimeError):
 
 @dataclass(frozen=True)
 class Runtime:
-    """One OpenCL context, its queue and device."""
+    """One OpenCL context, its queue and device, and the float32 arithmetic its programs are
+    built for (``numerics``: the device's own unless ``with_numerics`` asked for another)."""
 
     context: cl.Context
     queue: cl.CommandQueue
+    numerics: Numerics = DEVICE_NUMERICS
 
     @property
     def device(self) -> cl.Device:
@@ -68,9 +71,17 @@ class Runtime:
     def has_fp64(self) -> bool:
         return device_has_fp64(self.device)
 
+    def with_numerics(self, name: str) -> "Runtime":
+        """This context and queue, its programs built for the arithmetic ``name`` names
+        (``numerics.NUMERICS``: "gpu" makes a CPU runtime flush subnormals and round sqrt and
+        division as inexactly as OpenCL allows, as a GPU may)."""
+        return replace(self, numerics=NUMERICS[name])
+
     def describe(self) -> str:
         d = self.device
-        return f"{d.name.strip()} ({d.platform.name.strip()}, {d.version.strip()})"
+        arithmetic = ("" if self.numerics is DEVICE_NUMERICS
+                      else f", numerics {self.numerics.name}")
+        return f"{d.name.strip()} ({d.platform.name.strip()}, {d.version.strip()}{arithmetic})"
 
 
 @dataclass(frozen=True)

@@ -2,6 +2,8 @@
 ``classify_channels``, and the colour models that are not linear RGB (``NOT_RGB``)."""
 from __future__ import annotations
 
+from ..methods.registry import OUTPUTS
+
 COLOUR_NAMES = ("r", "g", "b", "y", "red", "green", "blue", "l", "gray", "grey")
 #: the grey names among them: a grey channel beside R, G and B (an EXR's extra luminance) is
 #: left out, not inverted as a fourth colour
@@ -15,22 +17,44 @@ ALPHA_NAMES = ("a", "alpha")
 VECTOR_NAMES = ("x", "y", "z", "w")
 
 
+#: the layers of a ``convert`` output: the target's colour and radius, or for the
+#: ``random-walk`` target the medium's sigma_a and sigma_s
+COLOUR_LAYERS, MEDIUM_LAYERS = ("colour", "radius"), ("sigma_a", "sigma_s")
+#: every layer bdipole-cl's outputs write (``invert``'s outputs, ``convert``'s)
+OWN_LAYERS = frozenset(OUTPUTS) | set(COLOUR_LAYERS) | set(MEDIUM_LAYERS)
+#: the layer of one of those outputs that holds each input role (a job's input role: the
+#: albedo or colour, the mfp or radius, blur's alpha' and sigma_t'); an output read as one of
+#: these inputs is read by its layer, never by the channels' order
+ROLE_LAYER = {"albedo": "colour", "mfp": "radius", "alpha": "alpha", "sigma_t": "sigma_t"}
+
+
+def short_name(name) -> str:
+    """A channel's name without its layer ('R' of 'colour.R'): an output's channel is named
+    ``{its layer}.{short name}``, never ``sigma_a.colour.R``."""
+    return str(name).rsplit(".", 1)[-1]
+
+
 def layer_of(name) -> str:
     """The layer of a channel name: the part before the last '.' ('' for R, G, B, A)."""
     return str(name).rsplit(".", 1)[0] if "." in str(name) else ""
 
 
-def classify_channels(names, alpha_channel=-1):
+def classify_channels(names, alpha_channel=-1, role=None, layer=None):
     """(colour, alpha, other) channel indices of a file, by name (the part after the last '.',
-    case-insensitive) and the file's declared alpha channel:
+    case-insensitive), the file's declared alpha channel, the input ``role`` it is read
+    for (a ``ROLE_LAYER`` key, or None) and the ``layer`` asked for (a MaterialX image's
+    ``layer``; None: as follows; '' the unlayered channels):
 
     - alpha: the declared alpha channel, else the first named A or alpha;
     - colour: channels named R, G, B, Y (also red, green, blue, L, gray, grey), in file order,
-      of one layer: the unlayered one (R, G, B) where it has colour, else the first layer
-      that has (``albedo.R``...): other layers (AOVs: specular.R, N.R) are left out. Y only in
-      capitals, and not in a vector's layer (a named one that holds X or Z: P.X, P.Y, P.Z;
-      the unlayered channels when one is X: X, Y, Z is a vector or CIE XYZ colour, not a
-      luminance; a lower-case y is a component too: N.y, motion.y, uv.y); a grey one only
+      of one layer: the role's layer of an output of ours (``radius.R`` for an mfp) where
+      the file has it, else the unlayered one (R, G, B) where it has colour, else the first
+      layer that has (``albedo.R``...): other layers (AOVs: specular.R, N.R) are left out. A
+      file whose layers are all our outputs' but not the role's (an inversion's ``sigma_a``
+      read as an mfp) has none: it is not that input. A ``layer`` asked for is the one read
+      (none where it has no colour). Y only in capitals, and not in a vector's layer (a
+      named one that holds X or Z: P.X, P.Y, P.Z; the unlayered channels when one is X: X,
+      Y, Z is a vector or CIE XYZ colour, not a luminance; a lower-case y is a component too: N.y, motion.y, uv.y); a grey one only
       where the layer has no R, G or B (beside them it is an extra luminance);
     - a file whose channels have none of these names but exactly one non-alpha channel: that
       channel is grey (a 1-channel file of any name; 2 channels of which one is alpha);
@@ -50,15 +74,31 @@ def classify_channels(names, alpha_channel=-1):
     rest = [i for i in range(len(names)) if i != alpha]
     colour = [i for i in rest if short[i] in COLOUR_NAMES and last[i] != "y"
               and not (short[i] in VECTOR_NAMES and layers[i] in vectors)]
-    if colour:                        # one layer: the unlayered one, else the first
-        layer = "" if any(layers[i] == "" for i in colour) else layers[colour[0]]
+    if colour:                        # one layer: the role's, the unlayered one, the first
+        held = {layers[i] for i in colour}
+        if layer is None:
+            layer = (ROLE_LAYER.get(role) if ROLE_LAYER.get(role) in held else
+                     "" if "" in held else layers[colour[0]])
+            if role in ROLE_LAYER and layer != ROLE_LAYER[role] and held <= OWN_LAYERS:
+                layer = None          # an output of ours without this role's layer: refused
         colour = [i for i in colour if layers[i] == layer]
     if any(short[i] not in GREY_NAMES for i in colour):
         colour = [i for i in colour if short[i] not in GREY_NAMES]
-    if not colour and len(rest) == 1:
+    if not colour and len(rest) == 1 and layer in (None, layers[rest[0]]):
         colour = rest
     other = [i for i in rest if i not in colour]
     return colour, alpha, other
+
+
+def role_missing(names, role) -> str | None:
+    """Why a file of channels ``names`` holds no ``role`` (an output of ours, all its layers
+    ours, none the role's), else None."""
+    layers = sorted({layer_of(n) for n in names} - {""})
+    if role not in ROLE_LAYER or not layers or not set(layers) <= OWN_LAYERS \
+            or ROLE_LAYER[role] in layers:
+        return None
+    return (f"layers {', '.join(layers)} of a bdipole-cl output: none is the "
+            f"{ROLE_LAYER[role]}.* layer that holds the {role}; give the file that has it")
 
 
 #: channel name sets that are colour models other than linear RGB: never read as R, G, B, A

@@ -28,9 +28,10 @@ import OpenImageIO as oiio
 
 from .mipmaps import (TextureBuildCancelled, TextureBuildError, build_texture,
                       texture_options, window_problem)
-from .verify import BandDigests, WriteCheckError, finite_texels, read_back, read_rows_of
+from .verify import (BandDigests, WriteCheckError, finite_texels, read_back,  # noqa: F401
+                     read_rows, read_rows_of)
 from .channels import (ALPHA_NAMES, COLOUR_NAMES, GREY_NAMES, NOT_RGB,  # noqa: F401
-                       classify_channels)
+                       classify_channels, role_missing)
 from .colour import COLOUR_ATTRIBS, colour_path, tag_output
 from .oiio_text import oiio_error
 from .partials import remove_partial_files
@@ -161,10 +162,12 @@ def integer_channels(spec) -> list:
 
 class Reader:
     """One image file open for band reads (scanline or tiled), float32 out: the first part,
-    mip level 0; multi-part and deep files are refused by name."""
+    mip level 0; multi-part and deep files are refused by name. ``role``: the input it is
+    read as (``channels.ROLE_LAYER``: albedo, mfp, alpha, sigma_t), which picks the layer of
+    an output of ours that holds it; ``layer``: the one asked for (a material's)."""
 
-    def __init__(self, path, what):
-        self.path = path
+    def __init__(self, path, what, role=None, layer=None):
+        self.path, self.what, self.role, self.layer = path, what, role, layer
         self.inp = None
         check_regular_file(path, what)
         self.inp = oiio.ImageInput.open(oiio_path(path), open_config())
@@ -200,7 +203,13 @@ class Reader:
                 raise TextureError(f"{self.path}: channels {', '.join(names)} are "
                                    f"{'/'.join(sorted(model))} colour, not linear RGB: "
                                    f"convert to R, G, B first")
-        colour, alpha, _ = classify_channels(names, self.spec.alpha_channel)
+        colour, alpha, _ = classify_channels(names, self.spec.alpha_channel, self.role,
+                                             self.layer)
+        if not colour and self.layer is not None:
+            raise TextureError(f"{self.path}: no colour channel in layer {self.layer!r} "
+                               f"({self.what}; its channels: {', '.join(names)})")
+        if not colour and role_missing(names, self.role):
+            raise TextureError(f"{self.path}: {role_missing(names, self.role)} ({self.what})")
         if not colour:
             raise TextureError(f"{self.path}: no colour channel among "
                                f"{', '.join(names)} (colour is R, G, B or Y, a Y not in a "
@@ -454,29 +463,13 @@ class Writer:
             pass
 
 
-
-
-def read_rows(reader, idx):
-    """Rows ``idx`` (-1: zeros) of an open image, reading each contiguous run once."""
-    spec = reader.spec
-    out = np.zeros((len(idx), spec.width, spec.nchannels), np.float32)
-    valid = np.flatnonzero(idx >= 0)
-    if valid.size:
-        lo, hi = int(idx[valid].min()), int(idx[valid].max()) + 1
-        if hi - lo <= 2 * len(idx):
-            block = reader.read_band(lo, hi)
-            out[valid] = block[idx[valid] - lo]
-        else:                                   # wrap halos: the two ends separately
-            for j in valid:
-                out[j] = reader.read_band(int(idx[j]), int(idx[j]) + 1)[0]
-    return out
-
-
-def read_parameter_texture(path, what, colour=False, colorspace="auto", working=None):
+def read_parameter_texture(path, what, colour=False, colorspace="auto", working=None,
+                           role=None, layer=None):
     """A parameter texture (albedo, mfp, alpha', sigma_t') as HxWxC float32, alpha dropped;
     ``colour`` (albedo): converted from its space (``colorspace``, else as the file declares)
-    into the working space ``working``; else read as data, as it is."""
-    reader = Reader(path, what)
+    into the working space ``working``; else read as data, as it is. ``role``, ``layer``: as
+    ``Reader``'s (an output of ours read by its layer; a material's layer)."""
+    reader = Reader(path, what, role, layer)
     try:
         cols, _ = reader.channels()
         px = reader.read_band(0, reader.spec.height)[..., cols]

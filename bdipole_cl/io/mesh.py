@@ -116,11 +116,12 @@ def usd_uv(mesh, time, name):
 
 
 def usd_mesh(prim, time=None, meters=None) -> UVMesh:
-    """The UVMesh of a UsdGeom.Mesh prim at ``time`` (a time code, None: the default), in
-    world space (its local-to-world transform at that time), in metres (``meters``: the
-    stage's metersPerUnit when None)."""
+    """The UVMesh of a UsdGeom.Mesh prim at ``time`` (a time code, a ``Usd.TimeCode``; None:
+    the default), in world space (its local-to-world transform at that time), in metres
+    (``meters``: the stage's metersPerUnit when None)."""
     from pxr import Usd, UsdGeom
-    code = Usd.TimeCode.Default() if time is None else Usd.TimeCode(float(time))
+    code = (time if isinstance(time, Usd.TimeCode) else
+            Usd.TimeCode.Default() if time is None else Usd.TimeCode(float(time)))
     mesh = UsdGeom.Mesh(prim)
     name = f"{prim.GetStage().GetRootLayer().identifier}:{prim.GetPath()}"
     if meters is None:
@@ -155,6 +156,29 @@ def usd_meshes(path, time=None, prim_path=None) -> list:
     return [usd_mesh(p, time) for p in prims]
 
 # }}}
+
+
+def mesh_faces(mesh: UVMesh, faces) -> UVMesh:
+    """The triangles of ``mesh`` that come from the source faces ``faces`` (a USD GeomSubset's
+    indices); ``faces`` None: the whole mesh."""
+    if faces is None:
+        return mesh
+    keep = np.isin(mesh.faces, np.asarray(faces, np.int64))
+    return UVMesh(mesh.name, mesh.corners[keep], mesh.uv[keep], mesh.uv_vertex[keep],
+                  mesh.faces[keep], mesh.meters_per_unit)
+
+
+def geometry_digest(meshes) -> str:
+    """A digest of what stretch maps are made of: each mesh's triangle corners (metres),
+    texture coordinates and source faces, bit for bit (not its name: a moved file is the same
+    geometry). Equal digests, equal maps."""
+    import hashlib
+    h = hashlib.blake2b(digest_size=16)
+    for mesh in meshes:
+        for a in (mesh.corners, mesh.uv, mesh.faces):
+            h.update(np.ascontiguousarray(a).tobytes())
+            h.update(str(a.shape).encode())
+    return h.hexdigest()
 
 # {{{ OBJ
 

@@ -6,9 +6,13 @@ Standard Surface; RenderMan's PxrSurface has no standard nodedef and stays in US
 Per material: a ``surfacematerial`` named as the material (its shader: the first of its
 MaterialX targets that is not ``preview``, else the preview; each other target a
 ``surfacematerial`` ``{material}_{target}``), ``image`` nodes that name the file with
-``<UDIM>``, the EXR ``layer`` and the colour space (``colorspace`` on a colour file; data is
-read through ``vector3`` / ``float`` images, which MaterialX never colour-converts), and a
-node graph ``{material}_coefficients`` with one output per baked coefficient.
+``<UDIM>`` and the colour space (``colorspace`` on a colour file; data is read through
+``vector3`` / ``float`` images, which MaterialX never colour-converts), and a node graph
+``{material}_coefficients`` with one output per baked coefficient. Every image reads a file's
+first channels, never a ``layer``: MaterialX's GLSL generator ignores ``layer`` and its OSL
+one passes it to OpenImageIO as a subimage's name, so each file an image names holds the one
+thing it reads (``networks.layer_path``). Every element has a name of its own in the document
+(materials first, as named; a node whose name is taken gets the next free one).
 """
 from __future__ import annotations
 
@@ -40,17 +44,20 @@ def input_type(category: str, name: str) -> str:
 
 
 def _image(parent, name: str, read: TextureRead, type_name: str):
-    """An ``image`` node reading ``read``: colour files of a colour input as ``color3`` with
-    their ``colorspace``; data as ``vector3`` (or ``float``): never colour-converted."""
+    """An ``image`` node reading ``read`` (a file whose first channels it reads: ValueError
+    for a layer further in, which no generator reads): colour files of a colour input as
+    ``color3`` with their ``colorspace``; data as ``vector3`` (or ``float``): never
+    colour-converted."""
+    if read.first_channel:
+        raise ValueError(f"{read.file}: an image node reads a file's first channels, not "
+                         f"layer {read.layer!r} from channel {read.first_channel}")
     if read.is_data and type_name == "color3":
         type_name = "vector3"
-    node = parent.addNode("image", name, type_name)
+    node = parent.addNode("image", parent.createValidChildName(name), type_name)
     file = node.addInput("file", "filename")
     file.setValueString(read.file)
     if type_name.startswith("color") and read.colorspace not in ("auto", "raw"):
         file.setColorSpace(space_name(read.colorspace, MTLX_SPACES))
-    if read.layer:
-        node.setInputValue("layer", read.layer, "string")
     return node
 
 
@@ -58,17 +65,19 @@ def _connect(inp, node, want: str):
     """Connect ``inp`` to ``node``, through a ``convert`` where a data image (vector3) feeds a
     colour input."""
     if node.getType() != want:
-        conv = node.getParent().addNode("convert", f"{node.getName()}_{want}", want)
+        parent = node.getParent()
+        conv = parent.addNode("convert", parent.createValidChildName(
+            f"{node.getName()}_{want}"), want)
         conv.addInput("in", node.getType()).setConnectedNode(node)
         node = conv
     inp.setConnectedNode(node)
 
 
-def add_network(doc, name: str, network: Network, material_name: str):
-    """The target's shader node for one material and its surfacematerial."""
+def add_network(doc, name: str, network: Network, material):
+    """The target's shader node for one material, connected to its ``material`` node."""
     category = CATEGORY[network.target.name]
-    shader = doc.addNode(category, f"{name}_{network.target.name.replace('-', '_')}",
-                         "surfaceshader")
+    shader = doc.addNode(category, doc.createValidChildName(
+        f"{name}_{network.target.name.replace('-', '_')}"), "surfaceshader")
     for key, value in network.inputs.items():
         type_name = input_type(category, key)
         inp = shader.addInput(key, type_name)
@@ -81,14 +90,14 @@ def add_network(doc, name: str, network: Network, material_name: str):
             inp.setValue(int(value[0]))
         else:
             inp.setValue(float(value[0]))
-    doc.addMaterialNode(material_name, shader)
+    material.addInput("surfaceshader", "surfaceshader").setConnectedNode(shader)
 
 
 def add_coefficients(doc, name: str, reads):
     """``{name}_coefficients``: one output per baked coefficient, each an image of its layer."""
     if not reads:
         return
-    graph = doc.addNodeGraph(f"{name}_coefficients")
+    graph = doc.addNodeGraph(doc.createValidChildName(f"{name}_coefficients"))
     for read in reads:
         type_name = "vector3" if read.channels >= 3 else "float"
         node = _image(graph, f"{read.role}_image", read, type_name)
@@ -100,12 +109,19 @@ def document_text(materials, comment: str) -> str:
     MaterialX target's material and the coefficients graph; ``comment`` its first line."""
     doc = mx.createDocument()
     doc.addChildOfCategory("comment").setDocString(comment)
-    for name, networks, reads in materials:
-        ident = valid_identifier(name)
+    # the materials' names first: each its material's own, before any node could take it
+    chosen = []                     # per material: (ident, [(network, is its main)])
+    for name, networks, _ in materials:
         mtlx = [n for n in networks if n.target.mtlx]
-        main = next((n for n in mtlx if n.target.name != "preview"), mtlx[0] if mtlx else None)
-        for network in mtlx:
-            add_network(doc, ident, network, ident if network is main else
-                        f"{ident}_{network.target.name.replace('-', '_')}")
-        add_coefficients(doc, ident, reads)
+        main = next((i for i, n in enumerate(mtlx) if n.target.name != "preview"), 0)
+        chosen.append((valid_identifier(name), [(n, i == main) for i, n in enumerate(mtlx)]))
+    wired = [(ident, n, doc.addMaterialNode(doc.createValidChildName(ident)))
+             for ident, nets in chosen for n, main in nets if main]
+    wired += [(ident, n, doc.addMaterialNode(doc.createValidChildName(
+        f"{ident}_{n.target.name.replace('-', '_')}")))
+        for ident, nets in chosen for n, main in nets if not main]
+    for ident, network, material in wired:
+        add_network(doc, ident, network, material)
+    for name, _, reads in materials:
+        add_coefficients(doc, valid_identifier(name), reads)
     return mx.writeToXmlString(doc)

@@ -16,7 +16,7 @@ from __future__ import annotations
 import glob
 import math
 import os
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 
 from . import tiles, usdz
 from ..physics.conventions import CONVENTION
@@ -63,6 +63,23 @@ class Network:
         return tuple(v for v in self.inputs.values() if isinstance(v, TextureRead))
 
 
+def network_record(network: Network) -> dict:
+    """``network`` as plain data (JSON, a layer's customLayerData): what ``network_of`` reads
+    back."""
+    return {"target": network.target.name, "material": network.material,
+            "inputs": {k: ({"texture": asdict(v)} if isinstance(v, TextureRead) else
+                           [float(x) for x in v]) for k, v in network.inputs.items()},
+            "notes": list(network.notes)}
+
+
+def network_of(record: dict) -> Network:
+    """The Network of a ``network_record`` (KeyError, TypeError, ValueError on another)."""
+    return Network(TARGET[record["target"]], str(record["material"]),
+                   {k: (TextureRead(**v["texture"]) if isinstance(v, dict) else
+                        tuple(float(x) for x in v)) for k, v in record["inputs"].items()},
+                   tuple(record.get("notes", ())))
+
+
 @dataclass(frozen=True)
 class BakedMaterial:
     """What a bake knows of one baked material, as networks need it. Paths are absolute
@@ -87,6 +104,8 @@ class BakedMaterial:
     first_channel: dict = field(default_factory=dict)
     maps: dict | None = None         # {convention: the manifest's maps entry}; absent: planned
     working_space: str = "auto"      # the colour maps' space (the bake's working space)
+    layers: dict = field(default_factory=dict)   # {"albedo"/"mfp": (the EXR layer read, its
+    #                                              first channel in the file)}
 
     @property
     def unit_m(self) -> float:
@@ -186,15 +205,32 @@ def one_eta(b: BakedMaterial) -> float:
     return float(b.eta[0])
 
 
+def painted_read(b: BakedMaterial, role: str, path: str, space: str, folder: str):
+    """A TextureRead of a painted texture (``role``: albedo, mfp), its layer's first channel
+    where the material reads a layer."""
+    layer, first = b.layers.get(role, (None, 0))
+    return TextureRead(role, relative_file(path, folder), space, layer, first)
+
+
 def albedo_input(b: BakedMaterial, folder: str):
     if isinstance(b.albedo, str):
-        return TextureRead("albedo", relative_file(b.albedo, folder), texture_space(
-            b.colorspace))
+        return painted_read(b, "albedo", b.albedo, texture_space(b.colorspace), folder)
     return colour(b.albedo)
+
+
+def first_channels(read) -> None:
+    """NotWritten where ``read`` is a layer that does not start at the file's first channel:
+    UsdUVTexture and MaterialX's image nodes read a file's first channels (MaterialX's GLSL
+    generator ignores ``layer``, its OSL one takes it for a subimage's name)."""
+    if isinstance(read, TextureRead) and read.first_channel:
+        raise NotWritten(f"its {read.role} is layer {read.layer!r} of {read.file}, from "
+                         f"channel {read.first_channel}: this target's texture node reads a "
+                         f"file's first channels (RenderMan's PxrTexture reads the layer)")
 
 
 def preview_network(target, b: BakedMaterial, folder) -> Network:
     """UsdPreviewSurface: the painted albedo as the diffuse colour (it has no subsurface)."""
+    first_channels(albedo_input(b, folder))
     return Network(target, b.name, {"diffuseColor": albedo_input(b, folder),
                                     "ior": (one_eta(b),)},
                    ("UsdPreviewSurface has no subsurface: the albedo is shown as its diffuse "
@@ -250,7 +286,7 @@ def pxrsurface_network(target, b: BakedMaterial, folder) -> Network:
             raise NotWritten(f"the dmfp texture has a scale per channel "
                              f"({', '.join(f'{s:g}' for s in scale)}); subsurfaceDmfp is one "
                              f"number")
-        inputs["subsurfaceDmfpColor"] = TextureRead("mfp", relative_file(b.mfp, folder), "raw")
+        inputs["subsurfaceDmfpColor"] = painted_read(b, "mfp", b.mfp, "raw", folder)
         inputs["subsurfaceDmfp"] = (scale[0],)
     else:
         mfp = colour(b.mfp)
@@ -302,15 +338,22 @@ def networks(b: BakedMaterial, folder: str) -> tuple:
     return written, why
 
 
+def layer_path(path: str, layer: str) -> str:
+    """The file (or pattern) of one layer of an output of ours that holds several (``layer``
+    of ``skin.<UDIM>.exr`` is ``skin.<UDIM>.{layer}.exr``): its channels alone, first, for
+    the texture nodes that read a file's first channels (``jobs.layer_files`` writes it)."""
+    return f"{path[:-4]}.{layer}.exr"
+
+
 def coefficient_reads(b: BakedMaterial, folder: str) -> tuple:
-    """A TextureRead of each output of a textured material (its layer of the coefficient
-    files, data), () for a constant one or an output pattern USD cannot resolve."""
+    """A TextureRead of each output of a textured material (its own file of that layer of the
+    coefficient files, data), () for a constant one or an output pattern USD cannot
+    resolve."""
     if b.output is None:
         return ()
     try:
-        file = relative_file(b.output, folder)
+        return tuple(TextureRead(o, relative_file(layer_path(b.output, o), folder), "raw",
+                                 None, 0, len(b.channels.get(o, ())) or 3)
+                     for o in b.outputs if b.channels.get(o))
     except NotWritten:
         return ()
-    return tuple(TextureRead(o, file, "raw", o, b.first_channel.get(o, 0),
-                             len(b.channels.get(o, ())) or 3)
-                 for o in b.outputs if b.channels.get(o))

@@ -22,8 +22,8 @@
     name = "skin_tsd"
     material = "skin"
     irradiance = "light/skin_irr.<UDIM>.exr"
-    texel_size = 0.05
-    output = "out/skin_exitance.<UDIM>.exr"
+    texel_size = 0.05                 # or stretch = "bound" (a stage's material: the meshes
+    output = "out/skin_exitance.<UDIM>.exr"   # it is bound to), a mesh file, stretch maps
 
     materials_from = "asset.usda"     # optional: a USD stage or MaterialX document's
                                       # subsurface materials; a [[material]] of the same
@@ -37,7 +37,7 @@ Every error is one line naming the file, the line, the key and what is allowed
 from __future__ import annotations
 
 import re
-from dataclasses import dataclass, replace
+from dataclasses import replace
 from pathlib import Path
 
 
@@ -46,174 +46,20 @@ try:
 except ImportError:  # pragma: no cover - Python 3.10
     import tomli as tomllib
 
-from ..errors import POLICY
-from ..methods.registry import (BLUR_METHOD, BORDER, METHOD_OR_AUTO, MFP_KIND, OUTPUTS,
-                                TEXTURE_RESIZE, TEXTURE_WRAP)
-from ..ops.blur.params import CONSTANT_RULES
 from ..physics.models import MODEL
 from .colour import resolve_colorspace, resolve_working_space
-from .targets import TARGET, parse_targets
-from .mipmaps import MAX_TILE, TextureOptions, scene_texture
-from .scene_values import (as_list, check_material_eta, check_scaled_mfp, floats, mfp_constants,
-                           number, numbers_or_number, positive)
+from .targets import parse_targets
+from .mipmaps import scene_texture
+from .scene_keys import (DEFAULT_TOL, DEFAULTS, KEYS, REQUIRED, STAGE_SUFFIXES,  # noqa: F401
+                         UNIT_METERS, blur_lengths)     # (KEYS ... UNIT_METERS: read from here)
+from .scene_types import Blur, ImportedMaterial, Material, SceneData  # noqa: F401
+from .scene_values import as_list, check_material_eta, check_scaled_mfp, floats
 
 
 class SceneError(ValueError):
     """A scene file that cannot be used: one line with the file, line, key and what is allowed."""
 
 
-#: each key: (kinds it belongs to, check, what is allowed)
-KEYS = {
-    "name": ({"material", "blur"}, lambda v: isinstance(v, str) and v, "a non-empty string"),
-    "albedo": ({"material"}, lambda v: (isinstance(v, str) and v) or numbers_or_number(v),
-               "a texture path or pattern, or constants (a number or one per channel)"),
-    "mfp": ({"material"}, lambda v: mfp_constants(v) or (isinstance(v, str) and v),
-            f"a number in {CONSTANT_RULES['mfp'][0]}, a list of one per channel, or a texture "
-            f"path"),
-    "mfp_kind": ({"material"}, lambda v: v in MFP_KIND, MFP_KIND.listing('"')),
-    "mfp_scale": ({"material"}, lambda v: numbers_or_number(v) and min(as_list(v)) > 0,
-                  "a number > 0 or one per channel"),
-    "eta": ({"material"}, lambda v: numbers_or_number(v), "a number or one per channel"),
-    "outputs": ({"material"}, lambda v: isinstance(v, list) and v and set(v) <= set(OUTPUTS)
-                and len(set(v)) == len(v), f"a list from {', '.join(OUTPUTS)}, each once"),
-    "output": ({"material", "blur"}, lambda v: isinstance(v, str) and v.endswith(".exr"),
-               "an .exr path or pattern (a .tx/TIFF texture drops the channel names: "
-               "texture = true writes tiled, mip-mapped EXRs)"),
-    "mask": ({"material", "blur"}, lambda v: isinstance(v, str) and v,
-             "\"alpha\" or a texture path"),
-    "half": ({"material", "blur"}, lambda v: isinstance(v, bool), "true or false"),
-    "texture": ({"material", "blur"}, lambda v: isinstance(v, bool),
-                "true (tiled, mip-mapped EXR textures) or false"),
-    "texture_wrap": ({"material", "blur"}, lambda v: v in TEXTURE_WRAP,
-                     TEXTURE_WRAP.listing('"') + " (implies texture = true)"),
-    "texture_tile": ({"material", "blur"},
-                     lambda v: isinstance(v, int) and not isinstance(v, bool)
-                     and 1 <= v <= MAX_TILE,
-                     f"a whole number of texels in 1..{MAX_TILE} (implies texture = true)"),
-    "texture_resize": ({"material", "blur"}, lambda v: v in TEXTURE_RESIZE,
-                       TEXTURE_RESIZE.listing('"') + " (implies texture = true)"),
-    "unit": ({"material", "blur"}, lambda v: isinstance(v, str) and v, "a unit name"),
-    "tol": ({"material", "blur"}, lambda v: number(v) and 0 < v < 1, "a number in (0, 1)"),
-    "model": ({"material"}, lambda v: v in MODEL, MODEL.listing('"')),
-    "method": ({"material"}, lambda v: v in METHOD_OR_AUTO,
-               f"one of {', '.join(METHOD_OR_AUTO.names)}"),
-    "blur_method": ({"blur"}, lambda v: v in BLUR_METHOD,
-                    f"one of {', '.join(BLUR_METHOD.names)}"),
-    "border": ({"blur"}, lambda v: v in BORDER, f"one of {', '.join(BORDER.names)}"),
-    "exact": ({"material"}, lambda v: isinstance(v, bool), "true or false"),
-    "double": ({"material"}, lambda v: isinstance(v, bool), "true or false"),
-    "on_invalid": ({"material", "blur"}, lambda v: v in POLICY, POLICY.listing()),
-    "colorspace": ({"material", "blur"}, lambda v: isinstance(v, str) and v,
-                   "auto or a colour space of the OCIO config"),
-    "working_space": ({"material", "blur"}, lambda v: isinstance(v, str) and v,
-                      "a scene-linear colour space of the OCIO config"),
-    "material": ({"blur"}, lambda v: isinstance(v, str) and v, "a material's name"),
-    "irradiance": ({"blur"}, lambda v: isinstance(v, str) and v, "a texture path or pattern"),
-    "texel_size": ({"blur"}, positive, "a finite number > 0 (in the unit of mfp)"),
-    "targets": ({"material"}, lambda v: isinstance(v, list) and _targets_ok(v),
-                f"a list from {TARGET.listing(chr(34))}, one per render context"),
-}
-
-
-def _targets_ok(value) -> bool:
-    try:
-        parse_targets([str(v) for v in value])
-    except ValueError:
-        return False
-    return all(isinstance(v, str) for v in value)
-
-REQUIRED = {"material": ("name", "albedo", "output"),
-            "blur": ("name", "material", "irradiance", "texel_size", "output")}
-DEFAULTS = {"eta": 1.4, "unit": "mm", "model": "better", "mfp": 1.0, "half": False,
-            "texture": False,
-            "outputs": ["sigma_a", "sigma_s"], "method": "auto", "blur_method": "auto",
-            "border": "clamp", "exact": False, "double": False, "on_invalid": "raise",
-            "colorspace": "auto", "mfp_kind": "diffuse", "mfp_scale": 1.0}
-#: tol when neither the entry nor [defaults] gives one: the inversion's accuracy contract, the
-#: blur's usual truncation
-DEFAULT_TOL = {"material": 1e-4, "blur": 1e-3}
-
-
-@dataclass(frozen=True)
-class Material:
-    name: str
-    albedo: str | tuple              # absolute pattern, or constants (imported materials)
-    mfp: tuple | str                 # constants per channel, or an absolute texture pattern
-    eta: tuple
-    outputs: tuple
-    output: str
-    mask: str | None                 # None, "alpha" or an absolute texture pattern
-    half: bool
-    unit: str
-    tol: float
-    model: str                       # physics.models.MODEL's canonical name
-    method: str
-    exact: bool
-    double: bool
-    on_invalid: str
-    colorspace: str                  # the albedo's: "auto" or the config's name of a space
-    working_space: str | None = None  # the config's name; None: the default working space
-    mfp_kind: str = "diffuse"        # methods.registry.MFP_KIND
-    mfp_scale: tuple = (1.0,)        # multiplies the mfp (one or per channel)
-    texture: TextureOptions | None = None    # tiled, mip-mapped EXR outputs (texture_options)
-    targets: tuple = ()               # io.targets.TARGET: the material networks a bake writes
-    #                                   (a stage's or document's materials: DEFAULT_TARGETS)
-
-    @property
-    def constant(self) -> bool:
-        """No texture: the coefficients are numbers (no image is written)."""
-        return not isinstance(self.albedo, str) and not isinstance(self.mfp, str)
-
-
-@dataclass(frozen=True)
-class ImportedMaterial:
-    """A material as read from a USD stage or MaterialX document (``shaders``): where it is,
-    which shader, the scene keys it gives (``facts``; ``suggestions`` yield to [defaults]),
-    each mapped input described, and why it is left out (None: it is baked)."""
-
-    name: str
-    path: str                        # the prim path (MaterialX: UsdMtlx's path for it)
-    shader: str
-    mfp_kind: str | None
-    facts: dict
-    suggestions: dict
-    inputs: dict                     # input name -> description
-    unit_m: float                    # metres per scene unit
-    left_out: str | None = None
-    notes: tuple = ()
-    bound: bool | None = None        # bound to geometry (None: the source cannot say)
-    instanced: bool = False          # a prim of an instance's prototype (USD): no over of a
-    #                                  layer above reaches it
-
-
-@dataclass(frozen=True)
-class Blur:
-    name: str
-    material: Material
-    irradiance: str
-    texel_size: float
-    output: str
-    mask: str | None
-    half: bool
-    tol: float
-    method: str
-    border: str
-    on_invalid: str
-    colorspace: str                  # the irradiance's
-    working_space: str | None = None  # irradiance, albedo and mfp: the material's unless given
-    texture: TextureOptions | None = None
-
-
-@dataclass(frozen=True)
-class SceneData:
-    """A checked scene file: its path, materials and blurs (``bdipole_cl.jobs.scene.Scene``
-    adds planning)."""
-
-    path: Path
-    materials: tuple
-    blurs: tuple
-    source: str | None = None        # the stage or document materials come from
-    imports: tuple = ()              # ImportedMaterial, baked or left out
 
 
 def line_of(text: str, section: str | None, index: int, key: str | None) -> int:
@@ -239,12 +85,6 @@ def line_of(text: str, section: str | None, index: int, key: str | None) -> int:
     return (start or 0) + 1
 
 
-#: metres per unit (MaterialX ``distance`` unit names and their short forms)
-UNIT_METERS = {"m": 1.0, "cm": 0.01, "mm": 1e-3, "um": 1e-6, "nm": 1e-9, "km": 1e3,
-               "in": 0.0254, "ft": 0.3048, "yd": 0.9144, "mi": 1609.344,
-               "meter": 1.0, "centimeter": 0.01, "millimeter": 1e-3, "micron": 1e-6,
-               "nanometer": 1e-9, "kilometer": 1e3, "inch": 0.0254, "foot": 0.3048,
-               "yard": 0.9144, "mile": 1609.344}
 
 
 def load(path, importer=None, working_space=None) -> SceneData:
@@ -353,13 +193,17 @@ def load(path, importer=None, working_space=None) -> SceneData:
             fail("blur", i, "material", f"material '{mat.name}' has a constant albedo: a blur "
                                         f"needs an albedo texture")
         mask = resolve(b["mask"]) if "mask" in entry else mat.mask
-        blurs.append(Blur(b["name"], mat, resolve(b["irradiance"]), float(b["texel_size"]),
+        from_stage = (str(source or "").lower().endswith(STAGE_SUFFIXES)
+                      and any(imp.name == mat.name for imp in imports))
+        texel, stretch, mesh_unit = blur_lengths(fail, i, entry, defaults, b, mat, from_stage,
+                                                 resolve)
+        blurs.append(Blur(b["name"], mat, resolve(b["irradiance"]), texel,
                           resolve(b["output"]), mask, b["half"], float(b["tol"]),
                           b["blur_method"], b["border"], b["on_invalid"],
                           _colour(fail, "blur", i, entry, b, "colorspace"),
                           _colour(fail, "blur", i, entry, b, "working_space")
                           if "working_space" in entry else mat.working_space,
-                          scene_texture(b)))
+                          scene_texture(b), stretch, b["charts"], mesh_unit))
     if not materials and not blurs and not imports:
         fail(None, 0, None, "the scene has no [[material]] and no [[blur]]")
     return SceneData(path.resolve(), tuple(materials.values()), tuple(blurs), source, imports)
@@ -395,7 +239,8 @@ def _material(m, resolve, colour) -> Material:
         resolve(m.get("mask")), m["half"], m["unit"], float(m["tol"]),
         MODEL.canonical(m["model"]),
         m["method"], m["exact"], m["double"], m["on_invalid"], *colour, m["mfp_kind"],
-        floats(m["mfp_scale"]), scene_texture(m), parse_targets(m.get("targets", [])))
+        floats(m["mfp_scale"]), scene_texture(m), parse_targets(m.get("targets", [])),
+        m.get("albedo_layer"), m.get("mfp_layer"))
 
 
 def _imported(fail, index, entry, imp, defaults, resolve, working_space) -> Material:
@@ -406,8 +251,11 @@ def _imported(fail, index, entry, imp, defaults, resolve, working_space) -> Mate
         if not KEYS[key][1](value):
             fail("material", index or 0, "name",
                  f"{imp.path}: {key} = {value!r}: expected {KEYS[key][2]}")
+    # the stage's layer of its texture, not of the override's own texture
+    facts = {k: v for k, v in imp.facts.items()
+             if not (k.endswith("_layer") and k[:-len("_layer")] in entry)}
     m = _entry(fail, "material", index or 0, {"name": imp.name, **entry}, defaults,
-               below=imp.suggestions, above=imp.facts)
+               below=imp.suggestions, above=facts)
     check_material_eta(fail, index or 0, entry, m, from_stage="eta" in imp.facts)
     named = entry.get("unit", defaults.get("unit"))
     if "mfp" in entry:

@@ -40,7 +40,7 @@ import numpy as np
 
 from ..errors import one_line
 from . import tiles
-from .channels import classify_channels, layer_of
+from .channels import classify_channels
 from .images import image_header
 from .scene_file import UNIT_METERS, ImportedMaterial, SceneError
 from .targets import DEFAULT_TARGETS
@@ -176,17 +176,29 @@ def one_channel(node_type: str) -> str | None:
         else None
 
 
-def file_colour(file) -> tuple | None:
+def file_colour(file, layer=None) -> tuple | None:
     """(the colour channels a bake reads, every channel) of a texture file, names as in the
-    file (``channels.classify_channels``; a <UDIM> pattern: its first tile); None where no
-    such file can be read now."""
+    file (``channels.classify_channels``, of ``layer`` where one is named; a <UDIM> pattern:
+    its first tile); None where no such file can be read now."""
     hits = tiles.expand(file) if tiles.is_pattern(file) else [(file, None)]
     spec = image_header(hits[0][0]) if hits else None
     if spec is None:
         return None
     names = [str(n) for n in spec.channelnames]
-    colour, _, _ = classify_channels(names, spec.alpha_channel)
+    colour, _, _ = classify_channels(names, spec.alpha_channel, layer=layer)
     return [names[i] for i in colour], names
+
+
+def layer_at(file, first: int) -> str | None:
+    """The layer of ``file`` whose colour channels start at channel ``first`` (where a
+    PxrTexture's ``firstChannel`` points: ``diffuse`` of ``R, G, B, diffuse.R, ...`` at 3),
+    else None."""
+    found = file_colour(file)
+    if found is None or not 0 < first < len(found[1]):
+        return None
+    layer = found[1][first].rsplit(".", 1)[0] if "." in found[1][first] else ""
+    colour = file_colour(file, layer)[0]
+    return layer if colour and colour[0] == found[1][first] else None
 
 
 class NotBakeable(Exception):
@@ -228,26 +240,21 @@ def _distance(mapping, inputs, unit_m, where):
 
 
 def _layer_refusal(inp) -> str | None:
-    """Why the layer a texture node names (MaterialX ``layer``) is not the one a bake reads
-    (the file's unlayered colour, else its first layer: ``classify_channels``), or None."""
+    """Why the layer a texture node names (MaterialX ``layer``) cannot be baked, or None: a
+    bake reads that layer (the material's ``albedo_layer``, ``mfp_layer``), so only a file
+    that cannot be read, or has no colour channel in that layer, is refused."""
     t = inp.texture
     if not t.layer:
         return None
-    found = file_colour(t.file)
+    found = file_colour(t.file, t.layer)
     if found is None:
         return (f"{inp.name} reads layer {t.layer!r} of {t.file} ({t.node}), a file that "
                 f"cannot be read to find that layer")
     colour, names = found
-    if colour and layer_of(colour[0]) == t.layer:
+    if colour:
         return None
-    head = (f"{inp.name} reads layer {t.layer!r} of {t.file} ({t.node}), but a bake reads "
-            f"its {', '.join(colour) or 'no channel'}")
-    mine = [n for n in names if layer_of(n) == t.layer]
-    if not mine:
-        return f"{head}: it has no layer {t.layer!r} (its channels: {', '.join(names)})"
-    ch = ",".join(f"{n.rsplit('.', 1)[-1]}={n}" for n in mine[:3])
-    return (f"{head}: write that layer to a file of its own (oiiotool {t.file} --ch {ch} -o "
-            f"{t.layer}.exr) and read that")
+    return (f"{inp.name} reads layer {t.layer!r} of {t.file} ({t.node}), which has no colour "
+            f"channel in that layer (its channels: {', '.join(names)})")
 
 
 def _one_channel_refusal(inp, is_albedo) -> str | None:
@@ -262,7 +269,7 @@ def _one_channel_refusal(inp, is_albedo) -> str | None:
     if is_albedo:
         return (f"{head}: a bake reads a texture's colour channels (UsdUVTexture outputs:rgb, "
                 f"a color3 image)")
-    found = file_colour(t.file)
+    found = file_colour(t.file, t.layer)
     if found is not None and len(found[0]) == 1 and t.channel_index == 0:
         return None
     which = "R" if not t.channel_index else "RGBA"[t.channel_index]
@@ -340,7 +347,8 @@ def imported_material(name, path, shader_id, read, *, unit_m, out_dir, bound) ->
     if mapping is None:
         return ImportedMaterial(name, path, shader_id or "no surface shader", None, {}, {},
                                 {}, unit_m, f"no subsurface ({shader_id or 'no surface'}"
-                                            f" shader): left out", bound=bound)
+                                            f" shader): left out", bound=bound,
+                                subsurface=False)
     names = (mapping.weight, mapping.albedo, *mapping.distance, mapping.eta,
              *((mapping.anisotropy,) if mapping.anisotropy else ()),
              *((mapping.unit_length,) if mapping.unit_length else ()))
@@ -358,13 +366,13 @@ def imported_material(name, path, shader_id, read, *, unit_m, out_dir, bound) ->
                                 f"not bakeable: {why}", bound=bound)
     described = {n: i.describe() for n, i in inputs.items()}
 
-    def left(reason):
+    def left(reason, subsurface=True):
         return ImportedMaterial(name, path, mapping.name, mapping.mfp_kind, {}, {}, described,
-                                unit_m, reason, bound=bound)
+                                unit_m, reason, bound=bound, subsurface=subsurface)
 
     weight = inputs[mapping.weight]
     if weight.value is not None and not weight.value[0] > 0:
-        return left(f"no subsurface ({mapping.weight} = {weight.value[0]:g}): left out")
+        return left(f"no subsurface ({mapping.weight} = {weight.value[0]:g}): left out", False)
     try:
         _check_bakeable(mapping, inputs)
         mfp, scale = _distance(mapping, inputs, unit_m, f"{path}: {mapping.distance[0]}")
@@ -376,6 +384,10 @@ def imported_material(name, path, shader_id, read, *, unit_m, out_dir, bound) ->
              "mfp_kind": mapping.mfp_kind, "unit": unit_name(unit_m)}
     if albedo.texture is not None:
         facts["colorspace"] = albedo.texture.colorspace
+    distance = next((inputs[n].texture for n in mapping.distance if inputs[n].texture), None)
+    for key, texture in (("albedo_layer", albedo.texture), ("mfp_layer", distance)):
+        if texture is not None and texture.layer:
+            facts[key] = texture.layer       # the layer the node reads: the one baked
     # <UDIM> whatever the albedo's tile token: it is the one USD and MaterialX resolve, so the
     # records name the files (a <UVTILE> output's record resolved to nothing)
     tile = tiles.token_of(albedo.texture.file) if albedo.texture is not None else None

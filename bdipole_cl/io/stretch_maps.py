@@ -37,7 +37,7 @@ def chart_channel(tile: StretchTile) -> np.ndarray:
     return np.where(tile.covered, code, -code).astype(np.float32)
 
 
-def tile_spec(tile: StretchTile, source, meters_per_unit) -> oiio.ImageSpec:
+def tile_spec(tile: StretchTile, source, meters_per_unit, header=None) -> oiio.ImageSpec:
     h, w = tile.su.shape
     spec = oiio.ImageSpec(w, h, len(CHANNELS), "float")
     spec.channelnames = CHANNELS
@@ -51,19 +51,23 @@ def tile_spec(tile: StretchTile, source, meters_per_unit) -> oiio.ImageSpec:
              "stretch_flipped_triangles": tile.flipped,
              "stretch_channels": "stretch.u, stretch.v: surface length of one texel step "
                                  "along u, v; chart: chart+1 covered, -(chart+1) gutter"}
+    attrs.update(header or {})
     for key, value in attrs.items():
         spec.attribute(f"bdipole:{key}", header_text(value))
     return spec
 
 
-def write_tile(tile: StretchTile, path, source="", meters_per_unit=1.0):
-    """One tile's EXR at ``path`` (verified, renamed into place)."""
+def write_tile(tile: StretchTile, path, source="", meters_per_unit=1.0, header=None,
+               check=None):
+    """One tile's EXR at ``path`` (verified, renamed into place); ``header``: more
+    ``bdipole:*`` attributes (a scene's up-to-date key); ``check``: called just before the
+    rename (an input that changed raises: nothing written)."""
     check_output_format(path)
     px = np.stack([tile.su, tile.sv, chart_channel(tile)], axis=-1).astype(np.float32)
-    writer = Writer(path, tile_spec(tile, source, meters_per_unit))
+    writer = Writer(path, tile_spec(tile, source, meters_per_unit, header))
     try:
         writer.write_band(0, px.shape[0], px)
-        writer.commit()
+        writer.commit(check=check)
     except BaseException:
         writer.abort()
         raise

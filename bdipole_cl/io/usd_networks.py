@@ -11,7 +11,7 @@ preview            ``bdipole_preview`` (UsdPreviewSurface)      UsdUVTexture + p
 pxrsurface         ``bdipole_pxrsurface`` (PxrSurface)          PxrTexture (atlasStyle 1:
                                                                 UDIM)
 (every bake)       ``bdipole_coefficients`` (NodeGraph)         ND_image_vector3 (data)
-                                                                per output, its ``layer``
+                                                                per output, its own file
 =================  ===========================================  ==========================
 
 Inputs are authored with the types their shader declares: USD's own Sdr definitions for the
@@ -134,12 +134,11 @@ def pxr_texture(stage, base, read: TextureRead):
 
 
 def mtlx_texture(stage, base, read: TextureRead):
-    """MaterialX ``image`` (ND_image_color3) of ``read``: its file, EXR layer and colour space
-    (raw for data, which MaterialX does not convert)."""
+    """MaterialX ``image`` (ND_image_color3) of ``read``: its file and colour space (raw for
+    data, which MaterialX does not convert); the file's first channels, never a ``layer``
+    (MaterialX's generators do not read one: ``mtlx_networks``)."""
     tex = _shader(stage, f"{base}_{read.role}", "ND_image_color3")
     _file_input(tex, "ND_image_color3", "file", read)
-    if read.layer:
-        _input(tex, "ND_image_color3", "layer", read.layer)
     return _output(tex, "ND_image_color3", "out")
 
 
@@ -170,8 +169,8 @@ def author(stage, material_path: str, network: Network):
 
 def author_coefficients(stage, material_path: str, reads) -> None:
     """A NodeGraph ``bdipole_coefficients`` under the material: one MaterialX image node per
-    output (its file, ``layer`` and raw colour space), each an output of the graph, for a
-    shader of one's own to connect."""
+    output (its own file, ``networks.layer_path``, raw colour space), each an output of the
+    graph, for a shader of one's own to connect."""
     if not reads:
         return
     graph = UsdShade.NodeGraph.Define(stage, f"{material_path}/bdipole_coefficients")
@@ -179,6 +178,5 @@ def author_coefficients(stage, material_path: str, reads) -> None:
         shader_id = "ND_image_vector3" if read.channels >= 3 else "ND_image_float"
         node = _shader(stage, f"{graph.GetPath()}/{read.role}", shader_id)
         _file_input(node, shader_id, "file", read)
-        _input(node, shader_id, "layer", read.layer)
         graph.CreateOutput(read.role, sdf_type(shader_id, "out")).ConnectToSource(
             _output(node, shader_id, "out"))

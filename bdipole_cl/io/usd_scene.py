@@ -39,8 +39,8 @@ from pxr import Sdf, Usd, UsdGeom, UsdShade
 from ..errors import one_line
 from . import usdz
 from .scene_file import SceneError
-from .shaders import (TEXTURE_NODES, Input, Texture, imported_material, one_channel,
-                      shader_mapping, unique_names)
+from .shaders import (TEXTURE_NODES, Input, Texture, imported_material, layer_at,
+                      one_channel, shader_mapping, unique_names)
 
 #: render contexts searched for a material's surface, in order (then any other one)
 CONTEXTS = ("mtlx", "ri", "arnold", "")
@@ -253,7 +253,10 @@ def _texture(shader, node_kind: str, output: str = "rgb",
     index = CHANNEL_OUTPUTS.get(output)
     channel = None if index is None else f"outputs:{output}"
     first = int(_token(shader, "firstChannel", time, 0)) if node_kind == "PxrTexture" else 0
-    if first:                   # a PxrTexture reading from another channel than R: refused
+    layer = layer_at(path, first) if first and index is None else None
+    if layer is not None:       # its rgb from the first channel of a layer: that layer
+        return Texture(path, space, where, scale, bias, layer=layer)
+    if first:                   # from another channel than a layer's first: refused
         index = first + (index or 0)
         channel = f"outputs:{output} from firstChannel {first}"
     return Texture(path, space, where, scale, bias, channel, index)

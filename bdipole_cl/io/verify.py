@@ -180,3 +180,19 @@ def is_complete(path, rows=64) -> bool:
         return True
     finally:
         inp.close()
+
+
+def read_rows(reader, idx):
+    """Rows ``idx`` (-1: zeros) of an open image, reading each contiguous run once."""
+    spec = reader.spec
+    out = np.zeros((len(idx), spec.width, spec.nchannels), np.float32)
+    valid = np.flatnonzero(idx >= 0)
+    if valid.size:
+        lo, hi = int(idx[valid].min()), int(idx[valid].max()) + 1
+        if hi - lo <= 2 * len(idx):
+            block = reader.read_band(lo, hi)
+            out[valid] = block[idx[valid] - lo]
+        else:                                   # wrap halos: the two ends separately
+            for j in valid:
+                out[j] = reader.read_band(int(idx[j]), int(idx[j]) + 1)[0]
+    return out

@@ -30,6 +30,7 @@ from ..signals import Stopped
 from .pipeline import stream_bands
 from .results import FileResult
 from .scene_stats import read_albedo
+from .stretch_file import scene_stretch
 
 #: working set per row of a streamed band, in floats per texel and channel of the file: the
 #: band as read, the colour planes, the blur's own working set (``constant_row_bytes``, which
@@ -48,19 +49,20 @@ def located(exc, path, sources, spec, idx, names=None):
     parameter's channel serves), as ``invert`` names it."""
     yy, xx, cc = exc.first_index
     row = int(idx[yy]) if exc.name == "irradiance" else yy
-    where = sources.get(exc.name, sources.get(exc.name.rstrip("'"), path))
-    names = (texture_channel_names(where) or names) if where != path else names
+    role = exc.name if exc.name in sources else exc.name.rstrip("'")
+    where = sources.get(role, path)
+    names = (texture_channel_names(where, role) or names) if where != path else names
     channel = names[min(cc, len(names) - 1)] if names and cc >= 0 else cc
     return invalid_texels(exc, where, spec.x + xx, spec.y + row, channel)
 
 
-def texture_channel_names(path) -> list | None:
-    """The colour channels' names of a parameter texture file (a one-channel map serves every
-    channel: its one name), None where ``path`` is no image file."""
+def texture_channel_names(path, role=None) -> list | None:
+    """The colour channels' names of a parameter texture file read as ``role`` (a one-channel
+    map serves every channel: its one name), None where ``path`` is no image file."""
     header = image_header(path) if isinstance(path, (str, Path)) else None
     if header is None:
         return None
-    colour, _, _ = classify_channels(header.channelnames, header.alpha_channel)
+    colour, _, _ = classify_channels(header.channelnames, header.alpha_channel, role)
     return [header.channelnames[c] for c in colour] or None
 
 
@@ -299,7 +301,7 @@ def check_windows(job):
     try:
         for role, p in job.inputs.items():
             if role != "irradiance":
-                other = Reader(p, role)
+                other = Reader(p, role, role=role)
                 try:
                     check_same_window(r.spec, other.spec, job.source, role, p)
                 finally:
@@ -312,21 +314,25 @@ def check_windows(job):
 def material_scattering(job, runtime):
     """A scene blur's parameters from its material (``BlurWork.material``): the albedo file
     read into the working space, the mfp texture or constants, masked texels filled; an
-    extinction mfp as alpha' and sigma_t' = 1/mfp. (Scattering, mask or None, header)."""
+    extinction mfp as alpha' and sigma_t' = 1/mfp; the job's "stretch" maps, if any, in the
+    material's unit. (Scattering, mask or None, header)."""
     w, m = job.work, job.work.material
     albedo, keep, *_, route = read_albedo(job.inputs["albedo"], w.mask, job.inputs.get("mask"),
-                                          m.colorspace, w.working)
-    mfp = (read_parameter_texture(job.inputs["mfp"], "mfp") if "mfp" in job.inputs
-           else np.asarray(m.mfp)) * np.asarray(m.mfp_scale, np.float32)
+                                          m.colorspace, w.working, m.albedo_layer)
+    mfp = (read_parameter_texture(job.inputs["mfp"], "mfp", role="mfp", layer=m.mfp_layer)
+           if "mfp" in job.inputs else np.asarray(m.mfp)) * np.asarray(m.mfp_scale, np.float32)
     albedo = masked_parameter(albedo, keep)
     if np.ndim(mfp) >= 2:
         mfp = masked_parameter(mfp, keep)
+    # a stretch job's maps, or the user's, in the material's unit (the mfp's)
+    stretch = scene_stretch(job.inputs["stretch"], m.unit) if "stretch" in job.inputs else None
+    texel = 1.0 if w.texel_size is None else w.texel_size    # (unused with a stretch)
     if m.mfp_kind == "diffuse":
-        scattering = Scattering(albedo, mfp, m.eta, w.texel_size)
+        scattering = Scattering(albedo, mfp, m.eta, texel, stretch=stretch)
     else:
         alpha_prime = invert_albedo(albedo, m.eta if len(m.eta) > 1 else m.eta[0],
                                     exact=m.exact, model=m.model, device=runtime)
-        scattering = Scattering(None, None, m.eta, w.texel_size, alpha_prime, 1.0 / mfp)
+        scattering = Scattering(None, None, m.eta, texel, alpha_prime, 1.0 / mfp, stretch)
     return scattering, keep, route.header("albedo")
 
 
@@ -368,9 +374,10 @@ def run_blur(job, runtime, *, cancel=None, lock=None, progress=None) -> FileResu
     return result
 
 
-def colour_of(path, role, colorspace, working) -> str:
-    """The colour path of one file into ``working``, described (``ColourPath.describe``)."""
-    r = Reader(path, role)
+def colour_of(path, role, colorspace, working, layer=None) -> str:
+    """The colour path of one file (its ``layer``) into ``working``, described
+    (``ColourPath.describe``)."""
+    r = Reader(path, role, role=role, layer=layer)
     try:
         return r.colour(colorspace, working).describe()
     finally:

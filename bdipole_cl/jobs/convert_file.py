@@ -18,6 +18,7 @@ import numpy as np
 
 from ..errors import InvalidInputError, check_policy
 from ..io import tiles
+from ..io.channels import COLOUR_LAYERS, MEDIUM_LAYERS, short_name
 from ..io.collisions import collisions
 from ..io.colour import WorkingSpace, check_colorspace, resolve_working_space
 from ..io.freshness import InputGuard, params_digest
@@ -30,7 +31,7 @@ from ..physics.conventions import CONVENTION
 from ..physics.conversion import convert
 from ..version import __version__
 from .batch import job_claims, parse_constant
-from .invert_file import JobFiles, non_negative_albedo, open_inputs, per_channel
+from .invert_file import JobFiles, open_inputs, per_channel
 from .pipeline import stream_bands
 from .results import BatchReport, FileResult
 
@@ -71,6 +72,7 @@ class ConvertWork:
     working: WorkingSpace | None = None
     texture: TextureOptions | None = None
     header: dict = field(default_factory=dict)
+    layers: dict = field(default_factory=dict)    # as InvertWork's (none for convert)
 
 
 def convert_textures(inputs, *, radius=1.0, source="better-dipole", target="van-de-hulst",
@@ -124,22 +126,23 @@ def convert_textures(inputs, *, radius=1.0, source="better-dipole", target="van-
 
 
 #: what an output holds: the target's colour and radius, or for ``random-walk`` the medium's
-#: sigma_a and sigma_s (1/unit; its g is the header's)
-COLOUR_GROUPS, MEDIUM_GROUPS = ("colour", "radius"), ("sigma_a", "sigma_s")
+#: sigma_a and sigma_s (1/unit; its g is the header's): the layers ``channels`` reads by role
+COLOUR_GROUPS, MEDIUM_GROUPS = COLOUR_LAYERS, MEDIUM_LAYERS
 
 
 def output_groups(target) -> tuple:
     return MEDIUM_GROUPS if target == "random-walk" else COLOUR_GROUPS
 
 
-def convert_band(work, inp, route, colour_in, radius, mask, etas, job, y0):
+def convert_band(work, inp, route, colour_in, radius, etas, job, y0):
     """One band's target colour and radius (for ``random-walk``: sigma_a and sigma_s), HxWxC
-    each, and the invalid counts, per channel."""
-    colour, negative = non_negative_albedo(route.convert(colour_in, inp.names),
-                                           work.on_invalid, mask, one_valid=True)
+    each, and the invalid counts, per channel. ``convert`` is the one check of a colour
+    (below 0 after the colour conversion is outside [0, 1] there): each invalid value is
+    counted once."""
+    colour = route.convert(colour_in, inp.names)
     radius = np.broadcast_to(radius, colour.shape)
     out_c, out_r = np.empty(colour.shape, np.float32), np.empty(colour.shape, np.float32)
-    invalid = {"colour": negative, "radius": 0}
+    invalid = {"colour": 0, "radius": 0}
     raised = []                     # (y, x, channel, error): every channel is seen first
     for c, eta in enumerate(etas):
         def done_with(policy, c=c, eta=eta):
@@ -177,7 +180,7 @@ def run_convert(job, *, cancel=None) -> FileResult:
     with JobFiles(job, result) as files:
         inp = open_inputs(job, work, files.readers)
         spec = inp.albedo.spec
-        _, _, other = classify_channels(spec.channelnames, spec.alpha_channel)
+        _, _, other = classify_channels(spec.channelnames, spec.alpha_channel, "albedo")
         if other:
             result.notes.append("not colour, left out: "
                                 + ", ".join(spec.channelnames[c] for c in other))
@@ -185,7 +188,7 @@ def run_convert(job, *, cancel=None) -> FileResult:
         route = inp.albedo.colour(work.colorspace, work.working)
         result.colour = route.describe()
         groups = output_groups(work.target)
-        names = [f"{g}.{n}" for g in groups for n in inp.names]
+        names = [f"{g}.{short_name(n)}" for g in groups for n in inp.names]
         if inp.keep_alpha:
             names.append(spec.channelnames[inp.alpha])
         header = {"version": __version__, "source": work.source, "target": work.target,
@@ -203,11 +206,11 @@ def run_convert(job, *, cancel=None) -> FileResult:
                          tile_height=spec.tile_height if spec.tile_width else 0)
 
         def compute(band, data):
-            (y0, _), (a, m, mask) = band, data
+            (y0, _), (a, m, _) = band, data
             radius = (inp.mfp_const if m is None
                       else m[..., inp.mfp_channels] * np.float32(work.mfp_scale))
             out_c, out_r, invalid = convert_band(work, inp, route, a[..., inp.colour],
-                                                 radius, mask, etas, job, y0)
+                                                 radius, etas, job, y0)
             for key, n in invalid.items():
                 result.invalid[key] = result.invalid.get(key, 0) + n
             parts = [out_c, out_r] + ([a[..., inp.alpha:inp.alpha + 1]] if inp.keep_alpha

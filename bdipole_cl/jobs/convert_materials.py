@@ -1,26 +1,44 @@
-"""The materials of a ``bdipole-cl convert`` run (the jobs layer): each input texture set's
-converted ``colour.*`` / ``radius.*`` files, wired into the render targets whose convention
+"""The materials of ``bdipole-cl convert`` runs (the jobs layer): each input texture set's
+converted ``colour.*`` / ``radius.*`` file, wired into the render targets whose convention
 is the run's target (``io.targets``: van-de-hulst -> openpbr, better-dipole -> pxrsurface),
 as a UsdShade ``Material`` under ``/bdipole_materials`` of ``bdipole_convert.usda`` and the
-same network in ``bdipole_convert.mtlx``, beside the outputs (docs/materials.md). Each is
-rewritten only when its content changes, never over a file this tool did not write there.
+same network in ``bdipole_convert.mtlx``, beside the outputs (docs/materials.md).
+
+The texture nodes read each layer from a file of its own (``layer_files``:
+``skin.van-de-hulst.colour.exr``, ``.radius.exr``): MaterialX's generators read a file's
+first channels. Runs into one folder share the two files: each run's networks join those of
+the earlier runs (kept as plain data in the layer's ``customLayerData``; a run replaces only
+its own material's network of its own target), so a second run never drops the first's. The
+layer states ``metersPerUnit`` (the first run's ``--unit``; a later run's distances are
+converted into it) and ``upAxis``. Each file is rewritten only when its content changes,
+never over a file this tool did not write there.
 """
 from __future__ import annotations
 
+import json
 import os
 from pathlib import Path
 
 from ..io import tiles
-from ..io.images import image_header, is_regular_file
-from ..io.networks import BakedMaterial, NotWritten, TextureRead, networks, relative_file
+from ..io.channels import COLOUR_LAYERS
+from ..io.colour import resolve_working_space
+from ..io.images import TextureError, is_regular_file
+from ..io.networks import (BakedMaterial, NotWritten, TextureRead, layer_path, network_of,
+                           network_record, networks, relative_file)
 from ..io.scene_file import UNIT_METERS
 from ..io.targets import TARGET
+from .layer_files import layer_files
 from .results import FileResult
 from .scene_layer import FILE_MATERIALS, LAYER_MARK
 from .scene_records import own_document, write_if_changed
 
 LAYER = "bdipole_convert.usda"
 DOCUMENT = "bdipole_convert.mtlx"
+#: the layer's customLayerData key of every network it holds, as JSON: {material: {target:
+#: networks.network_record}}
+RECORDS = "bdipole_convert"
+#: the up axis the layer states (USD's fallback; the layer holds no geometry)
+UP_AXIS = "Y"
 
 
 def convention_targets(convention: str) -> tuple:
@@ -51,18 +69,18 @@ def material_name(pattern: str) -> str:
     return name.strip("._-") or "material"
 
 
-def layered(pattern: str, files: list, convention: str, working_space: str, folder: str):
-    """The manifest-like maps entry of one converted set: one file, layers colour and radius
-    (where each starts, as OpenImageIO reads the first file)."""
-    spec = image_header(files[0])
-    names = list(spec.channelnames) if spec is not None else []
-    first = {layer: next((i for i, n in enumerate(names) if n.startswith(f"{layer}.")), None)
-             for layer in ("colour", "radius")}
-    if None in first.values():
-        raise NotWritten(f"{files[0]}: no colour.* and radius.* channels")
-    file = relative_file(pattern, folder)
-    return (TextureRead("colour", file, working_space, "colour", first["colour"]),
-            TextureRead("radius", file, "raw", "radius", first["radius"]))
+def layered(pattern: str, files: list, working_space: str, folder: str, inputs, written):
+    """The (colour, radius) TextureReads of one converted set: each layer's own file beside
+    each output file (``layer_files``), named by the output's pattern."""
+    working = resolve_working_space(working_space)
+    for f in files:
+        try:
+            layer_files(f, COLOUR_LAYERS, working, written, inputs)
+        except TextureError as exc:
+            raise NotWritten(str(exc)) from None
+    return (TextureRead("colour", relative_file(layer_path(pattern, "colour"), folder),
+                        working_space),
+            TextureRead("radius", relative_file(layer_path(pattern, "radius"), folder), "raw"))
 
 
 def convert_materials(inputs, output: str, convention: str, eta, unit: str,
@@ -75,51 +93,96 @@ def convert_materials(inputs, output: str, convention: str, eta, unit: str,
     if not targets or not done:
         return []
     folder = os.path.dirname(os.path.abspath(done[0]))
-    found = []
+    if unit not in UNIT_METERS:
+        return [FileResult(os.path.join(folder, LAYER), error=f"no materials: unit {unit!r} "
+                           f"is not a length unit ({', '.join(list(UNIT_METERS)[:10])}, ...)")]
+    sources = {os.path.realpath(r.path) for r in results}
+    earlier, stage_unit_m, lost = earlier_networks(folder)
+    stage_unit_m = stage_unit_m or UNIT_METERS[unit]
+    rows, written = [], []
+    if lost:
+        rows.append(FileResult(os.path.join(folder, LAYER), os.path.join(folder, LAYER),
+                               status="ok", notes=[lost]))
     for pattern in inputs:
         out = os.path.abspath(output_pattern(output, str(pattern), convention))
         files = [f for f in done if os.path.abspath(f) == out or (
             tiles.token_of(out) and any(os.path.abspath(f) == h for h, _ in tiles.expand(out)))]
         if not files or os.path.dirname(out) != folder:
             continue
+        name = material_name(str(pattern))
         try:
-            colour, radius = layered(out, files, convention, working_space, folder)
+            colour, radius = layered(out, files, working_space, folder, sources, written)
         except NotWritten as exc:
-            found.append((material_name(str(pattern)), None, str(exc)))
+            rows.append(FileResult(name, os.path.join(folder, LAYER), status="ok",
+                                   notes=[f"no material: {exc}"]))
             continue
-        baked = BakedMaterial(material_name(str(pattern)), "", working_space, (1.0,), (1.0,),
-                              "diffuse", "better", tuple(eta), unit, UNIT_METERS[unit],
-                              targets, maps={convention: {"layers": (colour, radius)}})
-        found.append((baked.name, baked, None))
-    return write_convert_records(found, folder)
+        baked = BakedMaterial(name, "", working_space, (1.0,), (1.0,), "diffuse", "better",
+                              tuple(eta), unit, stage_unit_m, targets,
+                              maps={convention: {"layers": (colour, radius)}})
+        made, not_written = networks(baked, folder)
+        earlier.setdefault(name, {}).update({n.target.name: n for n in made})
+        rows += [FileResult(name, os.path.join(folder, LAYER), status="ok",
+                            notes=[f"{t} not written: {w}"]) for t, w in not_written.items()]
+    rows += [FileResult(p, p, status="ok", notes=["layer file"]) for p in written]
+    return rows + write_convert_records(earlier, stage_unit_m, folder)
 
 
-def write_convert_records(found, folder) -> list:
-    """The layer and document of ``found`` ([(name, BakedMaterial or None, why not)])."""
-    from pxr import Sdf, Tf, Usd, UsdShade
+def earlier_networks(folder) -> tuple:
+    """({material: {target: Network}} of the convert layer in ``folder`` (this tool's), its
+    metres per unit (None: no such layer), and what of it cannot be kept (None: all))."""
+    path = os.path.join(folder, LAYER)
+    if not (is_regular_file(path) and _own_layer(path)):
+        return {}, None, None
+    from pxr import Sdf, UsdGeom
+    layer = Sdf.Layer.OpenAsAnonymous(path)
+    unit_m = layer.pseudoRoot.GetInfo(UsdGeom.Tokens.metersPerUnit) \
+        if layer.pseudoRoot.HasInfo(UsdGeom.Tokens.metersPerUnit) else None
+    found = {}
+    try:
+        for name, by_target in json.loads(layer.customLayerData.get(RECORDS, "{}")).items():
+            found[name] = {t: network_of(r) for t, r in by_target.items()}
+    except (KeyError, TypeError, ValueError, AttributeError):
+        found = {}
+    root = layer.GetPrimAtPath(FILE_MATERIALS)
+    names = sorted(c.name for c in root.nameChildren) if root else []
+    lost = [n for n in names if n not in found]
+    note = (f"{', '.join(lost)}: written by an earlier version, without the records a "
+            f"merge needs; not kept (convert them again)") if lost else None
+    return found, (unit_m if found else None), note
+
+
+def write_convert_records(materials: dict, stage_unit_m: float, folder) -> list:
+    """The layer and document of ``materials`` ({name: {target: Network}}), metres per unit
+    ``stage_unit_m``; [FileResult] of each file written or refused."""
+    from pxr import Sdf, Tf, Usd, UsdGeom, UsdShade
 
     from ..io import usd_networks
     from ..io.mtlx_networks import document_text
     layer = Sdf.Layer.CreateAnonymous(".usda")
     layer.comment = (f"{LAYER_MARK}converted textures: their materials (docs/materials.md)")
     stage = Usd.Stage.Open(layer)
-    rows, documented = [], []
-    for name, baked, why in found:
-        if baked is None:
-            rows.append(FileResult(name, os.path.join(folder, LAYER), status="ok",
-                                   notes=[f"no material: {why}"]))
-            continue
-        written, not_written = networks(baked, folder)
-        path = f"{FILE_MATERIALS}/{Tf.MakeValidIdentifier(name)}"
+    UsdGeom.SetStageMetersPerUnit(stage, stage_unit_m)
+    UsdGeom.SetStageUpAxis(stage, UP_AXIS)
+    documented, taken = [], set()
+    for name in sorted(materials):
+        ident, k = Tf.MakeValidIdentifier(name), 1
+        while ident.casefold() in taken:      # two names one identifier (a-b, a_b)
+            k += 1
+            ident = f"{Tf.MakeValidIdentifier(name)}_{k}"
+        taken.add(ident.casefold())
+        path = f"{FILE_MATERIALS}/{ident}"
         UsdShade.Material.Define(stage, path)
-        for network in written:
+        by_target = [materials[name][t] for t in sorted(materials[name])]
+        for network in by_target:
             usd_networks.author(stage, path, network)
-        documented.append((name, written, ()))
-        rows += [FileResult(name, os.path.join(folder, LAYER), status="ok",
-                            notes=[f"{t} not written: {w}"]) for t, w in not_written.items()]
+        documented.append((name, by_target, ()))
+    layer.customLayerData = {RECORDS: json.dumps(
+        {name: {t: network_record(n) for t, n in by.items()} for name, by in materials.items()},
+        sort_keys=True)}
     texts = {os.path.join(folder, LAYER): layer.ExportToString(),
              os.path.join(folder, DOCUMENT): document_text(
                  documented, f"{LAYER_MARK}converted textures: their materials")}
+    rows = []
     for path, text in texts.items():
         if os.path.lexists(path) and not (is_regular_file(path) and own_document(path)
                                           or _own_layer(path)):

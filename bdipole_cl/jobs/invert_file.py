@@ -19,6 +19,7 @@ import numpy as np
 
 from ..errors import InvalidInputError, check_policy, find_invalid
 from ..io.freshness import InputGuard
+from ..io.channels import short_name
 from ..io.images import (Cancelled, Reader, TextureError, Writer, check_same_window,
                          classify_channels, invalid_texels, output_spec)
 from ..ops.bands import band_rows
@@ -71,7 +72,7 @@ class InvertInputs:
 def open_inputs(job, work, readers) -> InvertInputs:
     """Open the job's albedo, mfp and mask (each appended to ``readers`` as it opens, so the
     caller closes what opened) and check they fit together."""
-    alb = Reader(job.source, "albedo")
+    alb = Reader(job.source, "albedo", role="albedo", layer=work.layers.get("albedo"))
     readers.append(alb)
     colour, alpha_ch = alb.channels()
     spec = alb.spec
@@ -79,7 +80,7 @@ def open_inputs(job, work, readers) -> InvertInputs:
     mfp_reader = mfp_channels = mfp_const = mask_reader = None
     mfp_path = job.inputs.get("mfp")
     if mfp_path is not None:
-        mfp_reader = Reader(mfp_path, "mfp texture")
+        mfp_reader = Reader(mfp_path, "mfp texture", role="mfp", layer=work.layers.get("mfp"))
         readers.append(mfp_reader)
         check_same_window(spec, mfp_reader.spec, job.source, "mfp texture", mfp_path)
         mfp_channels, _ = mfp_reader.channels()
@@ -244,14 +245,15 @@ def run_invert(job, runtime, *, cancel=None, lock, progress=None) -> FileResult:
     with JobFiles(job, result) as files:
         inp = open_inputs(job, work, files.readers)
         spec = inp.albedo.spec
-        _, _, other = classify_channels(spec.channelnames, spec.alpha_channel)
+        _, _, other = classify_channels(spec.channelnames, spec.alpha_channel, "albedo",
+                                        work.layers.get("albedo"))
         if other:
             result.notes.append("not colour, left out: "
                                 + ", ".join(spec.channelnames[c] for c in other))
         etas = per_channel(work.eta, len(inp.names), "eta", job.source)
         route = inp.albedo.colour(work.colorspace, work.working)
         result.colour = route.describe()
-        out_names = [f"{o}.{n}" for o in work.outputs for n in inp.names]
+        out_names = [f"{o}.{short_name(n)}" for o in work.outputs for n in inp.names]
         if inp.keep_alpha:
             out_names.append(spec.channelnames[inp.alpha])
         out_spec = output_spec(spec, out_names, len(out_names) - 1 if inp.keep_alpha else -1,

@@ -11,9 +11,11 @@ from .invert_file import run_invert
 from .job import Job
 from .results import FileResult
 from .scene_records import run_constant
+from .stretch_file import run_stretch
 
 #: the function that runs each kind of job (job.JOB_KINDS)
-RUNNERS = {"invert": run_invert, "blur": run_blur, "constant": run_constant}
+RUNNERS = {"invert": run_invert, "blur": run_blur, "constant": run_constant,
+           "stretch": run_stretch}
 #: serialises the device work of jobs run at once in one process (their I/O overlaps)
 DEVICE_LOCK = threading.Lock()
 

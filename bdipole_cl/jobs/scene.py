@@ -21,6 +21,8 @@ computed and what is left out, and why:
   texture space do exchange light, as in any texture-space diffusion (keep islands a kernel
   radius apart, or accept the bleed);
 - **colour**: each colour input's path into the job's working space; mfp and masks as is;
+- **stretch**: a blur whose ``stretch`` is meshes has, per tile, a stretch job before it
+  that makes its maps (``scene_stretch``; up to date while the meshes' geometry is);
 - **up to date**: an output whose ``bdipole:*`` header records the same parameters digest
   (which includes the working space and the OCIO config), library version and input files
   (size and modification time, else their content digest) is not rebuilt.
@@ -29,13 +31,13 @@ from __future__ import annotations
 
 import json
 import os
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass, replace
 
 import numpy as np
 
 from ..device import get_runtime
 from ..io.collisions import Claim, collisions
-from ..io.colour import WorkingSpace, resolve_working_space
+from ..io.colour import resolve_working_space
 from ..io.freshness import header_fields, input_identities, is_up_to_date, params_digest
 from ..io.images import TextureError, check_same_window, image_header
 from ..io.mipmaps import texture_options
@@ -53,11 +55,13 @@ from . import runner
 from .blur_file import colour_of
 from .invert_file import per_channel
 from .job import BlurWork, ConstantWork, InvertWork, Job
+from .planned import PlannedJob
+from .scene_stretch import blocked, plan_stretch
 from .results import BatchReport, FileResult
+from .scene_finish import finish_bake
 from .scene_records import (LAYER, MANIFEST, coefficients_digest, constant_config,
-                            constant_text, finish_bake,
-                            foreign_records, imported_lines, mfp_text, read_manifest,
-                            record_inputs, records_dir, records_over_input,
+                            constant_text, foreign_records, imported_lines, mfp_text,
+                            read_manifest, record_inputs, records_dir, records_over_input,
                             records_refusal)
 from .scene_stats import DEFAULT_MEMORY, albedo_stats, table_for_range
 
@@ -73,35 +77,6 @@ class Scene(SceneData):
     def plan(self, force=False, device=None, max_memory=DEFAULT_MEMORY) -> Plan:
         """What a bake computes and leaves out, per job."""
         return plan(self, force=force, device=device, max_memory=max_memory)
-
-
-@dataclass
-class PlannedJob:
-    kind: str                        # "invert", "blur" or "constant" (no texture)
-    name: str                        # the material's or blur's name
-    source: str                      # the albedo (invert) or irradiance (blur) file
-    udim: str | None
-    output: str
-    inputs: dict                     # role -> file
-    computes: list = field(default_factory=list)
-    left_out: list = field(default_factory=list)
-    up_to_date: bool = False
-    problem: str | None = None       # a missing input or a collision: the job cannot run
-    params_digest: str = ""
-    config: MethodConfig | None = None
-    working: WorkingSpace | None = None   # the space its colours are converted into
-    #: role -> ``freshness.input_identity`` of each input as the plan first read it (the
-    #: bake fails the job if one differs when its output would be put in place)
-    identities: dict | None = None
-
-    def describe(self) -> str:
-        head = f"{self.kind} {self.name}" + (f" [{self.udim}]" if self.udim else "")
-        lines = [f"{head}: {self.source} -> {self.output}"]
-        if self.problem:
-            return "\n".join(lines + [f"  cannot run: {self.problem}"])
-        lines += [f"  computes: {c}" for c in self.computes]
-        lines += [f"  leaves out: {x}" for x in self.left_out]
-        return "\n".join(lines)
 
 
 @dataclass
@@ -126,7 +101,8 @@ class Plan:
                             f"{len(self.missing)} that cannot run"])
 
     def to_json(self) -> str:
-        return json.dumps([{k: v for k, v in asdict(j).items() if k not in ("config", "working", "identities")}
+        return json.dumps([{k: v for k, v in asdict(j).items()
+                            if k not in ("config", "working", "identities", "work")}
                            | {"config": j.config.describe() if j.config else None,
                               "working_space": j.working.describe() if j.working else None}
                            for j in self.jobs], indent=1)
@@ -217,7 +193,7 @@ def _plan_invert(m, path, tile, force, device, problems_all, max_memory):
         return job
     try:
         names, alpha, other, rd_range, masked, route = albedo_stats(
-            path, m.mask, inputs.get("mask"), m.colorspace, working, max_memory)
+            path, m.mask, inputs.get("mask"), m.colorspace, working, max_memory, m.albedo_layer)
     except TextureError as exc:          # this job cannot run (unreadable, or a colour space
         return _cannot_run(job, str(exc), problems_all)   # the config cannot follow); others do
     try:                                 # what the bake would refuse, refused now
@@ -269,7 +245,9 @@ def _not_converted(mask) -> str:
             + (", the mask" if mask else "") + " and alpha (data)")
 
 
-def _plan_blur(b, path, tile, force, problems_all):
+def _plan_blur(b, path, tile, force, problems_all, scene, meshes) -> list:
+    """The blur job of one irradiance tile, after the stretch job that makes its maps if
+    there is one (``scene_stretch``; ``meshes``: the plan's cache of meshes read)."""
     m = b.material
     udim = tile.label if tile else None
     out = companion_path(b.output, path, tile)
@@ -278,27 +256,41 @@ def _plan_blur(b, path, tile, force, problems_all):
     _exists("irradiance", path, problems)
     _exists("albedo", inputs["albedo"], problems)
     _textures(inputs, m, b.mask, path, tile, problems)
+    lengths = plan_stretch(scene, b, path, tile, out, force, meshes) if b.stretch else None
+    if lengths is not None:
+        inputs["stretch"] = lengths.file
+        if lengths.problem:
+            problems.append(lengths.problem)
+        elif lengths.job is None:             # the user's maps: read, so they must be there
+            _exists("stretch maps", lengths.file, problems)
+            _same_window("stretch maps", lengths.file, path, problems)
     fields = {k: v for k, v in asdict(b).items() if k not in ("name", "irradiance", "output")}
     fields["material"].pop("targets", None)
     job, todo = _new_job("blur", b.name, path, udim, out, inputs, fields, b.working_space,
-                         problems, force, problems_all)
+                         problems, force or (lengths is not None and lengths.runs),
+                         problems_all)
+    made = [lengths.job] if lengths is not None and lengths.job is not None else []
+    if made and job.identities:       # read once its job wrote it: identity taken then
+        job.identities.pop("stretch", None)
     working = job.working
     if not todo:
-        return job
+        return made + [job]
     try:
-        for role, file, space in (("irradiance", path, b.colorspace),
-                                  ("albedo", inputs["albedo"], m.colorspace)):
-            job.computes.append(f"colour: {role} {colour_of(file, role, space, working)}")
+        for role, file, space, layer in (("irradiance", path, b.colorspace, None),
+                                         ("albedo", inputs["albedo"], m.colorspace,
+                                          m.albedo_layer)):
+            job.computes.append(f"colour: {role} {colour_of(file, role, space, working, layer)}")
     except TextureError as exc:                # e.g. a space the config does not know
-        return _cannot_run(job, str(exc), problems_all)
+        return made + [_cannot_run(job, str(exc), problems_all)]
     job.left_out.append(_not_converted(b.mask))
+    size = (f"texel {b.texel_size:g} {m.unit}" if lengths is None else
+            f"in surface distance with {lengths.words}, chart borders {b.charts}")
     job.computes.append(f"exitance with the exit texel's profile from {m.name}'s albedo "
-                        f"and mfp, texel {b.texel_size:g} {m.unit}, tol {b.tol:g} "
-                        f"({b.method}, border {b.border})")
+                        f"and mfp, {size}, tol {b.tol:g} ({b.method}, border {b.border})")
     if b.mask:
         job.left_out.append("masked texels: no light from them, no exitance for them (0); "
                             "bands without light are not blurred")
-    return job
+    return made + [job]
 
 
 def usable_coefficients(values, outputs) -> bool:
@@ -338,16 +330,16 @@ def plan(scene: Scene, *, force=False, device=None, max_memory=DEFAULT_MEMORY) -
     coefficients, no image). A stop request (SIGINT/SIGTERM) raises ``Stopped`` between
     files."""
     rt = get_runtime(device)
-    jobs, problems = [], []
+    jobs, problems, meshes = [], [], {}
     textured = [m for m in scene.materials if not m.constant]
     for kind, entries in (("invert", textured), ("blur", scene.blurs)):
         for e in entries:
             for path, tile in expand_inputs([e.albedo if kind == "invert" else e.irradiance]):
                 check_stop()
                 try:
-                    jobs.append(_plan_invert(e, path, tile, force, rt, problems, max_memory)
-                                if kind == "invert" else
-                                _plan_blur(e, path, tile, force, problems))
+                    jobs += ([_plan_invert(e, path, tile, force, rt, problems, max_memory)]
+                             if kind == "invert" else
+                             _plan_blur(e, path, tile, force, problems, scene, meshes))
                 except (TextureError, TileError) as exc:   # a pattern this file cannot fill
                     role = "albedo" if kind == "invert" else "irradiance"
                     problem = (f"{role} {unmatched_pattern(path)}"
@@ -355,8 +347,10 @@ def plan(scene: Scene, *, force=False, device=None, max_memory=DEFAULT_MEMORY) -
                     jobs.append(PlannedJob(kind, e.name, path, tile.label if tile else None, "",
                                            {"source": path}, problem=problem))
                     problems.append(problem)
-    for j, clash in zip(jobs, collisions((Claim(j.source, j.output, j.inputs) for j in jobs),
-                                         force)):
+    made = {j.output for j in jobs if j.kind == "stretch"}   # a blur reads what they write
+    for j, clash in zip(jobs, collisions((Claim(j.source, j.output, {
+            r: p for r, p in j.inputs.items() if not (r == "stretch" and p in made)})
+            for j in jobs), force)):
         if clash:
             j.problem, j.up_to_date = clash, False
     folder = records_dir(scene)
@@ -376,10 +370,19 @@ def plan(scene: Scene, *, force=False, device=None, max_memory=DEFAULT_MEMORY) -
 
 # {{{ the bake
 
-def scene_job(job: PlannedJob, scene: Scene, max_memory=DEFAULT_MEMORY) -> Job:
+def layers_of(m) -> dict:
+    """{input role: the EXR layer read} of a material (its albedo_layer, mfp_layer)."""
+    return {role: layer for role, layer in (("albedo", m.albedo_layer), ("mfp", m.mfp_layer))
+            if layer is not None}
+
+
+def scene_job(job: PlannedJob, scene: Scene, max_memory=DEFAULT_MEMORY, pending=()) -> Job:
     """The runnable ``job.Job`` of a planned job (``runner.run_job`` runs it; so do Dask's
-    workers): the material's or blur's fields as the typed work."""
-    header = header_fields(job.inputs, job.params_digest)
+    workers): the material's or blur's fields as the typed work. ``pending``: files a job of
+    this bake has yet to write (stretch maps): a blur reading one gets its output header's
+    record of its inputs where it runs, after them (``scene_stretch.with_maps_header``)."""
+    header = ({} if job.inputs.get("stretch") in pending else
+              header_fields(job.inputs, job.params_digest))
     if job.kind == "invert":
         m = next(x for x in scene.materials if x.name == job.name)
         work = InvertWork(
@@ -389,14 +392,16 @@ def scene_job(job: PlannedJob, scene: Scene, max_memory=DEFAULT_MEMORY) -> Job:
             on_invalid=m.on_invalid, max_memory=max_memory, outputs=m.outputs, unit=m.unit,
             double=m.double, mask=None if not m.mask else "alpha" if m.mask == "alpha"
             else "texture", specialise=SPECIALISE, header=header | {"tol": m.tol},
-            working=job.working, texture=texture_options(m.texture))
+            working=job.working, texture=texture_options(m.texture), layers=layers_of(m))
     elif job.kind == "blur":
         b = next(x for x in scene.blurs if x.name == job.name)
         work = BlurWork(tol=b.tol, method=b.method, border=b.border, exact=b.material.exact,
                         on_invalid=b.on_invalid, half=b.half, texture=b.texture,
                         colorspace=b.colorspace, working=job.working, max_memory=max_memory,
                         header=header, material=b.material, texel_size=b.texel_size,
-                        mask=b.mask)
+                        mask=b.mask, charts=b.charts)
+    elif job.kind == "stretch":
+        work = job.work                      # the plan made it (scene_stretch.plan_stretch)
     else:
         work = ConstantWork(next(x for x in scene.materials if x.name == job.name), job.config)
     return Job(job.kind, job.source, job.output, job.inputs, work, job.udim, job.params_digest,
@@ -416,12 +421,14 @@ def not_run(job: PlannedJob) -> FileResult | None:
 def bake(plan: Plan, *, cancel=None, device=None, progress=None,
          max_memory=DEFAULT_MEMORY) -> BatchReport:
     runtime = get_runtime(device)
-    results = []
+    results, made = [], {}
     for job in plan.jobs:
-        result = not_run(job)
+        result = not_run(job) or blocked(job, made)
         if result is None:
             result = runner.run_job(scene_job(job, plan.scene, max_memory), runtime,
                                     cancel=cancel)
+        if job.kind == "stretch":
+            made[job.output] = result
         results.append(result)
         if progress is not None:
             progress(job, result)

@@ -10,6 +10,7 @@ import os
 from dataclasses import dataclass
 
 from ..io import tiles
+from ..io.channels import classify_channels
 from ..io.colour import resolve_working_space
 from ..io.images import image_header
 from ..io.networks import BakedMaterial, coefficient_reads, has_fields, networks
@@ -26,7 +27,22 @@ def baked_material(m, entry: dict, stage_unit_m: float) -> BakedMaterial:
         tuple(m.eta), m.unit, stage_unit_m, tuple(m.targets),
         None if m.constant else m.output, tuple(m.outputs), entry.get("channels", {}),
         entry.get("first_channel", {}), entry.get("maps"),
-        resolve_working_space(m.working_space).name)
+        resolve_working_space(m.working_space).name, painted_layers(m))
+
+
+def painted_layers(m) -> dict:
+    """{"albedo"/"mfp": (layer, its first channel)} of the painted textures ``m`` reads a
+    layer of (its first tile's header; a file that cannot be read now: channel 0)."""
+    found = {}
+    for role, path, layer in (("albedo", m.albedo, m.albedo_layer), ("mfp", m.mfp, m.mfp_layer)):
+        if layer is None or not isinstance(path, str):
+            continue
+        hits = tiles.expand(path) if tiles.is_pattern(path) else [(path, None)]
+        spec = image_header(hits[0][0]) if hits else None
+        colour = classify_channels(spec.channelnames, spec.alpha_channel, layer=layer)[0] \
+            if spec is not None else []
+        found[role] = (layer, colour[0] if colour else 0)
+    return found
 
 
 
@@ -99,6 +115,7 @@ def recorded(scene, records: dict) -> list:
                      Recorded(imp.name, imp.path, "over", imp.unit_m))
             found.append((where, entry, materials[imp.name]))
     imported = {imp.name for imp in scene.imports}
+    unit_m = layer_unit(scene)
     for m in scene.materials:
         entry = by_name.get(m.name)
         if m.name in imported or not m.targets or not entry or not entry.get("baked"):
@@ -108,9 +125,32 @@ def recorded(scene, records: dict) -> list:
             k += 1
             ident = f"{Tf.MakeValidIdentifier(m.name)}_{k}"
         taken.add(ident.casefold())
-        found.append((Recorded(m.name, f"{FILE_MATERIALS}/{ident}", "def",
-                               UNIT_METERS[m.unit]), entry, m))
+        found.append((Recorded(m.name, f"{FILE_MATERIALS}/{ident}", "def", unit_m), entry, m))
     return found
+
+
+def layer_unit(scene) -> float:
+    """The metres per unit of the records layer (its ``metersPerUnit``): the stage's, else
+    the unit of the scene file's first material with targets (each material's distances are
+    converted into it), else metres."""
+    if scene.imports:
+        return scene.imports[0].unit_m
+    return next((UNIT_METERS[m.unit] for m in scene.materials if m.targets), 1.0)
+
+
+def layer_up_axis(scene) -> str:
+    """The records layer's ``upAxis``: the stage's root layer's, else USD's fallback (a
+    MaterialX document or a scene file has none)."""
+    from pxr import Sdf, UsdGeom
+    layer = None
+    if scene.source and not str(scene.source).lower().endswith(".mtlx"):
+        try:
+            layer = Sdf.Layer.FindOrOpen(str(scene.source))
+        except Exception:                # pxr raises Tf.ErrorException on a bad layer
+            layer = None
+    if layer is not None and layer.pseudoRoot.HasInfo(UsdGeom.Tokens.upAxis):
+        return str(layer.pseudoRoot.GetInfo(UsdGeom.Tokens.upAxis))
+    return str(UsdGeom.GetFallbackUpAxis())
 
 
 def record_prim(layer, where: Recorded):
@@ -132,9 +172,12 @@ def record_prim(layer, where: Recorded):
 
 
 def usd_layer_text(scene, records: dict, folder) -> str:
-    """bdipole.usda: an ``over`` on each baked imported material prim."""
-    from pxr import Sdf, Vt
+    """bdipole.usda: an ``over`` on each baked imported material prim; its
+    ``metersPerUnit`` and ``upAxis`` those its networks' distances are in (the stage's)."""
+    from pxr import Sdf, UsdGeom, Vt
     layer = Sdf.Layer.CreateAnonymous(".usda")
+    layer.pseudoRoot.SetInfo(UsdGeom.Tokens.metersPerUnit, layer_unit(scene))
+    layer.pseudoRoot.SetInfo(UsdGeom.Tokens.upAxis, layer_up_axis(scene))
     layer.comment = (f"{LAYER_MARK}{os.path.basename(str(scene.source or scene.path))}: "
                      f"put it over the stage (the first of a root layer's sublayers, then the "
                      f"stage) to find each material's coefficients (bdipole: attributes) and "
@@ -170,8 +213,38 @@ def usd_layer_text(scene, records: dict, folder) -> str:
                      Vt.StringArray(channels))
                 attr(f"{output}:firstChannel", Sdf.ValueTypeNames.Int,
                      entry["first_channel"][output])
+        stretch_attributes(spec, entry.get("stretch") or {}, attr)
     author_networks(layer, wired, folder)
     return layer.ExportToString()
+
+
+def stretch_attributes(spec, records: dict, attr):
+    """The stretch maps of a material's blurs (``records``: the manifest entry's ``stretch``)
+    on its record prim ``spec``, each blur's under ``bdipole:stretch:{blur}``: the files as
+    USD resolves them (an asset path with ``<UDIM>``, else ``:tiles``), ``:unit``,
+    ``:channels`` and, for meshes a stage binds, a ``:meshes`` relationship to them."""
+    from pxr import Sdf, Tf, Vt
+    taken = set()
+    for blur, record in sorted(records.items()):
+        if not record.get("files"):
+            continue
+        name, k = f"stretch:{Tf.MakeValidIdentifier(blur)}", 1
+        while name in taken:                  # two blurs one identifier (a-b, a_b)
+            k += 1
+            name = f"stretch:{Tf.MakeValidIdentifier(blur)}_{k}"
+        taken.add(name)
+        pattern, tile_files = usd_asset_records(record["maps"], record["files"])
+        if pattern is not None:
+            attr(name, Sdf.ValueTypeNames.Asset, Sdf.AssetPath(pattern))
+        else:
+            attr(f"{name}:tiles", Sdf.ValueTypeNames.AssetArray,
+                 Sdf.AssetPathArray([Sdf.AssetPath(f) for f in tile_files]))
+        attr(f"{name}:unit", Sdf.ValueTypeNames.String, record["unit"])
+        attr(f"{name}:channels", Sdf.ValueTypeNames.StringArray,
+             Vt.StringArray(record["channels"]))
+        if record.get("prims"):
+            rel = Sdf.RelationshipSpec(spec, f"bdipole:{name}:meshes", custom=True)
+            rel.targetPathList.explicitItems = [Sdf.Path(p) for p in record["prims"]]
 
 
 def author_networks(layer, wired, folder):

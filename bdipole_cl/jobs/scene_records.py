@@ -19,16 +19,18 @@ import numpy as np
 from ..durable import durable_replace
 from ..io.images import is_regular_file
 from ..io.networks import networks
-from ..io.scene_file import UNIT_METERS
 from ..io.scene_import import source_files
 from ..io.shaders import SHADERS
 from ..methods.choice import resolve_method
 from ..methods.registry import MethodConfig
 from ..ops.invert import albedo_to_coefficients
-from .results import BatchReport, FileResult
+from .results import FileResult
+from .layer_files import coefficient_layers
 from .scene_maps import maps_entry, remove_stale_maps, target_maps
-from .scene_layer import (LAYER_MARK, baked_material, mtlx_text, output_channels,
-                          target_lines, usd_layer_text)
+from .scene_stale import dropped_records, remove_stale_outputs
+from .scene_stretch import made_files, stretch_records
+from .scene_layer import (LAYER_MARK, baked_material, layer_unit, mtlx_text,
+                          output_channels, target_lines, usd_layer_text)
 
 #: where each shader's distance convention is defined
 SOURCES = {s.name: s.source for s in SHADERS}
@@ -205,7 +207,7 @@ def manifest(scene, jobs, coefficients, folder, results=None, maps=None) -> dict
     for m in scene.materials:
         if m.name not in seen:
             entries.append({"name": m.name} | _baked(m, jobs, results, coefficients, folder,
-                                                     UNIT_METERS[m.unit],
+                                                     layer_unit(scene),
                                                      (maps or {}).get(m.name)))
     return {"source": scene.source, "scene": str(scene.path),
             "scene_relative": os.path.relpath(str(scene.path), folder), "materials": entries}
@@ -364,6 +366,16 @@ def write_records(plan, results) -> list:
             coefficients[job.name] = old[job.name]["coefficients"]
     maps = target_maps(scene, plan.jobs, results, coefficients, _outcome)
     records = manifest(scene, plan.jobs, coefficients, folder, results, maps)
+    layered, layer_rows = coefficient_layers(
+        scene.materials if writes_materials(scene) else (),
+        lambda m: _outcome(m, plan.jobs, results), plan.record_inputs)
+    for entry in records["materials"]:
+        if entry.get("baked") and entry["name"] in layered:
+            entry["layer_files"] = sorted(os.path.relpath(f, folder)
+                                          for f in layered[entry["name"]])
+    stretch = stretch_records(scene, plan.jobs, results, folder)
+    for entry in records["materials"]:        # each blur's stretch, under its material
+        entry.update({"stretch": stretch[entry["name"]]} if entry["name"] in stretch else {})
     texts = {os.path.join(folder, MANIFEST): json.dumps(records, indent=1, sort_keys=True)
              + "\n"}
     if writes_materials(scene):
@@ -375,6 +387,12 @@ def write_records(plan, results) -> list:
         [f for e in old.values() for m in (e.get("maps") or {}).values()
          if isinstance(m, dict) for f in m.get("files") or []],
         [f for ms in maps.values() for m in ms.values() for f in m.files], folder, inputs)]
+    written += [(path, REMOVED) for path in remove_stale_maps(
+        [f for e in old.values() for f in e.get("layer_files") or []],
+        [f for fs in layered.values() for f in fs], folder, inputs)]
+    written += [(path, REMOVED) for path in remove_stale_maps(
+        made_files(old.values()), made_files(records["materials"]), folder, inputs)]
+    written += [(path, why or LAYERED) for path, why in layer_rows]
     written += [(line, DROPPED) for line in dropped_records(old, records)]
     written += [(path, MAPPED) for ms in maps.values() for mp in ms.values()
                 for path in mp.written]
@@ -412,8 +430,6 @@ def imported_lines(scene) -> list:
     return lines
 
 
-
-
 def run_constant(job, runtime, *, cancel=None, lock=None, progress=None):
     """A constant material's coefficients (in the result's ``values`` and notes): the runner
     of "constant" jobs (``runner.run_job``; ``job.work`` a ConstantWork)."""
@@ -437,57 +453,6 @@ REMOVED = "removed"
 DROPPED = "records removed"
 #: write_records' mark of a map of colour and radius in a target's convention it wrote
 MAPPED = "maps"
+#: write_records' mark of an output's layer it wrote as a file of its own (``layer_files``)
+LAYERED = "layer file"
 
-
-def dropped_records(old: dict, records: dict) -> list:
-    """One line per material the last bake recorded as baked (``old``: its manifest) that
-    these ``records`` do not: its inputs vanished, it failed, or it left the scene; its
-    ``over`` (and so its records and material networks) is gone from the layer, which a
-    pipeline reading the layer would otherwise not know."""
-    now = {e["name"]: e for e in records["materials"]}
-    lines = []
-    for name, entry in sorted(old.items()):
-        new = now.get(name)
-        if not entry.get("baked") or (new is not None and new.get("baked")):
-            continue
-        why = ("no longer in the scene" if new is None else
-               new.get("not_baked") or new.get("left_out") or "not baked")
-        lines.append(f"material {name} ({entry.get('prim') or 'scene file'}): its records "
-                     f"are removed: {why}")
-    return lines
-
-
-def remove_stale_outputs(old, jobs, folder, inputs) -> list:
-    """Remove, and return, the output files an earlier bake in ``folder`` wrote for a material
-    this bake makes again (its manifest ``old``'s ``files``) that no job of this bake makes: a
-    tile whose albedo tile is gone, say, which the records' <UDIM> pattern would still give a
-    renderer. Only regular files in the folder that this bake does not read."""
-    making = {os.path.normpath(j.output) for j in jobs if j.output}
-    names = {j.name for j in jobs if j.kind == "invert"}
-    root = os.path.realpath(folder)
-    removed = []
-    for name, entry in old.items():
-        for f in (entry.get("files") or []) if name in names else []:
-            path = os.path.normpath(os.path.join(folder, str(f)))
-            real = os.path.realpath(path)
-            if (path in making or real in inputs or not real.startswith(root + os.sep)
-                    or not is_regular_file(path)):
-                continue
-            os.unlink(path)
-            removed.append(path)
-    return removed
-
-
-def finish_bake(plan, results: list) -> BatchReport:
-    """The records of a bake of ``plan`` (a scene Plan), each file written added to the report;
-    each job's row names its material or blur (jobs may share an input file)."""
-    for job, result in zip(plan.jobs, results):
-        if job.kind != "constant":
-            result.path = f"{job.name}: {job.source}"
-    records = [FileResult(p, p, status="ok", notes=["records"]) if why is None else
-               FileResult(p, f"removed {p}: an earlier bake's output that no input makes now",
-                          status="ok", notes=["removed"]) if why == REMOVED else
-               FileResult("records", p, status="ok", notes=[DROPPED]) if why == DROPPED else
-               FileResult(p, p, status="ok", notes=[MAPPED]) if why == MAPPED else
-               FileResult(p, p, error=why) for p, why in write_records(plan, results)]
-    return BatchReport(results + records)

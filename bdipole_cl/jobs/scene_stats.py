@@ -22,12 +22,13 @@ RANGE_SWEEP = 4000
 DEFAULT_MEMORY = 256 << 20
 
 
-def read_albedo(path, mask_mode, mask_path, colorspace, working):
+def read_albedo(path, mask_mode, mask_path, colorspace, working, layer=None):
     """One read of an albedo file: (colour texels HxWxC in the working space ``working``, the
     mask as booleans or None, colour channel names, alpha name or None, other channel names,
     its ColourPath). ``mask_mode``: None, "alpha" (the file's alpha) or a texture
-    (``mask_path``, its first channel; masks are data, never converted)."""
-    r = Reader(path, "albedo")
+    (``mask_path``, its first channel; masks are data, never converted); ``layer``: the
+    EXR layer read (None: ``channels.classify_channels``' rule)."""
+    r = Reader(path, "albedo", role="albedo", layer=layer)
     try:
         spec = r.spec
         colour, alpha = r.channels()
@@ -35,7 +36,7 @@ def read_albedo(path, mask_mode, mask_path, colorspace, working):
         px = r.read_band(0, spec.height)
     finally:
         r.close()
-    _, _, other = classify_channels(spec.channelnames, spec.alpha_channel)
+    _, _, other = classify_channels(spec.channelnames, spec.alpha_channel, "albedo", layer)
     keep = None
     if mask_mode == "alpha":
         if alpha < 0:
@@ -49,11 +50,12 @@ def read_albedo(path, mask_mode, mask_path, colorspace, working):
             [spec.channelnames[c] for c in other], route)
 
 
-def albedo_stats(path, mask_mode, mask_path, colorspace, working, max_memory=DEFAULT_MEMORY):
+def albedo_stats(path, mask_mode, mask_path, colorspace, working, max_memory=DEFAULT_MEMORY,
+                 layer=None):
     """(colour channel names, alpha name, other names, Rd range of unmasked texels, masked
     fraction, ColourPath) of an albedo file: the statistics pass, in the working space,
     streamed in bands of rows."""
-    readers = [Reader(path, "albedo")]
+    readers = [Reader(path, "albedo", role="albedo", layer=layer)]
     try:
         spec = readers[0].spec
         colour, alpha = readers[0].channels()
@@ -81,7 +83,7 @@ def albedo_stats(path, mask_mode, mask_path, colorspace, working, max_memory=DEF
     finally:
         for r in readers:
             r.close()
-    _, _, other = classify_channels(spec.channelnames, spec.alpha_channel)
+    _, _, other = classify_channels(spec.channelnames, spec.alpha_channel, "albedo", layer)
     names = spec.channelnames
     return (colour_names, names[alpha] if alpha >= 0 else None,
             [names[c] for c in other], (lo, hi) if lo <= hi else None,

@@ -328,8 +328,8 @@ def inversion_kernel(etas, config, *, exact=False, model="better", double=False,
     """The InversionKernel for these arguments, from KERNEL_CACHE when it has it."""
     rt = get_runtime(runtime)
     width = table_width(rt) if vectorised(config, double) else 0     # forced ones differ
-    key = (id(rt.context), threading.get_ident(), tuple(etas), config.resolved(double), exact,
-           model, double, width)
+    key = (id(rt.context), rt.numerics.name, threading.get_ident(), tuple(etas),
+           config.resolved(double), exact, model, double, width)
     hit = KERNEL_CACHE.get(key)
     if hit is None or hit[0] is not rt.context:    # the entry holds its context: ids are its own
         kernel = InversionKernel(etas, config, exact=exact, model=model, double=double,

@@ -21,6 +21,11 @@ FUNCTIONS = {
                     lambda x, y, z, eta, exact: ref.profile_cdf(x, y, z, eta, exact)),
     "profile_tail": ("BD_FUNC_PROFILE_TAIL",
                      lambda x, y, z, eta, exact: ref.profile_tail(x, y, z, eta, exact)),
+    # the device's sqrt, and the correctly rounded one of kernels/bdipole.h (BD_SQRT_RN); their
+    # reference is float32's correctly rounded sqrt of the float32 input
+    "sqrt": ("BD_FUNC_SQRT", lambda x, y, z, eta, exact: np.sqrt(np.float32(x))),
+    "sqrt_rn": ("BD_FUNC_SQRT_RN",
+                lambda x, y, z, eta, exact: np.sqrt(np.maximum(np.float32(x), 0))),
 }
 
 

@@ -29,6 +29,11 @@ DEGENERATE_UV_AREA = 1e-9
 DEGENERATE_SURFACE = 1e-12
 #: candidate texels per rasterization chunk (memory: ~100 bytes each)
 CHUNK_TEXELS = 1 << 22
+#: where two meshes cover one texel, the largest relative difference of their lengths that is
+#: still one surface: an instance placed rigidly gives the same lengths up to the rounding of
+#: float32 points through a float64 transform (~1e-7); a mesh scaled otherwise differs by far
+#: more than this
+AGREE = 1e-4
 
 
 class StretchError(ValueError):
@@ -207,26 +212,65 @@ def dilated(maps, covered):
     return [m[iy, ix] for m in maps]
 
 
-def stretch_tiles(meshes, size=(1024, 1024), unit_metres=1e-3, unit="mm") -> list:
-    """The StretchTile of every UDIM tile the meshes' triangles cover, at ``size`` (H, W)
-    texels a tile, lengths in ``unit`` (``unit_metres`` metres). A texture coordinate in no
-    tile is a StretchError (``check_tiles``); degenerate triangles are left out and counted."""
+def union_tile(meshes, frames, tile, size, metres_per_unit_length):
+    """``rasterize_tile`` of each mesh on its own, merged: where two meshes cover one texel
+    their lengths must agree within AGREE (the same surface, as instances of one mesh are),
+    else a StretchError naming both meshes, the tile and the texel (one stretch map cannot
+    hold two surfaces' lengths at one texel). The first mesh's chart keeps a texel."""
+    merged, covered, owner = None, None, None
+    for i, (mesh, fr) in enumerate(zip(meshes, frames)):
+        maps = rasterize_tile([mesh], [fr], tile, size, metres_per_unit_length)
+        mine = maps[4]
+        if merged is None:
+            merged, covered = list(maps[:4]), mine.copy()
+            owner = np.where(mine, i, -1)
+            continue
+        both = mine & covered
+        if both.any():
+            with np.errstate(divide="ignore", invalid="ignore"):
+                diff = np.maximum(np.abs(maps[0] - merged[0]) / merged[0],
+                                  np.abs(maps[1] - merged[1]) / merged[1])
+            bad = both & ~(diff <= AGREE)
+            if bad.any():
+                y, x = np.unravel_index(int(np.flatnonzero(bad)[0]), bad.shape)
+                udim = 1001 + tile[0] + 10 * tile[1]
+                raise StretchError(
+                    f"{meshes[owner[y, x]].name} and {mesh.name}: both cover texel x={x}, "
+                    f"y={y} of UDIM {udim} with different lengths ({merged[0][y, x]:.6g}, "
+                    f"{merged[1][y, x]:.6g} against {maps[0][y, x]:.6g}, {maps[1][y, x]:.6g}"
+                    f"; {int(bad.sum())} texel(s) so): one stretch map cannot hold both; "
+                    f"give them UVs of their own, or take one mesh")
+        new = mine & ~covered
+        for dst, src in zip(merged, maps[:4]):
+            dst[new] = src[new]
+        owner[new] = i
+        covered |= mine
+    return (*merged, covered)
+
+
+def stretch_tiles(meshes, size=(1024, 1024), unit_metres=1e-3, unit="mm", tiles=None) -> list:
+    """The StretchTile of every UDIM tile the meshes' triangles cover (or of those of them in
+    ``tiles``, (u, v) pairs), at ``size`` (H, W) texels a tile, lengths in ``unit``
+    (``unit_metres`` metres). The meshes share the tiles: where two cover one texel they must
+    agree (``union_tile``). A texture coordinate in no tile is a StretchError
+    (``check_tiles``); degenerate triangles are left out and counted."""
     h, w = (int(size), int(size)) if np.ndim(size) == 0 else (int(size[0]), int(size[1]))
     if h < 1 or w < 1:
         raise ValueError(f"size {size!r}: expected a positive tile size in texels")
-    frames, offset, tiles = [], 0, set()
+    frames, offset, found = [], 0, set()
     for mesh in meshes:
         check_tiles(mesh)
         fr = triangle_frames(mesh, offset)
         offset = int(fr.chart.max()) + 1 if len(fr.chart) else offset
         frames.append(fr)
-        tiles |= mesh_tiles(mesh)
+        found |= mesh_tiles(mesh)
+    if tiles is not None:
+        found &= {tuple(t) for t in tiles}
     degenerate = sum(int((~fr.ok).sum()) for fr in frames)
     flipped = sum(int((fr.flipped & fr.ok).sum()) for fr in frames)
     out = []
-    for tile in sorted(tiles, key=lambda t: (t[1], t[0])):
-        su, sv, shear, chart, covered = rasterize_tile(meshes, frames, tile, (h, w),
-                                                       unit_metres)
+    for tile in sorted(found, key=lambda t: (t[1], t[0])):
+        su, sv, shear, chart, covered = union_tile(meshes, frames, tile, (h, w), unit_metres)
         if not covered.any():
             continue
         su, sv, shear, chart = dilated([su, sv, shear, chart], covered)
@@ -234,6 +278,8 @@ def stretch_tiles(meshes, size=(1024, 1024), unit_metres=1e-3, unit="mm") -> lis
                                chart.astype(np.int32), covered, shear.astype(np.float32),
                                unit, degenerate, flipped))
     if not out:
+        where = "" if tiles is None else (" of UDIM " + ", ".join(
+            str(1001 + u + 10 * v) for u, v in sorted(tiles, key=lambda t: (t[1], t[0]))))
         raise StretchError(f"{', '.join(m.name for m in meshes)}: no triangle covers a texel "
-                           f"centre at {w}x{h} texels a tile")
+                           f"centre{where} at {w}x{h} texels a tile")
     return out

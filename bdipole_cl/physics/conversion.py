@@ -10,8 +10,6 @@ convention's median is proportional to its radius). Float64, vectorised.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import lru_cache
-
 import numpy as np
 
 from ..errors import check_numbers, check_policy, find_invalid, plain_array
@@ -22,11 +20,6 @@ from .conventions import (CONVENTION, Medium, colour_for, medium, rd_range, rend
 #: reflects nothing and one of colour 1 has an infinite extinction in the dipoles: their
 #: spread is undefined, so their radius is converted as at these colours')
 COLOUR_FLOOR, COLOUR_CEILING = 1e-4, 1.0 - 1e-7
-#: arrays with up to this many distinct colours are converted exactly, texel by texel; more
-#: (a texture), through the maps on GRID_SIZE colours, interpolated linearly: measured within
-#: 2e-7 relative of the exact maps (docs/conventions.md "Conversion"); a stepwise convention
-#: (Cycles Skin: 18% radius jumps) is always converted exactly
-EXACT_MAX, GRID_SIZE = 4096, 16385
 #: the radius range every convention takes (errors' mfp rule)
 RADIUS_RANGE = (1e-20, 1e20)
 
@@ -62,12 +55,12 @@ def _scalar(value, name):
 
 
 def check_colour(colour, on_invalid, name="colour", texels=False):
-    """(colour in [0, 1], count): NaN, infinite or outside [0, 1] is invalid (clamped into
-    [0, 1]; NaN to 0)."""
+    """(colour in [0, 1], invalid mask): NaN, infinite or outside [0, 1] (below 0: outside
+    the working space's gamut, or not a colour) is invalid, clamped into [0, 1] (NaN to 0)."""
     bad = ~((colour >= 0.0) & (colour <= 1.0))
     n = find_invalid(name, colour, bad, "NaN, infinite or outside [0, 1]", on_invalid,
                      texels=texels)
-    return (np.clip(np.nan_to_num(colour, nan=0.0), 0.0, 1.0) if n else colour), n
+    return (np.clip(np.nan_to_num(colour, nan=0.0), 0.0, 1.0) if n else colour), bad
 
 
 def check_radius(radius, on_invalid, name="radius", texels=False):
@@ -109,27 +102,29 @@ def convert(colour, radius, source="better-dipole", target="van-de-hulst", eta=1
     colour = plain_array(colour, "colour").astype(np.float64)
     radius = plain_array(radius, "radius").astype(np.float64)
     colour, radius = np.broadcast_arrays(colour, radius)
-    colour, n_colour = check_colour(colour, on_invalid, texels=texels)
+    colour, outside = check_colour(colour, on_invalid, texels=texels)
     radius, n_radius = check_radius(radius, on_invalid, texels=texels)
     flat_c, inverse = np.unique(colour, return_inverse=True)
     inv = inverse.reshape(colour.shape)
     lo, hi = rd_range(tgt.name, eta, g)
     rd = rendered_rd(src, flat_c, eta, g)
-    n_rd = find_invalid("colour", colour, (rd > hi)[inv],
-                        f"renders a reflectance above {hi:.6g}, the most {tgt.name} renders "
-                        f"at eta {eta:g}", on_invalid, texels=texels)
+    above = (rd > hi)[inv]
+    find_invalid("colour", colour, above, f"renders a reflectance above {hi:.6g}, the most "
+                 f"{tgt.name} renders at eta {eta:g}", on_invalid, texels=texels)
     # below the floor by more than the maps' rounding (a round trip's 1e-9 relative)
-    n_rd += find_invalid("colour", colour, (rd < lo * (1.0 - 1e-8))[inv],
-                         f"renders a reflectance below {lo:.6g}, the least {tgt.name} renders "
-                         f"(its colour floor) at eta {eta:g}", on_invalid, texels=texels)
-    if flat_c.size <= EXACT_MAX or src.stepwise or tgt.stepwise:
-        out_c, ratio, src_median = colour_maps(src, tgt, flat_c, eta, g)
-    else:                     # a texture: the maps on a fine grid of colours, interpolated
-        grid = _grid_maps(src.name, tgt.name, eta, g)
-        out_c, ratio, src_median = (np.interp(flat_c, grid[0], m) for m in grid[1:])
+    below = (rd < lo * (1.0 - 1e-8))[inv]
+    find_invalid("colour", colour, below, f"renders a reflectance below {lo:.6g}, the least "
+                 f"{tgt.name} renders (its colour floor) at eta {eta:g}", on_invalid,
+                 texels=texels)
+    # a value is one invalid value, however many rules it breaks (1.5 is outside [0, 1] and,
+    # clamped to 1, beyond a Cycles walk's reach: counted once)
+    n_colour = int(np.count_nonzero(outside | above | below))
+    # every distinct colour exactly, whatever their number: a texel's result is the same bits
+    # in any array (no interpolated path whose error depends on how many colours there are)
+    out_c, ratio, src_median = colour_maps(src, tgt, flat_c, eta, g)
     return Conversion(out_c[inv], radius * ratio[inv], np.clip(rd, lo, hi)[inv],
                       radius * src_median[inv], src.name, tgt.name, eta, g,
-                      {"colour": n_colour + n_rd, "radius": n_radius})
+                      {"colour": n_colour, "radius": n_radius})
 
 
 def check_walk_g(src, tgt, g) -> None:
@@ -155,13 +150,3 @@ def colour_maps(src, tgt, colour, eta, g):
     src_median = unit_median(src, floor, eta, g)
     ratio = src_median / unit_median(tgt, colour_for(tgt.name, rd_floor, eta, g), eta, g)
     return out_c, ratio, src_median
-
-
-@lru_cache(maxsize=16)
-def _grid_maps(source, target, eta, g):
-    """``colour_maps`` on GRID_SIZE colours spanning [0, 1], read-only (cached per pair)."""
-    grid = np.linspace(0.0, 1.0, GRID_SIZE)
-    maps = (grid, *colour_maps(CONVENTION[source], CONVENTION[target], grid, eta, g))
-    for m in maps:
-        m.setflags(write=False)
-    return maps

@@ -279,8 +279,8 @@ def solve_increasing(f, target, lo, hi, iters=100):
         r = fv - target[active]
         la = np.where(r < 0.0, va, la)
         ha = np.where(r > 0.0, va, ha)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            nv = va - r / dfv
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+            nv = va - r / dfv       # a step past float64 is out of the bracket: bisected
         nv = np.where((nv >= la) & (nv <= ha) & np.isfinite(nv), nv, 0.5 * (la + ha))
         done = (r == 0.0) | (np.abs(nv - va) <= 4.5e-16 * np.abs(va)) | (ha - la <= 4.5e-16 * ha)
         nv = np.where(r == 0.0, va, nv)

@@ -368,7 +368,7 @@ def curve_cache_path(g: float, eta: float) -> Path:
     digest = hashlib.sha256()
     for name in ("transport.py", "transport_tables.py", "fresnel.py"):
         digest.update((here / name).read_bytes())
-    return (user_cache_dir() / "transport"
+    return (user_cache_dir() / tables.CURVES_FOLDER
             / f"curves-{digest.hexdigest()[:16]}-g{float(g).hex()}-eta{float(eta).hex()}.npz")
 
 

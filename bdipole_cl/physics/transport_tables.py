@@ -11,6 +11,7 @@ Pure functions of the Chebyshev coefficients: this module imports nothing of tra
 """
 from __future__ import annotations
 
+import re
 from pathlib import Path
 from typing import NamedTuple
 
@@ -166,6 +167,12 @@ def evaluate_inverse(table: InverseTable, rd):
     alpha = np.where(upper, alpha_of_s(s_up, table.g), a_lo)
     s = np.where(upper, s_up, similarity_s(a_lo, table.g))
     return np.where(missing, np.nan, alpha), np.where(missing, np.nan, s)
+
+
+#: the reflectance curves' files in the user cache folder (``transport.curve_cache_path``,
+#: listed and cleared by ``bdipole-cl cache``): curves-{source digest}-g{g.hex()}-eta{eta.hex()}
+CURVES_FOLDER = "transport"
+CURVES_NAME = re.compile(r"^curves-[0-9a-f]{16}-g[-+0-9a-fx.p]+-eta[-+0-9a-fx.p]+\.npz$")
 
 
 # {{{ spread: the Monte Carlo table of radii (tools/walk_montecarlo.py spread)

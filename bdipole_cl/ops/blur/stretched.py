@@ -91,34 +91,48 @@ class WindowChannel:
 
 
 def channel_maps(shape, c, stretch, physical, eta, exact, on_invalid, counts, ranges):
-    """(Rd, l_u, l_v) float32 maps of channel c: Rd and ld (the mfp's unit) as the
-    texture-varying blur makes them, divided by the texel lengths."""
+    """(Rd, l_u, l_v) float32 maps of channel c (aligned: the gather reads them in place): Rd
+    and ld (the mfp's unit) as the texture-varying blur makes them, divided by the texel
+    lengths."""
     rd, ld = texel_parameters(shape, c, eta=eta, exact=exact, on_invalid=on_invalid,
                               ranges=ranges, counts=counts, **{**physical, "texel_size": 1.0})
-    return rd, (ld / stretch.su).astype(np.float32), (ld / stretch.sv).astype(np.float32)
+    out = [host_array(shape[:2]) for _ in range(3)]
+    np.copyto(out[0], rd)
+    np.divide(ld, stretch.su, out=out[1], dtype=np.float32, casting="unsafe")
+    np.divide(ld, stretch.sv, out=out[2], dtype=np.float32, casting="unsafe")
+    return tuple(out)
 
 
 def map_ranges(rd, lu, lv):
     """((lo, hi) of logit Rd, ln l, s) over the texels of maps rd, l_u, l_v (1-D or any
     shape; Rd's lit texels only: Rd = 0 gives 0 whatever its kernel's shape), l = sqrt(l_u
-    l_v) and s = ln(l_u / l_v) (``stretched_plan.lattice_variables``)."""
+    l_v) and s = ln(l_u / l_v) (``stretched_plan.lattice_variables``). The logarithms are
+    taken of the extremes of l_u l_v and l_u / l_v (float32, within an ulp of each texel's:
+    ln is monotonic), not of every texel: the ranges cost two reads of the maps."""
     lo, hi = value_range(rd)
     if lo <= 0 < hi:
         lo = np.min(rd, where=rd > 0, initial=np.inf)
     t_rd = lattice_variables([float(lo), float(hi)], 1.0, 1.0)[0]
-    _, ln_l, s = lattice_variables(1.0, lu, lv)
-    return ((float(t_rd[0]), float(t_rd[1])), (float(ln_l.min()), float(ln_l.max())),
-            (float(s.min()), float(s.max())))
+    area = value_range(np.multiply(lu, lv, dtype=np.float32))
+    aspect = value_range(np.divide(lu, lv, dtype=np.float32))
+    ln_l = 0.5 * np.log(np.asarray(area, np.float64))
+    s = np.log(np.asarray(aspect, np.float64))
+    return ((float(t_rd[0]), float(t_rd[1])), (float(ln_l[0]), float(ln_l[1])),
+            (float(s[0]), float(s[1])))
 
 
 def window_maps(maps, window: Window):
     """The (Rd, l_u, l_v) maps over a window's box, aligned copies (the gather reads them in
     place), and the ranges of its texels' (``map_ranges`` over the texels it writes)."""
+    if window.output is None and (window.height, window.width) == maps[0].shape:
+        return tuple(maps), map_ranges(*maps)   # the image: its maps, already aligned
     crop = []
     for m in maps:
         box = host_array((window.height, window.width))
         box[...] = m[window.rows, window.cols]
         crop.append(box)
+    if window.output is None:           # every texel of the box: no masked copies
+        return tuple(crop), map_ranges(*crop)
     own = window.writes()
     return tuple(crop), map_ranges(*(m[own] for m in crop))
 

@@ -7,6 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pyopencl as cl
 
+from ...caches import ByteCache
 from ...device import build_options, get_program
 from ...methods.choice import GATHER_WIDTHS_ALLOWED
 from ..widths import built_at_width, device_vector_cap
@@ -35,11 +36,23 @@ def stretched_kernel(rt, plan: StretchedPlan, n):
     return width, chunk, knl
 
 
+#: the gathers' tables as records, kept across calls (a plan is memoized: its table is the same
+#: array each time; each entry holds that array, so its id is not reused while kept)
+TABLE_RECORDS = ByteCache("stretched gather tables", 256 << 20)
+
+
 def table_records(fine, chunk):
     """The fine table (f0, f1, f2, weights) as records of a whole number of ``chunk`` floats
-    (``dispatch.node_records`` of the table flattened over its first two axes)."""
+    (``dispatch.node_records`` of the table flattened over its first two axes), made once per
+    table and chunk."""
+    key = (id(fine), chunk)
+    hit = TABLE_RECORDS.get(key)
+    if hit is not None and hit[0] is fine:
+        return hit[1]
     f0, f1, f2, nw = fine.shape
-    return node_records(fine.reshape(f0 * f1, f2, nw), chunk)
+    records = node_records(fine.reshape(f0 * f1, f2, nw), chunk)
+    TABLE_RECORDS.put(key, (fine, records), records.nbytes + fine.nbytes)
+    return records
 
 
 def gather(res, plan: StretchedPlan, maps, mrow, planes, padded, row0, rt, settle):

@@ -107,14 +107,14 @@ def map_ranges(rd, lu, lv):
     """((lo, hi) of logit Rd, ln l, s) over the texels of maps rd, l_u, l_v (1-D or any
     shape; Rd's lit texels only: Rd = 0 gives 0 whatever its kernel's shape), l = sqrt(l_u
     l_v) and s = ln(l_u / l_v) (``stretched_plan.lattice_variables``). The logarithms are
-    taken of the extremes of l_u l_v and l_u / l_v (float32, within an ulp of each texel's:
-    ln is monotonic), not of every texel: the ranges cost two reads of the maps."""
+    taken of the extremes of l_u l_v and l_u / l_v (ln is monotonic), not of every texel: the
+    ranges cost two reads of the maps."""
     lo, hi = value_range(rd)
     if lo <= 0 < hi:
         lo = np.min(rd, where=rd > 0, initial=np.inf)
     t_rd = lattice_variables([float(lo), float(hi)], 1.0, 1.0)[0]
-    area = value_range(np.multiply(lu, lv, dtype=np.float32))
-    aspect = value_range(np.divide(lu, lv, dtype=np.float32))
+    area = value_range(np.multiply(lu, lv, dtype=np.float64))      # float64: no overflow
+    aspect = value_range(np.divide(lu, lv, dtype=np.float64))
     ln_l = 0.5 * np.log(np.asarray(area, np.float64))
     s = np.log(np.asarray(aspect, np.float64))
     return ((float(t_rd[0]), float(t_rd[1])), (float(ln_l[0]), float(ln_l[1])),

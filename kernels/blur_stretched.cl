@@ -1,68 +1,190 @@
-// blur_stretched.cl -- the stretched blur's gather (bdipole_cl/ops/blur/stretched.py): per texel the
-// weights of the shared eigen-kernel basis, trilinear in the fine table over (logit Rd, ln l_u,
-// ln l_v) (stretched_plan.fine_table3: the node weights' cubic interpolation, REFINE points per
-// lattice step), times the basis blurs there, times Rd, settled as fft.settled does.
+// blur_stretched.cl -- the stretched blur's gather (bdipole_cl/ops/blur/stretched_gather.py;
+// docs/stretch.md "The gather"): per texel the weights of the shared basis, interpolated in the
+// fine table over the lattice variables (logit Rd, ln l, s), l = sqrt(l_u l_v) and s =
+// ln(l_u / l_v) (stretched_plan.fine_table3: the node weights' cubic interpolation, REFINE
+// points per lattice step), times the basis blurs there, plus the near field's kernels
+// convolved with the irradiance itself, times Rd, settled as fft.settled does.
 //
-// One texel per work-item (Intel's CPU runtime vectorizes across work-items). An axis on which
-// the maps are constant has one node: its second tap reads the first with weight 0.
+// The table is read at the four corners of the texel's tetrahedron in its fine cell (Kuhn's
+// six tetrahedra of the cube: from the cell's first corner one step along each axis, the axes
+// by decreasing fraction; ``stretched_plan.tetrahedral_taps`` is the host's twin): 4 records a
+// texel, not the trilinear 8. An axis on which the maps are constant has one node: its step is
+// 0 (it reads the same record) and its fraction 0.
 //
-// Specialized by -DBD_NBASIS=G (the basis kernels, the table's weights per node) so the loops
-// unroll.
+// The near field: the cells within BD_NEAR (Chebyshev) of the texel, in classes (a, b) of the
+// four cells (+-a rows, +-b columns) (near_field.near_classes, not mirrored: a stretched kernel
+// is even in u and in v, not across the diagonal), each class's irradiance summed once and
+// shared by the BD_NEAR_RANK near kernels (their values per class in near_basis).
+//
+// Every work-item takes BD_WIDTH (1, 4, 8 or 16) neighbouring texels of one row in explicit
+// vectors (kernels/lanes.h), as kernels/blur_textured.cl: rows hold at least BD_WIDTH texels,
+// the last work-item of a row takes its last BD_WIDTH (``first_texel``). The table's records
+// (BD_RECORD floats, the weights then zeros) are read per lane in chunks of BD_CHUNK floats.
+//
+// Specialized by -DBD_NBASIS=G, -DBD_NEAR, -DBD_NEAR_RANK, -DBD_WIDTH, -DBD_CHUNK.
 
 #ifndef BD_NBASIS
 #error "build with -DBD_NBASIS=<basis size>"
 #endif
+#ifndef BD_NEAR
+#define BD_NEAR (-1)
+#endif
+#ifndef BD_NEAR_RANK
+#define BD_NEAR_RANK 0
+#endif
+#ifndef BD_WIDTH
+#error "build with -DBD_WIDTH=<texels per work-item> (kernels/lanes.h, before this file, needs it)"
+#endif
+#ifndef BD_CHUNK
+#error "build with -DBD_CHUNK=<4, 8 or 16: floats per load of a node record>"
+#endif
+// near classes (every (a, b), 0 <= a, b <= BD_NEAR) and weights per table node
+#define BD_NCLASSES ((BD_NEAR + 1) * (BD_NEAR + 1))
+#define BD_NWEIGHTS (BD_NBASIS + BD_NEAR_RANK)
+#define BD_RECORD (BD_CHUNK * ((BD_NWEIGHTS + BD_CHUNK - 1) / BD_CHUNK))
+#define BD_CHUNK_CAT_(a, b) a##b
+#define BD_CHUNK_CAT(a, b) BD_CHUNK_CAT_(a, b)
+#ifdef GLOADN
+#define CHUNK_LOAD(i, p) GLOADN(BD_CHUNK, i, p)
+#else
+#define CHUNK_LOAD BD_CHUNK_CAT(vload, BD_CHUNK)
+#endif
+#define CHUNK_STORE BD_CHUNK_CAT(vstore, BD_CHUNK)
 
-// node index and fraction along one axis at fine coordinate c (0, 0 on a one-node axis)
-inline int stretched_base(const float c, const int nodes, float *frac)
+// the first of work-item g's BD_WIDTH texels in a row of n >= BD_WIDTH
+inline int first_texel(const int g, const int n)
 {
-    if (nodes == 1) {
-        *frac = 0.0f;
-        return 0;
-    }
-    const float base = clamp(floor(c), 0.0f, (float)(nodes - 2));
-    *frac = c - base;
-    return (int)base;
+    return min(g * BD_WIDTH, n - BD_WIDTH);
 }
 
-// out[y * w + x] = settled(rd * sum_j w_j(x, y) planes[j][y][x0 + x]) for the w x h window; the
-// planes `plane` floats apart with rows `pitch` floats apart; table (n0, n1, n2, BD_NBASIS)
+// node index and fraction along one axis at fine coordinate c (0, 0 on a one-node axis)
+inline ivec axis_base(const vec c, const int nodes, vec *frac)
+{
+    if (nodes == 1) {
+        *frac = (vec)0.0f;
+        return (ivec)0;
+    }
+    const vec base = clamp(floor(c), 0.0f, (float)(nodes - 2));
+    *frac = c - base;
+    return TO_INT(base);
+}
+
+// the fine table's shape and the map of the lattice variables to its coordinates: t * scale -
+// offset per axis (both 0 on a one-node axis), and the albedo's clamp for the kernel's shape
+#define BD_LATTICE_ARGS const int n0, const int n1, const int n2, const float rd_lo, \
+    const float rd_hi, const float s0, const float o0, const float s1, const float o1, \
+    const float s2, const float o2
+#define BD_LATTICE n0, n1, n2, rd_lo, rd_hi, s0, o0, s1, o1, s2, o2
+
+// the texels' weights (without the Rd factor), lane i's at wl[i * BD_RECORD ..]: per lane its
+// tetrahedron's four records combined a chunk at a time (``stretched_plan.tetrahedral_taps``)
+inline void texel_weights(__global const float *table, const vec rd, const vec lu,
+                          const vec lv, float *wl, BD_LATTICE_ARGS)
+{
+    const vec p = clamp(rd, rd_lo, rd_hi);
+    const vec a = log(lu), b = log(lv);
+    vec f0, f1, f2;
+    const ivec i0 = axis_base(log(p / (1.0f - p)) * s0 - o0, n0, &f0);
+    const ivec i1 = axis_base(0.5f * (a + b) * s1 - o1, n1, &f1);
+    const ivec i2 = axis_base((a - b) * s2 - o2, n2, &f2);
+    const ivec node = ((i0 * n1 + i1) * n2 + i2) * BD_RECORD;
+    // each axis's step in the table (0 on a one-node axis)
+    const int d0 = (n0 > 1) ? n1 * n2 * BD_RECORD : 0;
+    const int d1 = (n1 > 1) ? n2 * BD_RECORD : 0;
+    const int d2 = (n2 > 1) ? BD_RECORD : 0;
+#define BD_LANE_WEIGHTS(s, i) { \
+        float fa = f0 s, fb = f1 s, fc = f2 s, ft; \
+        int sa = d0, sb = d1, sc = d2, st; \
+        if (fb > fa) { ft = fa; fa = fb; fb = ft; st = sa; sa = sb; sb = st; } \
+        if (fc > fb) { ft = fb; fb = fc; fc = ft; st = sb; sb = sc; sc = st; } \
+        if (fb > fa) { ft = fa; fa = fb; fb = ft; st = sa; sa = sb; sb = st; } \
+        __global const float *t0 = table + node s; \
+        __global const float *t1 = t0 + sa; \
+        __global const float *t2 = t1 + sb; \
+        __global const float *t3 = t2 + sc; \
+        const float w0 = 1.0f - fa, w1 = fa - fb, w2 = fb - fc, w3 = fc; \
+        for (int q = 0; q < BD_RECORD; q += BD_CHUNK) \
+            CHUNK_STORE(w0 * CHUNK_LOAD(0, t0 + q) + w1 * CHUNK_LOAD(0, t1 + q) \
+                        + w2 * CHUNK_LOAD(0, t2 + q) + w3 * CHUNK_LOAD(0, t3 + q), 0, \
+                        wl + (i) * BD_RECORD + q); \
+    }
+    FOR_LANES(BD_LANE_WEIGHTS)
+#undef BD_LANE_WEIGHTS
+}
+
+// weight w_j of the texels (``texel_weights``' wl), as lanes
+inline vec texel_weight(const float *wl, const int j)
+{
+    vec v;
+#define BD_WEIGHT_LANE(s, i) v s = wl[(i) * BD_RECORD + j];
+    FOR_LANES(BD_WEIGHT_LANE)
+#undef BD_WEIGHT_LANE
+    return v;
+}
+
+// a gathered exitance m with the round-off of a zero result removed (fft.settled's rule)
+inline vec settle(const vec m, const vec rd, const float scale, const int nonneg)
+{
+    const vec floor = rd * scale;
+#if BD_WIDTH == 1
+    return (nonneg ? m <= floor : fabs(m) <= floor) ? 0.0f : m;
+#else
+    return select(m, (vec)0.0f, nonneg ? m <= floor : fabs(m) <= floor);
+#endif
+}
+
+// the irradiance summed over the cells of near class (a, b) (cells (+-a, +-b), each once)
+// around the texels at e, rows `pitch` floats apart
+inline vec class_sum(__global const float *e, const int pitch, const int a, const int b)
+{
+#define BD_CELL(dy, dx) GLOAD(0, e + (dy) * pitch + (dx))
+    vec s = BD_CELL(a, b);
+    if (a) s += BD_CELL(-a, b);
+    if (b) {
+        s += BD_CELL(a, -b);
+        if (a) s += BD_CELL(-a, -b);
+    }
+#undef BD_CELL
+    return s;
+}
+
+// out[y * w + x] = settled(rd (sum_j w_j planes[j][row0 + y][x0 + x] + sum_m w_m (near_m * E)))
+// for the texels (x, y) .. (x + BD_WIDTH - 1, y) of rows row0.. of a band w texels wide: the
+// planes `plane` floats apart with rows `pitch` floats apart; e: the band's irradiance padded
+// by x0 texels on every side, rows `epitch` floats apart; the maps rd, lu, lv w texels a row,
+// the band's row y at their row mrow + y; near_basis: the near kernels' values per class
+// (BD_NEAR_RANK x BD_NCLASSES); table: (n0, n1, n2) records of BD_RECORD floats
 __kernel void gather_stretched(__global const float *rd, __global const float *lu,
                                __global const float *lv, __global const float *table,
-                               __global const float *planes, __global float *out,
-                               const int w, const int h, const int pitch, const int plane,
-                               const int x0, const int n0, const int n1, const int n2,
-                               const float rd_lo, const float rd_hi,
-                               const float s0, const float o0, const float s1, const float o1,
-                               const float s2, const float o2,
-                               const float scale, const int nonneg)
+                               __global const float *planes, __global const float *e,
+                               __constant const float *near_basis, __global float *out,
+                               const int w, const int pitch, const int plane,
+                               const int epitch, const int x0, const int row0, const int mrow,
+                               const float scale, const int nonneg, BD_LATTICE_ARGS)
 {
-    const int x = get_global_id(0), y = get_global_id(1);
-    if (x >= w || y >= h) return;
-    const size_t p = (size_t)y * w + x;
-    const float r = rd[p];
-    const float q = clamp(r, rd_lo, rd_hi);
-    float f0, f1, f2;
-    const int i0 = stretched_base(log(q / (1.0f - q)) * s0 - o0, n0, &f0);
-    const int i1 = stretched_base(log(lu[p]) * s1 - o1, n1, &f1);
-    const int i2 = stretched_base(log(lv[p]) * s2 - o2, n2, &f2);
-    const int d0 = (n0 > 1) ? n1 * n2 * BD_NBASIS : 0;
-    const int d1 = (n1 > 1) ? n2 * BD_NBASIS : 0;
-    const int d2 = (n2 > 1) ? BD_NBASIS : 0;
-    __global const float *t = table + ((size_t)(i0 * n1 + i1) * n2 + i2) * BD_NBASIS;
-    const float w000 = (1.0f - f0) * (1.0f - f1) * (1.0f - f2), w001 = (1.0f - f0) * (1.0f - f1) * f2;
-    const float w010 = (1.0f - f0) * f1 * (1.0f - f2), w011 = (1.0f - f0) * f1 * f2;
-    const float w100 = f0 * (1.0f - f1) * (1.0f - f2), w101 = f0 * (1.0f - f1) * f2;
-    const float w110 = f0 * f1 * (1.0f - f2), w111 = f0 * f1 * f2;
-    __global const float *b = planes + (size_t)y * pitch + x0 + x;
-    float sum = 0.0f;
-    for (int j = 0; j < BD_NBASIS; ++j) {
-        const float wj = w000 * t[j] + w001 * t[d2 + j] + w010 * t[d1 + j] + w011 * t[d1 + d2 + j]
-            + w100 * t[d0 + j] + w101 * t[d0 + d2 + j] + w110 * t[d0 + d1 + j]
-            + w111 * t[d0 + d1 + d2 + j];
-        sum += wj * b[(size_t)j * plane];
-    }
-    const float m = r * sum;
-    const float floor_ = r * scale;
-    out[p] = (nonneg ? m <= floor_ : fabs(m) <= floor_) ? 0.0f : m;
+    const int x = first_texel(get_global_id(0), w), y = get_global_id(1);
+    const size_t p = (size_t)y * w + x, m = (size_t)(y + mrow) * w + x;
+    const vec r = GLOAD(0, rd + m);
+    float wl[BD_WIDTH * BD_RECORD];
+    texel_weights(table, r, GLOAD(0, lu + m), GLOAD(0, lv + m), wl, BD_LATTICE);
+    __global const float *blurred = planes + (size_t)(y + row0) * pitch + x0 + x;
+    vec sum = (vec)0.0f;
+    for (int j = 0; j < BD_NBASIS; ++j)
+        sum += texel_weight(wl, j) * GLOAD(0, blurred + (size_t)j * plane);
+#if BD_NEAR >= 0 && BD_NEAR_RANK > 0
+    __global const float *here = e + (size_t)(y + row0 + x0) * epitch + x0 + x;
+    vec near[BD_NEAR_RANK];
+    for (int m = 0; m < BD_NEAR_RANK; ++m)
+        near[m] = (vec)0.0f;
+    int k = 0;
+    for (int a = 0; a <= BD_NEAR; ++a)
+        for (int b = 0; b <= BD_NEAR; ++b, ++k) {
+            const vec s = class_sum(here, epitch, a, b);
+            for (int m = 0; m < BD_NEAR_RANK; ++m)
+                near[m] += near_basis[m * BD_NCLASSES + k] * s;
+        }
+    for (int m = 0; m < BD_NEAR_RANK; ++m)
+        sum += texel_weight(wl, BD_NBASIS + m) * near[m];
+#endif
+    GSTORE(settle(r * sum, r, scale, nonneg), 0, out + p);
 }

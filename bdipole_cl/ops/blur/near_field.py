@@ -1,7 +1,12 @@
 """The texture-varying blur's bases (docs/model.md "Texture-varying parameters"): eigen-kernels
 of the kernels of a parameter range and the projections of the lattice's node kernels on them,
 and the near field, whose kernels the gather convolves with the irradiance itself
-(kernels/blur_textured.cl), chosen by the gather's cost on the device in use."""
+(kernels/blur_textured.cl), chosen by the gather's cost on the device in use.
+
+The near field's cells fall into classes of equal weight by the kernels' symmetry: eight cells
+(+-a, +-b), (+-b, +-a) for the radially symmetric kernels of the texture-varying blur
+(``mirrored``), four cells (+-a, +-b) for the stretched blur's, which are even in u and in v
+but not mirrored across the diagonal (docs/stretch.md "The near field")."""
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -85,25 +90,32 @@ class Projection:
         return self.eigen.most
 
 
-def near_classes(near):
-    """The near field's cell classes (a, b), near >= a >= b >= 0: class (a, b) is the cells
-    (+-a, +-b) and (+-b, +-a) of the radially symmetric kernel, whose weights are equal. The
-    order is the gather's (kernels/blur_textured.cl ``gather_exitance``, ``class_sum``).
-    near < 0: none."""
-    return tuple((a, b) for a in range(near + 1) for b in range(a + 1))
+def near_classes(near, mirrored=True):
+    """The near field's cell classes (a, b): mirrored, near >= a >= b >= 0, class (a, b) the
+    cells (+-a, +-b) and (+-b, +-a) of the radially symmetric kernel, whose weights are equal
+    (the order of kernels/blur_textured.cl ``gather_exitance``, ``class_sum``); else every
+    0 <= a, b <= near, class (a, b) the cells (+-a rows, +-b columns) of a kernel even in u
+    and v (the order of kernels/blur_stretched.cl). near < 0: none."""
+    return tuple((a, b) for a in range(near + 1) for b in range(a + 1 if mirrored
+                                                                  else near + 1))
 
 
-def class_quadrants(classes, radius):
+def class_quadrants(classes, radius, mirrored=True):
     """(n, K+1, K+1) quadrant of each near class's kernel: 1 on its cells."""
     quads = np.zeros((len(classes), radius + 1, radius + 1))
     for q, (a, b) in zip(quads, classes):
-        q[a, b] = q[b, a] = 1.0
+        q[a, b] = 1.0
+        if mirrored:
+            q[b, a] = 1.0
     return quads
 
 
-def class_sizes(classes):
-    """The cells of the kernel in each near class (a, b): 1 for the centre, 4 on the axes and
-    diagonals, else 8."""
+def class_sizes(classes, mirrored=True):
+    """The cells of the kernel in each near class (a, b): mirrored, 1 for the centre, 4 on the
+    axes and diagonals, else 8; else 1 for the centre, 2 on the axes, else 4."""
+    if not mirrored:
+        return np.array([(1 if a == 0 else 2) * (1 if b == 0 else 2) for a, b in classes],
+                        float)
     return np.array([1 if a == 0 else 4 if b in (0, a) else 8 for a, b in classes], float)
 
 
@@ -112,17 +124,17 @@ def class_values(quad, classes):
     return np.array([quad[a, b] for a, b in classes], np.float64).reshape(len(classes))
 
 
-def near_quadrants(values, near, radius):
+def near_quadrants(values, near, radius, mirrored=True):
     """(M, K+1, K+1) quadrants of the near kernels of values (M, classes) per near class."""
     return np.tensordot(np.asarray(values, np.float64),
-                        class_quadrants(near_classes(near), radius), 1).reshape(
-        (-1, radius + 1, radius + 1))
+                        class_quadrants(near_classes(near, mirrored), radius, mirrored),
+                        1).reshape((-1, radius + 1, radius + 1))
 
 
-def with_near_classes(quads, near_values, near, radius):
+def with_near_classes(quads, near_values, near, radius, mirrored=True):
     """The table's kernels, in its order: the blurred basis quadrants ``quads``, then the near
     kernels' (``near_quadrants`` of their values per class)."""
-    return np.concatenate([quads, near_quadrants(near_values, near, radius)])
+    return np.concatenate([quads, near_quadrants(near_values, near, radius, mirrored)])
 
 
 #: near field radii tried per plan: the cells within ``near`` (Chebyshev) of the texel are the
@@ -158,17 +170,19 @@ def near_cells(near) -> int:
     return (2 * near + 1) ** 2 if near >= 0 else 0
 
 
-def near_cost(near, nbasis, nnear, costs: GatherCosts):
+def near_cost(near, nbasis, nnear, costs: GatherCosts, mirrored=True):
     """The blur's cost model in basis blurs per texel: nbasis inverse FFTs, the near field's
     cells and class terms, and the table's weights."""
     return (nbasis + costs.cell * near_cells(near)
-            + costs.term * len(near_classes(near)) * nnear + costs.weight * (nbasis + nnear))
+            + costs.term * len(near_classes(near, mirrored)) * nnear
+            + costs.weight * (nbasis + nnear))
 
 
 def far_parts(kernels, near, radius):
-    """The quadrants ``kernels`` with the cells of near field ``near`` zeroed: what the FFT
-    basis fits."""
-    mask = class_quadrants(near_classes(near), radius).sum(axis=0) > 0
+    """The quadrants ``kernels`` with the cells of near field ``near`` (every cell within
+    Chebyshev distance ``near``, whatever the classes) zeroed: what the FFT basis fits."""
+    mask = np.zeros((radius + 1, radius + 1), bool)
+    mask[:near + 1, :near + 1] = near >= 0
     return [np.where(mask, 0.0, t) for t in kernels]
 
 
@@ -190,12 +204,15 @@ class NearFieldFit:
     near_values: np.ndarray  # (M, classes) float32
     coef: np.ndarray         # (nodes, G + M)
     interp_error: float      # ``interp_error`` of the node coefficients' table
+    mirrored: bool = True    # the classes' symmetry (``near_classes``)
 
     def cost(self, costs: GatherCosts):
-        return near_cost(self.near, len(self.quads), len(self.near_values), costs)
+        return near_cost(self.near, len(self.quads), len(self.near_values), costs,
+                         self.mirrored)
 
 
-def near_field_basis(targets, train, tol, radius, measure, costs: GatherCosts):
+def near_field_basis(targets, train, tol, radius, measure, costs: GatherCosts,
+                     mirrored=True, radii=None):
     """The cheapest NearFieldFit over NEAR_RADII (``near_cost``) for the node kernels
     ``targets`` and the kernels of the texture's parameter range, ``train``. The near kernels
     are eigen-kernels of the ``train`` kernels' values on the near classes, the far basis of
@@ -205,20 +222,21 @@ def near_field_basis(targets, train, tol, radius, measure, costs: GatherCosts):
     first where that does as well (it is the cheaper), until ``measure`` (the interpolation
     error of a (quads, values, coef) fit over the range) is within tol too: the nodes beyond
     the range serve the cubic's stencil, and their projections enter the texels' kernels. The
-    cost is the device's (``costs``)."""
+    cost is the device's (``costs``). ``mirrored``: the classes' symmetry (``near_classes``);
+    ``radii``: the near field radii tried (NEAR_RADII)."""
     best = None
-    for near in (r for r in NEAR_RADII if r <= radius):
-        if best is not None and near_cost(near, 0, 0, costs) >= best.cost(costs):
+    for near in (r for r in (NEAR_RADII if radii is None else radii) if r <= radius):
+        if best is not None and near_cost(near, 0, 0, costs, mirrored) >= best.cost(costs):
             break                                    # its cells alone cost more
-        fit = _near_field_fit(targets, train, tol, radius, near, measure)
+        fit = _near_field_fit(targets, train, tol, radius, near, measure, mirrored)
         if best is None or fit.cost(costs) < best.cost(costs):
             best = fit
     return best
 
 
-def _near_field_fit(targets, train, tol, radius, near, measure):
+def _near_field_fit(targets, train, tol, radius, near, measure, mirrored=True):
     """The NearFieldFit of near field ``near`` (``near_field_basis``)."""
-    classes = near_classes(near)
+    classes = near_classes(near, mirrored)
 
     def far(kernels):
         return far_parts(kernels, near, radius)
@@ -228,7 +246,7 @@ def _near_field_fit(targets, train, tol, radius, near, measure):
     far_eigen = EigenKernels.of(far(train))
     far_t = far_eigen.project(far(targets))
     if classes:
-        near_eigen = EigenKernels.of(near_part(train), class_sizes(classes))
+        near_eigen = EigenKernels.of(near_part(train), class_sizes(classes, mirrored))
         near_t = near_eigen.project(near_part(targets))
 
     def fit(g, m):
@@ -236,7 +254,8 @@ def _near_field_fit(targets, train, tol, radius, near, measure):
         parts = [far_t.coefficients(g)] + ([near_t.coefficients(m)] if classes else [])
         coef = np.concatenate(parts, axis=1)
         quads = far_eigen.kernels(g)
-        return NearFieldFit(near, quads, values, coef, measure(quads, values, near, coef))
+        return NearFieldFit(near, quads, values, coef, measure(quads, values, near, coef),
+                            mirrored)
     g = far_eigen.project(far(train)).rank_within(tol)
     m = near_eigen.project(near_part(train)).rank_within(NEAR_TOL_SHARE * tol) if classes else 0
     current = fit(g, m)

@@ -1,32 +1,33 @@
-"""The stretched blur applied (docs/stretch.md): per channel a StretchedPlan
-(``stretched_plan``), per UV chart a window of the image whose irradiance is the chart's own
-(``ChartWindow``: other charts left out, the chart continued beyond its edge by its nearest
-texel, or 0), the basis blurs of each window by the host FFT (``fft.basis_blurs``) and the
-per-texel gather on the device (kernels/blur_stretched.cl)."""
+"""The stretched blur applied (docs/stretch.md): the image's windows (``stretched_windows``:
+the image, or per UV chart the chart's own irradiance, other charts left out, the chart
+continued beyond its edge by its nearest texel or 0), per channel and window a StretchedPlan
+of the window's own ranges (``stretched_plan``), each window blurred in bands of rows with a
+halo (``max_memory``): the basis blurs by the host FFT and the per-texel gather on the device
+(``stretched_gather``, kernels/blur_stretched.cl)."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
 
 import numpy as np
-import pyopencl as cl
 
-from ...device import build_options, get_program, get_runtime
+from ...device import get_runtime
 from ...errors import check_policy
 from ...methods.registry import BORDER, CHART_BORDER
 from ...physics import reference as ref
 from ...signals import check_stop
-from .dispatch import host_buffer, read_back
-from .fft import FFT32_ROUNDOFF, basis_blurs, fft_shape, settle_floor, summed_roundoff, \
-    FFT32_ROUNDOFF_ULPS, ROUNDOFF_ULPS, value_range
+from ..bands import band_rows
+from .dispatch import gather_costs
+from .fft import FFT32_ROUNDOFF, summed_roundoff, value_range
+from .near_field import near_cells
 from .params import MapRanges, checked_irradiance, texel_parameters
 from .planning import BlurAccuracyWarning, BlurInfo, ChannelInfo
-from .stretched_plan import (StretchedPlan, coefficients, node_kernel, stretched_plan,
-                             transformed)
-from .textured import host_array
+from .stretched_gather import blur_band
+from .stretched_plan import (StretchedPlan, coefficients, lattice_variables, node_kernel,
+                             stretched_plan)
+from .stretched_windows import Window, chart_windows, whole_image
+from .textured import host_array, textured_row_bytes
 from .textured_plan import RD_MAX, RD_MIN
 from .weights import EXACT_CELLS, unfold_quadrant
-
-
 @dataclass(frozen=True)
 class Stretch:
     """Per texel the surface length of one texel step along u (``su``) and along v (``sv``),
@@ -81,77 +82,59 @@ def as_stretch(value, shape) -> Stretch:
     return Stretch(maps["su"], maps["sv"], chart, covered, float(s.max_shear), s.unit)
 
 
-@dataclass(frozen=True)
-class ChartWindow:
-    """One chart's part of the image: ``rows`` x ``cols``, the texels it writes (``output``:
-    its chart's), and where each of its texels' irradiance comes from (``source``: flat image
-    indices; ``keep``: False where it is 0)."""
+class WindowChannel:
+    """One channel of one window: its plan and its (Rd, l_u, l_v) maps over the window's box
+    (float32, diffusion lengths in texels, aligned: the gather reads them in place)."""
 
-    rows: slice
-    cols: slice
-    output: np.ndarray
-    source: np.ndarray
-    keep: np.ndarray
-
-
-def chart_windows(stretch: Stretch, shape, mode) -> tuple:
-    """The ChartWindows of ``mode`` (``methods.registry.CHART_BORDER``); () for "none" or a
-    stretch without charts (one window: the image, with the plan's border rule)."""
-    from scipy.ndimage import distance_transform_edt, find_objects
-    if mode == "none" or stretch.chart is None:
-        return ()
-    h, w = shape[:2]
-    chart = stretch.chart
-    covered = stretch.covered if stretch.covered is not None else np.ones((h, w), bool)
-    ids, labels = np.unique(chart, return_inverse=True)
-    labels = labels.reshape(chart.shape) + 1
-    out = []
-    for k, box in enumerate(find_objects(labels)):
-        if box is None:
-            continue
-        check_stop()
-        rows, cols = box
-        output = labels[box] == k + 1
-        own = output & covered[box]
-        if not own.any():
-            own = output
-        yy, xx = np.mgrid[rows, cols]
-        if mode == "clamp":
-            iy, ix = distance_transform_edt(~own, return_distances=False, return_indices=True)
-            source = (iy + rows.start) * w + (ix + cols.start)
-            keep = np.ones(own.shape, bool)
-        else:
-            source, keep = yy * w + xx, own
-        out.append(ChartWindow(rows, cols, output, source.astype(np.int64), keep))
-    return tuple(out)
-
-
-class StretchedChannel:
-    """One channel: its plan and float32 Rd, l_u, l_v maps (diffusion lengths in texels)."""
-
-    def __init__(self, plan, rd, lu, lv):
-        self.plan, self.rd, self.lu, self.lv = plan, rd, lu, lv
+    def __init__(self, plan: StretchedPlan, maps):
+        self.plan, self.maps = plan, maps
 
 
 def channel_maps(shape, c, stretch, physical, eta, exact, on_invalid, counts, ranges):
-    """(Rd, l_u, l_v) float32 maps of channel c: Rd and ld (the mfp's unit) as the
-    texture-varying blur makes them, divided by the texel lengths."""
+    """(Rd, l_u, l_v) float32 maps of channel c (aligned: the gather reads them in place): Rd
+    and ld (the mfp's unit) as the texture-varying blur makes them, divided by the texel
+    lengths."""
     rd, ld = texel_parameters(shape, c, eta=eta, exact=exact, on_invalid=on_invalid,
                               ranges=ranges, counts=counts, **{**physical, "texel_size": 1.0})
-    return rd, (ld / stretch.su).astype(np.float32), (ld / stretch.sv).astype(np.float32)
+    out = [host_array(shape[:2]) for _ in range(3)]
+    np.copyto(out[0], rd)
+    np.divide(ld, stretch.su, out=out[1], dtype=np.float32, casting="unsafe")
+    np.divide(ld, stretch.sv, out=out[2], dtype=np.float32, casting="unsafe")
+    return tuple(out)
 
 
 def map_ranges(rd, lu, lv):
-    """((lo, hi) of logit Rd, ln l_u, ln l_v) over the maps (Rd's lit texels only)."""
+    """((lo, hi) of logit Rd, ln l, s) over the texels of maps rd, l_u, l_v (1-D or any
+    shape; Rd's lit texels only: Rd = 0 gives 0 whatever its kernel's shape), l = sqrt(l_u
+    l_v) and s = ln(l_u / l_v) (``stretched_plan.lattice_variables``). The logarithms are
+    taken of the extremes of l_u l_v and l_u / l_v (ln is monotonic), not of every texel: the
+    ranges cost two reads of the maps."""
     lo, hi = value_range(rd)
     if lo <= 0 < hi:
         lo = np.min(rd, where=rd > 0, initial=np.inf)
-    t_rd = transformed([float(lo), float(hi)], [1.0, 1.0], [1.0, 1.0])[0]
-    out = [(float(t_rd[0]), float(t_rd[1]))]
-    for m in (lu, lv):
-        a, b = value_range(m)
-        out.append((float(np.log(a)), float(np.log(b))))
-    return tuple(out)
+    t_rd = lattice_variables([float(lo), float(hi)], 1.0, 1.0)[0]
+    area = value_range(np.multiply(lu, lv, dtype=np.float64))      # float64: no overflow
+    aspect = value_range(np.divide(lu, lv, dtype=np.float64))
+    ln_l = 0.5 * np.log(np.asarray(area, np.float64))
+    s = np.log(np.asarray(aspect, np.float64))
+    return ((float(t_rd[0]), float(t_rd[1])), (float(ln_l[0]), float(ln_l[1])),
+            (float(s[0]), float(s[1])))
+
+
+def window_maps(maps, window: Window):
+    """The (Rd, l_u, l_v) maps over a window's box, aligned copies (the gather reads them in
+    place), and the ranges of its texels' (``map_ranges`` over the texels it writes)."""
+    if window.output is None and (window.height, window.width) == maps[0].shape:
+        return tuple(maps), map_ranges(*maps)   # the image: its maps, already aligned
+    crop = []
+    for m in maps:
+        box = host_array((window.height, window.width))
+        box[...] = m[window.rows, window.cols]
+        crop.append(box)
+    if window.output is None:           # every texel of the box: no masked copies
+        return tuple(crop), map_ranges(*crop)
+    own = window.writes()
+    return tuple(crop), map_ranges(*(m[own] for m in crop))
 
 
 def shear_error(plan: StretchedPlan, ranges, max_shear, exact=False) -> float:
@@ -164,11 +147,11 @@ def shear_error(plan: StretchedPlan, ranges, max_shear, exact=False) -> float:
     worst = 0.0
     corners = [sorted({lo, hi}) for lo, hi in ranges]
     for t_rd in corners[0]:
-        for t_u in corners[1]:
-            for t_v in corners[2]:
+        for ln_l in corners[1]:
+            for t_s in corners[2]:
                 check_stop()
                 rd = float(np.clip(1.0 / (1.0 + np.exp(-t_rd)), RD_MIN, RD_MAX))
-                lu, lv = float(np.exp(t_u)), float(np.exp(t_v))
+                lu, lv = float(np.exp(ln_l + 0.5 * t_s)), float(np.exp(ln_l - 0.5 * t_s))
                 aligned = unfold_quadrant(node_kernel(rd, lu, lv, plan.eta, plan.radius,
                                                       exact))
                 worst = max(worst, float(np.abs(sheared_kernel(rd, lu, lv, max_shear,
@@ -213,15 +196,29 @@ def sheared_kernel(rd, lu, lv, cos_shear, eta, k, exact=False):
 
 
 def roundoff(plan) -> float:
-    """The float32 basis blurs' round-off and the gather's sums (as ``textured.roundoff``)."""
-    return FFT32_ROUNDOFF + summed_roundoff(len(plan.kernels) + 8)
+    """The float32 basis blurs' round-off and the gather's sums of its near cells, near
+    kernels and basis weights (as ``textured.roundoff``)."""
+    return FFT32_ROUNDOFF + summed_roundoff(near_cells(plan.near) + len(plan.kernels)
+                                            + len(plan.near_values))
+
+
+def describe(plans) -> str:
+    """A channel's method: its windows' eigen-kernels and near fields."""
+    parts = [f"{len(p.kernels)} eigen-kernels"
+             + (f", near field {p.near} with {len(p.near_values)} kernels" if p.near >= 0
+                else "") for p in plans]
+    if len(parts) == 1:
+        return parts[0]
+    return f"{len(parts)} charts: " + "; ".join(parts)
 
 
 @dataclass(eq=False)
 class StretchedBlurPlan:
-    """A stretched blur, decided once (``plan_stretched``): per channel a StretchedPlan and its
-    maps, the chart windows; apply it to the whole image (it reads every texel at once, as
-    the texture-varying blur: ``textured`` is True for the file blur's sake)."""
+    """A stretched blur, decided once (``plan_stretched``): its windows (the image, or one per
+    chart) and per channel and window a StretchedPlan and its maps. ``apply`` blurs each
+    window in bands of rows within ``max_memory`` (their halo the window's largest radius), so
+    a band's result is the whole image's, up to the float32 FFT's round-off. ``textured`` is
+    True for the file blur's sake: it reads the whole image and lets the plan band it."""
 
     scattering: object
     shape: tuple
@@ -229,8 +226,8 @@ class StretchedBlurPlan:
     border: str
     charts: str
     on_invalid: str
-    channels: tuple
-    windows: tuple
+    windows: tuple               # stretched_windows.Window
+    channels: tuple              # per channel, per window: WindowChannel
     textured_info: BlurInfo
     invalid: dict = field(default_factory=dict)
     runtime: object = field(default=None, repr=False)
@@ -251,11 +248,11 @@ class StretchedBlurPlan:
         return {**self.__dict__, "runtime": None}
 
     def apply(self, irradiance, max_memory=None):
-        """(M, BlurInfo) of the whole image (``max_memory`` is not used: the windows' FFTs
-        read the whole image)."""
+        """(M, BlurInfo) of the whole image, each window in bands of rows within
+        ``max_memory`` bytes (None: whole)."""
         counts = dict(self.invalid)
         e = checked_irradiance(irradiance, self.on_invalid, counts)
-        out, info = self.apply_checked(e)
+        out, info = self.apply_checked(e, max_memory)
         out = out[..., 0] if np.ndim(irradiance) == 2 else out
         return out, replace(info, invalid=counts)
 
@@ -264,67 +261,57 @@ class StretchedBlurPlan:
             raise ValueError(f"irradiance has shape {e.shape}; the plan is for {self.shape}")
         rt = self.runtime = get_runtime(self.runtime)
         out = np.zeros(e.shape, np.float32)
-        windows = self.windows or (None,)
-        for c, ch in enumerate(self.channels):
-            for win in windows:
-                check_stop()
-                blur_window(out, e, c, ch, win, self.border if win is None else
-                            ("clamp" if self.charts == "clamp" else "zero"), rt)
+        for c, per_window in enumerate(self.channels):
+            e2d = np.ascontiguousarray(e[..., c])
+            for win, wch in zip(self.windows, per_window):
+                blur_window(out[..., c], e2d, win, wch, max_memory, rt)
         return out, self.textured_info
 
     def apply_band(self, e, rows=None):
         return self.apply_checked(e)
 
 
-def blur_window(out, e, c, ch, win, border, rt):
-    """out[..., c] over one chart window (None: the whole image) from its own irradiance."""
-    plan = ch.plan
-    if win is None:
-        rows, cols = slice(0, e.shape[0]), slice(0, e.shape[1])
-        src = e[..., c:c + 1]
-    else:
-        rows, cols = win.rows, win.cols
-        flat = e[..., c].ravel()
-        src = np.where(win.keep, flat[win.source], np.float32(0))[..., None]
-    h, w = src.shape[:2]
-    shape = fft_shape((h, w), plan.radius)
-    planes = host_array((max(len(plan.kernels), 1), h, shape[1]))
-    _, e_range, dtype, unit = basis_blurs(np.ascontiguousarray(src, np.float32), 0, plan,
-                                          border, planes)
-    ulps = FFT32_ROUNDOFF_ULPS if dtype == np.float32 else ROUNDOFF_ULPS
-    res = np.empty((h, w), np.float32)
-    gather(res, plan, ch.rd[rows, cols], ch.lu[rows, cols], ch.lv[rows, cols], planes,
-           rt, settle_floor(e_range, ulps))
-    if unit != 1.0:
-        np.ldexp(res, -int(np.log2(unit)), out=res)
-    view = out[rows, cols, c]
-    if win is None:
-        view[...] = res
-    else:
-        np.copyto(view, res, where=win.output)
+def window_row_bytes(win: Window, plan: StretchedPlan) -> int:
+    """A window's working set per band row: its basis blurs' (as ``textured_row_bytes``)."""
+    return textured_row_bytes(win.width, 1, plan.radius, max(len(plan.kernels), 1))
 
 
-def gather(res, plan, rd, lu, lv, planes, rt, settle):
-    """res = the stretched gather (kernels/blur_stretched.cl) of one window on ``rt``."""
-    h, w = res.shape
-    mf = cl.mem_flags
-    g = len(plan.kernels)
-    fine = np.ascontiguousarray(plan.fine, np.float32)
-    # over the host arrays (zero-copy on a CPU device: the planes are G images)
-    bufs = [host_buffer(rt, np.ascontiguousarray(a, np.float32), mf.READ_ONLY)
-            for a in (rd, lu, lv, fine, planes)]
-    dst = host_buffer(rt, res, mf.READ_WRITE)
-    (s0, o0), (s1, o1), (s2, o2) = plan.axis_maps()
-    n0, n1, n2 = fine.shape[:3]
-    scale, nonneg = settle
-    kernel = cl.Kernel(get_program(rt, "blur_stretched", build_options({"BD_NBASIS": g})),
-                       "gather_stretched")
-    kernel(rt.queue, (w, h), None, *bufs, dst, np.int32(w), np.int32(h),
-           np.int32(planes.shape[2]), np.int32(planes.shape[1] * planes.shape[2]),
-           np.int32(plan.radius), np.int32(n0), np.int32(n1), np.int32(n2),
-           np.float32(RD_MIN), np.float32(RD_MAX), s0, o0, s1, o1, s2, o2,
-           np.float32(scale), np.int32(bool(nonneg)))
-    read_back(rt, dst, res)
+def blur_window(out2d, e2d, win: Window, wch: WindowChannel, max_memory, rt):
+    """out2d's texels that ``win`` writes = the stretched blur of its irradiance (from
+    ``e2d``), in bands of rows within ``max_memory``."""
+    plan = wch.plan
+    halo = plan.radius
+    rows = band_rows(win.height, window_row_bytes(win, plan), max_memory, halo=halo)
+    writes = win.writes()
+    for y0, y1, idx in win.bands(rows, halo):
+        check_stop()
+        src = win.band_irradiance(e2d, idx)
+        # the band's own rows follow its halo's: rows [halo, halo + y1 - y0) of src
+        res = blur_band(src, plan, wch.maps, y0, win.border, halo, y1 - y0, rt)
+        view = out2d[win.rows.start + y0:win.rows.start + y1, win.cols]
+        np.copyto(view, res, where=writes[y0:y1])
+
+
+def channel_plans(maps, windows, eta, tol, exact, costs, max_shear):
+    """Per window a WindowChannel of one channel's (Rd, l_u, l_v) ``maps``, and the channel's
+    ChannelInfo fields: the worst window's (bound, fit error, interpolation error, nodes),
+    the shear's error, warned of where a kernel error exceeds tol."""
+    import warnings
+    out, worst = [], None
+    for win in windows:
+        crop, ranges = window_maps(maps, win)
+        plan = stretched_plan(ranges, float(eta), float(tol), exact, costs=costs)
+        shear = shear_error(plan, ranges, max_shear, exact)
+        bound = plan.error_bound + shear + roundoff(plan)
+        if max(plan.fit_error, plan.interp_error) > tol or shear > tol:
+            warnings.warn(BlurAccuracyWarning(
+                f"stretched blur error bound {bound:.2e} (basis {plan.fit_error:.1e}, "
+                f"interpolation {plan.interp_error:.1e}, shear {shear:.1e} at |cos| "
+                f"{max_shear:.3f})"), stacklevel=4)
+        out.append(WindowChannel(plan, crop))
+        if worst is None or bound > worst[0]:
+            worst = (bound, plan, shear)
+    return tuple(out), worst
 
 
 def plan_stretched(shape, scattering, stretch, *, tol=1e-3, border="clamp", charts="clamp",
@@ -332,34 +319,32 @@ def plan_stretched(shape, scattering, stretch, *, tol=1e-3, border="clamp", char
     """The StretchedBlurPlan of an irradiance of ``shape`` (H, W, C) under ``scattering``
     (``plan.Scattering``: albedo and mfp, or alpha' and sigma_t', in the stretch's unit;
     its texel_size is not used) with ``stretch`` (``as_stretch``), chart borders by
-    ``charts`` (``methods.registry.CHART_BORDER``)."""
-    import warnings
+    ``charts`` (``methods.registry.CHART_BORDER``): per channel and window a plan of the
+    window's own ranges, its near field chosen for the device's gather costs."""
     BORDER[border], CHART_BORDER[charts]
     check_policy(on_invalid)
     if not 0 < tol < 1:
         raise ValueError(f"tol={tol!r}: expected 0 < tol < 1")
     s = as_stretch(stretch, shape)
+    rt = get_runtime(device)
     physical = {k: v for k, v in scattering.keywords().items() if k not in ("eta",)}
     etas = np.broadcast_to(np.atleast_1d(np.asarray(scattering.eta, np.float64)), (shape[2],))
+    windows = (chart_windows(s.chart, s.covered, shape, charts)
+               if charts != "none" and s.chart is not None else ())
+    windows = windows or (whole_image(shape, border),)
     counts, ranges_kept, chans, infos = {}, MapRanges(), [], []
     for c in range(shape[2]):
-        rd, lu, lv = channel_maps(shape, c, s, physical, float(etas[c]), exact, on_invalid,
-                                  counts, ranges_kept)
-        ranges = map_ranges(rd, lu, lv)
-        plan = stretched_plan(ranges, float(etas[c]), float(tol), exact)
-        shear = shear_error(plan, ranges, s.max_shear, exact)
-        bound = plan.error_bound + shear + roundoff(plan)
-        if max(plan.fit_error, plan.interp_error) > tol or shear > tol:
-            warnings.warn(BlurAccuracyWarning(
-                f"channel {c}: stretched blur error bound {bound:.2e} (basis {plan.fit_error:.1e}"
-                f", interpolation {plan.interp_error:.1e}, shear {shear:.1e} at |cos| "
-                f"{s.max_shear:.3f})"), stacklevel=3)
-        chans.append(StretchedChannel(plan, rd, lu, lv))
-        infos.append(ChannelInfo(c, f"fft (stretched, {len(plan.kernels)} eigen-kernels"
+        maps = channel_maps(shape, c, s, physical, float(etas[c]), exact, on_invalid, counts,
+                            ranges_kept)
+        per_window, (bound, plan, shear) = channel_plans(maps, windows, etas[c], tol, exact,
+                                                         gather_costs(rt), s.max_shear)
+        chans.append(per_window)
+        infos.append(ChannelInfo(c, f"fft (stretched, {describe([w.plan for w in per_window])}"
                                     f"{', shear %.1e' % shear if shear else ''})",
-                                 plan.radius, bound, fit_error=plan.fit_error,
-                                 interp_error=plan.interp_error, nodes=plan.nodes))
-    windows = chart_windows(s, shape, charts)
+                                 max(w.plan.radius for w in per_window), bound,
+                                 fit_error=plan.fit_error, interp_error=plan.interp_error,
+                                 nodes=plan.nodes))
+    halo = max(w.plan.radius for ch in chans for w in ch)
     return StretchedBlurPlan(scattering, tuple(shape), float(tol), border, charts, on_invalid,
-                             tuple(chans), windows, BlurInfo(tuple(infos)), counts,
-                             get_runtime(device), exact=exact)
+                             windows, tuple(chans), BlurInfo(tuple(infos)), counts, rt,
+                             exact=exact, halo=halo)

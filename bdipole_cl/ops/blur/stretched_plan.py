@@ -1,44 +1,58 @@
-"""The stretched blur's plan: anisotropic kernels per texel over a shared eigen-kernel basis
-(docs/stretch.md "The blur in surface distance").
+"""The stretched blur's plan: anisotropic kernels per texel over a shared eigen-kernel basis and
+a near field (docs/stretch.md "The blur in surface distance", "The lattice", "The near field").
 
 A texel whose steps along u and v are s_u and s_v long on the surface scatters with R of the
 surface distance ``r = |(s_u du, s_v dv)|`` (an axis-aligned metric: the shear is bounded, not
 modelled, docs/stretch.md "Shear"). In texels its kernel is R with the diffusion length
 ``l_u = ld / s_u`` along u and ``l_v = ld / s_v`` along v, integrated over each texel as the
-plain blur's (``stretched_quadrant``: the corner integrals on a non-square grid, then the
-product rule), truncated at a square of side 2K + 1 holding the ellipse where the profile's
-tail is tol Rd, and normalized to sum to 1. So its shape depends on (Rd, l_u, l_v): the
-lattice is three-dimensional over logit(Rd), ln(l_u), ln(l_v) (an axis on which the maps are
-constant collapses to one node), each node's exact kernel is projected on the eigen-kernels of
-the range's kernels (SVD, ``near_field.EigenKernels``), and the texels' weights are the
-lattice's cubic interpolation, tabulated REFINE times finer per axis and read trilinearly
-(kernels/blur_stretched.cl). The fit and interpolation errors are measured at the range's
-corners and midpoints against exact kernels and reported, with the truncation's tol, as the
-bound, as for the texture-varying blur.
+plain blur's (``stretched_quadrant``), truncated at a square of side 2K + 1 holding the
+ellipse where the profile's tail is tol Rd, and normalized to sum to 1. Its shape depends on
+(Rd, l_u, l_v); the lattice's variables are logit(Rd), ln l = ln sqrt(l_u l_v) (the scale)
+and s = ln(l_u / l_v) (the anisotropy), so that a map's range of anisotropy is an axis of its
+own (a chart of one aspect collapses it to one node) and the box of the ranges holds only
+kernels of the aspects the map has. The cells within ``near`` of the texel are the near field
+(``near_field``, classes of four cells: the kernels are even in u and v); the eigen-kernels fit
+the rest; each node's kernel is projected on both, and the texels' weights are the lattice's
+cubic interpolation, tabulated REFINE times finer per axis and read at the corners of the
+texel's tetrahedron (kernels/blur_stretched.cl). The fit and interpolation errors are measured
+against exact kernels at the range's corners and lattice cells' middles, and reported with the
+truncation's tol as the bound, as for the texture-varying blur.
 """
 from __future__ import annotations
 
 import itertools
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from ...caches import ByteCache
 from ...physics import reference as ref
 from ...signals import check_stop
-from .near_field import EigenKernels
+from .near_field import DEFAULT_GATHER_COSTS, GatherCosts, near_field_basis, with_near_classes
 from .textured_plan import (LATTICE_STEPS, RD_MAX, RD_MIN, REFINE, Axis, lagrange4, logit,
-                            sigmoid)
+                            sigmoid, training_kernels)
 from .weights import (EXACT_CELLS, GL_NODES, quadrant_integral, quadrant_sum,
                       truncation_radius, unfold_quadrant)
 
 STRETCHED_KERNELS = ByteCache("stretched node kernels", 256 << 20)
 STRETCHED_PLANS = ByteCache("stretched plans", 256 << 20)
 
-#: check points per axis (the range's ends and middle): 3^3 exact kernels per plan
-CHECKS_PER_AXIS = 3
-#: planning refuses a lattice of more nodes than this (each a (K+1)^2 float64 kernel)
+#: check points per axis: the range's ends and the middles of the lattice cells' fine cells
+#: (where the cubic and then the tetrahedra err most), at most this many evenly chosen
+CHECKS_PER_AXIS = 4
+#: planning refuses a lattice of more nodes than this
 MAX_NODES = 4096
+#: planning holds the nodes' exact kernels and the SVD's weighted copies of them: refused
+#: beyond these bytes before any is built (as ``textured_plan.PLAN_PEAK_BYTES``)
+PLAN_PEAK_BYTES = 4 << 30
+PLAN_PEAK_PER_NODE_BYTE = 8
+#: lattice step of s = ln(l_u / l_v) at tol = 1e-3 (halved per factor 16 of tighter tol, as
+#: the others): the kernel changes with s about as fast as with ln l (a change of s by ds
+#: stretches u by e^(ds/2) and v by e^(-ds/2)); the error is measured either way
+ANISOTROPY_STEP = 0.2
+#: near field radii the stretched plan tries (``near_field.NEAR_RADII``: its classes are
+#: (n + 1)^2, not the radially symmetric (n + 1)(n + 2) / 2)
+NEAR_RADII = (-1, 0, 1, 2, 3, 4, 5, 6)
 
 
 def coefficients(rd, eta, exact=False):
@@ -85,6 +99,21 @@ def node_kernel(rd, lu, lv, eta, radius, exact=False):
     return quad
 
 
+def lattice_variables(rd, lu, lv):
+    """The lattice variables (logit Rd, Rd clipped to [RD_MIN, RD_MAX]; ln l; s) of Rd and the
+    diffusion lengths l_u, l_v (texels), float64: l = sqrt(l_u l_v), s = ln(l_u / l_v)."""
+    a = np.log(np.asarray(lu, np.float64))
+    b = np.log(np.asarray(lv, np.float64))
+    return logit(np.clip(np.asarray(rd, np.float64), RD_MIN, RD_MAX)), 0.5 * (a + b), a - b
+
+
+def kernel_at(t, eta, radius, exact=False):
+    """``node_kernel`` at lattice variables t = (logit Rd, ln l, s)."""
+    rd = float(np.clip(sigmoid(t[0]), RD_MIN, RD_MAX))
+    return node_kernel(rd, float(np.exp(t[1] + 0.5 * t[2])), float(np.exp(t[1] - 0.5 * t[2])),
+                       eta, radius, exact)
+
+
 def kernel_radius(rd, l_max, eta, tol, exact=False) -> int:
     """K: the square of side 2K + 1 holds the ellipse beyond which the tail is tol Rd, for the
     longest diffusion length ``l_max`` (texels) on either axis."""
@@ -93,13 +122,20 @@ def kernel_radius(rd, l_max, eta, tol, exact=False) -> int:
     return int(np.ceil(r_t - 0.5)) if r_t > 0.5 else 0
 
 
-def lattice_axis(lo, hi, step, back) -> Axis:
-    """Nodes covering transformed values [lo, hi] for a 4-point cubic; one if lo == hi."""
+def lattice_axis(lo, hi, step) -> Axis:
+    """Nodes (their lattice variable) covering [lo, hi] for a 4-point cubic; one if lo == hi."""
     if hi - lo <= 1e-12 * max(1.0, abs(lo)):
-        return Axis((float(back(lo)),), 0.0, 0.0)
+        return Axis((float(lo),), 0.0, 0.0)
     i0 = int(np.floor(lo / step)) - 1
     i1 = max(int(np.floor(hi / step)) + 2, i0 + 3)
-    return Axis(tuple(float(back(i * step)) for i in range(i0, i1 + 1)), float(i0), step)
+    return Axis(tuple(float(i * step) for i in range(i0, i1 + 1)), float(i0), step)
+
+
+def lattice_steps(tol):
+    """The steps of logit Rd, ln l and s at tol: LATTICE_STEPS' and ANISOTROPY_STEP, halved
+    per factor 16 of tol below 1e-3 (the cubic's error goes as h^4)."""
+    level = max(0, int(np.ceil(np.log2(max(1e-3 / tol, 1.0)) / 4.0)))
+    return tuple(s / 2 ** level for s in (*LATTICE_STEPS, ANISOTROPY_STEP))
 
 
 def cubic_matrix(nodes):
@@ -115,44 +151,59 @@ def cubic_matrix(nodes):
 
 
 def fine_table3(table):
-    """The gather's table: the node weights (n0, n1, n2, G) interpolated by the cubic along
-    each axis at REFINE points per lattice step."""
+    """The gather's table: the node weights (n0, n1, n2, G) (float32) interpolated by the
+    cubic along each axis at REFINE points per lattice step, float32."""
     m0, m1, m2 = (cubic_matrix(n) for n in table.shape[:3])
     return np.einsum("ai,bj,ck,ijkg->abcg", m0, m1, m2, table.astype(np.float64),
                      optimize=True).astype(np.float32)
 
 
-def linear_taps(nodes, coord):
-    """(indices, weights) of linear interpolation at fine coordinate ``coord`` (as the
-    gather: the last cell extended, one node: weight 1)."""
-    if nodes == 1:
-        return np.array([0]), np.array([1.0])
-    base = int(np.clip(np.floor(coord), 0, nodes - 2))
-    t = coord - base
-    return np.array([base, base + 1]), np.array([1.0 - t, t])
+def fine_entries(table, index):
+    """The fine table's entries (float32, as ``fine_table3``) at fine indices ``index`` (n, 3)
+    only: each the cubic's 4 x 4 x 4 (or fewer, on one-node axes) node weights."""
+    rows = [cubic_matrix(n)[np.asarray(index)[:, a]] for a, n in enumerate(table.shape[:3])]
+    return np.einsum("na,nb,nc,abcg->ng", *rows, table.astype(np.float64),
+                     optimize=True).astype(np.float32)
 
 
-def interpolated(fine, coords):
-    """The gather's weights (float64) at fine coordinates ``coords`` (3,)."""
-    (i0, w0), (i1, w1), (i2, w2) = (linear_taps(n, c) for n, c in zip(fine.shape[:3], coords))
-    block = fine[np.ix_(i0, i1, i2)].astype(np.float64)
-    return np.einsum("a,b,c,abcg->g", w0, w1, w2, block)
+def tetrahedral_taps(shape, coords):
+    """The gather's four table taps at fine coordinates ``coords`` (3,) of a fine table of
+    ``shape`` (3,): (fine indices (4, 3), weights (4,)). From the cell's first corner one step
+    along each axis by decreasing fraction (Kuhn's tetrahedra; a one-node axis has fraction 0
+    and no step), as kernels/blur_stretched.cl ``texel_weights``."""
+    base = np.zeros(3, int)
+    frac = np.zeros(3)
+    for a, (n, c) in enumerate(zip(shape, coords)):
+        if n > 1:
+            base[a] = int(np.clip(np.floor(c), 0, n - 2))
+            frac[a] = c - base[a]
+    order = np.argsort(-frac, kind="stable")
+    idx = [base.copy()]
+    for a in order:
+        step = idx[-1].copy()
+        step[a] += shape[a] > 1
+        idx.append(step)
+    f = np.concatenate([[1.0], frac[order], [0.0]])
+    return np.array(idx), f[:-1] - f[1:]
 
 
 @dataclass(frozen=True)
 class StretchedPlan:
-    """One channel's stretched basis: eigen-kernels, lattice and node weights (duck-typed as
-    a ``TexturedPlan`` where ``fft.basis_blurs`` reads it)."""
+    """One channel's (or chart's) stretched basis: eigen-kernels, near field, lattice and the
+    gather's table (duck-typed as a ``TexturedPlan`` where ``fft.basis_blurs`` reads it)."""
 
     radius: int
-    kernels: tuple               # (K+1)^2 quadrants of the eigen-kernels
-    axes: tuple                  # Axis of logit Rd, ln l_u, ln l_v
-    fine: np.ndarray             # (f0, f1, f2, G) float32
+    kernels: tuple               # (K+1)^2 quadrants of the blurred eigen-kernels
+    axes: tuple                  # Axis of logit Rd, ln l, s
+    fine: np.ndarray             # (f0, f1, f2, G + M) float32
     eta: float
     fit_error: float
     interp_error: float
     truncation_tol: float
     nodes: int
+    near: int = -1               # the near field's radius (-1: none)
+    near_values: np.ndarray = field(default_factory=lambda: np.zeros((0, 0), np.float32))
+    #                              (M, (near + 1)^2) float32: the near kernels per class
 
     @property
     def error_bound(self) -> float:
@@ -161,6 +212,15 @@ class StretchedPlan:
     def blurred_quadrants(self):
         return np.asarray(self.kernels).reshape((-1, self.radius + 1, self.radius + 1))
 
+    @property
+    def near_basis(self):
+        return np.ascontiguousarray(self.near_values, np.float32)
+
+    def quadrants(self):
+        """(G + M, K+1, K+1): the table's kernels in its order (blurred, then near)."""
+        return with_near_classes(self.blurred_quadrants(), self.near_values, self.near,
+                                 self.radius, mirrored=False)
+
     def axis_maps(self):
         """Per axis (scale, offset) of its fine coordinate, t * scale - offset (0, 0 on a
         constant axis), float32 as the gather computes it."""
@@ -168,77 +228,102 @@ class StretchedPlan:
                 (np.float32(REFINE / a.step), np.float32(REFINE * a.origin)) for a in self.axes]
 
 
-def transformed(rd, lu, lv):
-    """The lattice variables of (Rd, l_u, l_v): logit of Rd clipped to [RD_MIN, RD_MAX], ln."""
-    return (logit(np.clip(np.asarray(rd, np.float64), RD_MIN, RD_MAX)),
-            np.log(np.asarray(lu, np.float64)), np.log(np.asarray(lv, np.float64)))
-
-
 def check_points(lo, hi, step):
+    """Where to check one axis: its ends and, inside, the middles of the fine cells at the
+    lattice cells' middles, at most CHECKS_PER_AXIS evenly chosen (one point on a constant
+    axis)."""
     if step == 0:
         return [lo]
-    return list(np.linspace(lo, hi, CHECKS_PER_AXIS))
+    mids = (np.arange(np.floor(lo / step), np.ceil(hi / step)) + 0.5 + 0.5 / REFINE) * step
+    pts = np.unique(np.concatenate([[lo, hi], mids[(mids > lo) & (mids < hi)]]))
+    return list(pts[np.linspace(0, len(pts) - 1, min(len(pts), CHECKS_PER_AXIS)).astype(int)])
 
 
-def interp_error(plan_fine, quads, axes, checks):
-    """The largest L1 error of the gather's kernel against the exact ``checks``."""
+def fine_coords(axes, t):
+    """Fine-table coordinates of lattice variables t (3,)."""
+    return [0.0 if a.step == 0 else (v / a.step - a.origin) * REFINE for a, v in zip(axes, t)]
+
+
+def interp_error(table, quads, axes, checks):
+    """The largest L1 error of the gather's kernel (the fine table of node weights ``table``
+    (n0, n1, n2, G + M) float32, at each check's tetrahedron, of the kernels ``quads``) against
+    the exact ``checks`` ((t, quadrant))."""
+    shape = [REFINE * (n - 1) + 1 for n in table.shape[:3]]
+    taps = [tetrahedral_taps(shape, fine_coords(axes, t)) for t, _ in checks]
+    entries = fine_entries(table, np.concatenate([idx for idx, _ in taps]))
     worst = 0.0
-    for t, exact_q in checks:
-        coords = [0.0 if a.step == 0 else (v / a.step - a.origin) * REFINE
-                  for a, v in zip(axes, t)]
-        w = interpolated(plan_fine, coords)
+    for k, ((_, weights), (_, exact_q)) in enumerate(zip(taps, checks)):
+        w = weights @ entries[4 * k:4 * k + 4].astype(np.float64)
         worst = max(worst, float(np.abs(unfold_quadrant(np.tensordot(w, quads, 1)
                                                          - exact_q)).sum()))
     return worst
 
 
-@STRETCHED_PLANS.memoize
-def stretched_plan(ranges, eta, tol, exact=False, max_radius=2048) -> StretchedPlan:
-    """The StretchedPlan of transformed ranges ((lo, hi) of logit Rd, ln l_u, ln l_v) at tol:
-    the rank grows from where every kernel of the range fits within tol until the measured
-    interpolation error is within tol too (or every eigen-kernel is used)."""
-    steps = (LATTICE_STEPS[0], LATTICE_STEPS[1], LATTICE_STEPS[1])
-    level = max(0, int(np.ceil(np.log2(max(1e-3 / tol, 1.0)) / 4.0)))
-    steps = tuple(s / 2 ** level for s in steps)
-    backs = (lambda t: min(max(sigmoid(t), RD_MIN), RD_MAX), np.exp, np.exp)
-    axes = tuple(lattice_axis(lo, hi, s, b) for (lo, hi), s, b in zip(ranges, steps, backs))
-    l_max = float(np.exp(max(ranges[1][1], ranges[2][1])))
+def inside_box(axes, ranges):
+    """Per node (in the lattice's order): whether it lies within every range (the nodes
+    beyond serve the cubic's stencil only)."""
+    per_axis = [np.abs(np.asarray(a.values) - np.clip(a.values, lo - 1e-9, hi + 1e-9)) == 0
+                for a, (lo, hi) in zip(axes, ranges)]
+    return [bool(all(f)) for f in itertools.product(*per_axis)]
+
+
+def plan_radius(ranges, eta, tol, exact=False) -> int:
+    """K over transformed ranges: the longest diffusion length of the box, l e^(|s| / 2) at
+    its largest l and |s|, at five albedos across the range."""
+    s_max = max(abs(ranges[2][0]), abs(ranges[2][1]))
+    l_max = float(np.exp(ranges[1][1] + 0.5 * s_max))
     rds = sigmoid(np.linspace(ranges[0][0], ranges[0][1], 5))
-    radius = max(kernel_radius(float(np.clip(r, RD_MIN, RD_MAX)), l_max, eta, tol, exact)
-                 for r in rds)
+    return max(kernel_radius(float(np.clip(r, RD_MIN, RD_MAX)), l_max, eta, tol, exact)
+               for r in rds)
+
+
+def check_plan_size(nodes, radius, ranges):
+    """ValueError naming the ranges where planning them would take more than MAX_NODES
+    kernels or PLAN_PEAK_BYTES."""
+    peak = PLAN_PEAK_PER_NODE_BYTE * nodes * (radius + 1) ** 2 * 8
+    if nodes > MAX_NODES or peak > PLAN_PEAK_BYTES:
+        (t0, t1), (l0, l1), (s0, s1) = ranges
+        raise ValueError(
+            f"stretched blur: albedo {sigmoid(t0):.4g}..{sigmoid(t1):.4g}, diffusion length "
+            f"{np.exp(l0):.3g}..{np.exp(l1):.3g} texels, aspect l_u/l_v {np.exp(s0):.3g}.."
+            f"{np.exp(s1):.3g} need {nodes} lattice kernels of radius {radius} (~"
+            f"{peak / 2 ** 30:.1f} GiB to plan; at most {MAX_NODES} and "
+            f"{PLAN_PEAK_BYTES / 2 ** 30:.0f} GiB): blur the texture's materials separately, "
+            f"or raise tol")
+
+
+@STRETCHED_PLANS.memoize
+def stretched_plan(ranges, eta, tol, exact=False, max_radius=2048,
+                   costs: GatherCosts = DEFAULT_GATHER_COSTS) -> StretchedPlan:
+    """The StretchedPlan of transformed ranges ((lo, hi) of logit Rd, ln l, s) at tol: the
+    cheapest near field for the gather's ``costs`` (``near_field.near_field_basis``, classes
+    of four cells), its ranks grown until the measured interpolation error is within tol."""
+    axes = tuple(lattice_axis(lo, hi, step) for (lo, hi), step in zip(ranges,
+                                                                      lattice_steps(tol)))
+    radius = plan_radius(ranges, eta, tol, exact)
     if radius > max_radius:
         raise ValueError(f"stretched blur: truncation radius {radius} texels exceeds "
                          f"max_radius={max_radius}: raise tol, or the stretch is too small for "
                          f"the mfp (texels far shorter than a diffusion length)")
-    nodes = int(np.prod([len(a.values) for a in axes]))
-    if nodes > MAX_NODES:
-        raise ValueError(f"stretched blur: {nodes} lattice kernels (ranges {ranges}): "
-                         f"over {MAX_NODES}: blur the texture's materials separately")
     shape = tuple(len(a.values) for a in axes)
-    targets = [node_kernel(a, b, c, eta, radius, exact)
-               for a, b, c in itertools.product(*(ax.values for ax in axes))]
-    checks = [(t, node_kernel(float(np.clip(sigmoid(t[0]), RD_MIN, RD_MAX)),
-                              float(np.exp(t[1])), float(np.exp(t[2])), eta, radius, exact))
-              for t in itertools.product(*(check_points(lo, hi, a.step)
-                                           for (lo, hi), a in zip(ranges, axes)))]
-    inside = [all(lo - 1e-9 <= v <= hi + 1e-9 for v, (lo, hi) in zip(t, ranges)) for t in
-              itertools.product(*[[(i + a.origin) * a.step if a.step else ranges[k][0]
-                                   for i in range(len(a.values))]
-                                  for k, a in enumerate(axes)])]
-    train = [t for t, i in zip(targets, inside) if i] + [q for _, q in checks]
-    eigen = EigenKernels.of(train)
-    proj = eigen.project(targets)
-    rank = eigen.project(train).rank_within(tol)
-    while True:
-        check_stop()
-        coef = proj.coefficients(rank)
-        quads = eigen.kernels(rank)
-        fine = fine_table3(coef.reshape(*shape, -1))
-        err = interp_error(fine, quads, axes, checks)
-        if err <= tol or rank >= eigen.most:
-            break
-        rank += 1
-    fit = max((float(np.abs(unfold_quadrant(np.tensordot(c, quads, 1) - t)).sum())
-               for c, t, i in zip(coef, targets, inside) if i), default=0.0)
-    return StretchedPlan(radius, tuple(quads), axes, fine, float(eta), fit, err, float(tol),
-                         nodes)
+    check_plan_size(int(np.prod(shape)), radius, ranges)
+    targets = [kernel_at(t, eta, radius, exact) for t in itertools.product(*(a.values
+                                                                              for a in axes))]
+    checks = [(t, kernel_at(t, eta, radius, exact)) for t in itertools.product(
+        *(check_points(lo, hi, a.step) for (lo, hi), a in zip(ranges, axes)))]
+    inside = inside_box(axes, ranges)
+    train = training_kernels(targets, checks, inside)
+
+    def measure(quads, values, near, coef):
+        return interp_error(coef.reshape(*shape, -1).astype(np.float32),
+                            with_near_classes(quads, values, near, radius, mirrored=False),
+                            axes, checks)
+    best = near_field_basis(targets, train, tol, radius, measure, costs, mirrored=False,
+                            radii=NEAR_RADII)
+    every = with_near_classes(best.quads, best.near_values, best.near, radius, mirrored=False)
+    fit = max((float(np.abs(unfold_quadrant(np.tensordot(c, every, 1) - t)).sum())
+               for c, t, i in zip(best.coef, targets, inside) if i), default=0.0)
+    table = best.coef.reshape(*shape, -1).astype(np.float32)
+    return StretchedPlan(radius, tuple(best.quads), axes, fine_table3(table), float(eta), fit,
+                         best.interp_error, float(tol), int(np.prod(shape)), best.near,
+                         best.near_values)

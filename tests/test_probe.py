@@ -14,7 +14,7 @@ import pytest
 
 import bdipole_cl
 from bdipole_cl.caches import CACHE_DIR_VARIABLE
-from bdipole_cl.device import isolation
+from bdipole_cl.device import guard, isolation
 from bdipole_cl.device.children import child_env
 from bdipole_cl.device import runtime as device
 from bdipole_cl.device.programs import kernels_digest
@@ -129,6 +129,19 @@ def test_verdict_key_follows_driver_and_kernels(fresh_cache):
     a = isolation.verdict_key(rt.device, "digest-a")
     assert a == isolation.verdict_key(rt.device, "digest-a")
     assert a != isolation.verdict_key(rt.device, "digest-b")
+
+
+def test_a_verdict_and_builds_made_under_a_simulated_target_serve_only_it(monkeypatch,
+                                                                        fresh_cache):
+    """The simulated target feature (tests) is in the verdict's key, so neither that verdict
+    nor the guarded builds' records beside it (a 16-float program that built under +avx512f)
+    serve a process without it."""
+    rt = RUNTIMES[0]
+    plain = isolation.verdict_key(rt.device, "digest-a")
+    monkeypatch.setenv(isolation.TARGET_FEATURE_VARIABLE, "+avx512f")
+    simulated = isolation.verdict_key(rt.device, "digest-a")
+    assert simulated != plain
+    assert guard.records_dir(rt.device, "digest-a").name == f"{simulated}.builds"
 
 
 def test_config_names_match_what_get_program_builds():

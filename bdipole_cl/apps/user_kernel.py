@@ -142,12 +142,19 @@ def _evaluate(path, name, kind, eta, inputs, device):
     bufs = [cl.Buffer(rt.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=v) for v in (x, y, z)]
     outs = [np.full_like(x, np.nan) for _ in range(2)]
     obufs = [cl.Buffer(rt.context, mf.WRITE_ONLY, max(o.nbytes, 4)) for o in outs]
-    cl.Kernel(prg, "bdipole_user_eval")(rt.queue, (x.size,), None, *bufs, *obufs,
-                                        np.float32(2 * c1), np.float32(3 * c2),
-                                        np.uint32(x.size))
-    for o, b in zip(outs, obufs):
-        cl.enqueue_copy(rt.queue, o, b)
-    rt.queue.finish()
+    try:
+        cl.Kernel(prg, "bdipole_user_eval")(rt.queue, (x.size,), None, *bufs, *obufs,
+                                            np.float32(2 * c1), np.float32(3 * c2),
+                                            np.uint32(x.size))
+        for o, b in zip(outs, obufs):
+            cl.enqueue_copy(rt.queue, o, b)
+        rt.queue.finish()
+    except cl.Error as exc:  # built, yet no kernel or no run: the runtime's compiler broke it
+        raise UserKernelRunError(
+            f"{path}: {name} built, but {rt.describe()} could not run it ({exc}); its compiler "
+            f"may break what it built, e.g. 16-float vectors where it misnames the CPU "
+            f"(docs/runtimes.md \"Vector widths: PoCL on a CPU its LLVM misnames\"): try "
+            f"another --device") from None
     return outs[0].astype(np.float64), outs[1].astype(np.float64)
 
 
@@ -155,7 +162,7 @@ def _child(conn, args):
     try:
         conn.send(("ok", _evaluate(*args)))
     except Exception as exc:  # anything the driver says goes back as text
-        conn.send(("error", str(exc)))
+        conn.send(("run-error" if isinstance(exc, UserKernelRunError) else "error", str(exc)))
     finally:
         conn.close()
 
@@ -181,6 +188,8 @@ def evaluate_isolated(path, name, kind, eta, inputs, device_index, timeout):
         if proc.is_alive():
             proc.kill()
         proc.join(5)
+    if status == "run-error":
+        raise UserKernelRunError(payload)
     if status == "error":
         raise UserKernelError(payload)
     return payload

@@ -200,6 +200,12 @@ def checks_digest() -> str:
         return ""
 
 
+#: tests only: a clang target feature (``-avx512f``) that every PoCL build hands its front end,
+#: to make on any AVX-512 CPU the vector ABI mismatch PoCL makes on a Zen 4 (docs/runtimes.md
+#: "Vector widths"); it follows a define and a tab, which PoCL's option check lets through
+TARGET_FEATURE_VARIABLE = "BDIPOLE_CL_TARGET_FEATURE"
+
+
 def probe_faults() -> str:
     """The simulated faults of the probe's child (FAULT_VARIABLE without the guarded builds'
     ``build:`` ones): a verdict made under them is not the device's."""
@@ -209,9 +215,11 @@ def probe_faults() -> str:
 
 def verdict_key(device, kernels_digest: str) -> str:
     """The cache key: the device's identity, the kernels, the checks and this library's
-    version."""
+    version; the simulated faults and target feature (tests): what is found under them is
+    not the device's, and the guarded builds' records beside it are kept apart too."""
     text = json.dumps([identity(device), kernels_digest, checks_digest(), __version__,
-                       PROBE_FORMAT, probe_faults()], sort_keys=True)
+                       PROBE_FORMAT, probe_faults(),
+                       os.environ.get(TARGET_FEATURE_VARIABLE, "")], sort_keys=True)
     return hashlib.sha256(text.encode()).hexdigest()[:20]
 
 

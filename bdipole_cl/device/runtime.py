@@ -31,6 +31,7 @@ from dataclasses import dataclass, field, replace
 
 
 from . import icd, isolation
+from .isolation import TARGET_FEATURE_VARIABLE
 from .numerics import DEVICE_NUMERICS, NUMERICS, Numerics
 from .sources import kernels_digest
 
@@ -365,10 +366,6 @@ def _from_pyopencl_ctx(spec: str) -> Runtime:
 ALIASES = {"pocl": "portable computing language"}
 
 
-#: tests only: a clang target feature (``-avx512f``) that every PoCL build hands its front end,
-#: to make on any AVX-512 CPU the vector ABI mismatch PoCL makes on a Zen 4 (docs/runtimes.md
-#: "Vector widths"); it follows a define and a tab, which PoCL's option check lets through
-TARGET_FEATURE_VARIABLE = "BDIPOLE_CL_TARGET_FEATURE"
 
 
 def simulated_target(context) -> list:

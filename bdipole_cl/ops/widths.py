@@ -69,7 +69,15 @@ def probed_times(rt, source: str, allowed) -> dict:
 def choose_width(rt, source: str, allowed, calibrated, default) -> WidthChoice:
     """The width of kernels/<source>.cl on ``rt``'s device: ``calibrated`` (a calibration's,
     or None), else the fastest the probe timed, else ``default``; each only where the probe
-    passed it, else the fastest (or narrowest) width that passed."""
+    passed it, else the fastest (or narrowest) width that passed; none past the device's
+    vector cap (``device_vector_cap``: the probe's own child has no verdict yet, so ``passes``
+    is True there for every width)."""
+    cap = device_vector_cap(rt)
+    allowed = [w for w in allowed if w <= cap] or [min(allowed)]
+    if calibrated and calibrated > cap:
+        calibrated = None
+    if default > cap:
+        default = max(allowed)
     if calibrated and passes(rt, source, calibrated):
         return WidthChoice(calibrated, "calibrated on this device (report --calibrate)")
     times = probed_times(rt, source, allowed)

@@ -27,12 +27,10 @@ import numpy as np
 
 from ...caches import ByteCache
 from ...physics import reference as ref
-from ...signals import check_stop
 from .near_field import DEFAULT_GATHER_COSTS, GatherCosts, near_field_basis, with_near_classes
 from .textured_plan import (LATTICE_STEPS, RD_MAX, RD_MIN, REFINE, Axis, lagrange4, logit,
                             sigmoid, training_kernels)
-from .weights import (EXACT_CELLS, GL_NODES, quadrant_integral, quadrant_sum,
-                      truncation_radius, unfold_quadrant)
+from .weights import quadrant_sum, quadrant_weights, truncation_radius, unfold_quadrant
 
 STRETCHED_KERNELS = ByteCache("stretched node kernels", 256 << 20)
 STRETCHED_PLANS = ByteCache("stretched plans", 256 << 20)
@@ -68,26 +66,7 @@ def stretched_quadrant(rd, lu, lv, eta, k, exact=False):
     over the surface rectangle it maps to (exact corner integrals within EXACT_CELLS, the
     GL_NODES^2 product rule beyond, as ``weights.quadrant_weights``)."""
     alpha, st = coefficients(rd, eta, exact)
-    su, sv = 1.0 / lu, 1.0 / lv
-    n = min(k, EXACT_CELLS)
-    c = np.concatenate([[0.0], np.arange(n + 1) + 0.5])
-    f = quadrant_integral(sv * c[:, None], su * c[None, :], alpha, st, eta, exact)
-    near = f[1:, 1:] - f[:-1, 1:] - f[1:, :-1] + f[:-1, :-1]
-    m = np.ones(n + 1)
-    m[0] = 2.0
-    quad = np.zeros((k + 1, k + 1))
-    if k > n:
-        x, w = np.polynomial.legendre.leggauss(GL_NODES)
-        x, w = 0.5 * x, 0.5 * w
-        pos = np.arange(k + 1)[:, None] + x[None, :]
-        ww = w[:, None] * w[None, :] * (su * sv)
-        for i0 in range(0, k + 1, 64):
-            check_stop()
-            r = np.hypot(sv * pos[i0:i0 + 64, None, :, None], su * pos[None, :, None, :])
-            quad[i0:i0 + 64] = np.einsum("ijab,ab->ij", ref.profile(r, alpha, st, eta, exact),
-                                         ww)
-    quad[:n + 1, :n + 1] = near * m[:, None] * m[None, :]
-    return quad
+    return quadrant_weights(alpha, st, eta, k, exact, su=1.0 / lu, sv=1.0 / lv)
 
 
 @STRETCHED_KERNELS.memoize

@@ -113,13 +113,15 @@ class ChannelKernel:
 EXACT_CELLS, GL_NODES = 3, 5
 
 
-def quadrant_weights(alpha, sigma_t_texels, eta, k, exact=False):
+def quadrant_weights(alpha, sigma_t_texels, eta, k, exact=False, su=1.0, sv=1.0):
     """Texel-integrated weights ``quad[i, j] = Int_cell(i, j) R(|y|) dy``, i, j = 0..k, of the
-    whole cells centred at (i, j) texels (float64)."""
+    whole cells centred at (i, j) texels (float64). ``su``, ``sv``: the lengths of a texel
+    step along columns (u) and rows (v) in the unit of ``sigma_t_texels`` (a stretched
+    texel's surface rectangle, docs/stretch.md; 1: square texels)."""
     n = min(k, EXACT_CELLS)
     # corners c_-1 = 0, c_i = i + 1/2; cell i spans [c_{i-1}, c_i] (cell 0 only its half)
     c = np.concatenate([[0.0], np.arange(n + 1) + 0.5])
-    f = quadrant_integral(c[:, None], c[None, :], alpha, sigma_t_texels, eta, exact)
+    f = quadrant_integral(sv * c[:, None], su * c[None, :], alpha, sigma_t_texels, eta, exact)
     near = f[1:, 1:] - f[:-1, 1:] - f[1:, :-1] + f[:-1, :-1]
     m = np.ones(n + 1)
     m[0] = 2.0
@@ -128,11 +130,10 @@ def quadrant_weights(alpha, sigma_t_texels, eta, k, exact=False):
         x, w = np.polynomial.legendre.leggauss(GL_NODES)
         x, w = 0.5 * x, 0.5 * w
         pos = np.arange(k + 1)[:, None] + x[None, :]          # (k+1, GL) sample coordinates
-        ww = w[:, None] * w[None, :]
+        ww = w[:, None] * w[None, :] * (su * sv)
         for i0 in range(0, k + 1, 64):           # rows in chunks: bounded memory, and a stop
             check_stop()                         # obeyed within one chunk (~0.1 s at K = 500)
-            rows = pos[i0:i0 + 64]
-            r = np.hypot(rows[:, None, :, None], pos[None, :, None, :])
+            r = np.hypot(sv * pos[i0:i0 + 64, None, :, None], su * pos[None, :, None, :])
             quad[i0:i0 + 64] = np.einsum("ijab,ab->ij", ref.profile(r, alpha, sigma_t_texels,
                                                                   eta, exact), ww)
     quad[:n + 1, :n + 1] = near * m[:, None] * m[None, :]

@@ -31,7 +31,7 @@ from .mipmaps import (TextureBuildCancelled, TextureBuildError, build_texture,
 from .verify import (BandDigests, WriteCheckError, finite_texels, read_back,  # noqa: F401
                      read_rows, read_rows_of)
 from .channels import (ALPHA_NAMES, COLOUR_NAMES, GREY_NAMES, NOT_RGB,  # noqa: F401
-                       classify_channels, role_missing)
+                       classify_channels, role_missing, role_refused)
 from .colour import COLOUR_ATTRIBS, colour_path, tag_output
 from .oiio_text import oiio_error
 from .partials import remove_partial_files
@@ -183,6 +183,8 @@ class Reader:
             problem = (f"{path}: channels {', '.join(integer_channels(self.spec))} ({what}) "
                        f"are 32-bit integers (IDs or counts), not texture values: write them "
                        f"as half or float")
+        elif role_refused(self.spec, role, what):
+            problem = f"{path}: {role_refused(self.spec, role, what)}"
         else:
             parts = _part_names(self.inp)
             if len(parts) > 1:

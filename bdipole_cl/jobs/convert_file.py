@@ -12,6 +12,7 @@ from __future__ import annotations
 import os
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, fields, replace
+from typing import ClassVar
 from pathlib import Path
 
 import numpy as np
@@ -73,6 +74,8 @@ class ConvertWork:
     texture: TextureOptions | None = None
     header: dict = field(default_factory=dict)
     layers: dict = field(default_factory=dict)    # as InvertWork's (none for convert)
+    #: what each input role is called in messages (``invert_file.open_inputs``)
+    input_names: ClassVar[dict] = {"albedo": "colour texture", "mfp": "radius (--radius)"}
 
 
 def convert_textures(inputs, *, radius=1.0, source="better-dipole", target="van-de-hulst",

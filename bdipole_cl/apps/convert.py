@@ -80,7 +80,7 @@ def _cmd_convert(args) -> int:
         force=args.force, cancel=stop.event)
     report = BatchReport(report.results + convert_materials(
         args.inputs, args.output, CONVENTION.canonical(args.target), args.eta, args.unit,
-        resolve_working_space(args.working_space).name, report.results))
+        resolve_working_space(args.working_space).name, report.results, args.texture))
     print(report.summary())
     if stop.exit_code:
         return stop.exit_code

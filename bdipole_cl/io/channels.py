@@ -113,11 +113,13 @@ def role_missing(names, role) -> str | None:
 
 def held_layer(spec) -> tuple | None:
     """(the layer, the header entry that says it) of a one-layer file of ours (its channels
-    are plain R, G, B: only its header says what it holds), else None."""
-    if not spec.getattribute("bdipole:version"):
+    are plain R, G, B: only its header says what it holds), else None. ``spec``: an
+    ImageSpec or a {name: value} of its attributes."""
+    get = spec.get if isinstance(spec, dict) else spec.getattribute
+    if not get("bdipole:version"):
         return None
     for key in HELD_LAYER_KEYS:
-        text = str(spec.getattribute(key) or "").split()
+        text = str(get(key) or "").split()
         if text:
             return text[-1], key
     return None

@@ -29,7 +29,8 @@ from ..io.mipmaps import TextureOptions, texture_options
 from ..io.patterns import companion_path, expand_inputs, unmatched_pattern
 from ..ops.bands import band_rows
 from ..physics.conventions import CONVENTION
-from ..physics.conversion import convert
+from ..io.scene_keys import UNIT_METERS
+from ..physics.conversion import RADIUS_RANGE, convert
 from ..version import __version__
 from .batch import job_claims, parse_constant
 from .invert_file import JobFiles, open_inputs, per_channel
@@ -97,6 +98,7 @@ def convert_textures(inputs, *, radius=1.0, source="better-dipole", target="van-
         inputs = [inputs]
     src, tgt = CONVENTION[source], CONVENTION[target]
     constant = parse_constant(radius, "radius")
+    check_before_work(constant, radius_scale, unit)
     work = ConvertWork(src.name, tgt.name,
                        tuple(np.atleast_1d(np.asarray(eta, np.float64)).tolist()), float(g),
                        constant, float(radius_scale), bool(half), colorspace,
@@ -126,6 +128,21 @@ def convert_textures(inputs, *, radius=1.0, source="better-dipole", target="van-
     with ThreadPoolExecutor(max(1, int(jobs))) as pool:
         results += list(pool.map(lambda j: run_convert(j, cancel=cancel), todo))
     return BatchReport(results)
+
+
+def check_before_work(constant, radius_scale, unit):
+    """ValueError (a usage error, exit 2) before any file is written: a unit that is no
+    length (the materials' metersPerUnit), a constant radius times ``radius_scale`` outside
+    the range every convention takes (as its texels are checked: ``RADIUS_RANGE``)."""
+    if unit not in UNIT_METERS:
+        raise ValueError(f"unit={unit!r}: expected a length unit, one of "
+                         f"{', '.join(UNIT_METERS)}")
+    lo, hi = RADIUS_RANGE
+    for v in (constant or ()):
+        scaled = float(v) * float(radius_scale)
+        if not lo <= scaled <= hi:
+            raise ValueError(f"radius {float(v):g} x radius_scale {float(radius_scale):g} = "
+                             f"{scaled:g}: expected a radius in [{lo:g}, {hi:g}]")
 
 
 #: what an output holds: the target's colour and radius, or for ``random-walk`` the medium's

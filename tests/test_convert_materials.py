@@ -162,3 +162,23 @@ def test_every_file_a_baked_material_reads_is_a_texture_and_data_is_data(tmp_pat
     assert report.exit_code == 0, report.summary()
     # the coefficients' own files (sigma_a, sigma_s) and the OpenPBR maps (colour, radius)
     _check_read_files(tmp_path / "out" / "bdipole.mtlx", 4)
+
+
+@pytest.mark.usefixtures("on_device")
+def test_a_bake_reads_converts_mtlx_back_in_its_unit(tmp_path, capsys):
+    # the .mtlx stated no unit for its distance (a reader takes MaterialX's metres: a cm run
+    # 100x off) and the bake refused its radius image's vector3 -> color3 cast as "a
+    # procedural network"
+    _colour(tmp_path / "skin.exr", 1)
+    assert main(["convert", str(tmp_path / "skin.exr"), "--radius", "1.2,0.6,0.3",
+                 "--source", "pxrsurface", "--target", "openpbr", "--unit", "cm"]) == 0
+    rc = main(["bake", str(tmp_path / "bdipole_convert.mtlx"), "--device", "intel",
+               "--no-progress"])
+    assert rc == 0, capsys.readouterr()
+    coef = oiio.ImageBuf(str(tmp_path / "bdipole" / "skin.exr")).get_pixels(oiio.FLOAT)
+    radius = oiio.ImageBuf(str(tmp_path / "skin.van-de-hulst.radius.exr")).get_pixels(
+        oiio.FLOAT)
+    # OpenPBR's radius is the medium's mean free path: sigma_a + sigma_s = 1 / (radius in m),
+    # the coefficients in 1/m (the document's unit); float32 sum and product, 4 u = 4.8e-7
+    np.testing.assert_allclose((coef[..., :3] + coef[..., 3:]) * radius * 0.01, 1.0,
+                               rtol=4.8e-7)

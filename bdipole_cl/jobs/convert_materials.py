@@ -221,7 +221,7 @@ def write_convert_records(materials: dict, stage_unit_m: float, folder) -> list:
         by_target = [materials[name][t] for t in sorted(materials[name])]
         for network in by_target:
             usd_networks.author(stage, path, network)
-        documented.append((name, by_target, ()))
+        documented.append((name, by_target, (), stage_unit_m))
     layer.customLayerData = {RECORDS: json.dumps(
         {name: {t: network_record(n) for t, n in by.items()} for name, by in materials.items()},
         sort_keys=True)}

@@ -185,10 +185,24 @@ def convert_band(work, inp, route, colour_in, radius, etas, job, y0):
         yy, xx, c, exc = min(raised, key=lambda r: r[:3])
         where = job.inputs.get("mfp", job.source) if exc.name == "radius" else job.source
         spec = inp.albedo.spec
-        raise invalid_texels(exc.with_(first_index=(yy, xx, c), count=invalid[exc.name]),
+        raise invalid_texels(exc.with_(first_index=(yy, xx, c), count=invalid[exc.name],
+                                       why=counted_why(exc, colour, invalid, work.target)),
                              where, spec.x + xx, spec.y + y0 + yy, inp.names[c],
                              f" in rows {y0}..{y0 + colour.shape[0] - 1}") from None
     return out_c, out_r, invalid
+
+
+def counted_why(exc, colour, invalid, target) -> str:
+    """The reason of an invalid count that covers every rule a colour breaks: the first
+    rule's (``exc``) where it is all of them, else each rule's share (a colour outside [0, 1]
+    and one out of the target's reach are both counted)."""
+    if exc.name != "colour":
+        return exc.why
+    outside = int(np.count_nonzero(~((colour >= 0.0) & (colour <= 1.0))))
+    if outside in (0, invalid["colour"]):
+        return exc.why
+    return (f"{outside} NaN, infinite or outside [0, 1], {invalid['colour'] - outside} a "
+            f"reflectance {target} does not render")
 
 
 def run_convert(job, *, cancel=None) -> FileResult:

@@ -132,10 +132,13 @@ def layer_files(tmp_path, capsys):
                  "--no-progress"]) == 0, capsys.readouterr()
     write_layers(str(tmp_path / "coef.exr"), ("sigma_a", "alpha"),
                  resolve_working_space(None), [])
+    assert main(["blur", str(tmp_path / "skin.exr"), "--albedo", "0.5", "--mfp", "1",
+                 "--texel-size", "1", "-o", str(tmp_path / "blurred.exitance.exr"),
+                 "--device", "intel", "--no-progress"]) == 0, capsys.readouterr()
     capsys.readouterr()
     return {k: tmp_path / f"{k}.exr" for k in ("skin.van-de-hulst.colour",
                                                 "skin.van-de-hulst.radius", "coef.sigma_a",
-                                                "coef.alpha")}
+                                                "coef.alpha", "blurred.exitance")}
 
 
 @pytest.mark.parametrize("given, args", [
@@ -151,8 +154,10 @@ def layer_files(tmp_path, capsys):
                     "--texel-size", "5", "-o", "{tmp}/x.exr"]),
     ("skin.van-de-hulst.radius", ["blur", "{skin}", "--albedo", "{file}", "--mfp", "1",
                                   "--texel-size", "5", "-o", "{tmp}/x.exr"]),
+    ("blurred.exitance", ["invert", "{file}", "--mfp", "1", "-o", "{tmp}/x.exr"]),
+    ("blurred.exitance", ["convert", "{skin}", "--radius", "{file}", "-o", "{tmp}/x.exr"]),
 ], ids=["convert-radius", "convert-colour", "invert-mfp", "invert-albedo", "blur-sigma-t",
-        "blur-irradiance", "blur-albedo"])
+        "blur-irradiance", "blur-albedo", "exitance-albedo", "exitance-radius"])
 def test_a_layer_file_read_as_another_role_is_refused_by_name(layer_files, tmp_path, capsys,
                                                              given, args):
     # a one-layer file's R, G, B were read as whatever it was given as (a colour as the
@@ -170,10 +175,15 @@ def test_a_layer_file_read_as_another_role_is_refused_by_name(layer_files, tmp_p
 
 
 def test_a_layer_file_as_its_own_role_is_read(layer_files, tmp_path, capsys):
-    # convert's colour and radius files are a colour and a radius again
+    # convert's colour and radius files are a colour and a radius again; a blur's exitance
+    # is light, blurred again
     rc = main(["convert", str(layer_files["skin.van-de-hulst.colour"]), "--radius",
                str(layer_files["skin.van-de-hulst.radius"]), "--source", "openpbr",
                "--target", "pxrsurface", "-o", str(tmp_path / "x.exr")])
+    assert rc == 0, capsys.readouterr()
+    rc = main(["blur", str(layer_files["blurred.exitance"]), "--albedo", "0.5", "--mfp", "1",
+               "--texel-size", "1", "-o", str(tmp_path / "y.exr"), "--device", "intel",
+               "--no-progress"])
     assert rc == 0, capsys.readouterr()
 
 

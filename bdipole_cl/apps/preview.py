@@ -28,7 +28,7 @@ import numpy as np
 
 from ..durable import durable_replace
 from ..errors import one_line
-from ..io.channels import COLOUR_LAYERS, NOT_RGB, held_layer, layer_of
+from ..io.channels import COLOUR_HELD, COLOUR_LAYERS, NOT_RGB, held_layer, layer_of
 from ..io.collisions import PICTURE_MARK, Claim, check_claim
 from ..io.images import Reader, TextureError, classify_channels, read_whole
 from ..io.patterns import outputs_of
@@ -157,7 +157,7 @@ def displayed_colour(path, px, names, alpha, header) -> tuple:
     colour, _, _ = classify_channels(names, alpha)
     if header.get("bdipole:version") is not None:
         colour = [i for i in colour if layer_of(names[i]) in ("", COLOUR_LAYERS[0])]
-        if held_layer(header) is not None and held_layer(header)[0] != COLOUR_LAYERS[0]:
+        if held_layer(header) is not None and held_layer(header)[0] not in COLOUR_HELD:
             colour = []               # a one-layer file of data (radius, sigma_a): as stored
     if not colour:
         return px, None

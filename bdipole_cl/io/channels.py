@@ -26,12 +26,16 @@ OWN_LAYERS = frozenset(OUTPUTS) | set(COLOUR_LAYERS) | set(MEDIUM_LAYERS)
 #: albedo or colour, the mfp or radius, blur's alpha' and sigma_t'); an output read as one of
 #: these inputs is read by its layer, never by the channels' order
 ROLE_LAYER = {"albedo": "colour", "mfp": "radius", "alpha": "alpha", "sigma_t": "sigma_t"}
-#: the roles no output of ours holds: a blur's irradiance is never one of our layers
+#: the roles no layer of an output of ours holds: a blur's irradiance
 NO_LAYER_ROLES = ("irradiance",)
 #: the header entries that name the one layer a file of ours holds: a layer's own file
-#: (``bdipole:layer``: jobs.layer_files) and a painted map (``bdipole:painted``, "{convention}
-#: {layer}": jobs.scene_maps)
+#: (``bdipole:layer``: jobs.layer_files; a blur's output: "exitance") and a painted map
+#: (``bdipole:painted``, "{convention} {layer}": jobs.scene_maps)
 HELD_LAYER_KEYS = ("bdipole:layer", "bdipole:painted")
+#: one-layer files of ours a role also takes: a blur's exitance blurred again (light is light)
+ROLE_ALSO = {"irradiance": ("exitance",)}
+#: the held layers that are colour (tagged and shown as colour); every other one is data
+COLOUR_HELD = ("colour", "exitance")
 
 
 def short_name(name) -> str:
@@ -132,7 +136,7 @@ def role_refused(spec, role, what) -> str | None:
     both are R, G, B."""
     held = held_layer(spec)
     if held is None or (role not in ROLE_LAYER and role not in NO_LAYER_ROLES) \
-            or held[0] == ROLE_LAYER.get(role):
+            or held[0] == ROLE_LAYER.get(role) or held[0] in ROLE_ALSO.get(role, ()):
         return None
     wanted = (f"the {what} is an output's {ROLE_LAYER[role]} layer" if role in ROLE_LAYER
               else f"no layer of bdipole-cl's outputs is an {role}")

@@ -140,6 +140,7 @@ def exitance_writer(path, output, spec, colour, alpha_ch, route, plan, *, half=F
     meta["methods"] = ",".join(planned_methods(plan))
     meta.update(header or {})
     meta["source"] = str(path)
+    meta["layer"] = "exitance"      # what the file holds (``channels.held_layer``)
     meta.update(route.header("irradiance"))
     Path(output).parent.mkdir(parents=True, exist_ok=True)
     options = texture_options(texture)   # a texture wraps as the blur's border did, unless

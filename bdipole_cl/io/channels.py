@@ -139,7 +139,8 @@ def role_refused(spec, role, what) -> str | None:
             or held[0] == ROLE_LAYER.get(role) or held[0] in ROLE_ALSO.get(role, ()):
         return None
     wanted = (f"the {what} is an output's {ROLE_LAYER[role]} layer" if role in ROLE_LAYER
-              else f"no layer of bdipole-cl's outputs is an {role}")
+              else f"of bdipole-cl's outputs only a blur's "
+                   f"{' or '.join(ROLE_ALSO.get(role, ()))} is an {role}")
     return (f"holds a bdipole-cl output's {held[0]} layer ({held[1]}), given as the "
             f"{what}; {wanted}")
 

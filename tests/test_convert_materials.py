@@ -92,11 +92,12 @@ def test_a_material_not_written_is_a_failed_row(tmp_path, capsys):
 
 def test_the_summary_counts_the_converted_files_apart_from_the_files_beside_them(tmp_path,
                                                                                 capsys):
+    # "5 done" for one converted file: its two layer files and two materials files counted
     _colour(tmp_path / "a.exr", 1)
     assert main(["convert", str(tmp_path / "a.exr"), "--radius", "1", "--target",
                  "openpbr"]) == 0
     out = capsys.readouterr().out
-    assert "1 done, 0 failed, 0 skipped; 4 written beside them" in out, out
+    assert "1 done, 0 failed, 0 skipped; 4 files beside them" in out, out
 
 
 def _spec(path):

@@ -58,6 +58,6 @@ class BatchReport:
         cancelled = sum(r.status == "cancelled" for r in self.results)
         lines.append(f"{done} done, {failed} failed, {skipped} skipped"
                      + (f", {cancelled} cancelled" if cancelled else "")
-                     + (f"; {beside} written beside them (layer files, materials)"
-                        if beside else ""))
+                     + (f"; {beside} files beside them (layer files, maps, materials, "
+                        f"records)" if beside else ""))
         return "\n".join(lines)

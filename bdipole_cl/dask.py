@@ -174,7 +174,7 @@ def blur_band_task(path, band_path, y0, y1, plan, colorspace, working, device=No
     reader = None
     try:
         guard.check()
-        reader = Reader(path, "irradiance")
+        reader = Reader(path, "irradiance", role="irradiance")
         spec = reader.spec
         colour, alpha = reader.channels()
         route = reader.colour(colorspace, working)
@@ -240,7 +240,7 @@ def blur_file_on_cluster(path, output, client, *, colorspace="auto", working_spa
         raise ValueError("a blur on a cluster takes constant parameters (one value or one per "
                          "channel); with parameter textures, blur in one process")
     guard = InputGuard({"irradiance": os.path.abspath(path)}, identities)
-    reader = Reader(path, "irradiance")
+    reader = Reader(path, "irradiance", role="irradiance")
     try:
         spec = reader.spec
         colour, alpha = reader.channels()

@@ -87,12 +87,14 @@ class InvalidInputError(ValueError):
                          f"{shortest(first_value)} (on_invalid='clamp' / --on-invalid clamp "
                          f"clamps them)")
 
-    def with_(self, *, count=None, first_index=None) -> "InvalidInputError":
-        """This error with another count or first index (the rest as it is): one counted
-        over more than the check saw, or named where it is in a larger image."""
+    def with_(self, *, count=None, first_index=None, why=None) -> "InvalidInputError":
+        """This error with another count, first index or reason (the rest as it is): one
+        counted over more than the check saw (and more rules), or named where it is in a
+        larger image."""
         return InvalidInputError(self.name, self.count if count is None else count,
                                  self.first_index if first_index is None else first_index,
-                                 self.first_value, self.why, self.texels)
+                                 self.first_value, self.why if why is None else why,
+                                 self.texels)
 
 
 def find_invalid(name, values, bad, why, on_invalid, texels=False, channel=None) -> int:

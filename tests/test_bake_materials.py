@@ -347,7 +347,8 @@ def test_a_material_named_as_anothers_preview_keeps_its_name(tmp_path):
     b = converted_material(tmp_path, ("preview", "openpbr"))
     written, why = networks(b, str(tmp_path))
     assert why == {}
-    text = document_text([("skin", written, ()), ("skin_preview", written, ())], "test")
+    text = document_text([("skin", written, (), 0.01), ("skin_preview", written, (), 0.01)],
+                         "test")
     doc = mx.createDocument()
     mx.readFromXmlString(doc, text)
     doc.importLibrary(library())
@@ -471,7 +472,7 @@ def test_openpbr_and_standard_surface_networks_read_the_converted_maps(tmp_path,
     assert files == {colour: ("./wax.<UDIM>.van-de-hulst.colour.exr", "lin_rec709_scene"),
                      radius: ("./wax.<UDIM>.van-de-hulst.radius.exr", "raw")}
     path = tmp_path / "wax.mtlx"
-    path.write_text(document_text([("wax", written, ())], "test"))
+    path.write_text(document_text([("wax", written, (), 0.01)], "test"))
     doc = mx.createDocument()
     mx.readFromXmlFile(doc, str(path))
     doc.importLibrary(library())
@@ -489,6 +490,12 @@ def test_openpbr_and_standard_surface_networks_read_the_converted_maps(tmp_path,
     data = data.getInput("in").getConnectedNode() if data.getCategory() == "convert" else data
     assert data.getType() == "vector3"
     assert data.getInputValue("file") == "./wax.<UDIM>.van-de-hulst.radius.exr"
+    # the distance says its unit (the stage's, cm): a reader without one takes MaterialX's
+    # default, metres (100x too large)
+    distance = shader.getInput("subsurface_radius" if target == "openpbr" else
+                               "subsurface_scale")
+    assert (distance.getUnitType(), distance.getUnit()) == ("distance", "centimeter")
+    assert distance.getValue() == pytest.approx(0.1)
     layer = Sdf.Layer.CreateNew(str(tmp_path / "wax.usda"))
     layer.TransferContent(stage.GetRootLayer())
     layer.Save()

@@ -43,3 +43,28 @@ def test_an_eta_outside_the_model_is_a_usage_error_in_blur_as_in_invert(tmp_path
                      "--eta", "3", "-o", str(tmp_path / "o.exr")]) == 2
     err = capsys.readouterr().err
     assert "eta=3.0 is outside" in err and "--exact" in err and "irr.exr" not in err, err
+
+
+@pytest.mark.parametrize("args, named", [
+    (["--unit", "furlong"], "--unit: 'furlong'"),
+    (["--radius", "1e30"], "--radius: '1e30': expected radius in [1e-20, 1e+20]"),
+    (["--radius", "0.001", "--radius-scale", "1e-30"], "radius 0.001 x radius_scale 1e-30"),
+], ids=["unit", "radius", "radius-scale"])
+def test_convert_options_are_usage_errors_before_any_file(tmp_path, capsys, args, named):
+    # --unit furlong wrote the EXR, then failed the materials (exit 1); a constant radius out
+    # of the texels' range [1e-20, 1e20] (the parser took up to 3.4e38) failed each file as
+    # "ok.exr: 60 invalid radius value(s)", naming the colour file for a constant
+    import numpy as np
+    import OpenImageIO as oiio
+    spec = oiio.ImageSpec(4, 4, 3, "float")
+    out = oiio.ImageOutput.create(str(tmp_path / "ok.exr"))
+    assert out.open(str(tmp_path / "ok.exr"), spec)
+    out.write_image(np.full((4, 4, 3), 0.5, np.float32))
+    out.close()
+    try:
+        rc = cli_main(["convert", str(tmp_path / "ok.exr"), "--target", "openpbr", *args])
+    except SystemExit as exc:            # the parser's own usage errors
+        rc = exc.code
+    err = capsys.readouterr().err
+    assert rc == 2 and named in err and "ok.exr" not in err, (rc, err)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["ok.exr"]

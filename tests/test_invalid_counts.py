@@ -185,3 +185,16 @@ def test_masked_and_complex_arrays_are_refused_by_every_function(call):
     call(np.ma.array(np.full((4, 4, 3), 0.5)))     # nothing masked: as the plain array
 
 # }}}
+
+
+def test_a_convert_colour_count_says_each_rule_it_covers(tmp_path, capsys):
+    # one colour outside [0, 1] and two out of Cycles' walk's reach (~0.91 at eta 1.4): the
+    # count (3) was given the first rule's reason alone, "(NaN, infinite or outside [0, 1])"
+    a = np.full((2, 3, 3), 0.5, np.float32)
+    a[0, 0, 0], a[0, 1, 1], a[1, 1, 2] = 1.5, 0.95, 0.97
+    write(tmp_path / "c.exr", a, ("R", "G", "B"))
+    assert cli_main(["convert", str(tmp_path / "c.exr"), "--radius", "1", "--target",
+                     "cycles-random-walk"]) == 1
+    out = capsys.readouterr().out
+    assert ("3 invalid colour value(s) (1 NaN, infinite or outside [0, 1], 2 a reflectance "
+            "cycles-random-walk does not render)") in out, out

@@ -115,3 +115,88 @@ def test_an_output_without_the_roles_layer_is_refused_by_name(what, tmp_path, ca
     out = capsys.readouterr().out
     assert rc == 1 and "radius.* layer" in out and "other.exr" in out, out
     assert not (tmp_path / "skin.burley.exr").exists()
+
+
+@pytest.fixture
+def layer_files(tmp_path, capsys):
+    """One-layer files of ours (plain R, G, B; only the header's ``bdipole:layer`` says what
+    they hold): convert's colour and radius beside an OpenPBR set, and an inversion's
+    sigma_a and alpha as a bake writes them beside its coefficients (``layer_files``)."""
+    from bdipole_cl.io.colour import resolve_working_space
+    from bdipole_cl.jobs.layer_files import layer_files as write_layers
+    _write(tmp_path / "skin.exr", np.random.default_rng(2).uniform(0.1, 0.8, (4, 4, 3)))
+    assert main(["convert", str(tmp_path / "skin.exr"), "--radius", "1.2,0.6,0.3",
+                 "--source", "pxrsurface", "--target", "openpbr"]) == 0, capsys.readouterr()
+    assert main(["invert", str(tmp_path / "skin.exr"), "--mfp", "0.5", "--outputs",
+                 "sigma_a,alpha", "-o", str(tmp_path / "coef.exr"), "--device", "intel",
+                 "--no-progress"]) == 0, capsys.readouterr()
+    write_layers(str(tmp_path / "coef.exr"), ("sigma_a", "alpha"),
+                 resolve_working_space(None), [])
+    assert main(["blur", str(tmp_path / "skin.exr"), "--albedo", "0.5", "--mfp", "1",
+                 "--texel-size", "1", "-o", str(tmp_path / "blurred.exitance.exr"),
+                 "--device", "intel", "--no-progress"]) == 0, capsys.readouterr()
+    capsys.readouterr()
+    return {k: tmp_path / f"{k}.exr" for k in ("skin.van-de-hulst.colour",
+                                                "skin.van-de-hulst.radius", "coef.sigma_a",
+                                                "coef.alpha", "blurred.exitance")}
+
+
+@pytest.mark.parametrize("given, args", [
+    ("skin.van-de-hulst.colour", ["convert", "{skin}", "--radius", "{file}", "--source",
+                                  "openpbr", "--target", "pxrsurface", "-o", "{tmp}/x.exr"]),
+    ("skin.van-de-hulst.radius", ["convert", "{file}", "--radius", "1", "--source",
+                                  "openpbr", "--target", "pxrsurface", "-o", "{tmp}/x.exr"]),
+    ("coef.sigma_a", ["invert", "{skin}", "--mfp", "{file}", "-o", "{tmp}/x.exr"]),
+    ("skin.van-de-hulst.radius", ["invert", "{file}", "--mfp", "1", "-o", "{tmp}/x.exr"]),
+    ("coef.alpha", ["blur", "{skin}", "--alpha-prime", "0.5", "--sigma-t", "{file}",
+                    "--texel-size", "5", "-o", "{tmp}/x.exr"]),
+    ("coef.alpha", ["blur", "{file}", "--alpha-prime", "0.5", "--sigma-t", "1",
+                    "--texel-size", "5", "-o", "{tmp}/x.exr"]),
+    ("skin.van-de-hulst.radius", ["blur", "{skin}", "--albedo", "{file}", "--mfp", "1",
+                                  "--texel-size", "5", "-o", "{tmp}/x.exr"]),
+    ("blurred.exitance", ["invert", "{file}", "--mfp", "1", "-o", "{tmp}/x.exr"]),
+    ("blurred.exitance", ["convert", "{skin}", "--radius", "{file}", "-o", "{tmp}/x.exr"]),
+], ids=["convert-radius", "convert-colour", "invert-mfp", "invert-albedo", "blur-sigma-t",
+        "blur-irradiance", "blur-albedo", "exitance-albedo", "exitance-radius"])
+def test_a_layer_file_read_as_another_role_is_refused_by_name(layer_files, tmp_path, capsys,
+                                                             given, args):
+    # a one-layer file's R, G, B were read as whatever it was given as (a colour as the
+    # radius, sigma_a as the mfp, alpha as sigma_t), exit 0: its header's layer decides
+    fill = {"skin": str(tmp_path / "skin.exr"), "file": str(layer_files[given]),
+            "tmp": str(tmp_path)}
+    argv = [a.format(**fill) for a in args]
+    argv += ["--device", "intel"] if argv[0] != "convert" else []
+    rc = main(argv + (["--no-progress"] if argv[0] != "convert" else []))
+    out = "".join(capsys.readouterr())
+    held = given.rsplit(".", 1)[1]
+    assert rc != 0 and f"{layer_files[given]}: holds a bdipole-cl output's {held} layer" in out, \
+        (rc, out)
+    assert not (tmp_path / "x.exr").exists()
+
+
+def test_a_layer_file_as_its_own_role_is_read(layer_files, tmp_path, capsys):
+    # convert's colour and radius files are a colour and a radius again; a blur's exitance
+    # is light, blurred again
+    rc = main(["convert", str(layer_files["skin.van-de-hulst.colour"]), "--radius",
+               str(layer_files["skin.van-de-hulst.radius"]), "--source", "openpbr",
+               "--target", "pxrsurface", "-o", str(tmp_path / "x.exr")])
+    assert rc == 0, capsys.readouterr()
+    rc = main(["blur", str(layer_files["blurred.exitance"]), "--albedo", "0.5", "--mfp", "1",
+               "--texel-size", "1", "-o", str(tmp_path / "y.exr"), "--device", "intel",
+               "--no-progress"])
+    assert rc == 0, capsys.readouterr()
+
+
+def test_scenes_and_dask_refuse_a_layer_file_of_another_role(layer_files, tmp_path):
+    from bdipole_cl import dask as bdask
+    from bdipole_cl import scene as scenes
+    from bdipole_cl.io.images import TextureError
+    with pytest.raises(TextureError, match="holds a bdipole-cl output's sigma_a layer"):
+        bdask.blur_file_on_cluster(str(layer_files["coef.sigma_a"]), str(tmp_path / "x.exr"),
+                                   None, albedo=0.5, mfp=1.0)
+    (tmp_path / "scene.toml").write_text(
+        '[[material]]\nname = "skin"\nalbedo = "skin.exr"\nmfp = "coef.sigma_a.exr"\n'
+        'output = "out/skin.exr"\n')
+    report = scenes.load(tmp_path / "scene.toml").plan().run()
+    assert report.exit_code == 1 and "holds a bdipole-cl output's sigma_a layer" in \
+        report.summary(), report.summary()

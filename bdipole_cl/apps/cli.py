@@ -18,8 +18,8 @@ from .cli_crosscheck import cmd_crosscheck
 from .cli_options import (add_global_args, add_method_args, add_scheduler_args, cluster_client,
                           colorspace_arg, method_knobs)
 from .cli_types import (Parser, add_texture_arg, constant_or_texture, floats, fraction,
-                        output_list, positive_float, positive_int, size, spelling_of,
-                        target_list)
+                        length_unit, output_list, positive_float, positive_int, size,
+                        spelling_of, target_list)
 from .user_kernel import SIGNATURES
 
 DESCRIPTION = """\
@@ -340,7 +340,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--mfp", default="1", type=constant_or_texture("mfp"),
                    help="mean free path ld = 1/mu_tr: constant(s) 'v' or 'r,g,b', or a texture "
                         "path/pattern ({stem}, {dir}, <UDIM>)")
-    p.add_argument("--unit", default="mm", help="length unit of the mfp")
+    p.add_argument("--unit", default="mm", type=length_unit, help="length unit of the mfp")
     p.add_argument("--mfp-scale", type=positive_float, default=1.0, help="multiplies mfp values")
     from ..methods.registry import MFP_KINDS
     p.add_argument("--mfp-kind", default="diffuse", choices=MFP_KINDS,

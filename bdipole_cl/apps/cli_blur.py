@@ -37,14 +37,16 @@ def blur_job(args, sources):
         from ..io.stretch_maps import read_stretch
         stretch = read_stretch(args.stretch)
     if args.alpha_prime is not None:
-        scattering = Scattering(alpha_prime=parameter(args.alpha_prime, "alpha'", "alpha"),
-                                sigma_t=parameter(args.sigma_t, "sigma_t'", "sigma_t"),
-                                eta=args.eta, texel_size=args.texel_size, stretch=stretch)
+        scattering = Scattering(
+            alpha_prime=parameter(args.alpha_prime, "alpha' (--alpha-prime)", "alpha"),
+            sigma_t=parameter(args.sigma_t, "sigma_t' (--sigma-t)", "sigma_t"),
+            eta=args.eta, texel_size=args.texel_size, stretch=stretch)
     else:
-        scattering = Scattering(parameter(args.albedo, "albedo", "albedo", colorspace=args.colorspace,
-                                       working=args.working_space),
-                                parameter(args.mfp, "mfp", "mfp"), args.eta, args.texel_size,
-                                stretch=stretch)
+        scattering = Scattering(
+            parameter(args.albedo, "albedo (--albedo)", "albedo", colorspace=args.colorspace,
+                      working=args.working_space),
+            parameter(args.mfp, "mfp (--mfp)", "mfp"), args.eta, args.texel_size,
+            stretch=stretch)
     work = BlurWork(scattering, tol=args.tol, method=args.method, border=args.border,
                     exact=args.exact, on_invalid=args.on_invalid, half=args.half,
                     texture=args.texture, colorspace=args.colorspace,

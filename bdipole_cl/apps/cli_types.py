@@ -99,6 +99,16 @@ def constant_or_texture(name):
     return parse
 
 
+def length_unit(text):
+    """A length unit of the scene files' table (``io.scene_file.UNIT_METERS``): a usage
+    error (exit 2) before any file is written, not a failure of the materials after."""
+    from ..io.scene_file import UNIT_METERS
+    if text not in UNIT_METERS:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected a length unit, one of "
+                                         f"{', '.join(UNIT_METERS)}")
+    return text
+
+
 def shown(value):
     if isinstance(value, (tuple, list)):
         return ",".join(f"{v:g}" if isinstance(v, float) else str(v) for v in value)

@@ -6,8 +6,8 @@ from ..errors import POLICIES
 from ..methods.registry import ALPHA_CHANNEL
 from ..physics.conventions import CONVENTION
 from .cli_options import colorspace_arg
-from .cli_types import (add_texture_arg, constant_or_texture, floats, positive_float,
-                        positive_int, size, spelling_of)
+from .cli_types import (add_texture_arg, constant_or_texture, floats, length_unit,
+                        positive_float, positive_int, size, spelling_of)
 
 EPILOG = """examples:
   bdipole-cl convert skin.<UDIM>.exr --radius 1.2,0.6,0.3 --source pxrsurface --target openpbr
@@ -24,7 +24,7 @@ def add_command(command):
                                 "another's (same reflectance, same spread)", epilog=EPILOG)
     p.add_argument("inputs", nargs="+",
                    help="colour files, globs or tile patterns (<UDIM>, <UVTILE>, ...)")
-    p.add_argument("--radius", default="1", type=constant_or_texture("mfp"),
+    p.add_argument("--radius", default="1", type=constant_or_texture("radius"),
                    help="the source's radius: constant(s) 'v' or 'r,g,b', or a texture "
                         "path/pattern ({stem}, {dir}, <UDIM>)")
     p.add_argument("--radius-scale", type=positive_float, default=1.0,
@@ -41,7 +41,7 @@ def add_command(command):
     p.add_argument("--g", type=float, default=0.0,
                    help="HG mean cosine of the walks (default 0): 0..0.8, the Monte Carlo "
                    "spread table's range (Cycles' conventions clamp it to 0..0.9 first)")
-    p.add_argument("--unit", default="mm", help="length unit of the radius")
+    p.add_argument("--unit", default="mm", type=length_unit, help="length unit of the radius")
     p.add_argument("-o", "--output", default="{dir}/{stem}.{target}.exr",
                    help="output path pattern: {dir} {stem} {name} {target} and a tile token; "
                         "channels colour.* and radius.* (random-walk: sigma_a.*, sigma_s.*, "
@@ -80,7 +80,7 @@ def _cmd_convert(args) -> int:
         force=args.force, cancel=stop.event)
     report = BatchReport(report.results + convert_materials(
         args.inputs, args.output, CONVENTION.canonical(args.target), args.eta, args.unit,
-        resolve_working_space(args.working_space).name, report.results))
+        resolve_working_space(args.working_space).name, report.results, args.texture))
     print(report.summary())
     if stop.exit_code:
         return stop.exit_code

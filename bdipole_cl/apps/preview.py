@@ -28,7 +28,7 @@ import numpy as np
 
 from ..durable import durable_replace
 from ..errors import one_line
-from ..io.channels import COLOUR_LAYERS, NOT_RGB, layer_of
+from ..io.channels import COLOUR_HELD, COLOUR_LAYERS, NOT_RGB, held_layer, layer_of
 from ..io.collisions import PICTURE_MARK, Claim, check_claim
 from ..io.images import Reader, TextureError, classify_channels, read_whole
 from ..io.patterns import outputs_of
@@ -112,6 +112,7 @@ def channel_groups(names, alpha_channel=-1, header=None) -> list:
     ``colour``), the alpha channel, then any other unprefixed channel on its own."""
     colour, alpha, _ = classify_channels(names, alpha_channel)
     blur = header is not None and header.get("bdipole:source") is not None
+    held = held_layer(header) if header is not None else None    # a layer's own file
     model = next((m for m in NOT_RGB if m <= {n.rsplit(".", 1)[-1] for n in names}), None)
     groups = {}
     for i, n in enumerate(names):
@@ -122,7 +123,7 @@ def channel_groups(names, alpha_channel=-1, header=None) -> list:
         elif "." in n:
             key = n.rsplit(".", 1)[0]
         elif i in colour:
-            key = "exitance" if blur else "colour"
+            key = "exitance" if blur else held[0] if held else "colour"
         else:
             key = n
         groups.setdefault(key, []).append(i)
@@ -156,6 +157,8 @@ def displayed_colour(path, px, names, alpha, header) -> tuple:
     colour, _, _ = classify_channels(names, alpha)
     if header.get("bdipole:version") is not None:
         colour = [i for i in colour if layer_of(names[i]) in ("", COLOUR_LAYERS[0])]
+        if held_layer(header) is not None and held_layer(header)[0] not in COLOUR_HELD:
+            colour = []               # a one-layer file of data (radius, sigma_a): as stored
     if not colour:
         return px, None
     reader = Reader(path, "preview")

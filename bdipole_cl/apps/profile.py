@@ -274,14 +274,15 @@ def material_specs(scene, name, inputs=None):
 
 def add_command(command):
     """Add the command to the CLI (``command``: the subparsers' add_parser)."""
-    from .cli_types import constants, floats, fraction
+    from .cli_types import constants, floats, fraction, length_unit
     p = command("profile", help="plot R(r) per channel and Rd(alpha') (PNG or SVG)")
     p.add_argument("--albedo", type=constants("albedo"),
                    help="Rd in (0, 1): one value or per channel 'r,g,b'")
     p.add_argument("--mfp", type=constants("mfp"),
                    help="mean free path ld = 1/mu_tr, per channel")
     p.add_argument("--eta", type=floats, default=(1.4,), help="one or per channel")
-    p.add_argument("--unit", default="mm", help="length unit of the mfp (default mm)")
+    p.add_argument("--unit", default="mm", type=length_unit,
+                   help="length unit of the mfp (default mm)")
     p.add_argument("--tol", type=fraction,
                    help="the blur's truncation tol: energy left out beyond the marked radius "
                         f"(default: the material's blur's, else {DEFAULT_BLUR_TOL:g})")

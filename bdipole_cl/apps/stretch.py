@@ -5,15 +5,7 @@ from __future__ import annotations
 
 import sys
 
-
-
-def length_unit(text):
-    """A length unit of the scene files' table (``io.scene_file.UNIT_METERS``)."""
-    import argparse
-    from ..io.scene_file import UNIT_METERS
-    if text not in UNIT_METERS:
-        raise argparse.ArgumentTypeError(f"{text!r}: expected one of {', '.join(UNIT_METERS)}")
-    return text
+from .cli_types import length_unit
 
 
 def add_command(command):

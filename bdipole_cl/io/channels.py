@@ -26,6 +26,16 @@ OWN_LAYERS = frozenset(OUTPUTS) | set(COLOUR_LAYERS) | set(MEDIUM_LAYERS)
 #: albedo or colour, the mfp or radius, blur's alpha' and sigma_t'); an output read as one of
 #: these inputs is read by its layer, never by the channels' order
 ROLE_LAYER = {"albedo": "colour", "mfp": "radius", "alpha": "alpha", "sigma_t": "sigma_t"}
+#: the roles no layer of an output of ours holds: a blur's irradiance
+NO_LAYER_ROLES = ("irradiance",)
+#: the header entries that name the one layer a file of ours holds: a layer's own file
+#: (``bdipole:layer``: jobs.layer_files; a blur's output: "exitance") and a painted map
+#: (``bdipole:painted``, "{convention} {layer}": jobs.scene_maps)
+HELD_LAYER_KEYS = ("bdipole:layer", "bdipole:painted")
+#: one-layer files of ours a role also takes: a blur's exitance blurred again (light is light)
+ROLE_ALSO = {"irradiance": ("exitance",)}
+#: the held layers that are colour (tagged and shown as colour); every other one is data
+COLOUR_HELD = ("colour", "exitance")
 
 
 def short_name(name) -> str:
@@ -79,7 +89,8 @@ def classify_channels(names, alpha_channel=-1, role=None, layer=None):
         if layer is None:
             layer = (ROLE_LAYER.get(role) if ROLE_LAYER.get(role) in held else
                      "" if "" in held else layers[colour[0]])
-            if role in ROLE_LAYER and layer != ROLE_LAYER[role] and held <= OWN_LAYERS:
+            if (role in ROLE_LAYER or role in NO_LAYER_ROLES) and \
+                    layer != ROLE_LAYER.get(role) and held <= OWN_LAYERS:
                 layer = None          # an output of ours without this role's layer: refused
         colour = [i for i in colour if layers[i] == layer]
     if any(short[i] not in GREY_NAMES for i in colour):
@@ -94,11 +105,44 @@ def role_missing(names, role) -> str | None:
     """Why a file of channels ``names`` holds no ``role`` (an output of ours, all its layers
     ours, none the role's), else None."""
     layers = sorted({layer_of(n) for n in names} - {""})
-    if role not in ROLE_LAYER or not layers or not set(layers) <= OWN_LAYERS \
-            or ROLE_LAYER[role] in layers:
+    if (role not in ROLE_LAYER and role not in NO_LAYER_ROLES) or not layers \
+            or not set(layers) <= OWN_LAYERS or ROLE_LAYER.get(role) in layers:
         return None
+    if role in NO_LAYER_ROLES:
+        return (f"layers {', '.join(layers)} of a bdipole-cl output: none is an {role}; "
+                f"give the {role} itself")
     return (f"layers {', '.join(layers)} of a bdipole-cl output: none is the "
             f"{ROLE_LAYER[role]}.* layer that holds the {role}; give the file that has it")
+
+
+def held_layer(spec) -> tuple | None:
+    """(the layer, the header entry that says it) of a one-layer file of ours (its channels
+    are plain R, G, B: only its header says what it holds), else None. ``spec``: an
+    ImageSpec or a {name: value} of its attributes."""
+    get = spec.get if isinstance(spec, dict) else spec.getattribute
+    if not get("bdipole:version"):
+        return None
+    for key in HELD_LAYER_KEYS:
+        text = str(get(key) or "").split()
+        if text:
+            return text[-1], key
+    return None
+
+
+def role_refused(spec, role, what) -> str | None:
+    """Why a one-layer file of ours (``held_layer``) is not the input ``role`` (a
+    ``ROLE_LAYER`` key or a NO_LAYER_ROLES one) it is read as (``what``: its name or
+    option), else None: the header decides, so a colour is never read as a radius because
+    both are R, G, B."""
+    held = held_layer(spec)
+    if held is None or (role not in ROLE_LAYER and role not in NO_LAYER_ROLES) \
+            or held[0] == ROLE_LAYER.get(role) or held[0] in ROLE_ALSO.get(role, ()):
+        return None
+    wanted = (f"the {what} is an output's {ROLE_LAYER[role]} layer" if role in ROLE_LAYER
+              else f"of bdipole-cl's outputs only a blur's "
+                   f"{' or '.join(ROLE_ALSO.get(role, ()))} is an {role}")
+    return (f"holds a bdipole-cl output's {held[0]} layer ({held[1]}), given as the "
+            f"{what}; {wanted}")
 
 
 #: channel name sets that are colour models other than linear RGB: never read as R, G, B, A

@@ -411,6 +411,24 @@ COLOUR_ATTRIBS = ("oiio:ColorSpace", "colorInteropID", "chromaticities", "ICCPro
                   "adoptedNeutral", "oiio:Gamma")
 
 
+def data_space(config=None) -> str:
+    """The config's data colour space (its ``data`` role, else its first ``isdata`` space,
+    else "Raw"): what a file of numbers that are not colour (coefficients, a radius, alpha)
+    declares, so that no reader converts them as colour."""
+    config = config or active_config()
+    return config.role("data") or next((n for n in config.names() if config.is_data(n)),
+                                       "Raw")
+
+
+def tag_data(spec, config) -> None:
+    """Tag an output ImageSpec as data: ``oiio:ColorSpace`` the config's data space and the
+    EXR ``colorInteropID`` its interop ID ("data" in OpenColorIO's built-in config); no
+    chromaticities (the numbers have no primaries to convert)."""
+    space = data_space(config)
+    spec.attribute("oiio:ColorSpace", space)
+    spec.attribute("colorInteropID", config.interop_id(space) or "data")
+
+
 def tag_output(spec, working) -> None:
     """Tag an output ImageSpec as being in ``working``: ``oiio:ColorSpace`` and the EXR
     ``colorInteropID`` (its interop ID in the config, e.g. lin_ap1_scene for ACEScg, else its
@@ -428,4 +446,5 @@ def tag_output(spec, working) -> None:
 
 __all__ = ["BUILTIN_CONFIG", "DEFAULT_WORKING_SPACE", "ColourConfig", "ColourPath",
            "WorkingSpace", "active_config", "check_colorspace", "colour_path", "encoding",
-           "reset_config_cache", "resolve_colorspace", "resolve_working_space", "tag_output"]
+           "reset_config_cache", "resolve_colorspace", "resolve_working_space", "tag_output",
+           "data_space", "tag_data"]

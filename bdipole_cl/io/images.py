@@ -31,8 +31,8 @@ from .mipmaps import (TextureBuildCancelled, TextureBuildError, build_texture,
 from .verify import (BandDigests, WriteCheckError, finite_texels, read_back,  # noqa: F401
                      read_rows, read_rows_of)
 from .channels import (ALPHA_NAMES, COLOUR_NAMES, GREY_NAMES, NOT_RGB,  # noqa: F401
-                       classify_channels, role_missing)
-from .colour import COLOUR_ATTRIBS, colour_path, tag_output
+                       classify_channels, role_missing, role_refused)
+from .colour import COLOUR_ATTRIBS, colour_path, tag_data, tag_output
 from .oiio_text import oiio_error
 from .partials import remove_partial_files
 from ..durable import durable_replace
@@ -183,6 +183,8 @@ class Reader:
             problem = (f"{path}: channels {', '.join(integer_channels(self.spec))} ({what}) "
                        f"are 32-bit integers (IDs or counts), not texture values: write them "
                        f"as half or float")
+        elif role_refused(self.spec, role, what):
+            problem = f"{path}: {role_refused(self.spec, role, what)}"
         else:
             parts = _part_names(self.inp)
             if len(parts) > 1:
@@ -276,11 +278,13 @@ SKIP_ATTRIBS = ("compression", "oiio:BitsPerSample", "oiio:UnassociatedAlpha",
 SOFTWARE = "bdipole_cl"
 
 
-def output_spec(in_spec, channel_names, alpha_index, half, params, *, working):
+def output_spec(in_spec, channel_names, alpha_index, half, params, *, working, data=False):
     """The ImageSpec of an output of ``in_spec``'s size and window: ``channel_names``, float or
     half, the input's metadata but not its colour tags, tagged as in the WorkingSpace
-    ``working``, and ``params`` as ``bdipole:*`` attributes, ``bdipole:version`` always and
-    Software (the marks of this tool's outputs: ``io.collisions.ours``)."""
+    ``working`` (``data``: numbers that are not colour, tagged as the config's data space,
+    the working space named in ``bdipole:working_space``), and ``params`` as ``bdipole:*``
+    attributes, ``bdipole:version`` always and Software (the marks of this tool's outputs:
+    ``io.collisions.ours``)."""
     spec = oiio.ImageSpec(in_spec.width, in_spec.height, len(channel_names),
                           "half" if half else "float")
     spec.x, spec.y, spec.z = in_spec.x, in_spec.y, in_spec.z
@@ -301,7 +305,11 @@ def output_spec(in_spec, channel_names, alpha_index, half, params, *, working):
     # who wrote it: an image tool that edits the output writes its own (oiiotool does), so an
     # edited copy is not taken for this tool's output (``collisions.ours``)
     spec.attribute("Software", f"{SOFTWARE} {__version__}")
-    tag_output(spec, working)
+    if data:
+        tag_data(spec, working.config)
+        params = {"working_space": working.name, **params}
+    else:
+        tag_output(spec, working)
     for key, value in {"version": __version__, **params}.items():
         spec.attribute(f"bdipole:{key}", header_text(value))
     return spec

@@ -19,7 +19,7 @@ from __future__ import annotations
 import MaterialX as mx
 
 from .mtlx_scene import valid_identifier
-from .networks import MTLX_SPACES, Network, TextureRead, space_name
+from .networks import MTLX_INPUTS, MTLX_SPACES, Network, TextureRead, space_name
 
 #: MaterialX's nodes of each target's shader
 CATEGORY = {"preview": "UsdPreviewSurface", "openpbr": "open_pbr_surface",
@@ -73,9 +73,24 @@ def _connect(inp, node, want: str):
     inp.setConnectedNode(node)
 
 
-def add_network(doc, name: str, network: Network, material):
-    """The target's shader node for one material, connected to its ``material`` node."""
+def distance_unit(unit_m: float) -> tuple:
+    """(MaterialX's name of the distance unit of ``unit_m`` metres, the factor from that unit
+    to it): the standard library's ``UD_stdlib_distance`` unit of that scale (a relative
+    1e-9: its scales are decimal text), else metres with the factor ``unit_m``."""
+    for unit in library().getUnitDef("UD_stdlib_distance").getUnits():
+        scale = float(unit.getAttribute("scale"))
+        if abs(scale - unit_m) <= 1e-9 * unit_m:
+            return unit.getName(), 1.0
+    return "meter", unit_m
+
+
+def add_network(doc, name: str, network: Network, material, unit_m: float):
+    """The target's shader node for one material, connected to its ``material`` node; its
+    distances are in ``unit_m`` metres, which the distance input states (``unittype``
+    "distance", ``unit``): MaterialX converts it into a renderer's unit, and a document
+    without one is read in its default, metres."""
     category = CATEGORY[network.target.name]
+    distance = MTLX_INPUTS.get(network.target.name, (None,) * 3)[2]
     shader = doc.addNode(category, doc.createValidChildName(
         f"{name}_{network.target.name.replace('-', '_')}"), "surfaceshader")
     for key, value in network.inputs.items():
@@ -88,6 +103,11 @@ def add_network(doc, name: str, network: Network, material):
             inp.setValue(mx.Color3(*value))
         elif type_name == "integer":
             inp.setValue(int(value[0]))
+        elif key == distance:
+            unit, factor = distance_unit(unit_m)
+            inp.setValue(float(value[0]) * factor)
+            inp.setUnitType("distance")
+            inp.setUnit(unit)
         else:
             inp.setValue(float(value[0]))
     material.addInput("surfaceshader", "surfaceshader").setConnectedNode(shader)
@@ -105,23 +125,26 @@ def add_coefficients(doc, name: str, reads):
 
 
 def document_text(materials, comment: str) -> str:
-    """The document of ``materials`` ([(name, [Network], [coefficient TextureRead])]): each
-    MaterialX target's material and the coefficients graph; ``comment`` its first line."""
+    """The document of ``materials`` ([(name, [Network], [coefficient TextureRead], metres
+    per unit of its distances)]): each MaterialX target's material and the coefficients
+    graph; ``comment`` its first line."""
     doc = mx.createDocument()
     doc.addChildOfCategory("comment").setDocString(comment)
     # the materials' names first: each its material's own, before any node could take it
     chosen = []                     # per material: (ident, [(network, is its main)])
-    for name, networks, _ in materials:
+    units = {}
+    for name, networks, _, unit_m in materials:
         mtlx = [n for n in networks if n.target.mtlx]
         main = next((i for i, n in enumerate(mtlx) if n.target.name != "preview"), 0)
         chosen.append((valid_identifier(name), [(n, i == main) for i, n in enumerate(mtlx)]))
+        units[valid_identifier(name)] = unit_m
     wired = [(ident, n, doc.addMaterialNode(doc.createValidChildName(ident)))
              for ident, nets in chosen for n, main in nets if main]
     wired += [(ident, n, doc.addMaterialNode(doc.createValidChildName(
         f"{ident}_{n.target.name.replace('-', '_')}")))
         for ident, nets in chosen for n, main in nets if not main]
     for ident, network, material in wired:
-        add_network(doc, ident, network, material)
-    for name, _, reads in materials:
+        add_network(doc, ident, network, material, units[ident])
+    for name, _, reads, _ in materials:
         add_coefficients(doc, valid_identifier(name), reads)
     return mx.writeToXmlString(doc)

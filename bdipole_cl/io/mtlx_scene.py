@@ -10,7 +10,9 @@ input's value is its ``value`` attribute; a connected input (``nodename``, or ``
 whose active colour space (its ``colorspace`` attribute, else the enclosing elements', else
 the document's) goes to colour management (a ``float`` image, one channel of the file, is
 refused where its texels are baked, but as a distance from a one-channel file; a ``layer``
-is read where it is the file's layer a bake reads, else refused: ``shaders``). Any other node is a procedural network: the material
+is read where it is the file's layer a bake reads, else refused: ``shaders``), or through a
+``convert`` that only casts it (``vector3`` to ``color3``: a data image, as this tool's own
+documents read one). Any other node is a procedural network: the material
 is named as not bakeable. A distance input's ``unit`` (``unittype="distance"``) converts it to
 the scene unit: metres, MaterialX's default target distance unit (``GenOptions``), which a
 scene file's ``unit`` may change. A material's name is a valid USD prim and file name
@@ -110,12 +112,29 @@ def read_input(shader, name: str, base: str) -> Input | None:
     if node is None:
         value = _values(inp)
         return None if value is None else Input(name, value=value, unit=unit)
+    node = _through_cast(node)
     if node.getCategory() in TEXTURE_NODES:
         texture = _texture(node, base)
         return Input(name, refused=f"{name}: {texture}") if isinstance(texture, str) else \
             Input(name, texture=texture, unit=unit)
     return Input(name, refused=f"{name} comes from {node.getCategory()} "
                                f"({node.getNamePath()}), a procedural network")
+
+
+#: the ``convert`` node's casts that keep every value (three channels as three): a data
+#: image read as ``vector3`` for a ``color3`` input, as this tool writes it
+VALUE_CASTS = {("vector3", "color3"), ("color3", "vector3")}
+
+
+def _through_cast(node):
+    """The image a ``convert`` node only casts (VALUE_CASTS), else ``node`` itself."""
+    if node.getCategory() != "convert" or node.getInput("in") is None:
+        return node
+    source = node.getInput("in").getConnectedNode()
+    if source is None or (source.getType(), node.getType()) not in VALUE_CASTS or \
+            source.getCategory() not in TEXTURE_NODES:
+        return node
+    return source
 
 
 def valid_identifier(name: str) -> str:

@@ -16,19 +16,13 @@ import OpenImageIO as oiio
 from ..ops.blur.stretched import Stretch
 from ..ops.stretch import StretchTile, stretch_tiles
 from ..version import __version__
-from .colour import active_config
+from .colour import data_space
 from .images import SOFTWARE, Reader, TextureError, Writer, check_output_format, header_text
 from .mesh import read_meshes
 from .scene_file import UNIT_METERS
 from .tiles import Tile, fill, has_tokens
 
 CHANNELS = ("stretch.u", "stretch.v", "chart")
-
-
-def data_space() -> str:
-    """The active OCIO config's data colour space (its first ``isdata`` space), else "Raw"."""
-    config = active_config()
-    return next((n for n in config.names() if config.is_data(n)), "Raw")
 
 
 def chart_channel(tile: StretchTile) -> np.ndarray:

@@ -140,6 +140,7 @@ def exitance_writer(path, output, spec, colour, alpha_ch, route, plan, *, half=F
     meta["methods"] = ",".join(planned_methods(plan))
     meta.update(header or {})
     meta["source"] = str(path)
+    meta["layer"] = "exitance"      # what the file holds (``channels.held_layer``)
     meta.update(route.header("irradiance"))
     Path(output).parent.mkdir(parents=True, exist_ok=True)
     options = texture_options(texture)   # a texture wraps as the blur's border did, unless
@@ -191,7 +192,7 @@ def blur_file(path, output, *, colorspace="auto", working_space=None, half=False
     check_claim(Claim(str(path), str(output), {"irradiance": str(path), **sources}), force)
     scattering = Scattering(albedo, mfp, eta, texel_size, alpha, sigma_t, stretch)
     guard = guard or InputGuard({"irradiance": path, **sources})
-    reader = Reader(path, "irradiance")
+    reader = Reader(path, "irradiance", role="irradiance")
     writer = None
     try:
         spec = reader.spec
@@ -297,7 +298,7 @@ def masked_parameter(values, keep):
 def check_windows(job):
     """The blur's parameter textures cover the irradiance's pixels (TextureError if not); the
     irradiance's texel count."""
-    r = Reader(job.source, "irradiance")
+    r = Reader(job.source, "irradiance", role="irradiance")
     try:
         for role, p in job.inputs.items():
             if role != "irradiance":

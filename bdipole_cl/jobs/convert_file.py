@@ -12,6 +12,7 @@ from __future__ import annotations
 import os
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, fields, replace
+from typing import ClassVar
 from pathlib import Path
 
 import numpy as np
@@ -28,7 +29,8 @@ from ..io.mipmaps import TextureOptions, texture_options
 from ..io.patterns import companion_path, expand_inputs, unmatched_pattern
 from ..ops.bands import band_rows
 from ..physics.conventions import CONVENTION
-from ..physics.conversion import convert
+from ..io.scene_keys import UNIT_METERS
+from ..physics.conversion import RADIUS_RANGE, convert
 from ..version import __version__
 from .batch import job_claims, parse_constant
 from .invert_file import JobFiles, open_inputs, per_channel
@@ -73,6 +75,8 @@ class ConvertWork:
     texture: TextureOptions | None = None
     header: dict = field(default_factory=dict)
     layers: dict = field(default_factory=dict)    # as InvertWork's (none for convert)
+    #: what each input role is called in messages (``invert_file.open_inputs``)
+    input_names: ClassVar[dict] = {"albedo": "colour texture", "mfp": "radius (--radius)"}
 
 
 def convert_textures(inputs, *, radius=1.0, source="better-dipole", target="van-de-hulst",
@@ -94,6 +98,7 @@ def convert_textures(inputs, *, radius=1.0, source="better-dipole", target="van-
         inputs = [inputs]
     src, tgt = CONVENTION[source], CONVENTION[target]
     constant = parse_constant(radius, "radius")
+    check_before_work(constant, radius_scale, unit)
     work = ConvertWork(src.name, tgt.name,
                        tuple(np.atleast_1d(np.asarray(eta, np.float64)).tolist()), float(g),
                        constant, float(radius_scale), bool(half), colorspace,
@@ -123,6 +128,21 @@ def convert_textures(inputs, *, radius=1.0, source="better-dipole", target="van-
     with ThreadPoolExecutor(max(1, int(jobs))) as pool:
         results += list(pool.map(lambda j: run_convert(j, cancel=cancel), todo))
     return BatchReport(results)
+
+
+def check_before_work(constant, radius_scale, unit):
+    """ValueError (a usage error, exit 2) before any file is written: a unit that is no
+    length (the materials' metersPerUnit), a constant radius times ``radius_scale`` outside
+    the range every convention takes (as its texels are checked: ``RADIUS_RANGE``)."""
+    if unit not in UNIT_METERS:
+        raise ValueError(f"unit={unit!r}: expected a length unit, one of "
+                         f"{', '.join(UNIT_METERS)}")
+    lo, hi = RADIUS_RANGE
+    for v in (constant or ()):
+        scaled = float(v) * float(radius_scale)
+        if not lo <= scaled <= hi:
+            raise ValueError(f"radius {float(v):g} x radius_scale {float(radius_scale):g} = "
+                             f"{scaled:g}: expected a radius in [{lo:g}, {hi:g}]")
 
 
 #: what an output holds: the target's colour and radius, or for ``random-walk`` the medium's
@@ -165,10 +185,24 @@ def convert_band(work, inp, route, colour_in, radius, etas, job, y0):
         yy, xx, c, exc = min(raised, key=lambda r: r[:3])
         where = job.inputs.get("mfp", job.source) if exc.name == "radius" else job.source
         spec = inp.albedo.spec
-        raise invalid_texels(exc.with_(first_index=(yy, xx, c), count=invalid[exc.name]),
+        raise invalid_texels(exc.with_(first_index=(yy, xx, c), count=invalid[exc.name],
+                                       why=counted_why(exc, colour, invalid, work.target)),
                              where, spec.x + xx, spec.y + y0 + yy, inp.names[c],
                              f" in rows {y0}..{y0 + colour.shape[0] - 1}") from None
     return out_c, out_r, invalid
+
+
+def counted_why(exc, colour, invalid, target) -> str:
+    """The reason of an invalid count that covers every rule a colour breaks: the first
+    rule's (``exc``) where it is all of them, else each rule's share (a colour outside [0, 1]
+    and one out of the target's reach are both counted)."""
+    if exc.name != "colour":
+        return exc.why
+    outside = int(np.count_nonzero(~((colour >= 0.0) & (colour <= 1.0))))
+    if outside in (0, invalid["colour"]):
+        return exc.why
+    return (f"{outside} NaN, infinite or outside [0, 1], {invalid['colour'] - outside} a "
+            f"reflectance {target} does not render")
 
 
 def run_convert(job, *, cancel=None) -> FileResult:

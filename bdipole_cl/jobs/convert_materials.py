@@ -69,13 +69,15 @@ def material_name(pattern: str) -> str:
     return name.strip("._-") or "material"
 
 
-def layered(pattern: str, files: list, working_space: str, folder: str, inputs, written):
+def layered(pattern: str, files: list, working_space: str, folder: str, inputs, written,
+            texture=None):
     """The (colour, radius) TextureReads of one converted set: each layer's own file beside
-    each output file (``layer_files``), named by the output's pattern."""
+    each output file (``layer_files``; ``texture``: the run's TextureOptions), named by the
+    output's pattern."""
     working = resolve_working_space(working_space)
     for f in files:
         try:
-            layer_files(f, COLOUR_LAYERS, working, written, inputs)
+            layer_files(f, COLOUR_LAYERS, working, written, inputs, texture)
         except TextureError as exc:
             raise NotWritten(str(exc)) from None
     return (TextureRead("colour", relative_file(layer_path(pattern, "colour"), folder),
@@ -83,48 +85,96 @@ def layered(pattern: str, files: list, working_space: str, folder: str, inputs, 
             TextureRead("radius", relative_file(layer_path(pattern, "radius"), folder), "raw"))
 
 
+def converted_sets(inputs, output: str, convention: str, results) -> dict:
+    """{folder: [(material name, output pattern, its output files)]} of a convert run: a
+    tile pattern's files are one set (its output pattern keeps the token); every other
+    converted file is a set of its own, whatever named it (a path or a glob: the file, never
+    the pattern's text), in the folder its output is in."""
+    done = {os.path.abspath(r.output): r for r in results
+            if r.status in ("ok", "skipped") and r.output}
+    sets, taken = {}, set()
+    for pattern in map(str, inputs):
+        if not tiles.token_of(pattern) or os.path.exists(pattern):
+            continue
+        out = os.path.abspath(output_pattern(output, pattern, convention))
+        files = [h for h, _ in tiles.expand(out) if os.path.abspath(h) in done]
+        if files:
+            taken.update(os.path.abspath(f) for f in files)
+            sets.setdefault(os.path.dirname(out), []).append(
+                (material_name(pattern), out, files))
+    for out, r in done.items():
+        if out not in taken:
+            sets.setdefault(os.path.dirname(out), []).append((material_name(r.path), out, [out]))
+    return sets
+
+
 def convert_materials(inputs, output: str, convention: str, eta, unit: str,
-                      working_space: str, results) -> list:
-    """Write the materials of a convert run (``results``: its FileResults) beside its outputs;
-    [FileResult] of each file written or refused ([] when there is no target for
-    ``convention`` or nothing was converted)."""
+                      working_space: str, results, texture=None) -> list:
+    """Write the materials of a convert run (``results``: its FileResults) beside its outputs,
+    in each folder they are in; [FileResult] of each file written or refused, and a failed
+    one for each material that could not be written ([] when there is no target for
+    ``convention`` or nothing was converted). ``texture``: the run's TextureOptions (the
+    layer files are textures as the outputs are)."""
     targets = convention_targets(convention)
-    done = [r.output for r in results if r.status in ("ok", "skipped") and r.output]
-    if not targets or not done:
+    sets = converted_sets(inputs, output, convention, results)
+    if not targets or not sets:
         return []
-    folder = os.path.dirname(os.path.abspath(done[0]))
     if unit not in UNIT_METERS:
         return [FileResult(os.path.join(folder, LAYER), error=f"no materials: unit {unit!r} "
-                           f"is not a length unit ({', '.join(list(UNIT_METERS)[:10])}, ...)")]
+                           f"is not a length unit ({', '.join(list(UNIT_METERS)[:10])}, ...)")
+                for folder in sets]
     sources = {os.path.realpath(r.path) for r in results}
+    rows = []
+    for folder, found in sets.items():
+        rows += folder_materials(folder, found, targets, convention, eta, unit, working_space,
+                                 sources, texture)
+    return rows
+
+
+def folder_materials(folder, found, targets, convention, eta, unit, working_space, sources,
+                     texture) -> list:
+    """The materials of one folder's converted sets ``found`` (``converted_sets``) joined to
+    the earlier runs' there: [FileResult]."""
     earlier, stage_unit_m, lost = earlier_networks(folder)
     stage_unit_m = stage_unit_m or UNIT_METERS[unit]
     rows, written = [], []
     if lost:
         rows.append(FileResult(os.path.join(folder, LAYER), os.path.join(folder, LAYER),
-                               status="ok", notes=[lost]))
-    for pattern in inputs:
-        out = os.path.abspath(output_pattern(output, str(pattern), convention))
-        files = [f for f in done if os.path.abspath(f) == out or (
-            tiles.token_of(out) and any(os.path.abspath(f) == h for h, _ in tiles.expand(out)))]
-        if not files or os.path.dirname(out) != folder:
-            continue
-        name = material_name(str(pattern))
+                               status="ok", notes=[lost], companion=True))
+    for name, out, files in found:
         try:
-            colour, radius = layered(out, files, working_space, folder, sources, written)
-        except NotWritten as exc:
-            rows.append(FileResult(name, os.path.join(folder, LAYER), status="ok",
-                                   notes=[f"no material: {exc}"]))
+            colour, radius = layered(out, files, working_space, folder, sources, written,
+                                     texture)
+        except NotWritten as exc:      # an unwritten material is a failure, named
+            rows.append(FileResult(name, os.path.join(folder, LAYER),
+                                   error=f"{name}: no material: {exc}"))
             continue
         baked = BakedMaterial(name, "", working_space, (1.0,), (1.0,), "diffuse", "better",
                               tuple(eta), unit, stage_unit_m, targets,
                               maps={convention: {"layers": (colour, radius)}})
         made, not_written = networks(baked, folder)
         earlier.setdefault(name, {}).update({n.target.name: n for n in made})
-        rows += [FileResult(name, os.path.join(folder, LAYER), status="ok",
-                            notes=[f"{t} not written: {w}"]) for t, w in not_written.items()]
-    rows += [FileResult(p, p, status="ok", notes=["layer file"]) for p in written]
+        rows += [FileResult(name, os.path.join(folder, LAYER), error=f"{name}: {t} not "
+                            f"written: {w}") for t, w in not_written.items()]
+    rows += [FileResult(p, p, status="ok", notes=["layer file"], companion=True)
+             for p in written]
     return rows + write_convert_records(earlier, stage_unit_m, folder)
+
+
+def prim_names(names) -> dict:
+    """{material name: its prim's name under FILE_MATERIALS}: a valid identifier, made
+    distinct where two names give one (a-b, a_b: a_b, a_b_2); the records and the layer's
+    prims are matched through it."""
+    from pxr import Tf
+    out, taken = {}, set()
+    for name in sorted(names):
+        ident, k = Tf.MakeValidIdentifier(name), 1
+        while ident.casefold() in taken:
+            k += 1
+            ident = f"{Tf.MakeValidIdentifier(name)}_{k}"
+        taken.add(ident.casefold())
+        out[name] = ident
+    return out
 
 
 def earlier_networks(folder) -> tuple:
@@ -145,7 +195,8 @@ def earlier_networks(folder) -> tuple:
         found = {}
     root = layer.GetPrimAtPath(FILE_MATERIALS)
     names = sorted(c.name for c in root.nameChildren) if root else []
-    lost = [n for n in names if n not in found]
+    kept = set(prim_names(found).values())
+    lost = [n for n in names if n not in kept]
     note = (f"{', '.join(lost)}: written by an earlier version, without the records a "
             f"merge needs; not kept (convert them again)") if lost else None
     return found, (unit_m if found else None), note
@@ -154,7 +205,7 @@ def earlier_networks(folder) -> tuple:
 def write_convert_records(materials: dict, stage_unit_m: float, folder) -> list:
     """The layer and document of ``materials`` ({name: {target: Network}}), metres per unit
     ``stage_unit_m``; [FileResult] of each file written or refused."""
-    from pxr import Sdf, Tf, Usd, UsdGeom, UsdShade
+    from pxr import Sdf, Usd, UsdGeom, UsdShade
 
     from ..io import usd_networks
     from ..io.mtlx_networks import document_text
@@ -163,19 +214,14 @@ def write_convert_records(materials: dict, stage_unit_m: float, folder) -> list:
     stage = Usd.Stage.Open(layer)
     UsdGeom.SetStageMetersPerUnit(stage, stage_unit_m)
     UsdGeom.SetStageUpAxis(stage, UP_AXIS)
-    documented, taken = [], set()
-    for name in sorted(materials):
-        ident, k = Tf.MakeValidIdentifier(name), 1
-        while ident.casefold() in taken:      # two names one identifier (a-b, a_b)
-            k += 1
-            ident = f"{Tf.MakeValidIdentifier(name)}_{k}"
-        taken.add(ident.casefold())
+    documented = []
+    for name, ident in prim_names(materials).items():
         path = f"{FILE_MATERIALS}/{ident}"
         UsdShade.Material.Define(stage, path)
         by_target = [materials[name][t] for t in sorted(materials[name])]
         for network in by_target:
             usd_networks.author(stage, path, network)
-        documented.append((name, by_target, ()))
+        documented.append((name, by_target, (), stage_unit_m))
     layer.customLayerData = {RECORDS: json.dumps(
         {name: {t: network_record(n) for t, n in by.items()} for name, by in materials.items()},
         sort_keys=True)}
@@ -190,7 +236,8 @@ def write_convert_records(materials: dict, stage_unit_m: float, folder) -> list:
                                                      f"bdipole-cl: the materials go there; "
                                                      f"move it"))
         elif write_if_changed(path, text):
-            rows.append(FileResult(path, path, status="ok", notes=["materials"]))
+            rows.append(FileResult(path, path, status="ok", notes=["materials"],
+                                   companion=True))
     return rows
 
 

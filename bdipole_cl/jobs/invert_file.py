@@ -72,7 +72,9 @@ class InvertInputs:
 def open_inputs(job, work, readers) -> InvertInputs:
     """Open the job's albedo, mfp and mask (each appended to ``readers`` as it opens, so the
     caller closes what opened) and check they fit together."""
-    alb = Reader(job.source, "albedo", role="albedo", layer=work.layers.get("albedo"))
+    what = getattr(work, "input_names", {})      # convert's: its colour and --radius
+    alb = Reader(job.source, what.get("albedo", "albedo"), role="albedo",
+                 layer=work.layers.get("albedo"))
     readers.append(alb)
     colour, alpha_ch = alb.channels()
     spec = alb.spec
@@ -80,7 +82,8 @@ def open_inputs(job, work, readers) -> InvertInputs:
     mfp_reader = mfp_channels = mfp_const = mask_reader = None
     mfp_path = job.inputs.get("mfp")
     if mfp_path is not None:
-        mfp_reader = Reader(mfp_path, "mfp texture", role="mfp", layer=work.layers.get("mfp"))
+        mfp_reader = Reader(mfp_path, what.get("mfp", "mfp texture"), role="mfp",
+                            layer=work.layers.get("mfp"))
         readers.append(mfp_reader)
         check_same_window(spec, mfp_reader.spec, job.source, "mfp texture", mfp_path)
         mfp_channels, _ = mfp_reader.channels()

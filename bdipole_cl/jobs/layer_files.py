@@ -16,18 +16,23 @@ from __future__ import annotations
 
 import os
 
-from ..io.channels import short_name
+from ..io.channels import COLOUR_LAYERS, short_name
 from ..io.collisions import foreign
 from ..io.freshness import header_fields, is_up_to_date, params_digest
 from ..io.images import TextureError, Writer, output_spec, read_whole
+from ..io.mipmaps import texture_options
 from ..io.networks import layer_path
 
 
-def layer_files(path: str, layers, working, written: list, inputs=frozenset()) -> dict:
+def layer_files(path: str, layers, working, written: list, inputs=frozenset(),
+                texture=None) -> dict:
     """{layer: its file} of the output ``path`` (written unless all are up to date; each one
-    written added to ``written``); ``working``: the WorkingSpace the output is in;
-    ``inputs``: the real paths of the run's inputs. TextureError, OSError on failure: a layer
-    the output does not hold, a file there that is an input or not this tool's."""
+    written added to ``written``); ``working``: the WorkingSpace the output is in (a colour
+    layer's tag; every other layer is data: ``output_spec``); ``inputs``: the real paths of
+    the run's inputs; ``texture``: the run's TextureOptions (each file a tiled, mip-mapped
+    texture as the output is: every file a network reads), or None. TextureError, OSError
+    on failure: a layer the output does not hold, a file there that is an input or not this
+    tool's."""
     outs = {layer: layer_path(path, layer) for layer in layers}
     for out in outs.values():
         why = (f"{out}: a layer's file would overwrite an input of this run" if
@@ -35,7 +40,9 @@ def layer_files(path: str, layers, working, written: list, inputs=frozenset()) -
         if why:
             raise TextureError(why)
     inputs = {"layered": path}
-    digest = params_digest({"kind": "layer", "layers": sorted(outs)})
+    texture = texture_options(texture)
+    digest = params_digest({"kind": "layer", "layers": sorted(outs),
+                            "texture": texture.describe() if texture else None})
     if all(is_up_to_date(out, inputs, digest) for out in outs.values()):
         return outs
     spec, px = read_whole(path, "layered output")
@@ -48,7 +55,8 @@ def layer_files(path: str, layers, working, written: list, inputs=frozenset()) -
         header = header_fields(inputs, digest) | {"layer": layer}
         half = all(str(f) == "half" for f in (list(spec.channelformats) or [spec.format]))
         writer = Writer(out, output_spec(spec, [short_name(names[i]) for i in idx], -1, half,
-                                         header, working=working))
+                                         header, working=working,
+                                         data=layer != COLOUR_LAYERS[0]), texture=texture)
         try:
             writer.write_band(0, spec.height, px[..., idx])
             writer.commit()
@@ -74,7 +82,7 @@ def coefficient_layers(materials, outcome, inputs) -> tuple:
         for f in files:
             try:
                 found[m.name] += layer_files(f, m.outputs, resolve_working_space(
-                    m.working_space), written, inputs).values()
+                    m.working_space), written, inputs, m.texture).values()
             except (TextureError, OSError) as exc:
                 rows.append((layer_path(f, m.outputs[0]), str(exc)))
         rows += [(p, None) for p in written]

@@ -19,6 +19,7 @@ class FileResult:
     colour: str | None = None                       # its colour path (ColourPath.describe)
     values: dict = field(default_factory=dict)      # a constant material's coefficients
     info: object = None                             # a blur's BlurInfo (None: not a blur)
+    companion: bool = False       # a file written beside the outputs (a layer's, materials)
 
     @property
     def mtexel_per_s(self):
@@ -50,10 +51,13 @@ class BatchReport:
             lines.append("  ".join(c.ljust(w) for c, w in zip(row[:5], widths)) + "  " + row[5])
             if r is not None and r.colour:
                 lines.append(f"  colour: {r.colour}")
-        done = sum(r.status == "ok" for r in self.results)
+        done = sum(r.status == "ok" and not r.companion for r in self.results)
+        beside = sum(r.status == "ok" and r.companion for r in self.results)
         failed = sum(r.status == "failed" for r in self.results)
         skipped = sum(r.status == "skipped" for r in self.results)
         cancelled = sum(r.status == "cancelled" for r in self.results)
         lines.append(f"{done} done, {failed} failed, {skipped} skipped"
-                     + (f", {cancelled} cancelled" if cancelled else ""))
+                     + (f", {cancelled} cancelled" if cancelled else "")
+                     + (f"; {beside} files beside them (layer files, maps, materials, "
+                        f"records)" if beside else ""))
         return "\n".join(lines)

@@ -20,10 +20,14 @@ def finish_bake(plan, results: list) -> BatchReport:
     for job, result in zip(plan.jobs, results):
         if job.kind != "constant":
             result.path = f"{job.name}: {job.source}"
-    records = [FileResult(p, p, status="ok", notes=["records"]) if why is None else
-               FileResult(p, f"removed {p}: an earlier bake's output that no input makes now",
-                          status="ok", notes=["removed"]) if why == REMOVED else
-               FileResult("records", p, status="ok", notes=[DROPPED]) if why == DROPPED else
-               FileResult(p, p, status="ok", notes=[why]) if why in (MAPPED, LAYERED) else
+    # each a file beside the outputs (``companion``: the summary counts them apart)
+    records = [FileResult(p, p, status="ok", notes=["records"], companion=True) if why is None
+               else FileResult(p, f"removed {p}: an earlier bake's output that no input makes "
+                                  f"now", status="ok", notes=["removed"], companion=True)
+               if why == REMOVED else
+               FileResult("records", p, status="ok", notes=[DROPPED], companion=True)
+               if why == DROPPED else
+               FileResult(p, p, status="ok", notes=[why], companion=True)
+               if why in (MAPPED, LAYERED) else
                FileResult(p, p, error=why) for p, why in write_records(plan, results)]
     return BatchReport(results + records + unbaked_materials(plan.scene))

@@ -281,7 +281,8 @@ def mtlx_text(scene, records: dict, folder) -> str:
     found = []
     for where, entry, m in recorded(scene, records):
         baked = baked_material(m, entry, where.unit_m)
-        found.append((where.name, networks(baked, folder)[0], coefficient_reads(baked, folder)))
+        found.append((where.name, networks(baked, folder)[0], coefficient_reads(baked, folder),
+                      where.unit_m))
     return document_text(found, f"{LAYER_MARK}{os.path.basename(str(scene.source or scene.path))}"
                                 f": the materials of bdipole.usda as MaterialX "
                                 f"(docs/materials.md)")

@@ -25,6 +25,7 @@ from ..io.colour import resolve_working_space
 from ..io.freshness import header_fields, is_up_to_date, params_digest
 from ..io.patterns import PAINTED_MARK
 from ..io.images import TextureError, Writer, is_regular_file, output_spec, read_whole
+from ..io.mipmaps import texture_options
 from ..io.targets import TARGET
 from ..physics.conventions import CONVENTION
 from ..physics.reference import mu_tr_over_sigma_t, rd_of_rho
@@ -114,8 +115,10 @@ def write_maps(m, coefficients: str, convention: str, written: list) -> dict:
     added to ``written``); TextureError, ValueError on failure."""
     outs = {layer: map_path(coefficients, convention, layer) for layer in LAYERS}
     inputs = {"coefficients": coefficients}
+    texture = texture_options(m.texture)      # every file a network reads is a texture
     digest = params_digest({"kind": "map", "convention": convention, "model": m.model,
-                            "eta": list(m.eta), "source": painted_convention(m.model)})
+                            "eta": list(m.eta), "source": painted_convention(m.model),
+                            "texture": texture.describe() if texture else None})
     if all(is_up_to_date(out, inputs, digest) for out in outs.values()):
         return outs
     spec, px = read_whole(coefficients, "coefficients")
@@ -130,7 +133,8 @@ def write_maps(m, coefficients: str, convention: str, written: list) -> dict:
     for layer, out in outs.items():
         header = header_fields(inputs, digest) | {PAINTED_MARK.split(":")[1]: f"{convention} "
                                                   f"{layer}"}
-        writer = Writer(out, output_spec(spec, suffixes, -1, False, header, working=working))
+        writer = Writer(out, output_spec(spec, suffixes, -1, False, header, working=working,
+                                         data=layer != "colour"), texture=texture)
         try:
             writer.write_band(0, spec.height, maps[layer])
             writer.commit()

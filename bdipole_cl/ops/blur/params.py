@@ -18,6 +18,7 @@ from ...methods.registry import not_a_number
 from ...errors import (InvalidInputError, check_numbers, check_policy, find_invalid,
                        plain_array)
 from ...physics import reference as ref
+from ...physics.conversion import RADIUS_RANGE
 from ..inversion_kernel import MFP_MIN
 from .fft import copy_rows, value_range
 
@@ -43,7 +44,10 @@ CONSTANT_RULES = {"albedo": ("(0, 1)", lambda v: (v > 0) & (v < 1)),
                   "alpha": ("[0, 1)", RULES["alpha"][1]),
                   "mfp": (f"[{MFP_MIN:g}, {FLOAT32_MAX:.3g}]",
                           lambda v: (v >= MFP_MIN) & (v <= FLOAT32_MAX)),
-                  "sigma_t": RULES["sigma_t"][:2]}
+                  "sigma_t": RULES["sigma_t"][:2],
+                  # convert's radius: every convention's range, as its texels are checked
+                  "radius": (f"[{RADIUS_RANGE[0]:g}, {RADIUS_RANGE[1]:g}]",
+                             lambda v: (v >= RADIUS_RANGE[0]) & (v <= RADIUS_RANGE[1]))}
 
 
 def scaled_mfp_problem(mfp, scale) -> str | None:

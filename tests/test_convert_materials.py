@@ -1,0 +1,185 @@
+"""The files a ``convert`` or a bake writes for its materials to read (jobs/convert_materials.py,
+layer_files.py, scene_maps.py), checked as their consumers read them: every converted file's
+material in the folder its output is in, whatever named it (paths in several folders, a glob
+the shell did not expand); records matched with the layer's prims; an unwritten material a
+failed row; each file a network reads a texture when the run's outputs are, and a file of
+numbers that are not colour declared as data (OpenColorIO's data space), shown as stored."""
+import numpy as np
+import OpenImageIO as oiio
+import pytest
+
+pxr = pytest.importorskip("pxr")
+from pxr import Usd, UsdShade  # noqa: E402
+
+from bdipole_cl.apps.cli import main  # noqa: E402
+
+
+def _write(path, pixels):
+    spec = oiio.ImageSpec(pixels.shape[1], pixels.shape[0], pixels.shape[2], "float")
+    out = oiio.ImageOutput.create(str(path))
+    assert out.open(str(path), spec)
+    out.write_image(np.ascontiguousarray(pixels, np.float32))
+    out.close()
+
+
+def _colour(path, seed, size=9):
+    path.parent.mkdir(parents=True, exist_ok=True)
+    _write(path, np.random.default_rng(seed).uniform(0.05, 0.9, (size, size, 3)))
+
+
+def _materials(folder) -> set:
+    stage = Usd.Stage.Open(str(folder / "bdipole_convert.usda"))
+    return {p.GetName() for p in stage.GetPrimAtPath("/bdipole_materials").GetChildren()
+            if UsdShade.Material(p)}
+
+
+def test_inputs_in_two_folders_each_get_their_material(tmp_path, capsys):
+    # the second folder got its converted file but no layer files and no material, "ok"
+    _colour(tmp_path / "d1" / "a.exr", 1)
+    _colour(tmp_path / "d2" / "b.exr", 2)
+    rc = main(["convert", str(tmp_path / "d1" / "a.exr"), str(tmp_path / "d2" / "b.exr"),
+               "--radius", "1", "--target", "openpbr"])
+    assert rc == 0, capsys.readouterr()
+    for folder, name in (("d1", "a"), ("d2", "b")):
+        assert _materials(tmp_path / folder) == {name}, folder
+        for layer in ("colour", "radius"):
+            assert (tmp_path / folder / f"{name}.van-de-hulst.{layer}.exr").is_file()
+
+
+def test_a_glob_the_shell_did_not_expand_writes_the_material_of_each_file(tmp_path, capsys):
+    # the output was named from the glob's text (a*.van-de-hulst.exr): no file, no material,
+    # an empty layer; a later run into the folder added no network
+    for name, seed in (("a", 1), ("b", 2)):
+        _colour(tmp_path / f"{name}.exr", seed)
+    rc = main(["convert", str(tmp_path / "a*.exr"), str(tmp_path / "b*.exr"), "--radius", "1",
+               "--target", "openpbr"])
+    assert rc == 0, capsys.readouterr()
+    assert _materials(tmp_path) == {"a", "b"}
+    rc = main(["convert", str(tmp_path / "*.exr"), "--radius", "1", "--source", "openpbr",
+               "--target", "pxrsurface"])
+    assert rc == 0, capsys.readouterr()
+    stage = Usd.Stage.Open(str(tmp_path / "bdipole_convert.usda"))
+    for name in ("a", "b"):
+        material = UsdShade.Material(stage.GetPrimAtPath(f"/bdipole_materials/{name}"))
+        assert material.ComputeSurfaceSource("ri")[0].GetShaderId() == "PxrSurface", name
+        assert material.ComputeSurfaceSource("mtlx")[0], name
+
+
+def test_a_set_whose_name_is_no_identifier_is_kept_without_a_warning(tmp_path, capsys):
+    # skin.b's prim is skin_b; its record was keyed skin.b, so every later run said it was
+    # "not kept" (it was)
+    _colour(tmp_path / "skin.b.exr", 1)
+    _colour(tmp_path / "other.exr", 2)
+    for name in ("skin.b", "other"):
+        rc = main(["convert", str(tmp_path / f"{name}.exr"), "--radius", "1",
+                   "--target", "openpbr"])
+        out = capsys.readouterr().out
+        assert rc == 0 and "not kept" not in out, out
+    assert _materials(tmp_path) == {"skin_b", "other"}
+
+
+def test_a_material_not_written_is_a_failed_row(tmp_path, capsys):
+    # a user's file where a layer file goes: kept, and the material not written is a
+    # failure (it was "ok ... no material", exit 0)
+    _colour(tmp_path / "a.exr", 1)
+    _colour(tmp_path / "a.van-de-hulst.colour.exr", 2)
+    before = (tmp_path / "a.van-de-hulst.colour.exr").read_bytes()
+    rc = main(["convert", str(tmp_path / "a.exr"), "--radius", "1", "--target", "openpbr"])
+    out = capsys.readouterr().out
+    assert rc == 1 and "a: no material:" in out and "1 done, 1 failed" in out, out
+    assert (tmp_path / "a.van-de-hulst.colour.exr").read_bytes() == before
+
+
+def test_the_summary_counts_the_converted_files_apart_from_the_files_beside_them(tmp_path,
+                                                                                capsys):
+    # "5 done" for one converted file: its two layer files and two materials files counted
+    _colour(tmp_path / "a.exr", 1)
+    assert main(["convert", str(tmp_path / "a.exr"), "--radius", "1", "--target",
+                 "openpbr"]) == 0
+    out = capsys.readouterr().out
+    assert "1 done, 0 failed, 0 skipped; 4 files beside them" in out, out
+
+
+def _spec(path):
+    inp = oiio.ImageInput.open(str(path))
+    assert inp is not None, oiio.geterror()
+    spec = inp.spec()
+    levels = 1
+    while inp.seek_subimage(0, levels):
+        levels += 1
+    inp.close()
+    return spec, levels
+
+
+def _read_files(mtlx_path) -> list:
+    """The files a MaterialX document's image nodes read, as paths."""
+    mx = pytest.importorskip("MaterialX")
+    doc = mx.createDocument()
+    mx.readFromXmlFile(doc, str(mtlx_path))
+    files = {n.getInputValue("file") for n in doc.traverseTree()
+             if isinstance(n, mx.Node) and n.getInput("file") is not None}
+    return sorted(mtlx_path.parent / f for f in files)
+
+
+def _check_read_files(mtlx_path, want):
+    """Every file the document reads is a tiled, mip-mapped texture; colour is tagged with
+    the working space, every other layer as data (the radius in [0.039, 3.49] was shown as
+    colour -2.26 .. 5.81: ACEScg converted)."""
+    files = _read_files(mtlx_path)
+    assert len(files) == want, files
+    for f in files:
+        spec, levels = _spec(str(f).replace("<UDIM>", "1001"))
+        assert spec.tile_width == 64 and levels > 1, (f, spec.tile_width, levels)
+        data = not str(f).endswith(".colour.exr")
+        space = spec.get_string_attribute("colorInteropID")
+        assert (space == "data") if data else (space == "lin_ap1_scene"), (f, space)
+
+
+def test_every_file_a_converted_material_reads_is_a_texture_and_data_is_data(tmp_path,
+                                                                              capsys):
+    _colour(tmp_path / "a.exr", 1, 65)
+    rc = main(["convert", str(tmp_path / "a.exr"), "--radius", "1", "--target", "openpbr",
+               "--half", "--texture", "--working-space", "ACEScg"])
+    assert rc == 0, capsys.readouterr()
+    _check_read_files(tmp_path / "bdipole_convert.mtlx", 2)
+    # a preview shows a data file as stored (its caption's range is the file's)
+    capsys.readouterr()
+    assert main(["preview", str(tmp_path / "a.van-de-hulst.radius.exr")]) == 0
+    out = capsys.readouterr().out
+    px = oiio.ImageBuf(str(tmp_path / "a.van-de-hulst.radius.exr")).get_pixels(oiio.FLOAT)
+    assert f"radius: R, G, B  {px.min():.4g} .. {px.max():.4g}" in out, (out, px.min())
+
+
+@pytest.mark.usefixtures("on_device")
+def test_every_file_a_baked_material_reads_is_a_texture_and_data_is_data(tmp_path):
+    from bdipole_cl import scene as scenes
+    from test_scene import SCENE, make_files
+    make_files(tmp_path, ("1001",))
+    text = SCENE.split("[[material]]\nname = \"grey\"")[0].replace("METHOD", "") \
+        .replace('mfp = [1.2, 0.6, 0.3]', 'mfp = [1.2, 0.6, 0.3]\ntargets = ["openpbr"]\n'
+                 'texture = true\nworking_space = "ACEScg"')
+    (tmp_path / "scene.toml").write_text(text)
+    report = scenes.load(tmp_path / "scene.toml").plan().run()
+    assert report.exit_code == 0, report.summary()
+    # the coefficients' own files (sigma_a, sigma_s) and the OpenPBR maps (colour, radius)
+    _check_read_files(tmp_path / "out" / "bdipole.mtlx", 4)
+
+
+@pytest.mark.usefixtures("on_device")
+def test_a_bake_reads_converts_mtlx_back_in_its_unit(tmp_path, capsys):
+    # the .mtlx stated no unit for its distance (a reader takes MaterialX's metres: a cm run
+    # 100x off) and the bake refused its radius image's vector3 -> color3 cast as "a
+    # procedural network"
+    _colour(tmp_path / "skin.exr", 1)
+    assert main(["convert", str(tmp_path / "skin.exr"), "--radius", "1.2,0.6,0.3",
+                 "--source", "pxrsurface", "--target", "openpbr", "--unit", "cm"]) == 0
+    rc = main(["bake", str(tmp_path / "bdipole_convert.mtlx"), "--device", "intel",
+               "--no-progress"])
+    assert rc == 0, capsys.readouterr()
+    coef = oiio.ImageBuf(str(tmp_path / "bdipole" / "skin.exr")).get_pixels(oiio.FLOAT)
+    radius = oiio.ImageBuf(str(tmp_path / "skin.van-de-hulst.radius.exr")).get_pixels(
+        oiio.FLOAT)
+    # OpenPBR's radius is the medium's mean free path: sigma_a + sigma_s = 1 / (radius in m),
+    # the coefficients in 1/m (the document's unit); float32 sum and product, 4 u = 4.8e-7
+    np.testing.assert_allclose((coef[..., :3] + coef[..., 3:]) * radius * 0.01, 1.0,
+                               rtol=4.8e-7)

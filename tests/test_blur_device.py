@@ -184,3 +184,20 @@ def test_an_invert_then_blur_chain_stays_on_the_device(runtime):
         want = bd.blur(e.get(), alpha=alpha.get(), sigma_t=sigma_t.get(), method="fft",
                        device=runtime)
     _fft_close(out.get(), want, e.get(), 1.0)
+
+
+def test_a_wide_direct_kernel_is_launched_in_parts_of_a_row_of_tiles(runtime, monkeypatch):
+    """The direct blur checks for a stop between launches of about LAUNCH_TAPS taps, also where
+    one row of work-group tiles holds more (a wide kernel: 16 rows of a 2048-wide map at radius
+    447 are 2.6e10 taps, a minute on a CPU); the parts give the one-launch exitance."""
+    from bdipole_cl.ops.blur import dispatch
+    e = np.random.default_rng(5).random((64, 64, 1)).astype(np.float32)
+    kw = dict(albedo=0.6, mfp=6.0, method="direct", device=runtime, return_info=True)
+    want, info = bd.blur(e, **kw)
+    taps = (2 * info.channels[0].radius + 1) ** 2
+    checks = []
+    monkeypatch.setattr(dispatch, "LAUNCH_TAPS", dispatch.TILE ** 2 * taps)   # a tile each
+    monkeypatch.setattr(dispatch, "check_stop", lambda: checks.append(1))
+    got = bd.blur(e, **kw)[0]
+    assert len(checks) >= (64 // dispatch.TILE) ** 2
+    np.testing.assert_array_equal(got, want)

@@ -92,3 +92,60 @@ def test_device_arrays_that_do_not_fit_are_refused_in_one_line(runtime):
     with pytest.raises(ValueError, match="mfp: a device array of shape \\(8,\\)"):
         bd.albedo_to_coefficients(dev, cla.to_device(runtime.queue, np.ones(8, np.float32)),
                                   1.4)
+
+
+#: a user's slow kernel writing 0.25 (a fixed point after ~30 steps) into its array: its
+#: writes, enqueued on the user's own queue, are recorded in no pyopencl event
+SLOW_FILL = ("float *x, int m",
+             "float v = 0; for (int k = 0; k < m; ++k) v = v * 0.5f + 0.125f; x[i] = v;")
+
+
+def _written_on_another_queue(runtime, shape):
+    """A device array whose fill is still running on a queue of the user's (not the
+    runtime's), when the call that reads it is made."""
+    import pyopencl as cl
+    from pyopencl.elementwise import ElementwiseKernel
+    q2 = cl.CommandQueue(runtime.context)
+    fill = ElementwiseKernel(runtime.context, *SLOW_FILL, "bd_test_slow_fill")
+    d = cla.zeros(q2, shape, np.float32)
+    d.finish()
+    fill(d, np.int32(20000), queue=q2)
+    return d
+
+
+def test_a_device_array_still_written_on_its_own_queue_is_read_after_that(runtime):
+    """The inversion and the blur wait for the work enqueued on a device array's own queue
+    (pyopencl's Array.events hold only its own operations': the user's kernel is in none)."""
+    shape = (512, 512)
+    want = bd.invert_albedo(np.full(shape, 0.25, np.float32), 1.4, device=runtime)
+    got = bd.invert_albedo(_written_on_another_queue(runtime, shape), 1.4, device=runtime)
+    np.testing.assert_array_equal(got.get(), want)
+    want = bd.blur(np.full(shape, 0.25, np.float32), albedo=0.5, mfp=2.0, device=runtime)
+    got = bd.blur(_written_on_another_queue(runtime, shape), albedo=0.5, mfp=2.0,
+                  device=runtime)
+    np.testing.assert_array_equal(got.get(), want)
+
+
+def test_device_arrays_of_every_layout_in_the_blur_and_inversion(runtime):
+    """Queue-less device arrays are taken (on the call's queue); strided views, outputs of
+    another shape and a host albedo beside a device mfp are one-line ValueErrors."""
+    q = runtime.queue
+    e = np.random.default_rng(3).random((30, 20)).astype(np.float32)
+    want = bd.blur(e, albedo=0.5, mfp=2.0, device=runtime)
+    got = bd.blur(cla.to_device(q, e).with_queue(None), albedo=0.5, mfp=2.0, device=runtime)
+    np.testing.assert_array_equal(got.get(), want)
+    albedo = cla.to_device(q, np.full(e.shape, 0.5, np.float32)).with_queue(None)
+    np.testing.assert_array_equal(bd.blur(e, albedo=albedo, mfp=2.0, device=runtime),
+                                  bd.blur(e, albedo=np.full(e.shape, 0.5, np.float32),
+                                          mfp=2.0, device=runtime))
+    wide = cla.to_device(q, np.random.default_rng(4).random((30, 40)).astype(np.float32))
+    with pytest.raises(ValueError, match="irradiance: a strided device array view"):
+        bd.blur(wide[:, ::2], albedo=0.5, mfp=2.0, device=runtime)
+    with pytest.raises(ValueError, match="albedo: a strided device array view"):
+        bd.blur(e[:, :10], albedo=wide[:, ::4], mfp=2.0, device=runtime)
+    rd = cla.to_device(q, _albedos((64, 48)))
+    with pytest.raises(ValueError, match=r"out\['alpha'\]: shape \(48, 64\) is not the "
+                                         r"input's \(64, 48\)"):
+        bd.invert_albedo(rd, 1.4, out=cla.empty(q, (48, 64), np.float32))
+    with pytest.raises(ValueError, match="albedo: a host array with a device-array mfp"):
+        bd.albedo_to_coefficients(0.5, cla.to_device(q, np.ones((4, 4), np.float32)), 1.4)

@@ -341,3 +341,20 @@ def test_buffers_at_offsets_and_bad_offsets(runtime):
             plan.inverse(spec, out, rows=rows)
 
 # }}}
+
+
+def test_arrays_of_another_dtype_or_layout_are_refused(runtime):
+    """An Array says what it holds: a float64 or strided source, a complex128 spectrum of a
+    float32 plan, are ValueErrors, never silently read as float32 bytes."""
+    plan = DeviceFFT(runtime, (40, 30), batch=2)
+    q = runtime.queue
+    x = np.random.default_rng(0).standard_normal((2, 40, 30))
+    spectrum = cla.empty(q, plan.spectrum_shape, plan.complex_dtype)
+    with pytest.raises(ValueError, match="float64 array; this plan takes float32"):
+        plan.forward(cla.to_device(q, x), spectrum)
+    wide = cla.to_device(q, np.zeros((2, 40, 60), np.float32))
+    with pytest.raises(ValueError, match="strided"):
+        plan.forward(wide[:, :, ::2], spectrum)
+    with pytest.raises(ValueError, match="complex128 array; this plan takes complex64"):
+        plan.forward(cla.to_device(q, x.astype(np.float32)),
+                     cla.empty(q, plan.spectrum_shape, np.complex128))

@@ -272,6 +272,27 @@ def is_device_array(value) -> bool:
     return isinstance(value, cla.Array)
 
 
+def ready_array(a, rt: Runtime, name: str):
+    """A caller's device array ``a`` checked and ordered for ``rt``'s queue: on ``rt``'s
+    context and C-contiguous (else a ValueError naming ``name`` and what to give), bound to
+    ``rt``'s queue where it has none, and after everything enqueued so far on a queue of its
+    own (a marker there joins its events: pyopencl records in ``Array.events`` only what its
+    own operations enqueue, so a user's kernel writing it may be in no event)."""
+    if a.context != rt.context:
+        raise ValueError(f"{name}: a device array of another OpenCL context than the one this "
+                         f"call runs on ({rt.describe()}): pass device= its runtime, or arrays "
+                         f"made on it")
+    if not a.flags.c_contiguous:
+        raise ValueError(f"{name}: a strided device array view; give a C-contiguous one "
+                         f"(its .copy())")
+    if a.queue is None:
+        return a.with_queue(rt.queue)
+    if a.queue != rt.queue:
+        a.add_event(cl.enqueue_marker(a.queue))
+        a.queue.flush()                 # submitted, so that rt's queue can wait for it
+    return a
+
+
 def device_image(rt: Runtime, host: np.ndarray):
     """``host`` (C-contiguous) as a ``pyopencl.array.Array`` on ``rt``: the host memory itself
     where the device shares it and it is aligned (``CL_MEM_USE_HOST_PTR``: no copy), else a

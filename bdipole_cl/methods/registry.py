@@ -116,8 +116,9 @@ BLUR_METHOD = Registry("method", (
                          "parameters only)"),
     BlurMethod("gaussians", "a sum of separable Gaussians fitted to the profile, on the "
                             "device", textured=True),
-    BlurMethod("fft", "FFT convolution with the exact kernel (float64, on the host)",
-               textured=True),
+    BlurMethod("fft", "FFT convolution with the exact kernel (float32 FFTs, their round-off "
+                      "in the bound; on the device or the host, whichever its probe timed "
+                      "faster)", textured=True),
 ))
 BLUR_METHODS = BLUR_METHOD.names
 TEXTURED_BLUR_METHODS = tuple(m.name for m in BLUR_METHOD if m.textured)

@@ -50,10 +50,15 @@ class Layout:
         return I64(self.off), I64(self.plane), I64(self.row)
 
 
-def buffer_and_offset(x, offset: int, itemsize: int):
+def buffer_and_offset(x, offset: int, itemsize: int, dtype=None, what: str = "array"):
     """(pyopencl Buffer, offset in elements of ``itemsize`` bytes) of a Buffer or a
-    pyopencl.array.Array (its own offset added)."""
+    pyopencl.array.Array (its own offset added; a C-contiguous one of ``dtype`` where given:
+    a Buffer's bytes are the caller's to lay out, an Array says what it holds)."""
     if hasattr(x, "base_data"):                          # pyopencl.array.Array
+        if dtype is not None and x.dtype != dtype:
+            raise ValueError(f"{what}: a {x.dtype} array; this plan takes {np.dtype(dtype)}")
+        if not x.flags.c_contiguous:
+            raise ValueError(f"{what}: a strided array view; give a C-contiguous one")
         if x.offset % itemsize:
             raise ValueError(f"array offset {x.offset} bytes is not a whole number of "
                              f"{itemsize}-byte elements")
@@ -124,10 +129,12 @@ class DeviceFFT:
             self.scratch.append(self._spectrum_buffer())
         return self.scratch[i]
 
-    def _complex_view(self, x, offset: int, points: int, what: str):
+    def _complex_view(self, x, offset: int, points: int, what: str, dtype=None):
         """(Buffer, offset in complex points) of ``points`` complex points at ``offset``
-        (complex points) of x, checked to fit."""
-        buf, off = buffer_and_offset(x, offset, self.point_bytes)
+        (complex points) of x, checked to fit (an Array: of ``dtype``, the complex one where
+        None)."""
+        buf, off = buffer_and_offset(x, offset, self.point_bytes,
+                                     self.complex_dtype if dtype is None else dtype, what)
         if (off + points) * self.point_bytes > buf.size:
             raise ValueError(f"{what}: {points} points at offset {off} need "
                              f"{(off + points) * self.point_bytes} bytes, the buffer has "
@@ -136,7 +143,7 @@ class DeviceFFT:
 
     def _real_view(self, x, offset: int, reals: int, what: str):
         """As ``_complex_view`` for a real buffer: its offset (in reals) must be even."""
-        buf, off = buffer_and_offset(x, offset, self.dtype.itemsize)
+        buf, off = buffer_and_offset(x, offset, self.dtype.itemsize, self.dtype, what)
         if off % 2:
             raise ValueError(f"{what}: offset {off} is odd; real planes start on an even "
                              f"element (they are read and written as pairs)")

@@ -31,8 +31,8 @@ def check_out_shapes(out, shape):
     layout, which is not what its shape says (a ValueError naming it; another size is
     ``inversion_kernel.output_array``'s to name)."""
     for name, a in (out or {}).items():
-        if (isinstance(a, np.ndarray) and a.ndim != 1 and a.shape != tuple(shape)
-                and a.size == int(np.prod(shape))):
+        if (getattr(a, "ndim", 1) != 1 and tuple(a.shape) != tuple(shape)
+                and a.size == int(np.prod(shape))):        # host and device arrays alike
             raise ValueError(f"out[{name!r}]: shape {a.shape} is not the input's "
                              f"{tuple(shape)} (give it the input's shape, or a flat array of "
                              f"its size)")

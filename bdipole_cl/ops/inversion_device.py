@@ -24,7 +24,8 @@ import pyopencl.array as cla
 
 from ..device import build_options, get_program
 from ..device.launch import enqueue_items
-from ..device.transfer import is_device_array
+from ..device.transfer import is_device_array, ready_array
+from .host_arrays import check_out_shapes
 from .inversion_kernel import CHECK_ALBEDO, CHECK_COEFFICIENTS, MFP_MIN
 
 #: kernels/array_ops.cl's rules (``breaks_rule``)
@@ -43,17 +44,11 @@ def shares_memory(a, b) -> bool:
 def _checked_array(a, name, rt, dtype) -> cla.Array:
     """``a`` as a C-contiguous Array of ``dtype`` on ``rt``'s context (copied on the device
     when it is a view with an offset), else a ValueError naming ``name`` and what to give."""
-    if a.context != rt.context:
-        raise ValueError(f"{name}: a device array of another OpenCL context than the one this "
-                         f"call runs on ({rt.describe()}): pass device= its runtime, or arrays "
-                         f"made on it")
+    a = ready_array(a, rt, name)
     if a.dtype != dtype:
         raise ValueError(f"{name}: a {a.dtype} device array; this call computes in "
                          f"{np.dtype(dtype).name} (convert it on the device first, or pass "
                          f"double={dtype == np.float32})")
-    if not a.flags.c_contiguous:
-        raise ValueError(f"{name}: a strided device array view; give a C-contiguous one "
-                         f"(its .copy())")
     return a.copy(queue=rt.queue) if a.offset else a
 
 
@@ -110,6 +105,7 @@ def apply_on_device(plan, rd, mfp, mask, out):
     None: ({output: Array}, None), or (the output Arrays, DeviceInputs) where an input broke
     its rule and the host must redo the call (``send_to`` then fills the Arrays)."""
     rt = plan.runtime
+    check_out_shapes(out, np.shape(rd))
     if mask is not None:
         raise ValueError("mask: not taken with device arrays (invert the whole array, or "
                          "give host arrays)")

@@ -169,7 +169,8 @@ def albedo_to_coefficients(rd, mfp, eta, method="table", *, model="better", exac
     if not (is_device_array(rd) or is_device_array(mfp)):
         rd, mfp = texel_broadcast(as_float(rd), as_float(mfp))
         rd = np.broadcast_to(rd, np.broadcast_shapes(rd.shape, mfp.shape))  # one albedo
-    plan = plan_inversion(device_channel_etas(channel_etas(eta, rd.shape), rd, mfp), method,
+    etas = device_channel_etas(channel_etas(eta, np.shape(rd)), rd, mfp)
+    plan = plan_inversion(etas, method,
                           outputs=check_outputs(outputs),
                           mfp_kind=check_mfp_kind(mfp_kind), model=model, exact=exact,
                           double=double, on_invalid=on_invalid,

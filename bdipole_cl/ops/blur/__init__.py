@@ -41,8 +41,8 @@ from __future__ import annotations
 
 from pyopencl.array import to_device
 
-from ...device.runtime import runtime_of_array
-from ...device.transfer import is_device_array
+from ...device.runtime import get_runtime, runtime_of_array
+from ...device.transfer import is_device_array, ready_array
 from ...methods.registry import BLUR_METHODS, BORDERS
 from .fit import fit_gaussians
 from .params import PARAM_KEYS, channel_parameters, irradiance_shape
@@ -87,9 +87,17 @@ def blur(irradiance, *, albedo=None, mfp=None, eta=1.4, texel_size=1.0, alpha=No
     in surface distance, per texel anisotropic (docs/stretch.md). ``charts`` (with a stretch
     that has charts): "clamp", "zero" or "none" (``methods.registry.CHART_BORDER``).
     """
+    given = {"irradiance": irradiance, "albedo": albedo, "mfp": mfp, "alpha": alpha,
+             "sigma_t": sigma_t}
+    on_device = {k: v for k, v in given.items() if is_device_array(v)}
+    if on_device:                        # checked, and after their own queues' work
+        if device is None:
+            device = runtime_of_array(next(iter(on_device.values())))
+        rt = get_runtime(device)
+        given.update({k: ready_array(v, rt, k) for k, v in on_device.items()})
+        irradiance, albedo, mfp, alpha, sigma_t = given.values()
     if is_device_array(irradiance):
         shape = irradiance.shape
-        device = device if device is not None else runtime_of_array(irradiance)
     else:
         shape = irradiance_shape(irradiance)
     plan = plan_blur(shape, Scattering(albedo, mfp, eta, texel_size, alpha, sigma_t, stretch),

@@ -80,16 +80,21 @@ class DeviceBlur:
         gx = -(-self.w // TILE) * TILE
         gy = -(-self.h // TILE) * TILE
         taps = (2 * ck.radius + 1) ** 2
-        step = TILE * max(1, int(LAUNCH_TAPS // (gx * TILE * taps)))
+        # work-group tiles per launch: whole rows of tiles where they fit, else a row's tiles
+        # in parts (a wide kernel: one row of tiles can be 1e10 taps, a minute between checks)
+        tiles = max(1, int(LAUNCH_TAPS // (TILE * TILE * taps)))
+        step_x = min(gx, TILE * tiles)
+        step_y = TILE * max(1, tiles // (gx // TILE))
         weights = self.kernels.uploaded(ck.weights)
         direct = self.kernels.kernel("blur_direct", "blur_direct", BD_TILE=TILE)
-        for y in range(0, gy, step):
-            check_stop()
-            direct(self.rt.queue, (gx, min(step, gy - y)), (TILE, TILE), self.src,
-                   self.dst, weights, np.int32(self.w), np.int32(self.h),
-                   np.int32(self.c), np.int32(c), np.int32(ck.radius),
-                   global_offset=(0, y))
-            self.rt.queue.finish()
+        for y in range(0, gy, step_y):
+            for x in range(0, gx, step_x):
+                check_stop()
+                direct(self.rt.queue, (min(step_x, gx - x), min(step_y, gy - y)), (TILE, TILE),
+                       self.src, self.dst, weights, np.int32(self.w), np.int32(self.h),
+                       np.int32(self.c), np.int32(c), np.int32(ck.radius),
+                       global_offset=(x, y))
+                self.rt.queue.finish()
 
     def _separable(self, c, taps, column_pass, *weight_args):
         """Rows then columns of one separable kernel (1D ``taps``) into channel c."""

@@ -184,7 +184,10 @@ def device_irradiance(a, rt):
     if a.dtype != np.float32 or a.ndim not in (2, 3) or not a.flags.c_contiguous:
         raise ValueError(f"irradiance: a device array must be a C-contiguous float32 HxW or "
                          f"HxWxC; got {a.dtype} of shape {a.shape}")
-    a = a.copy(queue=rt.queue) if a.offset else a
+    if a.offset:
+        a = a.copy(queue=rt.queue)                     # after its events (pyopencl's copy)
+    elif a.events:
+        cl.wait_for_events(a.events)   # its writes (and its own queue's, ``ready_array``) done
     return a if a.ndim == 3 else a.reshape(*a.shape, 1)
 
 

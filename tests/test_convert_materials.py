@@ -183,3 +183,76 @@ def test_a_bake_reads_converts_mtlx_back_in_its_unit(tmp_path, capsys):
     # the coefficients in 1/m (the document's unit); float32 sum and product, 4 u = 4.8e-7
     np.testing.assert_allclose((coef[..., :3] + coef[..., 3:]) * radius * 0.01, 1.0,
                                rtol=4.8e-7)
+
+
+#: the wrap a file declares (OpenImageIO's wrapmodes) as MaterialX's image address mode
+_ADDRESS = {"clamp": "clamp", "black": "constant", "periodic": "periodic", "mirror": "mirror"}
+
+
+def _declared_address(path) -> str:
+    """The address mode the file's header declares (clamp where it declares none)."""
+    spec, _ = _spec(str(path).replace("<UDIM>", "1001"))
+    wrap = spec.get_string_attribute("wrapmodes") or "clamp,clamp"
+    u, v = wrap.split(",")
+    assert u == v, wrap
+    return _ADDRESS[u]
+
+
+def _check_address_modes(folder, mtlx_name, usda_name, want):
+    """Every image node of the .mtlx and every ND_image_* shader of the .usda reads its file
+    with the file's own wrap in u and v (MaterialX's default is periodic: a tile's edge
+    sampled across it)."""
+    mx = pytest.importorskip("MaterialX")
+    doc = mx.createDocument()
+    mx.readFromXmlFile(doc, str(folder / mtlx_name))
+    images = [n for n in doc.traverseTree() if isinstance(n, mx.Node)
+              and n.getCategory() == "image"]
+    assert images
+    for node in images:
+        mode = _declared_address(folder / node.getInputValue("file"))
+        assert mode == want
+        for axis in ("uaddressmode", "vaddressmode"):
+            assert node.getInputValue(axis) == mode, (node.getName(), axis)
+    stage = Usd.Stage.Open(str(folder / usda_name))
+    shaders = [UsdShade.Shader(p) for p in stage.Traverse() if UsdShade.Shader(p)
+               and str(UsdShade.Shader(p).GetIdAttr().Get()).startswith("ND_image_")]
+    assert shaders
+    for shader in shaders:
+        file = shader.GetInput("file").Get().path
+        mode = _declared_address(folder / file)
+        for axis in ("uaddressmode", "vaddressmode"):
+            assert shader.GetInput(axis).Get() == mode, (shader.GetPath(), axis)
+
+
+@pytest.mark.parametrize("options, want", [((), "clamp"), (("--texture",), "clamp"),
+                                           (("--texture-wrap", "mirror"), "mirror"),
+                                           (("--texture-wrap", "black"), "constant")])
+def test_converted_materials_read_each_file_with_its_declared_wrap(tmp_path, capsys, options,
+                                                                   want):
+    # no image node set an address mode: MaterialX's default, periodic, read across the
+    # edge of textures that declare clamp (or mirror)
+    _colour(tmp_path / "a.exr", 1)
+    rc = main(["convert", str(tmp_path / "a.exr"), "--radius", "1", "--target", "openpbr",
+               *options])
+    assert rc == 0, capsys.readouterr()
+    _check_address_modes(tmp_path, "bdipole_convert.mtlx", "bdipole_convert.usda", want)
+
+
+@pytest.mark.usefixtures("on_device")
+def test_baked_materials_read_each_file_with_its_declared_wrap(tmp_path):
+    from bdipole_cl import scene as scenes
+    from test_scene import SCENE, make_files
+    make_files(tmp_path, ("1001",))
+    text = SCENE.split("[[material]]\nname = \"grey\"")[0].replace("METHOD", "") \
+        .replace('mfp = [1.2, 0.6, 0.3]', 'mfp = [1.2, 0.6, 0.3]\ntargets = ["openpbr"]\n'
+                 'texture_wrap = "mirror"')
+    (tmp_path / "scene.toml").write_text(text)
+    report = scenes.load(tmp_path / "scene.toml").plan().run()
+    assert report.exit_code == 0, report.summary()
+    _check_address_modes(tmp_path / "out", "bdipole.mtlx", "bdipole.usda", "mirror")
+
+
+def test_every_texture_wrap_has_a_materialx_address_mode():
+    from bdipole_cl.io.networks import MTLX_ADDRESS
+    from bdipole_cl.methods.registry import TEXTURE_WRAP
+    assert set(MTLX_ADDRESS) == set(TEXTURE_WRAP.names)

@@ -31,7 +31,9 @@ class TextureRead:
     """One texture a network reads: ``file`` relative to the records folder (``./a.<UDIM>.exr``,
     or absolute where it is on another drive), ``colorspace`` (a declared name, ``raw`` for
     data, ``auto``: as the file declares), ``layer`` (the EXR layer, None: the file's first
-    channels) and ``first_channel`` (where it starts in the file as OpenImageIO reads it)."""
+    channels) and ``first_channel`` (where it starts in the file as OpenImageIO reads it);
+    ``wrap``: how a lookup beyond the edges reads it, as the file declares (a TEXTURE_WRAP
+    name; "clamp" where it declares none: the library's default)."""
 
     role: str                        # albedo, mfp, or an output's name
     file: str
@@ -39,6 +41,7 @@ class TextureRead:
     layer: str | None = None
     first_channel: int = 0
     channels: int = 3
+    wrap: str = "clamp"
 
     @property
     def tiled(self) -> bool:
@@ -106,6 +109,7 @@ class BakedMaterial:
     working_space: str = "auto"      # the colour maps' space (the bake's working space)
     layers: dict = field(default_factory=dict)   # {"albedo"/"mfp": (the EXR layer read, its
     #                                              first channel in the file)}
+    wrap: str = "clamp"              # the wrap its maps and coefficient files declare
 
     @property
     def unit_m(self) -> float:
@@ -161,6 +165,11 @@ def relative_file(path: str, folder: str) -> str:
         return path.replace(os.sep, "/")
     return "./" + rel.replace(os.sep, "/")
 
+
+#: MaterialX's image address mode (``uaddressmode``, ``vaddressmode``) of each wrap a file
+#: declares (TEXTURE_WRAP): MaterialX's default, periodic, would read across a tile's edge
+MTLX_ADDRESS = {"clamp": "clamp", "black": "constant", "periodic": "periodic",
+                "mirror": "mirror"}
 
 #: MaterialX's colour space names (its default colour management system's)
 MTLX_SPACES = ("srgb_texture", "lin_rec709", "g22_rec709", "g18_rec709", "acescg", "lin_ap1",
@@ -258,7 +267,7 @@ def converted_inputs(b: BakedMaterial, convention: str, folder: str) -> tuple:
     if "layers" in entry:                # one file of both layers (bdipole-cl convert's)
         return entry["layers"]
     return tuple(TextureRead(layer, relative_file(os.path.join(folder, entry[layer]), folder),
-                             space) for layer, space in (
+                             space, wrap=b.wrap) for layer, space in (
                                  ("colour", texture_space(b.working_space)),
                                  ("radius", "raw")))
 
@@ -353,7 +362,7 @@ def coefficient_reads(b: BakedMaterial, folder: str) -> tuple:
         return ()
     try:
         return tuple(TextureRead(o, relative_file(layer_path(b.output, o), folder), "raw",
-                                 None, 0, len(b.channels.get(o, ())) or 3)
+                                 None, 0, len(b.channels.get(o, ())) or 3, b.wrap)
                      for o in b.outputs if b.channels.get(o))
     except NotWritten:
         return ()

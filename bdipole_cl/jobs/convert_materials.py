@@ -23,6 +23,7 @@ from ..io import tiles
 from ..io.channels import COLOUR_LAYERS
 from ..io.colour import resolve_working_space
 from ..io.images import TextureError, is_regular_file
+from ..io.mipmaps import texture_options
 from ..io.networks import (BakedMaterial, NotWritten, TextureRead, layer_path, network_of,
                            network_record, networks, relative_file)
 from ..io.scene_file import UNIT_METERS
@@ -75,14 +76,17 @@ def layered(pattern: str, files: list, working_space: str, folder: str, inputs, 
     each output file (``layer_files``; ``texture``: the run's TextureOptions), named by the
     output's pattern."""
     working = resolve_working_space(working_space)
+    options = texture_options(texture)
+    wrap = options.wrap_mode if options else "clamp"     # what the layer files declare
     for f in files:
         try:
             layer_files(f, COLOUR_LAYERS, working, written, inputs, texture)
         except TextureError as exc:
             raise NotWritten(str(exc)) from None
     return (TextureRead("colour", relative_file(layer_path(pattern, "colour"), folder),
-                        working_space),
-            TextureRead("radius", relative_file(layer_path(pattern, "radius"), folder), "raw"))
+                        working_space, wrap=wrap),
+            TextureRead("radius", relative_file(layer_path(pattern, "radius"), folder), "raw",
+                        wrap=wrap))
 
 
 def converted_sets(inputs, output: str, convention: str, results) -> dict:

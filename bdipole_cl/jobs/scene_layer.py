@@ -27,7 +27,8 @@ def baked_material(m, entry: dict, stage_unit_m: float) -> BakedMaterial:
         tuple(m.eta), m.unit, stage_unit_m, tuple(m.targets),
         None if m.constant else m.output, tuple(m.outputs), entry.get("channels", {}),
         entry.get("first_channel", {}), entry.get("maps"),
-        resolve_working_space(m.working_space).name, painted_layers(m))
+        resolve_working_space(m.working_space).name, painted_layers(m),
+        m.texture.wrap_mode if m.texture else "clamp")
 
 
 def painted_layers(m) -> dict:

@@ -256,3 +256,89 @@ def test_every_texture_wrap_has_a_materialx_address_mode():
     from bdipole_cl.io.networks import MTLX_ADDRESS
     from bdipole_cl.methods.registry import TEXTURE_WRAP
     assert set(MTLX_ADDRESS) == set(TEXTURE_WRAP.names)
+
+
+def _mtlx_materials(folder) -> set:
+    mx = pytest.importorskip("MaterialX")
+    doc = mx.createDocument()
+    mx.readFromXmlFile(doc, str(folder / "bdipole_convert.mtlx"))
+    return {m.getName() for m in doc.getMaterialNodes()}
+
+
+def _reads(folder) -> dict:
+    """{material: the colour file its OpenPBR network reads} of the .usda."""
+    stage = Usd.Stage.Open(str(folder / "bdipole_convert.usda"))
+    out = {}
+    for prim in stage.GetPrimAtPath("/bdipole_materials").GetChildren():
+        tex = stage.GetPrimAtPath(prim.GetPath().AppendPath(
+            "bdipole_openpbr_colour"))
+        out[prim.GetName()] = UsdShade.Shader(tex).GetInput("file").Get().path
+    return out
+
+
+def test_a_material_keeps_its_name_when_another_set_of_that_name_comes(tmp_path, capsys):
+    # skin_b read "skin b"'s files after the second run (the first set moved to skin_b_2):
+    # a binding to skin_b rendered another texture set, exit 0
+    _colour(tmp_path / "skin.b.exr", 1)
+    _colour(tmp_path / "skin b.exr", 2)
+    _colour(tmp_path / "skin_b.exr", 3)
+    for name in ("skin.b.exr", "skin b.exr", "skin_b.exr"):
+        rc = main(["convert", str(tmp_path / name), "--radius", "1", "--target", "openpbr"])
+        assert rc == 0, capsys.readouterr()
+    assert _reads(tmp_path) == {"skin_b": "./skin.b.van-de-hulst.colour.exr",
+                                "skin_b_2": "./skin b.van-de-hulst.colour.exr",
+                                "skin_b_3": "./skin_b.van-de-hulst.colour.exr"}
+    # a set converted again keeps its own
+    rc = main(["convert", str(tmp_path / "skin b.exr"), "--radius", "2", "--target", "openpbr"])
+    assert rc == 0, capsys.readouterr()
+    assert _reads(tmp_path)["skin_b_2"] == "./skin b.van-de-hulst.colour.exr"
+
+
+@pytest.mark.parametrize("stem, ident", [("1skin", "_1skin"), ("peau_é", "peau__"),
+                                         ("皮膚", "__")])
+def test_usd_and_materialx_name_a_material_alike(tmp_path, capsys, stem, ident):
+    # 1skin was _skin in the .usda (its digit lost), _1skin in the .mtlx; peau_é peau___ and
+    # peau__ (USD replaced each byte of é)
+    _colour(tmp_path / f"{stem}.exr", 1)
+    rc = main(["convert", str(tmp_path / f"{stem}.exr"), "--radius", "1", "--target", "openpbr"])
+    assert rc == 0, capsys.readouterr()
+    assert _materials(tmp_path) == _mtlx_materials(tmp_path) == {ident}
+
+
+@pytest.mark.parametrize("order", [("skin.<UDIM>.exr", "skin.exr"),
+                                   ("skin.exr", "skin.<UDIM>.exr")])
+@pytest.mark.parametrize("runs", [1, 2])
+def test_a_tile_set_and_a_texture_of_one_stem_each_keep_their_material(tmp_path, capsys,
+                                                                       order, runs):
+    # one material, skin, read skin.van-de-hulst.*; the tile set's was dropped, "2 done"
+    _colour(tmp_path / "skin.1001.exr", 1)
+    _colour(tmp_path / "skin.exr", 2)
+    names = [[str(tmp_path / n) for n in order]] if runs == 1 else \
+        [[str(tmp_path / n)] for n in order]
+    for run in names:
+        rc = main(["convert", *run, "--radius", "1", "--target", "openpbr"])
+        assert rc == 0, capsys.readouterr()
+    reads = _reads(tmp_path)
+    assert sorted(reads.values()) == ["./skin.<UDIM>.van-de-hulst.colour.exr",
+                                      "./skin.van-de-hulst.colour.exr"], reads
+    assert set(reads) == {"skin", "skin_2"} == _mtlx_materials(tmp_path)
+
+
+@pytest.mark.usefixtures("on_device")
+def test_a_bakes_usda_and_mtlx_name_a_material_alike(tmp_path):
+    # a scene file's 1skin was the .usda's _skin (its digit lost) and the .mtlx's _1skin
+    from bdipole_cl import scene as scenes
+    from test_scene import SCENE, make_files
+    make_files(tmp_path, ("1001",))
+    text = SCENE.split("[[material]]\nname = \"grey\"")[0].replace("METHOD", "") \
+        .replace('name = "skin"', 'name = "1skin"') \
+        .replace('mfp = [1.2, 0.6, 0.3]', 'mfp = [1.2, 0.6, 0.3]\ntargets = ["openpbr"]')
+    (tmp_path / "scene.toml").write_text(text)
+    report = scenes.load(tmp_path / "scene.toml").plan().run()
+    assert report.exit_code == 0, report.summary()
+    mx = pytest.importorskip("MaterialX")
+    doc = mx.createDocument()
+    mx.readFromXmlFile(doc, str(tmp_path / "out" / "bdipole.mtlx"))
+    stage = Usd.Stage.Open(str(tmp_path / "out" / "bdipole.usda"))
+    prims = {p.GetName() for p in stage.Traverse() if UsdShade.Material(p)}
+    assert prims == {m.getName() for m in doc.getMaterialNodes()} == {"_1skin"}

@@ -16,6 +16,7 @@ from __future__ import annotations
 import glob
 import math
 import os
+import re
 from dataclasses import asdict, dataclass, field
 
 from . import tiles, usdz
@@ -114,6 +115,35 @@ class BakedMaterial:
     @property
     def unit_m(self) -> float:
         return UNIT_METERS[self.unit]
+
+
+def identifier(name: str) -> str:
+    """A material's name as USD (a prim) and MaterialX (an element) both take it, the one
+    name in the ``.usda`` and the ``.mtlx``: every character outside [A-Za-z0-9_] becomes
+    ``_`` (one per character), a leading digit gets one before it (``1skin``: ``_1skin``)."""
+    name = re.sub(r"[^A-Za-z0-9_]", "_", name) or "_"
+    return f"_{name}" if name[0].isdigit() else name
+
+
+def next_identifier(name: str, taken) -> str:
+    """``identifier(name)``, else where another material has it (``taken``, compared
+    casefolded: a-b, a_b; USD's and file systems' case may not tell them apart) the first
+    of ``_2``, ``_3``... that is free."""
+    taken = {t.casefold() for t in taken}
+    ident, k = identifier(name), 1
+    while ident.casefold() in taken:
+        k += 1
+        ident = f"{identifier(name)}_{k}"
+    return ident
+
+
+def distinct_identifiers(names) -> dict:
+    """{name: its identifier} of ``names`` in the order given: a clash numbered in that
+    order (``next_identifier``), so a name given later never takes an earlier one's."""
+    out = {}
+    for name in names:
+        out[name] = next_identifier(name, out.values())
+    return out
 
 
 class NotWritten(Exception):

@@ -342,3 +342,49 @@ def test_a_bakes_usda_and_mtlx_name_a_material_alike(tmp_path):
     stage = Usd.Stage.Open(str(tmp_path / "out" / "bdipole.usda"))
     prims = {p.GetName() for p in stage.Traverse() if UsdShade.Material(p)}
     assert prims == {m.getName() for m in doc.getMaterialNodes()} == {"_1skin"}
+
+
+def _network_files(folder) -> dict:
+    """{shader prim path: the file it reads} of every texture node of the .usda."""
+    stage = Usd.Stage.Open(str(folder / "bdipole_convert.usda"))
+    out = {}
+    for prim in stage.Traverse():
+        shader = UsdShade.Shader(prim)
+        for name in ("file", "filename"):
+            if shader and shader.GetInput(name):
+                out[str(prim.GetPath())] = shader.GetInput(name).Get().path
+    return out
+
+
+def test_a_kept_network_never_reads_files_another_convention_rewrote(tmp_path, capsys):
+    # both runs wrote outs/s.colour.exr: the OpenPBR network kept from the first read the
+    # second's better-dipole colour and radius, exit 0
+    import hashlib
+    _colour(tmp_path / "in1" / "s.exr", 1)
+    out = str(tmp_path / "outs" / "{stem}.exr")
+    assert main(["convert", str(tmp_path / "in1" / "s.exr"), "--radius", "1", "--target",
+                 "openpbr", "-o", out]) == 0, capsys.readouterr()
+    reads = _network_files(tmp_path / "outs")
+    digest = {f: hashlib.md5((tmp_path / "outs" / f).read_bytes()).hexdigest()
+              for f in reads.values()}
+    assert main(["convert", str(tmp_path / "in1" / "s.exr"), "--radius", "1", "--source",
+                 "openpbr", "--target", "pxrsurface", "-o", out]) == 0, capsys.readouterr()
+    after = _network_files(tmp_path / "outs")
+    assert {k: v for k, v in after.items() if "openpbr" in k} == reads
+    for f, d in digest.items():
+        assert hashlib.md5((tmp_path / "outs" / f).read_bytes()).hexdigest() == d, f
+    pxr_files = {v for k, v in after.items() if "pxrsurface" in k}
+    assert pxr_files and not pxr_files & set(reads.values()), (pxr_files, reads)
+
+
+def test_a_layer_file_never_overwrites_an_input_of_the_run(tmp_path, capsys):
+    import hashlib
+    _colour(tmp_path / "a.exr", 1)
+    _colour(tmp_path / "a.van-de-hulst.colour.exr", 2)
+    before = hashlib.md5((tmp_path / "a.van-de-hulst.colour.exr").read_bytes()).hexdigest()
+    rc = main(["convert", str(tmp_path / "a.exr"), str(tmp_path / "a.van-de-hulst.colour.exr"),
+               "--radius", "1", "--target", "openpbr"])
+    out = capsys.readouterr().out
+    assert rc == 1 and "would overwrite an input of this run" in out, out
+    after = hashlib.md5((tmp_path / "a.van-de-hulst.colour.exr").read_bytes()).hexdigest()
+    assert after == before

@@ -377,11 +377,18 @@ def networks(b: BakedMaterial, folder: str) -> tuple:
     return written, why
 
 
-def layer_path(path: str, layer: str) -> str:
+def layer_path(path: str, layer: str, convention: str | None = None) -> str:
     """The file (or pattern) of one layer of an output of ours that holds several (``layer``
     of ``skin.<UDIM>.exr`` is ``skin.<UDIM>.{layer}.exr``): its channels alone, first, for
-    the texture nodes that read a file's first channels (``jobs.layer_files`` writes it)."""
-    return f"{path[:-4]}.{layer}.exr"
+    the texture nodes that read a file's first channels (``jobs.layer_files`` writes it).
+    ``convention``: the conversion's, named in the file where the output's name does not
+    already end with it (``skin.exr``: ``skin.van-de-hulst.colour.exr``), so that a run to
+    another convention into the same output never rewrites the files an earlier network
+    reads."""
+    base = path[:-4]
+    if convention and not base.endswith(f".{convention}"):
+        base = f"{base}.{convention}"
+    return f"{base}.{layer}.exr"
 
 
 def coefficient_reads(b: BakedMaterial, folder: str) -> tuple:

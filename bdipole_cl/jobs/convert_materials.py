@@ -76,22 +76,22 @@ def material_name(pattern: str) -> str:
 
 
 def layered(pattern: str, files: list, working_space: str, folder: str, inputs, written,
-            texture=None):
+            texture, convention: str):
     """The (colour, radius) TextureReads of one converted set: each layer's own file beside
     each output file (``layer_files``; ``texture``: the run's TextureOptions), named by the
-    output's pattern."""
+    output's pattern and the ``convention`` (a run to another convention into the same
+    output writes files of its own: an earlier network never reads its data)."""
     working = resolve_working_space(working_space)
     options = texture_options(texture)
     wrap = options.wrap_mode if options else "clamp"     # what the layer files declare
     for f in files:
         try:
-            layer_files(f, COLOUR_LAYERS, working, written, inputs, texture)
+            layer_files(f, COLOUR_LAYERS, working, written, inputs, texture, convention)
         except TextureError as exc:
             raise NotWritten(str(exc)) from None
-    return (TextureRead("colour", relative_file(layer_path(pattern, "colour"), folder),
-                        working_space, wrap=wrap),
-            TextureRead("radius", relative_file(layer_path(pattern, "radius"), folder), "raw",
-                        wrap=wrap))
+    return tuple(TextureRead(layer, relative_file(layer_path(pattern, layer, convention),
+                                                  folder), space, wrap=wrap)
+                 for layer, space in (("colour", working_space), ("radius", "raw")))
 
 
 def source_of(path: str, folder: str) -> str:
@@ -156,7 +156,7 @@ def folder_materials(folder, found, targets, convention, eta, unit, working_spac
                      texture) -> list:
     """The materials of one folder's converted sets ``found`` (``converted_sets``) joined to
     the earlier runs' there: [FileResult]."""
-    earlier, sources, stage_unit_m, lost = earlier_networks(folder)
+    earlier, made_from, stage_unit_m, lost = earlier_networks(folder)
     stage_unit_m = stage_unit_m or UNIT_METERS[unit]
     rows, written = [], []
     if lost:
@@ -165,12 +165,12 @@ def folder_materials(folder, found, targets, convention, eta, unit, working_spac
     for source, name, out, files in found:
         try:
             colour, radius = layered(out, files, working_space, folder, sources, written,
-                                     texture)
+                                     texture, convention)
         except NotWritten as exc:      # an unwritten material is a failure, named
             rows.append(FileResult(name, os.path.join(folder, LAYER),
                                    error=f"{name}: no material: {exc}"))
             continue
-        ident = material_identifier(source_of(source, folder), name, sources)
+        ident = material_identifier(source_of(source, folder), name, made_from)
         baked = BakedMaterial(ident, "", working_space, (1.0,), (1.0,), "diffuse", "better",
                               tuple(eta), unit, stage_unit_m, targets,
                               maps={convention: {"layers": (colour, radius)}})
@@ -180,7 +180,7 @@ def folder_materials(folder, found, targets, convention, eta, unit, working_spac
                             f"written: {w}") for t, w in not_written.items()]
     rows += [FileResult(p, p, status="ok", notes=["layer file"], companion=True)
              for p in written]
-    return rows + write_convert_records(earlier, sources, stage_unit_m, folder)
+    return rows + write_convert_records(earlier, made_from, stage_unit_m, folder)
 
 
 def material_identifier(source: str, name: str, sources: dict) -> str:

@@ -388,3 +388,14 @@ def test_a_layer_file_never_overwrites_an_input_of_the_run(tmp_path, capsys):
     assert rc == 1 and "would overwrite an input of this run" in out, out
     after = hashlib.md5((tmp_path / "a.van-de-hulst.colour.exr").read_bytes()).hexdigest()
     assert after == before
+
+
+def test_inputs_of_one_name_in_two_folders_are_told_to_use_dir(tmp_path, capsys):
+    # the advice was "put <UDIM>, {udim}, {stem} or {name} in -o" to an -o with {stem}
+    _colour(tmp_path / "in1" / "s.exr", 1)
+    _colour(tmp_path / "in2" / "s.exr", 2)
+    rc = main(["convert", str(tmp_path / "in1" / "s.exr"), str(tmp_path / "in2" / "s.exr"),
+               "--radius", "1", "--target", "openpbr", "-o",
+               str(tmp_path / "outs" / "{stem}.exr")])
+    out = "".join(capsys.readouterr())
+    assert rc != 0 and "put {dir} (the inputs share their file name" in out, out

@@ -399,3 +399,15 @@ def test_inputs_of_one_name_in_two_folders_are_told_to_use_dir(tmp_path, capsys)
                str(tmp_path / "outs" / "{stem}.exr")])
     out = "".join(capsys.readouterr())
     assert rc != 0 and "put {dir} (the inputs share their file name" in out, out
+
+
+@pytest.mark.parametrize("command", [["convert", "--radius", "1"], ["invert", "--mfp", "1"]])
+def test_an_unknown_field_in_o_is_a_usage_error(tmp_path, capsys, command):
+    # convert -o '{bogus}/x.exr' made a folder named {bogus}, exit 0
+    _colour(tmp_path / "a.exr", 1)
+    with pytest.raises(SystemExit) as exit_:     # argparse's usage error
+        main([command[0], str(tmp_path / "a.exr"), *command[1:], "-o",
+              str(tmp_path / "{bogus}" / "x.exr")])
+    err = capsys.readouterr().err
+    assert exit_.value.code == 2 and "{bogus} is no field" in err, err
+    assert not (tmp_path / "{bogus}").exists()

@@ -86,7 +86,8 @@ def test_a_material_not_written_is_a_failed_row(tmp_path, capsys):
     before = (tmp_path / "a.van-de-hulst.colour.exr").read_bytes()
     rc = main(["convert", str(tmp_path / "a.exr"), "--radius", "1", "--target", "openpbr"])
     out = capsys.readouterr().out
-    assert rc == 1 and "a: no material:" in out and "1 done, 1 failed" in out, out
+    assert rc == 1 and "a: no material:" in out and "1 done, 0 failed" in out \
+        and "1 failed beside them" in out, out
     assert (tmp_path / "a.van-de-hulst.colour.exr").read_bytes() == before
 
 
@@ -411,3 +412,16 @@ def test_an_unknown_field_in_o_is_a_usage_error(tmp_path, capsys, command):
     err = capsys.readouterr().err
     assert exit_.value.code == 2 and "{bogus} is no field" in err, err
     assert not (tmp_path / "{bogus}").exists()
+
+
+def test_a_file_beside_the_outputs_that_failed_is_counted_apart_from_the_jobs(tmp_path,
+                                                                             capsys):
+    # "1 done, 1 failed" for one input when only bdipole_convert.mtlx failed, and the note
+    # named maps and records, which convert never writes
+    _colour(tmp_path / "a.exr", 1)
+    (tmp_path / "bdipole_convert.mtlx").write_text("<materialx/>\n")
+    rc = main(["convert", str(tmp_path / "a.exr"), "--radius", "1", "--target", "openpbr"])
+    out = capsys.readouterr().out
+    assert rc == 1, out
+    assert out.rstrip().endswith("1 done, 0 failed, 0 skipped; 3 files beside them (layer "
+                                 "file, materials); 1 failed beside them"), out

@@ -161,14 +161,14 @@ def folder_materials(folder, found, targets, convention, eta, unit, working_spac
     rows, written = [], []
     if lost:
         rows.append(FileResult(os.path.join(folder, LAYER), os.path.join(folder, LAYER),
-                               status="ok", notes=[lost], companion=True))
+                               status="ok", notes=["materials", lost], companion=True))
     for source, name, out, files in found:
         try:
             colour, radius = layered(out, files, working_space, folder, sources, written,
                                      texture, convention)
         except NotWritten as exc:      # an unwritten material is a failure, named
             rows.append(FileResult(name, os.path.join(folder, LAYER),
-                                   error=f"{name}: no material: {exc}"))
+                                   error=f"{name}: no material: {exc}", companion=True))
             continue
         ident = material_identifier(source_of(source, folder), name, made_from)
         baked = BakedMaterial(ident, "", working_space, (1.0,), (1.0,), "diffuse", "better",
@@ -177,7 +177,7 @@ def folder_materials(folder, found, targets, convention, eta, unit, working_spac
         made, not_written = networks(baked, folder)
         earlier.setdefault(ident, {}).update({n.target.name: n for n in made})
         rows += [FileResult(name, os.path.join(folder, LAYER), error=f"{name}: {t} not "
-                            f"written: {w}") for t, w in not_written.items()]
+                            f"written: {w}", companion=True) for t, w in not_written.items()]
     rows += [FileResult(p, p, status="ok", notes=["layer file"], companion=True)
              for p in written]
     return rows + write_convert_records(earlier, made_from, stage_unit_m, folder)
@@ -265,7 +265,7 @@ def write_convert_records(materials: dict, sources: dict, stage_unit_m: float, f
                                           or _own_layer(path)):
             rows.append(FileResult(path, path, error=f"{path} exists and was not written by "
                                                      f"bdipole-cl: the materials go there; "
-                                                     f"move it"))
+                                                     f"move it", companion=True))
         elif write_if_changed(path, text):
             rows.append(FileResult(path, path, status="ok", notes=["materials"],
                                    companion=True))

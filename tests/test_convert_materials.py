@@ -425,3 +425,20 @@ def test_a_file_beside_the_outputs_that_failed_is_counted_apart_from_the_jobs(tm
     assert rc == 1, out
     assert out.rstrip().endswith("1 done, 0 failed, 0 skipped; 3 files beside them (layer "
                                  "file, materials); 1 failed beside them"), out
+
+
+def test_a_material_whose_files_are_gone_is_dropped_and_said(tmp_path, capsys):
+    # the s material was kept pointing at the deleted files, no message
+    _colour(tmp_path / "s.exr", 1)
+    _colour(tmp_path / "t.exr", 2)
+    assert main(["convert", str(tmp_path / "s.exr"), "--radius", "1", "--target",
+                 "openpbr"]) == 0, capsys.readouterr()
+    for f in tmp_path.glob("s.van-de-hulst.*"):
+        f.unlink()
+    capsys.readouterr()
+    assert main(["convert", str(tmp_path / "t.exr"), "--radius", "1", "--target",
+                 "openpbr"]) == 0
+    out = capsys.readouterr().out
+    assert "s (openpbr: ./s.van-de-hulst.colour.exr, ./s.van-de-hulst.radius.exr gone): " \
+           "not kept" in out, out
+    assert _materials(tmp_path) == _mtlx_materials(tmp_path) == {"t"}

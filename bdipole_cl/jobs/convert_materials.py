@@ -15,6 +15,7 @@ never over a file this tool did not write there.
 """
 from __future__ import annotations
 
+import glob
 import json
 import os
 from dataclasses import replace
@@ -180,7 +181,37 @@ def folder_materials(folder, found, targets, convention, eta, unit, working_spac
                             f"written: {w}", companion=True) for t, w in not_written.items()]
     rows += [FileResult(p, p, status="ok", notes=["layer file"], companion=True)
              for p in written]
+    gone = drop_unread(earlier, folder)
+    if gone:
+        rows.append(FileResult(os.path.join(folder, LAYER), os.path.join(folder, LAYER),
+                               status="ok", notes=["materials", gone], companion=True))
     return rows + write_convert_records(earlier, made_from, stage_unit_m, folder)
+
+
+def is_read(read: TextureRead, folder: str) -> bool:
+    """Whether the file (or a tile of the set) a network reads is there: ``read.file``
+    relative to ``folder``; one in a package is taken as there (the package is the user's)."""
+    if "[" in read.file:
+        return True
+    path = os.path.join(folder, read.file)
+    return bool(glob.glob(glob.escape(path).replace("<UDIM>", "[1-9][0-9][0-9][0-9]"))) \
+        if read.tiled else os.path.isfile(path)
+
+
+def drop_unread(materials: dict, folder: str) -> str | None:
+    """Drop from ``materials`` ({identifier: {target: Network}}) each network a file it
+    reads is gone from (a kept network would render nothing, or what comes there next), and
+    each material left without one; what was dropped (None: nothing)."""
+    gone = []
+    for ident, by_target in list(materials.items()):
+        for target, network in list(by_target.items()):
+            missing = [r.file for r in network.textures if not is_read(r, folder)]
+            if missing:
+                del by_target[target]
+                gone.append(f"{ident} ({target}: {', '.join(missing)} gone)")
+        if not by_target:
+            del materials[ident]
+    return (f"{'; '.join(gone)}: not kept (convert them again)") if gone else None
 
 
 def material_identifier(source: str, name: str, sources: dict) -> str:

@@ -442,3 +442,30 @@ def test_a_material_whose_files_are_gone_is_dropped_and_said(tmp_path, capsys):
     assert "s (openpbr: ./s.van-de-hulst.colour.exr, ./s.van-de-hulst.radius.exr gone): " \
            "not kept" in out, out
     assert _materials(tmp_path) == _mtlx_materials(tmp_path) == {"t"}
+
+
+def test_a_material_of_a_layer_without_sources_keeps_its_name(tmp_path, capsys):
+    # a layer written before the sources were kept names its prims as USD's
+    # TfMakeValidIdentifier did (1skin: _skin): they stay as they were, none "not kept"
+    import json
+    from pxr import Sdf
+    _colour(tmp_path / "1skin.exr", 1)
+    _colour(tmp_path / "t.exr", 2)
+    assert main(["convert", str(tmp_path / "1skin.exr"), "--radius", "1", "--target",
+                 "openpbr"]) == 0, capsys.readouterr()
+    path = str(tmp_path / "bdipole_convert.usda")
+    layer = Sdf.Layer.FindOrOpen(path)
+    data = dict(layer.customLayerData)
+    data.pop("bdipole_convert_sources")
+    records = json.loads(data["bdipole_convert"])
+    data["bdipole_convert"] = json.dumps({"1skin": records["_1skin"]})
+    layer.customLayerData = data
+    layer.GetPrimAtPath("/bdipole_materials/_1skin").name = "_skin"
+    layer.Save()
+    del layer                        # out of USD's layer registry: the stage reads the file
+    capsys.readouterr()
+    assert main(["convert", str(tmp_path / "t.exr"), "--radius", "1", "--target",
+                 "openpbr"]) == 0
+    out = capsys.readouterr().out
+    assert "not kept" not in out, out
+    assert _materials(tmp_path) == _mtlx_materials(tmp_path) == {"_skin", "t"}

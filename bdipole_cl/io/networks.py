@@ -137,15 +137,6 @@ def next_identifier(name: str, taken) -> str:
     return ident
 
 
-def distinct_identifiers(names) -> dict:
-    """{name: its identifier} of ``names`` in the order given: a clash numbered in that
-    order (``next_identifier``), so a name given later never takes an earlier one's."""
-    out = {}
-    for name in names:
-        out[name] = next_identifier(name, out.values())
-    return out
-
-
 class NotWritten(Exception):
     """Why a target's network is not written for a material (one line)."""
 

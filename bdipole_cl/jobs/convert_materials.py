@@ -26,9 +26,9 @@ from ..io.channels import COLOUR_LAYERS
 from ..io.colour import resolve_working_space
 from ..io.images import TextureError, is_regular_file
 from ..io.mipmaps import texture_options
-from ..io.networks import (BakedMaterial, NotWritten, TextureRead, distinct_identifiers,
-                           identifier, layer_path, network_of, network_record, networks,
-                           next_identifier, relative_file)
+from ..io.networks import (BakedMaterial, NotWritten, TextureRead, identifier, layer_path,
+                           network_of, network_record, networks, next_identifier,
+                           relative_file)
 from ..io.scene_file import UNIT_METERS
 from ..io.targets import TARGET
 from .layer_files import layer_files
@@ -228,6 +228,22 @@ def material_identifier(source: str, name: str, sources: dict) -> str:
     return ident
 
 
+def legacy_identifiers(names) -> dict:
+    """{name: its prim's name} of the records of a run before the sources were kept (keyed
+    by name): USD's ``TfMakeValidIdentifier``, a clash numbered in sorted order, as that run
+    named them; kept, so that an existing material keeps its name (each is a valid
+    ``identifier``: the .mtlx names it alike)."""
+    from pxr import Tf
+    out = {}
+    for name in sorted(names):
+        ident, k = Tf.MakeValidIdentifier(name), 1
+        while ident.casefold() in {i.casefold() for i in out.values()}:
+            k += 1
+            ident = f"{Tf.MakeValidIdentifier(name)}_{k}"
+        out[name] = ident
+    return out
+
+
 def earlier_networks(folder) -> tuple:
     """({identifier: {target: Network}} of the convert layer in ``folder`` (this tool's),
     {identifier: what it converts (``source_of``; None: not recorded)}, its metres per unit
@@ -244,9 +260,7 @@ def earlier_networks(folder) -> tuple:
         sources = {str(i): str(s) for i, s in json.loads(
             layer.customLayerData.get(SOURCES, "{}")).items()}
         records = json.loads(layer.customLayerData.get(RECORDS, "{}"))
-        # records of a run before the sources were kept are by name: their prims' names
-        # were the names' identifiers, a clash numbered in sorted order
-        idents = {n: n for n in records} if sources else distinct_identifiers(sorted(records))
+        idents = {n: n for n in records} if sources else legacy_identifiers(records)
         for name, by_target in records.items():
             found[idents[name]] = {t: replace(network_of(r), material=idents[name])
                                    for t, r in by_target.items()}

@@ -253,12 +253,6 @@ def test_baked_materials_read_each_file_with_its_declared_wrap(tmp_path):
     _check_address_modes(tmp_path / "out", "bdipole.mtlx", "bdipole.usda", "mirror")
 
 
-def test_every_texture_wrap_has_a_materialx_address_mode():
-    from bdipole_cl.io.networks import MTLX_ADDRESS
-    from bdipole_cl.methods.registry import TEXTURE_WRAP
-    assert set(MTLX_ADDRESS) == set(TEXTURE_WRAP.names)
-
-
 def _mtlx_materials(folder) -> set:
     mx = pytest.importorskip("MaterialX")
     doc = mx.createDocument()

@@ -18,8 +18,8 @@ from __future__ import annotations
 
 import MaterialX as mx
 
-from .networks import (MTLX_ADDRESS, MTLX_INPUTS, MTLX_SPACES, Network, TextureRead, identifier,
-                       space_name)
+from .networks import (MTLX_INPUTS, MTLX_SPACES, Network, TextureRead, identifier,
+                       mtlx_address, space_name)
 
 #: MaterialX's nodes of each target's shader
 CATEGORY = {"preview": "UsdPreviewSurface", "openpbr": "open_pbr_surface",
@@ -47,7 +47,7 @@ def _image(parent, name: str, read: TextureRead, type_name: str):
     """An ``image`` node reading ``read`` (a file whose first channels it reads: ValueError
     for a layer further in, which no generator reads): colour files of a colour input as
     ``color3`` with their ``colorspace``; data as ``vector3`` (or ``float``): never
-    colour-converted; its address modes the file's wrap (``MTLX_ADDRESS``)."""
+    colour-converted; its address modes the file's wrap (``networks.mtlx_address``)."""
     if read.first_channel:
         raise ValueError(f"{read.file}: an image node reads a file's first channels, not "
                          f"layer {read.layer!r} from channel {read.first_channel}")
@@ -59,7 +59,7 @@ def _image(parent, name: str, read: TextureRead, type_name: str):
     if type_name.startswith("color") and read.colorspace not in ("auto", "raw"):
         file.setColorSpace(space_name(read.colorspace, MTLX_SPACES))
     for axis in ("uaddressmode", "vaddressmode"):
-        node.addInput(axis, "string").setValueString(MTLX_ADDRESS[read.wrap])
+        node.addInput(axis, "string").setValueString(mtlx_address(read))
     return node
 
 

@@ -20,6 +20,7 @@ import re
 from dataclasses import asdict, dataclass, field
 
 from . import tiles, usdz
+from ..methods.registry import TEXTURE_WRAP
 from ..physics.conventions import CONVENTION
 from .colour import active_config
 from .patterns import PATTERN_FIELDS
@@ -187,10 +188,11 @@ def relative_file(path: str, folder: str) -> str:
     return "./" + rel.replace(os.sep, "/")
 
 
-#: MaterialX's image address mode (``uaddressmode``, ``vaddressmode``) of each wrap a file
-#: declares (TEXTURE_WRAP): MaterialX's default, periodic, would read across a tile's edge
-MTLX_ADDRESS = {"clamp": "clamp", "black": "constant", "periodic": "periodic",
-                "mirror": "mirror"}
+def mtlx_address(read: TextureRead) -> str:
+    """MaterialX's image address mode (``uaddressmode``, ``vaddressmode``) of the wrap the
+    file ``read`` declares (``TextureWrap.mtlx_address``)."""
+    return TEXTURE_WRAP[read.wrap].mtlx_address
+
 
 #: MaterialX's colour space names (its default colour management system's)
 MTLX_SPACES = ("srgb_texture", "lin_rec709", "g22_rec709", "g18_rec709", "acescg", "lin_ap1",

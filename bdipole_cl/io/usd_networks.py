@@ -22,7 +22,7 @@ from __future__ import annotations
 
 from pxr import Gf, Sdf, Sdr, UsdShade
 
-from .networks import MTLX_ADDRESS, USD_SPACES, Network, TextureRead, space_name
+from .networks import USD_SPACES, Network, TextureRead, mtlx_address, space_name
 
 #: RenderMan's declared types of the PxrSurface and PxrTexture parameters a network uses
 #: (PxrSurface.args, PxrTexture.args)
@@ -108,7 +108,7 @@ def _address_modes(shader, shader_id, read: TextureRead):
     """A MaterialX image's ``uaddressmode`` and ``vaddressmode``: the file's wrap (MaterialX's
     default, periodic, would read across a tile's edge)."""
     for axis in ("uaddressmode", "vaddressmode"):
-        _input(shader, shader_id, axis, MTLX_ADDRESS[read.wrap])
+        _input(shader, shader_id, axis, mtlx_address(read))
 
 
 def _output(shader, shader_id, name):

@@ -86,7 +86,8 @@ def test_a_material_not_written_is_a_failed_row(tmp_path, capsys):
     before = (tmp_path / "a.van-de-hulst.colour.exr").read_bytes()
     rc = main(["convert", str(tmp_path / "a.exr"), "--radius", "1", "--target", "openpbr"])
     out = capsys.readouterr().out
-    assert rc == 1 and "a: no material:" in out and "1 done, 1 failed" in out, out
+    assert rc == 1 and "a: no material:" in out and "1 done, 0 failed" in out \
+        and "1 failed beside them" in out, out
     assert (tmp_path / "a.van-de-hulst.colour.exr").read_bytes() == before
 
 
@@ -183,3 +184,282 @@ def test_a_bake_reads_converts_mtlx_back_in_its_unit(tmp_path, capsys):
     # the coefficients in 1/m (the document's unit); float32 sum and product, 4 u = 4.8e-7
     np.testing.assert_allclose((coef[..., :3] + coef[..., 3:]) * radius * 0.01, 1.0,
                                rtol=4.8e-7)
+
+
+#: the wrap a file declares (OpenImageIO's wrapmodes) as MaterialX's image address mode
+_ADDRESS = {"clamp": "clamp", "black": "constant", "periodic": "periodic", "mirror": "mirror"}
+
+
+def _declared_address(path) -> str:
+    """The address mode the file's header declares (clamp where it declares none)."""
+    spec, _ = _spec(str(path).replace("<UDIM>", "1001"))
+    wrap = spec.get_string_attribute("wrapmodes") or "clamp,clamp"
+    u, v = wrap.split(",")
+    assert u == v, wrap
+    return _ADDRESS[u]
+
+
+def _check_address_modes(folder, mtlx_name, usda_name, want):
+    """Every image node of the .mtlx and every ND_image_* shader of the .usda reads its file
+    with the file's own wrap in u and v (MaterialX's default is periodic: a tile's edge
+    sampled across it)."""
+    mx = pytest.importorskip("MaterialX")
+    doc = mx.createDocument()
+    mx.readFromXmlFile(doc, str(folder / mtlx_name))
+    images = [n for n in doc.traverseTree() if isinstance(n, mx.Node)
+              and n.getCategory() == "image"]
+    assert images
+    for node in images:
+        mode = _declared_address(folder / node.getInputValue("file"))
+        assert mode == want
+        for axis in ("uaddressmode", "vaddressmode"):
+            assert node.getInputValue(axis) == mode, (node.getName(), axis)
+    stage = Usd.Stage.Open(str(folder / usda_name))
+    shaders = [UsdShade.Shader(p) for p in stage.Traverse() if UsdShade.Shader(p)
+               and str(UsdShade.Shader(p).GetIdAttr().Get()).startswith("ND_image_")]
+    assert shaders
+    for shader in shaders:
+        file = shader.GetInput("file").Get().path
+        mode = _declared_address(folder / file)
+        for axis in ("uaddressmode", "vaddressmode"):
+            assert shader.GetInput(axis).Get() == mode, (shader.GetPath(), axis)
+
+
+@pytest.mark.parametrize("options, want", [((), "clamp"), (("--texture",), "clamp"),
+                                           (("--texture-wrap", "mirror"), "mirror"),
+                                           (("--texture-wrap", "black"), "constant")])
+def test_converted_materials_read_each_file_with_its_declared_wrap(tmp_path, capsys, options,
+                                                                   want):
+    # no image node set an address mode: MaterialX's default, periodic, read across the
+    # edge of textures that declare clamp (or mirror)
+    _colour(tmp_path / "a.exr", 1)
+    rc = main(["convert", str(tmp_path / "a.exr"), "--radius", "1", "--target", "openpbr",
+               *options])
+    assert rc == 0, capsys.readouterr()
+    _check_address_modes(tmp_path, "bdipole_convert.mtlx", "bdipole_convert.usda", want)
+
+
+@pytest.mark.usefixtures("on_device")
+def test_baked_materials_read_each_file_with_its_declared_wrap(tmp_path):
+    from bdipole_cl import scene as scenes
+    from test_scene import SCENE, make_files
+    make_files(tmp_path, ("1001",))
+    text = SCENE.split("[[material]]\nname = \"grey\"")[0].replace("METHOD", "") \
+        .replace('mfp = [1.2, 0.6, 0.3]', 'mfp = [1.2, 0.6, 0.3]\ntargets = ["openpbr"]\n'
+                 'texture_wrap = "mirror"')
+    (tmp_path / "scene.toml").write_text(text)
+    report = scenes.load(tmp_path / "scene.toml").plan().run()
+    assert report.exit_code == 0, report.summary()
+    _check_address_modes(tmp_path / "out", "bdipole.mtlx", "bdipole.usda", "mirror")
+
+
+def _mtlx_materials(folder) -> set:
+    mx = pytest.importorskip("MaterialX")
+    doc = mx.createDocument()
+    mx.readFromXmlFile(doc, str(folder / "bdipole_convert.mtlx"))
+    return {m.getName() for m in doc.getMaterialNodes()}
+
+
+def _reads(folder) -> dict:
+    """{material: the colour file its OpenPBR network reads} of the .usda."""
+    stage = Usd.Stage.Open(str(folder / "bdipole_convert.usda"))
+    out = {}
+    for prim in stage.GetPrimAtPath("/bdipole_materials").GetChildren():
+        tex = stage.GetPrimAtPath(prim.GetPath().AppendPath(
+            "bdipole_openpbr_colour"))
+        out[prim.GetName()] = UsdShade.Shader(tex).GetInput("file").Get().path
+    return out
+
+
+def test_a_material_keeps_its_name_when_another_set_of_that_name_comes(tmp_path, capsys):
+    # skin_b read "skin b"'s files after the second run (the first set moved to skin_b_2):
+    # a binding to skin_b rendered another texture set, exit 0
+    _colour(tmp_path / "skin.b.exr", 1)
+    _colour(tmp_path / "skin b.exr", 2)
+    _colour(tmp_path / "skin_b.exr", 3)
+    for name in ("skin.b.exr", "skin b.exr", "skin_b.exr"):
+        rc = main(["convert", str(tmp_path / name), "--radius", "1", "--target", "openpbr"])
+        assert rc == 0, capsys.readouterr()
+    assert _reads(tmp_path) == {"skin_b": "./skin.b.van-de-hulst.colour.exr",
+                                "skin_b_2": "./skin b.van-de-hulst.colour.exr",
+                                "skin_b_3": "./skin_b.van-de-hulst.colour.exr"}
+    # a set converted again keeps its own
+    rc = main(["convert", str(tmp_path / "skin b.exr"), "--radius", "2", "--target", "openpbr"])
+    assert rc == 0, capsys.readouterr()
+    assert _reads(tmp_path)["skin_b_2"] == "./skin b.van-de-hulst.colour.exr"
+
+
+@pytest.mark.parametrize("stem, ident", [("1skin", "_1skin"), ("peau_é", "peau__"),
+                                         ("皮膚", "__")])
+def test_usd_and_materialx_name_a_material_alike(tmp_path, capsys, stem, ident):
+    # 1skin was _skin in the .usda (its digit lost), _1skin in the .mtlx; peau_é peau___ and
+    # peau__ (USD replaced each byte of é)
+    _colour(tmp_path / f"{stem}.exr", 1)
+    rc = main(["convert", str(tmp_path / f"{stem}.exr"), "--radius", "1", "--target", "openpbr"])
+    assert rc == 0, capsys.readouterr()
+    assert _materials(tmp_path) == _mtlx_materials(tmp_path) == {ident}
+
+
+@pytest.mark.parametrize("order", [("skin.<UDIM>.exr", "skin.exr"),
+                                   ("skin.exr", "skin.<UDIM>.exr")])
+@pytest.mark.parametrize("runs", [1, 2])
+def test_a_tile_set_and_a_texture_of_one_stem_each_keep_their_material(tmp_path, capsys,
+                                                                       order, runs):
+    # one material, skin, read skin.van-de-hulst.*; the tile set's was dropped, "2 done"
+    _colour(tmp_path / "skin.1001.exr", 1)
+    _colour(tmp_path / "skin.exr", 2)
+    names = [[str(tmp_path / n) for n in order]] if runs == 1 else \
+        [[str(tmp_path / n)] for n in order]
+    for run in names:
+        rc = main(["convert", *run, "--radius", "1", "--target", "openpbr"])
+        assert rc == 0, capsys.readouterr()
+    reads = _reads(tmp_path)
+    assert sorted(reads.values()) == ["./skin.<UDIM>.van-de-hulst.colour.exr",
+                                      "./skin.van-de-hulst.colour.exr"], reads
+    assert set(reads) == {"skin", "skin_2"} == _mtlx_materials(tmp_path)
+
+
+@pytest.mark.usefixtures("on_device")
+def test_a_bakes_usda_and_mtlx_name_a_material_alike(tmp_path):
+    # a scene file's 1skin was the .usda's _skin (its digit lost) and the .mtlx's _1skin
+    from bdipole_cl import scene as scenes
+    from test_scene import SCENE, make_files
+    make_files(tmp_path, ("1001",))
+    text = SCENE.split("[[material]]\nname = \"grey\"")[0].replace("METHOD", "") \
+        .replace('name = "skin"', 'name = "1skin"') \
+        .replace('mfp = [1.2, 0.6, 0.3]', 'mfp = [1.2, 0.6, 0.3]\ntargets = ["openpbr"]')
+    (tmp_path / "scene.toml").write_text(text)
+    report = scenes.load(tmp_path / "scene.toml").plan().run()
+    assert report.exit_code == 0, report.summary()
+    mx = pytest.importorskip("MaterialX")
+    doc = mx.createDocument()
+    mx.readFromXmlFile(doc, str(tmp_path / "out" / "bdipole.mtlx"))
+    stage = Usd.Stage.Open(str(tmp_path / "out" / "bdipole.usda"))
+    prims = {p.GetName() for p in stage.Traverse() if UsdShade.Material(p)}
+    assert prims == {m.getName() for m in doc.getMaterialNodes()} == {"_1skin"}
+
+
+def _network_files(folder) -> dict:
+    """{shader prim path: the file it reads} of every texture node of the .usda."""
+    stage = Usd.Stage.Open(str(folder / "bdipole_convert.usda"))
+    out = {}
+    for prim in stage.Traverse():
+        shader = UsdShade.Shader(prim)
+        for name in ("file", "filename"):
+            if shader and shader.GetInput(name):
+                out[str(prim.GetPath())] = shader.GetInput(name).Get().path
+    return out
+
+
+def test_a_kept_network_never_reads_files_another_convention_rewrote(tmp_path, capsys):
+    # both runs wrote outs/s.colour.exr: the OpenPBR network kept from the first read the
+    # second's better-dipole colour and radius, exit 0
+    import hashlib
+    _colour(tmp_path / "in1" / "s.exr", 1)
+    out = str(tmp_path / "outs" / "{stem}.exr")
+    assert main(["convert", str(tmp_path / "in1" / "s.exr"), "--radius", "1", "--target",
+                 "openpbr", "-o", out]) == 0, capsys.readouterr()
+    reads = _network_files(tmp_path / "outs")
+    digest = {f: hashlib.md5((tmp_path / "outs" / f).read_bytes()).hexdigest()
+              for f in reads.values()}
+    assert main(["convert", str(tmp_path / "in1" / "s.exr"), "--radius", "1", "--source",
+                 "openpbr", "--target", "pxrsurface", "-o", out]) == 0, capsys.readouterr()
+    after = _network_files(tmp_path / "outs")
+    assert {k: v for k, v in after.items() if "openpbr" in k} == reads
+    for f, d in digest.items():
+        assert hashlib.md5((tmp_path / "outs" / f).read_bytes()).hexdigest() == d, f
+    pxr_files = {v for k, v in after.items() if "pxrsurface" in k}
+    assert pxr_files and not pxr_files & set(reads.values()), (pxr_files, reads)
+
+
+def test_a_layer_file_never_overwrites_an_input_of_the_run(tmp_path, capsys):
+    import hashlib
+    _colour(tmp_path / "a.exr", 1)
+    _colour(tmp_path / "a.van-de-hulst.colour.exr", 2)
+    before = hashlib.md5((tmp_path / "a.van-de-hulst.colour.exr").read_bytes()).hexdigest()
+    rc = main(["convert", str(tmp_path / "a.exr"), str(tmp_path / "a.van-de-hulst.colour.exr"),
+               "--radius", "1", "--target", "openpbr"])
+    out = capsys.readouterr().out
+    assert rc == 1 and "would overwrite an input of this run" in out, out
+    after = hashlib.md5((tmp_path / "a.van-de-hulst.colour.exr").read_bytes()).hexdigest()
+    assert after == before
+
+
+def test_inputs_of_one_name_in_two_folders_are_told_to_use_dir(tmp_path, capsys):
+    # the advice was "put <UDIM>, {udim}, {stem} or {name} in -o" to an -o with {stem}
+    _colour(tmp_path / "in1" / "s.exr", 1)
+    _colour(tmp_path / "in2" / "s.exr", 2)
+    rc = main(["convert", str(tmp_path / "in1" / "s.exr"), str(tmp_path / "in2" / "s.exr"),
+               "--radius", "1", "--target", "openpbr", "-o",
+               str(tmp_path / "outs" / "{stem}.exr")])
+    out = "".join(capsys.readouterr())
+    assert rc != 0 and "put {dir} (the inputs share their file name" in out, out
+
+
+@pytest.mark.parametrize("command", [["convert", "--radius", "1"], ["invert", "--mfp", "1"]])
+def test_an_unknown_field_in_o_is_a_usage_error(tmp_path, capsys, command):
+    # convert -o '{bogus}/x.exr' made a folder named {bogus}, exit 0
+    _colour(tmp_path / "a.exr", 1)
+    with pytest.raises(SystemExit) as exit_:     # argparse's usage error
+        main([command[0], str(tmp_path / "a.exr"), *command[1:], "-o",
+              str(tmp_path / "{bogus}" / "x.exr")])
+    err = capsys.readouterr().err
+    assert exit_.value.code == 2 and "{bogus} is no field" in err, err
+    assert not (tmp_path / "{bogus}").exists()
+
+
+def test_a_file_beside_the_outputs_that_failed_is_counted_apart_from_the_jobs(tmp_path,
+                                                                             capsys):
+    # "1 done, 1 failed" for one input when only bdipole_convert.mtlx failed, and the note
+    # named maps and records, which convert never writes
+    _colour(tmp_path / "a.exr", 1)
+    (tmp_path / "bdipole_convert.mtlx").write_text("<materialx/>\n")
+    rc = main(["convert", str(tmp_path / "a.exr"), "--radius", "1", "--target", "openpbr"])
+    out = capsys.readouterr().out
+    assert rc == 1, out
+    assert out.rstrip().endswith("1 done, 0 failed, 0 skipped; 3 files beside them (layer "
+                                 "file, materials); 1 failed beside them"), out
+
+
+def test_a_material_whose_files_are_gone_is_dropped_and_said(tmp_path, capsys):
+    # the s material was kept pointing at the deleted files, no message
+    _colour(tmp_path / "s.exr", 1)
+    _colour(tmp_path / "t.exr", 2)
+    assert main(["convert", str(tmp_path / "s.exr"), "--radius", "1", "--target",
+                 "openpbr"]) == 0, capsys.readouterr()
+    for f in tmp_path.glob("s.van-de-hulst.*"):
+        f.unlink()
+    capsys.readouterr()
+    assert main(["convert", str(tmp_path / "t.exr"), "--radius", "1", "--target",
+                 "openpbr"]) == 0
+    out = capsys.readouterr().out
+    assert "s (openpbr: ./s.van-de-hulst.colour.exr, ./s.van-de-hulst.radius.exr gone): " \
+           "not kept" in out, out
+    assert _materials(tmp_path) == _mtlx_materials(tmp_path) == {"t"}
+
+
+def test_a_material_of_a_layer_without_sources_keeps_its_name(tmp_path, capsys):
+    # a layer written before the sources were kept names its prims as USD's
+    # TfMakeValidIdentifier did (1skin: _skin): they stay as they were, none "not kept"
+    import json
+    from pxr import Sdf
+    _colour(tmp_path / "1skin.exr", 1)
+    _colour(tmp_path / "t.exr", 2)
+    assert main(["convert", str(tmp_path / "1skin.exr"), "--radius", "1", "--target",
+                 "openpbr"]) == 0, capsys.readouterr()
+    path = str(tmp_path / "bdipole_convert.usda")
+    layer = Sdf.Layer.FindOrOpen(path)
+    data = dict(layer.customLayerData)
+    data.pop("bdipole_convert_sources")
+    records = json.loads(data["bdipole_convert"])
+    data["bdipole_convert"] = json.dumps({"1skin": records["_1skin"]})
+    layer.customLayerData = data
+    layer.GetPrimAtPath("/bdipole_materials/_1skin").name = "_skin"
+    layer.Save()
+    del layer                        # out of USD's layer registry: the stage reads the file
+    capsys.readouterr()
+    assert main(["convert", str(tmp_path / "t.exr"), "--radius", "1", "--target",
+                 "openpbr"]) == 0
+    out = capsys.readouterr().out
+    assert "not kept" not in out, out
+    assert _materials(tmp_path) == _mtlx_materials(tmp_path) == {"_skin", "t"}

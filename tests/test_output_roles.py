@@ -200,3 +200,44 @@ def test_scenes_and_dask_refuse_a_layer_file_of_another_role(layer_files, tmp_pa
     report = scenes.load(tmp_path / "scene.toml").plan().run()
     assert report.exit_code == 1 and "holds a bdipole-cl output's sigma_a layer" in \
         report.summary(), report.summary()
+
+
+@pytest.fixture
+def old_exitance(layer_files, tmp_path):
+    """A blur's output as blur wrote it before it named its layer: no ``bdipole:layer``, its
+    methods, source and texel size in the header."""
+    buf = oiio.ImageBuf(str(layer_files["blurred.exitance"]))
+    buf.specmod().erase_attribute("bdipole:layer")
+    assert buf.spec().getattribute("bdipole:methods") is not None
+    path = tmp_path / "exit_old.exr"
+    assert buf.write(str(path)), buf.geterror()
+    return path
+
+
+@pytest.mark.parametrize("args", [
+    ["invert", "{skin}", "--mfp", "{file}", "-o", "{tmp}/x.exr"],
+    ["convert", "{skin}", "--radius", "{file}", "--target", "openpbr", "-o", "{tmp}/x.exr"],
+    ["invert", "{file}", "--mfp", "1", "-o", "{tmp}/x.exr"],
+], ids=["invert-mfp", "convert-radius", "invert-albedo"])
+def test_a_blur_output_without_its_layer_is_refused_as_another_role(old_exitance, tmp_path,
+                                                                   capsys, args):
+    # read as the mfp / radius (exit 0): the role check knew files only by bdipole:layer
+    fill = {"skin": str(tmp_path / "skin.exr"), "file": str(old_exitance),
+            "tmp": str(tmp_path)}
+    argv = [a.format(**fill) for a in args]
+    argv += ["--device", "intel", "--no-progress"] if argv[0] != "convert" else []
+    rc = main(argv)
+    out = "".join(capsys.readouterr())
+    assert rc != 0 and f"{old_exitance}: holds a bdipole-cl output's exitance layer " \
+                       f"(bdipole:methods)" in out, (rc, out)
+    assert not (tmp_path / "x.exr").exists()
+
+
+def test_a_scene_refuses_a_blur_output_without_its_layer_as_an_mfp(old_exitance, tmp_path):
+    from bdipole_cl import scene as scenes
+    (tmp_path / "scene.toml").write_text(
+        '[[material]]\nname = "skin"\nalbedo = "skin.exr"\nmfp = "exit_old.exr"\n'
+        'output = "out/skin.exr"\n')
+    report = scenes.load(tmp_path / "scene.toml").plan().run()
+    assert report.exit_code != 0 and "holds a bdipole-cl output's exitance layer" in \
+        report.summary(), report.summary()

@@ -192,3 +192,16 @@ def test_cli_stretch_of_meshes_that_share_texels(tmp_path):
     (one, _), = stretch_maps(tmp_path / "two.usda", size=32, prim="/a")
     np.testing.assert_array_equal(both.su, one.su)
     np.testing.assert_array_equal(both.sv, one.sv)
+
+
+def test_stretch_into_a_missing_folder_makes_it(tmp_path):
+    # exit 1 naming the temp file (Could not open "st/.quad.partial-....exr"); invert and
+    # preview make their output's folder
+    pts = [(0, 0, 0), (1, 0, 0), (0, 1, 0)]
+    path = write_obj(tmp_path / "quad.obj", pts, [(0.1, 0.1), (0.9, 0.1), (0.1, 0.9)],
+                     [[(0, 0), (1, 1), (2, 2)]])
+    run = subprocess.run([sys.executable, "-m", "bdipole_cl", "stretch", str(path), "-o",
+                          str(tmp_path / "st" / "quad.exr"), "--size", "16"],
+                         capture_output=True, text=True)
+    assert run.returncode == 0, run.stderr
+    assert (tmp_path / "st" / "quad.exr").is_file()

@@ -18,8 +18,8 @@ from .cli_crosscheck import cmd_crosscheck
 from .cli_options import (add_global_args, add_method_args, add_scheduler_args, cluster_client,
                           colorspace_arg, method_knobs)
 from .cli_types import (Parser, add_texture_arg, constant_or_texture, floats, fraction,
-                        length_unit, output_list, positive_float, positive_int, size,
-                        spelling_of, target_list)
+                        length_unit, output_list, output_pattern, positive_float,
+                        positive_int, size, spelling_of, target_list)
 from .user_kernel import SIGNATURES
 
 DESCRIPTION = """\
@@ -350,7 +350,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="relative IOR, one or per channel 'r,g,b'")
     p.add_argument("--outputs", type=output_list, default="sigma_a,sigma_s",
                    help="comma list from alpha, rho, sigma_a, sigma_s, sigma_t")
-    p.add_argument("-o", "--output", default="{dir}/{stem}.bdipole.exr",
+    p.add_argument("-o", "--output", default="{dir}/{stem}.bdipole.exr", type=output_pattern(),
                    help="output path pattern: {dir} {stem} {name} {udim} and a tile token "
                         "(may differ from the input's: tiles are converted)")
     p.add_argument("--half", action="store_true", help="write half floats")

@@ -7,12 +7,29 @@ import re
 from dataclasses import replace
 
 from ..io.mipmaps import TextureOptions
+from ..io.patterns import PATTERN_FIELDS
 from ..methods.registry import TEXTURE_RESIZE, TEXTURE_WRAP
 
 #: what argparse takes for a negative number (a value, not an option): its own rule (-5,
 #: -.5) widened to exponents and size suffixes, so that ``--max-memory -5M`` or ``--tol -1e-3``
 #: reach the option's type and its one-line error, not "expected one argument"
 NEGATIVE_NUMBER = re.compile(r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?[KMGkmg]?$")
+
+
+def output_pattern(*extra):
+    """An ``-o`` pattern's argparse type: every ``{field}`` in it one the command fills
+    (``PATTERN_FIELDS`` and ``extra``); another is a usage error naming it (it was written as
+    a folder of that name)."""
+    fields = PATTERN_FIELDS + extra
+
+    def check(text):
+        unknown = [f for f in re.findall(r"\{([^{}]*)\}", str(text)) if f not in fields]
+        if unknown:
+            raise argparse.ArgumentTypeError(
+                f"{text!r}: {{{unknown[0]}}} is no field; expected "
+                f"{', '.join('{' + f + '}' for f in fields)} (or a tile token)")
+        return text
+    return check
 
 
 def size(text):

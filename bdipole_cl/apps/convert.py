@@ -7,7 +7,7 @@ from ..methods.registry import ALPHA_CHANNEL
 from ..physics.conventions import CONVENTION
 from .cli_options import colorspace_arg
 from .cli_types import (add_texture_arg, constant_or_texture, floats, length_unit,
-                        positive_float, positive_int, size, spelling_of)
+                        output_pattern, positive_float, positive_int, size, spelling_of)
 
 EPILOG = """examples:
   bdipole-cl convert skin.<UDIM>.exr --radius 1.2,0.6,0.3 --source pxrsurface --target openpbr
@@ -43,6 +43,7 @@ def add_command(command):
                    "spread table's range (Cycles' conventions clamp it to 0..0.9 first)")
     p.add_argument("--unit", default="mm", type=length_unit, help="length unit of the radius")
     p.add_argument("-o", "--output", default="{dir}/{stem}.{target}.exr",
+                   type=output_pattern("target"),
                    help="output path pattern: {dir} {stem} {name} {target} and a tile token; "
                         "channels colour.* and radius.* (random-walk: sigma_a.*, sigma_s.*, "
                         "per unit)")

@@ -32,6 +32,10 @@ NO_LAYER_ROLES = ("irradiance",)
 #: (``bdipole:layer``: jobs.layer_files; a blur's output: "exitance") and a painted map
 #: (``bdipole:painted``, "{convention} {layer}": jobs.scene_maps)
 HELD_LAYER_KEYS = ("bdipole:layer", "bdipole:painted")
+#: header entries that say what a one-layer file of ours holds where it names no layer: a
+#: blur's parameters (a blur's output written before it wrote ``bdipole:layer``)
+IMPLIED_LAYER_KEYS = {"bdipole:methods": "exitance", "bdipole:texel_size": "exitance",
+                      "bdipole:border": "exitance"}
 #: one-layer files of ours a role also takes: a blur's exitance blurred again (light is light)
 ROLE_ALSO = {"irradiance": ("exitance",)}
 #: the held layers that are colour (tagged and shown as colour); every other one is data
@@ -118,15 +122,19 @@ def role_missing(names, role) -> str | None:
 def held_layer(spec) -> tuple | None:
     """(the layer, the header entry that says it) of a one-layer file of ours (its channels
     are plain R, G, B: only its header says what it holds), else None. ``spec``: an
-    ImageSpec or a {name: value} of its attributes."""
+    ImageSpec or a {name: value} of its attributes. Ours by any ``bdipole:*`` entry (a
+    file of an earlier version may lack ``bdipole:version`` or ``bdipole:layer``): the
+    layer it names, else the one its other entries imply (``IMPLIED_LAYER_KEYS``)."""
     get = spec.get if isinstance(spec, dict) else spec.getattribute
-    if not get("bdipole:version"):
+    names = spec.keys() if isinstance(spec, dict) else [a.name for a in spec.extra_attribs]
+    if not any(str(n).startswith("bdipole:") for n in names):
         return None
     for key in HELD_LAYER_KEYS:
         text = str(get(key) or "").split()
         if text:
             return text[-1], key
-    return None
+    return next(((layer, key) for key, layer in IMPLIED_LAYER_KEYS.items()
+                 if get(key) is not None), None)
 
 
 def role_refused(spec, role, what) -> str | None:

@@ -105,6 +105,15 @@ def refusal(path, force=False, is_ours=ours):
     return why if why and (not force or why.endswith("file path")) else None
 
 
+def telling_apart(jobs) -> str:
+    """The -o fields that tell ``jobs`` (their input files) apart: ``{dir}`` where they
+    share a file name in several folders, else the name's fields and the tile's."""
+    names = {os.path.basename(str(j)) for j in jobs}
+    if len(names) == 1 and len({os.path.dirname(str(j)) for j in jobs}) > 1:
+        return "{dir} (the inputs share their file name, in several folders)"
+    return "<UDIM>, {udim}, {stem} or {name}"
+
+
 def collisions(claims, force=False) -> list:
     """For each claim, in order: None if its output is safe to write, else the one-line
     reason (its output is an input of some job of the run, or two jobs share it, or it holds
@@ -137,7 +146,7 @@ def collisions(claims, force=False) -> list:
         elif len(writers[real]) > 1:
             others = ", ".join(j for j in writers[real] if j != c.job)
             bad[n] = (f"{c.job}: output {c.output} is also the output of {others}: put "
-                      f"<UDIM>, {{udim}}, {{stem}} or {{name}} in -o (a scene: its output key) so "
+                      f"{telling_apart(writers[real])} in -o (a scene: its output key) so "
                       f"each input has its own")
         else:
             why = refusal(c.output, force)

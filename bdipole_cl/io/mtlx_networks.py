@@ -18,8 +18,8 @@ from __future__ import annotations
 
 import MaterialX as mx
 
-from .mtlx_scene import valid_identifier
-from .networks import MTLX_INPUTS, MTLX_SPACES, Network, TextureRead, space_name
+from .networks import (MTLX_INPUTS, MTLX_SPACES, Network, TextureRead, identifier,
+                       mtlx_address, space_name)
 
 #: MaterialX's nodes of each target's shader
 CATEGORY = {"preview": "UsdPreviewSurface", "openpbr": "open_pbr_surface",
@@ -47,7 +47,7 @@ def _image(parent, name: str, read: TextureRead, type_name: str):
     """An ``image`` node reading ``read`` (a file whose first channels it reads: ValueError
     for a layer further in, which no generator reads): colour files of a colour input as
     ``color3`` with their ``colorspace``; data as ``vector3`` (or ``float``): never
-    colour-converted."""
+    colour-converted; its address modes the file's wrap (``networks.mtlx_address``)."""
     if read.first_channel:
         raise ValueError(f"{read.file}: an image node reads a file's first channels, not "
                          f"layer {read.layer!r} from channel {read.first_channel}")
@@ -58,6 +58,8 @@ def _image(parent, name: str, read: TextureRead, type_name: str):
     file.setValueString(read.file)
     if type_name.startswith("color") and read.colorspace not in ("auto", "raw"):
         file.setColorSpace(space_name(read.colorspace, MTLX_SPACES))
+    for axis in ("uaddressmode", "vaddressmode"):
+        node.addInput(axis, "string").setValueString(mtlx_address(read))
     return node
 
 
@@ -136,8 +138,8 @@ def document_text(materials, comment: str) -> str:
     for name, networks, _, unit_m in materials:
         mtlx = [n for n in networks if n.target.mtlx]
         main = next((i for i, n in enumerate(mtlx) if n.target.name != "preview"), 0)
-        chosen.append((valid_identifier(name), [(n, i == main) for i, n in enumerate(mtlx)]))
-        units[valid_identifier(name)] = unit_m
+        chosen.append((identifier(name), [(n, i == main) for i, n in enumerate(mtlx)]))
+        units[identifier(name)] = unit_m
     wired = [(ident, n, doc.addMaterialNode(doc.createValidChildName(ident)))
              for ident, nets in chosen for n, main in nets if main]
     wired += [(ident, n, doc.addMaterialNode(doc.createValidChildName(
@@ -146,5 +148,5 @@ def document_text(materials, comment: str) -> str:
     for ident, network, material in wired:
         add_network(doc, ident, network, material, units[ident])
     for name, _, reads, _ in materials:
-        add_coefficients(doc, valid_identifier(name), reads)
+        add_coefficients(doc, identifier(name), reads)
     return mx.writeToXmlString(doc)

@@ -21,11 +21,11 @@ scene file's ``unit`` may change. A material's name is a valid USD prim and file
 from __future__ import annotations
 
 import os
-import re
 
 import MaterialX as mx
 
 from . import tiles
+from .networks import identifier as valid_identifier
 from .scene_file import SceneError
 from .shaders import (TEXTURE_NODES, Input, Texture, imported_material, one_channel,
                       shader_mapping, unique_names)
@@ -135,14 +135,6 @@ def _through_cast(node):
             source.getCategory() not in TEXTURE_NODES:
         return node
     return source
-
-
-def valid_identifier(name: str) -> str:
-    """A MaterialX element name as a USD prim name (and file name): a namespaced one's ``:``
-    and any other character outside [A-Za-z0-9_] become ``_``, a leading digit gets one
-    before it (what USD's ``TfMakeValidIdentifier`` does)."""
-    name = re.sub(r"[^A-Za-z0-9_]", "_", name) or "_"
-    return f"_{name}" if name[0].isdigit() else name
 
 
 def surface_shader(material):

@@ -16,9 +16,11 @@ from __future__ import annotations
 import glob
 import math
 import os
+import re
 from dataclasses import asdict, dataclass, field
 
 from . import tiles, usdz
+from ..methods.registry import TEXTURE_WRAP
 from ..physics.conventions import CONVENTION
 from .colour import active_config
 from .patterns import PATTERN_FIELDS
@@ -31,7 +33,9 @@ class TextureRead:
     """One texture a network reads: ``file`` relative to the records folder (``./a.<UDIM>.exr``,
     or absolute where it is on another drive), ``colorspace`` (a declared name, ``raw`` for
     data, ``auto``: as the file declares), ``layer`` (the EXR layer, None: the file's first
-    channels) and ``first_channel`` (where it starts in the file as OpenImageIO reads it)."""
+    channels) and ``first_channel`` (where it starts in the file as OpenImageIO reads it);
+    ``wrap``: how a lookup beyond the edges reads it, as the file declares (a TEXTURE_WRAP
+    name; "clamp" where it declares none: the library's default)."""
 
     role: str                        # albedo, mfp, or an output's name
     file: str
@@ -39,6 +43,7 @@ class TextureRead:
     layer: str | None = None
     first_channel: int = 0
     channels: int = 3
+    wrap: str = "clamp"
 
     @property
     def tiled(self) -> bool:
@@ -106,10 +111,31 @@ class BakedMaterial:
     working_space: str = "auto"      # the colour maps' space (the bake's working space)
     layers: dict = field(default_factory=dict)   # {"albedo"/"mfp": (the EXR layer read, its
     #                                              first channel in the file)}
+    wrap: str = "clamp"              # the wrap its maps and coefficient files declare
 
     @property
     def unit_m(self) -> float:
         return UNIT_METERS[self.unit]
+
+
+def identifier(name: str) -> str:
+    """A material's name as USD (a prim) and MaterialX (an element) both take it, the one
+    name in the ``.usda`` and the ``.mtlx``: every character outside [A-Za-z0-9_] becomes
+    ``_`` (one per character), a leading digit gets one before it (``1skin``: ``_1skin``)."""
+    name = re.sub(r"[^A-Za-z0-9_]", "_", name) or "_"
+    return f"_{name}" if name[0].isdigit() else name
+
+
+def next_identifier(name: str, taken) -> str:
+    """``identifier(name)``, else where another material has it (``taken``, compared
+    casefolded: a-b, a_b; USD's and file systems' case may not tell them apart) the first
+    of ``_2``, ``_3``... that is free."""
+    taken = {t.casefold() for t in taken}
+    ident, k = identifier(name), 1
+    while ident.casefold() in taken:
+        k += 1
+        ident = f"{identifier(name)}_{k}"
+    return ident
 
 
 class NotWritten(Exception):
@@ -160,6 +186,12 @@ def relative_file(path: str, folder: str) -> str:
     except ValueError:                 # another drive: as it is
         return path.replace(os.sep, "/")
     return "./" + rel.replace(os.sep, "/")
+
+
+def mtlx_address(read: TextureRead) -> str:
+    """MaterialX's image address mode (``uaddressmode``, ``vaddressmode``) of the wrap the
+    file ``read`` declares (``TextureWrap.mtlx_address``)."""
+    return TEXTURE_WRAP[read.wrap].mtlx_address
 
 
 #: MaterialX's colour space names (its default colour management system's)
@@ -258,7 +290,7 @@ def converted_inputs(b: BakedMaterial, convention: str, folder: str) -> tuple:
     if "layers" in entry:                # one file of both layers (bdipole-cl convert's)
         return entry["layers"]
     return tuple(TextureRead(layer, relative_file(os.path.join(folder, entry[layer]), folder),
-                             space) for layer, space in (
+                             space, wrap=b.wrap) for layer, space in (
                                  ("colour", texture_space(b.working_space)),
                                  ("radius", "raw")))
 
@@ -338,11 +370,18 @@ def networks(b: BakedMaterial, folder: str) -> tuple:
     return written, why
 
 
-def layer_path(path: str, layer: str) -> str:
+def layer_path(path: str, layer: str, convention: str | None = None) -> str:
     """The file (or pattern) of one layer of an output of ours that holds several (``layer``
     of ``skin.<UDIM>.exr`` is ``skin.<UDIM>.{layer}.exr``): its channels alone, first, for
-    the texture nodes that read a file's first channels (``jobs.layer_files`` writes it)."""
-    return f"{path[:-4]}.{layer}.exr"
+    the texture nodes that read a file's first channels (``jobs.layer_files`` writes it).
+    ``convention``: the conversion's, named in the file where the output's name does not
+    already end with it (``skin.exr``: ``skin.van-de-hulst.colour.exr``), so that a run to
+    another convention into the same output never rewrites the files an earlier network
+    reads."""
+    base = path[:-4]
+    if convention and not base.endswith(f".{convention}"):
+        base = f"{base}.{convention}"
+    return f"{base}.{layer}.exr"
 
 
 def coefficient_reads(b: BakedMaterial, folder: str) -> tuple:
@@ -353,7 +392,7 @@ def coefficient_reads(b: BakedMaterial, folder: str) -> tuple:
         return ()
     try:
         return tuple(TextureRead(o, relative_file(layer_path(b.output, o), folder), "raw",
-                                 None, 0, len(b.channels.get(o, ())) or 3)
+                                 None, 0, len(b.channels.get(o, ())) or 3, b.wrap)
                      for o in b.outputs if b.channels.get(o))
     except NotWritten:
         return ()

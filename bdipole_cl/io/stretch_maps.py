@@ -10,6 +10,8 @@ blur keeps charts apart, ``--charts``), exact in float32 up to 2^24 charts.
 """
 from __future__ import annotations
 
+import os
+
 import numpy as np
 import OpenImageIO as oiio
 
@@ -55,8 +57,10 @@ def write_tile(tile: StretchTile, path, source="", meters_per_unit=1.0, header=N
                check=None):
     """One tile's EXR at ``path`` (verified, renamed into place); ``header``: more
     ``bdipole:*`` attributes (a scene's up-to-date key); ``check``: called just before the
-    rename (an input that changed raises: nothing written)."""
+    rename (an input that changed raises: nothing written). Its folder is made where it is
+    missing, as every output's is."""
     check_output_format(path)
+    os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
     px = np.stack([tile.su, tile.sv, chart_channel(tile)], axis=-1).astype(np.float32)
     writer = Writer(path, tile_spec(tile, source, meters_per_unit, header))
     try:

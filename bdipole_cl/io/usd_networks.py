@@ -22,7 +22,7 @@ from __future__ import annotations
 
 from pxr import Gf, Sdf, Sdr, UsdShade
 
-from .networks import USD_SPACES, Network, TextureRead, space_name
+from .networks import USD_SPACES, Network, TextureRead, mtlx_address, space_name
 
 #: RenderMan's declared types of the PxrSurface and PxrTexture parameters a network uses
 #: (PxrSurface.args, PxrTexture.args)
@@ -104,6 +104,13 @@ def _file_input(shader, shader_id, name, read: TextureRead):
     return inp
 
 
+def _address_modes(shader, shader_id, read: TextureRead):
+    """A MaterialX image's ``uaddressmode`` and ``vaddressmode``: the file's wrap (MaterialX's
+    default, periodic, would read across a tile's edge)."""
+    for axis in ("uaddressmode", "vaddressmode"):
+        _input(shader, shader_id, axis, mtlx_address(read))
+
+
 def _output(shader, shader_id, name):
     return shader.CreateOutput(name, sdf_type(shader_id, name))
 
@@ -135,10 +142,12 @@ def pxr_texture(stage, base, read: TextureRead):
 
 def mtlx_texture(stage, base, read: TextureRead):
     """MaterialX ``image`` (ND_image_color3) of ``read``: its file and colour space (raw for
-    data, which MaterialX does not convert); the file's first channels, never a ``layer``
-    (MaterialX's generators do not read one: ``mtlx_networks``)."""
+    data, which MaterialX does not convert), its address modes the file's wrap; the file's
+    first channels, never a ``layer`` (MaterialX's generators do not read one:
+    ``mtlx_networks``)."""
     tex = _shader(stage, f"{base}_{read.role}", "ND_image_color3")
     _file_input(tex, "ND_image_color3", "file", read)
+    _address_modes(tex, "ND_image_color3", read)
     return _output(tex, "ND_image_color3", "out")
 
 
@@ -178,5 +187,6 @@ def author_coefficients(stage, material_path: str, reads) -> None:
         shader_id = "ND_image_vector3" if read.channels >= 3 else "ND_image_float"
         node = _shader(stage, f"{graph.GetPath()}/{read.role}", shader_id)
         _file_input(node, shader_id, "file", read)
+        _address_modes(node, shader_id, read)
         graph.CreateOutput(read.role, sdf_type(shader_id, "out")).ConnectToSource(
             _output(node, shader_id, "out"))

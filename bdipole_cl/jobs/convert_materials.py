@@ -15,16 +15,20 @@ never over a file this tool did not write there.
 """
 from __future__ import annotations
 
+import glob
 import json
 import os
+from dataclasses import replace
 from pathlib import Path
 
 from ..io import tiles
 from ..io.channels import COLOUR_LAYERS
 from ..io.colour import resolve_working_space
 from ..io.images import TextureError, is_regular_file
-from ..io.networks import (BakedMaterial, NotWritten, TextureRead, layer_path, network_of,
-                           network_record, networks, relative_file)
+from ..io.mipmaps import texture_options
+from ..io.networks import (BakedMaterial, NotWritten, TextureRead, identifier, layer_path,
+                           network_of, network_record, networks, next_identifier,
+                           relative_file)
 from ..io.scene_file import UNIT_METERS
 from ..io.targets import TARGET
 from .layer_files import layer_files
@@ -34,9 +38,12 @@ from .scene_records import own_document, write_if_changed
 
 LAYER = "bdipole_convert.usda"
 DOCUMENT = "bdipole_convert.mtlx"
-#: the layer's customLayerData key of every network it holds, as JSON: {material: {target:
-#: networks.network_record}}
+#: the layer's customLayerData key of every network it holds, as JSON: {material's identifier:
+#: {target: networks.network_record}}
 RECORDS = "bdipole_convert"
+#: the layer's customLayerData key of what each material converts, as JSON: {identifier: its
+#: input file or tile pattern, relative to the folder}: a set converted again keeps its name
+SOURCES = "bdipole_convert_sources"
 #: the up axis the layer states (USD's fallback; the layer holds no geometry)
 UP_AXIS = "Y"
 
@@ -70,24 +77,38 @@ def material_name(pattern: str) -> str:
 
 
 def layered(pattern: str, files: list, working_space: str, folder: str, inputs, written,
-            texture=None):
+            texture, convention: str):
     """The (colour, radius) TextureReads of one converted set: each layer's own file beside
     each output file (``layer_files``; ``texture``: the run's TextureOptions), named by the
-    output's pattern."""
+    output's pattern and the ``convention`` (a run to another convention into the same
+    output writes files of its own: an earlier network never reads its data)."""
     working = resolve_working_space(working_space)
+    options = texture_options(texture)
+    wrap = options.wrap_mode if options else "clamp"     # what the layer files declare
     for f in files:
         try:
-            layer_files(f, COLOUR_LAYERS, working, written, inputs, texture)
+            layer_files(f, COLOUR_LAYERS, working, written, inputs, texture, convention)
         except TextureError as exc:
             raise NotWritten(str(exc)) from None
-    return (TextureRead("colour", relative_file(layer_path(pattern, "colour"), folder),
-                        working_space),
-            TextureRead("radius", relative_file(layer_path(pattern, "radius"), folder), "raw"))
+    return tuple(TextureRead(layer, relative_file(layer_path(pattern, layer, convention),
+                                                  folder), space, wrap=wrap)
+                 for layer, space in (("colour", working_space), ("radius", "raw")))
+
+
+def source_of(path: str, folder: str) -> str:
+    """What a converted set is, as its material's record keeps it: its input file or tile
+    pattern (tile token as ``<UDIM>``) relative to the materials' ``folder``."""
+    conv = tiles.token_of(path)
+    path = path.replace(conv.token, "<UDIM>") if conv else path
+    try:
+        return os.path.relpath(os.path.abspath(path), folder).replace(os.sep, "/")
+    except ValueError:                   # another drive
+        return os.path.abspath(path).replace(os.sep, "/")
 
 
 def converted_sets(inputs, output: str, convention: str, results) -> dict:
-    """{folder: [(material name, output pattern, its output files)]} of a convert run: a
-    tile pattern's files are one set (its output pattern keeps the token); every other
+    """{folder: [(its input, material name, output pattern, its output files)]} of a convert
+    run: a tile pattern's files are one set (its output pattern keeps the token); every other
     converted file is a set of its own, whatever named it (a path or a glob: the file, never
     the pattern's text), in the folder its output is in."""
     done = {os.path.abspath(r.output): r for r in results
@@ -101,10 +122,11 @@ def converted_sets(inputs, output: str, convention: str, results) -> dict:
         if files:
             taken.update(os.path.abspath(f) for f in files)
             sets.setdefault(os.path.dirname(out), []).append(
-                (material_name(pattern), out, files))
+                (pattern, material_name(pattern), out, files))
     for out, r in done.items():
         if out not in taken:
-            sets.setdefault(os.path.dirname(out), []).append((material_name(r.path), out, [out]))
+            sets.setdefault(os.path.dirname(out), []).append(
+                (r.path, material_name(r.path), out, [out]))
     return sets
 
 
@@ -135,76 +157,128 @@ def folder_materials(folder, found, targets, convention, eta, unit, working_spac
                      texture) -> list:
     """The materials of one folder's converted sets ``found`` (``converted_sets``) joined to
     the earlier runs' there: [FileResult]."""
-    earlier, stage_unit_m, lost = earlier_networks(folder)
+    earlier, made_from, stage_unit_m, lost = earlier_networks(folder)
     stage_unit_m = stage_unit_m or UNIT_METERS[unit]
     rows, written = [], []
     if lost:
         rows.append(FileResult(os.path.join(folder, LAYER), os.path.join(folder, LAYER),
-                               status="ok", notes=[lost], companion=True))
-    for name, out, files in found:
+                               status="ok", notes=["materials", lost], companion=True))
+    for source, name, out, files in found:
         try:
             colour, radius = layered(out, files, working_space, folder, sources, written,
-                                     texture)
+                                     texture, convention)
         except NotWritten as exc:      # an unwritten material is a failure, named
             rows.append(FileResult(name, os.path.join(folder, LAYER),
-                                   error=f"{name}: no material: {exc}"))
+                                   error=f"{name}: no material: {exc}", companion=True))
             continue
-        baked = BakedMaterial(name, "", working_space, (1.0,), (1.0,), "diffuse", "better",
+        ident = material_identifier(source_of(source, folder), name, made_from)
+        baked = BakedMaterial(ident, "", working_space, (1.0,), (1.0,), "diffuse", "better",
                               tuple(eta), unit, stage_unit_m, targets,
                               maps={convention: {"layers": (colour, radius)}})
         made, not_written = networks(baked, folder)
-        earlier.setdefault(name, {}).update({n.target.name: n for n in made})
+        earlier.setdefault(ident, {}).update({n.target.name: n for n in made})
         rows += [FileResult(name, os.path.join(folder, LAYER), error=f"{name}: {t} not "
-                            f"written: {w}") for t, w in not_written.items()]
+                            f"written: {w}", companion=True) for t, w in not_written.items()]
     rows += [FileResult(p, p, status="ok", notes=["layer file"], companion=True)
              for p in written]
-    return rows + write_convert_records(earlier, stage_unit_m, folder)
+    gone = drop_unread(earlier, folder)
+    if gone:
+        rows.append(FileResult(os.path.join(folder, LAYER), os.path.join(folder, LAYER),
+                               status="ok", notes=["materials", gone], companion=True))
+    return rows + write_convert_records(earlier, made_from, stage_unit_m, folder)
 
 
-def prim_names(names) -> dict:
-    """{material name: its prim's name under FILE_MATERIALS}: a valid identifier, made
-    distinct where two names give one (a-b, a_b: a_b, a_b_2); the records and the layer's
-    prims are matched through it."""
+def is_read(read: TextureRead, folder: str) -> bool:
+    """Whether the file (or a tile of the set) a network reads is there: ``read.file``
+    relative to ``folder``; one in a package is taken as there (the package is the user's)."""
+    if "[" in read.file:
+        return True
+    path = os.path.join(folder, read.file)
+    return bool(glob.glob(glob.escape(path).replace("<UDIM>", "[1-9][0-9][0-9][0-9]"))) \
+        if read.tiled else os.path.isfile(path)
+
+
+def drop_unread(materials: dict, folder: str) -> str | None:
+    """Drop from ``materials`` ({identifier: {target: Network}}) each network a file it
+    reads is gone from (a kept network would render nothing, or what comes there next), and
+    each material left without one; what was dropped (None: nothing)."""
+    gone = []
+    for ident, by_target in list(materials.items()):
+        for target, network in list(by_target.items()):
+            missing = [r.file for r in network.textures if not is_read(r, folder)]
+            if missing:
+                del by_target[target]
+                gone.append(f"{ident} ({target}: {', '.join(missing)} gone)")
+        if not by_target:
+            del materials[ident]
+    return (f"{'; '.join(gone)}: not kept (convert them again)") if gone else None
+
+
+def material_identifier(source: str, name: str, sources: dict) -> str:
+    """The identifier of the material converting ``source`` (``source_of``), its prim's and
+    its MaterialX element's name: the one an earlier run gave it (``sources``: {identifier:
+    source, None where a run before the sources were recorded wrote it: its name claims
+    it}), else ``name``'s, numbered past every other material's (``next_identifier``): an
+    existing material keeps its name, whatever is converted after it. ``sources`` gets it."""
+    ident = next((i for i, s in sources.items() if s == source), None)
+    if ident is None and sources.get(identifier(name), "") is None:
+        ident = identifier(name)
+    ident = ident or next_identifier(name, sources)
+    sources[ident] = source
+    return ident
+
+
+def legacy_identifiers(names) -> dict:
+    """{name: its prim's name} of the records of a run before the sources were kept (keyed
+    by name): USD's ``TfMakeValidIdentifier``, a clash numbered in sorted order, as that run
+    named them; kept, so that an existing material keeps its name (each is a valid
+    ``identifier``: the .mtlx names it alike)."""
     from pxr import Tf
-    out, taken = {}, set()
+    out = {}
     for name in sorted(names):
         ident, k = Tf.MakeValidIdentifier(name), 1
-        while ident.casefold() in taken:
+        while ident.casefold() in {i.casefold() for i in out.values()}:
             k += 1
             ident = f"{Tf.MakeValidIdentifier(name)}_{k}"
-        taken.add(ident.casefold())
         out[name] = ident
     return out
 
 
 def earlier_networks(folder) -> tuple:
-    """({material: {target: Network}} of the convert layer in ``folder`` (this tool's), its
-    metres per unit (None: no such layer), and what of it cannot be kept (None: all))."""
+    """({identifier: {target: Network}} of the convert layer in ``folder`` (this tool's),
+    {identifier: what it converts (``source_of``; None: not recorded)}, its metres per unit
+    (None: no such layer), and what of it cannot be kept (None: all))."""
     path = os.path.join(folder, LAYER)
     if not (is_regular_file(path) and _own_layer(path)):
-        return {}, None, None
+        return {}, {}, None, None
     from pxr import Sdf, UsdGeom
     layer = Sdf.Layer.OpenAsAnonymous(path)
     unit_m = layer.pseudoRoot.GetInfo(UsdGeom.Tokens.metersPerUnit) \
         if layer.pseudoRoot.HasInfo(UsdGeom.Tokens.metersPerUnit) else None
-    found = {}
+    found, sources = {}, {}
     try:
-        for name, by_target in json.loads(layer.customLayerData.get(RECORDS, "{}")).items():
-            found[name] = {t: network_of(r) for t, r in by_target.items()}
+        sources = {str(i): str(s) for i, s in json.loads(
+            layer.customLayerData.get(SOURCES, "{}")).items()}
+        records = json.loads(layer.customLayerData.get(RECORDS, "{}"))
+        idents = {n: n for n in records} if sources else legacy_identifiers(records)
+        for name, by_target in records.items():
+            found[idents[name]] = {t: replace(network_of(r), material=idents[name])
+                                   for t, r in by_target.items()}
     except (KeyError, TypeError, ValueError, AttributeError):
-        found = {}
+        found, sources = {}, {}
+    sources = {i: sources.get(i) for i in found}
     root = layer.GetPrimAtPath(FILE_MATERIALS)
     names = sorted(c.name for c in root.nameChildren) if root else []
-    kept = set(prim_names(found).values())
-    lost = [n for n in names if n not in kept]
+    lost = [n for n in names if n not in found]
     note = (f"{', '.join(lost)}: written by an earlier version, without the records a "
             f"merge needs; not kept (convert them again)") if lost else None
-    return found, (unit_m if found else None), note
+    return found, sources, (unit_m if found else None), note
 
 
-def write_convert_records(materials: dict, stage_unit_m: float, folder) -> list:
-    """The layer and document of ``materials`` ({name: {target: Network}}), metres per unit
-    ``stage_unit_m``; [FileResult] of each file written or refused."""
+def write_convert_records(materials: dict, sources: dict, stage_unit_m: float, folder) -> list:
+    """The layer and document of ``materials`` ({identifier: {target: Network}}; ``sources``:
+    {identifier: what it converts}), metres per unit ``stage_unit_m``; [FileResult] of each
+    file written or refused."""
     from pxr import Sdf, Usd, UsdGeom, UsdShade
 
     from ..io import usd_networks
@@ -215,16 +289,18 @@ def write_convert_records(materials: dict, stage_unit_m: float, folder) -> list:
     UsdGeom.SetStageMetersPerUnit(stage, stage_unit_m)
     UsdGeom.SetStageUpAxis(stage, UP_AXIS)
     documented = []
-    for name, ident in prim_names(materials).items():
+    for ident in sorted(materials):
         path = f"{FILE_MATERIALS}/{ident}"
         UsdShade.Material.Define(stage, path)
-        by_target = [materials[name][t] for t in sorted(materials[name])]
+        by_target = [materials[ident][t] for t in sorted(materials[ident])]
         for network in by_target:
             usd_networks.author(stage, path, network)
-        documented.append((name, by_target, (), stage_unit_m))
-    layer.customLayerData = {RECORDS: json.dumps(
-        {name: {t: network_record(n) for t, n in by.items()} for name, by in materials.items()},
-        sort_keys=True)}
+        documented.append((ident, by_target, (), stage_unit_m))
+    layer.customLayerData = {
+        RECORDS: json.dumps({ident: {t: network_record(n) for t, n in by.items()}
+                             for ident, by in materials.items()}, sort_keys=True),
+        SOURCES: json.dumps({i: s for i, s in sources.items() if i in materials and s},
+                            sort_keys=True)}
     texts = {os.path.join(folder, LAYER): layer.ExportToString(),
              os.path.join(folder, DOCUMENT): document_text(
                  documented, f"{LAYER_MARK}converted textures: their materials")}
@@ -234,7 +310,7 @@ def write_convert_records(materials: dict, stage_unit_m: float, folder) -> list:
                                           or _own_layer(path)):
             rows.append(FileResult(path, path, error=f"{path} exists and was not written by "
                                                      f"bdipole-cl: the materials go there; "
-                                                     f"move it"))
+                                                     f"move it", companion=True))
         elif write_if_changed(path, text):
             rows.append(FileResult(path, path, status="ok", notes=["materials"],
                                    companion=True))

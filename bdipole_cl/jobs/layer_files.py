@@ -25,15 +25,16 @@ from ..io.networks import layer_path
 
 
 def layer_files(path: str, layers, working, written: list, inputs=frozenset(),
-                texture=None) -> dict:
+                texture=None, convention=None) -> dict:
     """{layer: its file} of the output ``path`` (written unless all are up to date; each one
     written added to ``written``); ``working``: the WorkingSpace the output is in (a colour
     layer's tag; every other layer is data: ``output_spec``); ``inputs``: the real paths of
     the run's inputs; ``texture``: the run's TextureOptions (each file a tiled, mip-mapped
-    texture as the output is: every file a network reads), or None. TextureError, OSError
+    texture as the output is: every file a network reads), or None; ``convention``: a
+    conversion's, named in each file (``networks.layer_path``). TextureError, OSError
     on failure: a layer the output does not hold, a file there that is an input or not this
     tool's."""
-    outs = {layer: layer_path(path, layer) for layer in layers}
+    outs = {layer: layer_path(path, layer, convention) for layer in layers}
     for out in outs.values():
         why = (f"{out}: a layer's file would overwrite an input of this run" if
                os.path.realpath(out) in inputs else foreign(out))

@@ -19,7 +19,8 @@ class FileResult:
     colour: str | None = None                       # its colour path (ColourPath.describe)
     values: dict = field(default_factory=dict)      # a constant material's coefficients
     info: object = None                             # a blur's BlurInfo (None: not a blur)
-    companion: bool = False       # a file written beside the outputs (a layer's, materials)
+    companion: bool = False       # a file beside the outputs (a layer's, materials): counted
+    #                               apart from the jobs, by its first note (its kind)
 
     @property
     def mtexel_per_s(self):
@@ -52,12 +53,15 @@ class BatchReport:
             if r is not None and r.colour:
                 lines.append(f"  colour: {r.colour}")
         done = sum(r.status == "ok" and not r.companion for r in self.results)
-        beside = sum(r.status == "ok" and r.companion for r in self.results)
-        failed = sum(r.status == "failed" for r in self.results)
+        beside = [r for r in self.results if r.status == "ok" and r.companion]
+        kinds = list(dict.fromkeys(r.notes[0] for r in beside if r.notes))
+        failed = sum(r.status == "failed" and not r.companion for r in self.results)
+        beside_failed = sum(r.status == "failed" and r.companion for r in self.results)
         skipped = sum(r.status == "skipped" for r in self.results)
         cancelled = sum(r.status == "cancelled" for r in self.results)
         lines.append(f"{done} done, {failed} failed, {skipped} skipped"
                      + (f", {cancelled} cancelled" if cancelled else "")
-                     + (f"; {beside} files beside them (layer files, maps, materials, "
-                        f"records)" if beside else ""))
+                     + (f"; {len(beside)} files beside them ({', '.join(kinds)})"
+                        if beside else "")
+                     + (f"; {beside_failed} failed beside them" if beside_failed else ""))
         return "\n".join(lines)

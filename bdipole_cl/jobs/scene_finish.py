@@ -29,5 +29,6 @@ def finish_bake(plan, results: list) -> BatchReport:
                if why == DROPPED else
                FileResult(p, p, status="ok", notes=[why], companion=True)
                if why in (MAPPED, LAYERED) else
-               FileResult(p, p, error=why) for p, why in write_records(plan, results)]
+               FileResult(p, p, error=why, companion=True)
+               for p, why in write_records(plan, results)]
     return BatchReport(results + records + unbaked_materials(plan.scene))

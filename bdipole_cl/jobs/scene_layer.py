@@ -13,7 +13,8 @@ from ..io import tiles
 from ..io.channels import classify_channels
 from ..io.colour import resolve_working_space
 from ..io.images import image_header
-from ..io.networks import BakedMaterial, coefficient_reads, has_fields, networks
+from ..io.networks import (BakedMaterial, coefficient_reads, has_fields, networks,
+                           next_identifier)
 from ..io.scene_file import UNIT_METERS
 
 #: the first words of the records layer's comment: the mark of this tool's own layer
@@ -27,7 +28,8 @@ def baked_material(m, entry: dict, stage_unit_m: float) -> BakedMaterial:
         tuple(m.eta), m.unit, stage_unit_m, tuple(m.targets),
         None if m.constant else m.output, tuple(m.outputs), entry.get("channels", {}),
         entry.get("first_channel", {}), entry.get("maps"),
-        resolve_working_space(m.working_space).name, painted_layers(m))
+        resolve_working_space(m.working_space).name, painted_layers(m),
+        m.texture.wrap_mode if m.texture else "clamp")
 
 
 def painted_layers(m) -> dict:
@@ -103,7 +105,6 @@ class Recorded:
 def recorded(scene, records: dict) -> list:
     """[(Recorded, manifest entry, Material)] of every baked material with records: each
     imported one, and a scene file's own ones with targets."""
-    from pxr import Tf
     by_name = {e["name"]: e for e in records["materials"]}
     materials = {m.name: m for m in scene.materials}
     found, taken = [], set()
@@ -120,11 +121,8 @@ def recorded(scene, records: dict) -> list:
         entry = by_name.get(m.name)
         if m.name in imported or not m.targets or not entry or not entry.get("baked"):
             continue
-        ident, k = Tf.MakeValidIdentifier(m.name), 1
-        while ident.casefold() in taken:      # two names one identifier (a-b, a_b)
-            k += 1
-            ident = f"{Tf.MakeValidIdentifier(m.name)}_{k}"
-        taken.add(ident.casefold())
+        ident = next_identifier(m.name, taken)   # two names one identifier (a-b, a_b)
+        taken.add(ident)
         found.append((Recorded(m.name, f"{FILE_MATERIALS}/{ident}", "def", unit_m), entry, m))
     return found
 
@@ -276,12 +274,14 @@ def record_prim_over(spec):
 
 def mtlx_text(scene, records: dict, folder) -> str:
     """bdipole.mtlx: each baked imported material's MaterialX networks and coefficients graph
-    (``io.mtlx_networks``), the same as the layer's."""
+    (``io.mtlx_networks``), the same as the layer's, a scene file's material named as its
+    prim is."""
     from ..io.mtlx_networks import document_text
     found = []
     for where, entry, m in recorded(scene, records):
         baked = baked_material(m, entry, where.unit_m)
-        found.append((where.name, networks(baked, folder)[0], coefficient_reads(baked, folder),
+        name = where.path.rsplit("/", 1)[-1] if where.kind == "def" else where.name
+        found.append((name, networks(baked, folder)[0], coefficient_reads(baked, folder),
                       where.unit_m))
     return document_text(found, f"{LAYER_MARK}{os.path.basename(str(scene.source or scene.path))}"
                                 f": the materials of bdipole.usda as MaterialX "

@@ -141,12 +141,25 @@ BORDER = Registry("border", (
 ))
 BORDERS = BORDER.names
 
+@dataclass(frozen=True)
+class TextureWrap(Option):
+    """How a lookup beyond a texture's edges reads it, and MaterialX's image address mode
+    of it (``uaddressmode``, ``vaddressmode``: its default, periodic, would read across a
+    tile's edge)."""
+
+    mtlx_address: str = "clamp"
+
+
 #: how a lookup beyond a texture output's edges reads it (OpenImageIO's ``wrapmodes``, maketx
 #: ``--wrap``, txmake ``-mode``; docs/textures.md)
-TEXTURE_WRAP = Registry.of(
-    "wrap", clamp="the nearest edge texel (no seam at a UDIM tile's edge; the default)",
-    black="0 beyond the edges (maketx's default: a tile's edge reads dark)",
-    periodic="the texture repeats", mirror="the texture repeats, mirrored")
+TEXTURE_WRAP = Registry("wrap", (
+    TextureWrap("clamp", "the nearest edge texel (no seam at a UDIM tile's edge; the default)",
+                mtlx_address="clamp"),
+    TextureWrap("black", "0 beyond the edges (maketx's default: a tile's edge reads dark)",
+                mtlx_address="constant"),            # the image's default value, 0
+    TextureWrap("periodic", "the texture repeats", mtlx_address="periodic"),
+    TextureWrap("mirror", "the texture repeats, mirrored", mtlx_address="mirror"),
+))
 #: level 0 of a texture output resized to powers of two per axis (txmake ``-resize``; maketx
 #: ``--resize`` is up), by the area average that keeps its mean
 TEXTURE_RESIZE = Registry.of(

@@ -55,17 +55,23 @@ def layer_files(path: str, layers, working, written: list, inputs=frozenset(),
                                f"{', '.join(names)})")
         header = header_fields(inputs, digest) | {"layer": layer}
         half = all(str(f) == "half" for f in (list(spec.channelformats) or [spec.format]))
-        writer = Writer(out, output_spec(spec, [short_name(names[i]) for i in idx], -1, half,
-                                         header, working=working,
-                                         data=layer != COLOUR_LAYERS[0]), texture=texture)
-        try:
-            writer.write_band(0, spec.height, px[..., idx])
-            writer.commit()
-        except BaseException:
-            writer.abort()
-            raise
+        write_whole(Writer(out, output_spec(spec, [short_name(names[i]) for i in idx], -1, half,
+                                            header, working=working,
+                                            data=layer != COLOUR_LAYERS[0]), texture=texture),
+                    px[..., idx])
         written.append(out)
     return outs
+
+
+def write_whole(writer: Writer, pixels) -> None:
+    """``pixels`` (H x W x C) as the whole of ``writer``'s file, committed (temp file, verified,
+    renamed), or the temp file removed on any failure or stop."""
+    try:
+        writer.write_band(0, pixels.shape[0], pixels)
+        writer.commit()
+    except BaseException:
+        writer.abort()
+        raise
 
 
 def coefficient_layers(materials, outcome, inputs) -> tuple:

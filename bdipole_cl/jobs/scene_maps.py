@@ -29,6 +29,7 @@ from ..io.mipmaps import texture_options
 from ..io.targets import TARGET
 from ..physics.conventions import CONVENTION
 from ..physics.reference import mu_tr_over_sigma_t, rd_of_rho
+from .layer_files import write_whole
 
 #: what a map's layers hold
 LAYERS = ("colour", "radius")
@@ -133,14 +134,9 @@ def write_maps(m, coefficients: str, convention: str, written: list) -> dict:
     for layer, out in outs.items():
         header = header_fields(inputs, digest) | {PAINTED_MARK.split(":")[1]: f"{convention} "
                                                   f"{layer}"}
-        writer = Writer(out, output_spec(spec, suffixes, -1, False, header, working=working,
-                                         data=layer != "colour"), texture=texture)
-        try:
-            writer.write_band(0, spec.height, maps[layer])
-            writer.commit()
-        except BaseException:
-            writer.abort()
-            raise
+        write_whole(Writer(out, output_spec(spec, suffixes, -1, False, header, working=working,
+                                            data=layer != "colour"), texture=texture),
+                    maps[layer])
         written.append(out)
     return outs
 

@@ -463,3 +463,4 @@ def test_a_material_of_a_layer_without_sources_keeps_its_name(tmp_path, capsys):
     out = capsys.readouterr().out
     assert "not kept" not in out, out
     assert _materials(tmp_path) == _mtlx_materials(tmp_path) == {"_skin", "t"}
+

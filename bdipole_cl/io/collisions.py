@@ -30,11 +30,18 @@ SVG_MARK = f"<dc:creator>\n     <cc:Agent>\n      <dc:title>{PICTURE_MARK}</dc:t
 
 @dataclass(frozen=True)
 class Claim:
-    """What one job writes and reads: ``inputs`` is {role: path} (None paths ignored)."""
+    """What one job writes and reads: ``inputs`` is {role: path} (None paths ignored);
+    ``companions``: the files it writes beside ``output`` (a conversion's layer files), each
+    checked as its output is against every input and every other file the run writes."""
 
     job: str                       # how messages name the job (its source file)
     output: str
     inputs: dict = field(default_factory=dict)
+    companions: tuple = ()
+
+    def written(self) -> tuple:
+        """Every file the job writes: its output, then its companions."""
+        return ((self.output,) if self.output else ()) + tuple(self.companions)
 
 
 def file_key(path) -> tuple:
@@ -129,30 +136,41 @@ def collisions(claims, force=False) -> list:
             if inode is not None:
                 readers_by_inode.setdefault(inode, (c.job, role, p))
     writers = {}
-    for c in claims:
-        if c.output:                                   # a job without an output only reads
-            writers.setdefault(file_key(c.output)[0], []).append(c.job)
+    for c in claims:                                   # a job without an output only reads
+        for p in c.written():
+            writers.setdefault(file_key(p)[0], []).append((c.job, p == c.output))
     bad = [None] * len(claims)
     for n, c in enumerate(claims):
-        if not c.output:
-            continue
-        real, inode = file_key(c.output)
-        hit = readers_by_path.get(real) or (readers_by_inode.get(inode) if inode else None)
-        if hit:
-            job, role, p = hit
-            whose = "its own" if job == c.job else f"{job}'s"
-            bad[n] = (f"{c.job}: output {c.output} would overwrite an input ({whose} {role} "
-                      f"{p}); choose another -o (a scene: its output key)")
-        elif len(writers[real]) > 1:
-            others = ", ".join(j for j in writers[real] if j != c.job)
-            bad[n] = (f"{c.job}: output {c.output} is also the output of {others}: put "
-                      f"{telling_apart(writers[real])} in -o (a scene: its output key) so "
-                      f"each input has its own")
-        else:
+        for p in c.written():
+            bad[n] = written_clash(c, p, readers_by_path, readers_by_inode, writers)
+            if bad[n]:
+                break
+        if not bad[n] and c.output:
             why = refusal(c.output, force)
-            if why:
-                bad[n] = f"{c.job}: {why}"
+            bad[n] = f"{c.job}: {why}" if why else None
     return bad
+
+
+def written_clash(c: Claim, path, readers_by_path, readers_by_inode, writers):
+    """Why ``c`` may not write ``path`` (its output or a companion): an input of the run is
+    there, or another job writes it too (as its output or a companion); else None.
+    ``writers``: {real path: [(job, whether it is that job's output)]}."""
+    own = path == c.output
+    what = "output" if own else "layer file"
+    real, inode = file_key(path)
+    hit = readers_by_path.get(real) or (readers_by_inode.get(inode) if inode else None)
+    if hit:
+        job, role, p = hit
+        whose = "its own" if job == c.job else f"{job}'s"
+        return (f"{c.job}: {what} {path} would overwrite an input{'' if own else ' of this run'}"
+                f" ({whose} {role} {p}); choose another -o (a scene: its output key)")
+    if len(writers[real]) > 1:
+        others = ", ".join(j for j, _ in writers[real] if j != c.job)
+        whose = "the output of" if all(o for _, o in writers[real]) else "written by"
+        return (f"{c.job}: {what} {path} is also {whose} {others}: put "
+                f"{telling_apart([j for j, _ in writers[real]])} in -o (a scene: its output "
+                f"key) so each input has its own")
+    return None
 
 
 def check_claim(claim: Claim, force=False):

@@ -20,19 +20,21 @@ import numpy as np
 from ..errors import InvalidInputError, check_policy
 from ..io import tiles
 from ..io.channels import COLOUR_LAYERS, MEDIUM_LAYERS, short_name
-from ..io.collisions import collisions
+from ..io.collisions import Claim, collisions
 from ..io.colour import WorkingSpace, check_colorspace, resolve_working_space
 from ..io.freshness import InputGuard, params_digest
 from ..io.images import (Cancelled, TextureError, Writer, check_output_format,
                          classify_channels, invalid_texels, output_spec)
 from ..io.mipmaps import TextureOptions, texture_options
+from ..io.networks import layer_path
 from ..io.patterns import companion_path, expand_inputs, unmatched_pattern
 from ..ops.bands import band_rows
 from ..physics.conventions import CONVENTION
 from ..io.scene_keys import UNIT_METERS
 from ..physics.conversion import RADIUS_RANGE, convert
 from ..version import __version__
-from .batch import job_claims, parse_constant
+from .batch import parse_constant
+from .convert_materials import convention_targets
 from .invert_file import JobFiles, open_inputs, per_channel
 from .pipeline import stream_bands
 from .results import BatchReport, FileResult
@@ -122,12 +124,22 @@ def convert_textures(inputs, *, radius=1.0, source="better-dipole", target="van-
         inputs_by_role = {"albedo": path} | ({"mfp": radius_path} if radius_path else {})
         jobs_list.append(ConvertJob(path, out, inputs_by_role, work,
                                     tile.label if tile else None))
-    clashes = collisions(job_claims(jobs_list), force)
+    clashes = collisions(convert_claims(jobs_list, tgt.name), force)
     results += [FileResult(j.source, j.output, error=c) for j, c in zip(jobs_list, clashes) if c]
     todo = [j for j, c in zip(jobs_list, clashes) if not c]
     with ThreadPoolExecutor(max(1, int(jobs))) as pool:
         results += list(pool.map(lambda j: run_convert(j, cancel=cancel), todo))
     return BatchReport(results)
+
+
+def convert_claims(jobs, convention: str) -> list:
+    """The ``collisions.Claim`` of each job: its output, and where ``convention`` has render
+    targets the layer files its material reads beside it (``networks.layer_path``), so that
+    no two inputs of a run share a file one of their materials reads."""
+    layers = COLOUR_LAYERS if convention_targets(convention) else ()
+    return [Claim(j.source, j.output, j.inputs,
+                  tuple(layer_path(j.output, layer, convention) for layer in layers))
+            for j in jobs]
 
 
 def check_before_work(constant, radius_scale, unit):

@@ -171,7 +171,12 @@ def folder_materials(folder, found, targets, convention, eta, unit, working_spac
             rows.append(FileResult(name, os.path.join(folder, LAYER),
                                    error=f"{name}: no material: {exc}", companion=True))
             continue
-        ident = material_identifier(source_of(source, folder), name, made_from)
+        ident, was = claimed_identifier(earlier, made_from, source_of(source, folder),
+                                        (colour, radius), folder)
+        if was:
+            rows.append(FileResult(name, os.path.join(folder, LAYER), status="ok",
+                                   notes=["materials", was], companion=True))
+        ident = ident or material_identifier(source_of(source, folder), name, made_from)
         baked = BakedMaterial(ident, "", working_space, (1.0,), (1.0,), "diffuse", "better",
                               tuple(eta), unit, stage_unit_m, targets,
                               maps={convention: {"layers": (colour, radius)}})
@@ -214,15 +219,46 @@ def drop_unread(materials: dict, folder: str) -> str | None:
     return (f"{'; '.join(gone)}: not kept (convert them again)") if gone else None
 
 
+def reads_of(network, folder: str) -> set:
+    """The files ``network`` (or a TextureRead tuple) reads, as paths under ``folder``."""
+    textures = getattr(network, "textures", network)
+    return {os.path.normpath(os.path.join(folder, r.file)) for r in textures}
+
+
+def claimed_identifier(materials: dict, sources: dict, source: str, reads, folder: str):
+    """(identifier, what to say or None) of the kept material whose networks read a file of
+    ``reads`` (the new material's TextureReads, now rewritten by converting ``source``):
+    ``source``'s own if one reads them, else the first other, which converts ``source`` from
+    now on (its networks dropped, ``sources`` updated, said); any other reading them is
+    dropped, so no two materials ever read one set of files. (None, None) where none does.
+    A material written before sources were recorded (None) is matched so too: by its
+    files, never by its name."""
+    new = reads_of(reads, folder)
+    readers = sorted(i for i, by in materials.items()
+                     if any(reads_of(n, folder) & new for n in by.values()))
+    if not readers:
+        return None, None
+    ident = next((i for i in readers if sources.get(i) == source), readers[0])
+    was = sources.get(ident)
+    for i in readers:
+        if i != ident:
+            materials.pop(i, None)
+            sources.pop(i, None)
+    if was == source:
+        return ident, None
+    materials[ident], sources[ident] = {}, source
+    return ident, (f"{ident}: now converts {source} (was {was}; this run rewrote the files "
+                   f"it reads)" if was else None)
+
+
 def material_identifier(source: str, name: str, sources: dict) -> str:
     """The identifier of the material converting ``source`` (``source_of``), its prim's and
     its MaterialX element's name: the one an earlier run gave it (``sources``: {identifier:
-    source, None where a run before the sources were recorded wrote it: its name claims
-    it}), else ``name``'s, numbered past every other material's (``next_identifier``): an
-    existing material keeps its name, whatever is converted after it. ``sources`` gets it."""
+    source, None where a run before the sources were recorded wrote it: never claimed by
+    its name, only by its files, ``claimed_identifier``), else ``name``'s, numbered past
+    every other material's (``next_identifier``): an existing material keeps its name,
+    whatever is converted after it. ``sources`` gets it."""
     ident = next((i for i, s in sources.items() if s == source), None)
-    if ident is None and sources.get(identifier(name), "") is None:
-        ident = identifier(name)
     ident = ident or next_identifier(name, sources)
     sources[ident] = source
     return ident

@@ -76,3 +76,17 @@ def test_a_material_without_a_source_is_matched_by_its_files_not_its_name(tmp_pa
     assert "now converts" not in said, said
     assert _sources(outs) == {"s": "../in1/s.exr", "s_2": "../in2/s.exr"}
     assert _materials(outs) == {"s", "s_2"}
+
+
+@pytest.mark.parametrize("stems, named", [
+    (("_skin", "skin"), {"_skin": "./_skin", "skin": "./skin"}),
+    (("skin.<UDIM>", "-skin"), {"skin": "./skin.<UDIM>", "_skin": "./-skin"})])
+def test_a_materials_name_keeps_every_character_of_its_files(tmp_path, capsys, stems, named):
+    # _skin.exr's material was skin (its leading _ stripped) and skin.exr's skin_2
+    for k, stem in enumerate(stems):
+        _colour(tmp_path / f"{stem.replace('<UDIM>', '1001')}.exr", k)
+    rc = main(["convert", *(str(tmp_path / f"{s}.exr") for s in stems), "--radius", "1",
+               "--target", "openpbr"])
+    assert rc == 0, capsys.readouterr()
+    assert _reads(tmp_path) == {m: f"{s}.van-de-hulst.colour.exr" for m, s in named.items()}
+    assert _mtlx_materials(tmp_path) == set(named)

@@ -18,6 +18,7 @@ from __future__ import annotations
 import glob
 import json
 import os
+import re
 from dataclasses import replace
 from pathlib import Path
 
@@ -69,11 +70,14 @@ def output_pattern(output: str, pattern: str, convention: str) -> str:
 
 
 def material_name(pattern: str) -> str:
-    """A texture set's name: its file name without extension nor tile token."""
-    conv = tiles.token_of(pattern)
+    """A texture set's name: its file name without extension nor tile token (with the one
+    separator that joins the token: ``skin.<UDIM>.exr`` is ``skin``); every other character
+    kept (``_skin.exr`` is ``_skin``; ``identifier`` makes it a name, docs/materials.md)."""
     name = Path(pattern).name.rsplit(".", 1)[0]
-    name = name.replace(conv.token, "") if conv else name
-    return name.strip("._-") or "material"
+    conv = tiles.token_of(name)
+    if conv:
+        name = re.sub(r"[._-]\0|\0[._-]?", "", "\0".join(conv.parts))
+    return name or "material"
 
 
 def layered(pattern: str, files: list, working_space: str, folder: str, inputs, written,

@@ -198,12 +198,7 @@ def usd_layer_text(scene, records: dict, folder) -> str:
                 values = (entry["coefficients"] or {}).get(output, [])
                 attr(output, Sdf.ValueTypeNames.FloatArray, Vt.FloatArray(values))
                 continue
-            pattern, tile_files = usd_asset_records(entry["output"], entry["files"])
-            if pattern is not None:
-                attr(output, Sdf.ValueTypeNames.Asset, Sdf.AssetPath(pattern))
-            else:
-                attr(f"{output}:tiles", Sdf.ValueTypeNames.AssetArray,
-                     Sdf.AssetPathArray([Sdf.AssetPath(f) for f in tile_files]))
+            file_attributes(attr, output, entry["output"], entry["files"])
             channels = entry.get("channels", {}).get(output)
             if channels:               # which of the file's channels are this output's
                 attr(f"{output}:layer", Sdf.ValueTypeNames.String, output)
@@ -214,6 +209,18 @@ def usd_layer_text(scene, records: dict, folder) -> str:
         stretch_attributes(spec, entry.get("stretch") or {}, attr)
     author_networks(layer, wired, folder)
     return layer.ExportToString()
+
+
+def file_attributes(attr, name: str, output: str, files) -> None:
+    """``name`` as USD resolves an output's ``files``: an asset path with ``<UDIM>`` where
+    one pattern names them all (``usd_asset_records``), else ``{name}:tiles``, each file."""
+    from pxr import Sdf
+    pattern, tile_files = usd_asset_records(output, files)
+    if pattern is not None:
+        attr(name, Sdf.ValueTypeNames.Asset, Sdf.AssetPath(pattern))
+    else:
+        attr(f"{name}:tiles", Sdf.ValueTypeNames.AssetArray,
+             Sdf.AssetPathArray([Sdf.AssetPath(f) for f in tile_files]))
 
 
 def stretch_attributes(spec, records: dict, attr):
@@ -231,12 +238,7 @@ def stretch_attributes(spec, records: dict, attr):
             k += 1
             name = f"stretch:{Tf.MakeValidIdentifier(blur)}_{k}"
         taken.add(name)
-        pattern, tile_files = usd_asset_records(record["maps"], record["files"])
-        if pattern is not None:
-            attr(name, Sdf.ValueTypeNames.Asset, Sdf.AssetPath(pattern))
-        else:
-            attr(f"{name}:tiles", Sdf.ValueTypeNames.AssetArray,
-                 Sdf.AssetPathArray([Sdf.AssetPath(f) for f in tile_files]))
+        file_attributes(attr, name, record["maps"], record["files"])
         attr(f"{name}:unit", Sdf.ValueTypeNames.String, record["unit"])
         attr(f"{name}:channels", Sdf.ValueTypeNames.StringArray,
              Vt.StringArray(record["channels"]))

@@ -11,7 +11,8 @@ import pyopencl as cl
 import pyopencl.array as cla
 
 from ...device.launch import enqueue_items
-from ...device.transfer import aligned_empty, device_image, host_copy, is_device_array
+from ...device.transfer import (aligned_empty, device_image, host_copy, is_device_array,
+                                ready_array)
 from ...signals import check_stop
 from ..bands import band_rows, bands, gather_rows
 from .dispatch import DeviceBlur
@@ -178,10 +179,8 @@ def apply_on_device(plan, irradiance, max_memory=None, counts=None):
 
 def device_irradiance(a, rt):
     """A device array's irradiance as (H, W, C) float32 on ``rt``'s context, checked."""
-    if a.context != rt.context:
-        raise ValueError(f"irradiance: a device array of another OpenCL context than the "
-                         f"blur's device ({rt.describe()}): pass device= its runtime")
-    if a.dtype != np.float32 or a.ndim not in (2, 3) or not a.flags.c_contiguous:
+    a = ready_array(a, rt, "irradiance")       # its context, layout and queue's work
+    if a.dtype != np.float32 or a.ndim not in (2, 3):
         raise ValueError(f"irradiance: a device array must be a C-contiguous float32 HxW or "
                          f"HxWxC; got {a.dtype} of shape {a.shape}")
     if a.offset:

@@ -7,10 +7,12 @@ A window is blurred in bands of rows with a halo (``band_sources``), as ``BlurPl
 image."""
 from __future__ import annotations
 
+import hashlib
 from dataclasses import dataclass
 
 import numpy as np
 
+from ...caches import ByteCache
 from ...signals import check_stop
 from ..bands import halo_rows
 
@@ -20,7 +22,7 @@ class Window:
     """A part of an H x W image blurred on its own: rows x cols of the image, the texels it
     writes (``output``: a mask of the box, None: all), where each of its texels' irradiance
     comes from (``source``: flat image indices, None: the texel itself; ``keep``: False where
-    it is 0) and the border rule beyond its box (``border``: ``BORDER``'s)."""
+    it is 0, None: nowhere) and the border rule beyond its box (``border``: ``BORDER``'s)."""
 
     rows: slice
     cols: slice
@@ -49,10 +51,11 @@ class Window:
         if self.source is None:
             src = e2d[self.rows.start + rows, self.cols]
         else:
-            flat = e2d.ravel()
-            src = np.where(self.keep[rows], flat[self.source[rows]], np.float32(0))
-        return np.where((idx >= 0)[:, None], src, np.float32(0)).astype(np.float32,
-                                                                         copy=False)
+            src = e2d.ravel().take(self.source[rows])
+        if self.keep is not None:
+            src = np.where(self.keep[rows], src, np.float32(0))
+        src[idx < 0] = 0
+        return src.astype(np.float32, copy=False)
 
     def bands(self, rows, halo):
         """(y0, y1, idx) per band of ``rows`` rows of the box (``bands.bands``): its rows
@@ -68,16 +71,50 @@ def whole_image(shape, border) -> Window:
     return Window(slice(0, shape[0]), slice(0, shape[1]), border)
 
 
+#: the windows of the stretch maps' charts, kept across calls by the maps' contents (a blur
+#: of many irradiance maps over one UV layout makes them once: the nearest covered texel of
+#: every gutter texel is a distance transform of the image)
+WINDOWS = ByteCache("stretched blur chart windows", 256 << 20)
+
+
 def chart_windows(chart, covered, shape, mode) -> tuple:
     """The Windows of the charts of a map (``chart``: each texel's chart, gutters the nearest
     chart's; ``covered``: the texels a triangle covers, None: all) kept apart by ``mode``
     (``methods.registry.CHART_BORDER``, not "none"): "clamp" continues each chart beyond its
-    covered texels by the nearest one (its box's border rule clamp), "zero" by 0."""
+    covered texels by the nearest one (its box's border rule clamp), "zero" by 0. Made once
+    per contents of the maps (``WINDOWS``)."""
+    chart = np.ascontiguousarray(chart)
+    covered = None if covered is None else np.ascontiguousarray(covered, bool)
+    digest = hashlib.sha1(memoryview(chart).cast("B"))
+    if covered is not None:
+        digest.update(memoryview(covered).cast("B"))
+    key = (tuple(shape[:2]), mode, str(chart.dtype), covered is None, digest.hexdigest())
+    hit = WINDOWS.get(key)
+    if hit is None:
+        hit = _chart_windows(chart, covered, shape, mode)
+        WINDOWS.put(key, hit, sum(a.nbytes for win in hit for a in (win.output, win.source,
+                                                                     win.keep)
+                                  if a is not None))
+    return hit
+
+
+def chart_labels(chart):
+    """Labels 1..n of the n chart ids of map ``chart`` (in the ids' order)."""
+    if chart.dtype.kind in "iu" and chart.size:
+        lo, hi = int(chart.min()), int(chart.max())
+        if hi - lo < (1 << 20):        # ids within a small span: a lookup, not a sort
+            present = np.zeros(hi - lo + 1, bool)
+            present[chart.ravel() - lo] = True
+            lut = np.cumsum(present).astype(np.int32)
+            return lut[chart - lo]
+    _, labels = np.unique(chart, return_inverse=True)
+    return labels.reshape(chart.shape).astype(np.int32) + 1
+
+
+def _chart_windows(chart, covered, shape, mode) -> tuple:
     from scipy.ndimage import distance_transform_edt, find_objects
     h, w = shape[:2]
-    covered = covered if covered is not None else np.ones((h, w), bool)
-    _, labels = np.unique(chart, return_inverse=True)
-    labels = labels.reshape(chart.shape) + 1
+    labels = chart_labels(chart)
     out = []
     for k, box in enumerate(find_objects(labels)):
         if box is None:
@@ -85,16 +122,15 @@ def chart_windows(chart, covered, shape, mode) -> tuple:
         check_stop()
         rows, cols = box
         output = labels[box] == k + 1
-        own = output & covered[box]
+        own = output if covered is None else output & covered[box]
         if not own.any():
             own = output
-        if mode == "clamp":
+        source = keep = None
+        if mode != "clamp":
+            keep = own
+        elif not own.all():            # the nearest covered texel of each other one
             iy, ix = distance_transform_edt(~own, return_distances=False, return_indices=True)
-            source = (iy + rows.start) * w + (ix + cols.start)
-            keep = np.ones(own.shape, bool)
-        else:
-            yy, xx = np.mgrid[rows, cols]
-            source, keep = yy * w + xx, own
+            source = ((iy + rows.start) * w + (ix + cols.start)).astype(np.int64)
         out.append(Window(rows, cols, "clamp" if mode == "clamp" else "zero", output,
-                          source.astype(np.int64), keep))
+                          source, keep))
     return tuple(out)

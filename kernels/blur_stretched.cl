@@ -14,14 +14,17 @@
 // The near field: the cells within BD_NEAR (Chebyshev) of the texel, in classes (a, b) of the
 // four cells (+-a rows, +-b columns) (near_field.near_classes, not mirrored: a stretched kernel
 // is even in u and in v, not across the diagonal), each class's irradiance summed once and
-// shared by the BD_NEAR_RANK near kernels (their values per class in near_basis).
+// shared by the BD_NEAR_RANK near kernels (their values per class in near_basis); with
+// BD_NEAR_DIRECT the near kernels are the classes themselves (BD_NEAR_RANK of them): each
+// class sum times its own weight, near_basis not read.
 //
 // Every work-item takes BD_WIDTH (1, 4, 8 or 16) neighbouring texels of one row in explicit
 // vectors (kernels/lanes.h), as kernels/blur_textured.cl: rows hold at least BD_WIDTH texels,
 // the last work-item of a row takes its last BD_WIDTH (``first_texel``). The table's records
 // (BD_RECORD floats, the weights then zeros) are read per lane in chunks of BD_CHUNK floats.
 //
-// Specialized by -DBD_NBASIS=G, -DBD_NEAR, -DBD_NEAR_RANK, -DBD_WIDTH, -DBD_CHUNK.
+// Specialized by -DBD_NBASIS=G, -DBD_NEAR, -DBD_NEAR_RANK, -DBD_NEAR_DIRECT, -DBD_WIDTH,
+// -DBD_CHUNK.
 
 #ifndef BD_NBASIS
 #error "build with -DBD_NBASIS=<basis size>"
@@ -31,6 +34,9 @@
 #endif
 #ifndef BD_NEAR_RANK
 #define BD_NEAR_RANK 0
+#endif
+#ifndef BD_NEAR_DIRECT
+#define BD_NEAR_DIRECT 0
 #endif
 #ifndef BD_WIDTH
 #error "build with -DBD_WIDTH=<texels per work-item> (kernels/lanes.h, before this file, needs it)"
@@ -171,7 +177,13 @@ __kernel void gather_stretched(__global const float *rd, __global const float *l
     vec sum = (vec)0.0f;
     for (int j = 0; j < BD_NBASIS; ++j)
         sum += texel_weight(wl, j) * GLOAD(0, blurred + (size_t)j * plane);
-#if BD_NEAR >= 0 && BD_NEAR_RANK > 0
+#if BD_NEAR >= 0 && BD_NEAR_RANK > 0 && BD_NEAR_DIRECT
+    __global const float *here = e + (size_t)(y + row0 + x0) * epitch + x0 + x;
+    int k = BD_NBASIS;
+    for (int a = 0; a <= BD_NEAR; ++a)
+        for (int b = 0; b <= BD_NEAR; ++b, ++k)
+            sum += texel_weight(wl, k) * class_sum(here, epitch, a, b);
+#elif BD_NEAR >= 0 && BD_NEAR_RANK > 0
     __global const float *here = e + (size_t)(y + row0 + x0) * epitch + x0 + x;
     vec near[BD_NEAR_RANK];
     for (int m = 0; m < BD_NEAR_RANK; ++m)

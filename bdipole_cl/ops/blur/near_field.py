@@ -170,11 +170,12 @@ def near_cells(near) -> int:
     return (2 * near + 1) ** 2 if near >= 0 else 0
 
 
-def near_cost(near, nbasis, nnear, costs: GatherCosts, mirrored=True):
+def near_cost(near, nbasis, nnear, costs: GatherCosts, mirrored=True, direct=False):
     """The blur's cost model in basis blurs per texel: nbasis inverse FFTs, the near field's
-    cells and class terms, and the table's weights."""
-    return (nbasis + costs.cell * near_cells(near)
-            + costs.term * len(near_classes(near, mirrored)) * nnear
+    cells and class terms (none where its weights are the classes' own: ``direct``), and the
+    table's weights."""
+    terms = 0 if direct else len(near_classes(near, mirrored)) * nnear
+    return (nbasis + costs.cell * near_cells(near) + costs.term * terms
             + costs.weight * (nbasis + nnear))
 
 
@@ -205,14 +206,15 @@ class NearFieldFit:
     coef: np.ndarray         # (nodes, G + M)
     interp_error: float      # ``interp_error`` of the node coefficients' table
     mirrored: bool = True    # the classes' symmetry (``near_classes``)
+    direct: bool = False     # near kernels one per class (values the identity): no projection
 
     def cost(self, costs: GatherCosts):
         return near_cost(self.near, len(self.quads), len(self.near_values), costs,
-                         self.mirrored)
+                         self.mirrored, self.direct)
 
 
 def near_field_basis(targets, train, tol, radius, measure, costs: GatherCosts,
-                     mirrored=True, radii=None):
+                     mirrored=True, radii=None, direct=False):
     """The cheapest NearFieldFit over NEAR_RADII (``near_cost``) for the node kernels
     ``targets`` and the kernels of the texture's parameter range, ``train``. The near kernels
     are eigen-kernels of the ``train`` kernels' values on the near classes, the far basis of
@@ -223,20 +225,27 @@ def near_field_basis(targets, train, tol, radius, measure, costs: GatherCosts,
     error of a (quads, values, coef) fit over the range) is within tol too: the nodes beyond
     the range serve the cubic's stencil, and their projections enter the texels' kernels. The
     cost is the device's (``costs``). ``mirrored``: the classes' symmetry (``near_classes``);
-    ``radii``: the near field radii tried (NEAR_RADII)."""
+    ``radii``: the near field radii tried (NEAR_RADII); ``direct``: one near kernel per class
+    (each node's near field exact, only the far rank grows: ``_near_field_fit``)."""
     best = None
     for near in (r for r in (NEAR_RADII if radii is None else radii) if r <= radius):
         if best is not None and near_cost(near, 0, 0, costs, mirrored) >= best.cost(costs):
             break                                    # its cells alone cost more
-        fit = _near_field_fit(targets, train, tol, radius, near, measure, mirrored)
+        fit = _near_field_fit(targets, train, tol, radius, near, measure, mirrored, direct)
         if best is None or fit.cost(costs) < best.cost(costs):
             best = fit
     return best
 
 
-def _near_field_fit(targets, train, tol, radius, near, measure, mirrored=True):
-    """The NearFieldFit of near field ``near`` (``near_field_basis``)."""
+def _near_field_fit(targets, train, tol, radius, near, measure, mirrored=True, direct=False):
+    """The NearFieldFit of near field ``near`` (``near_field_basis``). ``direct``: the near
+    kernels are the classes themselves (values the identity, each node's coefficients its own
+    class values: exact), which the gather reads as weights of the class sums, with no
+    multiply-adds of near kernels on classes (kernels/blur_stretched.cl ``BD_NEAR_DIRECT``):
+    cheaper than a projection of M kernels wherever M > 4 or so."""
     classes = near_classes(near, mirrored)
+    if direct and classes:
+        return _direct_near_fit(targets, train, tol, radius, near, measure, mirrored)
 
     def far(kernels):
         return far_parts(kernels, near, radius)
@@ -270,4 +279,27 @@ def _near_field_fit(targets, train, tol, radius, near, measure, mirrored=True):
             current, m = more_near, m + 1
         else:
             current, g = more_far, g + 1
+    return current
+
+
+def _direct_near_fit(targets, train, tol, radius, near, measure, mirrored):
+    """``_near_field_fit`` with the classes as the near kernels: the far rank starts where
+    every ``train`` kernel's far part is within tol and grows until ``measure`` is too."""
+    classes = near_classes(near, mirrored)
+    values = np.eye(len(classes), dtype=np.float32)
+    near_coef = np.array([class_values(t, classes) for t in targets])
+    far_eigen = EigenKernels.of(far_parts(train, near, radius))
+    far_t = far_eigen.project(far_parts(targets, near, radius))
+
+    def fit(g):
+        coef = np.concatenate([far_t.coefficients(g), near_coef], axis=1)
+        quads = far_eigen.kernels(g)
+        return NearFieldFit(near, quads, values, coef, measure(quads, values, near, coef),
+                            mirrored, direct=True)
+    g = far_eigen.project(far_parts(train, near, radius)).rank_within(tol)
+    current = fit(g)
+    while current.interp_error > tol and g < far_eigen.most:
+        check_stop()
+        g += 1
+        current = fit(g)
     return current

@@ -17,7 +17,7 @@ from ...physics import reference as ref
 from ...signals import check_stop
 from ..bands import band_rows
 from .dispatch import gather_costs
-from .fft import FFT32_ROUNDOFF, summed_roundoff, value_range
+from .fft import FFT32_ROUNDOFF, PIECE_ROWS, in_row_blocks, summed_roundoff
 from .near_field import near_cells
 from .params import MapRanges, checked_irradiance, texel_parameters
 from .planning import BlurAccuracyWarning, BlurInfo, ChannelInfo
@@ -75,7 +75,9 @@ def as_stretch(value, shape) -> Stretch:
                              f"surface length must be finite and > 0 ({int(bad.sum())} "
                              f"texel(s) so)")
         maps[name] = m
-    chart = None if s.chart is None else np.asarray(s.chart).astype(np.int64)
+    chart = None if s.chart is None else np.asarray(s.chart)
+    if chart is not None and chart.dtype.kind not in "iu":
+        chart = chart.astype(np.int64)
     if chart is not None and chart.shape != (h, w):
         raise ValueError(f"stretch chart map has shape {chart.shape}; expected ({h}, {w})")
     covered = None if s.covered is None else np.asarray(s.covered, bool)
@@ -103,22 +105,44 @@ def channel_maps(shape, c, stretch, physical, eta, exact, on_invalid, counts, ra
     return tuple(out)
 
 
-def map_ranges(rd, lu, lv):
-    """((lo, hi) of logit Rd, ln l, s) over the texels of maps rd, l_u, l_v (1-D or any
-    shape; Rd's lit texels only: Rd = 0 gives 0 whatever its kernel's shape), l = sqrt(l_u
-    l_v) and s = ln(l_u / l_v) (``stretched_plan.lattice_variables``). The logarithms are
-    taken of the extremes of l_u l_v and l_u / l_v (ln is monotonic), not of every texel: the
-    ranges cost two reads of the maps."""
-    lo, hi = value_range(rd)
+def map_ranges(rd, lu, lv, own=None):
+    """((lo, hi) of logit Rd, ln l, s) over the texels of HxW maps rd, l_u, l_v (those where
+    ``own`` is True, None: all; Rd's lit texels only: Rd = 0 gives 0 whatever its kernel's
+    shape), l = sqrt(l_u l_v) and s = ln(l_u / l_v) (``stretched_plan.lattice_variables``).
+    The logarithms are taken of the extremes of l_u l_v and l_u / l_v (float64: no overflow;
+    ln is monotonic), not of every texel: one read of the maps, piece by piece in row blocks
+    on the FFT threads (``lattice_extremes``)."""
+    lo, lit, hi, area, aspect = lattice_extremes(rd, lu, lv, own)
     if lo <= 0 < hi:
-        lo = np.min(rd, where=rd > 0, initial=np.inf)
+        lo = lit
     t_rd = lattice_variables([float(lo), float(hi)], 1.0, 1.0)[0]
-    area = value_range(np.multiply(lu, lv, dtype=np.float64))      # float64: no overflow
-    aspect = value_range(np.divide(lu, lv, dtype=np.float64))
     ln_l = 0.5 * np.log(np.asarray(area, np.float64))
     s = np.log(np.asarray(aspect, np.float64))
     return ((float(t_rd[0]), float(t_rd[1])), (float(ln_l[0]), float(ln_l[1])),
             (float(s[0]), float(s[1])))
+
+
+def lattice_extremes(rd, lu, lv, own=None):
+    """(min Rd, min lit Rd, max Rd, (min, max) l_u l_v, (min, max) l_u / l_v) over the
+    texels of HxW maps where ``own`` (None: all), NaN where one is NaN."""
+    inf = np.inf
+
+    def block(r0, r1):
+        lows, highs = np.full(4, inf), np.full(3, -inf)
+        for p in range(r0, r1, PIECE_ROWS):
+            q = min(p + PIECE_ROWS, r1)
+            r, u, v = rd[p:q], lu[p:q], lv[p:q]
+            m = True if own is None else own[p:q]
+            area = np.multiply(u, v, dtype=np.float64)
+            aspect = np.divide(u, v, dtype=np.float64)
+            lows = np.minimum(lows, [np.min(x, where=w, initial=inf) for x, w in
+                                     ((r, m), (r, (r > 0) & m), (area, m), (aspect, m))])
+            highs = np.maximum(highs, [np.max(x, where=m, initial=-inf)
+                                       for x in (r, area, aspect)])
+        return np.concatenate([lows, highs])
+    parts = np.array(in_row_blocks(block, rd.shape[0]))
+    lows, highs = parts[:, :4].min(axis=0), parts[:, 4:].max(axis=0)
+    return lows[0], lows[1], highs[0], (lows[2], highs[1]), (lows[3], highs[2])
 
 
 def window_maps(maps, window: Window):
@@ -131,10 +155,7 @@ def window_maps(maps, window: Window):
         box = host_array((window.height, window.width))
         box[...] = m[window.rows, window.cols]
         crop.append(box)
-    if window.output is None:           # every texel of the box: no masked copies
-        return tuple(crop), map_ranges(*crop)
-    own = window.writes()
-    return tuple(crop), map_ranges(*(m[own] for m in crop))
+    return tuple(crop), map_ranges(*crop, own=window.output)
 
 
 def shear_error(plan: StretchedPlan, ranges, max_shear, exact=False) -> float:
@@ -202,11 +223,18 @@ def roundoff(plan) -> float:
                                             + len(plan.near_values))
 
 
+def near_words(plan) -> str:
+    """A plan's near field in words: its radius and its classes or near kernels."""
+    if plan.near < 0:
+        return ""
+    if plan.near_direct:
+        return f", near field {plan.near} ({len(plan.near_values)} classes)"
+    return f", near field {plan.near} with {len(plan.near_values)} kernels"
+
+
 def describe(plans) -> str:
     """A channel's method: its windows' eigen-kernels and near fields."""
-    parts = [f"{len(p.kernels)} eigen-kernels"
-             + (f", near field {p.near} with {len(p.near_values)} kernels" if p.near >= 0
-                else "") for p in plans]
+    parts = [f"{len(p.kernels)} eigen-kernels" + near_words(p) for p in plans]
     if len(parts) == 1:
         return parts[0]
     return f"{len(parts)} charts: " + "; ".join(parts)

@@ -28,7 +28,8 @@ def stretched_kernel(rt, plan: StretchedPlan, n):
 
     def build(width):
         opts = build_options({"BD_NBASIS": len(plan.kernels), "BD_NEAR": plan.near,
-                              "BD_NEAR_RANK": len(plan.near_values), "BD_WIDTH": width,
+                              "BD_NEAR_RANK": len(plan.near_values),
+                              "BD_NEAR_DIRECT": int(plan.near_direct), "BD_WIDTH": width,
                               "BD_CHUNK": chunk})
         return cl.Kernel(get_program(rt, "blur_stretched", opts), "gather_stretched")
     width, knl = built_at_width(rt, "blur_stretched", gather_width(rt, n),

@@ -183,6 +183,7 @@ class StretchedPlan:
     near: int = -1               # the near field's radius (-1: none)
     near_values: np.ndarray = field(default_factory=lambda: np.zeros((0, 0), np.float32))
     #                              (M, (near + 1)^2) float32: the near kernels per class
+    near_direct: bool = False    # near kernels = the classes (identity): weights of class sums
 
     @property
     def error_bound(self) -> float:
@@ -298,11 +299,11 @@ def stretched_plan(ranges, eta, tol, exact=False, max_radius=2048,
                             with_near_classes(quads, values, near, radius, mirrored=False),
                             axes, checks)
     best = near_field_basis(targets, train, tol, radius, measure, costs, mirrored=False,
-                            radii=NEAR_RADII)
+                            radii=NEAR_RADII, direct=True)
     every = with_near_classes(best.quads, best.near_values, best.near, radius, mirrored=False)
     fit = max((float(np.abs(unfold_quadrant(np.tensordot(c, every, 1) - t)).sum())
                for c, t, i in zip(best.coef, targets, inside) if i), default=0.0)
     table = best.coef.reshape(*shape, -1).astype(np.float32)
     return StretchedPlan(radius, tuple(best.quads), axes, fine_table3(table), float(eta), fit,
                          best.interp_error, float(tol), int(np.prod(shape)), best.near,
-                         best.near_values)
+                         best.near_values, best.direct)

@@ -1,0 +1,105 @@
+"""The stretched blur's per-call work (bdipole_cl/ops/blur/stretched.py, stretched_windows.py;
+docs/stretch.md "Chart borders", "The near field"): chart windows made once per contents of the
+maps and never stale, ranges over a window's own texels, and the near field's classes exact."""
+import itertools
+
+import numpy as np
+import pytest
+
+import bdipole_cl as bd
+from bdipole_cl.ops.blur import stretched_windows as sw
+from bdipole_cl.ops.blur.near_field import class_values, near_classes
+from bdipole_cl.ops.blur.stretched import Stretch, map_ranges
+from bdipole_cl.ops.blur.stretched_plan import (kernel_at, lattice_variables, stretched_plan)
+from bdipole_cl.ops.blur.textured_plan import REFINE
+
+
+@pytest.mark.parametrize("ids", [[3, 7, 7, 9], [-5, 0, 2, -5], [0, 1 << 40, 5, 1 << 40],
+                                 [2, 2, 2, 2]], ids=["gaps", "negative", "huge-span", "one"])
+def test_chart_labels_are_the_ids_ranks(ids):
+    """Labels 1..n in the ids' order, as np.unique's inverse: by lookup over a small span of
+    ids, by sorting over a huge one."""
+    chart = np.resize(np.array(ids, np.int64), (6, 5))
+    _, inverse = np.unique(chart, return_inverse=True)
+    np.testing.assert_array_equal(sw.chart_labels(chart), inverse.reshape(chart.shape) + 1)
+
+
+def two_charts(h=40, w=48, split=20, gutter=3):
+    """A Stretch of two charts side by side (columns [0, split) and [split + gutter, w)), the
+    gutter between them given to the nearer chart and not covered."""
+    chart = np.zeros((h, w), np.int32)
+    chart[:, split + gutter // 2:] = 1
+    covered = np.ones((h, w), bool)
+    covered[:, split:split + gutter] = False
+    su = np.full((h, w), 0.5, np.float32)
+    sv = np.where(chart == 0, 0.5, 1.0).astype(np.float32)
+    return Stretch(su, sv, chart, covered)
+
+
+def test_windows_are_made_once_and_follow_the_maps_contents(on_device, monkeypatch):
+    """A second blur over the same maps reuses the chart windows (one distance transform per
+    layout, not per call); maps changed in place since are windowed anew: the result is that of
+    a fresh process (no cache), not the old layout's."""
+    made = []
+    real = sw._chart_windows
+    monkeypatch.setattr(sw, "_chart_windows", lambda *a: made.append(1) or real(*a))
+    sw.WINDOWS.clear()
+    s = two_charts()
+    rng = np.random.default_rng(3)
+    e = rng.random((40, 48)).astype(np.float32)
+
+    def run():
+        return bd.blur(e, albedo=0.5, mfp=2.0, stretch=s, tol=1e-3)
+    first = run()
+    assert np.array_equal(run(), first) and len(made) == 1
+    s.chart[:, 30:] = 2                   # a third chart, in place: same arrays, new contents
+    s.covered[:, 29:31] = False
+    moved = run()
+    assert len(made) == 2
+    sw.WINDOWS.clear()
+    np.testing.assert_array_equal(moved, run())
+    assert not np.array_equal(moved, first)
+
+
+def test_ranges_over_a_windows_own_texels():
+    """``map_ranges`` over the texels where ``own`` holds equals the ranges of those texels
+    taken one by one in float64 (Rd's lit texels' minimum where some are dark); the texels
+    outside, however extreme, do not widen them."""
+    rng = np.random.default_rng(5)
+    h, w = 300, 70                        # more rows than a thread's piece: several pieces
+    rd = rng.uniform(0.05, 0.9, (h, w)).astype(np.float32)
+    rd[rng.random((h, w)) < 0.1] = 0.0
+    lu = np.exp(rng.uniform(-1, 2, (h, w))).astype(np.float32)
+    lv = np.exp(rng.uniform(-1, 2, (h, w))).astype(np.float32)
+    own = rng.random((h, w)) < 0.6
+    lu[~own] = 1e30                       # extremes outside the window's own texels
+    rd[~own] = 0.999
+    got = map_ranges(rd, lu, lv, own)
+    r, u, v = (m[own].astype(np.float64) for m in (rd, lu, lv))
+    lit = r[r > 0]
+    t_rd = lattice_variables([lit.min(), r.max()], 1.0, 1.0)[0]
+    want = ((t_rd[0], t_rd[1]), (0.5 * np.log((u * v).min()), 0.5 * np.log((u * v).max())),
+            (np.log((u / v).min()), np.log((u / v).max())))
+    # float64 throughout on both sides, from the same float32 texels: equal to rounding
+    np.testing.assert_allclose(np.array(got), np.array(want), rtol=1e-12, atol=1e-12)
+    whole = map_ranges(rd, lu, lv)
+    assert whole[1][1] > got[1][1]        # without the mask the outside texels count
+
+
+def test_near_field_is_exact_at_the_nodes():
+    """The stretched plan's near kernels are its classes: at every lattice node the gather's
+    table gives each near class the node kernel's own value (float32 rounding only; a
+    projection on fewer near kernels would be off by up to its share of tol), and the far
+    weights follow."""
+    ranges = ((0.0, 1.0), (np.log(2.0), np.log(4.0)), (-0.3, 0.3))
+    plan = stretched_plan(ranges, 1.4, 1e-3)
+    assert plan.near >= 0 and plan.near_direct
+    classes = near_classes(plan.near, mirrored=False)
+    assert plan.near_values.shape == (len(classes), len(classes))
+    g = len(plan.kernels)
+    for idx in itertools.product(*(range(len(a.values)) for a in plan.axes)):
+        t = [a.values[i] for a, i in zip(plan.axes, idx)]
+        fine = plan.fine[tuple(REFINE * i for i in idx)]
+        exact = class_values(kernel_at(t, 1.4, plan.radius), classes)
+        # the cubic reproduces its node values; float32 tables: 2 ulps of the largest value
+        np.testing.assert_allclose(fine[g:], exact, rtol=0, atol=2 * 2.0 ** -23 * exact.max())

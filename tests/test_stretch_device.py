@@ -48,15 +48,17 @@ def refuse_host_fft(*args, **kwargs):
     raise AssertionError("the stretched blur's basis blurs were made by the host's FFT")
 
 
-def blur_both(runtime, monkeypatch, e, stretch, max_memory=None, **kw):
+def blur_both(runtime, monkeypatch, e, stretch, max_memory=None, host_fallback=False, **kw):
     """(device path's, host path's) exitance of one stretched plan, and the plan; the device
-    run with the host's basis blurs refused."""
+    run with the host's basis blurs refused (unless ``host_fallback``: float64 transforms on
+    a device without fp64 are the host's)."""
     nch = e.shape[2]
     plan = plan_blur(e.shape, Scattering(ALBEDO[:nch], MFP[:nch], stretch=stretch),
                      device=runtime, **kw)
     with monkeypatch.context() as m, forced(FFT_ENGINE_VARIABLE, "device"):
-        m.setattr(fft, "basis_blurs", refuse_host_fft)
-        m.setattr(stretched_gather, "basis_blurs", refuse_host_fft)
+        if not host_fallback:
+            m.setattr(fft, "basis_blurs", refuse_host_fft)
+            m.setattr(stretched_gather, "basis_blurs", refuse_host_fft)
         got = plan.apply(e, max_memory=max_memory)[0]
     with forced(FFT_ENGINE_VARIABLE, "host"):
         want = plan.apply(e, max_memory=max_memory)[0]
@@ -121,7 +123,8 @@ def test_channels_far_from_one_on_the_device_are_the_hosts(runtime, monkeypatch,
         e[10, 10] = 1e6
     else:
         e *= np.float32(float(case.split()[1]))
-    got, want, plan = blur_both(runtime, monkeypatch, e, smooth_stretch(h, w), tol=1e-3)
+    got, want, plan = blur_both(runtime, monkeypatch, e, smooth_stretch(h, w), tol=1e-3,
+                                host_fallback=case == "hot texel 1e6" and not runtime.has_fp64)
     assert_fft_close(got, want, e, plan)
     if case == "hot texel 1e6":        # float64 transforms: far from the hot texel, the
         far = np.ones((h, w), bool)    # field's exitance to float32's resolution
@@ -154,3 +157,25 @@ def test_the_device_path_keeps_its_buffers_and_makes_no_host_fft(runtime, monkey
     assert made == 2 * 5 and len(uploads) == made, uploads     # per channel 3 maps, table, near
     np.testing.assert_array_equal(first, second)
     assert np.all(first > 0)
+
+
+def test_float64_transforms_without_fp64_are_the_hosts(runtime, monkeypatch):
+    """A band that needs float64 transforms (a 1e6 texel in a field of 0.5) on a device
+    without fp64: that band's basis blurs by the host's FFT, the gather still on the device;
+    the others' on the device."""
+    h, w = 64, 64
+    e = np.full((h, w, 2), 0.5, np.float32)
+    e[10, 10, 0] = 1e6                 # channel 0 needs float64, channel 1 does not
+    plan = plan_blur(e.shape, Scattering(ALBEDO, MFP, stretch=smooth_stretch(h, w)),
+                     device=runtime)
+    with forced(FFT_ENGINE_VARIABLE, "host"):
+        want = plan.apply(e)[0]
+    monkeypatch.setattr(type(runtime), "has_fp64", property(lambda self: False))
+    calls = []
+    real = stretched_mod.blur_band
+    monkeypatch.setattr(stretched_mod, "blur_band",
+                        lambda *a, **k: calls.append(a[1]) or real(*a, **k))
+    with forced(FFT_ENGINE_VARIABLE, "device"):
+        got = plan.apply(e)[0]
+    assert len(calls) == 1 and calls[0] is plan.channels[0][0].plan, calls
+    assert_fft_close(got, want, e, plan)

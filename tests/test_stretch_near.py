@@ -91,6 +91,17 @@ def test_rank_on_smooth_stretch(on_device):
     assert ch.error_bound <= 2.2e-3, ch
 
 
+def counted_bands(monkeypatch):
+    """A list that gets the rows of each band blurred, on the host's FFT or on the device
+    (``stretched.blur_band``, ``blur_band_device``: the engine the device under test takes)."""
+    calls = []
+    for name in ("blur_band", "blur_band_device"):
+        real = getattr(stretched_mod, name)
+        monkeypatch.setattr(stretched_mod, name,
+                            lambda *a, real=real, **k: calls.append(a[6]) or real(*a, **k))
+    return calls
+
+
 @pytest.mark.parametrize("border", ["clamp", "wrap", "zero"])
 def test_banded_equals_whole(on_device, monkeypatch, border):
     """max_memory small enough for bands of a few rows: the stretched blur runs in several
@@ -102,10 +113,7 @@ def test_banded_equals_whole(on_device, monkeypatch, border):
     su, sv = smooth_stretch(h, w, t=0.3)
     kw = dict(albedo=(0.6, 0.8), mfp=(0.6, 0.9), eta=1.4, stretch=(su, sv), border=border)
     whole = bd.blur(e, **kw)
-    calls = []
-    real = stretched_mod.blur_band
-    monkeypatch.setattr(stretched_mod, "blur_band",
-                        lambda *a, **k: calls.append(a[6]) or real(*a, **k))
+    calls = counted_bands(monkeypatch)
     banded = bd.blur(e, **kw, max_memory=400_000)
     assert len(calls) > 4 and max(calls) < h, calls            # rows per band
     np.testing.assert_allclose(banded, whole, rtol=1e-5, atol=1e-6 * float(whole.max()))
@@ -119,10 +127,7 @@ def test_banded_charts_equal_whole(on_device, monkeypatch, tmp_path):
     e = rng.random((size, size)).astype(np.float32)
     kw = dict(albedo=0.7, mfp=1.0, eta=1.4, stretch=tile, charts="clamp")
     whole = bd.blur(e, **kw)
-    calls = []
-    real = stretched_mod.blur_band
-    monkeypatch.setattr(stretched_mod, "blur_band",
-                        lambda *a, **k: calls.append(a[6]) or real(*a, **k))
+    calls = counted_bands(monkeypatch)
     banded = bd.blur(e, **kw, max_memory=150_000)
     assert len(calls) > 4, calls
     np.testing.assert_allclose(banded, whole, rtol=1e-5, atol=1e-6 * float(whole.max()))

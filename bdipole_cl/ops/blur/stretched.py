@@ -3,7 +3,8 @@ the image, or per UV chart the chart's own irradiance, other charts left out, th
 continued beyond its edge by its nearest texel or 0), per channel and window a StretchedPlan
 of the window's own ranges (``stretched_plan``), each window blurred in bands of rows with a
 halo (``max_memory``): the basis blurs by the host FFT and the per-texel gather on the device
-(``stretched_gather``, kernels/blur_stretched.cl)."""
+(``stretched_gather``, kernels/blur_stretched.cl), or both on the device where the FFT engine
+is the device (``stretched_device``, ``widths.fft_engine``)."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
@@ -16,11 +17,13 @@ from ...methods.registry import BORDER, CHART_BORDER
 from ...physics import reference as ref
 from ...signals import check_stop
 from ..bands import band_rows
+from ..widths import fft_engine
 from .dispatch import gather_costs
 from .fft import FFT32_ROUNDOFF, PIECE_ROWS, in_row_blocks, summed_roundoff
 from .near_field import near_cells
 from .params import MapRanges, checked_irradiance, texel_parameters
 from .planning import BlurAccuracyWarning, BlurInfo, ChannelInfo
+from .stretched_device import blur_band_device
 from .stretched_gather import blur_band
 from .stretched_plan import (StretchedPlan, coefficients, lattice_variables, node_kernel,
                              stretched_plan)
@@ -306,8 +309,10 @@ def window_row_bytes(win: Window, plan: StretchedPlan) -> int:
 
 def blur_window(out2d, e2d, win: Window, wch: WindowChannel, max_memory, rt):
     """out2d's texels that ``win`` writes = the stretched blur of its irradiance (from
-    ``e2d``), in bands of rows within ``max_memory``."""
+    ``e2d``), in bands of rows within ``max_memory``: on the device end to end where the FFT
+    engine is the device (``stretched_device``), else the basis blurs by the host FFT."""
     plan = wch.plan
+    on_device = fft_engine(rt) == "device"
     halo = plan.radius
     rows = band_rows(win.height, window_row_bytes(win, plan), max_memory, halo=halo)
     writes = win.writes()
@@ -315,7 +320,10 @@ def blur_window(out2d, e2d, win: Window, wch: WindowChannel, max_memory, rt):
         check_stop()
         src = win.band_irradiance(e2d, idx)
         # the band's own rows follow its halo's: rows [halo, halo + y1 - y0) of src
-        res = blur_band(src, plan, wch.maps, y0, win.border, halo, y1 - y0, rt)
+        res = (blur_band_device(src, plan, wch.maps, y0, win.border, halo, y1 - y0, rt)
+               if on_device else None)
+        if res is None:                # the host engine, or float64 transforms without fp64
+            res = blur_band(src, plan, wch.maps, y0, win.border, halo, y1 - y0, rt)
         view = out2d[win.rows.start + y0:win.rows.start + y1, win.cols]
         np.copyto(view, res, where=writes[y0:y1])
 

@@ -56,6 +56,26 @@ def table_records(fine, chunk):
     return records
 
 
+def enqueue_gather(rt, plan: StretchedPlan, kernel, bufs, dst, w, rows, strides, row0, mrow,
+                   settle, wait_for=None):
+    """Launch the stretched gather (``kernel``: ``stretched_kernel``'s (width, chunk, kernel))
+    of ``rows`` rows of w texels into ``dst`` from the device buffers ``bufs`` = (Rd, l_u, l_v,
+    table records, basis blurs, padded irradiance, near kernels); ``strides`` = (a basis
+    blur's row, one basis blur, the padded irradiance's row) in floats; the band's first row
+    at the planes' row ``row0`` and at the maps' row ``mrow``; settled by ``settle`` = (scale,
+    non-negative). Returns its event."""
+    width, _, knl = kernel
+    pitch, plane, epitch = strides
+    (s0, o0), (s1, o1), (s2, o2) = plan.axis_maps()
+    n0, n1, n2 = plan.fine.shape[:3]
+    scale, nonneg = settle
+    return knl(rt.queue, (-(-w // width), rows), None, *bufs, dst, np.int32(w),
+               np.int32(pitch), np.int32(plane), np.int32(epitch), np.int32(plan.radius),
+               np.int32(row0), np.int32(mrow), np.float32(scale), np.int32(bool(nonneg)),
+               np.int32(n0), np.int32(n1), np.int32(n2), np.float32(RD_MIN),
+               np.float32(RD_MAX), s0, o0, s1, o1, s2, o2, wait_for=wait_for)
+
+
 def gather(res, plan: StretchedPlan, maps, mrow, planes, padded, row0, rt, settle):
     """res (h x w) = the stretched gather of a band's rows [row0, row0 + h) of its basis blurs
     ``planes`` and padded irradiance ``padded`` (``fft.basis_blurs``), on ``rt``'s device,
@@ -64,19 +84,13 @@ def gather(res, plan: StretchedPlan, maps, mrow, planes, padded, row0, rt, settl
     is read in place (zero-copy on a CPU device: the planes are G images)."""
     h, w = res.shape
     mf = cl.mem_flags
-    width, chunk, knl = stretched_kernel(rt, plan, w)
+    kernel = stretched_kernel(rt, plan, w)
     bufs = [host_buffer(rt, a if a.size else np.zeros(1, np.float32), mf.READ_ONLY)
-            for a in (*maps, table_records(plan.fine, chunk), planes, padded,
+            for a in (*maps, table_records(plan.fine, kernel[1]), planes, padded,
                       plan.near_basis)]
     dst = host_buffer(rt, res, mf.READ_WRITE)
-    (s0, o0), (s1, o1), (s2, o2) = plan.axis_maps()
-    n0, n1, n2 = plan.fine.shape[:3]
-    scale, nonneg = settle
-    knl(rt.queue, (-(-w // width), h), None, *bufs, dst, np.int32(w),
-        np.int32(planes.shape[2]), np.int32(planes.shape[1] * planes.shape[2]),
-        np.int32(padded.shape[1]), np.int32(plan.radius), np.int32(row0), np.int32(mrow),
-        np.float32(scale), np.int32(bool(nonneg)), np.int32(n0), np.int32(n1), np.int32(n2),
-        np.float32(RD_MIN), np.float32(RD_MAX), s0, o0, s1, o1, s2, o2)
+    strides = (planes.shape[2], planes.shape[1] * planes.shape[2], padded.shape[1])
+    enqueue_gather(rt, plan, kernel, bufs, dst, w, h, strides, row0, mrow, settle)
     read_back(rt, dst, res)
 
 

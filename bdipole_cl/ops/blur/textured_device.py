@@ -41,9 +41,10 @@ def channel_shift(stats) -> int:
     return 0
 
 
-def _kept(rt, plan, name, make):
+def plan_buffer(rt, plan, name, make):
     """PLAN_BUFFERS' entry ``name`` of ``plan`` on ``rt`` (made by ``make()``: a buffer and
-    its bytes), held with the plan (its id is its own while it lives)."""
+    its bytes), held with the plan (its id is its own while it lives). ``plan``: any object
+    the buffer belongs to (a texture-varying or stretched plan, a stretched window's maps)."""
     key = (id(rt.context), id(plan), name)
     hit = PLAN_BUFFERS.get(key)
     if hit is None or hit[0] is not rt.context or hit[1] is not plan:
@@ -61,14 +62,16 @@ def _maps(rt, channel, rows):
         return device_image(rt, np.ascontiguousarray(m[rows], np.float32))
     if not whole:
         return upload(rd), upload(ld)
-    return tuple(_kept(rt, plan, name, lambda m=m: (upload(m), m.nbytes))
+    return tuple(plan_buffer(rt, plan, name, lambda m=m: (upload(m), m.nbytes))
                  for name, m in (("rd", rd), ("ld", ld)))
 
 
-def _basis_blurs(kernels, e_dev, c, plan, shift, dtype, wait_for):
+def device_basis_blurs(kernels, e_dev, c, plan, shift, dtype, wait_for):
     """(padded float32 channel (N0, N1), basis blurs (G, H, N1) float32, event): channel c of
-    e_dev times 2^-shift padded by the plan's radius, and its convolution with each basis
-    kernel at the image's rows (``fft.basis_blurs`` on the device)."""
+    e_dev times 2^-shift padded by the plan's radius by ``kernels``' border rule, and its
+    convolution with each basis kernel at the image's rows (``fft.basis_blurs`` on the
+    device), its transforms in ``dtype``. ``plan``: a texture-varying or stretched plan (its
+    radius, basis ``kernels`` and ``blurred_quadrants``)."""
     rt = kernels.rt
     h, w, nch = e_dev.shape
     k = plan.radius
@@ -98,8 +101,8 @@ def _basis_blurs(kernels, e_dev, c, plan, shift, dtype, wait_for):
     prod = cl.Buffer(rt.context, mf.READ_WRITE, n0 * (n1 // 2 + 1) * 2 * size)
     rows = cl.Buffer(rt.context, mf.READ_WRITE, h * n1 * size) if double else None
     event = fft.forward(source, spec, wait_for=[event])
-    ks = _kept(rt, plan, ("spectra", shape, np.dtype(real).str), lambda: _upload(
-        rt, cached_spectra(plan, shape, real)))
+    ks = plan_buffer(rt, plan, ("spectra", shape, np.dtype(real).str),
+                     lambda: upload_buffer(rt, cached_spectra(plan, shape, real)))
     times = kernels.kernel("blur_fft", "times_spectrum_to", double=double)
     narrow = kernels.kernel("blur_fft", "narrow", double=double) if double else None
     for j in range(nbasis):
@@ -116,7 +119,7 @@ def _basis_blurs(kernels, e_dev, c, plan, shift, dtype, wait_for):
     return padded32, planes, event
 
 
-def _upload(rt, values):
+def upload_buffer(rt, values):
     """A read-only device buffer of ``values`` (float arrays as float32 where they are), and
     its bytes."""
     a = np.ascontiguousarray(values)
@@ -131,9 +134,9 @@ def _gather(kernels, out_dev, c, plan, rd_dev, ld_dev, planes, padded32, settle,
     k = plan.radius
     n1 = device_fft_shape((h, w), k)[1]
     width, chunk, knl, axis_args = textured_kernel(rt, plan, w, "gather_exitance")
-    records = _kept(rt, plan, ("records", chunk), lambda: _upload(
+    records = plan_buffer(rt, plan, ("records", chunk), lambda: upload_buffer(
         rt, node_records(plan.fine, chunk)))
-    near = _kept(rt, plan, "near", lambda: _upload(
+    near = plan_buffer(rt, plan, "near", lambda: upload_buffer(
         rt, plan.near_basis if plan.near_basis.size else np.zeros(1, np.float32)))
     scale, nonneg = settle
     return knl(rt.queue, (-(-w // width), h), None, rd_dev.data, ld_dev.data, records, planes,
@@ -185,8 +188,8 @@ def blur_band_textured_device(bplan, e_dev, rows, method, on_nonfinite):
                                 h * w, device_fft_shape((h, w), k))
         if dtype == np.float64 and not rt.has_fp64:
             return None
-        padded32, planes, event = _basis_blurs(kernels, e_dev, c, plan, shifts[c], dtype,
-                                               [event])
+        padded32, planes, event = device_basis_blurs(kernels, e_dev, c, plan, shifts[c],
+                                                     dtype, [event])
         ulps = FFT32_ROUNDOFF_ULPS if dtype == np.float32 else ROUNDOFF_ULPS
         event = _gather(kernels, out_dev, c, plan, rd_dev, ld_dev, planes, padded32,
                         settle_floor(e_range, ulps), [event])

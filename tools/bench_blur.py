@@ -378,7 +378,7 @@ def stretch_rows(args):
             cold = time.perf_counter() - t0
             t_s, _ = timed(stretched, args.repeats)
             r, (lo, hi) = paired_ratio(stretched, varying, args.pairs)
-            ranks = "; ".join(c.method.split("stretched, ")[1].rstrip(")")
+            ranks = "; ".join(c.method[c.method.index("stretched, ") + 11:-1]
                               for c in info.channels)
             print(f"mfp {mfp:g}: stretch {kind:8s}: cold {cold:6.2f} s, warm {t_s:6.2f} s; "
                   f"texture-varying {t_vary:6.2f} s; stretched / texture-varying {r:5.2f}x "

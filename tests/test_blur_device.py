@@ -201,3 +201,18 @@ def test_a_wide_direct_kernel_is_launched_in_parts_of_a_row_of_tiles(runtime, mo
     got = bd.blur(e, **kw)[0]
     assert len(checks) >= (64 // dispatch.TILE) ** 2
     np.testing.assert_array_equal(got, want)
+
+
+@pytest.mark.parametrize("method", ["fft", "gaussians"])
+def test_a_second_map_of_the_same_ranges_is_its_own_on_the_device(runtime, method):
+    """Two albedo maps with the same ranges share one texture-varying plan (plans are kept by
+    ranges), but never its maps: the second map's blur on the device is the host's blur of the
+    second map, not of the first map's texels (kept on the device with the plan)."""
+    albedo, mfp = _textures()
+    flipped = np.ascontiguousarray(albedo[::-1, ::-1])      # the same values, other texels
+    e = np.random.default_rng(8).random((72, 60, 2)).astype(np.float32)
+    with forced(FFT_ENGINE_VARIABLE, "device"):
+        bd.blur(e, albedo=albedo, mfp=mfp, method=method, device=runtime)
+    (got, _), (want, _) = _pair(e, runtime, albedo=flipped, mfp=mfp, method=method,
+                                return_info=True)
+    _fft_close(got, want, e)

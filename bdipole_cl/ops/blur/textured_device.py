@@ -54,15 +54,17 @@ def plan_buffer(rt, plan, name, make):
 
 
 def _maps(rt, channel, rows):
-    """The channel's Rd and ld maps for ``rows`` as device arrays (the whole maps kept)."""
-    plan, rd, ld, _ = channel
+    """The channel's Rd and ld maps for ``rows`` as device arrays (the whole maps kept with
+    the blur plan's channel, not with its TexturedPlan: that is shared by every map of the
+    same ranges, and a second map must not find the first one's texels)."""
+    _, rd, ld, _ = channel
     whole = isinstance(rows, slice) and rows == slice(0, rd.shape[0])
 
     def upload(m):
         return device_image(rt, np.ascontiguousarray(m[rows], np.float32))
     if not whole:
         return upload(rd), upload(ld)
-    return tuple(plan_buffer(rt, plan, name, lambda m=m: (upload(m), m.nbytes))
+    return tuple(plan_buffer(rt, channel, name, lambda m=m: (upload(m), m.nbytes))
                  for name, m in (("rd", rd), ("ld", ld)))
 
 

@@ -34,9 +34,10 @@ U = {False: 2.0 ** -24, True: 2.0 ** -53}
 #: the largest stage error per log2 of a stage's radix, in u (the module docstring derives it:
 #: 12 u for the real twist, 10.7 u for radix 7, at most 9.8 u for the others)
 ETA_LEVEL = 12
-#: a small local-memory budget (bytes): 128 float32 points a tile, so that rows past 256 reals
-#: take several passes and columns passes of radix <= 16, the paths a GPU takes for long rows
-SMALL_LOCAL = 2048
+#: a small local-memory budget (bytes): 128 float32 points a tile (beyond the runtime's
+#: reserve), so that rows past 256 reals take several passes and columns passes of radix <= 16,
+#: the paths a GPU takes for long rows
+SMALL_LOCAL = 2048 + device_fft.LOCAL_RESERVE_BYTES
 
 
 def bound(shape, double, inverse=False):
@@ -358,3 +359,22 @@ def test_arrays_of_another_dtype_or_layout_are_refused(runtime):
     with pytest.raises(ValueError, match="complex128 array; this plan takes complex64"):
         plan.forward(cla.to_device(q, x.astype(np.float32)),
                      cla.empty(q, plan.spectrum_shape, np.complex128))
+
+
+@pytest.mark.parametrize("double", [False, True], ids=["f32", "f64"])
+@pytest.mark.parametrize("shape", [(384, 216), (2160, 96), (64, 1458)], ids=str)
+def test_tiles_leave_the_runtimes_reserve_free(runtime, shape, double):
+    """Every pass's two tile buffers, with the kernels' own local memory, leave
+    LOCAL_RESERVE_BYTES of the device's local memory free: NVIDIA's runtime keeps 1 KiB of a
+    block's shared memory, and a float64 column pass of 384 points x 4 lanes (48 KiB, all of
+    an H200's) failed to launch there (OUT_OF_RESOURCES)."""
+    skip_without_fp64(runtime, double)
+    plan = DeviceFFT(runtime, shape, 1, double)
+    dev = runtime.device
+    own = max(k.get_work_group_info(cl.kernel_work_group_info.LOCAL_MEM_SIZE, dev)
+              for k in plan.kernels.values())
+    room = min(dev.local_mem_size, device_fft.LOCAL_BYTES_CAP) - device_fft.LOCAL_RESERVE_BYTES
+    tiles = [p.tile for p in (*plan.row_passes, *plan.col_passes)]
+    if not plan.row_passes:                       # the fused row kernels' tile
+        tiles.append(plan.m * plan.rows_tile)
+    assert 2 * max(tiles) * plan.point_bytes + own <= room, (tiles, own, room)

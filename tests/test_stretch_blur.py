@@ -13,6 +13,7 @@ import bdipole_cl as bd
 from bdipole_cl.io.stretch_maps import read_stretch, stretch_maps
 from bdipole_cl.ops.blur.planning import BlurAccuracyWarning
 from bdipole_cl.physics import reference as ref
+from conftest import short_id
 from stretch_meshes import (CYL_U0, CYL_U1, CYL_V0, CYL_V1, affine_plane, cylinder_lengths,
                             cylinder_stage)
 
@@ -154,7 +155,7 @@ def test_cli_blur_with_stretch(on_device, tmp_path):
                           str(tmp_path / "irr.<UDIM>.exr"), "--stretch",
                           str(tmp_path / "st.<UDIM>.exr"), "--albedo", "0.8,0.6,0.4",
                           "--mfp", "1.2,0.6,0.3", "-o", str(tmp_path / "out.<UDIM>.exr"),
-                          "--device", "intel", "--no-progress", "--colorspace",
+                          "--device", short_id(on_device), "--no-progress", "--colorspace",
                           "lin_rec709_scene"], capture_output=True, text=True)
     assert run.returncode == 0, run.stderr
     for udim in (1001, 1002):

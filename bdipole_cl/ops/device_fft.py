@@ -31,6 +31,10 @@ __all__ = ["DeviceFFT", "device_fft_len"]
 #: 48-64 KiB, all of it usable here; a CPU runtime's is ordinary memory, where a tile larger
 #: than its core's L2 share would only be slower
 LOCAL_BYTES_CAP = 64 << 10
+#: local memory a work-group's tile leaves free beyond the kernel's own: NVIDIA's runtime keeps
+#: 1 KiB of each block's shared memory for itself (compute capability 8.0 on), and a tile of
+#: all 48 KiB fails to launch there (OUT_OF_RESOURCES, seen on an H200)
+LOCAL_RESERVE_BYTES = 1 << 10
 #: points the fused row kernel's work-group takes at least, as several short rows
 ROWS_TILE_POINTS = 256
 
@@ -90,12 +94,12 @@ class DeviceFFT:
         self.dtype = real_dtype(self.double)
         self.point_bytes = 2 * self.dtype.itemsize
         dev = self.rt.device
-        tile_points = min(dev.local_mem_size, LOCAL_BYTES_CAP) // (2 * self.point_bytes)
         prg = get_program(self.rt, "fft", build_options(double=self.double))
         self.kernels = {name: cl.Kernel(prg, name) for name in (
             "fft_pass", "fft_rows_r2c", "fft_rows_c2r", "fft_r2c_twist", "fft_c2r_twist")}
         self.wg_max = {name: k.get_work_group_info(cl.kernel_work_group_info.WORK_GROUP_SIZE,
                                                    dev) for name, k in self.kernels.items()}
+        tile_points = self.local_bytes() // (2 * self.point_bytes)
         if self.m <= tile_points:
             self.row_passes = ()
             self.rows_tile = max(1, min(tile_points // self.m, ROWS_TILE_POINTS // self.m,
@@ -110,6 +114,14 @@ class DeviceFFT:
         self.scratch = [self._spectrum_buffer()]
 
     # {{{ sizes
+
+    def local_bytes(self) -> int:
+        """The local memory a work-group's two tile buffers may take: the device's (at most
+        LOCAL_BYTES_CAP), less the kernels' own and LOCAL_RESERVE_BYTES."""
+        dev = self.rt.device
+        own = max(k.get_work_group_info(cl.kernel_work_group_info.LOCAL_MEM_SIZE, dev)
+                  for k in self.kernels.values())
+        return min(dev.local_mem_size, LOCAL_BYTES_CAP) - own - LOCAL_RESERVE_BYTES
 
     @property
     def spectrum_shape(self) -> tuple:

@@ -97,15 +97,18 @@ class WindowChannel:
 
 def channel_maps(shape, c, stretch, physical, eta, exact, on_invalid, counts, ranges):
     """(Rd, l_u, l_v) float32 maps of channel c (aligned: the gather reads them in place): Rd
-    and ld (the mfp's unit) as the texture-varying blur makes them, divided by the texel
-    lengths."""
+    and ld (the mfp's unit) as the texture-varying blur makes them (``texel_parameters``: Rd an
+    aligned float32 map, read only), ld divided by the texel lengths."""
     rd, ld = texel_parameters(shape, c, eta=eta, exact=exact, on_invalid=on_invalid,
                               ranges=ranges, counts=counts, **{**physical, "texel_size": 1.0})
-    out = [host_array(shape[:2]) for _ in range(3)]
-    np.copyto(out[0], rd)
-    np.divide(ld, stretch.su, out=out[1], dtype=np.float32, casting="unsafe")
-    np.divide(ld, stretch.sv, out=out[2], dtype=np.float32, casting="unsafe")
-    return tuple(out)
+    lu, lv = host_array(shape[:2]), host_array(shape[:2])
+
+    def rows(r0, r1):                  # in row blocks on the FFT threads (NumPy's divisions
+        for length, step in ((lu, stretch.su), (lv, stretch.sv)):      # release the GIL)
+            np.divide(ld[r0:r1], step[r0:r1], out=length[r0:r1], dtype=np.float32,
+                      casting="unsafe")
+    in_row_blocks(rows, shape[0])
+    return rd, lu, lv
 
 
 def map_ranges(rd, lu, lv, own=None):

@@ -183,7 +183,7 @@ def test_cli_blur_with_stretch_on_a_scheduler_says_why_not(tmp_path, capsys):
     write_exr(tmp_path / "irr.exr", np.ones((16, 16, 3), np.float32), ("R", "G", "B"))
     code = main(["blur", str(tmp_path / "irr.exr"), "--stretch", str(tmp_path / "st.exr"),
                  "--albedo", "0.5", "--mfp", "1", "-o", str(tmp_path / "out.exr"),
-                 "--scheduler", "local:1", "--no-progress", "--device", "intel"])
+                 "--scheduler", "local:1", "--no-progress"])
     err = capsys.readouterr().err
     assert code == 2 and "a stretched blur reads the whole image" in err, err
     assert "bake a scene on the cluster" in err and not (tmp_path / "out.exr").exists()

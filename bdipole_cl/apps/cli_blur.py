@@ -118,6 +118,12 @@ def blur_one(args) -> int:
     check_output_format(args.output)            # usage errors (exit 2) before any work
     check_claim(Claim(args.input, args.output, {"irradiance": args.input, **sources}),
                 args.force)
+    if args.scheduler and getattr(args, "stretch", None):     # before any device or cluster
+        print("bdipole-cl blur: error: --stretch with --scheduler: the cluster blurs bands of "
+              "rows, and a stretched blur reads the whole image at once; blur without "
+              "--scheduler, or bake a scene on the cluster (each tile its own job)",
+              file=sys.stderr)
+        return 2
     stop = SignalStop().install()
     if args.scheduler:
         return blur_on_cluster(args, sources, stop)
@@ -162,12 +168,6 @@ def blur_on_cluster(args, sources, stop) -> int:
     from ..jobs.blur_file import clamped_text
     job = blur_job(args, sources)
     s = job.work.scattering
-    if s.stretch is not None:           # before any cluster starts
-        print("bdipole-cl blur: error: --stretch with --scheduler: the cluster blurs bands of "
-              "rows, and a stretched blur reads the whole image at once; blur without "
-              "--scheduler, or bake a scene on the cluster (each tile its own job)",
-              file=sys.stderr)
-        return 2
     if s.textured:
         print("bdipole-cl blur: error: --scheduler takes constant parameters (one value or one "
               "per channel); with parameter textures, blur without --scheduler",

@@ -14,29 +14,21 @@
 // The near field: the cells within BD_NEAR (Chebyshev) of the texel, in classes (a, b) of the
 // four cells (+-a rows, +-b columns) (near_field.near_classes, not mirrored: a stretched kernel
 // is even in u and in v, not across the diagonal), each class's irradiance summed once and
-// shared by the BD_NEAR_RANK near kernels (their values per class in near_basis); with
-// BD_NEAR_DIRECT the near kernels are the classes themselves (BD_NEAR_RANK of them): each
-// class sum times its own weight, near_basis not read.
+// multiplied by its own weight (the near kernels are the classes: each node's near cells
+// exact).
 //
 // Every work-item takes BD_WIDTH (1, 4, 8 or 16) neighbouring texels of one row in explicit
 // vectors (kernels/lanes.h), as kernels/blur_textured.cl: rows hold at least BD_WIDTH texels,
 // the last work-item of a row takes its last BD_WIDTH (``first_texel``). The table's records
 // (BD_RECORD floats, the weights then zeros) are read per lane in chunks of BD_CHUNK floats.
 //
-// Specialized by -DBD_NBASIS=G, -DBD_NEAR, -DBD_NEAR_RANK, -DBD_NEAR_DIRECT, -DBD_WIDTH,
-// -DBD_CHUNK.
+// Specialized by -DBD_NBASIS=G, -DBD_NEAR, -DBD_WIDTH, -DBD_CHUNK.
 
 #ifndef BD_NBASIS
 #error "build with -DBD_NBASIS=<basis size>"
 #endif
 #ifndef BD_NEAR
 #define BD_NEAR (-1)
-#endif
-#ifndef BD_NEAR_RANK
-#define BD_NEAR_RANK 0
-#endif
-#ifndef BD_NEAR_DIRECT
-#define BD_NEAR_DIRECT 0
 #endif
 #ifndef BD_WIDTH
 #error "build with -DBD_WIDTH=<texels per work-item> (kernels/lanes.h, before this file, needs it)"
@@ -46,7 +38,7 @@
 #endif
 // near classes (every (a, b), 0 <= a, b <= BD_NEAR) and weights per table node
 #define BD_NCLASSES ((BD_NEAR + 1) * (BD_NEAR + 1))
-#define BD_NWEIGHTS (BD_NBASIS + BD_NEAR_RANK)
+#define BD_NWEIGHTS (BD_NBASIS + (BD_NEAR >= 0 ? BD_NCLASSES : 0))
 #define BD_RECORD (BD_CHUNK * ((BD_NWEIGHTS + BD_CHUNK - 1) / BD_CHUNK))
 #define BD_CHUNK_CAT_(a, b) a##b
 #define BD_CHUNK_CAT(a, b) BD_CHUNK_CAT_(a, b)
@@ -154,16 +146,16 @@ inline vec class_sum(__global const float *e, const int pitch, const int a, cons
     return s;
 }
 
-// out[y * w + x] = settled(rd (sum_j w_j planes[j][row0 + y][x0 + x] + sum_m w_m (near_m * E)))
-// for the texels (x, y) .. (x + BD_WIDTH - 1, y) of rows row0.. of a band w texels wide: the
-// planes `plane` floats apart with rows `pitch` floats apart; e: the band's irradiance padded
-// by x0 texels on every side, rows `epitch` floats apart; the maps rd, lu, lv w texels a row,
-// the band's row y at their row mrow + y; near_basis: the near kernels' values per class
-// (BD_NEAR_RANK x BD_NCLASSES); table: (n0, n1, n2) records of BD_RECORD floats
+// out[y * w + x] = settled(rd (sum_j w_j planes[j][row0 + y][x0 + x] + sum_ab w_ab S_ab))
+// for the texels (x, y) .. (x + BD_WIDTH - 1, y) of rows row0.. of a band w texels wide, S_ab
+// the irradiance summed over near class (a, b): the planes `plane` floats apart with rows
+// `pitch` floats apart; e: the band's irradiance padded by x0 texels on every side, rows
+// `epitch` floats apart; the maps rd, lu, lv w texels a row, the band's row y at their row
+// mrow + y; table: (n0, n1, n2) records of BD_RECORD floats
 __kernel void gather_stretched(__global const float *rd, __global const float *lu,
                                __global const float *lv, __global const float *table,
                                __global const float *planes, __global const float *e,
-                               __constant const float *near_basis, __global float *out,
+                               __global float *out,
                                const int w, const int pitch, const int plane,
                                const int epitch, const int x0, const int row0, const int mrow,
                                const float scale, const int nonneg, BD_LATTICE_ARGS)
@@ -177,26 +169,12 @@ __kernel void gather_stretched(__global const float *rd, __global const float *l
     vec sum = (vec)0.0f;
     for (int j = 0; j < BD_NBASIS; ++j)
         sum += texel_weight(wl, j) * GLOAD(0, blurred + (size_t)j * plane);
-#if BD_NEAR >= 0 && BD_NEAR_RANK > 0 && BD_NEAR_DIRECT
+#if BD_NEAR >= 0
     __global const float *here = e + (size_t)(y + row0 + x0) * epitch + x0 + x;
     int k = BD_NBASIS;
     for (int a = 0; a <= BD_NEAR; ++a)
         for (int b = 0; b <= BD_NEAR; ++b, ++k)
             sum += texel_weight(wl, k) * class_sum(here, epitch, a, b);
-#elif BD_NEAR >= 0 && BD_NEAR_RANK > 0
-    __global const float *here = e + (size_t)(y + row0 + x0) * epitch + x0 + x;
-    vec near[BD_NEAR_RANK];
-    for (int m = 0; m < BD_NEAR_RANK; ++m)
-        near[m] = (vec)0.0f;
-    int k = 0;
-    for (int a = 0; a <= BD_NEAR; ++a)
-        for (int b = 0; b <= BD_NEAR; ++b, ++k) {
-            const vec s = class_sum(here, epitch, a, b);
-            for (int m = 0; m < BD_NEAR_RANK; ++m)
-                near[m] += near_basis[m * BD_NCLASSES + k] * s;
-        }
-    for (int m = 0; m < BD_NEAR_RANK; ++m)
-        sum += texel_weight(wl, BD_NBASIS + m) * near[m];
 #endif
     GSTORE(settle(r * sum, r, scale, nonneg), 0, out + p);
 }

@@ -6,7 +6,7 @@ the window's border rule and transformed there, each basis kernel's spectrum mul
 the band's rows transformed back (``textured_device.device_basis_blurs``, the texture-varying
 blur's own), then the gather (kernels/blur_stretched.cl) reading the planes, the padded
 irradiance, the window's maps and the plan's table from device buffers; the exitance read back
-once. The plan's table, near kernels and spectra and the window's maps stay on the device
+once. The plan's table and spectra and the window's maps stay on the device
 across bands and calls (``textured_device.PLAN_BUFFERS``).
 
 The host's rules, on the device's statistics: the transforms' precision (``fft.image_fft_dtype``:
@@ -45,15 +45,13 @@ def border_kernels(rt, border) -> BlurKernels:
 
 def window_buffers(rt, plan: StretchedPlan, maps, chunk):
     """The device buffers the gather reads: a window's (Rd, l_u, l_v) ``maps`` (a tuple, the
-    buffers held with it) and its plan's table records of ``chunk`` floats and near kernels,
-    uploaded once each."""
+    buffers held with it) and its plan's table records of ``chunk`` floats, uploaded once
+    each."""
     maps = tuple(plan_buffer(rt, maps, ("map", i), lambda m=m: upload_buffer(
         rt, np.ascontiguousarray(m, np.float32))) for i, m in enumerate(maps))
     table = plan_buffer(rt, plan, ("stretched table", chunk), lambda: upload_buffer(
         rt, table_records(plan.fine, chunk)))
-    near = plan_buffer(rt, plan, "stretched near", lambda: upload_buffer(
-        rt, plan.near_basis if plan.near_basis.size else np.zeros(1, np.float32)))
-    return maps, table, near
+    return maps, table
 
 
 def blur_band_device(src, plan: StretchedPlan, maps, mrow, border, row0, rows, rt):
@@ -82,11 +80,11 @@ def blur_band_device(src, plan: StretchedPlan, maps, mrow, border, row0, rows, r
         return None
     padded32, planes, event = device_basis_blurs(kernels, e_dev, 0, plan, shift, dtype, None)
     kernel = stretched_kernel(rt, plan, w)
-    (rd, lu, lv), table, near = window_buffers(rt, plan, maps, kernel[1])
+    (rd, lu, lv), table = window_buffers(rt, plan, maps, kernel[1])
     dst = cl.Buffer(rt.context, cl.mem_flags.WRITE_ONLY, res.nbytes)
     ulps = FFT32_ROUNDOFF_ULPS if dtype == np.float32 else ROUNDOFF_ULPS
     n1 = shape[1]
-    event = enqueue_gather(rt, plan, kernel, (rd, lu, lv, table, planes, padded32, near), dst,
+    event = enqueue_gather(rt, plan, kernel, (rd, lu, lv, table, planes, padded32), dst,
                            w, rows, (n1, h * n1, n1), row0, mrow, settle_floor(e_range, ulps),
                            [event])
     cl.enqueue_copy(rt.queue, res, dst, wait_for=[event])      # blocking: src's too

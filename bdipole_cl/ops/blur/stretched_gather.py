@@ -1,7 +1,8 @@
 """The stretched blur of one window's band (docs/stretch.md "The gather"): the basis blurs of
 its irradiance by the host FFT (``fft.basis_blurs``, as the texture-varying blur), then the
 per-texel gather on the device (kernels/blur_stretched.cl): the table's weights at the texel's
-(Rd, l_u, l_v), the basis blurs there and the near field's kernels on the irradiance itself."""
+(Rd, l_u, l_v), the basis blurs there and the near field's classes summed from the irradiance
+itself."""
 from __future__ import annotations
 
 import numpy as np
@@ -23,14 +24,15 @@ def stretched_kernel(rt, plan: StretchedPlan, n):
     the texture-varying gather's width on this device (the two gathers share their loads'
     pattern), narrower where that build was refused, records read in chunks within the
     device's vector cap."""
+    if plan.near >= 0 and not plan.near_direct:
+        raise ValueError("the stretched gather reads a near field of its classes (a plan of "
+                         "stretched_plan)")
     nweights = plan.fine.shape[3]
     chunk = record_chunk(nweights, device_vector_cap(rt))
 
     def build(width):
         opts = build_options({"BD_NBASIS": len(plan.kernels), "BD_NEAR": plan.near,
-                              "BD_NEAR_RANK": len(plan.near_values),
-                              "BD_NEAR_DIRECT": int(plan.near_direct), "BD_WIDTH": width,
-                              "BD_CHUNK": chunk})
+                              "BD_WIDTH": width, "BD_CHUNK": chunk})
         return cl.Kernel(get_program(rt, "blur_stretched", opts), "gather_stretched")
     width, knl = built_at_width(rt, "blur_stretched", gather_width(rt, n),
                                 GATHER_WIDTHS_ALLOWED, build)
@@ -60,7 +62,7 @@ def enqueue_gather(rt, plan: StretchedPlan, kernel, bufs, dst, w, rows, strides,
                    settle, wait_for=None):
     """Launch the stretched gather (``kernel``: ``stretched_kernel``'s (width, chunk, kernel))
     of ``rows`` rows of w texels into ``dst`` from the device buffers ``bufs`` = (Rd, l_u, l_v,
-    table records, basis blurs, padded irradiance, near kernels); ``strides`` = (a basis
+    table records, basis blurs, padded irradiance); ``strides`` = (a basis
     blur's row, one basis blur, the padded irradiance's row) in floats; the band's first row
     at the planes' row ``row0`` and at the maps' row ``mrow``; settled by ``settle`` = (scale,
     non-negative). Returns its event."""
@@ -86,8 +88,7 @@ def gather(res, plan: StretchedPlan, maps, mrow, planes, padded, row0, rt, settl
     mf = cl.mem_flags
     kernel = stretched_kernel(rt, plan, w)
     bufs = [host_buffer(rt, a if a.size else np.zeros(1, np.float32), mf.READ_ONLY)
-            for a in (*maps, table_records(plan.fine, kernel[1]), planes, padded,
-                      plan.near_basis)]
+            for a in (*maps, table_records(plan.fine, kernel[1]), planes, padded)]
     dst = host_buffer(rt, res, mf.READ_WRITE)
     strides = (planes.shape[2], planes.shape[1] * planes.shape[2], padded.shape[1])
     enqueue_gather(rt, plan, kernel, bufs, dst, w, h, strides, row0, mrow, settle)

@@ -49,12 +49,6 @@
 #endif
 #define CHUNK_STORE BD_CHUNK_CAT(vstore, BD_CHUNK)
 
-// the first of work-item g's BD_WIDTH texels in a row of n >= BD_WIDTH
-inline int first_texel(const int g, const int n)
-{
-    return min(g * BD_WIDTH, n - BD_WIDTH);
-}
-
 // node index and fraction along one axis at fine coordinate c (0, 0 on a one-node axis)
 inline ivec axis_base(const vec c, const int nodes, vec *frac)
 {
@@ -110,27 +104,6 @@ inline void texel_weights(__global const float *table, const vec rd, const vec l
 #undef BD_LANE_WEIGHTS
 }
 
-// weight w_j of the texels (``texel_weights``' wl), as lanes
-inline vec texel_weight(const float *wl, const int j)
-{
-    vec v;
-#define BD_WEIGHT_LANE(s, i) v s = wl[(i) * BD_RECORD + j];
-    FOR_LANES(BD_WEIGHT_LANE)
-#undef BD_WEIGHT_LANE
-    return v;
-}
-
-// a gathered exitance m with the round-off of a zero result removed (fft.settled's rule)
-inline vec settle(const vec m, const vec rd, const float scale, const int nonneg)
-{
-    const vec floor = rd * scale;
-#if BD_WIDTH == 1
-    return (nonneg ? m <= floor : fabs(m) <= floor) ? 0.0f : m;
-#else
-    return select(m, (vec)0.0f, nonneg ? m <= floor : fabs(m) <= floor);
-#endif
-}
-
 // the irradiance summed over the cells of near class (a, b) (cells (+-a, +-b), each once)
 // around the texels at e, rows `pitch` floats apart
 inline vec class_sum(__global const float *e, const int pitch, const int a, const int b)
@@ -168,13 +141,13 @@ __kernel void gather_stretched(__global const float *rd, __global const float *l
     __global const float *blurred = planes + (size_t)(y + row0) * pitch + x0 + x;
     vec sum = (vec)0.0f;
     for (int j = 0; j < BD_NBASIS; ++j)
-        sum += texel_weight(wl, j) * GLOAD(0, blurred + (size_t)j * plane);
+        sum += texel_weight(wl, BD_RECORD, j) * GLOAD(0, blurred + (size_t)j * plane);
 #if BD_NEAR >= 0
     __global const float *here = e + (size_t)(y + row0 + x0) * epitch + x0 + x;
     int k = BD_NBASIS;
     for (int a = 0; a <= BD_NEAR; ++a)
         for (int b = 0; b <= BD_NEAR; ++b, ++k)
-            sum += texel_weight(wl, k) * class_sum(here, epitch, a, b);
+            sum += texel_weight(wl, BD_RECORD, k) * class_sum(here, epitch, a, b);
 #endif
     GSTORE(settle(r * sum, r, scale, nonneg), 0, out + p);
 }

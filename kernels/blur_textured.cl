@@ -70,16 +70,8 @@
 // the first with weight 0 (so every read stays in the table)
 #define DV ((BD_NV_TAPS == 2) ? BD_RECORD : 0)
 
-// {{{ lane helpers (the lane types, vec, ivec, GLOAD, GSTORE, TO_INT, FOR_LANES: kernels/lanes.h)
-
-// the first of work-item g's BD_WIDTH texels in a row of n >= BD_WIDTH: the last work-item
-// takes the row's last BD_WIDTH
-inline int first_texel(const int g, const int n)
-{
-    return min(g * BD_WIDTH, n - BD_WIDTH);
-}
-
-// }}}
+// (the lane types, vec, ivec, GLOAD, GSTORE, TO_INT, FOR_LANES: kernels/lanes.h; first_texel,
+// texel_weight, settle: kernels/gather.h)
 
 // a texel's bilinear taps: the offsets of its first node (iu, iv) in the table, the offset du
 // of the second node along u (0 on a constant axis, as DV), and the tap weights of nodes
@@ -150,16 +142,6 @@ inline void texel_weights(__global const float *table, const taps_t tp, float *w
 #undef BD_LANE_WEIGHTS
 }
 
-// weight w_j of the texels (``texel_weights``' wl), as lanes
-inline vec texel_weight(const float *wl, const int j)
-{
-    vec v;
-#define BD_WEIGHT_LANE(s, i) v s = wl[(i) * BD_RECORD + j];
-    FOR_LANES(BD_WEIGHT_LANE)
-#undef BD_WEIGHT_LANE
-    return v;
-}
-
 // the weight planes: w[j * npix + p] = rd[p] * w_j(p), every weight of the table (the
 // separable-Gaussian path's, which has no near field; the tests read the others), for the
 // texels p = g * BD_WIDTH + lane < npix
@@ -173,21 +155,7 @@ __kernel void lattice_weights(__global const float *rd, __global const float *ld
     float wl[BD_WIDTH * BD_RECORD];
     texel_weights(table, tp, wl);
     for (int j = 0; j < BD_NWEIGHTS; ++j)
-        GSTORE(r * texel_weight(wl, j), 0, w + (size_t)j * npix + first);
-}
-
-// a gathered exitance m with the round-off of a zero result removed (fft.settled, the host's
-// rule, which the tests compare): |m| at or below floor = rd * scale is 0 (+0: an Rd of -0.0 makes
-// a floor and a product of -0.0), and so is every m < 0 where the irradiance is non-negative
-// (nonneg)
-inline vec settle(const vec m, const vec rd, const float scale, const int nonneg)
-{
-    const vec floor = rd * scale;
-#if BD_WIDTH == 1
-    return (nonneg ? m <= floor : fabs(m) <= floor) ? 0.0f : m;
-#else
-    return select(m, (vec)0.0f, nonneg ? m <= floor : fabs(m) <= floor);
-#endif
+        GSTORE(r * texel_weight(wl, BD_RECORD, j), 0, w + (size_t)j * npix + first);
 }
 
 // the irradiance summed over the cells of near class (a, b) (cells (+-a, +-b), (+-b, +-a), each
@@ -235,7 +203,7 @@ __kernel void gather_exitance(__global const float *rd, __global const float *ld
     texel_weights(table, tp, wl);
     vec sum = (vec)0.0f;
     for (int j = 0; j < BD_NBASIS; ++j)
-        sum += texel_weight(wl, j) * GLOAD(0, blurred + (size_t)j * plane);
+        sum += texel_weight(wl, BD_RECORD, j) * GLOAD(0, blurred + (size_t)j * plane);
 #if BD_NEAR >= 0 && BD_NEAR_RANK > 0
     // the near kernels convolved with the irradiance: class sums, shared, times each kernel's
     // value on the class
@@ -251,7 +219,7 @@ __kernel void gather_exitance(__global const float *rd, __global const float *ld
                 near[m] += near_basis[m * BD_NCLASSES + k] * s;
         }
     for (int m = 0; m < BD_NEAR_RANK; ++m)
-        sum += texel_weight(wl, BD_NBASIS + m) * near[m];
+        sum += texel_weight(wl, BD_RECORD, BD_NBASIS + m) * near[m];
 #endif
     const vec v = settle(r * sum, r, scale, nonneg);
     __global float *o = out + p * nch + c;

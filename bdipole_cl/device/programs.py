@@ -30,6 +30,9 @@ from .runtime import (DeviceError, Runtime, build_quietly, device_index, in_prob
 
 #: the explicit vector lanes (BD_WIDTH) of the kernels that take several elements a work-item
 LANES = "lanes.h"
+#: the per-texel gathers' shared header, prepended to their programs after LANES
+GATHER = "gather.h"
+GATHER_PROGRAMS = ("blur_textured", "blur_stretched")
 
 #: the built programs' budget: their device binaries' bytes (a program is a few hundred KiB)
 PROGRAM_CACHE_BYTES = 256 << 20
@@ -48,12 +51,14 @@ def program_bytes(prg: cl.Program) -> int:
 
 def kernel_source(name: str, body: str | None = None) -> str:
     """The generated layout, then the physics header and the lane types (empty without
-    BD_WIDTH), then ``kernels/<name>.cl`` (or ``body``, a kernel's text given directly, named
-    ``name``)."""
+    BD_WIDTH), the gathers' header for GATHER_PROGRAMS, then ``kernels/<name>.cl`` (or
+    ``body``, a kernel's text given directly, named ``name``)."""
     d = kernel_dir()
     text = (d / f"{name}.cl").read_text() if body is None else body
+    gather = (f"\n#line 1 \"{GATHER}\"\n" + (d / GATHER).read_text()
+              if name in GATHER_PROGRAMS else "")
     return (layout.header() + f"#line 1 \"{HEADER}\"\n" + (d / HEADER).read_text()
-            + f"\n#line 1 \"{LANES}\"\n" + (d / LANES).read_text()
+            + f"\n#line 1 \"{LANES}\"\n" + (d / LANES).read_text() + gather
             + f"\n#line 1 \"{name}.cl\"\n" + text)
 
 

@@ -187,3 +187,41 @@ def test_cli_blur_with_stretch_on_a_scheduler_says_why_not(tmp_path, capsys):
     err = capsys.readouterr().err
     assert code == 2 and "a stretched blur reads the whole image" in err, err
     assert "bake a scene on the cluster" in err and not (tmp_path / "out.exr").exists()
+
+
+def test_cli_stretch_errors_name_the_stretch_file_and_options(tmp_path, capsys):
+    """A stretch map with a NaN length is refused naming that file, its channel and texel
+    (not the irradiance); --texel-size beside --stretch, and one tile's stretch map for a tile
+    pattern of several, are usage errors (exit 2); nothing is written."""
+    import OpenImageIO as oiio
+    from bdipole_cl.apps.cli import main
+    from bdipole_cl.apps.demo import write_exr
+    stage = cylinder_stage(tmp_path / "cyl.usda", tile2=True)
+    stretch_maps(stage, str(tmp_path / "st.<UDIM>.exr"), size=32)
+    for udim in (1001, 1002):
+        write_exr(tmp_path / f"irr.{udim}.exr", np.ones((32, 32, 3), np.float32),
+                  ("R", "G", "B"))
+    px = oiio.ImageBuf(str(tmp_path / "st.1001.exr"))
+    spec = px.spec()
+    bad = px.get_pixels(oiio.FLOAT)
+    bad[5, 7, spec.channelnames.index("stretch.u")] = np.nan
+    out = oiio.ImageOutput.create(str(tmp_path / "nan.exr"))
+    out.open(str(tmp_path / "nan.exr"), spec)
+    out.write_image(bad)
+    out.close()
+    common = ["--albedo", "0.5", "--mfp", "1", "--no-progress"]
+    code = main(["blur", str(tmp_path / "irr.1001.exr"), "--stretch", str(tmp_path / "nan.exr"),
+                 "-o", str(tmp_path / "o.exr"), *common])
+    err = capsys.readouterr().err
+    assert code == 1 and "nan.exr: stretch.u at x=7, y=5: nan" in err, err
+    assert "irr.1001.exr" not in err
+    code = main(["blur", str(tmp_path / "irr.1001.exr"), "--stretch",
+                 str(tmp_path / "st.1001.exr"), "--texel-size", "0.1",
+                 "-o", str(tmp_path / "o.exr"), *common])
+    err = capsys.readouterr().err
+    assert code == 2 and "--texel-size 0.1 with --stretch" in err, err
+    code = main(["blur", str(tmp_path / "irr.<UDIM>.exr"), "--stretch",
+                 str(tmp_path / "st.1001.exr"), "-o", str(tmp_path / "o.<UDIM>.exr"), *common])
+    err = capsys.readouterr().err
+    assert code == 2 and "is one tile's map" in err and "names 2 tiles" in err, err
+    assert not list(tmp_path.glob("o*.exr"))

@@ -103,3 +103,46 @@ def test_near_field_is_exact_at_the_nodes():
         exact = class_values(kernel_at(t, 1.4, plan.radius), classes)
         # the cubic reproduces its node values; float32 tables: 2 ulps of the largest value
         np.testing.assert_allclose(fine[g:], exact, rtol=0, atol=2 * 2.0 ** -23 * exact.max())
+
+
+# {{{ what a stretch is checked for, before any work
+
+def test_stretch_inputs_are_checked_by_name(on_device):
+    """A covered map of another shape, a length that is not finite and > 0 in float32 (as
+    given: 1e-50 is not 0), chart ids that are not whole numbers and a texel size beside the
+    stretch: each a one-line ValueError naming the map, texel or option; a covered map of the
+    right bytes but another shape is refused after a blur cached its windows too."""
+    h, w = 24, 30
+    e = np.random.default_rng(3).random((h, w)).astype(np.float32)
+    s = two_charts(h, w, split=13)
+
+    def blur(stretch, **kw):
+        return bd.blur(e, albedo=0.6, mfp=1.0, stretch=stretch, **kw)
+    blur(s)                                                    # its windows cached
+    for covered in (s.covered.ravel(), s.covered[:, :-1].copy()):
+        with pytest.raises(ValueError, match=r"stretch covered map has shape \(\d+,? ?\d*\); "
+                                             r"expected \(24, 30\)"):
+            blur(Stretch(s.su, s.sv, s.chart, covered))
+    tiny = s.su.astype(np.float64)
+    tiny[3, 4] = 1e-50
+    with pytest.raises(ValueError, match=r"stretch su at x=4, y=3: 1e-50 is below float32's"):
+        blur((tiny, s.sv))
+    chart = np.where(s.chart == 0, 0.5, 0.7)
+    with pytest.raises(ValueError, match=r"chart map at x=0, y=0: 0\.5: chart ids are whole"):
+        blur(Stretch(s.su, s.sv, chart, s.covered))
+    with pytest.raises(ValueError, match=r"texel_size=0\.1 with stretch=.*leave texel_size"):
+        blur(s, texel_size=0.1)
+
+
+def test_stretch_maps_on_the_device_are_the_hosts(on_device):
+    """pyopencl arrays as the stretch maps, as the irradiance and parameters may be: read
+    back, the same blur."""
+    import pyopencl.array as cla
+    s = two_charts()
+    e = np.random.default_rng(4).random(s.su.shape).astype(np.float32)
+    q = on_device.queue
+    got = bd.blur(e, albedo=0.6, mfp=1.0, stretch=(cla.to_device(q, s.su),
+                                                   cla.to_device(q, s.sv)))
+    np.testing.assert_array_equal(got, bd.blur(e, albedo=0.6, mfp=1.0, stretch=(s.su, s.sv)))
+
+# }}}

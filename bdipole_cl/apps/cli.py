@@ -309,7 +309,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "per-texel surface lengths instead of --texel-size (docs/stretch.md)")
     p.add_argument("--charts", default="clamp", choices=CHART_BORDERS,
                    help="with --stretch: at UV chart borders, the chart continued by its edge "
-                        "(clamp), nothing beyond it (zero), or charts ignored (none)")
+                        "(clamp), nothing beyond it (zero), or charts ignored (none; only then "
+                        "does --border apply to a map with charts)")
     p.add_argument("--tol", type=fraction, default=1e-3,
                    help="error bound relative to max(E) * Rd, for any irradiance")
     p.add_argument("--method", default="auto", choices=BLUR_METHODS,

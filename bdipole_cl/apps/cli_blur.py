@@ -73,7 +73,14 @@ def cmd_blur(args) -> int:
     if not patterned:
         return blur_one(args)
     code = 0
-    for path, tile, out, err in outputs_of([args.input], args.output, lambda p: p):
+    rows = outputs_of([args.input], args.output, lambda p: p)
+    stretch = getattr(args, "stretch", None)
+    if stretch and len(rows) > 1 and not tiles.is_pattern(stretch):
+        print(f"bdipole-cl blur: error: --stretch {stretch} is one tile's map, and "
+              f"{args.input} names {len(rows)} tiles: give a tile pattern "
+              f"(stretch.<UDIM>.exr), each tile's lengths its own", file=sys.stderr)
+        return 2
+    for path, tile, out, err in rows:
         one = argparse.Namespace(**vars(args))
         one.input, one.output = path, out
         try:
@@ -118,6 +125,11 @@ def blur_one(args) -> int:
     check_output_format(args.output)            # usage errors (exit 2) before any work
     check_claim(Claim(args.input, args.output, {"irradiance": args.input, **sources}),
                 args.force)
+    if getattr(args, "stretch", None) and args.texel_size != 1.0:
+        print(f"bdipole-cl blur: error: --texel-size {args.texel_size:g} with --stretch: the "
+              f"stretch map gives each texel's lengths; leave --texel-size out",
+              file=sys.stderr)
+        return 2
     if args.scheduler and getattr(args, "stretch", None):     # before any device or cluster
         print("bdipole-cl blur: error: --stretch with --scheduler: the cluster blurs bands of "
               "rows, and a stretched blur reads the whole image at once; blur without "

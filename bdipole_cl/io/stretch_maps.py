@@ -117,6 +117,9 @@ def read_stretch(path) -> Stretch:
         shear = float(spec.get_string_attribute("bdipole:stretch_max_shear", "0") or 0)
     finally:
         reader.close()
+    for channel in CHANNELS:
+        if channel in names:
+            check_channel(path, channel, px[..., names.index(channel)])
     chart = covered = None
     if "chart" in names:
         code = px[..., names.index("chart")]
@@ -124,3 +127,19 @@ def read_stretch(path) -> Stretch:
         covered = code > 0
     return Stretch(px[..., names.index(CHANNELS[0])], px[..., names.index(CHANNELS[1])], chart,
                    covered, shear, unit)
+
+
+def check_channel(path, channel, values):
+    """TextureError naming the file, channel and first texel where a stretch map's lengths
+    are not finite and > 0, or its chart codes (chart + 1, negative where not covered) are not
+    whole numbers."""
+    if channel == "chart":
+        ok = np.isfinite(values) & (values == np.round(values))
+        want = "a whole number (chart + 1, negative where not covered)"
+    else:
+        ok = np.isfinite(values) & (values > 0)
+        want = "a surface length, finite and > 0"
+    if not ok.all():
+        y, x = np.unravel_index(int(np.flatnonzero(~ok)[0]), ok.shape)
+        raise TextureError(f"{path}: {channel} at x={x}, y={y}: {float(values[y, x])!r}: "
+                           f"expected {want} ({int((~ok).sum())} texel(s) so)")

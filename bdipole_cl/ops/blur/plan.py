@@ -263,6 +263,10 @@ def stretched_blur_plan(shape, scattering, tol, method, border, exact, on_invali
     from .stretched import plan_stretched
     if method not in ("auto", "fft"):
         raise ValueError(f"method={method!r}: the stretched blur runs fft (or auto)")
+    if np.any(np.asarray(scattering.texel_size) != 1.0):
+        raise ValueError(f"texel_size={scattering.texel_size!r} with stretch=: the stretch "
+                         f"maps give each texel's lengths (in the mfp's unit); leave "
+                         f"texel_size out")
     return plan_stretched(shape, scattering, scattering.stretch, tol=tol, border=border,
                           charts=charts, exact=exact, on_invalid=on_invalid, device=device)
 

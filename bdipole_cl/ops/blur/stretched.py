@@ -49,7 +49,8 @@ class Stretch:
 def as_stretch(value, shape) -> Stretch:
     """A Stretch of an HxW image from a Stretch, an ``ops.stretch.StretchTile`` (or anything
     with ``su``, ``sv``: its chart, covered and max_shear too), an (su, sv) pair or an HxWx2
-    array; ValueError naming the first texel whose length is not finite and > 0."""
+    array (host or pyopencl arrays); ValueError naming the first texel whose length is not
+    finite and > 0 in float32, a map of another shape, or chart ids that are not integers."""
     if isinstance(value, Stretch):
         s = value
     elif hasattr(value, "su") and hasattr(value, "sv"):
@@ -57,34 +58,63 @@ def as_stretch(value, shape) -> Stretch:
                     getattr(value, "covered", None), float(getattr(value, "max_shear", 0.0)),
                     getattr(value, "unit", ""))
     elif isinstance(value, (tuple, list)) and len(value) == 2:
-        s = Stretch(np.asarray(value[0]), np.asarray(value[1]))
+        s = Stretch(host_map(value[0]), host_map(value[1]))
     else:
-        a = np.asarray(value)
+        a = host_map(value)
         if a.ndim != 3 or a.shape[2] != 2:
             raise ValueError(f"stretch: expected (su, sv) maps or an HxWx2 array; got shape "
                              f"{a.shape}")
         s = Stretch(a[..., 0], a[..., 1])
     h, w = shape[:2]
-    maps = {}
-    for name in ("su", "sv"):
-        m = np.ascontiguousarray(getattr(s, name), np.float32)
-        if m.shape != (h, w):
-            raise ValueError(f"stretch {name} has shape {m.shape}; expected ({h}, {w}) to "
-                             f"match the irradiance")
-        bad = ~(np.isfinite(m) & (m > 0))
-        if bad.any():
-            y, x = np.unravel_index(int(np.flatnonzero(bad)[0]), bad.shape)
-            raise ValueError(f"stretch {name} at x={x}, y={y}: {m[y, x]!r}: a texel step's "
-                             f"surface length must be finite and > 0 ({int(bad.sum())} "
-                             f"texel(s) so)")
-        maps[name] = m
-    chart = None if s.chart is None else np.asarray(s.chart)
-    if chart is not None and chart.dtype.kind not in "iu":
-        chart = chart.astype(np.int64)
-    if chart is not None and chart.shape != (h, w):
-        raise ValueError(f"stretch chart map has shape {chart.shape}; expected ({h}, {w})")
-    covered = None if s.covered is None else np.asarray(s.covered, bool)
+    maps = {name: checked_lengths(name, host_map(getattr(s, name)), (h, w))
+            for name in ("su", "sv")}
+    chart = None if s.chart is None else checked_charts(host_map(s.chart), (h, w))
+    covered = None if s.covered is None else host_map(s.covered).astype(bool, copy=False)
+    if covered is not None and covered.shape != (h, w):
+        raise ValueError(f"stretch covered map has shape {covered.shape}; expected ({h}, {w})")
     return Stretch(maps["su"], maps["sv"], chart, covered, float(s.max_shear), s.unit)
+
+
+def host_map(value):
+    """A map as a host array (a pyopencl array read back)."""
+    return np.asarray(value.get() if hasattr(value, "get") and hasattr(value, "queue")
+                      else value)
+
+
+def checked_lengths(name, given, shape):
+    """Map ``given`` (su or sv) as C-contiguous float32 of ``shape``; ValueError naming the
+    first texel whose length, as given or in float32, is not finite and > 0."""
+    if given.shape != shape:
+        raise ValueError(f"stretch {name} has shape {given.shape}; expected {shape} to match "
+                         f"the irradiance")
+    m = np.ascontiguousarray(given, np.float32)
+    bad = ~(np.isfinite(m) & (m > 0))
+    if bad.any():
+        y, x = np.unravel_index(int(np.flatnonzero(bad)[0]), bad.shape)
+        was = given[y, x]
+        why = (f"{float(was)!r} is {'below' if 0 < was else 'above'} float32's range"
+               if np.isfinite(was) and was > 0 else f"{float(was)!r}")
+        raise ValueError(f"stretch {name} at x={x}, y={y}: {why}: a texel step's surface "
+                         f"length must be finite and > 0 in float32 ({int(bad.sum())} "
+                         f"texel(s) so)")
+    return m
+
+
+def checked_charts(chart, shape):
+    """Chart ids of ``shape`` as integers; ValueError naming the first texel whose id is not
+    a whole number (a float map's ids are not cast: 0.5 and 0.7 are not one chart)."""
+    if chart.shape != shape:
+        raise ValueError(f"stretch chart map has shape {chart.shape}; expected {shape}")
+    if chart.dtype.kind in "iu":
+        return chart
+    if chart.dtype.kind == "b":
+        return chart.astype(np.int64)
+    whole = np.isfinite(chart) & (chart == np.round(chart)) & (np.abs(chart) < 2.0 ** 53)
+    if not whole.all():
+        y, x = np.unravel_index(int(np.flatnonzero(~whole)[0]), whole.shape)
+        raise ValueError(f"stretch chart map at x={x}, y={y}: {float(chart[y, x])!r}: chart "
+                         f"ids are whole numbers")
+    return chart.astype(np.int64)
 
 
 class WindowChannel:

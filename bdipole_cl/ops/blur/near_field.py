@@ -241,8 +241,8 @@ def _near_field_fit(targets, train, tol, radius, near, measure, mirrored=True, d
     """The NearFieldFit of near field ``near`` (``near_field_basis``). ``direct``: the near
     kernels are the classes themselves (values the identity, each node's coefficients its own
     class values: exact), which the gather reads as weights of the class sums, with no
-    multiply-adds of near kernels on classes (kernels/blur_stretched.cl ``BD_NEAR_DIRECT``):
-    cheaper than a projection of M kernels wherever M > 4 or so."""
+    multiply-adds of near kernels on classes (kernels/blur_stretched.cl, the stretched blur's
+    near field)."""
     classes = near_classes(near, mirrored)
     if direct and classes:
         return _direct_near_fit(targets, train, tol, radius, near, measure, mirrored)

@@ -11,11 +11,11 @@ ellipse where the profile's tail is tol Rd, and normalized to sum to 1. Its shap
 and s = ln(l_u / l_v) (the anisotropy), so that a map's range of anisotropy is an axis of its
 own (a chart of one aspect collapses it to one node) and the box of the ranges holds only
 kernels of the aspects the map has. The cells within ``near`` of the texel are the near field
-(``near_field``, classes of four cells: the kernels are even in u and v), whose values each node
-keeps exactly; the eigen-kernels fit the rest, each node's far part projected on them, and the
-texels' weights (far and near) are the lattice's
-cubic interpolation, tabulated REFINE times finer per axis and read at the corners of the
-texel's tetrahedron (kernels/blur_stretched.cl). The fit and interpolation errors are measured
+(``near_field``, classes of four cells: the kernels are even in u and v), whose values each
+node keeps exactly; the eigen-kernels fit the rest, each node's far part projected on them, and
+the texels' weights (far and near) are the lattice's cubic interpolation, tabulated REFINE
+times finer per axis and read at the corners of the texel's tetrahedron
+(kernels/blur_stretched.cl). The fit and interpolation errors are measured
 against exact kernels at the range's corners and lattice cells' middles, and reported with the
 truncation's tol as the bound, as for the texture-varying blur.
 """

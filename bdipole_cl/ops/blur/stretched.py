@@ -12,6 +12,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from ...device import get_runtime
+from ...device.transfer import is_device_array
 from ...errors import check_policy
 from ...methods.registry import BORDER, CHART_BORDER
 from ...physics import reference as ref
@@ -77,8 +78,7 @@ def as_stretch(value, shape) -> Stretch:
 
 def host_map(value):
     """A map as a host array (a pyopencl array read back)."""
-    return np.asarray(value.get() if hasattr(value, "get") and hasattr(value, "queue")
-                      else value)
+    return np.asarray(value.get() if is_device_array(value) else value)
 
 
 def checked_lengths(name, given, shape):

@@ -16,26 +16,16 @@ default: ``ops/bands.band_rows``). This measures what that budget costs in speed
 """
 import argparse
 import tempfile
-import time
 from pathlib import Path
 
 import numpy as np
 import OpenImageIO as oiio
 
 from bdipole_cl import get_runtime, invert_albedo
-from bdipole_cl.apps.benchmark import machine_lines
+from bdipole_cl.apps.benchmark import best_time, machine_lines
 from bdipole_cl.io.batch import process_textures
 
 BUDGETS = (4 << 20, 16 << 20, 64 << 20, 256 << 20, 1 << 30)
-
-
-def best_of(fn, repeats):
-    best = float("inf")
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        best = min(best, time.perf_counter() - t0)
-    return best
 
 
 def in_memory(rt, n, repeats):
@@ -46,7 +36,7 @@ def in_memory(rt, n, repeats):
         np.sqrt(rd, out=alpha)
         np.subtract(np.float32(1), alpha, out=rho)
 
-    peer = best_of(numpy_pass, repeats)
+    peer = best_time(numpy_pass, repeats)
     print(f"\nin memory: {n} texels, invert_albedo(return_rho=True, out=) per slice; NumPy's "
           f"pass {n / peer / 1e6:.0f} Mtexel/s")
     print(f"{'slice (texels)':>15} {'MiB in+out':>11} {'Mtexel/s':>9} {'of NumPy':>9}")
@@ -61,7 +51,7 @@ def in_memory(rt, n, repeats):
                 invert_albedo(rd[i:i + chunk], 1.4, device=rt, return_rho=True,
                               out=(alpha[i:i + chunk], rho[i:i + chunk]))
 
-        t = best_of(sliced, repeats)
+        t = best_time(sliced, repeats)
         print(f"{chunk:>15} {chunk * 12 / 2**20:>11.2f} {n / t / 1e6:>9.0f} "
               f"{peer / t:>8.0%}")
 
@@ -83,7 +73,7 @@ def file_to_file(rt, size, repeats):
                                           max_memory=budget, output=str(Path(tmp) / "o.exr"),
                                           progress=False)
                 assert report.ok, report.summary()
-            times[budget] = best_of(job, repeats)
+            times[budget] = best_time(job, repeats)
         for budget in BUDGETS:
             print(f"{budget >> 20:>10}M {times[budget]:>8.2f} "
                   f"{times[budget] / times[BUDGETS[-1]]:>6.2f}")

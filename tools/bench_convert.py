@@ -12,26 +12,16 @@ safeguarded Newton per value), which every profile conversion calls once.
     python tools/bench_convert.py --n 65536 --repeats 3
 """
 import argparse
-import time
 
 import numpy as np
 
 from bdipole_cl import convert
-from bdipole_cl.apps.benchmark import cpu_model
+from bdipole_cl.apps.benchmark import best_time, cpu_model
 from bdipole_cl.physics.reference import albedo_to_coefficients
 
 PAIRS = (("better-dipole", "burley"), ("dipole", "better-dipole"),
          ("better-dipole", "van-de-hulst"), ("random-walk", "better-dipole"),
          ("better-dipole", "cycles-random-walk"))
-
-
-def best_of(fn, repeats):
-    best = float("inf")
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        best = min(best, time.perf_counter() - t0)
-    return best
 
 
 def main(argv=None):
@@ -42,14 +32,14 @@ def main(argv=None):
     print(f"CPU: {cpu_model()} (host float64: no OpenCL device)")
     colour = np.random.default_rng(0).uniform(0.02, 0.8, args.n).astype(np.float32)
     n = np.unique(colour).size
-    peer = best_of(lambda: albedo_to_coefficients(colour.astype(np.float64), 1.0, 1.4),
+    peer = best_time(lambda: albedo_to_coefficients(colour.astype(np.float64), 1.0, 1.4),
                    args.repeats)
     print(f"{n} distinct float32 colours in [0.02, 0.8], eta 1.4, radius 1; peer: the "
           f"reference inversion, {n / peer / 1e3:.0f} k values/s")
     print(f"{'source -> target':>36} {'k values/s':>11} {'s':>7} {'x peer':>7}")
     for source, target in PAIRS:
         convert(colour[:16], 1.0, source, target, eta=1.4)      # tables built outside
-        t = best_of(lambda: convert(colour, 1.0, source, target, eta=1.4), args.repeats)
+        t = best_time(lambda: convert(colour, 1.0, source, target, eta=1.4), args.repeats)
         print(f"{source + ' -> ' + target:>36} {n / t / 1e3:>11.0f} {t:>7.2f} "
               f"{t / peer:>7.1f}")
 

@@ -36,7 +36,7 @@ import numpy as np
 import pyopencl as cl
 
 from bdipole_cl import albedo_to_coefficients, get_runtime, invert_albedo, use_device
-from bdipole_cl.apps.benchmark import (inversion_workload, machine_lines, median_time,
+from bdipole_cl.apps.benchmark import (best_time, inversion_workload, machine_lines, median_time,
                                        reference_inverse, time_copy, time_inversion)
 from bdipole_cl.device import build_options, get_program
 from bdipole_cl.device.layout import P, channel_params
@@ -165,17 +165,6 @@ def corrected_ratios(config, rd, eta, pairs=7):
                        eta, pairs)
 
 
-def best_time(fn, repeats):
-    """The fastest of ``repeats`` wall times of ``fn()`` after one warm-up call."""
-    fn()
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return min(times)
-
-
 def numpy_pass(rd, out=None):
     """NumPy's own 1-read-2-write pass: two outputs from one input, fresh or ``out``."""
     if out is None:
@@ -190,8 +179,8 @@ def host_rows(rd, eta, rt, repeats):
     """(name, seconds, NumPy peer's seconds) of the host-to-host paths, fresh and ``out=``
     (the NumPy pass timed beside each, in the same form)."""
     out = (np.empty_like(rd), np.empty_like(rd))
-    numpy_fresh = best_time(lambda: numpy_pass(rd), repeats)
-    numpy_out = best_time(lambda: numpy_pass(rd, out), repeats)
+    numpy_fresh = best_time(lambda: numpy_pass(rd), repeats, warmup=1)
+    numpy_out = best_time(lambda: numpy_pass(rd, out), repeats, warmup=1)
     rows = [
         ("invert_albedo(return_rho=True)", lambda: invert_albedo(rd, eta, return_rho=True,
                                                                  device=rt), numpy_fresh),
@@ -203,7 +192,7 @@ def host_rows(rd, eta, rt, repeats):
         ("  out=(sigma_a, sigma_s)", lambda: albedo_to_coefficients(rd, 2.0, eta, device=rt,
                                                                     out=out), numpy_out),
     ]
-    timed = [(name, best_time(fn, repeats), peer) for name, fn, peer in rows]
+    timed = [(name, best_time(fn, repeats, warmup=1), peer) for name, fn, peer in rows]
     return timed + [("NumPy 1-read-2-write pass", numpy_fresh, numpy_fresh),
                     ("  out=(alpha, rho)", numpy_out, numpy_out)]
 

@@ -18,12 +18,10 @@ blur's time ratio with this decomposition (docs/model.md "What bounds its cost")
 """
 import argparse
 import dataclasses
-import time
 
-import numpy as np
 
 from bdipole_cl import blur, get_runtime, use_device
-from bdipole_cl.apps.benchmark import varying_workload
+from bdipole_cl.apps.benchmark import best_time, varying_workload
 from bdipole_cl.ops.blur.fft import basis_blurs, fft_shape
 from bdipole_cl.ops.blur.near_field import NEAR_RADII, far_rank
 from bdipole_cl.ops.blur.textured import host_array, textured_plans
@@ -33,15 +31,6 @@ from bdipole_cl.ops.blur.textured_plan import (lattice_kernels, parameter_ranges
 ALBEDO = (0.8, 0.6, 0.4)
 #: near field radii the gather does not support, to show the ranks would not fall far there
 WIDER = (8, 10, 12)
-
-
-def best_of(fn, repeats):
-    best = np.inf
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        best = min(best, time.perf_counter() - t0)
-    return best
 
 
 def channel_ranks(channel, tol, radii):
@@ -59,7 +48,7 @@ def basis_time(e, c, plan, nbasis, repeats):
     shape = fft_shape(e.shape[:2], plan.radius)
     planes = host_array((nbasis, e.shape[0], shape[1]))
     basis_blurs(e, c, few, "clamp", planes)            # warm: the spectra cached
-    return best_of(lambda: basis_blurs(e, c, few, "clamp", planes), repeats)
+    return best_time(lambda: basis_blurs(e, c, few, "clamp", planes), repeats)
 
 
 def main(argv=None):
@@ -87,9 +76,9 @@ def main(argv=None):
             print(f"  mfp {mfp:g} channel {c} (plan: {len(ch.plan.kernels)} basis, near "
                   f"{ch.plan.near}): " + " ".join(f"{r}:{g}" for r, g in ranks.items()))
             floor += basis_time(e, c, ch.plan, fewest[-1], args.repeats)
-        const = best_of(lambda: blur(e, albedo=ALBEDO, mfp=mfp, eta=1.4, tol=args.tol),
+        const = best_time(lambda: blur(e, albedo=ALBEDO, mfp=mfp, eta=1.4, tol=args.tol),
                         args.repeats)
-        vary = best_of(lambda: blur(e, albedo=albedo, mfp=mfps, eta=1.4, tol=args.tol),
+        vary = best_time(lambda: blur(e, albedo=albedo, mfp=mfps, eta=1.4, tol=args.tol),
                        args.repeats)
         print(f"  mfp {mfp:g}: constant {const * 1e3:.0f} ms; basis blurs alone with "
               f"{fewest} kernels {floor * 1e3:.0f} ms = {floor / const:.2f}x (a free gather's "

@@ -56,6 +56,19 @@ def machine_lines(rt) -> list:
             f"{gather_width(rt, 1 << 20)}"]
 
 
+def best_time(fn, repeats, warmup=0) -> float:
+    """The fastest of ``repeats`` wall times of ``fn()`` (host work, or work that waits for
+    itself) in seconds, after ``warmup`` untimed calls."""
+    for _ in range(warmup):
+        fn()
+    best = float("inf")
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        fn()
+        best = min(best, time.perf_counter() - t0)
+    return best
+
+
 def median_time(fn, repeats=5, warmup=1, queue=None, stat=statistics.median):
     """Median (or ``stat``: ``min`` for the best of a noisy machine) wall time of ``fn()``
     (which enqueues work) in seconds, queue drained each time."""

@@ -260,12 +260,11 @@ def roundoff(plan) -> float:
 
 
 def near_words(plan) -> str:
-    """A plan's near field in words: its radius and its classes or near kernels."""
+    """A plan's near field in words: its radius and its classes (``stretched_plan``'s near
+    kernels)."""
     if plan.near < 0:
         return ""
-    if plan.near_direct:
-        return f", near field {plan.near} ({len(plan.near_values)} classes)"
-    return f", near field {plan.near} with {len(plan.near_values)} kernels"
+    return f", near field {plan.near} ({len(plan.near_values)} classes)"
 
 
 def describe(plans) -> str:

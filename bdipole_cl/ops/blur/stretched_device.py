@@ -6,8 +6,8 @@ the window's border rule and transformed there, each basis kernel's spectrum mul
 the band's rows transformed back (``textured_device.device_basis_blurs``, the texture-varying
 blur's own), then the gather (kernels/blur_stretched.cl) reading the planes, the padded
 irradiance, the window's maps and the plan's table from device buffers; the exitance read back
-once. The plan's table and spectra and the window's maps stay on the device
-across bands and calls (``textured_device.PLAN_BUFFERS``).
+once. The plan's table and spectra stay on the device across bands and calls, the window's maps
+across its bands (``textured_device.PLAN_BUFFERS``; each call makes its maps anew).
 
 The host's rules, on the device's statistics: the transforms' precision (``fft.image_fft_dtype``:
 float64 where the band's peak is too far above its mean for float32, None where the device has
@@ -45,8 +45,8 @@ def border_kernels(rt, border) -> BlurKernels:
 
 def window_buffers(rt, plan: StretchedPlan, maps, chunk):
     """The device buffers the gather reads: a window's (Rd, l_u, l_v) ``maps`` (a tuple, the
-    buffers held with it) and its plan's table records of ``chunk`` floats, uploaded once
-    each."""
+    buffers held with it: once per call's maps) and its plan's table records of ``chunk``
+    floats (once per plan)."""
     maps = tuple(plan_buffer(rt, maps, ("map", i), lambda m=m: upload_buffer(
         rt, np.ascontiguousarray(m, np.float32))) for i, m in enumerate(maps))
     table = plan_buffer(rt, plan, ("stretched table", chunk), lambda: upload_buffer(

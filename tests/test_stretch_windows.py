@@ -10,7 +10,10 @@ import bdipole_cl as bd
 from bdipole_cl.ops.blur import stretched_windows as sw
 from bdipole_cl.ops.blur.near_field import class_values, near_classes
 from bdipole_cl.ops.blur.stretched import Stretch, map_ranges
-from bdipole_cl.ops.blur.stretched_plan import (kernel_at, lattice_variables, stretched_plan)
+from bdipole_cl.ops.blur import stretched as st
+from bdipole_cl.ops.blur.stretched_plan import (MAX_NODES, kernel_at, lattice_nodes,
+                                                lattice_variables, shared_ranges,
+                                                stretched_plan)
 from bdipole_cl.ops.blur.textured_plan import REFINE
 
 
@@ -84,6 +87,62 @@ def test_ranges_over_a_windows_own_texels():
     np.testing.assert_allclose(np.array(got), np.array(want), rtol=1e-12, atol=1e-12)
     whole = map_ranges(rd, lu, lv)
     assert whole[1][1] > got[1][1]        # without the mask the outside texels count
+
+
+def test_charts_of_overlapping_ranges_share_a_plan():
+    """Windows whose ranges overlap share the plan of their union (a UV layout's many charts:
+    one plan, not one each); windows of distinct single aspects (one node of s each, as a
+    cylinder's charts) keep their own; no union passes MAX_NODES."""
+    tol = 1e-3
+    near = [((0.5, 1.5), (1.0, 1.4), (-0.15, 0.1)), ((0.7, 1.9), (1.1, 1.5), (-0.1, 0.2)),
+            ((0.6, 1.2), (0.9, 1.2), (-0.05, 0.05))]
+    assert shared_ranges(near, [10, 30, 20], tol) == [((0.5, 1.9), (0.9, 1.5),
+                                                       (-0.15, 0.2))] * 3
+    aspects = [((0.5, 1.5), (1.0, 1.4), (0.26, 0.2601)), ((0.5, 1.5), (1.0, 1.4), (0.92, 0.92))]
+    assert shared_ranges(aspects, [5, 5], tol) == aspects
+    # within MERGE_STEPS of the wider, but past MAX_NODES together
+    wide = [((0.0, 1.2), (0.0, 1.0), (-1.0, 13.21)), ((0.0, 1.2), (0.0, 1.0), (-1.1, 13.16))]
+    assert max(lattice_nodes(w, tol) for w in wide) <= MAX_NODES < lattice_nodes(
+        ((0.0, 1.2), (0.0, 1.0), (-1.1, 13.21)), tol)
+    assert shared_ranges(wide, [5, 5], tol) == wide
+
+
+def many_charts(n=4, side=24, gutter=2):
+    """A Stretch of n x n square charts (``side`` texels, ``gutter`` apart, not covered) of
+    nearly one stretch (1 mm +- 4%, varying within and between charts) and a small shear."""
+    size = n * (side + gutter)
+    yy, xx = np.mgrid[0:size, 0:size]
+    chart = (yy // (side + gutter)) * n + xx // (side + gutter)
+    covered = ((yy % (side + gutter)) < side) & ((xx % (side + gutter)) < side)
+    su = (1.0 + 0.04 * np.sin(0.3 * xx + 0.2 * yy)).astype(np.float32)
+    sv = (1.0 + 0.04 * np.cos(0.25 * xx - 0.1 * yy)).astype(np.float32)
+    return Stretch(su, sv, chart.astype(np.int32), covered, max_shear=0.05)
+
+
+def test_a_layout_of_many_charts_plans_once(on_device, monkeypatch):
+    """A layout of 16 charts of overlapping ranges makes one plan a channel, named once in
+    the method, and its shear's error is integrated once: a second blur over the same maps
+    makes no kernel (before: a plan a chart, and the shear's 8 kernels each call, 60x the
+    blur on a 64-chart head)."""
+    s = many_charts()
+    e = np.random.default_rng(4).random((*s.su.shape, 2)).astype(np.float32)
+    made = []
+    real = st.sheared_kernel
+    monkeypatch.setattr(st, "sheared_kernel", lambda *a: made.append(1) or real(*a))
+    st.SHEAR_ERRORS.clear()
+
+    def run():
+        return bd.blur(e, albedo=(0.5, 0.8), mfp=(2.0, 3.0), stretch=s, tol=1e-3,
+                       return_info=True)
+    first, info = run()
+    for c in info.channels:
+        assert c.method.startswith("fft (stretched, 16 charts: ") and c.method.count(
+            "eigen-kernels") == 1, c.method
+    assert 0 < len(made) <= 2 * 8
+    made.clear()
+    again, _ = run()
+    assert not made
+    np.testing.assert_array_equal(again, first)
 
 
 def test_near_field_is_exact_at_the_nodes():

@@ -11,6 +11,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from ...caches import ByteCache
 from ...device import get_runtime
 from ...device.transfer import is_device_array
 from ...errors import check_policy
@@ -27,7 +28,7 @@ from .planning import BlurAccuracyWarning, BlurInfo, ChannelInfo
 from .stretched_device import blur_band_device
 from .stretched_gather import blur_band
 from .stretched_plan import (StretchedPlan, coefficients, lattice_variables, node_kernel,
-                             stretched_plan)
+                             shared_ranges, stretched_plan)
 from .stretched_windows import Window, chart_windows, whole_image
 from .textured import host_array, textured_row_bytes
 from .textured_plan import RD_MAX, RD_MIN
@@ -201,6 +202,16 @@ def shear_error(plan: StretchedPlan, ranges, max_shear, exact=False) -> float:
     measured, as the interpolation error is, not proven): 0 without shear."""
     if max_shear <= 0:
         return 0.0
+    return _shear_error(tuple(ranges), plan.eta, plan.radius, float(max_shear), exact)
+
+
+#: the shear's errors, kept across calls by (ranges, eta, radius, |cos|): each is 8 kernels
+#: integrated by quadrature, ~0.1 s
+SHEAR_ERRORS = ByteCache("stretched blur shear errors", 1 << 20)
+
+
+@SHEAR_ERRORS.memoize
+def _shear_error(ranges, eta, radius, max_shear, exact) -> float:
     worst = 0.0
     corners = [sorted({lo, hi}) for lo, hi in ranges]
     for t_rd in corners[0]:
@@ -209,10 +220,9 @@ def shear_error(plan: StretchedPlan, ranges, max_shear, exact=False) -> float:
                 check_stop()
                 rd = float(np.clip(1.0 / (1.0 + np.exp(-t_rd)), RD_MIN, RD_MAX))
                 lu, lv = float(np.exp(ln_l + 0.5 * t_s)), float(np.exp(ln_l - 0.5 * t_s))
-                aligned = unfold_quadrant(node_kernel(rd, lu, lv, plan.eta, plan.radius,
-                                                      exact))
-                worst = max(worst, float(np.abs(sheared_kernel(rd, lu, lv, max_shear,
-                                                               plan.eta, plan.radius, exact)
+                aligned = unfold_quadrant(node_kernel(rd, lu, lv, eta, radius, exact))
+                worst = max(worst, float(np.abs(sheared_kernel(rd, lu, lv, max_shear, eta,
+                                                               radius, exact)
                                                 - aligned).sum()))
     return worst
 
@@ -268,11 +278,17 @@ def near_words(plan) -> str:
 
 
 def describe(plans) -> str:
-    """A channel's method: its windows' eigen-kernels and near fields."""
-    parts = [f"{len(p.kernels)} eigen-kernels" + near_words(p) for p in plans]
-    if len(parts) == 1:
+    """A channel's method: its windows' plans (eigen-kernels and near field), each distinct
+    plan once with the number of charts that share it."""
+    distinct = list({id(p): p for p in plans}.values())
+    parts = [f"{len(p.kernels)} eigen-kernels" + near_words(p) for p in distinct]
+    if len(plans) == 1:
         return parts[0]
-    return f"{len(parts)} charts: " + "; ".join(parts)
+    if 1 < len(distinct) < len(plans):
+        counts = [sum(q is p for q in plans) for p in distinct]
+        parts = [f"{words} ({n} chart{'s' if n > 1 else ''})"
+                 for words, n in zip(parts, counts)]
+    return f"{len(plans)} charts: " + "; ".join(parts)
 
 
 @dataclass(eq=False)
@@ -361,25 +377,27 @@ def blur_window(out2d, e2d, win: Window, wch: WindowChannel, max_memory, rt):
 
 
 def channel_plans(maps, windows, eta, tol, exact, costs, max_shear):
-    """Per window a WindowChannel of one channel's (Rd, l_u, l_v) ``maps``, and the channel's
-    ChannelInfo fields: the worst window's (bound, fit error, interpolation error, nodes),
-    the shear's error, warned of where a kernel error exceeds tol."""
+    """Per window a WindowChannel of one channel's (Rd, l_u, l_v) ``maps``, the windows of
+    overlapping ranges sharing a plan (``stretched_plan.shared_ranges``), and the channel's
+    ChannelInfo fields: the worst plan's (bound, fit error, interpolation error, nodes), the
+    shear's error, warned of (once a plan) where a kernel error exceeds tol."""
     import warnings
-    out, worst = [], None
-    for win in windows:
-        crop, ranges = window_maps(maps, win)
-        plan = stretched_plan(ranges, float(eta), float(tol), exact, costs=costs)
-        shear = shear_error(plan, ranges, max_shear, exact)
+    crops, ranges = zip(*(window_maps(maps, win) for win in windows))
+    shared = shared_ranges(ranges, [int(win.writes().sum()) for win in windows], tol)
+    plans = {box: stretched_plan(box, float(eta), float(tol), exact, costs=costs)
+             for box in dict.fromkeys(shared)}
+    worst = None
+    for box, plan in plans.items():
+        shear = shear_error(plan, box, max_shear, exact)
         bound = plan.error_bound + shear + roundoff(plan)
         if max(plan.fit_error, plan.interp_error) > tol or shear > tol:
             warnings.warn(BlurAccuracyWarning(
                 f"stretched blur error bound {bound:.2e} (basis {plan.fit_error:.1e}, "
                 f"interpolation {plan.interp_error:.1e}, shear {shear:.1e} at |cos| "
                 f"{max_shear:.3f})"), stacklevel=4)
-        out.append(WindowChannel(plan, crop))
         if worst is None or bound > worst[0]:
             worst = (bound, plan, shear)
-    return tuple(out), worst
+    return tuple(WindowChannel(plans[box], crop) for box, crop in zip(shared, crops)), worst
 
 
 def plan_stretched(shape, scattering, stretch, *, tol=1e-3, border="clamp", charts="clamp",
@@ -388,7 +406,8 @@ def plan_stretched(shape, scattering, stretch, *, tol=1e-3, border="clamp", char
     (``plan.Scattering``: albedo and mfp, or alpha' and sigma_t', in the stretch's unit;
     its texel_size is not used) with ``stretch`` (``as_stretch``), chart borders by
     ``charts`` (``methods.registry.CHART_BORDER``): per channel and window a plan of the
-    window's own ranges, its near field chosen for the device's gather costs."""
+    window's own ranges or of a group of windows' (``stretched_plan.shared_ranges``), its
+    near field chosen for the device's gather costs."""
     BORDER[border], CHART_BORDER[charts]
     check_policy(on_invalid)
     if not 0 < tol < 1:

@@ -111,6 +111,56 @@ def lattice_axis(lo, hi, step) -> Axis:
     return Axis(tuple(float(i * step) for i in range(i0, i1 + 1)), float(i0), step)
 
 
+def lattice_nodes(ranges, tol) -> int:
+    """The nodes of the lattice over transformed ranges at tol (``lattice_axis`` per axis)."""
+    return int(np.prod([len(lattice_axis(lo, hi, step).values)
+                        for (lo, hi), step in zip(ranges, lattice_steps(tol))]))
+
+
+def ranges_union(a, b):
+    """The box of two boxes of transformed ranges."""
+    return tuple((min(p[0], q[0]), max(p[1], q[1])) for p, q in zip(a, b))
+
+
+#: windows share one plan over their ranges' union where it is at most this many lattice steps
+#: wider, on every axis, than the wider of the two (``shared_ranges``)
+MERGE_STEPS = 1.0
+
+
+def range_steps(ranges, tol) -> np.ndarray:
+    """The widths of transformed ranges on each axis, in lattice steps at tol."""
+    return np.array([(hi - lo) / step for (lo, hi), step in zip(ranges, lattice_steps(tol))])
+
+
+def shared_ranges(ranges, sizes, tol) -> list:
+    """Per window (its transformed ``ranges``, its texels ``sizes``), the ranges of the plan
+    it shares: windows are taken largest first, each joining the group whose union with it
+    widens least, where the union is at most MERGE_STEPS wider on every axis than the wider
+    of the two and has at most MAX_NODES nodes, else starting a group. A UV layout's charts
+    of overlapping ranges share one plan (planned once, cached: one table and its spectra);
+    charts of distinct narrow ranges (a cylinder's, one aspect each) keep their own, whose
+    ranks are lower (the rank grows with the ranges' widths)."""
+    groups, member = [], [0] * len(ranges)
+    for i in sorted(range(len(ranges)), key=lambda i: (-sizes[i], i)):
+        own = range_steps(ranges[i], tol)
+        best = None
+        for g, box in enumerate(groups):
+            union = ranges_union(box, ranges[i])
+            width, have = range_steps(union, tol), range_steps(box, tol)
+            growth = float((width - have).sum())
+            if (np.all(width <= np.maximum(have, own) + MERGE_STEPS)
+                    and lattice_nodes(union, tol) <= MAX_NODES
+                    and (best is None or growth < best[1])):
+                best = (g, growth, union)
+        if best is None:
+            groups.append(tuple(ranges[i]))
+            member[i] = len(groups) - 1
+        else:
+            groups[best[0]] = best[2]
+            member[i] = best[0]
+    return [groups[g] for g in member]
+
+
 def lattice_steps(tol):
     """The steps of logit Rd, ln l and s at tol: LATTICE_STEPS' and ANISOTROPY_STEP, halved
     per factor 16 of tol below 1e-3 (the cubic's error goes as h^4)."""

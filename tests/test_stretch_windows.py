@@ -205,3 +205,21 @@ def test_stretch_maps_on_the_device_are_the_hosts(on_device):
     np.testing.assert_array_equal(got, bd.blur(e, albedo=0.6, mfp=1.0, stretch=(s.su, s.sv)))
 
 # }}}
+
+
+def test_a_tables_records_are_kept_within_the_caches_budget(monkeypatch):
+    """A gather table's records are made once across calls wherever the records alone fit
+    the cache: the table they are made from is its plan's, not counted again (counting both
+    made a 64-chart head's three 55 MB tables anew every call)."""
+    from bdipole_cl.ops.blur import stretched_gather as sg
+    fine = np.random.default_rng(2).random((9, 9, 9, 30)).astype(np.float32)
+    made = []
+    real = sg.node_records
+    monkeypatch.setattr(sg, "node_records", lambda *a: made.append(1) or real(*a))
+    records = real(fine.reshape(81, 9, 30), 16)
+    assert records.nbytes + fine.nbytes > 1.5 * records.nbytes
+    monkeypatch.setattr(sg.TABLE_RECORDS, "max_bytes", int(1.5 * records.nbytes))
+    sg.TABLE_RECORDS.clear()
+    first = sg.table_records(fine, 16)
+    assert sg.table_records(fine, 16) is first and len(made) == 1
+    np.testing.assert_array_equal(first, records)

@@ -40,7 +40,9 @@ def stretched_kernel(rt, plan: StretchedPlan, n):
 
 
 #: the gathers' tables as records, kept across calls (a plan is memoized: its table is the same
-#: array each time; each entry holds that array, so its id is not reused while kept)
+#: array each time; each entry holds that array, so its id is not reused while kept). Counted
+#: by the records' bytes: the table itself is its plan's, counted in ``STRETCHED_PLANS``
+#: (counting both evicted a 64-chart head's three tables of 55 MB each, every call)
 TABLE_RECORDS = ByteCache("stretched gather tables", 256 << 20)
 
 
@@ -54,7 +56,7 @@ def table_records(fine, chunk):
         return hit[1]
     f0, f1, f2, nw = fine.shape
     records = node_records(fine.reshape(f0 * f1, f2, nw), chunk)
-    TABLE_RECORDS.put(key, (fine, records), records.nbytes + fine.nbytes)
+    TABLE_RECORDS.put(key, (fine, records), records.nbytes)
     return records
 
 

@@ -205,3 +205,31 @@ def test_stretch_into_a_missing_folder_makes_it(tmp_path):
                          capture_output=True, text=True)
     assert run.returncode == 0, run.stderr
     assert (tmp_path / "st" / "quad.exr").is_file()
+
+
+def test_the_most_sheared_texel_is_named_and_recorded(tmp_path):
+    """Two charts, the left one's u and v orthogonal on the surface, the right one's sheared:
+    the tile names the first covered texel of the largest |shear| (in the right chart), the
+    stretch map records it (``bdipole:stretch_max_shear_texel``) and reads it back, and a map
+    without the record (written before it) reads as not known."""
+    import OpenImageIO as oiio
+    left = np.array([[0.05, 0.1], [0.45, 0.1], [0.45, 0.9], [0.05, 0.9]])
+    right = left + [0.5, 0.0]
+    straight = np.array([(0.3, 0.0), (0.0, 0.2), (0.0, 0.0)])
+    sheared = np.array([(0.3, 0.1), (0.0, 0.2), (0.0, 0.0)])
+    points = np.vstack([left @ straight.T, right @ sheared.T + [0.0, 0.0, 1.0]])
+    path = write_obj(tmp_path / "two.obj", points, np.vstack([left, right]),
+                     [[(i, i) for i in range(4)], [(i, i) for i in range(4, 8)]])
+    (tile, out), = stretch_maps(path, tmp_path / "s.exr", size=64)
+    x, y = tile.max_shear_texel
+    assert x >= 0.5 * 64 and tile.covered[y, x]
+    assert abs(tile.shear[y, x]) == tile.max_shear > 0.3
+    assert not (np.abs(np.where(tile.covered, tile.shear, 0))[:y] == tile.max_shear).any()
+    assert read_stretch(out).max_shear_at == (x, y)
+    spec = oiio.ImageInput.open(str(out)).spec()
+    old = oiio.ImageBuf(str(out))
+    old.specmod().erase_attribute("bdipole:stretch_max_shear_texel")
+    old.write(str(tmp_path / "old.exr"))
+    assert spec.get_string_attribute("bdipole:stretch_max_shear_texel") == f"{x} {y}"
+    assert read_stretch(tmp_path / "old.exr").max_shear_at is None
+    assert read_stretch(tmp_path / "old.exr").max_shear == pytest.approx(tile.max_shear)

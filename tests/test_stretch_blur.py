@@ -110,7 +110,8 @@ def test_chart_borders(on_device, tmp_path):
 
 def test_shear_is_bounded_and_reported(on_device, tmp_path):
     """A sheared UV map (u and v at 72 degrees on the surface): the axis-aligned kernel's
-    error is measured and added to the bound, and warned of when it exceeds tol."""
+    error is measured and added to the bound, and warned of when it exceeds tol, naming the
+    layout's most sheared texel."""
     jac = [(0.3, 0.1), (0.0, 0.3), (0.0, 0.0)]
     (tile, _), = stretch_maps(affine_plane(tmp_path / "shear.obj", jac), size=64)
     assert tile.max_shear > 0.3
@@ -120,8 +121,9 @@ def test_shear_is_bounded_and_reported(on_device, tmp_path):
         warnings.simplefilter("always")
         _, info = bd.blur(e, albedo=0.6, mfp=20.0, stretch=tile, return_info=True)
     assert "shear" in info.channels[0].method and info.channels[0].error_bound > 2e-3
+    x, y = tile.max_shear_texel
     assert any(issubclass(w.category, BlurAccuracyWarning) and "shear" in str(w.message)
-               for w in caught)
+               and f"at texel x={x}, y={y}" in str(w.message) for w in caught)
     unsheared = (tile.su, tile.sv)                           # the same lengths, no shear known
     _, plain = bd.blur(e, albedo=0.6, mfp=20.0, stretch=unsheared, return_info=True)
     assert plain.channels[0].error_bound < info.channels[0].error_bound

@@ -32,6 +32,7 @@ def cmd_stretch(args) -> int:
     from ..io.mesh import MeshError
     from ..io.stretch_maps import stretch_maps
     from ..io.tiles import TileError
+    from ..ops.blur.stretched import shear_words
     from ..ops.stretch import StretchError
     if args.size < 1:
         print(f"bdipole-cl stretch: error: --size {args.size}: expected >= 1", file=sys.stderr)
@@ -46,6 +47,7 @@ def cmd_stretch(args) -> int:
     for tile, path in done:
         print(f"{path}: UDIM {tile.udim}, stretch u {tile.su.min():.4g}..{tile.su.max():.4g}, "
               f"v {tile.sv.min():.4g}..{tile.sv.max():.4g} {tile.unit}/texel, max shear "
-              f"{tile.max_shear:.3f}" + (f", {tile.degenerate} degenerate triangle(s) left out"
-                                         if tile.degenerate else ""))
+              f"{shear_words(tile.max_shear, tile.max_shear_texel)}"
+              + (f", {tile.degenerate} degenerate triangle(s) left out" if tile.degenerate
+                 else ""))
     return 0

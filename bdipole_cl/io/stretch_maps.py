@@ -33,6 +33,20 @@ def chart_channel(tile: StretchTile) -> np.ndarray:
     return np.where(tile.covered, code, -code).astype(np.float32)
 
 
+def shear_texel_text(texel) -> str:
+    """The ``bdipole:stretch_max_shear_texel`` attribute: "x y", or "" (no shear)."""
+    return "" if texel is None else f"{texel[0]} {texel[1]}"
+
+
+def shear_texel_of(text):
+    """(x, y) of a ``bdipole:stretch_max_shear_texel`` attribute, or None (none, or a file
+    written before it was recorded)."""
+    parts = (text or "").split()
+    if len(parts) != 2 or not all(p.isdigit() for p in parts):
+        return None
+    return int(parts[0]), int(parts[1])
+
+
 def tile_spec(tile: StretchTile, source, meters_per_unit, header=None) -> oiio.ImageSpec:
     h, w = tile.su.shape
     spec = oiio.ImageSpec(w, h, len(CHANNELS), "float")
@@ -42,6 +56,7 @@ def tile_spec(tile: StretchTile, source, meters_per_unit, header=None) -> oiio.I
     spec.attribute("oiio:ColorSpace", data_space())
     attrs = {"version": __version__, "stretch_unit": tile.unit, "stretch_source": source,
              "stretch_udim": tile.udim, "stretch_max_shear": float(tile.max_shear),
+             "stretch_max_shear_texel": shear_texel_text(tile.max_shear_texel),
              "stretch_meters_per_unit": meters_per_unit,
              "stretch_degenerate_triangles": tile.degenerate,
              "stretch_flipped_triangles": tile.flipped,
@@ -115,6 +130,8 @@ def read_stretch(path) -> Stretch:
         px = reader.read_band(0, spec.height)
         unit = spec.get_string_attribute("bdipole:stretch_unit", "")
         shear = float(spec.get_string_attribute("bdipole:stretch_max_shear", "0") or 0)
+        shear_at = shear_texel_of(spec.get_string_attribute(
+            "bdipole:stretch_max_shear_texel", ""))
     finally:
         reader.close()
     for channel in CHANNELS:
@@ -126,7 +143,7 @@ def read_stretch(path) -> Stretch:
         chart = (np.abs(code) - 1).astype(np.int64)
         covered = code > 0
     return Stretch(px[..., names.index(CHANNELS[0])], px[..., names.index(CHANNELS[1])], chart,
-                   covered, shear, unit)
+                   covered, shear, unit, shear_at)
 
 
 def check_channel(path, channel, values):

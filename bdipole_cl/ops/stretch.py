@@ -67,6 +67,17 @@ class StretchTile:
         vals = np.abs(self.shear[self.covered])
         return float(vals.max()) if vals.size else 0.0
 
+    @property
+    def max_shear_texel(self):
+        """(x, y) of the covered texel of the largest |shear| (the first in row order), or
+        None where no covered texel is sheared: where the layout's shear, and the blur's
+        bound with it, is worst (docs/stretch.md "Shear")."""
+        vals = np.where(self.covered, np.abs(self.shear), 0.0)
+        if not vals.size or vals.max() <= 0:
+            return None
+        y, x = np.unravel_index(int(np.argmax(vals)), vals.shape)
+        return int(x), int(y)
+
 
 @dataclass(frozen=True)
 class TriangleFrames:

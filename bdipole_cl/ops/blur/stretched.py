@@ -38,7 +38,8 @@ class Stretch:
     """Per texel the surface length of one texel step along u (``su``) and along v (``sv``),
     HxW, in the mfp's unit; optionally the UV chart of each texel (``chart``, int; gutters:
     the nearest chart's) and which texels a triangle covers (``covered``); the largest shear
-    |cos| between the surface's u and v directions (``max_shear``, for the bound)."""
+    |cos| between the surface's u and v directions (``max_shear``, for the bound) and where
+    it is (``max_shear_at``: (x, y), None where not known)."""
 
     su: np.ndarray
     sv: np.ndarray
@@ -46,6 +47,7 @@ class Stretch:
     covered: np.ndarray | None = None
     max_shear: float = 0.0
     unit: str = ""
+    max_shear_at: tuple | None = None
 
 
 def as_stretch(value, shape) -> Stretch:
@@ -58,7 +60,7 @@ def as_stretch(value, shape) -> Stretch:
     elif hasattr(value, "su") and hasattr(value, "sv"):
         s = Stretch(value.su, value.sv, getattr(value, "chart", None),
                     getattr(value, "covered", None), float(getattr(value, "max_shear", 0.0)),
-                    getattr(value, "unit", ""))
+                    getattr(value, "unit", ""), getattr(value, "max_shear_texel", None))
     elif isinstance(value, (tuple, list)) and len(value) == 2:
         s = Stretch(host_map(value[0]), host_map(value[1]))
     else:
@@ -74,7 +76,8 @@ def as_stretch(value, shape) -> Stretch:
     covered = None if s.covered is None else host_map(s.covered).astype(bool, copy=False)
     if covered is not None and covered.shape != (h, w):
         raise ValueError(f"stretch covered map has shape {covered.shape}; expected ({h}, {w})")
-    return Stretch(maps["su"], maps["sv"], chart, covered, float(s.max_shear), s.unit)
+    return Stretch(maps["su"], maps["sv"], chart, covered, float(s.max_shear), s.unit,
+                   s.max_shear_at)
 
 
 def host_map(value):
@@ -376,7 +379,12 @@ def blur_window(out2d, e2d, win: Window, wch: WindowChannel, max_memory, rt):
         np.copyto(view, res, where=writes[y0:y1])
 
 
-def channel_plans(maps, windows, eta, tol, exact, costs, max_shear):
+def shear_words(max_shear, at) -> str:
+    """The shear a bound was taken at, in words: its |cos| and, where known, its texel."""
+    return f"|cos| {max_shear:.3f}" + (f" at texel x={at[0]}, y={at[1]}" if at else "")
+
+
+def channel_plans(maps, windows, eta, tol, exact, costs, max_shear, shear_at=None):
     """Per window a WindowChannel of one channel's (Rd, l_u, l_v) ``maps``, the windows of
     overlapping ranges sharing a plan (``stretched_plan.shared_ranges``), and the channel's
     ChannelInfo fields: the worst plan's (bound, fit error, interpolation error, nodes), the
@@ -393,8 +401,8 @@ def channel_plans(maps, windows, eta, tol, exact, costs, max_shear):
         if max(plan.fit_error, plan.interp_error) > tol or shear > tol:
             warnings.warn(BlurAccuracyWarning(
                 f"stretched blur error bound {bound:.2e} (basis {plan.fit_error:.1e}, "
-                f"interpolation {plan.interp_error:.1e}, shear {shear:.1e} at |cos| "
-                f"{max_shear:.3f})"), stacklevel=4)
+                f"interpolation {plan.interp_error:.1e}, shear {shear:.1e} at "
+                f"{shear_words(max_shear, shear_at)})"), stacklevel=4)
         if worst is None or bound > worst[0]:
             worst = (bound, plan, shear)
     return tuple(WindowChannel(plans[box], crop) for box, crop in zip(shared, crops)), worst
@@ -424,7 +432,8 @@ def plan_stretched(shape, scattering, stretch, *, tol=1e-3, border="clamp", char
         maps = channel_maps(shape, c, s, physical, float(etas[c]), exact, on_invalid, counts,
                             ranges_kept)
         per_window, (bound, plan, shear) = channel_plans(maps, windows, etas[c], tol, exact,
-                                                         gather_costs(rt), s.max_shear)
+                                                         gather_costs(rt), s.max_shear,
+                                                         s.max_shear_at)
         chans.append(per_window)
         infos.append(ChannelInfo(c, f"fft (stretched, {describe([w.plan for w in per_window])}"
                                     f"{', shear %.1e' % shear if shear else ''})",

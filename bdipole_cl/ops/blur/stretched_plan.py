@@ -29,6 +29,7 @@ import numpy as np
 from ...caches import ByteCache
 from ...physics import reference as ref
 from .near_field import DEFAULT_GATHER_COSTS, GatherCosts, near_field_basis, with_near_classes
+from .plan_files import read_plan, write_plan
 from .textured_plan import (LATTICE_STEPS, RD_MAX, RD_MIN, REFINE, Axis, lagrange4, logit,
                             sigmoid, training_kernels)
 from .weights import quadrant_sum, quadrant_weights, truncation_radius, unfold_quadrant
@@ -326,6 +327,19 @@ def check_plan_size(nodes, radius, ranges):
 @STRETCHED_PLANS.memoize
 def stretched_plan(ranges, eta, tol, exact=False, max_radius=2048,
                    costs: GatherCosts = DEFAULT_GATHER_COSTS) -> StretchedPlan:
+    """``make_stretched_plan``'s plan, made once per version of the code that makes it: kept
+    in memory and, across processes, in the user cache folder (``plan_files``)."""
+    key = repr(("stretched", tuple((float(lo), float(hi)) for lo, hi in ranges), float(eta),
+                float(tol), bool(exact), int(max_radius), costs))
+    plan = read_plan(key, Axis, StretchedPlan)
+    if plan is None:
+        plan = make_stretched_plan(ranges, eta, tol, exact, max_radius, costs)
+        write_plan(key, plan, Axis, StretchedPlan)
+    return plan
+
+
+def make_stretched_plan(ranges, eta, tol, exact=False, max_radius=2048,
+                        costs: GatherCosts = DEFAULT_GATHER_COSTS) -> StretchedPlan:
     """The StretchedPlan of transformed ranges ((lo, hi) of logit Rd, ln l, s) at tol: the
     cheapest near field for the gather's ``costs`` (``near_field.near_field_basis``, classes
     of four cells), its ranks grown until the measured interpolation error is within tol."""

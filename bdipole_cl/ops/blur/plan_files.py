@@ -1,0 +1,159 @@
+"""Stretched plans kept on disk across processes (docs/stretch.md "Plans on disk"): a plan of
+one (ranges, eta, tol, exact, max_radius, gather costs) is made once per version of the code
+that makes it, not once per process (a 64-chart head's three plans: 15 s, read back in
+~0.1 s), so that a tile blurred by its own command, or on a cluster's fresh worker, starts warm.
+
+A plan's file is named by a digest of the sources of the packages plans are made by
+(``source_digest``: any change there is a new name) and of its key, and holds the key itself
+(checked on reading: a file of another key is not read as this one). Written as every cache
+file of the package (temp file, read back and compared, durable rename); a file that cannot be
+read as a whole plan is made anew and replaced; a cache that cannot be written is only a cache.
+The folder keeps at most PLANS_MAX_BYTES, the least recently used out first; ``bdipole-cl
+cache`` lists and clears it."""
+from __future__ import annotations
+
+import hashlib
+import os
+import re
+import tempfile
+import zipfile
+from functools import lru_cache
+from pathlib import Path
+
+import numpy as np
+
+from ...caches import user_cache_dir
+from ...durable import durable_replace
+
+#: the folder of the plans' files in the user cache folder, and their names:
+#: plan-{source digest}-{key digest}.npz
+PLANS_FOLDER = "stretched-plans"
+PLANS_NAME = re.compile(r"^plan-[0-9a-f]{16}-[0-9a-f]{32}\.npz$")
+#: bytes of plans the folder keeps (a head's plan is ~60 MB, the smooth benchmark's ~20 MB)
+PLANS_MAX_BYTES = 2 << 30
+#: the scalar fields of a StretchedPlan, in their file's ``scalars`` order
+SCALARS = ("radius", "eta", "fit_error", "interp_error", "truncation_tol", "nodes", "near",
+           "near_direct")
+
+
+@lru_cache(maxsize=1)
+def source_digest() -> str:
+    """A digest of the sources of the packages a plan is made by (the blur's and the
+    physics'), in path order: 16 hex digits."""
+    root = Path(__file__).resolve().parents[2]
+    digest = hashlib.sha256()
+    for folder in ("ops/blur", "physics"):
+        for path in sorted((root / folder).glob("*.py")):
+            digest.update(path.relative_to(root).as_posix().encode() + b"\0")
+            digest.update(path.read_bytes())
+    return digest.hexdigest()[:16]
+
+
+def plan_path(key: str) -> Path:
+    """The file of the plan of ``key`` (the repr of its arguments)."""
+    name = hashlib.sha256(key.encode()).hexdigest()[:32]
+    return user_cache_dir() / PLANS_FOLDER / f"plan-{source_digest()}-{name}.npz"
+
+
+def plan_arrays(plan, key: str) -> dict:
+    """A StretchedPlan as the arrays of its file (``np.savez``; no object arrays)."""
+    k = plan.radius + 1
+    out = {"key": np.array(key), "fine": plan.fine, "near_values": plan.near_values,
+           "kernels": (np.stack(plan.kernels) if plan.kernels else np.zeros((0, k, k))),
+           "scalars": np.array([float(getattr(plan, f)) for f in SCALARS]),
+           "axes": np.array([(a.origin, a.step, len(a.values)) for a in plan.axes])}
+    for i, a in enumerate(plan.axes):
+        out[f"axis{i}"] = np.asarray(a.values, np.float64)
+    return out
+
+
+def read_plan(key: str, make_axis, make_plan):
+    """The plan of ``key`` from its file, or None where there is none, or it is not a whole
+    plan of this key (``read_plan_at``); a file read is touched (the last to be pruned)."""
+    path = plan_path(key)
+    plan = read_plan_at(path, key, make_axis, make_plan)
+    if plan is not None:
+        try:
+            os.utime(path)
+        except OSError:
+            pass
+    return plan
+
+
+def read_plan_at(path: Path, key: str, make_axis, make_plan):
+    """The plan of ``key`` in the file at ``path`` (``make_axis(values, origin, step)`` and
+    ``make_plan(**fields)`` rebuild it, read-only), or None where it is not one."""
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            if str(data["key"]) != key:
+                return None
+            scalars = dict(zip(SCALARS, data["scalars"].tolist()))
+            axes = tuple(make_axis(tuple(data[f"axis{i}"].tolist()), float(o), float(s))
+                         for i, (o, s, _) in enumerate(data["axes"]))
+            fine, near_values = np.array(data["fine"]), np.array(data["near_values"])
+            kernels = tuple(np.array(q) for q in data["kernels"])
+    except (OSError, KeyError, ValueError, TypeError, EOFError, zipfile.BadZipFile):
+        return None
+    for a in (fine, near_values, *kernels):
+        a.setflags(write=False)
+    # the table's records: a weight per eigen-kernel and per near class, every one finite
+    if fine.ndim != 4 or fine.shape[3] != len(kernels) + len(near_values) \
+            or not np.all(np.isfinite(fine)):
+        return None
+    return make_plan(axes=axes, fine=fine, near_values=near_values, kernels=kernels,
+                     radius=int(scalars["radius"]), nodes=int(scalars["nodes"]),
+                     near=int(scalars["near"]), near_direct=bool(scalars["near_direct"]),
+                     **{f: scalars[f] for f in ("eta", "fit_error", "interp_error",
+                                                "truncation_tol")})
+
+
+def write_plan(key: str, plan, make_axis, make_plan) -> None:
+    """The plan's file: temp file, read back and compared field by field, durable rename;
+    then the folder pruned to PLANS_MAX_BYTES. Nothing raised where it cannot be written."""
+    path = plan_path(key)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(suffix=".npz", dir=path.parent)
+        try:
+            with os.fdopen(fd, "wb") as f:
+                np.savez(f, **plan_arrays(plan, key))
+            back = read_plan_at(Path(tmp), key, make_axis, make_plan)
+            if back is None or not same_plan(back, plan):
+                return
+            durable_replace(tmp, path)
+        finally:
+            if os.path.exists(tmp):
+                os.unlink(tmp)
+        prune(path.parent, PLANS_MAX_BYTES)
+    except OSError:
+        return
+
+
+def same_plan(a, b) -> bool:
+    """Whether two StretchedPlans hold the same values (arrays bit for bit)."""
+    return (all(getattr(a, f) == getattr(b, f) for f in SCALARS) and a.axes == b.axes
+            and len(a.kernels) == len(b.kernels)
+            and all(np.array_equal(x, y) for x, y in zip(a.kernels, b.kernels))
+            and np.array_equal(a.fine, b.fine) and np.array_equal(a.near_values, b.near_values))
+
+
+def prune(folder: Path, max_bytes: int) -> None:
+    """The plans' files of ``folder`` beyond ``max_bytes`` removed, least recently used
+    first (by modification time: a read touches its file)."""
+    files = []
+    for p in folder.iterdir():
+        if PLANS_NAME.match(p.name) and p.is_file() and not p.is_symlink():
+            try:
+                st = p.stat()
+            except OSError:
+                continue
+            files.append((st.st_mtime, st.st_size, p))
+    total = sum(size for _, size, _ in files)
+    for _, size, p in sorted(files, key=lambda f: f[0]):
+        if total <= max_bytes:
+            break
+        try:
+            p.unlink()
+            total -= size
+        except OSError:
+            continue

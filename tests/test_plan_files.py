@@ -1,0 +1,127 @@
+"""Stretched plans on disk (bdipole_cl/ops/blur/plan_files.py; docs/stretch.md "Plans on
+disk"): made once per version of the code, read back in another process bit for bit, never
+read for another key or another version of the code, made anew where a file is damaged, and
+never in the way where the cache folder cannot be written."""
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from bdipole_cl.ops.blur import plan_files as pf
+from bdipole_cl.ops.blur import stretched_plan as sp
+
+#: a small plan's ranges (logit Rd, ln l, s): one aspect, a few nodes, planned in ~0.3 s
+RANGES = ((0.2, 0.9), (0.9, 1.2), (0.1, 0.1))
+
+
+@pytest.fixture
+def plans(tmp_path, monkeypatch):
+    """The plans' folder in a fresh cache folder, the in-memory plans cleared, and a list
+    that gets an entry each time a plan is made (not read)."""
+    monkeypatch.setenv("BDIPOLE_CL_CACHE_DIR", str(tmp_path / "cache"))
+    sp.STRETCHED_PLANS.clear()
+    made = []
+    real = sp.make_stretched_plan
+    monkeypatch.setattr(sp, "make_stretched_plan", lambda *a: made.append(a) or real(*a))
+    yield tmp_path / "cache" / pf.PLANS_FOLDER, made
+    sp.STRETCHED_PLANS.clear()
+
+
+def plan_again():
+    sp.STRETCHED_PLANS.clear()
+    return sp.stretched_plan(RANGES, 1.4, 1e-3)
+
+
+def test_a_plan_is_made_once_and_read_back_in_another_process(plans):
+    folder, made = plans
+    first = sp.stretched_plan(RANGES, 1.4, 1e-3)
+    files = sorted(folder.iterdir())
+    assert len(made) == 1 and len(files) == 1 and pf.PLANS_NAME.match(files[0].name)
+    again = plan_again()
+    assert len(made) == 1 and again is not first and pf.same_plan(again, first)
+    assert not again.fine.flags.writeable
+    script = ("import sys\nfrom bdipole_cl.ops.blur import stretched_plan as sp\n"
+              "from bdipole_cl.ops.blur.plan_files import same_plan\n"
+              "sp.make_stretched_plan = None  # a plan made here would fail\n"
+              f"p = sp.stretched_plan({RANGES!r}, 1.4, 1e-3)\n"
+              "print(len(p.kernels), p.near, float(p.fine.sum()).hex())")
+    env_run = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
+                             env={**__import__("os").environ}, timeout=120)
+    assert env_run.returncode == 0, env_run.stderr[-2000:]
+    assert env_run.stdout.split() == [str(len(first.kernels)), str(first.near),
+                                      float(first.fine.sum()).hex()]
+
+
+def test_another_key_or_version_of_the_code_is_not_read(plans, monkeypatch):
+    """A plan of another tol is a file of its own; a file holding another key under this
+    key's name is not read as this one (made anew, and replaced); a plan made by other sources
+    of the blur or the physics is a file of its own."""
+    folder, made = plans
+    sp.stretched_plan(RANGES, 1.4, 1e-3)
+    sp.stretched_plan(RANGES, 1.4, 2e-3)
+    assert len(made) == 2 and len(list(folder.iterdir())) == 2
+
+    def path(tol):
+        return pf.plan_path(repr(("stretched", RANGES, 1.4, tol, False, 2048,
+                                  sp.DEFAULT_GATHER_COSTS)))
+    assert path(1e-3).exists() and path(2e-3).exists()
+    path(2e-3).replace(path(1e-3))     # another key's plan under this key's name
+    assert plan_again().truncation_tol == 1e-3 and len(made) == 3
+    plan_again()
+    assert len(made) == 3
+    monkeypatch.setattr(pf, "source_digest", lambda: "0" * 16)
+    plan_again()
+    assert len(made) == 4 and len(list(folder.iterdir())) == 2
+
+
+@pytest.mark.parametrize("damage", ["truncated", "empty", "not a zip", "nan in the table"])
+def test_a_damaged_file_is_planned_anew_and_replaced(plans, damage):
+    folder, made = plans
+    first = sp.stretched_plan(RANGES, 1.4, 1e-3)
+    (path,) = folder.iterdir()
+    data = path.read_bytes()
+    if damage == "truncated":
+        path.write_bytes(data[:len(data) // 2])
+    elif damage == "empty":
+        path.write_bytes(b"")
+    elif damage == "not a zip":
+        path.write_bytes(b"x" * len(data))
+    else:
+        arrays = pf.plan_arrays(first, str(np.load(path)["key"]))
+        arrays["fine"] = arrays["fine"].copy()
+        arrays["fine"][0, 0, 0, 0] = np.nan
+        with open(path, "wb") as f:
+            np.savez(f, **arrays)
+    again = plan_again()
+    assert len(made) == 2 and pf.same_plan(again, first)
+    plan_again()                       # the file was replaced by a whole one
+    assert len(made) == 2
+
+
+def test_a_cache_folder_that_cannot_be_written_is_only_no_cache(tmp_path, monkeypatch):
+    """The cache folder's place is a file: the plan is made, nothing is raised, and it is
+    made again in a new process (here: with the in-memory plans cleared)."""
+    blocker = tmp_path / "not-a-folder"
+    blocker.write_text("a user's file")
+    monkeypatch.setenv("BDIPOLE_CL_CACHE_DIR", str(blocker))
+    sp.STRETCHED_PLANS.clear()
+    plan = plan_again()
+    assert len(plan.kernels) >= 1 and blocker.read_text() == "a user's file"
+    sp.STRETCHED_PLANS.clear()
+
+
+def test_the_folder_keeps_its_bytes_least_recently_used_out(plans, monkeypatch):
+    """Past PLANS_MAX_BYTES the least recently used plans go (a read counts as a use); a
+    file of another name in the folder is never touched."""
+    folder, made = plans
+    sp.stretched_plan(RANGES, 1.4, 1e-3)
+    (first,) = folder.iterdir()
+    keep = folder / "notes.txt"
+    keep.write_text("mine")
+    monkeypatch.setattr(pf, "PLANS_MAX_BYTES", int(first.stat().st_size * 1.5))
+    import os
+    os.utime(first, (1, 1))            # long unused
+    sp.stretched_plan(RANGES, 1.4, 2e-3)
+    names = {p.name for p in folder.iterdir()}
+    assert first.name not in names and len(names) == 2 and keep.read_text() == "mine"

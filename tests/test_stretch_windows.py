@@ -100,6 +100,10 @@ def test_charts_of_overlapping_ranges_share_a_plan():
                                                        (-0.15, 0.2))] * 3
     aspects = [((0.5, 1.5), (1.0, 1.4), (0.26, 0.2601)), ((0.5, 1.5), (1.0, 1.4), (0.92, 0.92))]
     assert shared_ranges(aspects, [5, 5], tol) == aspects
+    # a chain of single aspects 0.95 steps apart: no group grows past one step by links
+    chain = [((0.5, 1.5), (1.0, 1.4), (0.19 * i, 0.19 * i)) for i in range(8)]
+    groups = set(shared_ranges(chain, [1] * 8, tol))
+    assert 4 <= len(groups) and all(hi - lo <= 0.2 for _, _, (lo, hi) in groups), groups
     # within MERGE_STEPS of the wider, but past MAX_NODES together
     wide = [((0.0, 1.2), (0.0, 1.0), (-1.0, 13.21)), ((0.0, 1.2), (0.0, 1.0), (-1.1, 13.16))]
     assert max(lattice_nodes(w, tol) for w in wide) <= MAX_NODES < lattice_nodes(
@@ -137,7 +141,7 @@ def test_a_layout_of_many_charts_plans_once(on_device, monkeypatch):
     first, info = run()
     for c in info.channels:
         assert c.method.startswith("fft (stretched, 16 charts: ") and c.method.count(
-            "eigen-kernels") == 1, c.method
+            "eigen-kernel") == 1, c.method
     assert 0 < len(made) <= 2 * 8
     made.clear()
     again, _ = run()
@@ -210,7 +214,8 @@ def test_stretch_maps_on_the_device_are_the_hosts(on_device):
 def test_a_tables_records_are_kept_within_the_caches_budget(monkeypatch):
     """A gather table's records are made once across calls wherever the records alone fit
     the cache: the table they are made from is its plan's, not counted again (counting both
-    made a 64-chart head's three 55 MB tables anew every call)."""
+    made a 64-chart head's three 55 MB tables anew every call), nor held (a table whose plan
+    is gone would be held and counted nowhere)."""
     from bdipole_cl.ops.blur import stretched_gather as sg
     fine = np.random.default_rng(2).random((9, 9, 9, 30)).astype(np.float32)
     made = []
@@ -223,3 +228,40 @@ def test_a_tables_records_are_kept_within_the_caches_budget(monkeypatch):
     first = sg.table_records(fine, 16)
     assert sg.table_records(fine, 16) is first and len(made) == 1
     np.testing.assert_array_equal(first, records)
+    held = [entry for entry, _ in sg.TABLE_RECORDS._data.values()]
+    del fine                           # the plan gone: its table is not kept by the records
+    import gc
+    gc.collect()
+    assert all(ref() is None for ref, _ in held)
+
+
+def test_a_union_past_the_planning_limits_plans_each_window_alone(on_device, monkeypatch):
+    """Two charts, each within the planning memory alone, whose union (one aspect each, 0.9
+    lattice steps apart: four nodes of s, not one) is past it: each chart gets its own plan and
+    the blur is made (before: refused naming ranges neither chart has)."""
+    from bdipole_cl.ops.blur import stretched_plan as sp
+    from bdipole_cl.ops.blur.params import MapRanges
+    h, w = 12, 24
+    chart = np.zeros((h, w), np.int32)
+    chart[:, 12:] = 1
+    su = np.where(chart == 0, 1.0, 0.91).astype(np.float32)     # s = ln(1.09 / 0.91) = 0.18:
+    sv = np.where(chart == 0, 1.0, 1.09).astype(np.float32)     # 0.9 lattice steps from 0
+    albedo = np.tile(np.linspace(0.5, 0.7, h, dtype=np.float32)[:, None], (1, w))
+    s = Stretch(su, sv, chart, np.ones((h, w), bool))
+    shape = (h, w, 1)
+    maps = st.channel_maps(shape, 0, st.as_stretch(s, shape), {"albedo": albedo, "mfp": 2.0},
+                           1.4, False, "raise", {}, MapRanges())
+    own = [st.window_maps(maps, win)[1] for win in sw.chart_windows(chart, s.covered, shape,
+                                                                     "clamp")]
+    union, = set(shared_ranges(own, [1, 1], 1e-3))
+
+    def peak(r):
+        return sp.plan_peak_bytes(lattice_nodes(r, 1e-3), sp.plan_radius(r, 1.4, 1e-3))
+    limit = max(peak(r) for r in own)
+    assert peak(union) > limit
+    monkeypatch.setattr(sp, "PLAN_PEAK_BYTES", limit)
+    sp.STRETCHED_PLANS.clear()
+    e = np.random.default_rng(1).random((h, w)).astype(np.float32)
+    out, info = bd.blur(e, albedo=albedo, mfp=2.0, stretch=s, return_info=True)
+    assert np.all(np.isfinite(out)) and info.channels[0].method.count("eigen-kernel") == 2
+    sp.STRETCHED_PLANS.clear()

@@ -1,7 +1,8 @@
 """The stretched blur applied (docs/stretch.md): the image's windows (``stretched_windows``:
 the image, or per UV chart the chart's own irradiance, other charts left out, the chart
 continued beyond its edge by its nearest texel or 0), per channel and window a StretchedPlan
-of the window's own ranges (``stretched_plan``), each window blurred in bands of rows with a
+of the window's ranges, shared by windows of overlapping ranges (``stretched_plan``,
+``shared_ranges``), each window blurred in bands of rows with a
 halo (``max_memory``): the basis blurs by the host FFT and the per-texel gather on the device
 (``stretched_gather``, kernels/blur_stretched.cl), or both on the device where the FFT engine
 is the device (``stretched_device``, ``widths.fft_engine``)."""
@@ -277,14 +278,20 @@ def near_words(plan) -> str:
     kernels)."""
     if plan.near < 0:
         return ""
-    return f", near field {plan.near} ({len(plan.near_values)} classes)"
+    return f", near field {plan.near} ({counted(len(plan.near_values), 'class', 'classes')})"
+
+
+def counted(n, one, many) -> str:
+    """n with its noun: "1 class", "4 classes"."""
+    return f"{n} {one if n == 1 else many}"
 
 
 def describe(plans) -> str:
     """A channel's method: its windows' plans (eigen-kernels and near field), each distinct
     plan once with the number of charts that share it."""
     distinct = list({id(p): p for p in plans}.values())
-    parts = [f"{len(p.kernels)} eigen-kernels" + near_words(p) for p in distinct]
+    parts = [counted(len(p.kernels), "eigen-kernel", "eigen-kernels") + near_words(p)
+             for p in distinct]
     if len(plans) == 1:
         return parts[0]
     if 1 < len(distinct) < len(plans):
@@ -386,16 +393,36 @@ def shear_words(max_shear, at) -> str:
 
 def channel_plans(maps, windows, eta, tol, exact, costs, max_shear, shear_at=None):
     """Per window a WindowChannel of one channel's (Rd, l_u, l_v) ``maps``, the windows of
-    overlapping ranges sharing a plan (``stretched_plan.shared_ranges``), and the channel's
+    overlapping ranges sharing a plan (``stretched_plan.shared_ranges``; where the union is
+    past the radius or the planning memory a window alone is not, its own), and the channel's
     ChannelInfo fields: the worst plan's (bound, fit error, interpolation error, nodes), the
     shear's error, warned of (once a plan) where a kernel error exceeds tol."""
     import warnings
     crops, ranges = zip(*(window_maps(maps, win) for win in windows))
     shared = shared_ranges(ranges, [int(win.writes().sum()) for win in windows], tol)
-    plans = {box: stretched_plan(box, float(eta), float(tol), exact, costs=costs)
-             for box in dict.fromkeys(shared)}
+    plans, refused = {}, {}
+
+    def plan_of(box):
+        if box in refused:
+            raise refused[box]
+        if box not in plans:
+            try:
+                plans[box] = stretched_plan(box, float(eta), float(tol), exact, costs=costs)
+            except ValueError as exc:              # past the radius or the planning memory
+                refused[box] = exc
+                raise
+        return plans[box]
+    chosen = []
+    for own, box in zip(ranges, shared):
+        try:
+            chosen.append(plan_of(box))
+        except ValueError:
+            if box == own:
+                raise
+            chosen.append(plan_of(own))           # the union refused: the window's own plan
+    used = {id(p) for p in chosen}
     worst = None
-    for box, plan in plans.items():
+    for box, plan in ((b, p) for b, p in plans.items() if id(p) in used):
         shear = shear_error(plan, box, max_shear, exact)
         bound = plan.error_bound + shear + roundoff(plan)
         if max(plan.fit_error, plan.interp_error) > tol or shear > tol:
@@ -405,7 +432,7 @@ def channel_plans(maps, windows, eta, tol, exact, costs, max_shear, shear_at=Non
                 f"{shear_words(max_shear, shear_at)})"), stacklevel=4)
         if worst is None or bound > worst[0]:
             worst = (bound, plan, shear)
-    return tuple(WindowChannel(plans[box], crop) for box, crop in zip(shared, crops)), worst
+    return tuple(WindowChannel(plan, crop) for plan, crop in zip(chosen, crops)), worst
 
 
 def plan_stretched(shape, scattering, stretch, *, tol=1e-3, border="clamp", charts="clamp",

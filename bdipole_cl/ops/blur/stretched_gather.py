@@ -5,6 +5,8 @@ per-texel gather on the device (kernels/blur_stretched.cl): the table's weights 
 itself."""
 from __future__ import annotations
 
+import weakref
+
 import numpy as np
 import pyopencl as cl
 
@@ -39,10 +41,10 @@ def stretched_kernel(rt, plan: StretchedPlan, n):
     return width, chunk, knl
 
 
-#: the gathers' tables as records, kept across calls (a plan is memoized: its table is the same
-#: array each time; each entry holds that array, so its id is not reused while kept). Counted
-#: by the records' bytes: the table itself is its plan's, counted in ``STRETCHED_PLANS``
-#: (counting both evicted a 64-chart head's three tables of 55 MB each, every call)
+#: the gathers' tables as records, kept across calls by the table's identity (a plan is
+#: memoized: its table is the same array each time), each entry with a weak reference to its
+#: table (its id is not taken for another table while the entry matches); counted by the
+#: records' bytes, the table being its plan's
 TABLE_RECORDS = ByteCache("stretched gather tables", 256 << 20)
 
 
@@ -52,11 +54,11 @@ def table_records(fine, chunk):
     table and chunk."""
     key = (id(fine), chunk)
     hit = TABLE_RECORDS.get(key)
-    if hit is not None and hit[0] is fine:
+    if hit is not None and hit[0]() is fine:
         return hit[1]
     f0, f1, f2, nw = fine.shape
     records = node_records(fine.reshape(f0 * f1, f2, nw), chunk)
-    TABLE_RECORDS.put(key, (fine, records), records.nbytes)
+    TABLE_RECORDS.put(key, (weakref.ref(fine), records), records.nbytes)
     return records
 
 

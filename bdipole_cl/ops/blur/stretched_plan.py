@@ -124,7 +124,7 @@ def ranges_union(a, b):
 
 
 #: windows share one plan over their ranges' union where it is at most this many lattice steps
-#: wider, on every axis, than the wider of the two (``shared_ranges``)
+#: wider, on every axis, than the widest of its windows' own (``shared_ranges``)
 MERGE_STEPS = 1.0
 
 
@@ -136,30 +136,32 @@ def range_steps(ranges, tol) -> np.ndarray:
 def shared_ranges(ranges, sizes, tol) -> list:
     """Per window (its transformed ``ranges``, its texels ``sizes``), the ranges of the plan
     it shares: windows are taken largest first, each joining the group whose union with it
-    widens least, where the union is at most MERGE_STEPS wider on every axis than the wider
-    of the two and has at most MAX_NODES nodes, else starting a group. A UV layout's charts
+    widens least, where the union is at most MERGE_STEPS wider on every axis than the widest
+    of the group's windows and this one (so that groups do not grow by chains of near
+    neighbours) and has at most MAX_NODES nodes, else starting a group. A UV layout's charts
     of overlapping ranges share one plan (planned once, cached: one table and its spectra);
     charts of distinct narrow ranges (a cylinder's, one aspect each) keep their own, whose
     ranks are lower (the rank grows with the ranges' widths)."""
-    groups, member = [], [0] * len(ranges)
+    groups, member = [], [0] * len(ranges)     # per group: [box, widest of its windows]
     for i in sorted(range(len(ranges)), key=lambda i: (-sizes[i], i)):
         own = range_steps(ranges[i], tol)
         best = None
-        for g, box in enumerate(groups):
+        for g, (box, widest) in enumerate(groups):
             union = ranges_union(box, ranges[i])
-            width, have = range_steps(union, tol), range_steps(box, tol)
-            growth = float((width - have).sum())
-            if (np.all(width <= np.maximum(have, own) + MERGE_STEPS)
+            width = range_steps(union, tol)
+            growth = float((width - range_steps(box, tol)).sum())
+            if (np.all(width <= np.maximum(widest, own) + MERGE_STEPS)
                     and lattice_nodes(union, tol) <= MAX_NODES
                     and (best is None or growth < best[1])):
                 best = (g, growth, union)
         if best is None:
-            groups.append(tuple(ranges[i]))
+            groups.append((tuple(ranges[i]), own))
             member[i] = len(groups) - 1
         else:
-            groups[best[0]] = best[2]
-            member[i] = best[0]
-    return [groups[g] for g in member]
+            g, _, union = best
+            groups[g] = (union, np.maximum(groups[g][1], own))
+            member[i] = g
+    return [groups[g][0] for g in member]
 
 
 def lattice_steps(tol):
@@ -309,10 +311,16 @@ def plan_radius(ranges, eta, tol, exact=False) -> int:
                for r in rds)
 
 
+def plan_peak_bytes(nodes, radius) -> int:
+    """The bytes planning holds at its peak: the nodes' kernels of radius K and the SVD's
+    weighted copies of them."""
+    return PLAN_PEAK_PER_NODE_BYTE * nodes * (radius + 1) ** 2 * 8
+
+
 def check_plan_size(nodes, radius, ranges):
     """ValueError naming the ranges where planning them would take more than MAX_NODES
     kernels or PLAN_PEAK_BYTES."""
-    peak = PLAN_PEAK_PER_NODE_BYTE * nodes * (radius + 1) ** 2 * 8
+    peak = plan_peak_bytes(nodes, radius)
     if nodes > MAX_NODES or peak > PLAN_PEAK_BYTES:
         (t0, t1), (l0, l1), (s0, s1) = ranges
         raise ValueError(

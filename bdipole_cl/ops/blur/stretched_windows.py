@@ -1,10 +1,10 @@
 """The stretched blur's windows (docs/stretch.md "Chart borders", "Bands"): the parts of the
-image blurred on their own, each with its own plan. Without charts one window, the image, with
-the blur's border rule; with charts kept apart, one per UV chart: its bounding box, the texels
-it writes (its chart's, gutters included) and where each of its texels' irradiance comes from
-(the chart's own texels; beyond them, by the chart border rule, the nearest covered texel or 0).
-A window is blurred in bands of rows with a halo (``band_sources``), as ``BlurPlan`` bands an
-image."""
+image blurred on their own (their plans: ``stretched_plan.shared_ranges``). Without charts one
+window, the image, with the blur's border rule; with charts kept apart, one per UV chart: its
+bounding box, the texels it writes (its chart's, gutters included) and where each of its
+texels' irradiance comes from (the chart's own texels; beyond them, by the chart border rule,
+the nearest covered texel or 0). A window is blurred in bands of rows with a halo
+(``band_sources``), as ``BlurPlan`` bands an image."""
 from __future__ import annotations
 
 import hashlib

@@ -75,28 +75,82 @@ def test_another_key_or_version_of_the_code_is_not_read(plans, monkeypatch):
     assert len(made) == 4 and len(list(folder.iterdir())) == 2
 
 
-@pytest.mark.parametrize("damage", ["truncated", "empty", "not a zip", "nan in the table"])
+def rewritten(path, first, change):
+    """The plan file at ``path`` rewritten by np.savez (a whole zip, its CRCs right) with
+    ``change`` applied to ``first``'s arrays: consistent-looking damage."""
+    with np.load(path) as data:
+        key = str(data["key"])
+    arrays = {k: np.array(v) for k, v in pf.plan_arrays(first, key).items()}
+    change(arrays)
+    with open(path, "wb") as f:
+        np.savez(f, **arrays)
+
+
+def set_at(name, index, value):
+    def change(arrays):
+        arrays[name][index] = value
+    return change
+
+
+def near_cut(arrays):                  # 5 of the near classes, the table cut to match
+    g = len(arrays["kernels"])
+    arrays["near_values"] = arrays["near_values"][:5, :5]
+    arrays["fine"] = arrays["fine"][..., :g + 5]
+
+
+DAMAGE = {
+    "truncated": lambda path, first: path.write_bytes(path.read_bytes()[:path.stat().st_size
+                                                                      // 2]),
+    "empty": lambda path, first: path.write_bytes(b""),
+    "not a zip": lambda path, first: path.write_bytes(b"x" * 4096),
+    "nan in the table": lambda path, first: rewritten(path, first,
+                                                      set_at("fine", (0, 0, 0, 0), np.nan)),
+    "nan in a kernel": lambda path, first: rewritten(path, first,
+                                                     set_at("kernels", (0, 0, 0), np.nan)),
+    "inf in an axis": lambda path, first: rewritten(path, first, set_at("axes", (0, 1), np.inf)),
+    "inf error": lambda path, first: rewritten(path, first, set_at("scalars", 3, np.inf)),
+    "nan near value": lambda path, first: rewritten(path, first,
+                                                    set_at("near_values", (0, 0), np.nan)),
+    "nan radius": lambda path, first: rewritten(path, first, set_at("scalars", 0, np.nan)),
+    "another near radius": lambda path, first: rewritten(path, first, set_at("scalars", 6, 5)),
+    "near classes cut": lambda path, first: rewritten(path, first, near_cut),
+    "table cut": lambda path, first: rewritten(
+        path, first, lambda a: a.__setitem__("fine", a["fine"][:, :5])),
+    "kernels of another radius": lambda path, first: rewritten(
+        path, first, lambda a: a.__setitem__("kernels", a["kernels"][:, :-1, :-1])),
+    "scalars cut": lambda path, first: rewritten(
+        path, first, lambda a: a.__setitem__("scalars", a["scalars"][:4])),
+}
+
+
+@pytest.mark.parametrize("damage", list(DAMAGE))
 def test_a_damaged_file_is_planned_anew_and_replaced(plans, damage):
+    """A file that is not a whole plan of its key (truncated, not a zip, a value not finite
+    anywhere, arrays whose shapes do not fit each other or the lattice and radius its key
+    makes) is not trusted: planned anew, the same plan, and the file replaced."""
     folder, made = plans
     first = sp.stretched_plan(RANGES, 1.4, 1e-3)
+    assert first.near >= 1                 # the near field's damage has classes to cut
     (path,) = folder.iterdir()
-    data = path.read_bytes()
-    if damage == "truncated":
-        path.write_bytes(data[:len(data) // 2])
-    elif damage == "empty":
-        path.write_bytes(b"")
-    elif damage == "not a zip":
-        path.write_bytes(b"x" * len(data))
-    else:
-        arrays = pf.plan_arrays(first, str(np.load(path)["key"]))
-        arrays["fine"] = arrays["fine"].copy()
-        arrays["fine"][0, 0, 0, 0] = np.nan
-        with open(path, "wb") as f:
-            np.savez(f, **arrays)
+    DAMAGE[damage](path, first)
     again = plan_again()
     assert len(made) == 2 and pf.same_plan(again, first)
     plan_again()                       # the file was replaced by a whole one
     assert len(made) == 2
+
+
+def test_a_fifo_where_a_plan_file_is_does_not_block(plans):
+    """A FIFO (or any file that is not a regular one) at a plan's path is not opened (the
+    read would block, and no signal ends a blocked open): planned anew, and the FIFO
+    replaced by the plan's file."""
+    import os
+    folder, made = plans
+    sp.stretched_plan(RANGES, 1.4, 1e-3)
+    (path,) = folder.iterdir()
+    path.unlink()
+    os.mkfifo(path)
+    plan_again()
+    assert len(made) == 2 and path.is_file()
 
 
 def test_a_cache_folder_that_cannot_be_written_is_only_no_cache(tmp_path, monkeypatch):
@@ -113,7 +167,8 @@ def test_a_cache_folder_that_cannot_be_written_is_only_no_cache(tmp_path, monkey
 
 def test_the_folder_keeps_its_bytes_least_recently_used_out(plans, monkeypatch):
     """Past PLANS_MAX_BYTES the least recently used plans go (a read counts as a use); a
-    file of another name in the folder is never touched."""
+    writer's temp file goes once it is left over (an hour old), never while fresh; a file of
+    another name in the folder is never touched."""
     folder, made = plans
     sp.stretched_plan(RANGES, 1.4, 1e-3)
     (first,) = folder.iterdir()
@@ -122,6 +177,12 @@ def test_the_folder_keeps_its_bytes_least_recently_used_out(plans, monkeypatch):
     monkeypatch.setattr(pf, "PLANS_MAX_BYTES", int(first.stat().st_size * 1.5))
     import os
     os.utime(first, (1, 1))            # long unused
+    stale, fresh = (folder / f"{first.stem}.{tag}.tmp" for tag in ("abcd1234", "efgh5678"))
+    stale.write_bytes(b"x")
+    fresh.write_bytes(b"y")
+    os.utime(stale, (1, 1))
+    assert pf.PLANS_NAME.match(stale.name)
     sp.stretched_plan(RANGES, 1.4, 2e-3)
     names = {p.name for p in folder.iterdir()}
-    assert first.name not in names and len(names) == 2 and keep.read_text() == "mine"
+    assert first.name not in names and stale.name not in names and fresh.name in names
+    assert len(names) == 3 and keep.read_text() == "mine"

@@ -233,3 +233,45 @@ def test_the_most_sheared_texel_is_named_and_recorded(tmp_path):
     assert spec.get_string_attribute("bdipole:stretch_max_shear_texel") == f"{x} {y}"
     assert read_stretch(tmp_path / "old.exr").max_shear_at is None
     assert read_stretch(tmp_path / "old.exr").max_shear == pytest.approx(tile.max_shear)
+
+
+def test_a_rotated_planes_rounding_names_no_texel(tmp_path):
+    """A plane whose u and v are orthogonal, rotated in 3D: its shear is rounding (~1e-16),
+    not a shear, and no texel is named for it."""
+    a, b, c = 0.3, 0.7, 1.1
+    rx = np.array([[1, 0, 0], [0, np.cos(a), -np.sin(a)], [0, np.sin(a), np.cos(a)]])
+    ry = np.array([[np.cos(b), 0, np.sin(b)], [0, 1, 0], [-np.sin(b), 0, np.cos(b)]])
+    rz = np.array([[np.cos(c), -np.sin(c), 0], [np.sin(c), np.cos(c), 0], [0, 0, 1]])
+    jac = rz @ ry @ rx @ np.array([[0.3, 0.0], [0.0, 0.12], [0.0, 0.0]])
+    (tile,) = stretch_tiles(read_meshes(affine_plane(tmp_path / "p.obj", jac)), (64, 64), 1e-3)
+    assert 0 < tile.max_shear <= 1e-6 and tile.max_shear_texel is None
+
+
+@pytest.mark.parametrize("sheared_first", [False, True])
+def test_two_surfaces_at_one_texel_keep_the_larger_shear(tmp_path, sheared_first):
+    """Two meshes on the same UVs with equal lengths (instances, as far as the lengths go),
+    one square and one sheared at 60 degrees: the tile's shear is the larger, whichever mesh
+    comes first (it was the first mesh's)."""
+    square = affine_plane(tmp_path / "square.obj", [(0.2, 0.0), (0.0, 0.2), (0.0, 0.0)])
+    c = np.cos(np.pi / 3)
+    sheared = affine_plane(tmp_path / "sheared.obj",
+                           [(0.2, 0.2 * c), (0.0, 0.2 * np.sin(np.pi / 3)), (0.0, 0.0)])
+    paths = [sheared, square] if sheared_first else [square, sheared]
+    meshes = [m for p in paths for m in read_meshes(p)]
+    (tile,) = stretch_tiles(meshes, (32, 32), 1e-3)
+    assert tile.max_shear == pytest.approx(0.5, abs=1e-6) and tile.max_shear_texel is not None
+
+
+@pytest.mark.parametrize("text", ["999 999", "3 64", "\uff13 \uff14", "3 4 5", "-1 5", ""])
+def test_a_recorded_texel_outside_the_map_or_malformed_reads_as_not_known(tmp_path, text):
+    """``bdipole:stretch_max_shear_texel`` is read only as two ASCII numbers of a texel of
+    the map; anything else (off the 64x64 map, full-width digits, three numbers) is not
+    known."""
+    import OpenImageIO as oiio
+    path = affine_plane(tmp_path / "p.obj", [(0.3, 0.1), (0.0, 0.2), (0.0, 0.0)])
+    (_, out), = stretch_maps(path, tmp_path / "s.exr", size=64)
+    buf = oiio.ImageBuf(str(out))
+    buf.specmod().attribute("bdipole:stretch_max_shear_texel", text)
+    buf.write(str(tmp_path / "edited.exr"))
+    assert read_stretch(tmp_path / "edited.exr").max_shear_at is None
+    assert read_stretch(out).max_shear_at is not None

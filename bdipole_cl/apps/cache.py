@@ -122,7 +122,7 @@ def cache_folders() -> list[CacheFolder]:
     cache_home = xdg("XDG_CACHE_HOME", ".cache")
     return [
         CacheFolder("runtime registration, device probe verdicts, calibrations, extracted "
-                    ".usdz textures, walk reflectance curves", own,
+                    ".usdz textures, walk reflectance curves, stretched blur plans", own,
                     f"{CACHE_DIR_VARIABLE} (else XDG_CACHE_HOME)", "bdipole_cl"),
         CacheFolder("runtime registration where the cache folder is not writable", fallback,
                     "TMPDIR", "bdipole_cl"),

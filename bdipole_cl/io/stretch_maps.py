@@ -11,6 +11,7 @@ blur keeps charts apart, ``--charts``), exact in float32 up to 2^24 charts.
 from __future__ import annotations
 
 import os
+import re
 
 import numpy as np
 import OpenImageIO as oiio
@@ -38,13 +39,14 @@ def shear_texel_text(texel) -> str:
     return "" if texel is None else f"{texel[0]} {texel[1]}"
 
 
-def shear_texel_of(text):
-    """(x, y) of a ``bdipole:stretch_max_shear_texel`` attribute, or None (none, or a file
-    written before it was recorded)."""
-    parts = (text or "").split()
-    if len(parts) != 2 or not all(p.isdigit() for p in parts):
+def shear_texel_of(text, shape):
+    """(x, y) of a ``bdipole:stretch_max_shear_texel`` attribute of a map of ``shape`` (H,
+    W), or None (none, a file written before it was recorded, or not a texel of the map)."""
+    found = re.fullmatch(r"([0-9]+) ([0-9]+)", text or "")
+    if found is None:
         return None
-    return int(parts[0]), int(parts[1])
+    x, y = int(found[1]), int(found[2])
+    return (x, y) if x < shape[1] and y < shape[0] else None
 
 
 def tile_spec(tile: StretchTile, source, meters_per_unit, header=None) -> oiio.ImageSpec:
@@ -131,7 +133,7 @@ def read_stretch(path) -> Stretch:
         unit = spec.get_string_attribute("bdipole:stretch_unit", "")
         shear = float(spec.get_string_attribute("bdipole:stretch_max_shear", "0") or 0)
         shear_at = shear_texel_of(spec.get_string_attribute(
-            "bdipole:stretch_max_shear_texel", ""))
+            "bdipole:stretch_max_shear_texel", ""), (spec.height, spec.width))
     finally:
         reader.close()
     for channel in CHANNELS:

@@ -36,6 +36,11 @@ CHUNK_TEXELS = 1 << 22
 AGREE = 1e-4
 
 
+#: |cos| of a texel's shear at or below this is rounding, not a shear (the Jacobian of a
+#: plane's triangles from float32 positions is good to ~1e-7): no texel is named for it
+SHEAR_ROUNDING = 1e-6
+
+
 class StretchError(ValueError):
     """Texture coordinates a stretch map cannot hold: one line naming the mesh and face."""
 
@@ -70,10 +75,10 @@ class StretchTile:
     @property
     def max_shear_texel(self):
         """(x, y) of the covered texel of the largest |shear| (the first in row order), or
-        None where no covered texel is sheared: where the layout's shear, and the blur's
-        bound with it, is worst (docs/stretch.md "Shear")."""
+        None where no covered texel is sheared beyond SHEAR_ROUNDING: where the layout's
+        shear, and the blur's bound with it, is worst (docs/stretch.md "Shear")."""
         vals = np.where(self.covered, np.abs(self.shear), 0.0)
-        if not vals.size or vals.max() <= 0:
+        if not vals.size or vals.max() <= SHEAR_ROUNDING:
             return None
         y, x = np.unravel_index(int(np.argmax(vals)), vals.shape)
         return int(x), int(y)
@@ -254,6 +259,9 @@ def union_tile(meshes, frames, tile, size, metres_per_unit_length):
         new = mine & ~covered
         for dst, src in zip(merged, maps[:4]):
             dst[new] = src[new]
+        # two surfaces at one texel (lengths agreeing): the larger |shear| is the bound's
+        more = both & (np.abs(maps[2]) > np.abs(merged[2]))
+        merged[2][more] = maps[2][more]
         owner[new] = i
         covered |= mine
     return (*merged, covered)

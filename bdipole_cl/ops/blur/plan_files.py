@@ -15,8 +15,9 @@ from __future__ import annotations
 import hashlib
 import os
 import re
+import stat
 import tempfile
-import zipfile
+import time
 from functools import lru_cache
 from pathlib import Path
 
@@ -26,9 +27,11 @@ from ...caches import user_cache_dir
 from ...durable import durable_replace
 
 #: the folder of the plans' files in the user cache folder, and their names:
-#: plan-{source digest}-{key digest}.npz
+#: plan-{source digest}-{key digest}.npz, and their writers' temp files (.{random}.tmp)
 PLANS_FOLDER = "stretched-plans"
-PLANS_NAME = re.compile(r"^plan-[0-9a-f]{16}-[0-9a-f]{32}\.npz$")
+PLANS_NAME = re.compile(r"^plan-[0-9a-f]{16}-[0-9a-f]{32}(\.npz|\.[a-z0-9_]{8}\.tmp)$")
+#: a writer's temp file older than this is left over (its writer killed): pruned
+STALE_TEMP_SECONDS = 3600
 #: bytes of plans the folder keeps (a head's plan is ~60 MB, the smooth benchmark's ~20 MB)
 PLANS_MAX_BYTES = 2 << 30
 #: the scalar fields of a StretchedPlan, in their file's ``scalars`` order
@@ -67,11 +70,11 @@ def plan_arrays(plan, key: str) -> dict:
     return out
 
 
-def read_plan(key: str, make_axis, make_plan):
+def read_plan(key: str, make_axis, make_plan, whole):
     """The plan of ``key`` from its file, or None where there is none, or it is not a whole
     plan of this key (``read_plan_at``); a file read is touched (the last to be pruned)."""
     path = plan_path(key)
-    plan = read_plan_at(path, key, make_axis, make_plan)
+    plan = read_plan_at(path, key, make_axis, make_plan, whole)
     if plan is not None:
         try:
             os.utime(path)
@@ -80,44 +83,49 @@ def read_plan(key: str, make_axis, make_plan):
     return plan
 
 
-def read_plan_at(path: Path, key: str, make_axis, make_plan):
-    """The plan of ``key`` in the file at ``path`` (``make_axis(values, origin, step)`` and
-    ``make_plan(**fields)`` rebuild it, read-only), or None where it is not one."""
+def read_plan_at(path: Path, key: str, make_axis, make_plan, whole):
+    """The plan of ``key`` in the regular file at ``path`` (``make_axis(values, origin,
+    step)`` and ``make_plan(**fields)`` rebuild it, read-only), or None where it is not one:
+    not a regular file (a FIFO would block the read), not a zip of these arrays, another key,
+    or a plan ``whole(plan)`` finds not to be one its arguments make (shapes, lattice, radius,
+    finite values)."""
     try:
+        if not stat.S_ISREG(os.stat(path).st_mode):
+            return None
         with np.load(path, allow_pickle=False) as data:
             if str(data["key"]) != key:
                 return None
-            scalars = dict(zip(SCALARS, data["scalars"].tolist()))
+            values = data["scalars"].tolist()
+            if len(values) != len(SCALARS) or not np.all(np.isfinite(values)):
+                return None
+            scalars = dict(zip(SCALARS, values))
             axes = tuple(make_axis(tuple(data[f"axis{i}"].tolist()), float(o), float(s))
                          for i, (o, s, _) in enumerate(data["axes"]))
-            fine, near_values = np.array(data["fine"]), np.array(data["near_values"])
-            kernels = tuple(np.array(q) for q in data["kernels"])
-    except (OSError, KeyError, ValueError, TypeError, EOFError, zipfile.BadZipFile):
+            arrays = {name: np.array(data[name]) for name in ("fine", "near_values", "kernels")}
+        for a in arrays.values():
+            a.setflags(write=False)
+        plan = make_plan(axes=axes, fine=arrays["fine"], near_values=arrays["near_values"],
+                         kernels=tuple(arrays["kernels"]), radius=int(scalars["radius"]),
+                         nodes=int(scalars["nodes"]), near=int(scalars["near"]),
+                         near_direct=bool(scalars["near_direct"]),
+                         **{f: scalars[f] for f in ("eta", "fit_error", "interp_error",
+                                                    "truncation_tol")})
+        return plan if whole(plan) else None
+    except Exception:                  # anything a damaged file holds: not a plan
         return None
-    for a in (fine, near_values, *kernels):
-        a.setflags(write=False)
-    # the table's records: a weight per eigen-kernel and per near class, every one finite
-    if fine.ndim != 4 or fine.shape[3] != len(kernels) + len(near_values) \
-            or not np.all(np.isfinite(fine)):
-        return None
-    return make_plan(axes=axes, fine=fine, near_values=near_values, kernels=kernels,
-                     radius=int(scalars["radius"]), nodes=int(scalars["nodes"]),
-                     near=int(scalars["near"]), near_direct=bool(scalars["near_direct"]),
-                     **{f: scalars[f] for f in ("eta", "fit_error", "interp_error",
-                                                "truncation_tol")})
 
 
-def write_plan(key: str, plan, make_axis, make_plan) -> None:
+def write_plan(key: str, plan, make_axis, make_plan, whole) -> None:
     """The plan's file: temp file, read back and compared field by field, durable rename;
     then the folder pruned to PLANS_MAX_BYTES. Nothing raised where it cannot be written."""
     path = plan_path(key)
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(suffix=".npz", dir=path.parent)
+        fd, tmp = tempfile.mkstemp(prefix=path.stem + ".", suffix=".tmp", dir=path.parent)
         try:
             with os.fdopen(fd, "wb") as f:
                 np.savez(f, **plan_arrays(plan, key))
-            back = read_plan_at(Path(tmp), key, make_axis, make_plan)
+            back = read_plan_at(Path(tmp), key, make_axis, make_plan, whole)
             if back is None or not same_plan(back, plan):
                 return
             durable_replace(tmp, path)
@@ -139,12 +147,17 @@ def same_plan(a, b) -> bool:
 
 def prune(folder: Path, max_bytes: int) -> None:
     """The plans' files of ``folder`` beyond ``max_bytes`` removed, least recently used
-    first (by modification time: a read touches its file)."""
-    files = []
+    first (by modification time: a read touches its file), and writers' temp files left
+    over (older than STALE_TEMP_SECONDS)."""
+    files, now = [], time.time()
     for p in folder.iterdir():
         if PLANS_NAME.match(p.name) and p.is_file() and not p.is_symlink():
             try:
                 st = p.stat()
+                if p.suffix == ".tmp":             # a writer's: removed only when left over
+                    if now - st.st_mtime > STALE_TEMP_SECONDS:
+                        p.unlink()
+                    continue
             except OSError:
                 continue
             files.append((st.st_mtime, st.st_size, p))

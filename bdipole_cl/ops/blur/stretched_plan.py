@@ -339,11 +339,38 @@ def stretched_plan(ranges, eta, tol, exact=False, max_radius=2048,
     in memory and, across processes, in the user cache folder (``plan_files``)."""
     key = repr(("stretched", tuple((float(lo), float(hi)) for lo, hi in ranges), float(eta),
                 float(tol), bool(exact), int(max_radius), costs))
-    plan = read_plan(key, Axis, StretchedPlan)
+
+    def whole(plan):
+        return plan_is_whole(plan, ranges, eta, tol, exact)
+    plan = read_plan(key, Axis, StretchedPlan, whole)
     if plan is None:
         plan = make_stretched_plan(ranges, eta, tol, exact, max_radius, costs)
-        write_plan(key, plan, Axis, StretchedPlan)
+        write_plan(key, plan, Axis, StretchedPlan, whole)
     return plan
+
+
+def plan_is_whole(plan: StretchedPlan, ranges, eta, tol, exact=False) -> bool:
+    """Whether a plan (read from a file) is one of these arguments could be: their lattice,
+    radius, eta and tol; a near field the plan tries, its classes exact ((n + 1)^2 of them);
+    (K+1)^2 eigen-kernels; the table REFINE times finer than the lattice with a weight per
+    eigen-kernel and class; every value finite, the errors >= 0. Not its values: those only
+    the making checks."""
+    axes = tuple(lattice_axis(lo, hi, step) for (lo, hi), step in zip(ranges,
+                                                                      lattice_steps(tol)))
+    classes = (plan.near + 1) ** 2 if plan.near >= 0 else 0
+    k = plan.radius + 1
+    fine = tuple(REFINE * (len(a.values) - 1) + 1 for a in axes)
+    arrays = (plan.fine, plan.near_values, *plan.kernels)
+    return (plan.axes == axes and plan.eta == float(eta) and plan.truncation_tol == float(tol)
+            and plan.nodes == int(np.prod([len(a.values) for a in axes]))
+            and plan.near in NEAR_RADII and (plan.near < 0 or plan.near_direct)
+            and plan.radius == plan_radius(ranges, eta, tol, exact)
+            and all(q.shape == (k, k) for q in plan.kernels)
+            and plan.near_values.shape[0] == classes
+            and (classes == 0 or plan.near_values.shape == (classes, classes))
+            and plan.fine.shape == (*fine, len(plan.kernels) + classes)
+            and all(np.all(np.isfinite(a)) for a in arrays)
+            and 0 <= plan.fit_error < np.inf and 0 <= plan.interp_error < np.inf)
 
 
 def make_stretched_plan(ranges, eta, tol, exact=False, max_radius=2048,

@@ -352,9 +352,9 @@ def stretched_plan(ranges, eta, tol, exact=False, max_radius=2048,
 def plan_is_whole(plan: StretchedPlan, ranges, eta, tol, exact=False) -> bool:
     """Whether a plan (read from a file) is one of these arguments could be: their lattice,
     radius, eta and tol; a near field the plan tries, its classes exact ((n + 1)^2 of them);
-    (K+1)^2 eigen-kernels; the table REFINE times finer than the lattice with a weight per
-    eigen-kernel and class; every value finite, the errors >= 0. Not its values: those only
-    the making checks."""
+    (K+1)^2 float64 eigen-kernels; the float32 table REFINE times finer than the lattice with
+    a weight per eigen-kernel and class, float32 near values; every value finite, the errors
+    >= 0. Not its values: those only the making checks."""
     axes = tuple(lattice_axis(lo, hi, step) for (lo, hi), step in zip(ranges,
                                                                       lattice_steps(tol)))
     classes = (plan.near + 1) ** 2 if plan.near >= 0 else 0
@@ -365,7 +365,8 @@ def plan_is_whole(plan: StretchedPlan, ranges, eta, tol, exact=False) -> bool:
             and plan.nodes == int(np.prod([len(a.values) for a in axes]))
             and plan.near in NEAR_RADII and (plan.near < 0 or plan.near_direct)
             and plan.radius == plan_radius(ranges, eta, tol, exact)
-            and all(q.shape == (k, k) for q in plan.kernels)
+            and plan.fine.dtype == np.float32 and plan.near_values.dtype == np.float32
+            and all(q.shape == (k, k) and q.dtype == np.float64 for q in plan.kernels)
             and plan.near_values.shape[0] == classes
             and (classes == 0 or plan.near_values.shape == (classes, classes))
             and plan.fine.shape == (*fine, len(plan.kernels) + classes)

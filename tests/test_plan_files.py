@@ -98,6 +98,28 @@ def near_cut(arrays):                  # 5 of the near classes, the table cut to
     arrays["fine"] = arrays["fine"][..., :g + 5]
 
 
+def near_zero(arrays):                 # near field 0: one class, the table cut to match
+    g = len(arrays["kernels"])
+    arrays["scalars"][6] = 0
+    arrays["near_values"] = arrays["near_values"][:1, :1]
+    arrays["fine"] = arrays["fine"][..., :g + 1]
+
+
+def kernel_dropped(arrays):            # the last eigen-kernel and its table column gone
+    g = len(arrays["kernels"])
+    arrays["kernels"] = arrays["kernels"][:g - 1]
+    arrays["fine"] = np.delete(arrays["fine"], g - 1, axis=-1)
+
+
+def compressed(path, first):
+    """The plan's own arrays, its digest right, in a compressed zip (not as written: its
+    unpacked size is not the file's)."""
+    with np.load(path) as data:
+        key = str(data["key"])
+    with open(path, "wb") as f:
+        np.savez_compressed(f, **pf.plan_arrays(first, key))
+
+
 DAMAGE = {
     "truncated": lambda path, first: path.write_bytes(path.read_bytes()[:path.stat().st_size
                                                                       // 2]),
@@ -120,6 +142,12 @@ DAMAGE = {
         path, first, lambda a: a.__setitem__("kernels", a["kernels"][:, :-1, :-1])),
     "scalars cut": lambda path, first: rewritten(
         path, first, lambda a: a.__setitem__("scalars", a["scalars"][:4])),
+    "near field 0, consistently": lambda path, first: rewritten(path, first, near_zero),
+    "an eigen-kernel dropped, consistently": lambda path, first: rewritten(path, first,
+                                                                          kernel_dropped),
+    "errors of 0": lambda path, first: rewritten(
+        path, first, lambda a: a["scalars"].__setitem__(slice(2, 4), 0.0)),
+    "compressed": lambda path, first: compressed(path, first),
     "a complex table": lambda path, first: rewritten(
         path, first, lambda a: a.__setitem__("fine", a["fine"].astype(np.complex64))),
     "float16 kernels": lambda path, first: rewritten(
@@ -141,6 +169,21 @@ def test_a_damaged_file_is_planned_anew_and_replaced(plans, damage):
     assert len(made) == 2 and pf.same_plan(again, first)
     plan_again()                       # the file was replaced by a whole one
     assert len(made) == 2
+
+
+def test_a_plan_file_replaced_takes_no_access_from_the_one_before(plans):
+    """A damaged plan file of mode 000 is replaced by one its owner can read (a cache file
+    does not keep the access of the file it replaces: the replacement would be unreadable,
+    and made anew by every process)."""
+    import os
+    import stat
+    folder, made = plans
+    sp.stretched_plan(RANGES, 1.4, 1e-3)
+    (path,) = folder.iterdir()
+    path.write_bytes(b"")
+    os.chmod(path, 0)
+    plan_again()
+    assert len(made) == 2 and stat.S_IMODE(path.stat().st_mode) & stat.S_IRUSR
 
 
 def test_a_fifo_where_a_plan_file_is_does_not_block(plans):

@@ -6,8 +6,9 @@ that makes it, not once per process (a 64-chart head's three plans: 15 s, read b
 A plan's file is named by a digest of the sources of the packages plans are made by
 (``source_digest``: any change there is a new name) and of its key, and holds the key itself
 (checked on reading: a file of another key is not read as this one). Written as every cache
-file of the package (temp file, read back and compared, durable rename); a file that cannot be
-read as a whole plan is made anew and replaced; a cache that cannot be written is only a cache.
+file of the package (temp file, read back and compared, durable rename), with a digest of its
+arrays; a file that cannot be read as a whole plan of its key, its arrays as written, is made
+anew and replaced; a cache that cannot be written is only a cache.
 The folder keeps at most PLANS_MAX_BYTES, the least recently used out first; ``bdipole-cl
 cache`` lists and clears it."""
 from __future__ import annotations
@@ -18,13 +19,14 @@ import re
 import stat
 import tempfile
 import time
+import zipfile
 from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
 
 from ...caches import user_cache_dir
-from ...durable import durable_replace
+from ...durable import fsync_path
 
 #: the folder of the plans' files in the user cache folder, and their names:
 #: plan-{source digest}-{key digest}.npz, and their writers' temp files (.{random}.tmp)
@@ -59,7 +61,8 @@ def plan_path(key: str) -> Path:
 
 
 def plan_arrays(plan, key: str) -> dict:
-    """A StretchedPlan as the arrays of its file (``np.savez``; no object arrays)."""
+    """A StretchedPlan as the arrays of its file (``np.savez``; no object arrays), with the
+    ``content_digest`` of the others as ``digest``."""
     k = plan.radius + 1
     out = {"key": np.array(key), "fine": plan.fine, "near_values": plan.near_values,
            "kernels": (np.stack(plan.kernels) if plan.kernels else np.zeros((0, k, k))),
@@ -67,7 +70,35 @@ def plan_arrays(plan, key: str) -> dict:
            "axes": np.array([(a.origin, a.step, len(a.values)) for a in plan.axes])}
     for i, a in enumerate(plan.axes):
         out[f"axis{i}"] = np.asarray(a.values, np.float64)
+    out["digest"] = np.array(content_digest(out))
     return out
+
+
+def content_digest(arrays) -> str:
+    """A digest of named arrays (each name, dtype, shape and bytes, in name order; not the
+    ``digest`` entry): a file's arrays as written, so that any array changed, cut or
+    retyped since (by anything that did not also make this digest anew) is not read."""
+    digest = hashlib.blake2b(digest_size=20)
+    for name in sorted(n for n in arrays if n != "digest"):
+        a = np.ascontiguousarray(arrays[name])
+        digest.update(f"{name}\0{a.dtype.str}\0{a.shape}\0".encode())
+        digest.update(a.tobytes())
+    return digest.hexdigest()
+
+
+#: the members of a plan's file, as ``plan_arrays`` writes them: no more, and stored (np.savez
+#: does not compress; a compressed member, whose size unpacked is not the file's, is not ours)
+MAX_MEMBERS = 16
+
+
+def stored_within(path: Path, max_bytes: int) -> bool:
+    """Whether the zip at ``path`` has at most MAX_MEMBERS members, every one stored (not
+    compressed), their sizes within ``max_bytes`` in all: what reading it may take."""
+    with zipfile.ZipFile(path) as z:
+        infos = z.infolist()
+    return (len(infos) <= MAX_MEMBERS and all(i.compress_type == zipfile.ZIP_STORED
+                                              for i in infos)
+            and sum(i.file_size for i in infos) <= max_bytes)
 
 
 def read_plan(key: str, make_axis, make_plan, whole):
@@ -90,18 +121,20 @@ def read_plan_at(path: Path, key: str, make_axis, make_plan, whole):
     or a plan ``whole(plan)`` finds not to be one its arguments make (shapes, lattice, radius,
     finite values)."""
     try:
-        if not stat.S_ISREG(os.stat(path).st_mode):
+        if not stat.S_ISREG(os.stat(path).st_mode) or not stored_within(path, PLANS_MAX_BYTES):
             return None
         with np.load(path, allow_pickle=False) as data:
             if str(data["key"]) != key:
                 return None
-            values = data["scalars"].tolist()
-            if len(values) != len(SCALARS) or not np.all(np.isfinite(values)):
-                return None
-            scalars = dict(zip(SCALARS, values))
-            axes = tuple(make_axis(tuple(data[f"axis{i}"].tolist()), float(o), float(s))
-                         for i, (o, s, _) in enumerate(data["axes"]))
-            arrays = {name: np.array(data[name]) for name in ("fine", "near_values", "kernels")}
+            arrays = {name: np.array(data[name]) for name in data.files}
+        if str(arrays.pop("digest")) != content_digest(arrays):
+            return None
+        values = arrays["scalars"]
+        if values.shape != (len(SCALARS),) or not np.all(np.isfinite(values)):
+            return None
+        scalars = dict(zip(SCALARS, values.tolist()))
+        axes = tuple(make_axis(tuple(arrays[f"axis{i}"].tolist()), float(o), float(s))
+                     for i, (o, s, _) in enumerate(arrays["axes"]))
         for a in arrays.values():
             a.setflags(write=False)
         plan = make_plan(axes=axes, fine=arrays["fine"], near_values=arrays["near_values"],
@@ -128,7 +161,11 @@ def write_plan(key: str, plan, make_axis, make_plan, whole) -> None:
             back = read_plan_at(Path(tmp), key, make_axis, make_plan, whole)
             if back is None or not same_plan(back, plan):
                 return
-            durable_replace(tmp, path)
+            # not ``durable_replace``: a cache file takes no access from the file it replaces
+            # (a plan file of mode 000 would make its successor unreadable, for good)
+            fsync_path(tmp)
+            os.replace(tmp, path)
+            fsync_path(str(path.parent), directory=True)
         finally:
             if os.path.exists(tmp):
                 os.unlink(tmp)

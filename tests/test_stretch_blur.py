@@ -227,3 +227,29 @@ def test_cli_stretch_errors_name_the_stretch_file_and_options(tmp_path, capsys):
     err = capsys.readouterr().err
     assert code == 2 and "is one tile's map" in err and "names 2 tiles" in err, err
     assert not list(tmp_path.glob("o*.exr"))
+
+
+def test_cli_blur_names_the_tile_its_shear_warning_is_of(on_device, tmp_path):
+    """``bdipole-cl blur`` of UDIM tiles whose stretch is sheared: the accuracy warning names
+    the tile's irradiance file and the most sheared texel (it named neither tile nor file)."""
+    import OpenImageIO as oiio
+    jac = [(0.3, 0.1), (0.0, 0.3), (0.0, 0.0)]
+    (tile, _), = stretch_maps(affine_plane(tmp_path / "shear.obj", jac),
+                              str(tmp_path / "st.1001.exr"), size=32)
+    e = np.zeros((32, 32, 3), np.float32)
+    e[16, 16] = 1.0
+    out = oiio.ImageOutput.create(str(tmp_path / "irr.1001.exr"))
+    out.open(str(tmp_path / "irr.1001.exr"), oiio.ImageSpec(32, 32, 3, "float"))
+    out.write_image(e)
+    out.close()
+    run = subprocess.run([sys.executable, "-m", "bdipole_cl", "blur",
+                          str(tmp_path / "irr.<UDIM>.exr"), "--stretch",
+                          str(tmp_path / "st.<UDIM>.exr"), "--albedo", "0.6", "--mfp", "20",
+                          "-o", str(tmp_path / "out.<UDIM>.exr"), "--device",
+                          short_id(on_device), "--no-progress", "--colorspace",
+                          "lin_rec709_scene"], capture_output=True, text=True)
+    assert run.returncode == 0, run.stderr
+    x, y = tile.max_shear_texel
+    lines = [ln for ln in run.stderr.splitlines() if "shear" in ln]
+    assert lines and all(f"irr.1001.exr: stretched blur error bound" in ln
+                         and f"at texel x={x}, y={y}" in ln for ln in lines), run.stderr

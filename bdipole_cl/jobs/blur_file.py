@@ -24,7 +24,7 @@ from ..methods.registry import BORDER
 from ..ops.bands import band_rows, bands
 from ..ops.blur import BlurPlan, Scattering, plan_blur
 from ..ops.blur.params import add_count, checked_irradiance
-from ..ops.blur.planning import worse
+from ..ops.blur.planning import BlurAccuracyWarning, worse
 from ..ops.invert import invert_albedo
 from ..signals import Stopped
 from .pipeline import stream_bands
@@ -68,11 +68,25 @@ def texture_channel_names(path, role=None) -> list | None:
 
 def file_plan(path, spec, names, scattering, options, sources) -> BlurPlan:
     """The plan of a file's blur (``names``: its colour channels'), made once for all its
-    bands (a parameter texture's bad texel named in the file it comes from)."""
+    bands (a parameter texture's bad texel named in the file it comes from); its accuracy
+    warnings name the file (each tile of a UDIM set its own)."""
+    kept = []
     try:
-        return plan_blur((spec.height, spec.width, len(names)), scattering, **options)
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            try:
+                return plan_blur((spec.height, spec.width, len(names)), scattering, **options)
+            finally:
+                kept = list(caught)
     except InvalidInputError as exc:
         raise located(exc, path, sources, spec, np.arange(spec.height), names) from None
+    finally:
+        for w in kept:                 # again, under the caller's filters
+            if issubclass(w.category, BlurAccuracyWarning):
+                warnings.warn(w.category(f"{path}: {w.message}"), stacklevel=2)
+            else:
+                warnings.warn_explicit(w.message, w.category, w.filename, w.lineno,
+                                       source=w.source)
 
 
 def blurred_band(plan, px, colour, alpha_ch, names, route, idx, mask, y0, y1,

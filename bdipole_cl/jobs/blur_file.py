@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import time
 import warnings
+from contextlib import contextmanager
 from dataclasses import replace
 from pathlib import Path
 
@@ -69,21 +70,28 @@ def texture_channel_names(path, role=None) -> list | None:
 def file_plan(path, spec, names, scattering, options, sources) -> BlurPlan:
     """The plan of a file's blur (``names``: its colour channels'), made once for all its
     bands (a parameter texture's bad texel named in the file it comes from); its accuracy
-    warnings name the file (each tile of a UDIM set its own)."""
-    kept = []
+    warnings name the file (``warnings_naming``)."""
+    try:
+        with warnings_naming(path):
+            return plan_blur((spec.height, spec.width, len(names)), scattering, **options)
+    except InvalidInputError as exc:
+        raise located(exc, path, sources, spec, np.arange(spec.height), names) from None
+
+
+@contextmanager
+def warnings_naming(path):
+    """Within it, the blur's accuracy warnings (BlurAccuracyWarning) are said again with
+    ``path`` before them (each tile of a UDIM set its own), after it, under the caller's
+    filters; other warnings as they were."""
+    caught = []
     try:
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
-            try:
-                return plan_blur((spec.height, spec.width, len(names)), scattering, **options)
-            finally:
-                kept = list(caught)
-    except InvalidInputError as exc:
-        raise located(exc, path, sources, spec, np.arange(spec.height), names) from None
+            yield
     finally:
-        for w in kept:                 # again, under the caller's filters
+        for w in caught:
             if issubclass(w.category, BlurAccuracyWarning):
-                warnings.warn(w.category(f"{path}: {w.message}"), stacklevel=2)
+                warnings.warn(w.category(f"{path}: {w.message}"), stacklevel=4)
             else:
                 warnings.warn_explicit(w.message, w.category, w.filename, w.lineno,
                                        source=w.source)

@@ -296,7 +296,7 @@ def describe(plans) -> str:
         return parts[0]
     if 1 < len(distinct) < len(plans):
         counts = [sum(q is p for q in plans) for p in distinct]
-        parts = [f"{words} ({n} chart{'s' if n > 1 else ''})"
+        parts = [f"{words} ({counted(n, 'chart', 'charts')})"
                  for words, n in zip(parts, counts)]
     return f"{len(plans)} charts: " + "; ".join(parts)
 
@@ -420,9 +420,8 @@ def channel_plans(maps, windows, eta, tol, exact, costs, max_shear, shear_at=Non
             if box == own:
                 raise
             chosen.append(plan_of(own))           # the union refused: the window's own plan
-    used = {id(p) for p in chosen}
     worst = None
-    for box, plan in ((b, p) for b, p in plans.items() if id(p) in used):
+    for box, plan in plans.items():               # each one some window's
         shear = shear_error(plan, box, max_shear, exact)
         bound = plan.error_bound + shear + roundoff(plan)
         if max(plan.fit_error, plan.interp_error) > tol or shear > tol:

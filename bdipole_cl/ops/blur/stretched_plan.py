@@ -112,10 +112,15 @@ def lattice_axis(lo, hi, step) -> Axis:
     return Axis(tuple(float(i * step) for i in range(i0, i1 + 1)), float(i0), step)
 
 
+def lattice_axes(ranges, tol) -> tuple:
+    """The lattice's Axis of each of transformed ranges at tol (``lattice_axis``)."""
+    return tuple(lattice_axis(lo, hi, step) for (lo, hi), step in zip(ranges,
+                                                                      lattice_steps(tol)))
+
+
 def lattice_nodes(ranges, tol) -> int:
-    """The nodes of the lattice over transformed ranges at tol (``lattice_axis`` per axis)."""
-    return int(np.prod([len(lattice_axis(lo, hi, step).values)
-                        for (lo, hi), step in zip(ranges, lattice_steps(tol))]))
+    """The nodes of the lattice over transformed ranges at tol."""
+    return int(np.prod([len(a.values) for a in lattice_axes(ranges, tol)]))
 
 
 def ranges_union(a, b):
@@ -355,8 +360,7 @@ def plan_is_whole(plan: StretchedPlan, ranges, eta, tol, exact=False) -> bool:
     (K+1)^2 float64 eigen-kernels; the float32 table REFINE times finer than the lattice with
     a weight per eigen-kernel and class, float32 near values; every value finite, the errors
     >= 0. Not its values: those only the making checks."""
-    axes = tuple(lattice_axis(lo, hi, step) for (lo, hi), step in zip(ranges,
-                                                                      lattice_steps(tol)))
+    axes = lattice_axes(ranges, tol)
     classes = (plan.near + 1) ** 2 if plan.near >= 0 else 0
     k = plan.radius + 1
     fine = tuple(REFINE * (len(a.values) - 1) + 1 for a in axes)
@@ -379,8 +383,7 @@ def make_stretched_plan(ranges, eta, tol, exact=False, max_radius=2048,
     """The StretchedPlan of transformed ranges ((lo, hi) of logit Rd, ln l, s) at tol: the
     cheapest near field for the gather's ``costs`` (``near_field.near_field_basis``, classes
     of four cells), its ranks grown until the measured interpolation error is within tol."""
-    axes = tuple(lattice_axis(lo, hi, step) for (lo, hi), step in zip(ranges,
-                                                                      lattice_steps(tol)))
+    axes = lattice_axes(ranges, tol)
     radius = plan_radius(ranges, eta, tol, exact)
     if radius > max_radius:
         raise ValueError(f"stretched blur: truncation radius {radius} texels exceeds "

@@ -111,6 +111,19 @@ def test_charts_of_overlapping_ranges_share_a_plan():
     assert shared_ranges(wide, [5, 5], tol) == wide
 
 
+def test_a_wide_window_does_not_widen_the_plan_of_narrow_ones():
+    """A head's sliver chart (aspects over 4 steps of s, among charts of about one aspect)
+    plans alone, not widening the plan of every other chart (whose rank it would raise: 9-12
+    eigen-kernels a channel for all 64 charts instead of 6-8); a window that fits into both
+    groups joins the narrower."""
+    tol = 1e-3
+    big = ((0.5, 1.5), (1.0, 1.4), (-0.1, 0.1))
+    sliver = ((0.6, 1.4), (0.8, 1.6), (-0.3, 0.45))
+    small = ((0.7, 1.2), (1.1, 1.3), (-0.05, 0.05))
+    got = shared_ranges([big, sliver, small], [300, 100, 10], tol)
+    assert got == [big, sliver, big]
+
+
 def many_charts(n=4, side=24, gutter=2):
     """A Stretch of n x n square charts (``side`` texels, ``gutter`` apart, not covered) of
     nearly one stretch (1 mm +- 4%, varying within and between charts) and a small shear."""

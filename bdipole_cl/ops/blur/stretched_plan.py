@@ -128,8 +128,8 @@ def ranges_union(a, b):
     return tuple((min(p[0], q[0]), max(p[1], q[1])) for p, q in zip(a, b))
 
 
-#: windows share one plan over their ranges' union where it is at most this many lattice steps
-#: wider, on every axis, than the widest of its windows' own (``shared_ranges``)
+#: a window joins a group's plan where their union is at most this many lattice steps wider,
+#: on every axis, than the widest of the group's windows (``shared_ranges``)
 MERGE_STEPS = 1.0
 
 
@@ -140,13 +140,14 @@ def range_steps(ranges, tol) -> np.ndarray:
 
 def shared_ranges(ranges, sizes, tol) -> list:
     """Per window (its transformed ``ranges``, its texels ``sizes``), the ranges of the plan
-    it shares: windows are taken largest first, each joining the group whose union with it
-    widens least, where the union is at most MERGE_STEPS wider on every axis than the widest
-    of the group's windows and this one (so that groups do not grow by chains of near
-    neighbours) and has at most MAX_NODES nodes, else starting a group. A UV layout's charts
-    of overlapping ranges share one plan (planned once, cached: one table and its spectra);
-    charts of distinct narrow ranges (a cylinder's, one aspect each) keep their own, whose
-    ranks are lower (the rank grows with the ranges' widths)."""
+    it shares: windows are taken largest first, each joining the group whose union with it is
+    narrowest (the rank grows with the ranges' widths), where that union is at most
+    MERGE_STEPS wider on every axis than the widest of the group's windows so far and has at
+    most MAX_NODES nodes, else starting a group. So a UV layout's charts of overlapping ranges
+    share one plan (planned once, cached: one table and its spectra), while a window wider than
+    a group (a sliver chart of many aspects) does not widen the plan of all its windows but
+    starts its own, groups do not grow by chains of near neighbours, and charts of distinct
+    narrow ranges (a cylinder's, one aspect each) keep their own plans."""
     groups, member = [], [0] * len(ranges)     # per group: [box, widest of its windows]
     for i in sorted(range(len(ranges)), key=lambda i: (-sizes[i], i)):
         own = range_steps(ranges[i], tol)
@@ -154,11 +155,10 @@ def shared_ranges(ranges, sizes, tol) -> list:
         for g, (box, widest) in enumerate(groups):
             union = ranges_union(box, ranges[i])
             width = range_steps(union, tol)
-            growth = float((width - range_steps(box, tol)).sum())
-            if (np.all(width <= np.maximum(widest, own) + MERGE_STEPS)
+            if (np.all(width <= widest + MERGE_STEPS)
                     and lattice_nodes(union, tol) <= MAX_NODES
-                    and (best is None or growth < best[1])):
-                best = (g, growth, union)
+                    and (best is None or width.sum() < best[1])):
+                best = (g, float(width.sum()), union)
         if best is None:
             groups.append((tuple(ranges[i]), own))
             member[i] = len(groups) - 1

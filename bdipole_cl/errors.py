@@ -10,6 +10,10 @@ unlit, 0).
 """
 from __future__ import annotations
 
+import os
+import sys
+import warnings
+
 import numpy as np
 
 from .vocabulary import Option, Registry
@@ -130,3 +134,15 @@ def one_line(text) -> str:
         if line and not any(line in kept for kept in seen):
             seen.append(line)
     return "; ".join(seen)
+
+
+_PACKAGE = os.path.dirname(os.path.abspath(__file__)) + os.sep
+
+
+def warn_caller(message, category=None):
+    """``warnings.warn`` attributed to the first frame outside this package: the user's line
+    that called the library (however deep in it the warning arose), not a line of ours."""
+    depth, frame = 1, sys._getframe(1)
+    while frame is not None and os.path.abspath(frame.f_code.co_filename).startswith(_PACKAGE):
+        depth, frame = depth + 1, frame.f_back
+    warnings.warn(message, category, stacklevel=depth + 1)

@@ -11,6 +11,7 @@ from bdipole_cl import InvalidInputError
 from bdipole_cl.ops.blur import blur, channel_parameters
 from bdipole_cl.ops.blur import fft as blur_fft
 from bdipole_cl.ops.blur.dispatch import weight_planes
+from bdipole_cl.ops.blur.stretched import Stretch
 from bdipole_cl.ops.blur.planning import BlurAccuracyWarning
 from bdipole_cl.ops.blur.fft import cached_spectra, kernel_spectra, times_spectrum
 from bdipole_cl.ops.blur.textured import textured_plans as channel_plans
@@ -510,3 +511,27 @@ def test_a_basis_that_cannot_fit_within_tol_is_warned_of():
     with warnings.catch_warnings():
         warnings.simplefilter("error", BlurAccuracyWarning)
         blur(e, albedo=albedo, mfp=mfp, eta=1.4, tol=1e-4)
+
+
+def test_accuracy_warnings_point_at_the_callers_line():
+    """A BlurAccuracyWarning names the user's line that called ``blur`` (so that a filter by
+    module, or the printed location, finds it), not the library's line that found it: the
+    texture-varying basis's, the plain Gaussians fit's and the stretched shear's."""
+    albedo = np.full((24, 24, 1), 0.5, np.float32)
+    albedo[:12, :12] = 0.9999
+    e = np.ones((24, 24, 1), np.float32)
+    impulse = np.zeros((21, 21, 1), np.float32)
+    impulse[10, 10] = 1.0
+    su = np.ones((24, 24), np.float32)
+    sheared = Stretch(su, 2 * su, max_shear=0.3)
+    calls = (lambda: blur(e, albedo=albedo, mfp=np.ones((24, 24), np.float32), eta=1.4,
+                          tol=1e-4, method="gaussians"),
+             lambda: blur(impulse, albedo=0.99, mfp=0.3, method="gaussians", border="zero"),
+             lambda: blur(e, albedo=0.5, mfp=2.0, stretch=sheared))
+    for call in calls:
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            call()
+        ours = [w for w in caught if issubclass(w.category, BlurAccuracyWarning)]
+        assert ours and all(w.filename == __file__ for w in ours), [
+            (w.filename, w.lineno) for w in ours]

@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from ..device import get_runtime
-from ..errors import InvalidInputError
+from ..errors import InvalidInputError, warn_caller
 from ..io.channels import classify_channels
 from ..io.collisions import Claim, check_claim
 from ..io.colour import resolve_working_space
@@ -91,7 +91,7 @@ def warnings_naming(path):
     finally:
         for w in caught:
             if issubclass(w.category, BlurAccuracyWarning):
-                warnings.warn(w.category(f"{path}: {w.message}"), stacklevel=4)
+                warn_caller(w.category(f"{path}: {w.message}"))
             else:
                 warnings.warn_explicit(w.message, w.category, w.filename, w.lineno,
                                        source=w.source)
@@ -223,8 +223,8 @@ def blur_file(path, output, *, colorspace="auto", working_space=None, half=False
         names = [spec.channelnames[c] for c in colour]
         _, _, other = classify_channels(spec.channelnames, spec.alpha_channel)
         if other:                     # as ``invert`` says it: a channel is never lost unsaid
-            warnings.warn(f"{path}: not colour, left out: "
-                          f"{', '.join(spec.channelnames[c] for c in other)}", stacklevel=2)
+            warn_caller(f"{path}: not colour, left out: "
+                        f"{', '.join(spec.channelnames[c] for c in other)}")
         plan = file_plan(path, spec, names, scattering,
                          dict(options, device=get_runtime(device)), sources)
         if plan.textured:
@@ -289,7 +289,7 @@ def report_clamped(writer, output, clamped, inputs=None):
     if clamped is not None:
         clamped.update(counts)
     elif counts:
-        warnings.warn(f"{output}: {clamped_text(counts)}", stacklevel=3)
+        warn_caller(f"{output}: {clamped_text(counts)}")
 
 
 #: the order invalid counts are said in: the irradiance, the parameters, then the output's

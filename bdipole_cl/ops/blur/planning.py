@@ -3,13 +3,13 @@ the typed record of what a blur did (``BlurInfo``); and one image (or band) blur
 """
 from __future__ import annotations
 
-import warnings
 from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from ...device import get_runtime
 from ...device.runtime import device_kind
+from ...errors import warn_caller
 from ...methods.choice import (AUTO_DIRECT_MAX_RADIUS, ChoiceData, DeviceKey, auto_blur_config,
                                choice_for, rescaled_blur)
 from ..widths import blur_timings, fft_engine, passes
@@ -124,10 +124,9 @@ def signed_irradiance_bound(info: ChannelInfo, truncated: float, tol: float) -> 
     a bound above tol is warned of."""
     bound = info.error_bound + truncated
     if bound > tol:
-        warnings.warn(BlurAccuracyWarning(
+        warn_caller(BlurAccuracyWarning(
             f"channel {info.channel}: the irradiance has both signs: the kernel truncation's "
-            f"error can add up from both: error bound {bound:.2e} > tol {tol:g}"),
-            stacklevel=5)
+            f"error can add up from both: error bound {bound:.2e} > tol {tol:g}"))
     return replace(info, error_bound=bound)
 
 
@@ -249,19 +248,18 @@ def planned_info(c, param, plan, exact, fft_precision=None) -> ChannelInfo:
         fit = fit_gaussians(a, st, et, ck.tol, exact)
         bound = gaussians_bound(a, st, et, ck, exact)
         if bound > tol:
-            warnings.warn(BlurAccuracyWarning(
+            warn_caller(BlurAccuracyWarning(
                 f"channel {c}: the gaussians fit of this kernel (radius {ck.radius}, "
                 f"albedo {ck.rd:.3g}) has L1 error {fit.l1_error:.2e}: error bound "
                 f"{bound:.2e} > tol {tol:g}; energy is kept, the shape is not: use "
-                f"method='direct' or 'fft' for the exact kernel"), stacklevel=5)
+                f"method='direct' or 'fft' for the exact kernel"))
     else:
         bound = fft_bound(ck, fft_precision)
     if plan.auto is not None and plan.auto.measured_error is not None:
         bound = max(bound, plan.auto.measured_error)
     if bound > tol and plan.method != "gaussians":
-        warnings.warn(BlurAccuracyWarning(
-            f"channel {c}: method {plan.method!r}: error bound {bound:.2e} > tol {tol:g}"),
-            stacklevel=5)
+        warn_caller(BlurAccuracyWarning(
+            f"channel {c}: method {plan.method!r}: error bound {bound:.2e} > tol {tol:g}"))
     return ChannelInfo(c, plan.method, ck.radius, bound, rd=ck.rd, auto=plan.auto)
 
 
@@ -335,9 +333,9 @@ def with_output_floor(info: BlurInfo, peaks, rd_floor, tol) -> BlurInfo:
             continue
         bound = ch.error_bound + FLOAT32_FLOOR / scale
         if bound > tol >= ch.error_bound:
-            warnings.warn(BlurAccuracyWarning(
+            warn_caller(BlurAccuracyWarning(
                 f"channel {c}: peak irradiance {peaks[c]:.3g}: the exitance is below float32's "
                 f"normal range, stored to {2 * FLOAT32_FLOOR:.2g} absolute: error bound "
-                f"{bound:.2e} relative to max(E) Rd"), stacklevel=4)
+                f"{bound:.2e} relative to max(E) Rd"))
         chans[c] = replace(ch, error_bound=bound)
     return replace(info, channels=tuple(chans))

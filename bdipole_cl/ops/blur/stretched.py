@@ -15,7 +15,7 @@ import numpy as np
 from ...caches import ByteCache
 from ...device import get_runtime
 from ...device.transfer import is_device_array
-from ...errors import check_policy
+from ...errors import check_policy, warn_caller
 from ...methods.registry import BORDER, CHART_BORDER
 from ...physics import reference as ref
 from ...signals import check_stop
@@ -397,7 +397,6 @@ def channel_plans(maps, windows, eta, tol, exact, costs, max_shear, shear_at=Non
     past the radius or the planning memory a window alone is not, its own), and the channel's
     ChannelInfo fields: the worst plan's (bound, fit error, interpolation error, nodes), the
     shear's error, warned of (once a plan) where a kernel error exceeds tol."""
-    import warnings
     crops, ranges = zip(*(window_maps(maps, win) for win in windows))
     shared = shared_ranges(ranges, [int(win.writes().sum()) for win in windows], tol)
     plans, refused = {}, {}
@@ -425,10 +424,10 @@ def channel_plans(maps, windows, eta, tol, exact, costs, max_shear, shear_at=Non
         shear = shear_error(plan, box, max_shear, exact)
         bound = plan.error_bound + shear + roundoff(plan)
         if max(plan.fit_error, plan.interp_error) > tol or shear > tol:
-            warnings.warn(BlurAccuracyWarning(
+            warn_caller(BlurAccuracyWarning(
                 f"stretched blur error bound {bound:.2e} (basis {plan.fit_error:.1e}, "
                 f"interpolation {plan.interp_error:.1e}, shear {shear:.1e} at "
-                f"{shear_words(max_shear, shear_at)})"), stacklevel=4)
+                f"{shear_words(max_shear, shear_at)})"))
         if worst is None or bound > worst[0]:
             worst = (bound, plan, shear)
     return tuple(WindowChannel(plan, crop) for plan, crop in zip(chosen, crops)), worst

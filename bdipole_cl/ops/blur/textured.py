@@ -3,12 +3,12 @@ blurs (host FFT, or the separable OpenCL kernels for ``gaussians``), and the per
 of their weights on the device (kernels/blur_textured.cl)."""
 from __future__ import annotations
 
-import warnings
 from typing import NamedTuple
 
 import numpy as np
 
 from ...device.transfer import aligned_empty
+from ...errors import warn_caller
 from ...methods.registry import TEXTURED_BLUR_METHODS
 from ...signals import check_stop
 from .dispatch import DeviceBlur, device_weight_planes, gather_exitance
@@ -123,11 +123,11 @@ def textured_info(plans, method, exact) -> BlurInfo:
     for c, (p, _, _, _) in enumerate(plans):
         kernel_error = max(p.fit_error, p.interp_error)
         if kernel_error > p.truncation_tol:
-            warnings.warn(BlurAccuracyWarning(
+            warn_caller(BlurAccuracyWarning(
                 f"channel {c}: the {p.basis} basis fits the texture's kernels within "
                 f"{kernel_error:.2e}, not tol {p.truncation_tol:g}: error bound "
                 f"{p.error_bound:.2e}" + ("; method='fft' fits them within tol"
-                                          if p.basis == "gaussians" else "")), stacklevel=5)
+                                          if p.basis == "gaussians" else "")))
     return BlurInfo(tuple(
         ChannelInfo(c, f"{method} (texture-varying, {len(p.kernels)} {p.basis} basis kernels"
                        + (f", near field {p.near} with {len(p.near_values)} kernels"
@@ -153,7 +153,7 @@ def clamp_bound(c, plan, ext, exact) -> float:
     """What the albedo shape clamp adds to channel c's bound; warned of when it is not 0."""
     err = shape_clamp_error(plan, ext, exact)
     if err > 0:
-        warnings.warn(BlurAccuracyWarning(
+        warn_caller(BlurAccuracyWarning(
             f"channel {c}: albedo texels outside [{RD_MIN:g}, 1 - {1 - RD_MAX:.0e}] take the "
-            f"kernel shape of the bound: error bound + {err:.2e}"), stacklevel=5)
+            f"kernel shape of the bound: error bound + {err:.2e}"))
     return err

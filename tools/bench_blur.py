@@ -50,12 +50,14 @@ maps: a smooth one (each axis 2^(+-0.25 p(x)) mm a texel: aspect 0.71..1.41, no 
 USD cylinder's (two UV charts of different stretch, aspect 1.3 and 2.5, charts kept apart);
 and, where Blender's ``bpy`` is installed, a head's: Blender's Suzanne subdivided twice,
 unwrapped as an artist would (smart UV project at 66 degrees, its islands' seams, ABF, packed:
-64 charts, aspect within 4% on 98% of its texels), scaled to a median texel of 1 mm at 2048;
-warm times (plans and spectra cached), median of --pairs alternated pairs.
+64 charts, aspect within 4% on 98% of its texels), scaled to a median texel of 1 mm at 2048,
+blurred with its charts kept apart and again with ``charts="none"`` (one window, as the
+texture-varying side: the ratio without the chart windows' FFT area); warm times (plans and spectra cached), median of --pairs alternated pairs.
 """
 import argparse
 import sys
 import time
+import warnings
 
 import numpy as np
 from scipy.signal import fftconvolve
@@ -64,6 +66,7 @@ from bdipole_cl import get_runtime, use_device
 from bdipole_cl.apps.benchmark import hdr_irradiance, machine_lines, varying_workload
 from bdipole_cl.ops.blur import blur, channel_kernel, channel_parameters
 from bdipole_cl.ops.blur.fft import SPECTRA_CACHE
+from bdipole_cl.ops.blur.planning import BlurAccuracyWarning
 
 ALBEDO = (0.8, 0.6, 0.4)
 
@@ -409,20 +412,28 @@ def stretch_maps_of(n, kind):
 
 def stretch_rows(args):
     """The stretched blur against the texture-varying blur of the same maps (``--stretch``)."""
+    layouts = {}
     for mfp in args.mfp:
         e, albedo, mfps = varying_workload(args.size, mfp)
         def varying():
             return blur(e, albedo=albedo, mfp=mfps, eta=1.4, tol=args.tol)
         t_vary, _ = timed(varying, args.repeats)
-        for kind in ("smooth", "cylinder", "head"):
-            s = stretch_maps_of(args.size, kind)
+        # the head also without its charts (one window, as the texture-varying side): the
+        # ratio's part that is the rank's, apart from the chart windows' FFT area
+        for kind, charts in (("smooth", "clamp"), ("cylinder", "clamp"), ("head", "clamp"),
+                             ("head", "none")):
+            if kind not in layouts:
+                layouts[kind] = stretch_maps_of(args.size, kind)
+            s = layouts[kind]
             if s is None:
                 print(f"mfp {mfp:g}: stretch {kind}: not measured (it needs Blender's bpy: "
                       f"pyproject.toml's renderers extra)")
                 continue
             def stretched():
-                return blur(e, albedo=albedo, mfp=mfps, eta=1.4, tol=args.tol, stretch=s,
-                            return_info=True)
+                with warnings.catch_warnings():    # the bound is printed below
+                    warnings.simplefilter("ignore", BlurAccuracyWarning)
+                    return blur(e, albedo=albedo, mfp=mfps, eta=1.4, tol=args.tol,
+                                stretch=s, charts=charts, return_info=True)
             t0 = time.perf_counter()
             _, info = stretched()
             cold = time.perf_counter() - t0
@@ -430,7 +441,8 @@ def stretch_rows(args):
             r, (lo, hi) = paired_ratio(stretched, varying, args.pairs)
             ranks = "; ".join(c.method[c.method.index("stretched, ") + 11:-1]
                               for c in info.channels)
-            print(f"mfp {mfp:g}: stretch {kind:8s}: cold {cold:6.2f} s, warm {t_s:6.2f} s; "
+            name = kind if charts == "clamp" else f"{kind}, charts {charts}"
+            print(f"mfp {mfp:g}: stretch {name:8s}: cold {cold:6.2f} s, warm {t_s:6.2f} s; "
                   f"texture-varying {t_vary:6.2f} s; stretched / texture-varying {r:5.2f}x "
                   f"[{lo:.2f}, {hi:.2f}] (goal <= 2); eigen-kernels {ranks}; bound "
                   f"{max(c.error_bound for c in info.channels):.1e}")

@@ -186,7 +186,7 @@ def test_every_entry_a_writer_makes_is_listed_and_cleared(tmp_path):
     env_here = {"BDIPOLE_CL_CACHE_DIR": str(root)}
     files = [p for p in root.rglob("*") if p.is_file() or p.is_symlink()]
     kinds = {"icd-": "registration", "probes": "probe", "choice-": "calibration",
-             "usdz": "usdz", "transport": "curves"}
+             "usdz": "usdz", "transport": "curves", "textured-plans": "textured plans"}
     made = {kinds[k] for p in files for k in kinds if k in str(p.relative_to(root))}
     # (the registration: where this process's runtime was registered already, none)
     assert made >= set(kinds.values()) - {"registration"}, sorted(

@@ -24,7 +24,7 @@ def plans(tmp_path, monkeypatch):
     made = []
     real = sp.make_stretched_plan
     monkeypatch.setattr(sp, "make_stretched_plan", lambda *a: made.append(a) or real(*a))
-    yield tmp_path / "cache" / pf.PLANS_FOLDER, made
+    yield tmp_path / "cache" / pf.STRETCHED_FOLDER, made
     sp.STRETCHED_PLANS.clear()
 
 
@@ -39,10 +39,9 @@ def test_a_plan_is_made_once_and_read_back_in_another_process(plans):
     files = sorted(folder.iterdir())
     assert len(made) == 1 and len(files) == 1 and pf.PLANS_NAME.match(files[0].name)
     again = plan_again()
-    assert len(made) == 1 and again is not first and pf.same_plan(again, first)
+    assert len(made) == 1 and again is not first and pf.same_plan(sp.PLAN_FORMAT, again, first)
     assert not again.fine.flags.writeable
     script = ("import sys\nfrom bdipole_cl.ops.blur import stretched_plan as sp\n"
-              "from bdipole_cl.ops.blur.plan_files import same_plan\n"
               "sp.make_stretched_plan = None  # a plan made here would fail\n"
               f"p = sp.stretched_plan({RANGES!r}, 1.4, 1e-3)\n"
               "print(len(p.kernels), p.near, float(p.fine.sum()).hex())")
@@ -63,8 +62,8 @@ def test_another_key_or_version_of_the_code_is_not_read(plans, monkeypatch):
     assert len(made) == 2 and len(list(folder.iterdir())) == 2
 
     def path(tol):
-        return pf.plan_path(repr(("stretched", RANGES, 1.4, tol, False, 2048,
-                                  sp.DEFAULT_GATHER_COSTS)))
+        return pf.plan_path(sp.PLAN_FORMAT, repr(("stretched", RANGES, 1.4, tol, False, 2048,
+                                                  sp.DEFAULT_GATHER_COSTS, sp.NEAR_RADII)))
     assert path(1e-3).exists() and path(2e-3).exists()
     path(2e-3).replace(path(1e-3))     # another key's plan under this key's name
     assert plan_again().truncation_tol == 1e-3 and len(made) == 3
@@ -80,7 +79,7 @@ def rewritten(path, first, change):
     ``change`` applied to ``first``'s arrays: consistent-looking damage."""
     with np.load(path) as data:
         key = str(data["key"])
-    arrays = {k: np.array(v) for k, v in pf.plan_arrays(first, key).items()}
+    arrays = {k: np.array(v) for k, v in pf.file_arrays(sp.PLAN_FORMAT, first, key).items()}
     change(arrays)
     with open(path, "wb") as f:
         np.savez(f, **arrays)
@@ -117,7 +116,7 @@ def compressed(path, first):
     with np.load(path) as data:
         key = str(data["key"])
     with open(path, "wb") as f:
-        np.savez_compressed(f, **pf.plan_arrays(first, key))
+        np.savez_compressed(f, **pf.file_arrays(sp.PLAN_FORMAT, first, key))
 
 
 DAMAGE = {
@@ -166,7 +165,7 @@ def test_a_damaged_file_is_planned_anew_and_replaced(plans, damage):
     (path,) = folder.iterdir()
     DAMAGE[damage](path, first)
     again = plan_again()
-    assert len(made) == 2 and pf.same_plan(again, first)
+    assert len(made) == 2 and pf.same_plan(sp.PLAN_FORMAT, again, first)
     plan_again()                       # the file was replaced by a whole one
     assert len(made) == 2
 

@@ -27,7 +27,7 @@ from ..device.icd import vendors_roots
 from ..device.isolation import BUILDS_NAME, VERDICT_FOLDER, VERDICT_NAME, lock_in_use
 from ..io.usdz import EXTRACTED_FOLDER, EXTRACTED_NAME
 from ..methods.choice import CALIBRATION_NAME
-from ..ops.blur.plan_files import PLANS_FOLDER, PLANS_NAME
+from ..ops.blur.plan_files import PLANS_NAME, STRETCHED_FOLDER, TEXTURED_FOLDER
 from ..physics.transport_tables import CURVES_FOLDER, CURVES_NAME
 
 #: a runtime registration's folder: ``icd-`` and 16 hex digits (``icd.vendors_directory``)
@@ -56,7 +56,10 @@ OWN_KINDS = (
     OwnKind("extracted .usdz textures", EXTRACTED_FOLDER, EXTRACTED_NAME, True,
             f"{EXTRACTED_FOLDER}/"),
     OwnKind("walk reflectance curves", CURVES_FOLDER, CURVES_NAME, False, f"{CURVES_FOLDER}/"),
-    OwnKind("stretched blur plans", PLANS_FOLDER, PLANS_NAME, False, f"{PLANS_FOLDER}/"),
+    OwnKind("stretched blur plans", STRETCHED_FOLDER, PLANS_NAME, False,
+            f"{STRETCHED_FOLDER}/"),
+    OwnKind("texture-varying blur plans", TEXTURED_FOLDER, PLANS_NAME, False,
+            f"{TEXTURED_FOLDER}/"),
 )
 
 

@@ -1,16 +1,17 @@
-"""Stretched plans kept on disk across processes (docs/stretch.md "Plans on disk"): a plan of
-one (ranges, eta, tol, exact, max_radius, gather costs) is made once per version of the code
-that makes it, not once per process (a 64-chart head's three plans: 15 s, read back in
-~0.1 s), so that a tile blurred by its own command, or on a cluster's fresh worker, starts warm.
+"""Blur plans kept on disk across processes (docs/stretch.md "Plans on disk"): a plan of one
+set of arguments (the stretched blur's ranges, eta, tol, ...; the texture-varying blur's) is made
+once per version of the code that makes it, not once per process (a 64-chart head's three
+stretched plans: 15 s; a texture-varying blur at mfp 16 texels: 8 s; each read back in ~0.1 s),
+so that a tile blurred by its own command, or on a cluster's fresh worker, starts warm.
 
-A plan's file is named by a digest of the sources of the packages plans are made by
-(``source_digest``: any change there is a new name) and of its key, and holds the key itself
-(checked on reading: a file of another key is not read as this one). Written as every cache
-file of the package (temp file, read back and compared, durable rename), with a digest of its
-arrays; a file that cannot be read as a whole plan of its key, its arrays as written, is made
-anew and replaced; a cache that cannot be written is only a cache.
-The folder keeps at most PLANS_MAX_BYTES, the least recently used out first; ``bdipole-cl
-cache`` lists and clears it."""
+Each kind of plan has a PlanFormat: its folder and its arrays both ways. A plan's file is named
+by a digest of the sources of the packages plans are made by (``source_digest``: any change
+there is a new name) and of its key, and holds the key itself (checked on reading: a file of
+another key is not read as this one). Written as every cache file of the package (temp file,
+read back and compared, durable rename), with a digest of its arrays; a file that cannot be
+read as a whole plan of its key, its arrays as written, is made anew and replaced; a cache that
+cannot be written is only a cache. Each folder keeps at most PLANS_MAX_BYTES, the least
+recently used out first; ``bdipole-cl cache`` lists and clears them."""
 from __future__ import annotations
 
 import hashlib
@@ -20,7 +21,9 @@ import stat
 import tempfile
 import time
 import zipfile
+from dataclasses import dataclass
 from functools import lru_cache
+from typing import Callable
 from pathlib import Path
 
 import numpy as np
@@ -28,17 +31,50 @@ import numpy as np
 from ...caches import user_cache_dir
 from ...durable import fsync_path
 
-#: the folder of the plans' files in the user cache folder, and their names:
+#: the folders of the plans' files in the user cache folder, and their names:
 #: plan-{source digest}-{key digest}.npz, and their writers' temp files (.{random}.tmp)
-PLANS_FOLDER = "stretched-plans"
+STRETCHED_FOLDER = "stretched-plans"
+TEXTURED_FOLDER = "textured-plans"
 PLANS_NAME = re.compile(r"^plan-[0-9a-f]{16}-[0-9a-f]{32}(\.npz|\.[a-z0-9_]{8}\.tmp)$")
 #: a writer's temp file older than this is left over (its writer killed): pruned
 STALE_TEMP_SECONDS = 3600
-#: bytes of plans the folder keeps (a head's plan is ~60 MB, the smooth benchmark's ~20 MB)
+#: bytes of plans each folder keeps (a head's stretched plan is ~60 MB, the smooth
+#: benchmark's ~20 MB; a texture-varying plan 1-10 MB)
 PLANS_MAX_BYTES = 2 << 30
-#: the scalar fields of a StretchedPlan, in their file's ``scalars`` order
-SCALARS = ("radius", "eta", "fit_error", "interp_error", "truncation_tol", "nodes", "near",
-           "near_direct")
+
+
+@dataclass(frozen=True)
+class PlanFormat:
+    """How one kind of plan is kept: its folder, ``arrays(plan)`` (named arrays, no object
+    arrays: what ``np.savez`` writes) and ``plan(arrays)`` (the plan again, its arrays
+    read-only; anything it raises is a file that is not a plan)."""
+
+    folder: str
+    arrays: Callable[[object], dict]
+    plan: Callable[[dict], object]
+
+
+def axes_arrays(axes) -> dict:
+    """Lattice axes (``textured_plan.Axis``) as arrays: (origin, step, nodes) rows, values."""
+    out = {"axes": np.array([(a.origin, a.step, len(a.values)) for a in axes], np.float64)}
+    for i, a in enumerate(axes):
+        out[f"axis{i}"] = np.asarray(a.values, np.float64)
+    return out
+
+
+def axes_of(arrays, make_axis) -> tuple:
+    """The axes ``axes_arrays`` wrote, by ``make_axis(values, origin, step)``."""
+    return tuple(make_axis(tuple(arrays[f"axis{i}"].tolist()), float(o), float(s))
+                 for i, (o, s, _) in enumerate(arrays["axes"]))
+
+
+def scalars_of(arrays, names) -> dict:
+    """The ``scalars`` array as {name: float}, ValueError where it is not one finite value a
+    name."""
+    values = arrays["scalars"]
+    if values.shape != (len(names),) or not np.all(np.isfinite(values)):
+        raise ValueError("scalars")
+    return dict(zip(names, values.tolist()))
 
 
 @lru_cache(maxsize=1)
@@ -54,22 +90,16 @@ def source_digest() -> str:
     return digest.hexdigest()[:16]
 
 
-def plan_path(key: str) -> Path:
+def plan_path(fmt: PlanFormat, key: str) -> Path:
     """The file of the plan of ``key`` (the repr of its arguments)."""
     name = hashlib.sha256(key.encode()).hexdigest()[:32]
-    return user_cache_dir() / PLANS_FOLDER / f"plan-{source_digest()}-{name}.npz"
+    return user_cache_dir() / fmt.folder / f"plan-{source_digest()}-{name}.npz"
 
 
-def plan_arrays(plan, key: str) -> dict:
-    """A StretchedPlan as the arrays of its file (``np.savez``; no object arrays), with the
-    ``content_digest`` of the others as ``digest``."""
-    k = plan.radius + 1
-    out = {"key": np.array(key), "fine": plan.fine, "near_values": plan.near_values,
-           "kernels": (np.stack(plan.kernels) if plan.kernels else np.zeros((0, k, k))),
-           "scalars": np.array([float(getattr(plan, f)) for f in SCALARS]),
-           "axes": np.array([(a.origin, a.step, len(a.values)) for a in plan.axes])}
-    for i, a in enumerate(plan.axes):
-        out[f"axis{i}"] = np.asarray(a.values, np.float64)
+def file_arrays(fmt: PlanFormat, plan, key: str) -> dict:
+    """A plan's file's arrays: its key, its format's arrays, and the ``content_digest`` of
+    them as ``digest``."""
+    out = {"key": np.array(key), **fmt.arrays(plan)}
     out["digest"] = np.array(content_digest(out))
     return out
 
@@ -86,7 +116,7 @@ def content_digest(arrays) -> str:
     return digest.hexdigest()
 
 
-#: the members of a plan's file, as ``plan_arrays`` writes them: no more, and stored (np.savez
+#: the members of a plan's file, as ``file_arrays`` writes them: no more, and stored (np.savez
 #: does not compress; a compressed member, whose size unpacked is not the file's, is not ours)
 MAX_MEMBERS = 16
 
@@ -101,11 +131,11 @@ def stored_within(path: Path, max_bytes: int) -> bool:
             and sum(i.file_size for i in infos) <= max_bytes)
 
 
-def read_plan(key: str, make_axis, make_plan, whole):
+def read_plan(fmt: PlanFormat, key: str, whole):
     """The plan of ``key`` from its file, or None where there is none, or it is not a whole
     plan of this key (``read_plan_at``); a file read is touched (the last to be pruned)."""
-    path = plan_path(key)
-    plan = read_plan_at(path, key, make_axis, make_plan, whole)
+    path = plan_path(fmt, key)
+    plan = read_plan_at(fmt, path, key, whole)
     if plan is not None:
         try:
             os.utime(path)
@@ -114,12 +144,12 @@ def read_plan(key: str, make_axis, make_plan, whole):
     return plan
 
 
-def read_plan_at(path: Path, key: str, make_axis, make_plan, whole):
-    """The plan of ``key`` in the regular file at ``path`` (``make_axis(values, origin,
-    step)`` and ``make_plan(**fields)`` rebuild it, read-only), or None where it is not one:
-    not a regular file (a FIFO would block the read), not a zip of these arrays, another key,
-    or a plan ``whole(plan)`` finds not to be one its arguments make (shapes, lattice, radius,
-    finite values)."""
+def read_plan_at(fmt: PlanFormat, path: Path, key: str, whole):
+    """The plan of ``key`` in the regular file at ``path`` (rebuilt by ``fmt.plan``,
+    read-only), or None where it is not one: not a regular file (a FIFO would block the
+    read), not a zip of these arrays, another key, arrays not as written, or a plan
+    ``whole(plan)`` finds not to be one its arguments make (shapes, lattice, radius, finite
+    values)."""
     try:
         if not stat.S_ISREG(os.stat(path).st_mode) or not stored_within(path, PLANS_MAX_BYTES):
             return None
@@ -129,37 +159,26 @@ def read_plan_at(path: Path, key: str, make_axis, make_plan, whole):
             arrays = {name: np.array(data[name]) for name in data.files}
         if str(arrays.pop("digest")) != content_digest(arrays):
             return None
-        values = arrays["scalars"]
-        if values.shape != (len(SCALARS),) or not np.all(np.isfinite(values)):
-            return None
-        scalars = dict(zip(SCALARS, values.tolist()))
-        axes = tuple(make_axis(tuple(arrays[f"axis{i}"].tolist()), float(o), float(s))
-                     for i, (o, s, _) in enumerate(arrays["axes"]))
         for a in arrays.values():
             a.setflags(write=False)
-        plan = make_plan(axes=axes, fine=arrays["fine"], near_values=arrays["near_values"],
-                         kernels=tuple(arrays["kernels"]), radius=int(scalars["radius"]),
-                         nodes=int(scalars["nodes"]), near=int(scalars["near"]),
-                         near_direct=bool(scalars["near_direct"]),
-                         **{f: scalars[f] for f in ("eta", "fit_error", "interp_error",
-                                                    "truncation_tol")})
+        plan = fmt.plan(arrays)
         return plan if whole(plan) else None
     except Exception:                  # anything a damaged file holds: not a plan
         return None
 
 
-def write_plan(key: str, plan, make_axis, make_plan, whole) -> None:
-    """The plan's file: temp file, read back and compared field by field, durable rename;
+def write_plan(fmt: PlanFormat, key: str, plan, whole) -> None:
+    """The plan's file: temp file, read back and compared array by array, durable rename;
     then the folder pruned to PLANS_MAX_BYTES. Nothing raised where it cannot be written."""
-    path = plan_path(key)
+    path = plan_path(fmt, key)
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         fd, tmp = tempfile.mkstemp(prefix=path.stem + ".", suffix=".tmp", dir=path.parent)
         try:
             with os.fdopen(fd, "wb") as f:
-                np.savez(f, **plan_arrays(plan, key))
-            back = read_plan_at(Path(tmp), key, make_axis, make_plan, whole)
-            if back is None or not same_plan(back, plan):
+                np.savez(f, **file_arrays(fmt, plan, key))
+            back = read_plan_at(fmt, Path(tmp), key, whole)
+            if back is None or not same_plan(fmt, back, plan):
                 return
             # not ``durable_replace``: a cache file takes no access from the file it replaces
             # (a plan file of mode 000 would make its successor unreadable, for good)
@@ -174,12 +193,13 @@ def write_plan(key: str, plan, make_axis, make_plan, whole) -> None:
         return
 
 
-def same_plan(a, b) -> bool:
-    """Whether two StretchedPlans hold the same values (arrays bit for bit)."""
-    return (all(getattr(a, f) == getattr(b, f) for f in SCALARS) and a.axes == b.axes
-            and len(a.kernels) == len(b.kernels)
-            and all(np.array_equal(x, y) for x, y in zip(a.kernels, b.kernels))
-            and np.array_equal(a.fine, b.fine) and np.array_equal(a.near_values, b.near_values))
+def same_plan(fmt: PlanFormat, a, b) -> bool:
+    """Whether two plans hold the same values: their arrays (``fmt.arrays``) of the same
+    names, dtypes and shapes, bit for bit."""
+    x, y = fmt.arrays(a), fmt.arrays(b)
+    return x.keys() == y.keys() and all(
+        x[n].dtype == y[n].dtype and x[n].shape == y[n].shape
+        and np.asarray(x[n]).tobytes() == np.asarray(y[n]).tobytes() for n in x)
 
 
 def prune(folder: Path, max_bytes: int) -> None:

@@ -29,7 +29,8 @@ import numpy as np
 from ...caches import ByteCache
 from ...physics import reference as ref
 from .near_field import DEFAULT_GATHER_COSTS, GatherCosts, near_field_basis, with_near_classes
-from .plan_files import read_plan, write_plan
+from .plan_files import (STRETCHED_FOLDER, PlanFormat, axes_arrays, axes_of, read_plan,
+                         scalars_of, write_plan)
 from .textured_plan import (LATTICE_STEPS, RD_MAX, RD_MIN, REFINE, Axis, lagrange4, logit,
                             sigmoid, training_kernels)
 from .weights import quadrant_sum, quadrant_weights, truncation_radius, unfold_quadrant
@@ -337,20 +338,48 @@ def check_plan_size(nodes, radius, ranges):
             f"or raise tol")
 
 
+#: the scalar fields of a StretchedPlan, in its file's ``scalars`` order
+FILE_SCALARS = ("radius", "eta", "fit_error", "interp_error", "truncation_tol", "nodes", "near",
+                "near_direct")
+
+
+def plan_file_arrays(plan: StretchedPlan) -> dict:
+    """A StretchedPlan as the arrays of its file (``plan_files``)."""
+    k = plan.radius + 1
+    return {"fine": plan.fine, "near_values": plan.near_values,
+            "kernels": (np.stack(plan.kernels) if plan.kernels else np.zeros((0, k, k))),
+            "scalars": np.array([float(getattr(plan, f)) for f in FILE_SCALARS]),
+            **axes_arrays(plan.axes)}
+
+
+def plan_of_file_arrays(arrays) -> StretchedPlan:
+    """The StretchedPlan ``plan_file_arrays`` wrote."""
+    sc = scalars_of(arrays, FILE_SCALARS)
+    return StretchedPlan(axes=axes_of(arrays, Axis), fine=arrays["fine"],
+                         near_values=arrays["near_values"], kernels=tuple(arrays["kernels"]),
+                         radius=int(sc["radius"]), nodes=int(sc["nodes"]), near=int(sc["near"]),
+                         near_direct=bool(sc["near_direct"]),
+                         **{f: sc[f] for f in ("eta", "fit_error", "interp_error",
+                                               "truncation_tol")})
+
+
+PLAN_FORMAT = PlanFormat(STRETCHED_FOLDER, plan_file_arrays, plan_of_file_arrays)
+
+
 @STRETCHED_PLANS.memoize
 def stretched_plan(ranges, eta, tol, exact=False, max_radius=2048,
                    costs: GatherCosts = DEFAULT_GATHER_COSTS) -> StretchedPlan:
     """``make_stretched_plan``'s plan, made once per version of the code that makes it: kept
     in memory and, across processes, in the user cache folder (``plan_files``)."""
     key = repr(("stretched", tuple((float(lo), float(hi)) for lo, hi in ranges), float(eta),
-                float(tol), bool(exact), int(max_radius), costs))
+                float(tol), bool(exact), int(max_radius), costs, NEAR_RADII))
 
     def whole(plan):
         return plan_is_whole(plan, ranges, eta, tol, exact)
-    plan = read_plan(key, Axis, StretchedPlan, whole)
+    plan = read_plan(PLAN_FORMAT, key, whole)
     if plan is None:
         plan = make_stretched_plan(ranges, eta, tol, exact, max_radius, costs)
-        write_plan(key, plan, Axis, StretchedPlan, whole)
+        write_plan(PLAN_FORMAT, key, plan, whole)
     return plan
 
 

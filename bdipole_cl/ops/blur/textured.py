@@ -18,7 +18,8 @@ from .params import MapRanges, texel_parameters
 from .planning import BlurAccuracyWarning, BlurInfo, ChannelInfo, separable_roundoff
 from .near_field import DEFAULT_GATHER_COSTS, near_cells
 from .textured_plan import (RD_MAX, RD_MIN, MapExtremes, TexturedPlan, map_extremes,
-                            parameter_ranges, plan_for_ranges, shape_clamp_error)
+                            parameter_ranges, shape_clamp_error)
+from .textured_plan_files import plan_for_ranges
 
 
 def textured_method(method) -> str:

@@ -19,7 +19,8 @@ interpolating the kernels themselves, so the error is the nodes' fit error plus 
 interpolation error; both are measured (``TexturedPlan.fit_error`` over all nodes and
 ``interp_error`` against exact kernels at the range's corners and lattice-cell midpoints) and
 reported as the error bound. Plans depend on the parameter ranges only and are cached (up to
-PLAN_CACHE's bytes), and so are their kernels' spectra per FFT shape (``fft.SPECTRA_CACHE``).
+PLAN_CACHE's bytes, and on disk: ``textured_plan_files``), and so are their kernels' spectra
+per FFT shape (``fft.SPECTRA_CACHE``).
 
 Every texel's kernel is truncated at the common radius K (the largest truncation radius at
 ``tol`` over the texture's nodes) and normalized there: node weights sum to 1, so a constant
@@ -312,12 +313,17 @@ class LatticeKernels(NamedTuple):
     inside: list
 
 
+def lattice_axes(rd_range, ld_range, tol) -> tuple:
+    """The (Rd, ld) Axes of logit(Rd) in rd_range and ln(ld texels) in ld_range at tol."""
+    steps = lattice_steps(tol)
+    return (_axis(*rd_range, steps[0], lambda t: min(max(sigmoid(t), RD_MIN), RD_MAX)),
+            _axis(*ld_range, steps[1], np.exp))
+
+
 def lattice_kernels(rd_range, ld_range, eta, tol, exact=False, max_radius=2048):
     """The LatticeKernels of logit(Rd) in rd_range and ln(ld texels) in ld_range at tol
     (ValueError where the radius exceeds max_radius or the plan would be too large)."""
-    steps = lattice_steps(tol)
-    axes = (_axis(*rd_range, steps[0], lambda t: min(max(sigmoid(t), RD_MIN), RD_MAX)),
-            _axis(*ld_range, steps[1], np.exp))
+    axes = lattice_axes(rd_range, ld_range, tol)
     radius = common_radius(rd_range, ld_range, eta, tol, exact)
     if radius > max_radius:
         raise ValueError(f"truncation radius {radius} texels exceeds max_radius={max_radius}: "
@@ -338,11 +344,11 @@ def training_kernels(targets, checks, inside):
     return [t for t, i in zip(targets, inside) if i] + [q for _, q in checks]
 
 
-@PLAN_CACHE.memoize
-def plan_for_ranges(rd_range, ld_range, eta, tol, exact=False, basis="svd", max_radius=2048,
-                    costs: GatherCosts = DEFAULT_GATHER_COSTS):
+def make_plan_for_ranges(rd_range, ld_range, eta, tol, exact=False, basis="svd",
+                         max_radius=2048, costs: GatherCosts = DEFAULT_GATHER_COSTS):
     """The TexturedPlan for logit(Rd) in rd_range and ln(ld texels) in ld_range, its near
-    field chosen for a device of gather costs ``costs``."""
+    field chosen for a device of gather costs ``costs`` (made; ``textured_plan_files.
+    plan_for_ranges`` keeps them in memory and on disk)."""
     axes, radius, targets, checks, inside = lattice_kernels(rd_range, ld_range, eta, tol, exact,
                                                             max_radius)
     shape_axes = tuple(len(a.values) for a in axes)

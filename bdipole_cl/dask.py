@@ -51,7 +51,8 @@ from .ops.bands import band_rows, bands, halo_rows
 from .ops.host_arrays import texel_broadcast
 from .ops.blur import Scattering, plan_blur
 from .ops.blur.params import checked_irradiance
-from .errors import InvalidInputError, moved_by
+from .ops.blur.planning import BlurAccuracyWarning
+from .errors import InvalidInputError, moved_by, warnings_naming
 from .signals import STOP
 from .cluster import (RETRIES, absolute, counted, gather_results, not_finished, progress_bar,
                       task_key)
@@ -189,8 +190,9 @@ def blur_band_task(path, band_path, y0, y1, plan, colorspace, working, device=No
     counts = {}
     names = [spec.channelnames[c] for c in colour]
     try:
-        out, _ = blurred_band(plan, px, colour, alpha, names, route, idx, None, y0, y1,
-                              counts=counts)
+        with warnings_naming(path, BlurAccuracyWarning):
+            out, _ = blurred_band(plan, px, colour, alpha, names, route, idx, None, y0, y1,
+                                  counts=counts)
     except InvalidInputError as exc:
         return located(exc, path, {}, spec, idx, names)
     band = oiio.ImageSpec(spec.width, y1 - y0, out.shape[-1], "float")

@@ -10,8 +10,10 @@ unlit, 0).
 """
 from __future__ import annotations
 
+import contextlib
 import os
 import sys
+import threading
 import warnings
 
 import numpy as np
@@ -136,13 +138,40 @@ def one_line(text) -> str:
     return "; ".join(seen)
 
 
-_PACKAGE = os.path.dirname(os.path.abspath(__file__)) + os.sep
+#: the frames a warning is not attributed to: this package's and ``contextlib``'s (a context
+#: manager of ours that warns on leaving is called by contextlib's ``__exit__``)
+_SKIPPED = (os.path.dirname(os.path.abspath(__file__)) + os.sep,
+            os.path.abspath(contextlib.__file__))
+#: per thread, the (prefix, category) of the ``warnings_naming`` contexts it is within
+_NAMING = threading.local()
 
 
 def warn_caller(message, category=None):
     """``warnings.warn`` attributed to the first frame outside this package: the user's line
-    that called the library (however deep in it the warning arose), not a line of ours."""
+    that called the library (however deep in it the warning arose), not a line of ours. (On a
+    thread of a pool, as Dask's workers, the user's line is not on the stack: the first frame
+    outside the package is the pool's.) Within ``warnings_naming``, the message begins with
+    its prefix."""
+    kind = category or (type(message) if isinstance(message, Warning) else UserWarning)
+    for prefix, named in reversed(getattr(_NAMING, "stack", ())):
+        if issubclass(kind, named):
+            message = kind(f"{prefix}: {message}")
+            break
     depth, frame = 1, sys._getframe(1)
-    while frame is not None and os.path.abspath(frame.f_code.co_filename).startswith(_PACKAGE):
+    while frame is not None and os.path.abspath(frame.f_code.co_filename).startswith(_SKIPPED):
         depth, frame = depth + 1, frame.f_back
-    warnings.warn(message, category, stacklevel=depth + 1)
+    warnings.warn(message, kind, stacklevel=depth + 1)
+
+
+@contextlib.contextmanager
+def warnings_naming(prefix, category):
+    """Within it, on this thread, the warnings of ``category`` that ``warn_caller`` says begin
+    with ``prefix`` (the innermost context's): a file's warnings name the file, each tile of a
+    set its own. Thread-local, where ``warnings.catch_warnings`` (process-wide) lost and
+    mixed up the warnings of files blurred at once."""
+    stack = _NAMING.__dict__.setdefault("stack", [])
+    stack.append((prefix, category))
+    try:
+        yield
+    finally:
+        stack.pop()

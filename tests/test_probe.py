@@ -124,6 +124,23 @@ def test_a_device_whose_child_cannot_start_is_broken_with_the_reason(monkeypatch
     assert "failed outside any kernel" in verdict.reason and "No module named" in verdict.reason
 
 
+def test_a_probes_child_leaves_no_file_open(monkeypatch, fresh_cache):
+    """The probe's child's output pipe is closed when it ends, not left to the collector (a
+    ResourceWarning where a user shows every warning)."""
+    import gc
+    import time
+    import warnings
+    rt = _pick("intel")
+    monkeypatch.setattr(isolation, "PROBE_MODULE", "bdipole_cl.no_such_module")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        assert not device.verdict(rt.device).works
+        time.sleep(0.2)                 # the reader thread's last step, after the end
+        gc.collect()
+    assert not [w for w in caught if issubclass(w.category, ResourceWarning)], [
+        str(w.message) for w in caught]
+
+
 def test_verdict_key_follows_driver_and_kernels(fresh_cache):
     rt = RUNTIMES[0]
     a = isolation.verdict_key(rt.device, "digest-a")

@@ -12,8 +12,8 @@ from bdipole_cl.ops.blur.near_field import class_values, near_classes
 from bdipole_cl.ops.blur.stretched import Stretch, map_ranges
 from bdipole_cl.ops.blur import stretched as st
 from bdipole_cl.ops.blur.stretched_plan import (MAX_NODES, kernel_at, lattice_nodes,
-                                                lattice_variables, shared_ranges,
-                                                stretched_plan)
+                                                lattice_variables, range_steps,
+                                                shared_ranges, stretched_plan)
 from bdipole_cl.ops.blur.textured_plan import REFINE
 
 
@@ -122,6 +122,18 @@ def test_a_wide_window_does_not_widen_the_plan_of_narrow_ones():
     small = ((0.7, 1.2), (1.1, 1.3), (-0.05, 0.05))
     got = shared_ranges([big, sliver, small], [300, 100, 10], tol)
     assert got == [big, sliver, big]
+    # nested slivers, each a step wider and smaller than the last: no group grows by them
+    # past its first window by more than a step (they chained to 8 steps with 2-step windows)
+    nested = [((0.0, 0.0), (0.0, 0.0), (-0.1 * k, 0.1 * k)) for k in range(1, 9)]
+    widths = [range_steps(g, tol)[2] for g in shared_ranges(nested, [100 - k for k in range(8)],
+                                                            tol)]
+    own = [range_steps(w, tol)[2] for w in nested]
+    assert all(w <= o + 1 + 1e-9 for w, o in zip(widths, own)), widths
+    # exactly a step wider joins, whatever the rounding of the widths (0.6 / 0.2 < 3)
+    for a in range(1, 6):
+        pair = [((0.0, 0.0), (0.0, 0.0), (0.0, 0.2 * a)),
+                ((0.0, 0.0), (0.0, 0.0), (0.0, 0.2 * (a + 1)))]
+        assert len(set(shared_ranges(pair, [2, 1], tol))) == 1, a
 
 
 def many_charts(n=4, side=24, gutter=2):

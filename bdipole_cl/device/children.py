@@ -76,6 +76,7 @@ class Child:
     def _read(self):
         for text in self.proc.stdout:
             self.lines.put(text)
+        self.proc.stdout.close()            # at its end: not left to the collector to close
         self.lines.put(None)
 
     def send(self, msg: dict) -> bool:

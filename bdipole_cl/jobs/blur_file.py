@@ -4,15 +4,13 @@ halo; ``run_blur`` is the runner of blur jobs (``runner.run_job``)."""
 from __future__ import annotations
 
 import time
-import warnings
-from contextlib import contextmanager
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
 from ..device import get_runtime
-from ..errors import InvalidInputError, warn_caller
+from ..errors import InvalidInputError, warn_caller, warnings_naming
 from ..io.channels import classify_channels
 from ..io.collisions import Claim, check_claim
 from ..io.colour import resolve_working_space
@@ -72,29 +70,10 @@ def file_plan(path, spec, names, scattering, options, sources) -> BlurPlan:
     bands (a parameter texture's bad texel named in the file it comes from); its accuracy
     warnings name the file (``warnings_naming``)."""
     try:
-        with warnings_naming(path):
+        with warnings_naming(path, BlurAccuracyWarning):
             return plan_blur((spec.height, spec.width, len(names)), scattering, **options)
     except InvalidInputError as exc:
         raise located(exc, path, sources, spec, np.arange(spec.height), names) from None
-
-
-@contextmanager
-def warnings_naming(path):
-    """Within it, the blur's accuracy warnings (BlurAccuracyWarning) are said again with
-    ``path`` before them (each tile of a UDIM set its own), after it, under the caller's
-    filters; other warnings as they were."""
-    caught = []
-    try:
-        with warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter("always")
-            yield
-    finally:
-        for w in caught:
-            if issubclass(w.category, BlurAccuracyWarning):
-                warn_caller(w.category(f"{path}: {w.message}"))
-            else:
-                warnings.warn_explicit(w.message, w.category, w.filename, w.lineno,
-                                       source=w.source)
 
 
 def blurred_band(plan, px, colour, alpha_ch, names, route, idx, mask, y0, y1,
@@ -243,8 +222,9 @@ def blur_file(path, output, *, colorspace="auto", working_space=None, half=False
             if cancel is not None and cancel.is_set():
                 raise Cancelled(f"{path}: interrupted; nothing written")
             try:
-                out, band_info = blurred_band(plan, px, colour, alpha_ch, names, route, idx,
-                                              mask, y0, y1, max_memory, counts)
+                with warnings_naming(path, BlurAccuracyWarning):
+                    out, band_info = blurred_band(plan, px, colour, alpha_ch, names, route,
+                                                  idx, mask, y0, y1, max_memory, counts)
             except InvalidInputError as exc:
                 raise located(exc, path, sources, spec, idx, names) from None
             state["info"] = worse(state["info"], band_info)

@@ -130,8 +130,10 @@ def ranges_union(a, b):
 
 
 #: a window joins a group's plan where their union is at most this many lattice steps wider,
-#: on every axis, than the widest of the group's windows (``shared_ranges``)
+#: on every axis, than the group's first window (``shared_ranges``)
 MERGE_STEPS = 1.0
+#: widths in steps are compared within this (0.6 / 0.2 is 2.9999999999999996)
+STEPS_SLACK = 1e-9
 
 
 def range_steps(ranges, tol) -> np.ndarray:
@@ -143,29 +145,29 @@ def shared_ranges(ranges, sizes, tol) -> list:
     """Per window (its transformed ``ranges``, its texels ``sizes``), the ranges of the plan
     it shares: windows are taken largest first, each joining the group whose union with it is
     narrowest (the rank grows with the ranges' widths), where that union is at most
-    MERGE_STEPS wider on every axis than the widest of the group's windows so far and has at
+    MERGE_STEPS wider on every axis than the group's first window (its largest) and has at
     most MAX_NODES nodes, else starting a group. So a UV layout's charts of overlapping ranges
     share one plan (planned once, cached: one table and its spectra), while a window wider than
-    a group (a sliver chart of many aspects) does not widen the plan of all its windows but
-    starts its own, groups do not grow by chains of near neighbours, and charts of distinct
-    narrow ranges (a cylinder's, one aspect each) keep their own plans."""
-    groups, member = [], [0] * len(ranges)     # per group: [box, widest of its windows]
+    a group (a sliver chart of many aspects) starts its own rather than widen the plan of all
+    its windows; no group grows past its first window by more than MERGE_STEPS, by chains of
+    near neighbours or of ever wider slivers; and charts of distinct narrow ranges (a
+    cylinder's, one aspect each) keep their own plans."""
+    groups, member = [], [0] * len(ranges)     # per group: [box, its first window's widths]
     for i in sorted(range(len(ranges)), key=lambda i: (-sizes[i], i)):
-        own = range_steps(ranges[i], tol)
         best = None
-        for g, (box, widest) in enumerate(groups):
+        for g, (box, first) in enumerate(groups):
             union = ranges_union(box, ranges[i])
             width = range_steps(union, tol)
-            if (np.all(width <= widest + MERGE_STEPS)
+            if (np.all(width <= first + MERGE_STEPS + STEPS_SLACK)
                     and lattice_nodes(union, tol) <= MAX_NODES
                     and (best is None or width.sum() < best[1])):
                 best = (g, float(width.sum()), union)
         if best is None:
-            groups.append((tuple(ranges[i]), own))
+            groups.append((tuple(ranges[i]), range_steps(ranges[i], tol)))
             member[i] = len(groups) - 1
         else:
             g, _, union = best
-            groups[g] = (union, np.maximum(groups[g][1], own))
+            groups[g] = (union, groups[g][1])
             member[i] = g
     return [groups[g][0] for g in member]
 

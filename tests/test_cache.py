@@ -102,6 +102,18 @@ def test_the_readme_and_the_install_page_name_every_folders_variable(home):
             assert f"`{variable}`" in text, (page.name, f.what, variable)
 
 
+def test_info_and_help_name_every_kind_of_entry(capsys):
+    """``cache --info``'s own folder and ``--clear``'s help name every kind of entry the tool
+    makes (both left out the texture-varying plans, the help the stretched ones too)."""
+    from bdipole_cl.apps.cli import main as cli_main
+    with pytest.raises(SystemExit):
+        cli_main(["cache", "--help"])
+    helped = " ".join(capsys.readouterr().out.split())
+    own = cache.cache_folders()[0].what
+    for kind in cache.OWN_KINDS:
+        assert kind.what in own and kind.what in helped, kind.what
+
+
 def test_the_readme_and_the_install_page_name_every_entry_the_tool_makes():
     """Each kind of entry bdipole_cl makes in its cache folder (``cache.OWN_KINDS``) is named
     in the README's and docs/install.md's "Where it writes" tables (a walk's reflectance

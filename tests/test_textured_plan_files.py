@@ -146,3 +146,21 @@ def test_a_damaged_file_is_planned_anew_and_replaced(plans, damage):
     assert len(made) == 2 and pf.same_plan(tpf.PLAN_FORMAT, again, first)
     plan_again()                       # the file was replaced by a whole one
     assert len(made) == 2
+
+
+def test_a_plan_of_exact_moments_is_read_without_integrating_them_again(plans, monkeypatch):
+    """Reading a plan checks its radius, whose kernels ask for one eta's exact Fresnel
+    moments hundreds of times: integrated once per eta (each a Gauss-Legendre sum of
+    ``fresnel_reflectance``), a warm exact plan is read in a fraction of a second, as a new
+    process reads it (it took 3 s a channel, 30x the blur)."""
+    from bdipole_cl.physics import fresnel
+    folder, made = plans
+    plan_again(exact=True)
+    sums = []
+    real = fresnel.fresnel_reflectance
+    monkeypatch.setattr(fresnel, "fresnel_reflectance", lambda *a: sums.append(1) or real(*a))
+    if hasattr(fresnel, "_moments_exact_at"):
+        fresnel._moments_exact_at.cache_clear()
+    tp.NODE_CACHE.clear()                  # as in a new process: the radius found anew
+    plan_again(exact=True)
+    assert len(made) == 1 and 1 <= len(sums) <= 2, (len(made), len(sums))

@@ -118,14 +118,19 @@ def matplotlib_folders() -> tuple[Path, Path]:
             xdg("XDG_CONFIG_HOME", ".config") / "matplotlib")
 
 
+def own_words() -> str:
+    """What bdipole_cl's own cache folder holds, in words: the registration and every kind
+    of OWN_KINDS (so that a new kind is never left unsaid)."""
+    return ", ".join(["runtime registration"] + [kind.what for kind in OWN_KINDS])
+
+
 def cache_folders() -> list[CacheFolder]:
     """Every folder written outside the user's outputs, bdipole_cl's own first."""
     own, fallback = vendors_roots()
     mpl_cache, mpl_config = matplotlib_folders()
     cache_home = xdg("XDG_CACHE_HOME", ".cache")
     return [
-        CacheFolder("runtime registration, device probe verdicts, calibrations, extracted "
-                    ".usdz textures, walk reflectance curves, stretched blur plans", own,
+        CacheFolder(own_words(), own,
                     f"{CACHE_DIR_VARIABLE} (else XDG_CACHE_HOME)", "bdipole_cl"),
         CacheFolder("runtime registration where the cache folder is not writable", fallback,
                     "TMPDIR", "bdipole_cl"),
@@ -260,9 +265,8 @@ def add_command(command):
                         help="every folder, its size, whose it is and the variable that moves "
                              "it (the default)")
     action.add_argument("--clear", action="store_true",
-                        help="remove bdipole_cl's own entries (registration, probes, "
-                             "calibrations, extracted .usdz textures, walk reflectance "
-                             "curves); shared library caches are left")
+                        help=f"remove bdipole_cl's own entries ({own_words()}); shared "
+                             "library caches are left")
     p.set_defaults(func=_cmd_cache)
 
 

@@ -82,3 +82,53 @@ def test_files_blurred_at_once_name_their_own_warnings(tmp_path):
     assert sorted(str(w.message) for w in threaded) == sorted(str(w.message) for w in serial)
     for path, _ in files:
         assert sum(str(w.message).startswith(f"{path}: ") for w in threaded) == len(serial) // 4
+
+
+def faint(tmp_path):
+    """A 64x64 RGB file of irradiance near 1e-42 (its exitance below float32's normal range:
+    the bound takes float32's floor, past tol)."""
+    path = tmp_path / "faint.exr"
+    rows = 1 + np.arange(64)[:, None, None] / 16
+    write_exr(path, np.ones((64, 64, 3)) * 1e-43 * rows)
+    return path
+
+
+def test_a_faint_files_floor_is_warned_of_once_a_channel_not_once_a_band(tmp_path):
+    """The float32 floor's warning said the band's own peak and bound: a file of 56 bands
+    said it 168 times under the default filter. Once a channel now."""
+    path = faint(tmp_path)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("default")
+        info = blur_file(path, tmp_path / "o.exr", albedo=0.8, mfp=2.0, max_memory=16384)
+    said = [w for w in caught if issubclass(w.category, BlurAccuracyWarning)]
+    assert max(c.error_bound for c in info.channels) > 1e-3
+    assert len(said) == 3 and all(str(w.message).startswith(f"{path}: channel ")
+                                  for w in said), [str(w.message) for w in said]
+
+
+def test_a_texture_varying_blurs_floor_is_warned_of(tmp_path):
+    """A texture-varying bound is tol plus its kernel error, above tol without the floor: the
+    floor added to it (1e-3 past tol here) was silent. A floor past a tenth of tol is said."""
+    path = faint(tmp_path)
+    albedo = np.full((64, 64, 3), 0.8, np.float32)
+    got = caught_of(lambda: blur_file(path, tmp_path / "o.exr", albedo=albedo, mfp=2.0))
+    assert any("float32's normal range" in str(w.message) for w in got), [
+        str(w.message) for w in got]
+
+
+def test_a_warning_made_an_error_fails_its_tile_only(tmp_path, capsys):
+    """Under a filter that makes accuracy warnings errors (``-W error``), a UDIM set's tile
+    whose bound is past tol fails alone, named, as a bad file does; the others are written
+    (the whole run stopped, "an unexpected error")."""
+    from bdipole_cl.apps.cli import main as cli_main
+    e = np.random.default_rng(1).random((32, 32, 3)) - 0.5          # both signs: warned
+    write_exr(tmp_path / "n.1001.exr", e)
+    write_exr(tmp_path / "n.1002.exr", np.random.default_rng(2).random((32, 32, 3)))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", BlurAccuracyWarning)
+        rc = cli_main(["blur", str(tmp_path / "n.<UDIM>.exr"), "--albedo", "0.8", "--mfp",
+                       "2", "-o", str(tmp_path / "{stem}_b.exr"), "--no-progress"])
+    err = capsys.readouterr().err
+    assert rc == 1 and "unexpected" not in err, err
+    assert f"{tmp_path / 'n.1001.exr'}: channel" in err and "both signs" in err, err
+    assert (tmp_path / "n.1002_b.exr").exists() and not (tmp_path / "n.1001_b.exr").exists()

@@ -174,8 +174,9 @@ def own_entries() -> list[OwnEntry]:
 
 
 def entry_what(kind: OwnKind, path: Path) -> str:
-    """What one entry is (a probe's verdict or its lock file)."""
-    if kind.folder == VERDICT_FOLDER:
+    """What one entry is (a probe's verdict or its lock file; the guarded builds' records
+    are a folder of their own kind)."""
+    if kind.folder == VERDICT_FOLDER and not kind.is_dir:
         return f"{kind.what} {'lock' if path.suffix == '.lock' else 'verdict'}"
     return kind.what
 

@@ -254,6 +254,8 @@ def blur_file(path, output, *, colorspace="auto", working_space=None, half=False
     except (OSError, ValueError) as exc:
         where = sources.get(getattr(exc, "name", None), path)
         raise TextureError(f"{where}: {exc}") from exc
+    except Warning as exc:             # an accuracy warning the user's filter makes an error:
+        raise TextureError(f"{exc} (a warning made an error by the warnings filter)") from exc
     finally:
         if writer is not None:
             writer.abort()

@@ -321,21 +321,29 @@ def peak_exponents(e) -> np.ndarray:
     return np.where(far, k, 0).astype(np.int32)
 
 
+#: the float32 floor's share of a bound warned of even where the bound was above tol without
+#: it (a texture-varying bound is tol plus its kernel error: the floor added to it was silent)
+FLOOR_WARN_SHARE = 0.1
+
+
 def with_output_floor(info: BlurInfo, peaks, rd_floor, tol) -> BlurInfo:
     """``info`` with each channel's bound taking float32's absolute floor relative to its
     peak |E| (``peaks``, per channel) x Rd (``FLOAT32_FLOOR / (max|E| Rd)``: negligible but
     for an exitance below float32's normal range, where no float32 is closer); a bound so
-    taken above ``tol`` is warned of."""
+    taken above ``tol``, or whose floor is past FLOOR_WARN_SHARE of tol, is warned of."""
     chans = list(info.channels)
     for c, ch in enumerate(chans):
         scale = peaks[c] * rd_floor[c]
         if scale <= 0:
             continue
-        bound = ch.error_bound + FLOAT32_FLOOR / scale
-        if bound > tol >= ch.error_bound:
+        floor = FLOAT32_FLOOR / scale
+        bound = ch.error_bound + floor
+        if bound > tol and (ch.error_bound <= tol or floor > FLOOR_WARN_SHARE * tol):
+            # the words are the same in every band of an image (its peak and bound are the
+            # band's): said once, not once a band; BlurInfo has the bound
             warn_caller(BlurAccuracyWarning(
-                f"channel {c}: peak irradiance {peaks[c]:.3g}: the exitance is below float32's "
-                f"normal range, stored to {2 * FLOAT32_FLOOR:.2g} absolute: error bound "
-                f"{bound:.2e} relative to max(E) Rd"))
+                f"channel {c}: the exitance is below float32's normal range (faint "
+                f"irradiance), stored to {2 * FLOAT32_FLOOR:.2g} absolute: the error bound "
+                f"relative to max(E) Rd passes tol {tol:g} (BlurInfo.error_bound)"))
         chans[c] = replace(ch, error_bound=bound)
     return replace(info, channels=tuple(chans))

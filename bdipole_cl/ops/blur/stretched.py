@@ -391,7 +391,7 @@ def shear_words(max_shear, at) -> str:
     return f"|cos| {max_shear:.3f}" + (f" at texel x={at[0]}, y={at[1]}" if at else "")
 
 
-def channel_plans(maps, windows, eta, tol, exact, costs, max_shear, shear_at=None):
+def channel_plans(maps, windows, eta, tol, exact, costs, max_shear, shear_at=None, c=0):
     """Per window a WindowChannel of one channel's (Rd, l_u, l_v) ``maps``, the windows of
     overlapping ranges sharing a plan (``stretched_plan.shared_ranges``; where the union is
     past the radius or the planning memory a window alone is not, its own), and the channel's
@@ -425,7 +425,8 @@ def channel_plans(maps, windows, eta, tol, exact, costs, max_shear, shear_at=Non
         bound = plan.error_bound + shear + roundoff(plan)
         if max(plan.fit_error, plan.interp_error) > tol or shear > tol:
             warn_caller(BlurAccuracyWarning(
-                f"stretched blur error bound {bound:.2e} (basis {plan.fit_error:.1e}, "
+                f"channel {c}: stretched blur error bound {bound:.2e} (basis "
+                f"{plan.fit_error:.1e}, "
                 f"interpolation {plan.interp_error:.1e}, shear {shear:.1e} at "
                 f"{shear_words(max_shear, shear_at)})"))
         if worst is None or bound > worst[0]:
@@ -458,7 +459,7 @@ def plan_stretched(shape, scattering, stretch, *, tol=1e-3, border="clamp", char
                             ranges_kept)
         per_window, (bound, plan, shear) = channel_plans(maps, windows, etas[c], tol, exact,
                                                          gather_costs(rt), s.max_shear,
-                                                         s.max_shear_at)
+                                                         s.max_shear_at, c)
         chans.append(per_window)
         infos.append(ChannelInfo(c, f"fft (stretched, {describe([w.plan for w in per_window])}"
                                     f"{', shear %.1e' % shear if shear else ''})",

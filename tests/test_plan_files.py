@@ -232,3 +232,17 @@ def test_the_folder_keeps_its_bytes_least_recently_used_out(plans, monkeypatch):
     names = {p.name for p in folder.iterdir()}
     assert first.name not in names and stale.name not in names and fresh.name in names
     assert len(names) == 3 and keep.read_text() == "mine"
+
+
+def test_the_plans_names_follow_numpys_version(monkeypatch):
+    """A plan is made by NumPy's SVD, whose last bits are its version's: a plan of another
+    NumPy is a file of its own (read, it was valid, but not the plan this one makes)."""
+    pf.source_digest.cache_clear()
+    here = pf.source_digest()
+    monkeypatch.setattr(np, "__version__", "0.0.1")
+    pf.source_digest.cache_clear()
+    try:
+        assert pf.source_digest() != here
+    finally:
+        monkeypatch.undo()
+        pf.source_digest.cache_clear()

@@ -80,9 +80,9 @@ def scalars_of(arrays, names) -> dict:
 @lru_cache(maxsize=1)
 def source_digest() -> str:
     """A digest of the sources of the packages a plan is made by (the blur's and the
-    physics'), in path order: 16 hex digits."""
+    physics'), in path order, and of NumPy's version (its SVD's last bits): 16 hex digits."""
     root = Path(__file__).resolve().parents[2]
-    digest = hashlib.sha256()
+    digest = hashlib.sha256(f"numpy {np.__version__}\0".encode())
     for folder in ("ops/blur", "physics"):
         for path in sorted((root / folder).glob("*.py")):
             digest.update(path.relative_to(root).as_posix().encode() + b"\0")

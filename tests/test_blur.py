@@ -361,7 +361,7 @@ def test_a_tol_below_float32s_round_off_reports_the_round_off(runtime, method):
 
 
 @pytest.mark.parametrize("peak", [1e-44, 3e-39, 1e-25], ids=lambda p: f"{p:g}")
-@pytest.mark.parametrize("method", METHODS + ["texture"])
+@pytest.mark.parametrize("method", METHODS + ["texture", "texture, an unlit texel", "stretch"])
 def test_a_tiny_irradiance_stays_within_the_reported_bound(method, peak):
     """docs/model.md: the bound holds "for any irradiance". A 1e-44 peak lost every bit of its
     exitance to float32 underflow (gaussians 370x its bound, auto 1470x); now the channel is
@@ -376,12 +376,19 @@ def test_a_tiny_irradiance_stays_within_the_reported_bound(method, peak):
     e[20, 20], e[10, 25], e[30, 8] = 1.0, 0.5, 0.25
     e = (e * peak).astype(np.float32)          # the irradiance as given: float32 (subnormal)
     peak = float(e.max())
-    mfp = np.full((40, 40), 1.5, np.float32) if method == "texture" else 1.5
+    from bdipole_cl.ops.blur.stretched import Stretch
+    textured = method.startswith("texture")
+    mfp = np.full((40, 40), 1.5, np.float32) if textured else 1.5
+    albedo = np.full((40, 40), 0.8, np.float32) if textured else 0.8
+    if method == "texture, an unlit texel":      # its Rd 0 did not take the floor away
+        albedo[0, 0] = 0.0
+    one = np.ones((40, 40), np.float32)          # the stretched blur of unit texels: the same
+    extra = {"stretch": Stretch(one, one)} if method == "stretch" else {}
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")          # the floor above tol is warned of
-        out, info = blur(e, albedo=0.8, mfp=mfp, tol=1e-3,
-                         method="fft" if method == "texture" else method, border="zero",
-                         return_info=True)
+        out, info = blur(e, albedo=albedo, mfp=mfp, tol=1e-3,
+                         method="fft" if textured or method == "stretch" else method,
+                         border="zero", return_info=True, **extra)
     (a, st, et), = channel_parameters(1, albedo=0.8, mfp=1.5, eta=1.4)
     w = unfold_quadrant(quadrant_weights(a, st, et, 40))
     unit = e.astype(np.float64) / peak             # float64, exact weights
@@ -413,3 +420,21 @@ def test_auto_passes_over_a_measured_truncation_wider_than_max_radius(monkeypatc
     # both exitances within their bounds of the exact one: within the sum of each other
     scale = float(e.max()) * ch.rd
     assert np.abs(got - want).max() <= (ch.error_bound + fft.channels[0].error_bound) * scale
+
+
+@pytest.mark.parametrize("kind", ["constant", "texture"])
+def test_a_faint_band_of_a_lit_image_takes_the_images_floor(kind):
+    """An image lit (0.5-1) but for rows of 1e-44 blurred in bands: each band's float32 floor
+    is relative to the image's peak, as blurred whole (it was the band's own: 9e-2 for 6e-4,
+    and warned of), so the bound does not depend on max_memory."""
+    import warnings
+    e = (np.random.default_rng(5).random((64, 64, 3)) * 0.5 + 0.5).astype(np.float32)
+    e[40:] = 1e-44
+    albedo = np.full((64, 64, 3), 0.8, np.float32) if kind == "texture" else 0.8
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        whole, one = blur(e, albedo=albedo, mfp=2.0, return_info=True)
+        banded, many = blur(e, albedo=albedo, mfp=2.0, return_info=True, max_memory=16384)
+    for a, b in zip(one.channels, many.channels):
+        assert b.error_bound <= a.error_bound * (1 + 1e-9) + 1e-12, (a, b)
+    assert np.abs(banded - whole).max() <= 1e-5

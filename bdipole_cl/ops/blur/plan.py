@@ -26,7 +26,8 @@ from .dispatch import BlurKernels, gather_costs
 from .fft import channel_peaks
 from .params import checked_irradiance, irradiance_shape
 from .planning import (BlurInfo, blur_whole, channel_plans, constant_row_bytes, halo_of,
-                       peak_exponents, signed_irradiance_bound, with_output_floor, worse)
+                       lit_floor, peak_exponents, signed_irradiance_bound, with_output_floor,
+                       worse)
 from .textured import blur_band, textured_info, textured_method, textured_plans, textured_row_bytes
 from .whole_device import apply_band_on_device, apply_on_device
 
@@ -142,13 +143,15 @@ class BlurPlan:
             self.kernels = BlurKernels(self.runtime, self.border)
         return self.kernels
 
-    def apply_band(self, e, rows=None):
+    def apply_band(self, e, rows=None, peaks=None):
         """One in-memory image or band of rows with its halo (HxWxC float32, checked): (M,
         BlurInfo) over the whole of it. ``rows``: texture-varying parameters: the rows of the
         parameter maps the band covers (``bands.halo_rows``; None: all). A channel whose peak
         is far from 1 is blurred at a peak in [0.5, 1) (``peak_exponents``) and scaled back,
-        its bound taking float32's absolute floor (``with_output_floor``). On the device end
-        to end where the plan runs there (``runs_on_device``)."""
+        its bound taking float32's absolute floor (``with_output_floor``) relative to
+        ``peaks`` (per channel max|E| of the image the band is of; None: the band's own, which
+        is at most the image's: a larger bound, still one). On the device end to end where the
+        plan runs there (``runs_on_device``)."""
         if self.runs_on_device():
             done = apply_band_on_device(self, e, rows)
             if done is not None:
@@ -158,7 +161,8 @@ class BlurPlan:
             return self._apply_band(e, rows)
         out, info = self._apply_band(np.ldexp(e, -shifts), rows)
         out = np.ldexp(out, shifts)          # one rounding, where the result is subnormal
-        return out, with_output_floor(info, channel_peaks(e), self.channel_rd_floor(), self.tol)
+        return out, with_output_floor(info, channel_peaks(e) if peaks is None else peaks,
+                                      self.channel_rd_floor(), self.tol)
 
     def runs_on_device(self) -> bool:
         """Whether the blur runs on the device end to end (``whole_device``,
@@ -173,8 +177,8 @@ class BlurPlan:
     def channel_rd_floor(self) -> list:
         """Per channel the smallest Rd its exitance is relative to: the constant channel's,
         a texture-varying channel's smallest texel's."""
-        if self.textured:
-            return [float(np.min(ch[1])) for ch in self.textured]
+        if self.textured:                   # unlit texels' exitance is 0 exactly
+            return [lit_floor(ch[1]) for ch in self.textured]
         return [p.kernel.rd for p in self.channels]
 
     def _apply_band(self, e, rows=None):
@@ -231,9 +235,9 @@ class BlurPlan:
         if rows >= h:
             return self.apply_band(e)
         out = np.empty_like(e)
-        info = None
+        info, peaks = None, channel_peaks(e)     # a band's floor is relative to the image's
         for y0, y1, idx in bands(h, rows, self.halo, self.border):
-            res, band_info = self.apply_band(gather_rows(e, idx), idx)
+            res, band_info = self.apply_band(gather_rows(e, idx), idx, peaks)
             info = worse(info, band_info)
             out[y0:y1] = res[self.halo:self.halo + (y1 - y0)]
         return out, info

@@ -326,6 +326,14 @@ def peak_exponents(e) -> np.ndarray:
 FLOOR_WARN_SHARE = 0.1
 
 
+def lit_floor(rd) -> float:
+    """The smallest Rd > 0 of an albedo map (0 where none is lit): the Rd a floor is relative
+    to (an unlit texel's exitance is 0 exactly)."""
+    rd = np.asarray(rd)
+    lit = rd[rd > 0]
+    return float(lit.min()) if lit.size else 0.0
+
+
 def with_output_floor(info: BlurInfo, peaks, rd_floor, tol) -> BlurInfo:
     """``info`` with each channel's bound taking float32's absolute floor relative to its
     peak |E| (``peaks``, per channel) x Rd (``FLOAT32_FLOOR / (max|E| Rd)``: negligible but

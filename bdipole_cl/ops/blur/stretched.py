@@ -22,10 +22,11 @@ from ...signals import check_stop
 from ..bands import band_rows
 from ..widths import fft_engine
 from .dispatch import gather_costs
-from .fft import FFT32_ROUNDOFF, PIECE_ROWS, in_row_blocks, summed_roundoff
+from .fft import FFT32_ROUNDOFF, PIECE_ROWS, channel_peaks, in_row_blocks, summed_roundoff
 from .near_field import near_cells
 from .params import MapRanges, checked_irradiance, texel_parameters
-from .planning import BlurAccuracyWarning, BlurInfo, ChannelInfo
+from .planning import (BlurAccuracyWarning, BlurInfo, ChannelInfo, lit_floor, peak_exponents,
+                       with_output_floor)
 from .stretched_device import blur_band_device
 from .stretched_gather import blur_band
 from .stretched_plan import (StretchedPlan, coefficients, lattice_variables, node_kernel,
@@ -324,6 +325,7 @@ class StretchedBlurPlan:
     exact: bool = False
     halo: int = 0
     textured: bool = True
+    rd_floor: tuple = ()         # per channel the smallest lit Rd (``planning.lit_floor``)
 
     @property
     def nchan(self) -> int:
@@ -346,15 +348,24 @@ class StretchedBlurPlan:
         return out, replace(info, invalid=counts)
 
     def apply_checked(self, e, max_memory=None):
+        """``apply`` of a checked irradiance. A channel whose peak is far from 1 is blurred at
+        a peak in [0.5, 1) and scaled back, its bound taking float32's absolute floor, as the
+        plain blur's (``planning.peak_exponents``, ``with_output_floor``)."""
         if e.shape != tuple(self.shape):
             raise ValueError(f"irradiance has shape {e.shape}; the plan is for {self.shape}")
         rt = self.runtime = get_runtime(self.runtime)
+        shifts = peak_exponents(e)
+        scaled = np.ldexp(e, -shifts).astype(np.float32) if shifts.any() else e
         out = np.zeros(e.shape, np.float32)
         for c, per_window in enumerate(self.channels):
-            e2d = np.ascontiguousarray(e[..., c])
+            e2d = np.ascontiguousarray(scaled[..., c])
             for win, wch in zip(self.windows, per_window):
                 blur_window(out[..., c], e2d, win, wch, max_memory, rt)
-        return out, self.textured_info
+        if not shifts.any():
+            return out, self.textured_info
+        out = np.ldexp(out, shifts).astype(np.float32)   # one rounding, where it is subnormal
+        return out, with_output_floor(self.textured_info, channel_peaks(e), self.rd_floor,
+                                      self.tol)
 
     def apply_band(self, e, rows=None):
         return self.apply_checked(e)
@@ -453,10 +464,11 @@ def plan_stretched(shape, scattering, stretch, *, tol=1e-3, border="clamp", char
     windows = (chart_windows(s.chart, s.covered, shape, charts)
                if charts != "none" and s.chart is not None else ())
     windows = windows or (whole_image(shape, border),)
-    counts, ranges_kept, chans, infos = {}, MapRanges(), [], []
+    counts, ranges_kept, chans, infos, rd_floor = {}, MapRanges(), [], [], []
     for c in range(shape[2]):
         maps = channel_maps(shape, c, s, physical, float(etas[c]), exact, on_invalid, counts,
                             ranges_kept)
+        rd_floor.append(lit_floor(maps[0]))
         per_window, (bound, plan, shear) = channel_plans(maps, windows, etas[c], tol, exact,
                                                          gather_costs(rt), s.max_shear,
                                                          s.max_shear_at, c)
@@ -469,4 +481,4 @@ def plan_stretched(shape, scattering, stretch, *, tol=1e-3, border="clamp", char
     halo = max(w.plan.radius for ch in chans for w in ch)
     return StretchedBlurPlan(scattering, tuple(shape), float(tol), border, charts, on_invalid,
                              windows, tuple(chans), BlurInfo(tuple(infos)), counts, rt,
-                             exact=exact, halo=halo)
+                             exact=exact, halo=halo, rd_floor=tuple(rd_floor))

@@ -45,28 +45,43 @@ def maps(n=24):
     return e, albedo, mfp
 
 
+#: a process's blur of the maps in argv[1] into argv[2]; with argv[3] == "read", a plan it
+#: would make raises (it must read every one)
+BLUR_SCRIPT = """import sys, numpy as np
+from bdipole_cl.ops.blur import blur
+from bdipole_cl.ops.blur import textured_plan_files as tpf
+if sys.argv[3] == "read":
+    tpf.make_plan_for_ranges = None
+e, albedo, mfp = (np.load(sys.argv[1])[k] for k in ("e", "albedo", "mfp"))
+np.save(sys.argv[2], blur(e, albedo=albedo, mfp=mfp, eta=1.4))
+"""
+
+
 def test_a_plan_is_made_once_and_read_back_in_another_process(plans):
-    """The blur of a new process reads its plans: none made, the image bit for bit."""
+    """The blur of a new process reads the plans an earlier process made: none made, the
+    image bit for bit (both processes of this cache folder: the same device verdict, so the
+    same gather costs in the plans' keys)."""
     folder, made = plans
     e, albedo, mfp = maps()
-    first = blur(e, albedo=albedo, mfp=mfp, eta=1.4)
-    files = sorted(folder.iterdir())
-    assert len(made) == 1 and len(files) == 1 and pf.PLANS_NAME.match(files[0].name)
-    tp.PLAN_CACHE.clear()
-    again = tpf.plan_for_ranges(*made[0])
-    assert len(made) == 1 and not again.fine.flags.writeable
-    script = ("import sys, numpy as np\nfrom bdipole_cl.ops.blur import blur\n"
-              "from bdipole_cl.ops.blur import textured_plan_files as tpf\n"
-              "tpf.make_plan_for_ranges = None  # a plan made here would fail\n"
-              "e, albedo, mfp = (np.load(sys.argv[1])[k] for k in ('e', 'albedo', 'mfp'))\n"
-              "np.save(sys.argv[2], blur(e, albedo=albedo, mfp=mfp, eta=1.4))\n")
-    folder_in = folder.parent.parent
-    np.savez(folder_in / "maps.npz", e=e, albedo=albedo, mfp=mfp)
-    run = subprocess.run([sys.executable, "-c", script, str(folder_in / "maps.npz"),
-                          str(folder_in / "out.npy")], capture_output=True, text=True,
-                         env={**os.environ}, timeout=300)
-    assert run.returncode == 0, run.stderr[-2000:]
-    np.testing.assert_array_equal(np.load(folder_in / "out.npy"), first)
+    work = folder.parent.parent
+    np.savez(work / "maps.npz", e=e, albedo=albedo, mfp=mfp)
+    for mode in ("make", "read"):
+        run = subprocess.run([sys.executable, "-c", BLUR_SCRIPT, str(work / "maps.npz"),
+                              str(work / f"{mode}.npy"), mode], capture_output=True,
+                             text=True, env={**os.environ}, timeout=300)
+        assert run.returncode == 0, (mode, run.stderr[-2000:])
+        if mode == "make":             # (a fresh cache folder's probe plans some too)
+            files = sorted(folder.iterdir())
+            assert files and all(pf.PLANS_NAME.match(f.name) for f in files), files
+    np.testing.assert_array_equal(np.load(work / "read.npy"), np.load(work / "make.npy"))
+    assert not made
+
+
+def test_a_plan_read_is_read_only(plans):
+    folder, made = plans
+    plan_again()
+    again = plan_again()
+    assert len(made) == 1 and not again.fine.flags.writeable and not again.table.flags.writeable
 
 
 def test_other_near_field_radii_or_basis_are_not_read(plans, monkeypatch):

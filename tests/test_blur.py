@@ -422,7 +422,7 @@ def test_auto_passes_over_a_measured_truncation_wider_than_max_radius(monkeypatc
     assert np.abs(got - want).max() <= (ch.error_bound + fft.channels[0].error_bound) * scale
 
 
-@pytest.mark.parametrize("kind", ["constant", "texture"])
+@pytest.mark.parametrize("kind", ["constant", "texture", "direct", "gaussians"])
 def test_a_faint_band_of_a_lit_image_takes_the_images_floor(kind):
     """An image lit (0.5-1) but for rows of 1e-44 blurred in bands: each band's float32 floor
     is relative to the image's peak, as blurred whole (it was the band's own: 9e-2 for 6e-4,
@@ -433,8 +433,32 @@ def test_a_faint_band_of_a_lit_image_takes_the_images_floor(kind):
     albedo = np.full((64, 64, 3), 0.8, np.float32) if kind == "texture" else 0.8
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        whole, one = blur(e, albedo=albedo, mfp=2.0, return_info=True)
-        banded, many = blur(e, albedo=albedo, mfp=2.0, return_info=True, max_memory=16384)
+        # (direct and gaussians run on the device end to end, banded there)
+        method = kind if kind in ("direct", "gaussians") else "auto"
+        whole, one = blur(e, albedo=albedo, mfp=2.0, return_info=True, method=method)
+        banded, many = blur(e, albedo=albedo, mfp=2.0, return_info=True, max_memory=16384,
+                            method=method)
     for a, b in zip(one.channels, many.channels):
         assert b.error_bound <= a.error_bound * (1 + 1e-9) + 1e-12, (a, b)
     assert np.abs(banded - whole).max() <= 1e-5
+
+
+def test_a_stretched_blur_of_both_signs_counts_its_truncation_twice():
+    """As every blur: an irradiance of both signs can add the renormalized truncation's error
+    from both (docs/model.md "Blur error bound"): the stretched bound takes tol once more
+    than for the same irradiance of one sign, and says so past tol."""
+    import warnings
+
+    from bdipole_cl.ops.blur.planning import BlurAccuracyWarning
+    from bdipole_cl.ops.blur.stretched import Stretch
+    one = np.ones((32, 32), np.float32)
+    e = np.random.default_rng(2).random((32, 32, 1)).astype(np.float32)
+    _, plus = blur(e, albedo=0.6, mfp=2.0, stretch=Stretch(one, 2 * one), return_info=True)
+    with pytest.warns(BlurAccuracyWarning, match="both signs"):
+        _, both = blur(e - 0.5, albedo=0.6, mfp=2.0, stretch=Stretch(one, 2 * one),
+                       return_info=True)
+    assert both.channels[0].error_bound == pytest.approx(plus.channels[0].error_bound + 1e-3,
+                                                         rel=1e-12)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        blur(e, albedo=0.6, mfp=2.0, stretch=Stretch(one, 2 * one))

@@ -22,11 +22,12 @@ from ...signals import check_stop
 from ..bands import band_rows
 from ..widths import fft_engine
 from .dispatch import gather_costs
-from .fft import FFT32_ROUNDOFF, PIECE_ROWS, channel_peaks, in_row_blocks, summed_roundoff
+from .fft import (FFT32_ROUNDOFF, PIECE_ROWS, channel_extremes, channel_peaks, in_row_blocks,
+                  summed_roundoff)
 from .near_field import near_cells
 from .params import MapRanges, checked_irradiance, texel_parameters
 from .planning import (BlurAccuracyWarning, BlurInfo, ChannelInfo, lit_floor, peak_exponents,
-                       with_output_floor)
+                       signed_irradiance_bound, with_output_floor)
 from .stretched_device import blur_band_device
 from .stretched_gather import blur_band
 from .stretched_plan import (StretchedPlan, coefficients, lattice_variables, node_kernel,
@@ -361,11 +362,21 @@ class StretchedBlurPlan:
             e2d = np.ascontiguousarray(scaled[..., c])
             for win, wch in zip(self.windows, per_window):
                 blur_window(out[..., c], e2d, win, wch, max_memory, rt)
+        info = self.signed_info(e)
         if not shifts.any():
-            return out, self.textured_info
+            return out, info
         out = np.ldexp(out, shifts).astype(np.float32)   # one rounding, where it is subnormal
-        return out, with_output_floor(self.textured_info, channel_peaks(e), self.rd_floor,
-                                      self.tol)
+        return out, with_output_floor(info, channel_peaks(e), self.rd_floor, self.tol)
+
+    def signed_info(self, e) -> BlurInfo:
+        """The plan's BlurInfo, each channel of an irradiance of both signs taking the
+        truncation's tol once more (``planning.signed_irradiance_bound``, as every blur)."""
+        lo, hi = channel_extremes(e)
+        chans = list(self.textured_info.channels)
+        for c in range(len(chans)):
+            if lo[c] < 0 < hi[c]:
+                chans[c] = signed_irradiance_bound(chans[c], self.tol, self.tol)
+        return BlurInfo(tuple(chans))
 
     def apply_band(self, e, rows=None):
         return self.apply_checked(e)

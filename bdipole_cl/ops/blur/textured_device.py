@@ -147,10 +147,10 @@ def _gather(kernels, out_dev, c, plan, rd_dev, ld_dev, planes, padded32, settle,
                np.float32(scale), np.int32(bool(nonneg)), *axis_args, wait_for=wait_for)
 
 
-def blur_band_textured_device(bplan, e_dev, rows, method, on_nonfinite):
+def blur_band_textured_device(bplan, e_dev, rows, method, on_nonfinite, peaks=None):
     """(exitance device array, BlurInfo) of one band (or image) of a texture-varying plan
     ``bplan`` on its device (``rows``: the rows of the parameter maps it covers), None where
-    the device cannot (float64 transforms without fp64). Non-finite texels: as
+    the device cannot (float64 transforms without fp64). Non-finite texels and ``peaks``: as
     ``whole_device.blur_band_device``."""
     kernels = bplan.bound_kernels()
     rt = kernels.rt
@@ -208,6 +208,7 @@ def blur_band_textured_device(bplan, e_dev, rows, method, on_nonfinite):
                                                bplan.tol)
     info = BlurInfo(tuple(chans))
     if any(s and st.peak < 2.0 ** -PEAK_RANGE for s, st in zip(shifts, stats)):
-        info = with_output_floor(info, np.array([st.peak for st in stats]),
-                                 bplan.channel_rd_floor(), bplan.tol)
+        info = with_output_floor(info, np.array([st.peak for st in stats])
+                                 if peaks is None else peaks, bplan.channel_rd_floor(),
+                                 bplan.tol)
     return out_dev, info

@@ -16,7 +16,7 @@ from ...device.transfer import (aligned_empty, device_image, host_copy, is_devic
 from ...signals import check_stop
 from ..bands import band_rows, bands, gather_rows
 from .dispatch import DeviceBlur
-from .fft import ROUNDOFF_ULPS, settle_floor
+from .fft import ROUNDOFF_ULPS, channel_peaks, settle_floor
 from .fft_device import (device_fft_dtype, device_fft_shape, fft_blur_device, image_stats,
                          peak_shift)
 from .fit import fit_gaussians
@@ -97,16 +97,18 @@ def device_can_blur(rt, precision) -> bool:
     return precision is None or precision == np.float32 or rt.has_fp64
 
 
-def blur_band_device(plan, e_dev, on_nonfinite, rows=None):
+def blur_band_device(plan, e_dev, on_nonfinite, rows=None, peaks=None):
     """(exitance device array, BlurInfo) of one band (or image) ``e_dev`` on the plan's device
     (``blur_whole_device``; texture-varying parameters: ``textured_device``, ``rows`` the
     parameter maps' rows the band covers, None: all), None where the device cannot (float64
     transforms without fp64). Where it has non-finite texels, ``on_nonfinite()`` is called
-    first (the host's check: raise naming the first, or count them); they are read as 0."""
+    first (the host's check: raise naming the first, or count them); they are read as 0.
+    ``peaks``: per channel max|E| of the image the band is of, which float32's floor is
+    relative to (None: the band's own)."""
     if plan.textured:
         rows = slice(0, plan.shape[0]) if rows is None else np.maximum(rows, 0)
         return blur_band_textured_device(plan, e_dev, rows, textured_method(plan.method),
-                                         on_nonfinite)
+                                         on_nonfinite, peaks)
     kernels = plan.bound_kernels()
     rt = kernels.rt
     stats = image_stats(kernels, e_dev)
@@ -123,8 +125,8 @@ def blur_band_device(plan, e_dev, on_nonfinite, rows=None):
                                     plan.exact, kernels, precision)
     out_dev.add_event(event)
     if any(shifts):
-        info = with_output_floor(info, np.array([st.peak for st in stats]),
-                                 plan.channel_rd_floor(), plan.tol)
+        info = with_output_floor(info, np.array([st.peak for st in stats])
+                                 if peaks is None else peaks, plan.channel_rd_floor(), plan.tol)
     return out_dev, info
 
 
@@ -160,12 +162,15 @@ def apply_on_device(plan, irradiance, max_memory=None, counts=None):
     h = e.shape[0]
     out = aligned_empty(e.size, np.float32).reshape(e.shape)
     rows = band_rows(h, plan.row_bytes(), max_memory, halo=plan.halo)
-    info = None
+    info, peaks = None, None
     pieces = ([(0, h, None)] if rows >= h else bands(h, rows, plan.halo, plan.border))
+    if rows < h:                       # a band's floor relative to the image's peak (where
+        peaks = channel_peaks(e)       # every texel is finite: else the band's own)
+        peaks = peaks if np.all(np.isfinite(peaks)) else None
     for y0, y1, idx in pieces:
         check_stop()
         band = e if idx is None else gather_rows(e, idx)
-        done = blur_band_device(plan, device_image(rt, band), check, idx)
+        done = blur_band_device(plan, device_image(rt, band), check, idx, peaks)
         if done is None:
             return None
         out_dev, band_info = done

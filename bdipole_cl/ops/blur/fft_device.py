@@ -45,12 +45,20 @@ class ChannelStats:
     high: float
     total: float
     nonfinite: int
+    clamped_texels: int = 0      # non-finite texels ``clamped`` counts as 0 (still in memory)
 
     def clamped(self) -> "ChannelStats":
         """The statistics once its non-finite texels are 0 (``on_invalid="clamp"``)."""
         if not self.nonfinite:
             return self
-        return ChannelStats(min(self.low, 0.0), max(self.high, 0.0), self.total, 0)
+        return ChannelStats(min(self.low, 0.0), max(self.high, 0.0), self.total, 0,
+                            self.nonfinite)
+
+    @property
+    def unclean(self) -> bool:
+        """Whether its texels in memory hold a NaN or infinity, clamped or not: a kernel that
+        reads them must read a cleaned copy (``clean_scaled``)."""
+        return bool(self.nonfinite or self.clamped_texels)
 
     @property
     def e_range(self) -> tuple:

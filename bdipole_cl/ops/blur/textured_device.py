@@ -163,7 +163,7 @@ def blur_band_textured_device(bplan, e_dev, rows, method, on_nonfinite, peaks=No
     out_dev = cla.empty_like(e_dev)
     event = cl.enqueue_fill_buffer(rt.queue, out_dev.data, np.float32(0), 0, out_dev.nbytes)
     src = e_dev
-    if method == "gaussians" and (any(shifts) or any(st.nonfinite for st in stats)):
+    if method == "gaussians" and (any(shifts) or any(st.unclean for st in stats)):
         src = cla.empty_like(e_dev)
         shift = cla.to_device(rt.queue, np.int32(shifts))
         event = enqueue_items(kernels.kernel("blur_fft", "clean_scaled"), rt.queue, e_dev.size,

@@ -60,7 +60,7 @@ def blur_whole_device(e_dev, out_dev, stats, shifts, params, plans, exact, kerne
             for c, p in enumerate(plans)]
     if others:
         src = e_dev
-        if any(shifts) or any(st.nonfinite for st in stats):
+        if any(shifts) or any(st.unclean for st in stats):
             src = cla.empty_like(e_dev)
             shift = cla.to_device(rt.queue, np.int32(shifts))
             event = enqueue_items(kernels.kernel("blur_fft", "clean_scaled"), rt.queue,
@@ -164,9 +164,8 @@ def apply_on_device(plan, irradiance, max_memory=None, counts=None):
     rows = band_rows(h, plan.row_bytes(), max_memory, halo=plan.halo)
     info, peaks = None, None
     pieces = ([(0, h, None)] if rows >= h else bands(h, rows, plan.halo, plan.border))
-    if rows < h:                       # a band's floor relative to the image's peak (where
-        peaks = channel_peaks(e)       # every texel is finite: else the band's own)
-        peaks = peaks if np.all(np.isfinite(peaks)) else None
+    if rows < h:                       # a band's floor relative to the image's peak
+        peaks = finite_peaks(e)
     for y0, y1, idx in pieces:
         check_stop()
         band = e if idx is None else gather_rows(e, idx)
@@ -180,6 +179,16 @@ def apply_on_device(plan, irradiance, max_memory=None, counts=None):
         if idx is not None:
             out[y0:y1] = got[plan.halo:plan.halo + (y1 - y0)]
     return (out if np.ndim(irradiance) == 3 else out[..., 0]), info
+
+
+def finite_peaks(e) -> np.ndarray:
+    """max|E| per channel of an (H, W, C) map over its finite texels (a non-finite one is
+    read as 0 where it is clamped, and raises where it is not)."""
+    peaks = channel_peaks(e)
+    for c in np.flatnonzero(~np.isfinite(peaks)):
+        v = np.abs(e[..., c])
+        peaks[c] = float(np.max(v, where=np.isfinite(v), initial=0.0))
+    return peaks
 
 
 def device_irradiance(a, rt):

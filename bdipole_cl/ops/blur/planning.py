@@ -312,10 +312,11 @@ PEAK_RANGE = 60
 FLOAT32_FLOOR = 2.0 ** -150
 
 
-def peak_exponents(e) -> np.ndarray:
-    """Per channel of an HxWxC band, the power of two k its peak |E| is 2^k x [0.5, 1) where
-    that is below 2^-PEAK_RANGE, else 0 (a zero channel: 0)."""
-    peak = channel_peaks(e) if e.size else np.zeros(e.shape[-1])
+def peak_exponents(e, peak=None) -> np.ndarray:
+    """Per channel of an HxWxC band, the power of two k its peak |E| (``peak``, where known)
+    is 2^k x [0.5, 1) where that is below 2^-PEAK_RANGE, else 0 (a zero channel: 0)."""
+    if peak is None:
+        peak = channel_peaks(e) if e.size else np.zeros(e.shape[-1])
     _, k = np.frexp(peak)
     far = (peak > 0) & (peak < 2.0 ** -PEAK_RANGE)
     return np.where(far, k, 0).astype(np.int32)

@@ -22,7 +22,7 @@ from ...signals import check_stop
 from ..bands import band_rows
 from ..widths import fft_engine
 from .dispatch import gather_costs
-from .fft import (FFT32_ROUNDOFF, PIECE_ROWS, channel_extremes, channel_peaks, in_row_blocks,
+from .fft import (FFT32_ROUNDOFF, PIECE_ROWS, channel_extremes, in_row_blocks,
                   summed_roundoff)
 from .near_field import near_cells
 from .params import MapRanges, checked_irradiance, texel_parameters
@@ -355,23 +355,24 @@ class StretchedBlurPlan:
         if e.shape != tuple(self.shape):
             raise ValueError(f"irradiance has shape {e.shape}; the plan is for {self.shape}")
         rt = self.runtime = get_runtime(self.runtime)
-        shifts = peak_exponents(e)
+        lo, hi = channel_extremes(e)              # one pass: the peaks and the signs
+        peaks = np.maximum(np.abs(lo.astype(np.float64)), np.abs(hi.astype(np.float64)))
+        shifts = peak_exponents(e, peaks)
         scaled = np.ldexp(e, -shifts).astype(np.float32) if shifts.any() else e
         out = np.zeros(e.shape, np.float32)
         for c, per_window in enumerate(self.channels):
             e2d = np.ascontiguousarray(scaled[..., c])
             for win, wch in zip(self.windows, per_window):
                 blur_window(out[..., c], e2d, win, wch, max_memory, rt)
-        info = self.signed_info(e)
+        info = self.signed_info(lo, hi)
         if not shifts.any():
             return out, info
         out = np.ldexp(out, shifts).astype(np.float32)   # one rounding, where it is subnormal
-        return out, with_output_floor(info, channel_peaks(e), self.rd_floor, self.tol)
+        return out, with_output_floor(info, peaks, self.rd_floor, self.tol)
 
-    def signed_info(self, e) -> BlurInfo:
-        """The plan's BlurInfo, each channel of an irradiance of both signs taking the
-        truncation's tol once more (``planning.signed_irradiance_bound``, as every blur)."""
-        lo, hi = channel_extremes(e)
+    def signed_info(self, lo, hi) -> BlurInfo:
+        """The plan's BlurInfo, each channel whose irradiance spans ``lo`` < 0 < ``hi`` taking
+        the truncation's tol once more (``planning.signed_irradiance_bound``, as every blur)."""
         chans = list(self.textured_info.channels)
         for c in range(len(chans)):
             if lo[c] < 0 < hi[c]:

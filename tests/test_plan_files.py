@@ -10,6 +10,8 @@ import pytest
 
 from bdipole_cl.ops.blur import plan_files as pf
 from bdipole_cl.ops.blur import stretched_plan as sp
+from plan_file_helpers import counted_plans, set_at
+from plan_file_helpers import rewritten as rewritten_as
 
 #: a small plan's ranges (logit Rd, ln l, s): one aspect, a few nodes, planned in ~0.3 s
 RANGES = ((0.2, 0.9), (0.9, 1.2), (0.1, 0.1))
@@ -19,12 +21,8 @@ RANGES = ((0.2, 0.9), (0.9, 1.2), (0.1, 0.1))
 def plans(tmp_path, monkeypatch):
     """The plans' folder in a fresh cache folder, the in-memory plans cleared, and a list
     that gets an entry each time a plan is made (not read)."""
-    monkeypatch.setenv("BDIPOLE_CL_CACHE_DIR", str(tmp_path / "cache"))
-    sp.STRETCHED_PLANS.clear()
-    made = []
-    real = sp.make_stretched_plan
-    monkeypatch.setattr(sp, "make_stretched_plan", lambda *a: made.append(a) or real(*a))
-    yield tmp_path / "cache" / pf.STRETCHED_FOLDER, made
+    yield counted_plans(tmp_path, monkeypatch, sp, "make_stretched_plan", sp.STRETCHED_PLANS,
+                        pf.STRETCHED_FOLDER)
     sp.STRETCHED_PLANS.clear()
 
 
@@ -75,20 +73,9 @@ def test_another_key_or_version_of_the_code_is_not_read(plans, monkeypatch):
 
 
 def rewritten(path, first, change):
-    """The plan file at ``path`` rewritten by np.savez (a whole zip, its CRCs right) with
-    ``change`` applied to ``first``'s arrays: consistent-looking damage."""
-    with np.load(path) as data:
-        key = str(data["key"])
-    arrays = {k: np.array(v) for k, v in pf.file_arrays(sp.PLAN_FORMAT, first, key).items()}
-    change(arrays)
-    with open(path, "wb") as f:
-        np.savez(f, **arrays)
-
-
-def set_at(name, index, value):
-    def change(arrays):
-        arrays[name][index] = value
-    return change
+    """The plan file at ``path`` rewritten with ``change`` applied to ``first``'s arrays, its
+    digest the arrays' as written: consistent-looking damage."""
+    rewritten_as(path, sp.PLAN_FORMAT, first, change, digest_anew=False)
 
 
 def near_cut(arrays):                  # 5 of the near classes, the table cut to match

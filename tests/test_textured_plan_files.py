@@ -9,10 +9,12 @@ import sys
 import numpy as np
 import pytest
 
-from bdipole_cl.ops.blur import blur, near_field
+from bdipole_cl.ops.blur import near_field
 from bdipole_cl.ops.blur import plan_files as pf
 from bdipole_cl.ops.blur import textured_plan as tp
 from bdipole_cl.ops.blur import textured_plan_files as tpf
+from plan_file_helpers import counted_plans, set_at
+from plan_file_helpers import rewritten as rewritten_as
 
 #: a small plan's ranges (logit Rd, ln ld texels): a few nodes, planned in ~0.5 s
 RANGES = ((0.5, 1.5), (1.0, 1.6))
@@ -22,12 +24,8 @@ RANGES = ((0.5, 1.5), (1.0, 1.6))
 def plans(tmp_path, monkeypatch):
     """The plans' folder in a fresh cache folder, the in-memory plans cleared, and a list
     that gets an entry each time a plan is made (not read)."""
-    monkeypatch.setenv("BDIPOLE_CL_CACHE_DIR", str(tmp_path / "cache"))
-    tp.PLAN_CACHE.clear()
-    made = []
-    real = tpf.make_plan_for_ranges
-    monkeypatch.setattr(tpf, "make_plan_for_ranges", lambda *a: made.append(a) or real(*a))
-    yield tmp_path / "cache" / pf.TEXTURED_FOLDER, made
+    yield counted_plans(tmp_path, monkeypatch, tpf, "make_plan_for_ranges", tp.PLAN_CACHE,
+                        pf.TEXTURED_FOLDER)
     tp.PLAN_CACHE.clear()
 
 
@@ -105,20 +103,7 @@ def rewritten(path, first, change, digest_anew=True):
     with its digest made anew (what ``plan_is_whole`` must find: shapes, lattice, radius,
     values not finite, a fine table not its table's), or the digest of the arrays as written
     (any change at all)."""
-    with np.load(path) as data:
-        key = str(data["key"])
-    arrays = {k: np.array(v) for k, v in pf.file_arrays(tpf.PLAN_FORMAT, first, key).items()}
-    change(arrays)
-    if digest_anew:
-        arrays["digest"] = np.array(pf.content_digest(arrays))
-    with open(path, "wb") as f:
-        np.savez(f, **arrays)
-
-
-def set_at(name, index, value):
-    def change(arrays):
-        arrays[name][index] = value
-    return change
+    rewritten_as(path, tpf.PLAN_FORMAT, first, change, digest_anew)
 
 
 def near_cut(arrays):                  # one near kernel fewer, the tables cut to match

@@ -254,7 +254,11 @@ def channel_extremes(e):
 
 def channel_peaks(e):
     """max|E| per channel of an (H, W, C) map, float64 (``channel_extremes``)."""
-    lo, hi = channel_extremes(e)
+    return peaks_of(*channel_extremes(e))
+
+
+def peaks_of(lo, hi):
+    """max|E| per channel, float64, of its extremes (``channel_extremes``)."""
     return np.maximum(np.abs(lo.astype(np.float64)), np.abs(hi.astype(np.float64)))
 
 

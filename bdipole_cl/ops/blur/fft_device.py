@@ -69,6 +69,12 @@ class ChannelStats:
         return max(abs(self.low), abs(self.high)) if self.low <= self.high else 0.0
 
 
+def floor_peaks(stats, peaks=None) -> np.ndarray:
+    """The per channel max|E| float32's floor is relative to: ``peaks`` (the image's, for a
+    band of it) where given, else the band's own (its ``stats``)."""
+    return np.array([st.peak for st in stats]) if peaks is None else peaks
+
+
 def image_stats(kernels, e_dev: cla.Array, wait_for=None) -> list:
     """ChannelStats of each channel of the (H, W, C) float32 irradiance ``e_dev``."""
     rt = kernels.rt

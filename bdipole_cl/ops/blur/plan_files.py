@@ -68,6 +68,17 @@ def axes_of(arrays, make_axis) -> tuple:
                  for i, (o, s, _) in enumerate(arrays["axes"]))
 
 
+def kernels_array(kernels, radius) -> np.ndarray:
+    """A plan's (K+1)^2 kernel quadrants as one array (none: 0 of that shape)."""
+    k = radius + 1
+    return np.stack(kernels) if kernels else np.zeros((0, k, k))
+
+
+def scalars_array(plan, names) -> np.ndarray:
+    """The plan's fields ``names`` as the ``scalars`` array (``scalars_of`` reads it)."""
+    return np.array([float(getattr(plan, name)) for name in names])
+
+
 def scalars_of(arrays, names) -> dict:
     """The ``scalars`` array as {name: float}, ValueError where it is not one finite value a
     name."""
@@ -129,6 +140,16 @@ def stored_within(path: Path, max_bytes: int) -> bool:
     return (len(infos) <= MAX_MEMBERS and all(i.compress_type == zipfile.ZIP_STORED
                                               for i in infos)
             and sum(i.file_size for i in infos) <= max_bytes)
+
+
+def kept_plan(fmt: PlanFormat, key: str, whole, make):
+    """The plan of ``key``: its file's where that is a whole plan (``read_plan``), else
+    ``make()``'s, written for the next process (``write_plan``)."""
+    plan = read_plan(fmt, key, whole)
+    if plan is None:
+        plan = make()
+        write_plan(fmt, key, plan, whole)
+    return plan
 
 
 def read_plan(fmt: PlanFormat, key: str, whole):

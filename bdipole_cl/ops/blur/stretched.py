@@ -22,7 +22,7 @@ from ...signals import check_stop
 from ..bands import band_rows
 from ..widths import fft_engine
 from .dispatch import gather_costs
-from .fft import (FFT32_ROUNDOFF, PIECE_ROWS, channel_extremes, in_row_blocks,
+from .fft import (FFT32_ROUNDOFF, PIECE_ROWS, channel_extremes, in_row_blocks, peaks_of,
                   summed_roundoff)
 from .near_field import near_cells
 from .params import MapRanges, checked_irradiance, texel_parameters
@@ -356,7 +356,7 @@ class StretchedBlurPlan:
             raise ValueError(f"irradiance has shape {e.shape}; the plan is for {self.shape}")
         rt = self.runtime = get_runtime(self.runtime)
         lo, hi = channel_extremes(e)              # one pass: the peaks and the signs
-        peaks = np.maximum(np.abs(lo.astype(np.float64)), np.abs(hi.astype(np.float64)))
+        peaks = peaks_of(lo, hi)
         shifts = peak_exponents(e, peaks)
         scaled = np.ldexp(e, -shifts).astype(np.float32) if shifts.any() else e
         out = np.zeros(e.shape, np.float32)

@@ -29,8 +29,8 @@ import numpy as np
 from ...caches import ByteCache
 from ...physics import reference as ref
 from .near_field import DEFAULT_GATHER_COSTS, GatherCosts, near_field_basis, with_near_classes
-from .plan_files import (STRETCHED_FOLDER, PlanFormat, axes_arrays, axes_of, read_plan,
-                         scalars_of, write_plan)
+from .plan_files import (STRETCHED_FOLDER, PlanFormat, axes_arrays, axes_of, kept_plan,
+                         kernels_array, scalars_array, scalars_of)
 from .textured_plan import (LATTICE_STEPS, RD_MAX, RD_MIN, REFINE, Axis, lagrange4, logit,
                             sigmoid, training_kernels)
 from .weights import quadrant_sum, quadrant_weights, truncation_radius, unfold_quadrant
@@ -347,11 +347,9 @@ FILE_SCALARS = ("radius", "eta", "fit_error", "interp_error", "truncation_tol", 
 
 def plan_file_arrays(plan: StretchedPlan) -> dict:
     """A StretchedPlan as the arrays of its file (``plan_files``)."""
-    k = plan.radius + 1
     return {"fine": plan.fine, "near_values": plan.near_values,
-            "kernels": (np.stack(plan.kernels) if plan.kernels else np.zeros((0, k, k))),
-            "scalars": np.array([float(getattr(plan, f)) for f in FILE_SCALARS]),
-            **axes_arrays(plan.axes)}
+            "kernels": kernels_array(plan.kernels, plan.radius),
+            "scalars": scalars_array(plan, FILE_SCALARS), **axes_arrays(plan.axes)}
 
 
 def plan_of_file_arrays(arrays) -> StretchedPlan:
@@ -376,13 +374,9 @@ def stretched_plan(ranges, eta, tol, exact=False, max_radius=2048,
     key = repr(("stretched", tuple((float(lo), float(hi)) for lo, hi in ranges), float(eta),
                 float(tol), bool(exact), int(max_radius), costs, NEAR_RADII))
 
-    def whole(plan):
-        return plan_is_whole(plan, ranges, eta, tol, exact)
-    plan = read_plan(PLAN_FORMAT, key, whole)
-    if plan is None:
-        plan = make_stretched_plan(ranges, eta, tol, exact, max_radius, costs)
-        write_plan(PLAN_FORMAT, key, plan, whole)
-    return plan
+    return kept_plan(PLAN_FORMAT, key,
+                     lambda plan: plan_is_whole(plan, ranges, eta, tol, exact),
+                     lambda: make_stretched_plan(ranges, eta, tol, exact, max_radius, costs))
 
 
 def plan_is_whole(plan: StretchedPlan, ranges, eta, tol, exact=False) -> bool:

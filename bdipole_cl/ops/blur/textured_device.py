@@ -24,7 +24,7 @@ from ...signals import check_stop
 from .dispatch import DeviceBlur, device_weight_planes, node_records, textured_kernel
 from .fft import (FFT32_ROUNDOFF_ULPS, HDR_UNIT_ABOVE, ROUNDOFF_ULPS, cached_spectra,
                   image_fft_dtype, settle_floor)
-from .fft_device import device_fft_shape, device_transforms, image_stats
+from .fft_device import device_fft_shape, device_transforms, floor_peaks, image_stats
 from .planning import PEAK_RANGE, BlurInfo, signed_irradiance_bound, with_output_floor
 
 #: a texture-varying plan's arrays on the device (Rd and ld maps, node records, basis
@@ -208,7 +208,6 @@ def blur_band_textured_device(bplan, e_dev, rows, method, on_nonfinite, peaks=No
                                                bplan.tol)
     info = BlurInfo(tuple(chans))
     if any(s and st.peak < 2.0 ** -PEAK_RANGE for s, st in zip(shifts, stats)):
-        info = with_output_floor(info, np.array([st.peak for st in stats])
-                                 if peaks is None else peaks, bplan.channel_rd_floor(),
+        info = with_output_floor(info, floor_peaks(stats, peaks), bplan.channel_rd_floor(),
                                  bplan.tol)
     return out_dev, info

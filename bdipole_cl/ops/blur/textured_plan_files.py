@@ -9,8 +9,8 @@ import numpy as np
 
 from . import near_field
 from .near_field import DEFAULT_GATHER_COSTS, GatherCosts, near_classes
-from .plan_files import (TEXTURED_FOLDER, PlanFormat, axes_arrays, axes_of, read_plan,
-                         scalars_of, write_plan)
+from .plan_files import (TEXTURED_FOLDER, PlanFormat, axes_arrays, axes_of, kept_plan,
+                         kernels_array, scalars_array, scalars_of)
 from .textured_plan import (PLAN_CACHE, Axis, TexturedPlan, common_radius, fine_table,
                             lattice_axes, make_plan_for_ranges)
 
@@ -20,11 +20,9 @@ FILE_SCALARS = ("radius", "eta", "fit_error", "interp_error", "truncation_tol", 
 
 def plan_file_arrays(plan: TexturedPlan) -> dict:
     """An eigen-kernel ("svd") TexturedPlan as the arrays of its file."""
-    k = plan.radius + 1
     return {"table": plan.table, "fine": plan.fine, "near_values": plan.near_values,
-            "kernels": (np.stack(plan.kernels) if plan.kernels else np.zeros((0, k, k))),
-            "scalars": np.array([float(getattr(plan, f)) for f in FILE_SCALARS]),
-            **axes_arrays(plan.axes)}
+            "kernels": kernels_array(plan.kernels, plan.radius),
+            "scalars": scalars_array(plan, FILE_SCALARS), **axes_arrays(plan.axes)}
 
 
 def plan_of_file_arrays(arrays) -> TexturedPlan:
@@ -77,11 +75,7 @@ def plan_for_ranges(rd_range, ld_range, eta, tol, exact=False, basis="svd", max_
                 tuple(float(t) for t in ld_range), float(eta), float(tol), bool(exact),
                 int(max_radius), costs, tuple(near_field.NEAR_RADII)))
 
-    def whole(plan):
-        return plan_is_whole(plan, rd_range, ld_range, eta, tol, exact)
-    plan = read_plan(PLAN_FORMAT, key, whole)
-    if plan is None:
-        plan = make_plan_for_ranges(rd_range, ld_range, eta, tol, exact, basis, max_radius,
-                                    costs)
-        write_plan(PLAN_FORMAT, key, plan, whole)
-    return plan
+    return kept_plan(PLAN_FORMAT, key,
+                     lambda plan: plan_is_whole(plan, rd_range, ld_range, eta, tol, exact),
+                     lambda: make_plan_for_ranges(rd_range, ld_range, eta, tol, exact, basis,
+                                                  max_radius, costs))

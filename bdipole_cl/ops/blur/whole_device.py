@@ -17,8 +17,8 @@ from ...signals import check_stop
 from ..bands import band_rows, bands, gather_rows
 from .dispatch import DeviceBlur
 from .fft import ROUNDOFF_ULPS, channel_peaks, settle_floor
-from .fft_device import (device_fft_dtype, device_fft_shape, fft_blur_device, image_stats,
-                         peak_shift)
+from .fft_device import (device_fft_dtype, device_fft_shape, fft_blur_device, floor_peaks,
+                         image_stats, peak_shift)
 from .fit import fit_gaussians
 from .params import checked_irradiance, float32_irradiance, irradiance_array
 from .textured import textured_method
@@ -125,8 +125,8 @@ def blur_band_device(plan, e_dev, on_nonfinite, rows=None, peaks=None):
                                     plan.exact, kernels, precision)
     out_dev.add_event(event)
     if any(shifts):
-        info = with_output_floor(info, np.array([st.peak for st in stats])
-                                 if peaks is None else peaks, plan.channel_rd_floor(), plan.tol)
+        info = with_output_floor(info, floor_peaks(stats, peaks), plan.channel_rd_floor(),
+                                 plan.tol)
     return out_dev, info
 
 

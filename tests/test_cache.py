@@ -5,6 +5,7 @@ listed folder (a new cache in the code, unlisted, fails it)."""
 import os
 import subprocess
 import sys
+import tempfile
 from pathlib import Path
 
 import pytest
@@ -195,7 +196,10 @@ def test_every_entry_a_writer_makes_is_listed_and_cleared(tmp_path):
     done = subprocess.run([sys.executable, "-c", WRITERS, str(work), str(ROOT / "tests")],
                           cwd=work, env=env, capture_output=True, text=True, timeout=600)
     assert done.returncode == 0, done.stderr[-3000:]
-    env_here = {"BDIPOLE_CL_CACHE_DIR": str(root)}
+    # the temporary folder too: `clear` empties the registration's fallback there, which the
+    # other test processes (and their Dask workers) may be using
+    (tmp_path / "tmp").mkdir()
+    env_here = {"BDIPOLE_CL_CACHE_DIR": str(root), "TMPDIR": str(tmp_path / "tmp")}
     files = [p for p in root.rglob("*") if p.is_file() or p.is_symlink()]
     kinds = {"icd-": "registration", "probes": "probe", "choice-": "calibration",
              "usdz": "usdz", "transport": "curves", "textured-plans": "textured plans"}
@@ -205,6 +209,7 @@ def test_every_entry_a_writer_makes_is_listed_and_cleared(tmp_path):
         str(p.relative_to(root)) for p in files)
     old = {k: os.environ.get(k) for k in env_here}
     os.environ.update(env_here)
+    tempfile.tempdir = None                     # gettempdir() reads TMPDIR again
     try:
         entries = [e.path for e in cache.own_entries()]
         unlisted = [p for p in files if not any(p == e or e in p.parents for e in entries)]
@@ -219,3 +224,4 @@ def test_every_entry_a_writer_makes_is_listed_and_cleared(tmp_path):
                 os.environ.pop(k, None)
             else:
                 os.environ[k] = v
+        tempfile.tempdir = None

@@ -207,6 +207,43 @@ def test_intel_runtime_found_without_any_variable_and_user_vendors_kept(tmp_path
     got = _fresh_process({icd.SWITCH: "0", "OCL_ICD_VENDORS": str(user)}, LISTING)
     assert got["vendors"] == str(user) and not any("Intel" in p for p in got["platforms"])
 
+
+#: a process whose registration folder is removed before its first platform query (another
+#: shell's `bdipole-cl cache --clear`), then a child of it, as Dask's workers and the probes are
+CLEARED = """
+import json, os, shutil, subprocess, sys
+import bdipole_cl.device as d
+shutil.rmtree(os.environ["OCL_ICD_VENDORS"])
+child = subprocess.run([sys.executable, "-c", sys.argv[1]], capture_output=True, text=True)
+import pyopencl as cl
+print(json.dumps({"platforms": [p.name for p in cl.get_platforms()],
+                  "child": json.loads(child.stdout.strip().splitlines()[-1])}))
+"""
+
+
+@pytest.mark.skipif(icd.find_intel_runtime() is None,
+                    reason="intel-opencl-rt is not installed here (not an x86-64 Linux env)")
+def test_a_registration_removed_while_in_use_is_written_again(tmp_path):
+    """ocl-icd reads a missing folder as one library and then finds no platform at all (every
+    Dask worker of a CI run failed so, after a test cleared the shared fallback folder). The
+    process writes its folder again before its first query; its children register from the
+    user's own setting, not from the folder they inherited."""
+    user = tmp_path / "vendors"
+    user.mkdir()
+    (user / "mine.icd").write_text("/nonexistent/libmine.so\n")
+    env = {k: v for k, v in os.environ.items()
+           if k not in ("OCL_ICD_VENDORS", "PYOPENCL_CTX", icd.SWITCH, icd.BEFORE)}
+    env.update(OCL_ICD_VENDORS=str(user), BDIPOLE_CL_CACHE_DIR=str(tmp_path / "cache"))
+    out = subprocess.run([sys.executable, "-c", CLEARED, LISTING], env=env,
+                         capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr[-3000:]
+    got = json.loads(out.stdout.strip().splitlines()[-1])
+    assert any("Intel" in p for p in got["platforms"]), got
+    child = got["child"]
+    assert any("Intel" in p for p in child["platforms"]), child
+    held = sorted(p.name for p in Path(child["vendors"]).iterdir())
+    assert held == ["bdipole_cl-intel-cpu.icd", "mine.icd"], held
+
 # }}}
 
 

@@ -23,16 +23,12 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from ..caches import CACHE_DIR_VARIABLE, user_cache_dir
-from ..device.icd import vendors_roots
+from ..device.icd import ICD_NAME, vendors_roots
 from ..device.isolation import BUILDS_NAME, VERDICT_FOLDER, VERDICT_NAME, lock_in_use
 from ..io.usdz import EXTRACTED_FOLDER, EXTRACTED_NAME
 from ..methods.choice import CALIBRATION_NAME
 from ..ops.blur.plan_files import PLANS_NAME, STRETCHED_FOLDER, TEXTURED_FOLDER
 from ..physics.transport_tables import CURVES_FOLDER, CURVES_NAME
-
-#: a runtime registration's folder: ``icd-`` and 16 hex digits (``icd.vendors_directory``)
-ICD_NAME = re.compile(r"^icd-[0-9a-f]{16}$")
-
 
 @dataclass(frozen=True)
 class OwnKind:

@@ -16,12 +16,19 @@ without any variable set by the user:
 It must run before the first platform query of the process (``bdipole_cl.device`` calls it on
 import, before importing pyopencl). ``PYOPENCL_CTX`` is untouched and still selects among all.
 Set ``BDIPOLE_CL_ENV_RUNTIMES=0`` to leave the loader exactly as the user configured it.
+
+The folder may be removed while processes use it (``bdipole-cl cache --clear`` in another
+shell). ocl-icd reads ``OCL_ICD_VENDORS`` at the first platform query and takes a path that is
+not a folder for one library, which hides every runtime, PoCL's too. So ``ensure_registered``
+writes the folder again just before that query, and the processes this one starts (Dask
+workers, probes) register again from the user's own setting, which ``BEFORE`` carries.
 """
 from __future__ import annotations
 
 import ctypes
 import hashlib
 import os
+import re
 import site
 import sys
 import tempfile
@@ -36,6 +43,10 @@ INTEL_ICD_LIBRARY = "libintelocl.so"
 INTEL_SUPPORT_LIBRARIES = ("libimf.so", "libintlc.so.5", "libirng.so", "libsvml.so")
 SYSTEM_VENDORS = Path("/etc/OpenCL/vendors")
 SWITCH = "BDIPOLE_CL_ENV_RUNTIMES"
+#: the user's own ``OCL_ICD_VENDORS`` ('' where unset), set beside a registration
+BEFORE = "BDIPOLE_CL_OCL_ICD_VENDORS_BEFORE"
+#: a registration's folder: ``icd-`` and 16 hex digits (``vendors_directory``)
+ICD_NAME = re.compile(r"^icd-[0-9a-f]{16}$")
 
 
 @dataclass(frozen=True)
@@ -49,6 +60,8 @@ class EnvironmentRuntime:
 
 
 _registered: list[EnvironmentRuntime] | None = None
+#: this process's registration: the folder ``OCL_ICD_VENDORS`` names and what it holds
+_registration: tuple[Path, dict[str, str]] | None = None
 
 
 def environment_lib_dirs() -> list[Path]:
@@ -94,6 +107,16 @@ def existing_icd_entries(vendors: str | None) -> dict[str, str]:
     return entries
 
 
+def users_vendors() -> str | None:
+    """``OCL_ICD_VENDORS`` as the user set it. Where it names a registration folder inherited
+    from a parent process, the value that parent found (``BEFORE``): the folder may be gone,
+    and registering from it would nest one registration in another."""
+    current = os.environ.get("OCL_ICD_VENDORS")
+    if current and BEFORE in os.environ and ICD_NAME.match(Path(current).name):
+        return os.environ[BEFORE] or None
+    return current
+
+
 def vendors_roots() -> tuple[Path, Path]:
     """Where vendors directories (``icd-*``) are written: the user's cache, else a folder of
     this user's in the temporary directory."""
@@ -135,7 +158,7 @@ def _preload(lib_dir: Path) -> list[str]:
 
 def register_environment_runtimes() -> list[EnvironmentRuntime]:
     """Register the environment's OpenCL runtimes with the ICD loader (once per process)."""
-    global _registered
+    global _registered, _registration
     if _registered is not None:
         return _registered
     _registered = []
@@ -144,7 +167,8 @@ def register_environment_runtimes() -> list[EnvironmentRuntime]:
     library = find_intel_runtime()
     if library is None:
         return _registered
-    entries = existing_icd_entries(os.environ.get("OCL_ICD_VENDORS"))
+    before = users_vendors()
+    entries = existing_icd_entries(before)
     if any(Path(c.strip()).name == INTEL_ICD_LIBRARY for c in entries.values()):
         _registered.append(EnvironmentRuntime("Intel CPU runtime", library, False,
                                               "already registered by the system"))
@@ -152,10 +176,29 @@ def register_environment_runtimes() -> list[EnvironmentRuntime]:
     missing = _preload(library.parent)
     entries["bdipole_cl-intel-cpu.icd"] = f"{library}\n"
     try:
-        os.environ["OCL_ICD_VENDORS"] = str(vendors_directory(entries))
+        directory = vendors_directory(entries)
     except OSError as exc:
         _registered.append(EnvironmentRuntime("Intel CPU runtime", library, False, str(exc)))
         return _registered
+    _registration = directory, entries
+    os.environ[BEFORE] = before or ""
+    os.environ["OCL_ICD_VENDORS"] = str(directory)
     note = f"support libraries not found: {', '.join(missing)}" if missing else ""
     _registered.append(EnvironmentRuntime("Intel CPU runtime", library, True, note))
     return _registered
+
+
+def ensure_registered() -> None:
+    """Write this process's registration folder again where it was removed since (called just
+    before a platform query; the loader reads the folder at the first one)."""
+    if _registration is None:
+        return
+    directory, entries = _registration
+    if os.environ.get("OCL_ICD_VENDORS") != str(directory):
+        return                                  # the user pointed the loader elsewhere
+    if all((directory / name).is_file() for name in entries):
+        return
+    try:
+        os.environ["OCL_ICD_VENDORS"] = str(vendors_directory(entries))
+    except OSError:
+        pass                        # no writable folder: the query reports what it finds

@@ -280,6 +280,7 @@ def runtime_at(index: str) -> Runtime:
 
 def _candidates():
     """(index, platform, device) for every device the loader sees, in its order."""
+    icd.ensure_registered()
     out = []
     for p_i, platform in enumerate(cl.get_platforms()):
         try:
@@ -348,6 +349,7 @@ def _lazy_states():
 
 
 def _from_pyopencl_ctx(spec: str) -> Runtime:
+    icd.ensure_registered()
     try:
         ctx = cl.create_some_context(interactive=False)
     except Exception as exc:  # pyopencl raises several types here

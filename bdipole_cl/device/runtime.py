@@ -30,11 +30,12 @@ import warnings
 from dataclasses import dataclass, field, replace
 
 
-from . import icd, isolation
+from . import cache_home, icd, isolation
 from .isolation import TARGET_FEATURE_VARIABLE
 from .numerics import DEVICE_NUMERICS, NUMERICS, Numerics
 from .sources import kernels_digest
 
+cache_home.ensure_writable_cache_home()   # before pyopencl's import and the registration
 icd.register_environment_runtimes()   # before pyopencl's first platform query
 
 try:  # pocl-binary-distribution registers its ICD on import (if pyopencl does not find it)

@@ -22,12 +22,17 @@ _caches: list = []
 CACHE_DIR_VARIABLE = "BDIPOLE_CL_CACHE_DIR"
 
 
+def cache_home() -> Path:
+    """$XDG_CACHE_HOME, else ~/.cache (as pyopencl, pytools and bdipole_cl read it)."""
+    return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache")
+
+
 def user_cache_dir() -> Path:
     """$BDIPOLE_CL_CACHE_DIR, $XDG_CACHE_HOME/bdipole_cl or ~/.cache/bdipole_cl."""
     named = os.environ.get(CACHE_DIR_VARIABLE)
     if named:
         return Path(named)
-    return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "bdipole_cl"
+    return cache_home() / "bdipole_cl"
 
 
 def nbytes_of(value) -> int:

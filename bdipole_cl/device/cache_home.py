@@ -15,14 +15,10 @@ import tempfile
 import warnings
 from pathlib import Path
 
+from ..caches import cache_home
+
 #: the fallback's name in the temporary folder, beside the runtime registration's fallback
 FALLBACK_NAME = "bdipole_cl-{uid}-cache"
-
-
-def cache_home() -> Path:
-    """$XDG_CACHE_HOME, else ~/.cache (as pyopencl, pytools and bdipole_cl read it)."""
-    named = os.environ.get("XDG_CACHE_HOME")
-    return Path(named) if named else Path(os.path.expanduser("~")) / ".cache"
 
 
 def writable(folder: Path) -> bool:

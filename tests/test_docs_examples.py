@@ -157,17 +157,56 @@ def commands(example: Example) -> list[list[str]]:
     return out
 
 
+def own_cache_folders(folder: Path, monkeypatch):
+    """bdipole_cl's cache folders moved into ``folder``: an example of ``cache --clear`` must
+    not clear the test run's (it removed the runtime registration and the probes' verdicts
+    that the other test processes and their Dask workers were using)."""
+    monkeypatch.setenv("BDIPOLE_CL_CACHE_DIR", str(folder / "cache"))
+    (folder / "tmp").mkdir()
+    monkeypatch.setenv("TMPDIR", str(folder / "tmp"))
+    monkeypatch.setattr("tempfile.tempdir", None)      # gettempdir() reads TMPDIR again
+
+
+def run_sh_example(example: Example, folder: Path, monkeypatch, capsys):
+    argvs = commands(example)
+    if any(argv[0] == "cache" for argv in argvs):
+        own_cache_folders(folder, monkeypatch)
+    for argv in argvs:
+        rc = cli_main(argv)
+        captured = capsys.readouterr()
+        assert rc == 0, (example.id, argv, rc, captured.err[-1500:])
+
+
 @pytest.mark.parametrize("example", RUNNABLE, ids=[e.id for e in RUNNABLE])
-def test_example_runs(example, in_example_folder, capsys):
+def test_example_runs(example, in_example_folder, monkeypatch, capsys):
     if example.skip:
         pytest.skip(example.skip)
     if example.lang == "python":
         exec(compile(example.code, example.id, "exec"), {"__name__": "__example__"})
         return
-    for argv in commands(example):
-        rc = cli_main(argv)
-        captured = capsys.readouterr()
-        assert rc == 0, (example.id, argv, rc, captured.err[-1500:])
+    run_sh_example(example, in_example_folder, monkeypatch, capsys)
+
+
+def test_an_example_clearing_the_cache_clears_a_cache_of_its_own(tmp_path, monkeypatch,
+                                                                 capsys):
+    """The run's cache folder (here a stand-in with a verdict and a registration) survives
+    the examples that clear a cache."""
+    run_cache = tmp_path / "run-cache"
+    kept = [run_cache / "probes" / "0123456789abcdef0123.json",
+            run_cache / "icd-0123456789abcdef" / "bdipole_cl-intel-cpu.icd"]
+    for path in kept:
+        path.parent.mkdir(parents=True)
+        path.write_text("{}")
+    monkeypatch.setenv("BDIPOLE_CL_CACHE_DIR", str(run_cache))
+    clearing = [e for e in RUNNABLE if e.lang == "sh" and not e.skip
+                and any(argv[:2] == ["cache", "--clear"] for argv in commands(e))]
+    assert clearing, "no example clears the cache: this test has nothing to check"
+    for example in clearing:
+        work = tmp_path / example.id.replace("/", "_").replace(":", "_")
+        work.mkdir()
+        with monkeypatch.context() as inner:
+            run_sh_example(example, work, inner, capsys)
+    assert all(path.is_file() for path in kept)
 
 
 def test_the_demos_next_steps_run(in_example_folder, capsys):

@@ -225,3 +225,17 @@ def test_every_entry_a_writer_makes_is_listed_and_cleared(tmp_path):
             else:
                 os.environ[k] = v
         tempfile.tempdir = None
+
+
+def test_the_cache_home_fallback_is_listed_and_cleared(home, capsys):
+    """A process whose home could not be written kept its caches in $TMPDIR's fallback
+    (``device.cache_home``); once the home is writable again, ``cache --info`` still shows
+    that folder and ``--clear`` removes bdipole_cl's entries there."""
+    from bdipole_cl.device.cache_home import FALLBACK_NAME
+    fallback = Path(tempfile.gettempdir()) / FALLBACK_NAME.format(uid=os.getuid())
+    make_own_entries(fallback / "bdipole_cl")
+    assert cli_main(["cache", "--info"]) == 0
+    assert str(fallback) in capsys.readouterr().out
+    assert cli_main(["cache", "--clear"]) == 0
+    assert not (fallback / "bdipole_cl" / "probes" / "0123456789abcdef0123.json").exists()
+    assert not (fallback / "bdipole_cl" / "usdz" / "0123456789abcdef0123").exists()

@@ -6,6 +6,8 @@ import os
 import subprocess
 import sys
 
+import pytest
+
 from bdipole_cl.caches import user_cache_dir
 from bdipole_cl.device import cache_home
 
@@ -30,6 +32,69 @@ def test_writable_folder_or_not(tmp_path):
     assert not cache_home.writable(tmp_path / "file" / ".cache")
 
 
+def test_a_fallback_must_be_private(tmp_path):
+    """Another user's folder at the fallback's known name in /tmp would have its .icd files
+    loaded and its pickles read: only a folder of this user's that no one else can write."""
+    mine = tmp_path / "mine"
+    assert cache_home.private_folder(mine) and (mine.stat().st_mode & 0o777) == 0o700
+    shared = tmp_path / "shared"
+    shared.mkdir()
+    shared.chmod(0o777)
+    assert not cache_home.private_folder(shared)
+    link = tmp_path / "link"
+    link.symlink_to(mine)
+    assert not cache_home.private(link)
+    if os.getuid() == 0:                # root can give a folder away: someone else's
+        other = tmp_path / "other"
+        other.mkdir(mode=0o700)
+        os.chown(other, 65534, 65534)
+        assert not cache_home.private_folder(other)
+
+
+@pytest.fixture
+def unwritable_home(tmp_path, monkeypatch):
+    home = tmp_path / "home"
+    home.write_text("a file: no folder can be made in it")
+    monkeypatch.setenv("HOME", str(home))
+    for name in ("XDG_CACHE_HOME", cache_home.NO_CACHE, "BDIPOLE_CL_CACHE_DIR"):
+        monkeypatch.setenv(name, "")      # so that the value the code sets is undone too
+        monkeypatch.delenv(name)
+    monkeypatch.setattr(cache_home, "_note", None)
+    return home
+
+
+def test_without_a_private_fallback_pyopencls_caches_are_turned_off(unwritable_home, tmp_path,
+                                                                     monkeypatch):
+    tmp = tmp_path / "tmp"
+    planted = tmp / cache_home.FALLBACK_NAME.format(uid=os.getuid())
+    planted.mkdir(parents=True)
+    planted.chmod(0o777)
+    monkeypatch.setenv("TMPDIR", str(tmp))
+    monkeypatch.setattr("tempfile.tempdir", None)
+    cache_home.ensure_writable_cache_home()
+    assert os.environ[cache_home.NO_CACHE] == "1" and "XDG_CACHE_HOME" not in os.environ
+    with pytest.warns(RuntimeWarning, match="built anew in each process"):
+        cache_home.say_once()
+    cache_home.say_once()                # once
+
+
+def test_no_temporary_folder_at_all_is_no_crash(unwritable_home, monkeypatch):
+    def none():
+        raise FileNotFoundError("No usable temporary directory found")
+    monkeypatch.setattr("tempfile.gettempdir", none)
+    cache_home.ensure_writable_cache_home()
+    assert os.environ[cache_home.NO_CACHE] == "1"
+
+
+def test_the_note_names_only_the_caches_it_moved(unwritable_home, tmp_path, monkeypatch):
+    monkeypatch.setenv("TMPDIR", str(tmp_path / "tmp"))
+    (tmp_path / "tmp").mkdir()
+    monkeypatch.setattr("tempfile.tempdir", None)
+    monkeypatch.setenv("BDIPOLE_CL_CACHE_DIR", str(tmp_path / "own"))
+    cache_home.ensure_writable_cache_home()
+    assert "bdipole_cl's" not in cache_home._note, cache_home._note
+
+
 def test_a_home_that_cannot_be_written_still_builds_and_runs_kernels(tmp_path):
     home = tmp_path / "home"
     home.write_text("a file: no folder can be made in it")
@@ -46,3 +111,12 @@ def test_a_home_that_cannot_be_written_still_builds_and_runs_kernels(tmp_path):
     fallback = tmp / cache_home.FALLBACK_NAME.format(uid=os.getuid())
     assert len(got["warnings"]) == 1 and str(fallback) in got["warnings"][0], got
     assert (fallback / "pyopencl").is_dir() or (fallback / "pytools").is_dir()
+    # the command says it in one line, as its other warnings (it was Python's two lines,
+    # said at import before the command set its format up)
+    out = subprocess.run([sys.executable, "-m", "bdipole_cl.apps.cli", "devices"], env=env,
+                         capture_output=True, text=True, timeout=600)
+    assert out.returncode == 0, out.stderr[-3000:]
+    said = [ln for ln in out.stderr.splitlines() if ln.strip()]
+    assert said == [f"bdipole-cl: warning: RuntimeWarning: the cache folder {home}/.cache cannot be written: "
+                    f"the OpenCL compilers' caches are kept in {fallback} (set XDG_CACHE_HOME "
+                    f"to keep them elsewhere)"], out.stderr

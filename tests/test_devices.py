@@ -174,12 +174,12 @@ def test_find_intel_runtime_in_a_lib_dir(tmp_path):
     assert icd.find_intel_runtime([tmp_path]) == (tmp_path / icd.INTEL_ICD_LIBRARY).resolve()
 
 
-def _fresh_process(env_updates, code):
+def _fresh_process(env_updates, code, *args):
     env = {k: v for k, v in os.environ.items()
-           if k not in ("OCL_ICD_VENDORS", "PYOPENCL_CTX", icd.SWITCH)}
+           if k not in ("OCL_ICD_VENDORS", "PYOPENCL_CTX", icd.SWITCH, icd.BEFORE)}
     env.update(env_updates)
-    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
-                         timeout=300)
+    out = subprocess.run([sys.executable, "-c", code, *args], env=env, capture_output=True,
+                         text=True, timeout=300)
     assert out.returncode == 0, out.stderr
     return json.loads(out.stdout.strip().splitlines()[-1])
 
@@ -206,6 +206,49 @@ def test_intel_runtime_found_without_any_variable_and_user_vendors_kept(tmp_path
     # and the switch leaves the loader exactly as configured
     got = _fresh_process({icd.SWITCH: "0", "OCL_ICD_VENDORS": str(user)}, LISTING)
     assert got["vendors"] == str(user) and not any("Intel" in p for p in got["platforms"])
+
+
+
+def test_a_temporary_root_not_private_is_passed_over(tmp_path, monkeypatch):
+    """The registration's fallback in the temporary folder has a known name: one another user
+    made first (here: writable by all) would have its .icd files loaded, so it is not used."""
+    (tmp_path / "file").write_text("x")
+    monkeypatch.setenv("BDIPOLE_CL_CACHE_DIR", str(tmp_path / "file"))   # cannot be written
+    monkeypatch.setenv("TMPDIR", str(tmp_path))
+    monkeypatch.setattr("tempfile.tempdir", None)
+    fallback = tmp_path / f"bdipole_cl-{os.getuid()}"
+    fallback.mkdir()
+    fallback.chmod(0o777)
+    with pytest.raises(OSError, match="no writable directory"):
+        icd.vendors_directory({"a.icd": "/opt/a/libA.so\n"})
+    fallback.chmod(0o700)
+    assert icd.vendors_directory({"a.icd": "/opt/a/libA.so\n"}).parent == fallback
+
+
+SWITCHED_OFF_CHILD = """
+import json, os, subprocess, sys
+import bdipole_cl.device
+env = dict(os.environ, BDIPOLE_CL_ENV_RUNTIMES="0")
+child = subprocess.run([sys.executable, "-c", sys.argv[1]], env=env, capture_output=True,
+                       text=True)
+print(child.stdout.strip().splitlines()[-1])
+"""
+
+
+@pytest.mark.skipif(icd.find_intel_runtime() is None,
+                    reason="intel-opencl-rt is not installed here (not an x86-64 Linux env)")
+def test_the_switch_off_in_a_child_is_the_users_own_loader(tmp_path):
+    """A process started with BDIPOLE_CL_ENV_RUNTIMES=0 by one that registered sees the
+    loader as the user set it up, not the registration it inherited."""
+    user = tmp_path / "vendors"
+    user.mkdir()
+    (user / "mine.icd").write_text("/nonexistent/libmine.so\n")
+    got = _fresh_process({"OCL_ICD_VENDORS": str(user), "BDIPOLE_CL_CACHE_DIR":
+                          str(tmp_path / "cache")}, SWITCHED_OFF_CHILD, LISTING)
+    assert got["vendors"] == str(user) and not any("Intel" in p for p in got["platforms"])
+    got = _fresh_process({"BDIPOLE_CL_CACHE_DIR": str(tmp_path / "cache")},
+                         SWITCHED_OFF_CHILD, LISTING)
+    assert got["vendors"] is None and not any("Intel" in p for p in got["platforms"]), got
 
 
 #: a process whose registration folder is removed before its first platform query (another

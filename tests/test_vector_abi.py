@@ -345,6 +345,19 @@ def test_a_kernel_without_a_narrower_width_is_refused_in_one_line(monkeypatch, v
     assert rc != 0 and not (tmp_path / "out.exr").exists()
 
 
+def test_a_python_error_in_the_guarded_build_is_no_crash(monkeypatch, verdict_kept):
+    """A Python error in the guarded build's child (pyopencl's cache folder unwritable raised
+    a KeyError there) is no crash of the runtime: nothing is recorded as one, and the
+    program is built here (it was refused as "crashed" until the cache was cleared)."""
+    rt = verdict_kept
+    monkeypatch.setenv(isolation.FAULT_VARIABLE, "build:BD_TILE=raise:no cache folder")
+    e = np.zeros((40, 40, 1), np.float32)
+    e[20, 20] = 1
+    assert bdipole_cl.blur(e, albedo=0.6, mfp=2.0, method="direct", device=rt).sum() > 0.5
+    folder = guard.records_dir(rt.device, kernels_digest())
+    assert not [p for p in folder.iterdir() if p.suffix == ".bad"]
+
+
 def test_cache_clear_removes_the_guarded_builds_records(verdict_kept):
     from bdipole_cl.apps.cache import clear, own_entries
     rt = verdict_kept

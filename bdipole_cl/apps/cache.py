@@ -23,6 +23,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from ..caches import CACHE_DIR_VARIABLE, user_cache_dir
+from ..device.cache_home import FALLBACK_NAME
 from ..device.icd import ICD_NAME, vendors_roots
 from ..device.isolation import BUILDS_NAME, VERDICT_FOLDER, VERDICT_NAME, lock_in_use
 from ..io.usdz import EXTRACTED_FOLDER, EXTRACTED_NAME
@@ -130,6 +131,8 @@ def cache_folders() -> list[CacheFolder]:
                     f"{CACHE_DIR_VARIABLE} (else XDG_CACHE_HOME)", "bdipole_cl"),
         CacheFolder("runtime registration where the cache folder is not writable", fallback,
                     "TMPDIR", "bdipole_cl"),
+        CacheFolder("the cache home where ~/.cache is not writable (pyopencl's, pytools' and "
+                    "bdipole_cl's folders)", home_fallback(), "TMPDIR", "bdipole_cl"),
         CacheFolder("PoCL's compiled kernels", Path(os.environ.get("POCL_CACHE_DIR")
                                                     or cache_home / "pocl" / "kcache"),
                     "POCL_CACHE_DIR", "PoCL"),
@@ -149,6 +152,11 @@ def cache_folders() -> list[CacheFolder]:
     ]
 
 
+def home_fallback() -> Path:
+    """Where a process whose cache home could not be written kept it (``cache_home``)."""
+    return Path(tempfile.gettempdir()) / FALLBACK_NAME.format(uid=os.getuid())
+
+
 def own_entries() -> list[OwnEntry]:
     """The entries bdipole_cl made in its folders, recognised by their exact names; a link is
     never one (it would lead out of the folder)."""
@@ -157,8 +165,8 @@ def own_entries() -> list[OwnEntry]:
         if root.is_dir():
             entries += [OwnEntry("runtime registration", p) for p in sorted(root.iterdir())
                         if ICD_NAME.match(p.name) and p.is_dir() and not p.is_symlink()]
-    root = user_cache_dir()
-    for kind in OWN_KINDS:
+    roots = dict.fromkeys((user_cache_dir(), home_fallback() / "bdipole_cl"))
+    for root, kind in ((root, kind) for root in roots for kind in OWN_KINDS):
         folder = root / kind.folder
         if not folder.is_dir() or folder.is_symlink():
             continue

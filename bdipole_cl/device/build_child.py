@@ -27,12 +27,14 @@ def _inject_fault(options):
 
 def _build_everything(rt, source, options) -> bool:
     """Build, ask for the binaries (PoCL's code generation), create every kernel: whether it
-    built (a compile error is no crash: the parent's own build reports it)."""
-    import pyopencl as cl
+    built. A compile error is no crash, nor is a Python error (pyopencl's cache folder
+    unwritable): the parent's own build reports either, and nothing is recorded as a crash."""
     try:
+        _inject_fault(options)
         prg = build_quietly(rt.context, source, options)
-    except cl.Error:
+    except Exception:
         return False
+    import pyopencl as cl
     prg.get_info(cl.program_info.BINARY_SIZES)
     prg.all_kernels()
     return True
@@ -54,7 +56,6 @@ def main(argv=None) -> int:
     emit({"ready": True})
     for line in sys.stdin:
         request = json.loads(line)
-        _inject_fault(request["options"])
         emit({"built": _build_everything(rt, request["source"], request["options"])})
     return 0
 

@@ -4,21 +4,27 @@ pyopencl keeps its compiled programs, and pytools its kernel invokers, under
 ``$XDG_CACHE_HOME`` (else ``~/.cache``). Where that folder cannot be made or written (a render
 node's read-only or missing home), neither falls back: pyopencl 2026.1 raises a ``KeyError``
 on every program build and pytools an ``OSError`` on every kernel call, so no device works.
-``ensure_writable_cache_home`` runs before pyopencl is imported: where the cache home is not
-writable it points ``XDG_CACHE_HOME`` at a folder of this user's in the temporary folder, for
-this process and those it starts, and warns once naming both.
+``ensure_writable_cache_home`` runs before pyopencl is imported. Where the cache home is not
+writable it points ``XDG_CACHE_HOME`` at a private folder of this user's in the temporary
+folder (``private_fallback``), for this process and those it starts; where none can be had, it
+turns pyopencl's caches off (``PYOPENCL_NO_CACHE``). ``say_once`` warns of it at the first
+device use (at import, the CLI's one-line warnings are not set up yet).
 """
 from __future__ import annotations
 
 import os
+import stat
 import tempfile
-import warnings
 from pathlib import Path
 
-from ..caches import cache_home
+from ..caches import CACHE_DIR_VARIABLE, cache_home
+from ..errors import warn_caller
 
 #: the fallback's name in the temporary folder, beside the runtime registration's fallback
 FALLBACK_NAME = "bdipole_cl-{uid}-cache"
+NO_CACHE = "PYOPENCL_NO_CACHE"
+
+_note: str | None = None          # what was done, said once by ``say_once``
 
 
 def writable(folder: Path) -> bool:
@@ -30,17 +36,60 @@ def writable(folder: Path) -> bool:
     return os.access(folder, os.W_OK | os.X_OK)
 
 
-def ensure_writable_cache_home() -> Path | None:
-    """Point ``XDG_CACHE_HOME`` at the fallback where the cache home is not writable; the
-    fallback, or None where nothing changed (or no fallback is writable either)."""
+def private(folder: Path) -> bool:
+    """Whether ``folder`` is a folder (not a link) of this user's that no one else can write:
+    the loader loads every ``.icd`` in a registration and pyopencl unpickles its cache, so a
+    folder another user made first at a known name in ``/tmp`` must not be used."""
+    try:
+        info = folder.lstat()
+    except OSError:
+        return False
+    return (stat.S_ISDIR(info.st_mode) and info.st_uid == os.getuid()
+            and not info.st_mode & (stat.S_IWGRP | stat.S_IWOTH))
+
+
+def private_folder(folder: Path) -> bool:
+    """Make ``folder`` (mode 0700) where it is missing; whether it is then ``private``."""
+    try:
+        folder.mkdir(mode=0o700, parents=True, exist_ok=True)
+    except OSError:
+        return False
+    return private(folder) and os.access(folder, os.W_OK | os.X_OK)
+
+
+def private_fallback() -> Path | None:
+    """``$TMPDIR/bdipole_cl-UID-cache``, where it is a private folder, else None."""
+    try:
+        root = Path(tempfile.gettempdir())
+    except OSError:                        # no usable temporary folder at all
+        return None
+    fallback = root / FALLBACK_NAME.format(uid=os.getuid())
+    return fallback if private_folder(fallback) else None
+
+
+def ensure_writable_cache_home() -> None:
+    """Where the cache home is not writable: the private fallback as ``XDG_CACHE_HOME``, else
+    pyopencl's caches off; a note for ``say_once`` either way."""
+    global _note
     home = cache_home()
     if writable(home):
-        return None
-    fallback = Path(tempfile.gettempdir()) / FALLBACK_NAME.format(uid=os.getuid())
-    if not writable(fallback):
-        return None
-    os.environ["XDG_CACHE_HOME"] = str(fallback)
-    warnings.warn(f"the cache folder {home} cannot be written: the OpenCL compilers' caches "
-                  f"and bdipole_cl's are kept in {fallback} (set XDG_CACHE_HOME to keep them "
-                  f"elsewhere)", RuntimeWarning, stacklevel=2)
-    return fallback
+        return
+    fallback = private_fallback()
+    if fallback is not None:
+        os.environ["XDG_CACHE_HOME"] = str(fallback)
+        ours = "" if os.environ.get(CACHE_DIR_VARIABLE) else " and bdipole_cl's"
+        _note = (f"the cache folder {home} cannot be written: the OpenCL compilers' caches"
+                 f"{ours} are kept in {fallback} (set XDG_CACHE_HOME to keep them elsewhere)")
+    elif not os.environ.get(NO_CACHE):    # set already: by the user, or by a parent (said)
+        os.environ[NO_CACHE] = "1"
+        _note = (f"the cache folder {home} cannot be written, nor a private folder in the "
+                 f"temporary folder: OpenCL programs are built anew in each process (set "
+                 f"XDG_CACHE_HOME to a writable folder)")
+
+
+def say_once() -> None:
+    """Warn of what ``ensure_writable_cache_home`` did, once a process."""
+    global _note
+    note, _note = _note, None
+    if note:
+        warn_caller(note, RuntimeWarning)

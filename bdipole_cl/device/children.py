@@ -152,14 +152,14 @@ def emit(msg: dict):
 
 
 #: one simulated fault: ``TARGET=segv|kill|hang|abort:TEXT`` (TARGET may hold '=' itself)
-FAULT_ITEM = re.compile(r"^(.*)=(segv|kill|hang|abort:.*)$", re.S)
+FAULT_ITEM = re.compile(r"^(.*)=(segv|kill|hang|abort:.*|raise:.*)$", re.S)
 
 
 def inject_fault(spec: str, matches) -> None:
     """Fail this process as the first item of ``spec`` (``;``-separated ``FAULT_ITEM``s, the
     tests' simulated faults) whose target ``matches``: killed by SIGSEGV (the default action:
     a runtime may handle it), TEXT on stderr then exit status 1, SIGKILL (as the OOM killer or
-    an operator would), or a hang."""
+    an operator would), a hang, or a Python error raising TEXT (``raise:TEXT``)."""
     for item in filter(None, spec.split(";")):
         found = FAULT_ITEM.match(item)
         if found is None or not matches(found.group(1)):
@@ -175,3 +175,5 @@ def inject_fault(spec: str, matches) -> None:
             os.kill(os.getpid(), signal.SIGKILL)
         elif what == "hang":
             time.sleep(3600)
+        elif what.startswith("raise:"):
+            raise RuntimeError(what[len("raise:"):])

@@ -36,6 +36,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from ..caches import user_cache_dir
+from .cache_home import private_folder
 
 #: the ICD library of Intel's CPU runtime, as the ``intel-opencl-rt`` wheel installs it
 INTEL_ICD_LIBRARY = "libintelocl.so"
@@ -117,6 +118,16 @@ def users_vendors() -> str | None:
     return current
 
 
+def restore_users_vendors() -> None:
+    """The loader as the user configured it, where a parent's registration was inherited
+    (``SWITCH`` at 0 in a process started by one that registered)."""
+    before = users_vendors()
+    if before is None:
+        os.environ.pop("OCL_ICD_VENDORS", None)
+    else:
+        os.environ["OCL_ICD_VENDORS"] = before
+
+
 def vendors_roots() -> tuple[Path, Path]:
     """Where vendors directories (``icd-*``) are written: the user's cache, else a folder of
     this user's in the temporary directory."""
@@ -127,7 +138,10 @@ def vendors_directory(entries: dict[str, str]) -> Path:
     """A directory holding exactly ``entries``, named by their content so that processes with
     the same set share it; written atomically (each file via a temporary name)."""
     digest = hashlib.sha256(repr(sorted(entries.items())).encode()).hexdigest()[:16]
-    for root in vendors_roots():
+    own, temporary = vendors_roots()
+    for root in (own, temporary):
+        if root == temporary and not private_folder(root):
+            continue                # another user's, at a known name: its .icd would load
         target = root / f"icd-{digest}"
         try:
             target.mkdir(parents=True, exist_ok=True)
@@ -163,6 +177,7 @@ def register_environment_runtimes() -> list[EnvironmentRuntime]:
         return _registered
     _registered = []
     if os.environ.get(SWITCH, "1") == "0":
+        restore_users_vendors()
         return _registered
     library = find_intel_runtime()
     if library is None:

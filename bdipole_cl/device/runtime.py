@@ -279,9 +279,14 @@ def runtime_at(index: str) -> Runtime:
     raise DeviceError(f"device {index!r}: no such device")
 
 
+def _before_platform_query() -> None:
+    icd.ensure_registered()
+    cache_home.say_once()
+
+
 def _candidates():
     """(index, platform, device) for every device the loader sees, in its order."""
-    icd.ensure_registered()
+    _before_platform_query()
     out = []
     for p_i, platform in enumerate(cl.get_platforms()):
         try:
@@ -350,7 +355,7 @@ def _lazy_states():
 
 
 def _from_pyopencl_ctx(spec: str) -> Runtime:
-    icd.ensure_registered()
+    _before_platform_query()
     try:
         ctx = cl.create_some_context(interactive=False)
     except Exception as exc:  # pyopencl raises several types here

@@ -206,6 +206,7 @@ def register_environment_runtimes() -> list[EnvironmentRuntime]:
 def ensure_registered() -> None:
     """Write this process's registration folder again where it was removed since (called just
     before a platform query; the loader reads the folder at the first one)."""
+    global _registration
     if _registration is None:
         return
     directory, entries = _registration
@@ -214,6 +215,8 @@ def ensure_registered() -> None:
     if all((directory / name).is_file() for name in entries):
         return
     try:
-        os.environ["OCL_ICD_VENDORS"] = str(vendors_directory(entries))
+        directory = vendors_directory(entries)      # the other root, where this one is gone
     except OSError:
-        pass                        # no writable folder: the query reports what it finds
+        return                      # no writable folder: the query reports what it finds
+    _registration = directory, entries
+    os.environ["OCL_ICD_VENDORS"] = str(directory)

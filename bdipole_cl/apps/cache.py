@@ -31,6 +31,7 @@ from ..methods.choice import CALIBRATION_NAME
 from ..ops.blur.plan_files import PLANS_NAME, STRETCHED_FOLDER, TEXTURED_FOLDER
 from ..physics.transport_tables import CURVES_FOLDER, CURVES_NAME
 
+
 @dataclass(frozen=True)
 class OwnKind:
     """A kind of entry bdipole_cl makes in its cache folder: under ``folder`` ('' the folder

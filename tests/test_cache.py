@@ -239,3 +239,25 @@ def test_the_cache_home_fallback_is_listed_and_cleared(home, capsys):
     assert cli_main(["cache", "--clear"]) == 0
     assert not (fallback / "bdipole_cl" / "probes" / "0123456789abcdef0123.json").exists()
     assert not (fallback / "bdipole_cl" / "usdz" / "0123456789abcdef0123").exists()
+    assert not (fallback / "bdipole_cl" / "icd-0123456789abcdef").exists()   # registrations too
+
+
+def test_a_fallback_not_this_users_alone_is_neither_used_nor_cleared(home, capsys):
+    from bdipole_cl.device.cache_home import FALLBACK_NAME
+    fallback = Path(tempfile.gettempdir()) / FALLBACK_NAME.format(uid=os.getuid())
+    make_own_entries(fallback / "bdipole_cl")
+    fallback.chmod(0o777)
+    assert cli_main(["cache", "--clear"]) == 0
+    assert (fallback / "bdipole_cl" / "probes" / "0123456789abcdef0123.json").exists()
+    assert cli_main(["cache", "--info"]) == 0
+    assert "not used: not this user's alone" in capsys.readouterr().out
+
+
+def test_no_temporary_folder_at_all_lists_and_clears_the_rest(home, monkeypatch, capsys):
+    def none():
+        raise FileNotFoundError("No usable temporary directory found")
+    monkeypatch.setattr("tempfile.gettempdir", none)
+    make_own_entries(home / ".cache" / "bdipole_cl")
+    assert cli_main(["cache", "--info"]) == 0
+    assert cli_main(["cache", "--clear"]) == 0
+    assert not (home / ".cache" / "bdipole_cl" / "probes" / "0123456789abcdef0123.json").exists()

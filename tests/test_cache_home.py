@@ -117,6 +117,34 @@ def test_a_home_that_cannot_be_written_still_builds_and_runs_kernels(tmp_path):
                          capture_output=True, text=True, timeout=600)
     assert out.returncode == 0, out.stderr[-3000:]
     said = [ln for ln in out.stderr.splitlines() if ln.strip()]
-    assert said == [f"bdipole-cl: warning: RuntimeWarning: the cache folder {home}/.cache cannot be written: "
-                    f"the OpenCL compilers' caches are kept in {fallback} (set XDG_CACHE_HOME "
-                    f"to keep them elsewhere)"], out.stderr
+    assert said == [f"bdipole-cl: warning: RuntimeWarning: the cache folder {home}/.cache (or "
+                    f"its pyopencl or pytools folder) cannot be written: the OpenCL compilers' "
+                    f"caches are kept in {fallback} (set XDG_CACHE_HOME to keep them "
+                    f"elsewhere)"], out.stderr
+
+
+def test_pyopencls_own_words_for_its_switch(unwritable_home, tmp_path, monkeypatch):
+    """PYOPENCL_NO_CACHE=0 (or false, no, off) leaves pyopencl's caches on, as pyopencl reads
+    it: with nowhere to keep them they are turned off (it was taken as "set", and every build
+    failed)."""
+    monkeypatch.setattr("tempfile.gettempdir", lambda: str(tmp_path / "file"))
+    (tmp_path / "file").write_text("x")
+    for off in ("0", "false", "No", "off"):
+        monkeypatch.setenv(cache_home.NO_CACHE, off)
+        cache_home.ensure_writable_cache_home()
+        assert os.environ[cache_home.NO_CACHE] == "1", off
+    assert cache_home.turned_on("TRUE") and not cache_home.turned_on(None)
+
+
+def test_a_pyopencl_folder_that_cannot_be_written_moves_the_caches(tmp_path, monkeypatch):
+    """The cache home writable, but its pyopencl folder a file: pyopencl fails there as in an
+    unwritable home (the check looked at the home only)."""
+    home = tmp_path / "cache-home"
+    home.mkdir()
+    (home / "pyopencl").write_text("a file")
+    monkeypatch.setenv("XDG_CACHE_HOME", str(home))
+    monkeypatch.setenv("TMPDIR", str(tmp_path))
+    monkeypatch.setattr("tempfile.tempdir", None)
+    monkeypatch.setattr(cache_home, "_note", None)
+    cache_home.ensure_writable_cache_home()
+    assert os.environ["XDG_CACHE_HOME"] == str(cache_home.fallback_path())

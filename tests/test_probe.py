@@ -343,3 +343,34 @@ def test_crosscheck_fails_when_no_device_works_and_goes_on_past_a_rejection(monk
     assert cli_main(["crosscheck", "--all-devices", "--n", "20"]) == 1
     err = capsys.readouterr().err
     assert "no working OpenCL device" in err and "Traceback" not in err
+
+
+def test_a_fault_of_the_processs_folders_is_not_the_devices_verdict(monkeypatch, fresh_cache):
+    """A check that fails on the process's folders (pyopencl's cache unwritable: a KeyError
+    from pyopencl, an OSError) says nothing of the device: the verdict names it and serves this
+    process only; it was cached as the device's, refusing it until `cache --clear`."""
+    rt = _pick("intel")
+    verdict = _probe_with_fault(monkeypatch, rt, "invert_table/w1=raise:no cache folder")
+    assert not verdict.works and verdict.transient, verdict
+    assert "no cache folder" in verdict.reason and "not of the device" in verdict.reason
+    assert not isolation.verdict_path(rt.device, kernels_digest()).exists()
+    monkeypatch.delenv(isolation.FAULT_VARIABLE)
+    isolation.forget_verdicts()
+    assert device.verdict(rt.device).works                      # probed again, and cached
+    assert isolation.verdict_path(rt.device, kernels_digest()).is_file()
+
+
+def test_pyopencls_cache_failure_is_a_fault_of_the_folders(tmp_path):
+    """pyopencl 2026.1, its cache folder unwritable, raises a KeyError from its cache module
+    (it reads PYOPENCL_CACHE_FAILURE_FATAL unguarded): the probe reads that as the folders'."""
+    import pyopencl as cl
+    from bdipole_cl.ops.kernel_checks import environment_fault
+    rt = _pick("intel")
+    (tmp_path / "file").write_text("x")
+    try:
+        cl.Program(rt.context, "kernel void f(global float *a) { a[0] = 3.0f; }").build(
+            cache_dir=str(tmp_path / "file" / "cache"))
+    except Exception as exc:               # noqa: BLE001 - whatever pyopencl raises there
+        assert environment_fault(exc), repr(exc)
+    assert environment_fault(OSError("read-only file system"))
+    assert not environment_fault(ValueError("a wrong result"))

@@ -18,12 +18,11 @@ from __future__ import annotations
 import os
 import re
 import shutil
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
 from ..caches import CACHE_DIR_VARIABLE, user_cache_dir
-from ..device.cache_home import FALLBACK_NAME
+from ..device.cache_home import fallback_path, private, temporary_folder
 from ..device.icd import ICD_NAME, vendors_roots
 from ..device.isolation import BUILDS_NAME, VERDICT_FOLDER, VERDICT_NAME, lock_in_use
 from ..io.usdz import EXTRACTED_FOLDER, EXTRACTED_NAME
@@ -123,17 +122,21 @@ def own_words() -> str:
 
 
 def cache_folders() -> list[CacheFolder]:
-    """Every folder written outside the user's outputs, bdipole_cl's own first."""
+    """Every folder written outside the user's outputs, bdipole_cl's own first (those in the
+    temporary folder only where there is one)."""
     own, fallback = vendors_roots()
+    home_fallback, temporary = fallback_path(), temporary_folder()
     mpl_cache, mpl_config = matplotlib_folders()
     cache_home = xdg("XDG_CACHE_HOME", ".cache")
-    return [
+    folders = [
         CacheFolder(own_words(), own,
                     f"{CACHE_DIR_VARIABLE} (else XDG_CACHE_HOME)", "bdipole_cl"),
         CacheFolder("runtime registration where the cache folder is not writable", fallback,
                     "TMPDIR", "bdipole_cl"),
         CacheFolder("the cache home where ~/.cache is not writable (pyopencl's, pytools' and "
-                    "bdipole_cl's folders)", home_fallback(), "TMPDIR", "bdipole_cl"),
+                    "bdipole_cl's folders)" + ("" if home_fallback and private(home_fallback)
+                                               else "; not used: not this user's alone"),
+                    home_fallback, "TMPDIR", "bdipole_cl"),
         CacheFolder("PoCL's compiled kernels", Path(os.environ.get("POCL_CACHE_DIR")
                                                     or cache_home / "pocl" / "kcache"),
                     "POCL_CACHE_DIR", "PoCL"),
@@ -148,25 +151,29 @@ def cache_folders() -> list[CacheFolder]:
                     "an NVIDIA GPU)", nvidia_compute_cache(),
                     "CUDA_CACHE_PATH (CUDA_CACHE_DISABLE=1: none)", "NVIDIA's driver"),
         CacheFolder("Dask's scratch space (--scheduler local:N)",
-                    Path(tempfile.gettempdir()) / "dask-scratch-space",
+                    temporary and temporary / "dask-scratch-space",
                     "DASK_TEMPORARY_DIRECTORY", "Dask"),
     ]
+    return [f for f in folders if f.path is not None]
 
 
-def home_fallback() -> Path:
-    """Where a process whose cache home could not be written kept it (``cache_home``)."""
-    return Path(tempfile.gettempdir()) / FALLBACK_NAME.format(uid=os.getuid())
+def own_roots() -> list[Path]:
+    """bdipole_cl's cache folder, and the cache-home fallback's where a process whose cache
+    home could not be written kept it there (``device.cache_home``; only a private one)."""
+    fallback = fallback_path()
+    kept = fallback is not None and private(fallback)
+    return list(dict.fromkeys([user_cache_dir()] + ([fallback / "bdipole_cl"] if kept else [])))
 
 
 def own_entries() -> list[OwnEntry]:
     """The entries bdipole_cl made in its folders, recognised by their exact names; a link is
     never one (it would lead out of the folder)."""
     entries = []
-    for root in vendors_roots():
+    roots = own_roots()
+    for root in dict.fromkeys(roots + [r for r in vendors_roots() if r is not None]):
         if root.is_dir():
             entries += [OwnEntry("runtime registration", p) for p in sorted(root.iterdir())
                         if ICD_NAME.match(p.name) and p.is_dir() and not p.is_symlink()]
-    roots = dict.fromkeys((user_cache_dir(), home_fallback() / "bdipole_cl"))
     for root, kind in ((root, kind) for root in roots for kind in OWN_KINDS):
         folder = root / kind.folder
         if not folder.is_dir() or folder.is_symlink():

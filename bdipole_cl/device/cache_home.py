@@ -57,14 +57,29 @@ def private_folder(folder: Path) -> bool:
     return private(folder) and os.access(folder, os.W_OK | os.X_OK)
 
 
-def private_fallback() -> Path | None:
-    """``$TMPDIR/bdipole_cl-UID-cache``, where it is a private folder, else None."""
+def temporary_folder() -> Path | None:
+    """The temporary folder (``TMPDIR``, else /tmp, ...), or None where none is usable."""
     try:
-        root = Path(tempfile.gettempdir())
-    except OSError:                        # no usable temporary folder at all
+        return Path(tempfile.gettempdir())
+    except OSError:
         return None
-    fallback = root / FALLBACK_NAME.format(uid=os.getuid())
-    return fallback if private_folder(fallback) else None
+
+
+def fallback_path() -> Path | None:
+    """``$TMPDIR/bdipole_cl-UID-cache``, private or not (None: no temporary folder)."""
+    root = temporary_folder()
+    return None if root is None else root / FALLBACK_NAME.format(uid=os.getuid())
+
+
+def private_fallback() -> Path | None:
+    """``fallback_path()``, where it is (or is made) a private folder, else None."""
+    fallback = fallback_path()
+    return fallback if fallback is not None and private_folder(fallback) else None
+
+
+def turned_on(text: str | None) -> bool:
+    """A variable read as pyopencl reads ``PYOPENCL_NO_CACHE`` (its ``strtobool``)."""
+    return (text or "").strip().lower() in ("1", "y", "yes", "t", "true", "on")
 
 
 def ensure_writable_cache_home() -> None:
@@ -72,19 +87,22 @@ def ensure_writable_cache_home() -> None:
     pyopencl's caches off; a note for ``say_once`` either way."""
     global _note
     home = cache_home()
-    if writable(home):
+    if all(writable(folder) for folder in (home, home / "pyopencl", home / "pytools")):
         return
     fallback = private_fallback()
     if fallback is not None:
         os.environ["XDG_CACHE_HOME"] = str(fallback)
         ours = "" if os.environ.get(CACHE_DIR_VARIABLE) else " and bdipole_cl's"
-        _note = (f"the cache folder {home} cannot be written: the OpenCL compilers' caches"
+        _note = (f"the cache folder {home} (or its pyopencl or pytools folder) cannot be "
+                 f"written: the OpenCL compilers' caches"
                  f"{ours} are kept in {fallback} (set XDG_CACHE_HOME to keep them elsewhere)")
-    elif not os.environ.get(NO_CACHE):    # set already: by the user, or by a parent (said)
+    elif not turned_on(os.environ.get(NO_CACHE)):    # on already: the user's, or a parent's
         os.environ[NO_CACHE] = "1"
-        _note = (f"the cache folder {home} cannot be written, nor a private folder in the "
-                 f"temporary folder: OpenCL programs are built anew in each process (set "
-                 f"XDG_CACHE_HOME to a writable folder)")
+        _note = (f"the cache folder {home} (or its pyopencl or pytools folder) cannot be "
+                 f"written, and {fallback_path() or 'no temporary folder'} is not a folder of "
+                 f"this user's that only it can write: pyopencl's caches are off, OpenCL "
+                 f"programs are built anew in each process (set XDG_CACHE_HOME to a writable "
+                 f"folder)")
 
 
 def say_once() -> None:

@@ -159,7 +159,7 @@ def inject_fault(spec: str, matches) -> None:
     """Fail this process as the first item of ``spec`` (``;``-separated ``FAULT_ITEM``s, the
     tests' simulated faults) whose target ``matches``: killed by SIGSEGV (the default action:
     a runtime may handle it), TEXT on stderr then exit status 1, SIGKILL (as the OOM killer or
-    an operator would), a hang, or a Python error raising TEXT (``raise:TEXT``)."""
+    an operator would), a hang, or an OSError saying TEXT (``raise:TEXT``)."""
     for item in filter(None, spec.split(";")):
         found = FAULT_ITEM.match(item)
         if found is None or not matches(found.group(1)):
@@ -175,5 +175,5 @@ def inject_fault(spec: str, matches) -> None:
             os.kill(os.getpid(), signal.SIGKILL)
         elif what == "hang":
             time.sleep(3600)
-        elif what.startswith("raise:"):
-            raise RuntimeError(what[len("raise:"):])
+        elif what.startswith("raise:"):          # as an unwritable cache folder does
+            raise OSError(what[len("raise:"):])

@@ -31,12 +31,11 @@ import os
 import re
 import site
 import sys
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
 from ..caches import user_cache_dir
-from .cache_home import private_folder
+from .cache_home import private_folder, temporary_folder
 
 #: the ICD library of Intel's CPU runtime, as the ``intel-opencl-rt`` wheel installs it
 INTEL_ICD_LIBRARY = "libintelocl.so"
@@ -128,10 +127,11 @@ def restore_users_vendors() -> None:
         os.environ["OCL_ICD_VENDORS"] = before
 
 
-def vendors_roots() -> tuple[Path, Path]:
+def vendors_roots() -> tuple[Path, Path | None]:
     """Where vendors directories (``icd-*``) are written: the user's cache, else a folder of
-    this user's in the temporary directory."""
-    return user_cache_dir(), Path(tempfile.gettempdir()) / f"bdipole_cl-{os.getuid()}"
+    this user's in the temporary directory (None where there is no temporary folder)."""
+    temporary = temporary_folder()
+    return user_cache_dir(), temporary and temporary / f"bdipole_cl-{os.getuid()}"
 
 
 def vendors_directory(entries: dict[str, str]) -> Path:
@@ -139,8 +139,13 @@ def vendors_directory(entries: dict[str, str]) -> Path:
     the same set share it; written atomically (each file via a temporary name)."""
     digest = hashlib.sha256(repr(sorted(entries.items())).encode()).hexdigest()[:16]
     own, temporary = vendors_roots()
+    tried = []
     for root in (own, temporary):
+        if root is None:
+            continue
+        tried.append(str(root))
         if root == temporary and not private_folder(root):
+            tried[-1] += " (not a folder of this user's that only it can write)"
             continue                # another user's, at a known name: its .icd would load
         target = root / f"icd-{digest}"
         try:
@@ -155,8 +160,7 @@ def vendors_directory(entries: dict[str, str]) -> Path:
         except OSError:
             continue
     raise OSError(f"no writable directory for the OpenCL vendors list (tried "
-                  f"{user_cache_dir()} and "
-                  f"{tempfile.gettempdir()})")
+                  f"{', '.join(tried) or 'none'})")
 
 
 def _preload(lib_dir: Path) -> list[str]:

@@ -402,6 +402,24 @@ def checks(fp64: bool) -> list:
 
 # {{{ the child's main
 
+#: where a check's exception says more of this process's folders than of the device: the
+#: file system, and pyopencl's and pytools' caches (pyopencl 2026.1 raises a KeyError there)
+ENVIRONMENT_MODULES = ("pyopencl/cache.py", "pytools/persistent_dict.py")
+
+
+def environment_fault(exc: BaseException) -> bool:
+    """Whether ``exc`` is a fault of the process's environment (a cache folder it cannot
+    write), which the probe must not record as the device's."""
+    if isinstance(exc, OSError):
+        return True
+    tb = exc.__traceback__
+    while tb is not None:
+        if tb.tb_frame.f_code.co_filename.replace(os.sep, "/").endswith(ENVIRONMENT_MODULES):
+            return True
+        tb = tb.tb_next
+    return False
+
+
 def _inject_fault(name: str):
     """The fault ``device.isolation.FAULT_VARIABLE`` asks for at check ``name`` (tests)."""
     from ..device.isolation import FAULT_VARIABLE
@@ -456,14 +474,18 @@ def main(argv=None) -> int:
                   f"{check.width} floats fail this device's vector ABI check ({VECTOR_ABI})"})
             continue
         emit({"begin": check.name})
-        _inject_fault(check.name)
         try:
+            _inject_fault(check.name)
             check.run(rt)
             passed.add(check.name)
             emit({"end": check.name, "ok": True, "reason": ""})
         except Exception as exc:   # a build error, a driver error, a wrong result
-            text = " ".join(str(exc).split())
-            emit({"end": check.name, "ok": False, "reason": text[:300] or type(exc).__name__})
+            text = " ".join(str(exc).split())[:300] or type(exc).__name__
+            if environment_fault(exc):      # the probe's error: its verdict is not cached
+                emit({"error": f"{check.name}: {text} (a fault of this process's folders, "
+                               f"not of the device)"})
+                return 0
+            emit({"end": check.name, "ok": False, "reason": text})
     for name, seconds in time_runs(timed_runs(rt, passed, failed)).items():
         emit({"time": name, "seconds": seconds})
     emit({"done": True})

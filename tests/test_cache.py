@@ -261,3 +261,16 @@ def test_no_temporary_folder_at_all_lists_and_clears_the_rest(home, monkeypatch,
     assert cli_main(["cache", "--info"]) == 0
     assert cli_main(["cache", "--clear"]) == 0
     assert not (home / ".cache" / "bdipole_cl" / "probes" / "0123456789abcdef0123.json").exists()
+
+
+
+def test_a_registration_fallback_not_this_users_alone_is_not_cleared(home, capsys):
+    fallback = Path(tempfile.gettempdir()) / f"bdipole_cl-{os.getuid()}"
+    (fallback / "icd-aaaaaaaaaaaaaaaa").mkdir(parents=True)
+    (fallback / "icd-aaaaaaaaaaaaaaaa" / "a.icd").write_text("/x/liba.so\n")
+    fallback.chmod(0o777)
+    assert cli_main(["cache", "--clear"]) == 0
+    assert (fallback / "icd-aaaaaaaaaaaaaaaa" / "a.icd").exists()
+    assert cli_main(["cache", "--info"]) == 0
+    assert "registration where the cache folder is not writable; not used" in \
+        capsys.readouterr().out

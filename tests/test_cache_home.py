@@ -117,8 +117,9 @@ def test_a_home_that_cannot_be_written_still_builds_and_runs_kernels(tmp_path):
                          capture_output=True, text=True, timeout=600)
     assert out.returncode == 0, out.stderr[-3000:]
     said = [ln for ln in out.stderr.splitlines() if ln.strip()]
+    folders = "pyopencl, pytools" + ("" if env.get("POCL_CACHE_DIR") else ", pocl")
     assert said == [f"bdipole-cl: warning: RuntimeWarning: the cache folder {home}/.cache (or "
-                    f"its pyopencl or pytools folder) cannot be written: the OpenCL compilers' "
+                    f"its {folders} folder) cannot be written: the OpenCL compilers' "
                     f"caches are kept in {fallback} (set XDG_CACHE_HOME to keep them "
                     f"elsewhere)"], out.stderr
 
@@ -136,15 +137,41 @@ def test_pyopencls_own_words_for_its_switch(unwritable_home, tmp_path, monkeypat
     assert cache_home.turned_on("TRUE") and not cache_home.turned_on(None)
 
 
-def test_a_pyopencl_folder_that_cannot_be_written_moves_the_caches(tmp_path, monkeypatch):
-    """The cache home writable, but its pyopencl folder a file: pyopencl fails there as in an
-    unwritable home (the check looked at the home only)."""
+@pytest.mark.parametrize("folder", ["pyopencl", "pytools", "pocl"])
+def test_a_library_folder_that_cannot_be_written_moves_the_caches(folder, tmp_path,
+                                                                   monkeypatch):
+    """The cache home writable, but pyopencl's, pytools' or PoCL's folder a file: pyopencl
+    fails there as in an unwritable home, and PoCL lists no device (the check looked at the
+    home only); bdipole_cl's own folder there is still listed and cleared."""
     home = tmp_path / "cache-home"
     home.mkdir()
-    (home / "pyopencl").write_text("a file")
+    (home / folder).write_text("a file")
     monkeypatch.setenv("XDG_CACHE_HOME", str(home))
+    monkeypatch.delenv("POCL_CACHE_DIR", raising=False)
+    monkeypatch.delenv("BDIPOLE_CL_CACHE_DIR", raising=False)
     monkeypatch.setenv("TMPDIR", str(tmp_path))
     monkeypatch.setattr("tempfile.tempdir", None)
     monkeypatch.setattr(cache_home, "_note", None)
+    monkeypatch.setattr(cache_home, "_moved_from", None)
     cache_home.ensure_writable_cache_home()
     assert os.environ["XDG_CACHE_HOME"] == str(cache_home.fallback_path())
+    from bdipole_cl.apps.cache import own_roots
+    assert home / "bdipole_cl" in own_roots()
+
+
+def test_a_child_without_a_temporary_folder_still_starts(monkeypatch):
+    """The children (probes, guarded builds) kept their stderr in a temporary file: with no
+    temporary folder none could start, and no device was probed."""
+    from bdipole_cl.device import children
+    from conftest import RUNTIMES
+    from bdipole_cl.device.runtime import device_index
+
+    def none(*args, **kwargs):
+        raise FileNotFoundError("No usable temporary directory found")
+    monkeypatch.setattr("tempfile.TemporaryFile", none)
+    child = children.Child("bdipole_cl.device.build_child",
+                           ["--device", device_index(RUNTIMES[0].device)], requests=True)
+    try:
+        assert child.line(120) == {"ready": True}
+    finally:
+        child.finish(kill=True)

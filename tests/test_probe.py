@@ -364,7 +364,7 @@ def test_pyopencls_cache_failure_is_a_fault_of_the_folders(tmp_path):
     """pyopencl 2026.1, its cache folder unwritable, raises a KeyError from its cache module
     (it reads PYOPENCL_CACHE_FAILURE_FATAL unguarded): the probe reads that as the folders'."""
     import pyopencl as cl
-    from bdipole_cl.ops.kernel_checks import environment_fault
+    from bdipole_cl.device.faults import environment_fault
     rt = _pick("intel")
     (tmp_path / "file").write_text("x")
     try:
@@ -374,3 +374,12 @@ def test_pyopencls_cache_failure_is_a_fault_of_the_folders(tmp_path):
         assert environment_fault(exc), repr(exc)
     assert environment_fault(OSError("read-only file system"))
     assert not environment_fault(ValueError("a wrong result"))
+    # build options the runtime refuses come out of pyopencl's cache as the same KeyError:
+    # a fault of the device (or the options), not of the folders
+    try:
+        cl.Program(rt.context, "kernel void f(global float *a) { a[0] = 3.0f; }").build(
+            options=["-bogus-option"])
+    except Exception as exc:               # noqa: BLE001
+        assert not environment_fault(exc), repr(exc)
+    else:
+        pytest.fail("the runtime built with -bogus-option")

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from ..caches import CACHE_DIR_VARIABLE, user_cache_dir
-from ..device.cache_home import fallback_path, private, temporary_folder
+from ..device.cache_home import fallback_path, moved_from, private, temporary_folder
 from ..device.icd import ICD_NAME, vendors_roots
 from ..device.isolation import BUILDS_NAME, VERDICT_FOLDER, VERDICT_NAME, lock_in_use
 from ..io.usdz import EXTRACTED_FOLDER, EXTRACTED_NAME
@@ -121,6 +121,15 @@ def own_words() -> str:
     return ", ".join(["runtime registration"] + [kind.what for kind in OWN_KINDS])
 
 
+#: said of a fallback folder in the temporary folder that bdipole_cl does not use
+NOT_USED = "; not used: not this user's alone"
+
+
+def refused(folder: Path | None) -> bool:
+    """Whether a fallback in the temporary folder is there but not this user's alone."""
+    return folder is not None and os.path.lexists(folder) and not private(folder)
+
+
 def cache_folders() -> list[CacheFolder]:
     """Every folder written outside the user's outputs, bdipole_cl's own first (those in the
     temporary folder only where there is one)."""
@@ -131,11 +140,11 @@ def cache_folders() -> list[CacheFolder]:
     folders = [
         CacheFolder(own_words(), own,
                     f"{CACHE_DIR_VARIABLE} (else XDG_CACHE_HOME)", "bdipole_cl"),
-        CacheFolder("runtime registration where the cache folder is not writable", fallback,
+        CacheFolder("runtime registration where the cache folder is not writable"
+                    + (NOT_USED if refused(fallback) else ""), fallback,
                     "TMPDIR", "bdipole_cl"),
         CacheFolder("the cache home where ~/.cache is not writable (pyopencl's, pytools' and "
-                    "bdipole_cl's folders)" + ("" if home_fallback and private(home_fallback)
-                                               else "; not used: not this user's alone"),
+                    "bdipole_cl's folders)" + (NOT_USED if refused(home_fallback) else ""),
                     home_fallback, "TMPDIR", "bdipole_cl"),
         CacheFolder("PoCL's compiled kernels", Path(os.environ.get("POCL_CACHE_DIR")
                                                     or cache_home / "pocl" / "kcache"),
@@ -160,9 +169,10 @@ def cache_folders() -> list[CacheFolder]:
 def own_roots() -> list[Path]:
     """bdipole_cl's cache folder, and the cache-home fallback's where a process whose cache
     home could not be written kept it there (``device.cache_home``; only a private one)."""
-    fallback = fallback_path()
+    fallback, before = fallback_path(), moved_from()
     kept = fallback is not None and private(fallback)
-    return list(dict.fromkeys([user_cache_dir()] + ([fallback / "bdipole_cl"] if kept else [])))
+    return list(dict.fromkeys([user_cache_dir()] + ([fallback / "bdipole_cl"] if kept else [])
+                              + ([before / "bdipole_cl"] if before else [])))
 
 
 def own_entries() -> list[OwnEntry]:
@@ -170,7 +180,9 @@ def own_entries() -> list[OwnEntry]:
     never one (it would lead out of the folder)."""
     entries = []
     roots = own_roots()
-    for root in dict.fromkeys(roots + [r for r in vendors_roots() if r is not None]):
+    own, temporary = vendors_roots()
+    kept = [own] + ([temporary] if temporary is not None and private(temporary) else [])
+    for root in dict.fromkeys(roots + kept):
         if root.is_dir():
             entries += [OwnEntry("runtime registration", p) for p in sorted(root.iterdir())
                         if ICD_NAME.match(p.name) and p.is_dir() and not p.is_symlink()]

@@ -25,6 +25,18 @@ FALLBACK_NAME = "bdipole_cl-{uid}-cache"
 NO_CACHE = "PYOPENCL_NO_CACHE"
 
 _note: str | None = None          # what was done, said once by ``say_once``
+_moved_from: Path | None = None   # the cache home this process moved away from
+
+
+def used_folders() -> tuple[str, ...]:
+    """The cache home's folders the OpenCL stack writes: pyopencl's, pytools' and (unless
+    ``POCL_CACHE_DIR`` moves it) PoCL's, which lists no device where it cannot make it."""
+    return ("pyopencl", "pytools") + (() if os.environ.get("POCL_CACHE_DIR") else ("pocl",))
+
+
+def moved_from() -> Path | None:
+    """The cache home this process could not write and moved away from, or None."""
+    return _moved_from
 
 
 def writable(folder: Path) -> bool:
@@ -86,21 +98,25 @@ def ensure_writable_cache_home() -> None:
     """Where the cache home is not writable: the private fallback as ``XDG_CACHE_HOME``, else
     pyopencl's caches off; a note for ``say_once`` either way."""
     global _note
+    global _moved_from
     home = cache_home()
-    if all(writable(folder) for folder in (home, home / "pyopencl", home / "pytools")):
+    if all(writable(folder) for folder in (home, *(home / name for name in used_folders()))):
         return
     fallback = private_fallback()
     if fallback is not None:
+        _moved_from = home
         os.environ["XDG_CACHE_HOME"] = str(fallback)
         ours = "" if os.environ.get(CACHE_DIR_VARIABLE) else " and bdipole_cl's"
-        _note = (f"the cache folder {home} (or its pyopencl or pytools folder) cannot be "
-                 f"written: the OpenCL compilers' caches"
+        _note = (f"the cache folder {home} (or its {', '.join(used_folders())} folder) "
+                 f"cannot be written: the OpenCL compilers' caches"
                  f"{ours} are kept in {fallback} (set XDG_CACHE_HOME to keep them elsewhere)")
     elif not turned_on(os.environ.get(NO_CACHE)):    # on already: the user's, or a parent's
         os.environ[NO_CACHE] = "1"
-        _note = (f"the cache folder {home} (or its pyopencl or pytools folder) cannot be "
-                 f"written, and {fallback_path() or 'no temporary folder'} is not a folder of "
-                 f"this user's that only it can write: pyopencl's caches are off, OpenCL "
+        elsewhere = fallback_path()
+        why = (f"{elsewhere} is not a folder of this user's that only it can write"
+               if elsewhere else "there is no usable temporary folder")
+        _note = (f"the cache folder {home} (or its {', '.join(used_folders())} folder) "
+                 f"cannot be written, and {why}: pyopencl's caches are off, and OpenCL "
                  f"programs are built anew in each process (set XDG_CACHE_HOME to a writable "
                  f"folder)")
 

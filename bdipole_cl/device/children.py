@@ -65,7 +65,10 @@ class Child:
 
     def __init__(self, module: str, args, requests: bool = False):
         cmd = [sys.executable, "-m", module, *args, "--parent", str(os.getpid())]
-        self.err = tempfile.TemporaryFile(mode="w+")
+        try:
+            self.err = tempfile.TemporaryFile(mode="w+")
+        except OSError:             # no usable temporary folder: its last words are lost
+            self.err = open(os.devnull, "w+")
         self.proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=self.err,
                                      stdin=subprocess.PIPE if requests else subprocess.DEVNULL,
                                      text=True, env=child_env(),

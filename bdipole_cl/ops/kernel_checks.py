@@ -35,6 +35,7 @@ from typing import Callable
 import numpy as np
 
 from ..device.children import die_with, emit, inject_fault
+from ..device.faults import environment_fault, underlying
 from ..device.isolation import EXIT, VECTOR_ABI, VECTOR_ABI_WIDTHS, vector_cap
 from ..device.runtime import forced
 from .widths import (DEVICE_FFT_CONFIGS, DEVICE_FFT_TIMING, FFT_ENGINE_VARIABLE,
@@ -402,24 +403,6 @@ def checks(fp64: bool) -> list:
 
 # {{{ the child's main
 
-#: where a check's exception says more of this process's folders than of the device: the
-#: file system, and pyopencl's and pytools' caches (pyopencl 2026.1 raises a KeyError there)
-ENVIRONMENT_MODULES = ("pyopencl/cache.py", "pytools/persistent_dict.py")
-
-
-def environment_fault(exc: BaseException) -> bool:
-    """Whether ``exc`` is a fault of the process's environment (a cache folder it cannot
-    write), which the probe must not record as the device's."""
-    if isinstance(exc, OSError):
-        return True
-    tb = exc.__traceback__
-    while tb is not None:
-        if tb.tb_frame.f_code.co_filename.replace(os.sep, "/").endswith(ENVIRONMENT_MODULES):
-            return True
-        tb = tb.tb_next
-    return False
-
-
 def _inject_fault(name: str):
     """The fault ``device.isolation.FAULT_VARIABLE`` asks for at check ``name`` (tests)."""
     from ..device.isolation import FAULT_VARIABLE
@@ -480,7 +463,7 @@ def main(argv=None) -> int:
             passed.add(check.name)
             emit({"end": check.name, "ok": True, "reason": ""})
         except Exception as exc:   # a build error, a driver error, a wrong result
-            text = " ".join(str(exc).split())[:300] or type(exc).__name__
+            text = " ".join(str(underlying(exc)).split())[:300] or type(exc).__name__
             if environment_fault(exc):      # the probe's error: its verdict is not cached
                 emit({"error": f"{check.name}: {text} (a fault of this process's folders, "
                                f"not of the device)"})

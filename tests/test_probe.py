@@ -148,6 +148,16 @@ def test_verdict_key_follows_driver_and_kernels(fresh_cache):
     assert a != isolation.verdict_key(rt.device, "digest-b")
 
 
+def test_pyopencls_build_options_are_in_the_verdicts_key(monkeypatch, fresh_cache):
+    """A verdict reached with PYOPENCL_BUILD_OPTIONS (refused options: the device "broken";
+    -cl-fast-relaxed-math: checks failed) served runs without them, and the other way round
+    (a run with -cl-fast-relaxed-math used kernels its probe would have rejected)."""
+    rt = _pick("intel")
+    plain = isolation.verdict_key(rt.device, kernels_digest())
+    monkeypatch.setenv(isolation.BUILD_OPTIONS_VARIABLE, "-cl-fast-relaxed-math")
+    assert isolation.verdict_key(rt.device, kernels_digest()) != plain
+
+
 def test_a_verdict_and_builds_made_under_a_simulated_target_serve_only_it(monkeypatch,
                                                                         fresh_cache):
     """The simulated target feature (tests) is in the verdict's key, so neither that verdict
@@ -374,6 +384,16 @@ def test_pyopencls_cache_failure_is_a_fault_of_the_folders(tmp_path):
         assert environment_fault(exc), repr(exc)
     assert environment_fault(OSError("read-only file system"))
     assert not environment_fault(ValueError("a wrong result"))
+    # pytools' sqlite errors name no file: the words name its folder
+    import sqlite3
+    from bdipole_cl.device.faults import fault_words
+    from pytools.persistent_dict import WriteOncePersistentDict
+    version = ".".join(str(i) for i in sys.version_info)
+    (tmp_path / "db" / f"pdict-v5-t-{version}.sqlite").mkdir(parents=True)   # not a file
+    with pytest.raises(sqlite3.Error) as caught:
+        WriteOncePersistentDict("t", container_dir=str(tmp_path / "db"))
+    assert environment_fault(caught.value)
+    assert "pytools' cache folder" in fault_words(caught.value), fault_words(caught.value)
     # build options the runtime refuses come out of pyopencl's cache as the same KeyError:
     # a fault of the device (or the options), not of the folders
     try:

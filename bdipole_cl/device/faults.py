@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import os
 
+from ..caches import cache_home
+
 #: where a check's exception says more of this process's folders than of the device: the
 #: file system, and pytools' cache (pyopencl's kernel invokers)
 ENVIRONMENT_MODULES = ("pytools/persistent_dict.py",)
@@ -29,9 +31,23 @@ def environment_fault(exc: BaseException) -> bool:
         return False
     if isinstance(exc, OSError):
         return True
+    return in_caches(exc)
+
+
+def in_caches(exc: BaseException) -> bool:
+    """Whether ``exc`` was raised in pytools' cache (its sqlite errors name no file)."""
     tb = exc.__traceback__
     while tb is not None:
         if tb.tb_frame.f_code.co_filename.replace(os.sep, "/").endswith(ENVIRONMENT_MODULES):
             return True
         tb = tb.tb_next
     return False
+
+
+def fault_words(exc: BaseException) -> str:
+    """One line for an environment fault, naming pytools' folder where its error does not."""
+    exc = underlying(exc)
+    text = " ".join(str(exc).split())[:300] or type(exc).__name__
+    where = "" if isinstance(exc, OSError) or not in_caches(exc) else \
+        f" in pytools' cache folder {cache_home() / 'pytools'}"
+    return f"{text}{where} (a fault of this process's folders, not of the device)"

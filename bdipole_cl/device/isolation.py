@@ -213,13 +213,20 @@ def probe_faults() -> str:
                     if item and not item.startswith("build:"))
 
 
+#: pyopencl's variable of build options added to every program it builds
+BUILD_OPTIONS_VARIABLE = "PYOPENCL_BUILD_OPTIONS"
+
+
 def verdict_key(device, kernels_digest: str) -> str:
     """The cache key: the device's identity, the kernels, the checks and this library's
-    version; the simulated faults and target feature (tests): what is found under them is
-    not the device's, and the guarded builds' records beside it are kept apart too."""
+    version; the build options pyopencl adds to every program (``PYOPENCL_BUILD_OPTIONS``:
+    a kernel built with -cl-fast-relaxed-math fails checks it passes without); the simulated
+    faults and target feature (tests): what is found under them is not the device's, and the
+    guarded builds' records beside it are kept apart too."""
     text = json.dumps([identity(device), kernels_digest, checks_digest(), __version__,
                        PROBE_FORMAT, probe_faults(),
-                       os.environ.get(TARGET_FEATURE_VARIABLE, "")], sort_keys=True)
+                       os.environ.get(TARGET_FEATURE_VARIABLE, ""),
+                       os.environ.get(BUILD_OPTIONS_VARIABLE, "")], sort_keys=True)
     return hashlib.sha256(text.encode()).hexdigest()[:20]
 
 

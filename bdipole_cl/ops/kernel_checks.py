@@ -35,7 +35,7 @@ from typing import Callable
 import numpy as np
 
 from ..device.children import die_with, emit, inject_fault
-from ..device.faults import environment_fault, underlying
+from ..device.faults import environment_fault, fault_words, underlying
 from ..device.isolation import EXIT, VECTOR_ABI, VECTOR_ABI_WIDTHS, vector_cap
 from ..device.runtime import forced
 from .widths import (DEVICE_FFT_CONFIGS, DEVICE_FFT_TIMING, FFT_ENGINE_VARIABLE,
@@ -463,11 +463,10 @@ def main(argv=None) -> int:
             passed.add(check.name)
             emit({"end": check.name, "ok": True, "reason": ""})
         except Exception as exc:   # a build error, a driver error, a wrong result
-            text = " ".join(str(underlying(exc)).split())[:300] or type(exc).__name__
             if environment_fault(exc):      # the probe's error: its verdict is not cached
-                emit({"error": f"{check.name}: {text} (a fault of this process's folders, "
-                               f"not of the device)"})
+                emit({"error": f"{check.name}: {fault_words(exc)}"})
                 return 0
+            text = " ".join(str(underlying(exc)).split())[:300] or type(exc).__name__
             emit({"end": check.name, "ok": False, "reason": text})
     for name, seconds in time_runs(timed_runs(rt, passed, failed)).items():
         emit({"time": name, "seconds": seconds})

@@ -97,8 +97,7 @@ def turned_on(text: str | None) -> bool:
 def ensure_writable_cache_home() -> None:
     """Where the cache home is not writable: the private fallback as ``XDG_CACHE_HOME``, else
     pyopencl's caches off; a note for ``say_once`` either way."""
-    global _note
-    global _moved_from
+    global _note, _moved_from
     home = cache_home()
     if all(writable(folder) for folder in (home, *(home / name for name in used_folders()))):
         return

@@ -21,7 +21,7 @@ import shutil
 from dataclasses import dataclass
 from pathlib import Path
 
-from ..caches import CACHE_DIR_VARIABLE, user_cache_dir
+from ..caches import CACHE_DIR_VARIABLE, cache_home, user_cache_dir
 from ..device.cache_home import fallback_path, moved_from, private, temporary_folder
 from ..device.icd import ICD_NAME, vendors_roots
 from ..device.isolation import BUILDS_NAME, VERDICT_FOLDER, VERDICT_NAME, lock_in_use
@@ -96,7 +96,7 @@ def pyopencl_cache() -> Path:
         import platformdirs
         return Path(platformdirs.user_cache_dir("pyopencl", "pyopencl"))
     except ImportError:               # pyopencl's dependency: absent only in odd installs
-        return xdg("XDG_CACHE_HOME", ".cache") / "pyopencl"
+        return cache_home() / "pyopencl"
 
 
 def nvidia_compute_cache() -> Path:
@@ -111,7 +111,7 @@ def matplotlib_folders() -> tuple[Path, Path]:
     named = os.environ.get("MPLCONFIGDIR")
     if named:
         return Path(named), Path(named)
-    return (xdg("XDG_CACHE_HOME", ".cache") / "matplotlib",
+    return (cache_home() / "matplotlib",
             xdg("XDG_CONFIG_HOME", ".config") / "matplotlib")
 
 
@@ -125,6 +125,11 @@ def own_words() -> str:
 NOT_USED = "; not used: not this user's alone"
 
 
+def kept(folder: Path | None) -> bool:
+    """Whether a fallback in the temporary folder is this user's alone (bdipole_cl uses it)."""
+    return folder is not None and private(folder)
+
+
 def refused(folder: Path | None) -> bool:
     """Whether a fallback in the temporary folder is there but not this user's alone."""
     return folder is not None and os.path.lexists(folder) and not private(folder)
@@ -136,7 +141,7 @@ def cache_folders() -> list[CacheFolder]:
     own, fallback = vendors_roots()
     home_fallback, temporary = fallback_path(), temporary_folder()
     mpl_cache, mpl_config = matplotlib_folders()
-    cache_home = xdg("XDG_CACHE_HOME", ".cache")
+    home = cache_home()
     folders = [
         CacheFolder(own_words(), own,
                     f"{CACHE_DIR_VARIABLE} (else XDG_CACHE_HOME)", "bdipole_cl"),
@@ -147,11 +152,11 @@ def cache_folders() -> list[CacheFolder]:
                     "bdipole_cl's folders)" + (NOT_USED if refused(home_fallback) else ""),
                     home_fallback, "TMPDIR", "bdipole_cl"),
         CacheFolder("PoCL's compiled kernels", Path(os.environ.get("POCL_CACHE_DIR")
-                                                    or cache_home / "pocl" / "kcache"),
+                                                    or home / "pocl" / "kcache"),
                     "POCL_CACHE_DIR", "PoCL"),
         CacheFolder("pyopencl's compiled programs", pyopencl_cache(),
                     "XDG_CACHE_HOME (PYOPENCL_NO_CACHE=1: none)", "pyopencl"),
-        CacheFolder("pyopencl's kernel invokers", cache_home / "pytools",
+        CacheFolder("pyopencl's kernel invokers", home / "pytools",
                     "XDG_CACHE_HOME (PYOPENCL_NO_CACHE=1: none)", "pytools"),
         CacheFolder("matplotlib's font list (pictures)", mpl_cache, "MPLCONFIGDIR", "matplotlib"),
         CacheFolder("matplotlib's settings folder (made empty)", mpl_config, "MPLCONFIGDIR",
@@ -170,8 +175,8 @@ def own_roots() -> list[Path]:
     """bdipole_cl's cache folder, and the cache-home fallback's where a process whose cache
     home could not be written kept it there (``device.cache_home``; only a private one)."""
     fallback, before = fallback_path(), moved_from()
-    kept = fallback is not None and private(fallback)
-    return list(dict.fromkeys([user_cache_dir()] + ([fallback / "bdipole_cl"] if kept else [])
+    return list(dict.fromkeys([user_cache_dir()]
+                              + ([fallback / "bdipole_cl"] if kept(fallback) else [])
                               + ([before / "bdipole_cl"] if before else [])))
 
 
@@ -181,8 +186,7 @@ def own_entries() -> list[OwnEntry]:
     entries = []
     roots = own_roots()
     own, temporary = vendors_roots()
-    kept = [own] + ([temporary] if temporary is not None and private(temporary) else [])
-    for root in dict.fromkeys(roots + kept):
+    for root in dict.fromkeys(roots + [own] + ([temporary] if kept(temporary) else [])):
         if root.is_dir():
             entries += [OwnEntry("runtime registration", p) for p in sorted(root.iterdir())
                         if ICD_NAME.match(p.name) and p.is_dir() and not p.is_symlink()]

@@ -39,10 +39,10 @@ def moved_from() -> Path | None:
     return _moved_from
 
 
-def writable(folder: Path) -> bool:
-    """Whether ``folder`` exists or can be made, and files can be made in it."""
+def writable(folder: Path, mode: int = 0o777) -> bool:
+    """Whether ``folder`` exists or can be made (with ``mode``), and files can be made in it."""
     try:
-        folder.mkdir(parents=True, exist_ok=True)
+        folder.mkdir(mode=mode, parents=True, exist_ok=True)
     except OSError:
         return False
     return os.access(folder, os.W_OK | os.X_OK)
@@ -62,11 +62,7 @@ def private(folder: Path) -> bool:
 
 def private_folder(folder: Path) -> bool:
     """Make ``folder`` (mode 0700) where it is missing; whether it is then ``private``."""
-    try:
-        folder.mkdir(mode=0o700, parents=True, exist_ok=True)
-    except OSError:
-        return False
-    return private(folder) and os.access(folder, os.W_OK | os.X_OK)
+    return writable(folder, 0o700) and private(folder)
 
 
 def temporary_folder() -> Path | None:

@@ -154,7 +154,8 @@ def emit(msg: dict):
     print(json.dumps(msg), flush=True)
 
 
-#: one simulated fault: ``TARGET=segv|kill|hang|abort:TEXT`` (TARGET may hold '=' itself)
+#: one simulated fault: ``TARGET=segv|kill|hang|abort:TEXT|raise:TEXT`` (TARGET may hold '='
+#: itself)
 FAULT_ITEM = re.compile(r"^(.*)=(segv|kill|hang|abort:.*|raise:.*)$", re.S)
 
 

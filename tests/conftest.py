@@ -83,6 +83,19 @@ def on_device(runtime):
     return runtime
 
 
+@pytest.fixture(autouse=True)
+def no_stop_request_left():
+    """Each test starts un-stopped: a command that a test stops with SIGINT or SIGTERM
+    (``cli_main`` in this process) returns with its stop request still set, as a command
+    should for its own process's end, and the next test's library calls, which no command
+    clears it for, raised ``Stopped`` (which tests failed depended on how xdist shared them
+    out)."""
+    from bdipole_cl.signals import clear_stop
+    clear_stop()
+    yield
+    clear_stop()
+
+
 @pytest.fixture(scope="session")
 def has_fp64(runtime):
     return runtime.has_fp64
